@@ -1,0 +1,32 @@
+"""Exception types shared by every layer of xcalib.
+
+``ProtocolError`` (bad per-frame inputs) lives in :mod:`xcalib.protocol`; the errors here are
+for files and formats: each names the file, the field and what was wrong.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["XcalibError", "FormatError"]
+
+
+class XcalibError(Exception):
+    """Base class of xcalib's own errors."""
+
+
+class FormatError(XcalibError, ValueError):
+    """A file could not be read as the format it claims to be.
+
+    Attributes: ``path`` (the file), ``field`` (the key/dataset/header field, or None) and
+    ``problem`` (what was wrong, with what was expected and what was found).
+    """
+
+    def __init__(self, path: str | Path | None, problem: str, field: str | None = None):
+        self.path = None if path is None else str(path)
+        self.field = field
+        self.problem = problem
+        where = self.path or "<input>"
+        if field:
+            where += f" [{field}]"
+        super().__init__(f"{where}: {problem}")

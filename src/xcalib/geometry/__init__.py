@@ -1,0 +1,28 @@
+"""Pure-numpy geometry: cameras, poses, boxes, projections. No torch here.
+
+The convention, stated once and used everywhere in xcalib:
+
+* **LiDAR frame** — the frame the point cloud and the 3D boxes are given in (sensor or
+  global; consistency is what matters). Metres.
+* **Camera frame** — OpenCV optical: x right, y down, z forward. Metres.
+* **Extrinsics** ``T_cam_lidar`` ([4,4]) map LiDAR-frame points to the camera frame:
+  ``X_cam = R @ X_lidar + t``. Every "rotation"/"translation" in xcalib is this direction
+  unless a name says otherwise (e.g. ``T_lidar_cam``).
+* **Projection** ``P = K [R|t]`` ([3,4]) maps LiDAR-frame points to pixels (u right, v down,
+  origin at the top-left corner of the image), with OpenCV distortion applied to the
+  normalised coordinates when the intrinsics carry it.
+* **Pixels** for 2D boxes (x1, y1, x2, y2); **radians** for angles unless an argument says
+  ``degrees``; quaternions (x, y, z, w) unless ``order="wxyz"``.
+"""
+
+from .boxes import *  # noqa: F401,F403
+from .boxes import __all__ as _boxes_all
+from .camera import CameraIntrinsics
+from .projection import *  # noqa: F401,F403
+from .projection import __all__ as _proj_all
+from .rotations import *  # noqa: F401,F403
+from .rotations import __all__ as _rot_all
+from .transforms import *  # noqa: F401,F403
+from .transforms import __all__ as _tf_all
+
+__all__ = ["CameraIntrinsics", *_boxes_all, *_proj_all, *_rot_all, *_tf_all]

@@ -1,0 +1,102 @@
+"""Small typed records that cross module boundaries (pure numpy, no torch)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .geometry.camera import CameraIntrinsics
+
+__all__ = ["Frame", "MatchResult"]
+
+
+@dataclass
+class Frame:
+    """One time-synchronised camera + LiDAR frame.
+
+    image: [H,W,3] uint8 RGB. point_cloud: [P,>=3] float32, LiDAR frame, metres (columns
+    past x, y, z are kept, named by ``point_fields``). bboxes_2d: [K,4] float32 pixels.
+    bboxes_3d: [M,6] float32 protocol boxes (or [M,7] box7 with yaw), LiDAR frame.
+    match_matrix: optional [K,M] bool ground truth. intrinsics / extrinsics: optional camera
+    intrinsics and ground-truth ``T_cam_lidar`` [4,4]. images / camera_per_det: multi-camera
+    frames (each 2D box's source camera).
+    """
+
+    image: np.ndarray
+    point_cloud: np.ndarray
+    bboxes_2d: np.ndarray
+    bboxes_3d: np.ndarray
+    camera_name: str = ""
+    frame_key: str = ""
+    match_matrix: np.ndarray | None = None
+    intrinsics: CameraIntrinsics | None = None
+    extrinsics: np.ndarray | None = None
+    images: dict[str, np.ndarray] | None = None
+    camera_per_det: list[str] | None = None
+    point_fields: tuple[str, ...] = ("x", "y", "z")
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def num_2d(self) -> int:
+        return int(len(self.bboxes_2d))
+
+    @property
+    def num_3d(self) -> int:
+        return int(len(self.bboxes_3d))
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return int(self.image.shape[1]), int(self.image.shape[0])
+
+    def inputs(self):
+        """``(image, point_cloud, bboxes_2d, bboxes_3d)`` as ``Matcher.match`` takes them."""
+        return self.image, self.point_cloud, self.bboxes_2d, self.bboxes_3d
+
+    def for_camera(self, name: str):
+        """(image, point_cloud, bboxes_2d, bboxes_3d, match_matrix) of one camera's detections."""
+        if self.images is not None and name not in self.images and name != self.camera_name:
+            raise KeyError(f"frame {self.frame_key!r} has no camera {name!r}; cameras: {sorted(self.images)}")
+        image = self.images[name] if self.images and name in self.images else self.image
+        if self.camera_per_det is None:
+            keep = np.ones(self.num_2d, dtype=bool)
+        else:
+            keep = np.array([c == name for c in self.camera_per_det], dtype=bool)
+        mm = None if self.match_matrix is None else self.match_matrix[keep]
+        return image, self.point_cloud, self.bboxes_2d[keep], self.bboxes_3d, mm
+
+
+@dataclass
+class MatchResult:
+    """Output of ``Matcher.match``.
+
+    similarity: [K',M'] float32 scores of the kept detections (range per model).
+    top_indices: [K'] int64 best column per kept row (index into the kept 3D boxes).
+    matches: list of (2D index, 3D index, score) in the caller's original numbering.
+    kept_2d_indices / kept_3d_indices: int64 maps from kept rows/columns to caller indices.
+    """
+
+    similarity: np.ndarray
+    top_indices: np.ndarray
+    matches: list[tuple[int, int, float]]
+    kept_2d_indices: np.ndarray
+    kept_3d_indices: np.ndarray
+    latency_ms: float = 0.0
+    model: str = ""
+    device: str = "cpu"
+    assignment: str = "argmax"
+
+    def as_pairs(self) -> np.ndarray:
+        """Matches as an int64 array [n, 2] of (2D index, 3D index)."""
+        if not self.matches:
+            return np.zeros((0, 2), dtype=np.int64)
+        return np.array([(i, j) for i, j, _ in self.matches], dtype=np.int64)
+
+    def full_similarity(self, num_2d: int, num_3d: int, fill: float = np.nan) -> np.ndarray:
+        """Similarity scattered back to the caller's [K, M] numbering (dropped rows = ``fill``)."""
+        out = np.full((num_2d, num_3d), fill, dtype=np.float32)
+        if self.similarity.size:
+            out[np.ix_(self.kept_2d_indices, self.kept_3d_indices)] = self.similarity
+        return out
