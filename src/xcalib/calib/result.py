@@ -1,0 +1,219 @@
+"""``CalibrationResult``: the camera<-LiDAR extrinsics and how well they explain the data."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..geometry.camera import CameraIntrinsics
+from ..geometry.projection import project_points, projection_matrix
+from ..geometry.transforms import make_transform, pose_error as _pose_error
+
+__all__ = ["CalibrationResult"]
+
+
+@dataclass
+class CalibrationResult:
+    """Estimated extrinsics ``T_cam_lidar`` (LiDAR frame -> OpenCV camera frame).
+
+    rotation [3,3], translation [3] (metres): ``X_cam = R X_lidar + t``. ``pairs`` holds the
+    one-to-one matches per frame as int arrays [n,2] of (2D index, 3D index) in each frame's
+    own numbering. Residuals are in pixels (box-edge disagreement) and IoU of projected 3D
+    boxes vs their matched 2D boxes. ``rotation_std_deg`` / ``translation_std_m`` are 1-sigma
+    uncertainty estimates ([3] each: about/along the camera x, y, z axes).
+    """
+
+    success: bool
+    intrinsics: CameraIntrinsics | None = None
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    message: str = ""
+    n_correspondences: int = 0
+    n_inliers: int = 0
+    reproj_error_px: float = float("inf")
+    residual_px_median: float = float("nan")
+    iou_median: float = float("nan")
+    iou_mean: float = float("nan")
+    rotation_std_deg: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    translation_std_m: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    pairs: list[np.ndarray] = field(default_factory=list)
+    frame_keys: list[str] = field(default_factory=list)
+    camera_name: str = ""
+    image_size: tuple[int, int] | None = None
+    accepted: bool = True
+    buffer_reproj_px: float = float("nan")
+    method: str = ""
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.rotation = np.asarray(self.rotation, dtype=np.float64).reshape(3, 3)
+        self.translation = np.asarray(self.translation, dtype=np.float64).reshape(3)
+        self.rotation_std_deg = np.asarray(self.rotation_std_deg, dtype=np.float64).reshape(3)
+        self.translation_std_m = np.asarray(self.translation_std_m, dtype=np.float64).reshape(3)
+        self.pairs = [np.asarray(p, dtype=np.int64).reshape(-1, 2) for p in self.pairs]
+
+    # ----------------------------------------------------------------- views
+    @property
+    def extrinsics(self) -> np.ndarray:
+        """[4,4] ``T_cam_lidar``."""
+        return make_transform(self.rotation, self.translation)
+
+    @property
+    def K(self) -> np.ndarray:
+        if self.intrinsics is None:
+            raise ValueError("CalibrationResult has no intrinsics")
+        return self.intrinsics.K
+
+    @property
+    def projection(self) -> np.ndarray:
+        """[3,4] ``P = K [R|t]`` (LiDAR-frame points -> pixels, distortion excluded)."""
+        return projection_matrix(self.K, self.rotation, self.translation)
+
+    @property
+    def n_pairs(self) -> int:
+        return int(sum(len(p) for p in self.pairs))
+
+    def pose_error(self, gt) -> tuple[float, float]:
+        """(rotation error in degrees, translation error in metres) against a [4,4]/[3,4] truth."""
+        if not self.success:
+            raise ValueError(f"calibration failed ({self.message}); there is no pose to compare")
+        return _pose_error(self.extrinsics, gt)
+
+    def project(self, points):
+        """LiDAR-frame points [N,>=3] -> (uv [N,2] pixels with distortion, depth [N] metres)."""
+        if self.intrinsics is None:
+            raise ValueError("CalibrationResult has no intrinsics")
+        return project_points(points, self.intrinsics, self.rotation, self.translation)
+
+    # ------------------------------------------------------------------ I/O
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (arrays as nested lists)."""
+        return {
+            "format": "xcalib-calibration-v1",
+            "success": bool(self.success),
+            "message": self.message,
+            "method": self.method,
+            "camera_name": self.camera_name,
+            "image_size": None if self.image_size is None else list(self.image_size),
+            "intrinsics": None if self.intrinsics is None else self.intrinsics.to_dict(),
+            "rotation": self.rotation.tolist(),
+            "translation": self.translation.tolist(),
+            "extrinsics_T_cam_lidar": self.extrinsics.tolist(),
+            "projection": None if self.intrinsics is None else self.projection.tolist(),
+            "n_correspondences": int(self.n_correspondences),
+            "n_inliers": int(self.n_inliers),
+            "reproj_error_px": _num(self.reproj_error_px),
+            "residual_px_median": _num(self.residual_px_median),
+            "iou_median": _num(self.iou_median),
+            "iou_mean": _num(self.iou_mean),
+            "rotation_std_deg": [_num(v) for v in self.rotation_std_deg],
+            "translation_std_m": [_num(v) for v in self.translation_std_m],
+            "accepted": bool(self.accepted),
+            "buffer_reproj_px": _num(self.buffer_reproj_px),
+            "frame_keys": list(self.frame_keys),
+            "pairs": [p.tolist() for p in self.pairs],
+            "meta": self.meta,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "CalibrationResult":
+        intr = d.get("intrinsics")
+        return cls(
+            success=bool(d["success"]),
+            intrinsics=None if intr is None else CameraIntrinsics.from_dict(intr),
+            rotation=np.asarray(d["rotation"], dtype=np.float64),
+            translation=np.asarray(d["translation"], dtype=np.float64),
+            message=d.get("message", ""),
+            n_correspondences=int(d.get("n_correspondences", 0)),
+            n_inliers=int(d.get("n_inliers", 0)),
+            reproj_error_px=_unnum(d.get("reproj_error_px"), float("inf")),
+            residual_px_median=_unnum(d.get("residual_px_median")),
+            iou_median=_unnum(d.get("iou_median")),
+            iou_mean=_unnum(d.get("iou_mean")),
+            rotation_std_deg=[_unnum(v) for v in d.get("rotation_std_deg", [None] * 3)],
+            translation_std_m=[_unnum(v) for v in d.get("translation_std_m", [None] * 3)],
+            pairs=[np.asarray(p, dtype=np.int64).reshape(-1, 2) for p in d.get("pairs", [])],
+            frame_keys=list(d.get("frame_keys", [])),
+            camera_name=d.get("camera_name", ""),
+            image_size=None if d.get("image_size") is None else tuple(d["image_size"]),
+            accepted=bool(d.get("accepted", True)),
+            buffer_reproj_px=_unnum(d.get("buffer_reproj_px")),
+            method=d.get("method", ""),
+            meta=dict(d.get("meta", {})),
+        )
+
+    def save(self, path: str | Path) -> Path:
+        """Write ``.json`` (everything, exact float repr) or ``.npz`` (arrays + JSON blob)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        if path.suffix == ".npz":
+            with open(tmp, "wb") as fh:
+                np.savez(fh, rotation=self.rotation, translation=self.translation,
+                         extrinsics=self.extrinsics,
+                         K=self.K if self.intrinsics is not None else np.full((3, 3), np.nan),
+                         dist_coeffs=self.intrinsics.dist_coeffs if self.intrinsics is not None else np.zeros(5),
+                         projection=self.projection if self.intrinsics is not None else np.full((3, 4), np.nan),
+                         json=np.frombuffer(json.dumps(self.to_dict()).encode(), dtype=np.uint8))
+        else:
+            tmp.write_text(json.dumps(self.to_dict(), indent=2))
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "CalibrationResult":
+        from ..errors import FormatError
+
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"calibration file not found: {path}")
+        try:
+            if path.suffix == ".npz":
+                with np.load(path) as z:
+                    if "json" not in z:
+                        raise FormatError(path, "missing the 'json' array; not an xcalib calibration npz", "json")
+                    d = json.loads(bytes(z["json"]).decode())
+                    res = cls.from_dict(d)
+                    res.rotation, res.translation = z["rotation"], z["translation"]
+                    return res
+            d = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError, OSError, ValueError) as exc:
+            if isinstance(exc, FormatError):
+                raise
+            raise FormatError(path, f"not a readable xcalib calibration ({exc})") from None
+        for key in ("success", "rotation", "translation"):
+            if key not in d:
+                raise FormatError(path, "missing key", key)
+        return cls.from_dict(d)
+
+    def summary(self) -> str:
+        """A few human-readable lines."""
+        if not self.success:
+            return f"calibration FAILED: {self.message}"
+        from ..geometry.rotations import matrix_to_euler
+
+        rpy = matrix_to_euler(self.rotation, "xyz", degrees=True)
+        lines = [
+            f"calibration OK ({self.method or 'xcalib'}): {self.n_pairs} matched pairs over {len(self.pairs)} frame(s)",
+            f"  t (m)         = [{self.translation[0]:+.3f}, {self.translation[1]:+.3f}, {self.translation[2]:+.3f}]",
+            f"  R (xyz deg)   = [{rpy[0]:+.2f}, {rpy[1]:+.2f}, {rpy[2]:+.2f}]",
+            f"  residual      = {self.residual_px_median:.2f} px median, IoU median {self.iou_median:.3f}",
+            f"  1-sigma       = rot {np.array2string(self.rotation_std_deg, precision=3)} deg, "
+            f"trans {np.array2string(self.translation_std_m, precision=3)} m",
+        ]
+        if self.message:
+            lines.append(f"  note: {self.message}")
+        return "\n".join(lines)
+
+
+def _num(v):
+    v = float(v)
+    return v if np.isfinite(v) else None
+
+
+def _unnum(v, default=float("nan")):
+    return default if v is None else float(v)
