@@ -1,0 +1,302 @@
+"""Frame folders (protocol v1.0 demo layout) and the ``read_frames`` entry point.
+
+Layout (``format: xcalib-demo-frames-v1``)::
+
+    <root>/manifest.json      {"format", "site", "split", "camera",
+                               "frames": [{"frame_key", "detections": "frame_0000/detections.json"}]}
+    <root>/intrinsics.json    optional {"name", "fx", "fy", "cx", "cy", "distortion"} (pixels)
+    <root>/frame_0000/detections.json
+        {"frame_key", "camera_name", "image": "image.png", "point_cloud": "point_cloud.pcd",
+         "bboxes_2d": [[x1, y1, x2, y2], ...] (pixels), "bboxes_3d": [[6 or 7 numbers], ...]
+         (LiDAR frame, metres), optional "match_matrix" [K][M] (0/1), optional "extrinsics"
+         4x4 T_cam_lidar}
+
+A bare folder of sub-folders that each hold a ``detections.json`` (no manifest) is read the
+same way. Frames load lazily: :class:`FrameFolder` is a ``Sequence[Frame]`` that reads one
+frame's files when it is indexed.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+from ..errors import FormatError
+from ..geometry.camera import CameraIntrinsics
+from ..types import Frame
+from ._files import atomic_write
+from .images import read_image, write_image
+from .pointcloud import read_point_cloud, write_pcd
+
+__all__ = ["FRAME_FOLDER_FORMAT", "FrameFolder", "read_frames", "write_frame_folder",
+           "read_detections", "read_intrinsics_json", "is_frame_folder", "register_reader"]
+
+FRAME_FOLDER_FORMAT = "xcalib-demo-frames-v1"
+_REQUIRED_KEYS = ("image", "point_cloud", "bboxes_2d", "bboxes_3d")
+
+
+def _load_json(path: Path) -> dict:
+    if not path.exists():
+        raise FileNotFoundError(f"JSON file not found: {path}")
+    try:
+        obj = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise FormatError(path, f"not valid JSON ({exc})") from None
+    if not isinstance(obj, dict):
+        raise FormatError(path, f"expected a JSON object at the top level, got {type(obj).__name__}")
+    return obj
+
+
+def _box_array(path: Path, key: str, value, widths: tuple[int, ...]) -> np.ndarray:
+    """A JSON list of rows -> float32 [N, w]; w in ``widths``."""
+    want = " or ".join(str(w) for w in widths)
+    if not isinstance(value, list):
+        raise FormatError(path, f"expected a list of [{want}]-number rows, got {type(value).__name__}", field=key)
+    if len(value) == 0:
+        return np.zeros((0, widths[0]), dtype=np.float32)
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        lens = sorted({len(r) if isinstance(r, list) else -1 for r in value})
+        raise FormatError(path, f"rows must be lists of {want} numbers; found rows of length(s) {lens} "
+                                "or non-numeric entries", field=key) from None
+    if arr.ndim != 2 or arr.shape[1] not in widths:
+        raise FormatError(path, f"expected shape [N, {want}], got {list(arr.shape)}", field=key)
+    return arr.astype(np.float32)
+
+
+def read_intrinsics_json(path) -> CameraIntrinsics:
+    """``{"fx", "fy", "cx", "cy", "distortion"?, "width"?, "height"?}`` (pixels) -> intrinsics."""
+    path = Path(path)
+    obj = _load_json(path)
+    for key in ("fx", "fy", "cx", "cy"):
+        if key not in obj:
+            raise FormatError(path, "missing key", field=key)
+    dist = obj.get("distortion") or None
+    try:
+        return CameraIntrinsics(obj["fx"], obj["fy"], obj["cx"], obj["cy"], distortion=dist,
+                                width=obj.get("width"), height=obj.get("height"))
+    except (TypeError, ValueError) as exc:
+        raise FormatError(path, str(exc)) from None
+
+
+def read_detections(path, *, default_key: str = "", default_camera: str = "",
+                    intrinsics: CameraIntrinsics | None = None,
+                    columns=None, drop_nonfinite: bool = False) -> Frame:
+    """Read one frame from its ``detections.json`` (image and point cloud relative to it)."""
+    path = Path(path)
+    det = _load_json(path)
+    for key in _REQUIRED_KEYS:
+        if key not in det:
+            raise FormatError(path, f"missing key (required: {', '.join(_REQUIRED_KEYS)})", field=key)
+    for key in ("image", "point_cloud"):
+        if not isinstance(det[key], str) or not det[key]:
+            raise FormatError(path, f"expected a relative file path string, got {det[key]!r}", field=key)
+    b2 = _box_array(path, "bboxes_2d", det["bboxes_2d"], (4,))
+    b3 = _box_array(path, "bboxes_3d", det["bboxes_3d"], (6, 7))
+    mm = None
+    if det.get("match_matrix") is not None:
+        raw = det["match_matrix"]
+        try:
+            mm = np.asarray(raw, dtype=np.float64).reshape(len(raw), -1) if len(raw) else np.zeros((0, len(b3)))
+        except (TypeError, ValueError):
+            raise FormatError(path, "expected a [K][M] list of 0/1 values", field="match_matrix") from None
+        if mm.shape != (len(b2), len(b3)):
+            raise FormatError(path, f"expected shape [K, M] = [{len(b2)}, {len(b3)}], got {list(mm.shape)}",
+                              field="match_matrix")
+        mm = mm != 0
+    ext = None
+    if det.get("extrinsics") is not None:
+        try:
+            ext = np.asarray(det["extrinsics"], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise FormatError(path, "expected a 4x4 numeric matrix (T_cam_lidar)", field="extrinsics") from None
+        if ext.shape == (3, 4):
+            ext = np.vstack([ext, [0.0, 0.0, 0.0, 1.0]])
+        if ext.shape != (4, 4) or not np.all(np.isfinite(ext)):
+            raise FormatError(path, f"expected a finite 4x4 matrix (T_cam_lidar), got shape {list(ext.shape)}",
+                              field="extrinsics")
+    root = path.parent
+    image = read_image(root / det["image"])
+    pc = read_point_cloud(root / det["point_cloud"], columns=columns, drop_nonfinite=drop_nonfinite)
+    meta = {"detections": str(path), "image_path": str(root / det["image"]),
+            "point_cloud_path": str(root / det["point_cloud"])}
+    if pc.num_dropped:
+        meta["points_dropped_nonfinite"] = pc.num_dropped
+    return Frame(image=image, point_cloud=pc.points, bboxes_2d=b2, bboxes_3d=b3,
+                 camera_name=str(det.get("camera_name") or default_camera),
+                 frame_key=str(det.get("frame_key") or default_key),
+                 match_matrix=mm, intrinsics=intrinsics, extrinsics=ext,
+                 point_fields=pc.fields, meta=meta)
+
+
+class FrameFolder(Sequence):
+    """A frame folder as a lazy ``Sequence[Frame]``: ``len``, indexing (one frame read per
+    access; slices give lists), iteration. ``camera`` / ``intrinsics`` / ``site`` / ``split``
+    come from the manifest and ``intrinsics.json`` when present."""
+
+    def __init__(self, path, *, columns=None, drop_nonfinite: bool = False):
+        p = Path(path)
+        if not p.exists():
+            raise FileNotFoundError(f"frame folder not found: {p}")
+        if p.is_file():
+            if p.name == "detections.json":
+                self.root, self.manifest_path = p.parent, None
+                self._entries = [(p.parent.name, p)]
+            else:
+                self.root, self.manifest_path = p.parent, p
+        else:
+            self.root = p
+            self.manifest_path = p / "manifest.json" if (p / "manifest.json").exists() else None
+        self._columns, self._drop = columns, drop_nonfinite
+        self.camera: str = ""
+        self.site: str | None = None
+        self.split: str | None = None
+        if self.manifest_path is not None:
+            self._entries = self._read_manifest(self.manifest_path)
+        elif not (p.is_file() and p.name == "detections.json"):
+            if (self.root / "detections.json").exists():
+                self._entries = [(self.root.name, self.root / "detections.json")]
+            else:
+                subs = sorted(d for d in self.root.iterdir() if (d / "detections.json").is_file())
+                if not subs:
+                    raise FormatError(self.root, "not a frame folder: no manifest.json and no sub-folder "
+                                                 "with a detections.json")
+                self._entries = [(d.name, d / "detections.json") for d in subs]
+        intr = self.root / "intrinsics.json"
+        self.intrinsics: CameraIntrinsics | None = read_intrinsics_json(intr) if intr.exists() else None
+        if not self.camera and self.intrinsics is not None:
+            self.camera = str(_load_json(intr).get("name") or "")
+
+    def _read_manifest(self, path: Path) -> list[tuple[str, Path]]:
+        man = _load_json(path)
+        if "format" not in man:
+            raise FormatError(path, f"missing key (expected \"{FRAME_FOLDER_FORMAT}\")", field="format")
+        if man["format"] != FRAME_FOLDER_FORMAT:
+            raise FormatError(path, f"unsupported format {man['format']!r}; expected {FRAME_FOLDER_FORMAT!r}",
+                              field="format")
+        if "frames" not in man:
+            raise FormatError(path, "missing key", field="frames")
+        if not isinstance(man["frames"], list):
+            raise FormatError(path, f"expected a list, got {type(man['frames']).__name__}", field="frames")
+        self.camera = str(man.get("camera") or "")
+        self.site, self.split = man.get("site"), man.get("split")
+        entries = []
+        for i, fr in enumerate(man["frames"]):
+            if not isinstance(fr, dict) or not isinstance(fr.get("detections"), str):
+                raise FormatError(path, "each entry needs a \"detections\" path string", field=f"frames[{i}].detections")
+            det = path.parent / fr["detections"]
+            if not det.is_file():
+                raise FormatError(path, f"detections file {det} does not exist", field=f"frames[{i}].detections")
+            entries.append((str(fr.get("frame_key", det.parent.name)), det))
+        return entries
+
+    @property
+    def frame_keys(self) -> list[str]:
+        return [k for k, _ in self._entries]
+
+    def detections_path(self, index: int) -> Path:
+        return self._entries[index][1]
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        key, det = self._entries[index]
+        return read_detections(det, default_key=key, default_camera=self.camera, intrinsics=self.intrinsics,
+                               columns=self._columns, drop_nonfinite=self._drop)
+
+    def __repr__(self) -> str:
+        return f"FrameFolder({str(self.root)!r}, frames={len(self)}, camera={self.camera!r})"
+
+
+def is_frame_folder(path) -> bool:
+    """True for a manifest, a folder with a manifest, a frame directory or a folder of frame directories."""
+    p = Path(path)
+    if p.is_file():
+        return p.name in ("manifest.json", "detections.json")
+    if not p.is_dir():
+        return False
+    if (p / "manifest.json").is_file() or (p / "detections.json").is_file():
+        return True
+    return any((d / "detections.json").is_file() for d in p.iterdir() if d.is_dir())
+
+
+# Dispatch table for read_frames: (name, detect(path) -> bool, open(path, **kw) -> Sequence[Frame]).
+# Owners of other formats (HDF5 caches, KITTI, CalibAnything, ...) add an entry with
+# register_reader; the first whose detect() accepts the path wins.
+_READERS: list[tuple[str, Callable[[Path], bool], Callable[..., Sequence[Frame]]]] = [
+    ("frame-folder", is_frame_folder, FrameFolder),
+]
+
+
+def register_reader(name: str, detect: Callable[[Path], bool], open_: Callable[..., Sequence[Frame]],
+                    *, first: bool = True) -> None:
+    """Add a format to :func:`read_frames` (tried before the built-ins when ``first``)."""
+    entry = (name, detect, open_)
+    _READERS[:] = [r for r in _READERS if r[0] != name]
+    _READERS.insert(0 if first else len(_READERS), entry)
+
+
+def read_frames(path, **kwargs) -> Sequence[Frame]:
+    """Open any supported frame source as a lazy ``Sequence[Frame]``."""
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"frame source not found: {p}")
+    for _, detect, open_ in _READERS:
+        if detect(p):
+            return open_(p, **kwargs)
+    raise FormatError(p, "not a recognised frame source; supported: " + ", ".join(r[0] for r in _READERS))
+
+
+def _rows(a) -> list:
+    return [] if a is None else np.asarray(a, dtype=np.float64).tolist()
+
+
+def write_frame_folder(out_dir, frames: Iterable[Frame], *, camera: str | None = None,
+                       intrinsics: CameraIntrinsics | None = None, pcd_encoding: str = "binary",
+                       image_ext: str = ".png", site: str | None = None, split: str | None = None) -> Path:
+    """Write frames in the demo layout (``manifest.json`` last, so a half-written folder has none).
+
+    Returns the manifest path. Point-cloud field names (``Frame.point_fields``) are kept.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    entries = []
+    first_camera = None
+    for i, fr in enumerate(frames):
+        sub = out / f"frame_{i:04d}"
+        sub.mkdir(exist_ok=True)
+        key = fr.frame_key or f"{i:04d}"
+        first_camera = first_camera or fr.camera_name
+        image_name = "image" + image_ext
+        write_image(sub / image_name, fr.image)
+        pc = np.asarray(fr.point_cloud, dtype=np.float32)
+        fields = tuple(fr.point_fields) if len(fr.point_fields) == pc.shape[1] else None
+        write_pcd(sub / "point_cloud.pcd", pc, fields, encoding=pcd_encoding)
+        det = {"frame_key": key, "camera_name": fr.camera_name or camera or "", "image": image_name,
+               "point_cloud": "point_cloud.pcd", "bboxes_2d": _rows(fr.bboxes_2d),
+               "bboxes_3d": _rows(fr.bboxes_3d)}
+        if fr.match_matrix is not None:
+            det["match_matrix"] = np.asarray(fr.match_matrix).astype(int).tolist()
+        if fr.extrinsics is not None:
+            det["extrinsics"] = _rows(fr.extrinsics)
+        atomic_write(sub / "detections.json", [json.dumps(det, indent=1).encode()])
+        entries.append({"frame_key": key, "detections": f"{sub.name}/detections.json"})
+        if intrinsics is None and fr.intrinsics is not None:
+            intrinsics = fr.intrinsics
+    cam = camera or first_camera or ""
+    if intrinsics is not None:
+        intr = {"name": cam, "fx": intrinsics.fx, "fy": intrinsics.fy, "cx": intrinsics.cx, "cy": intrinsics.cy,
+                "distortion": [] if intrinsics.distortion is None else _rows(intrinsics.distortion)}
+        if intrinsics.width is not None:
+            intr["width"], intr["height"] = intrinsics.width, intrinsics.height
+        atomic_write(out / "intrinsics.json", [json.dumps(intr, indent=1).encode()])
+    manifest = {"format": FRAME_FOLDER_FORMAT, "site": site, "split": split, "camera": cam, "frames": entries}
+    return atomic_write(out / "manifest.json", [json.dumps(manifest, indent=1).encode()])
