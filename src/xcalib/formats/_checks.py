@@ -1,0 +1,104 @@
+"""Validation helpers shared by the format readers: every failure is a ``FormatError`` naming
+the file and the field, what was expected and what was found."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import FormatError
+from ..geometry.rotations import orthonormalize, quaternion_to_matrix
+
+__all__ = ["ROTATION_TOL", "REPAIR_TOL", "as_matrix", "checked_rotation", "checked_quaternion",
+           "require", "as_float", "rotation_error"]
+
+#: A rotation read from a file is accepted as-is when max|R R^T - I| and |det - 1| are within this.
+ROTATION_TOL = 1e-5
+#: ``repair=True`` re-orthonormalises rotations whose error is within this (and no further).
+REPAIR_TOL = 1e-3
+
+
+def require(d: dict, key: str, path, field_prefix: str = "") -> Any:
+    """``d[key]`` or a FormatError naming the missing field."""
+    if not isinstance(d, dict):
+        raise FormatError(path, f"expected a JSON object, got {type(d).__name__}", field_prefix or None)
+    if key not in d:
+        have = ", ".join(sorted(map(str, d))) or "nothing"
+        raise FormatError(path, f"missing key (found: {have})", f"{field_prefix}{key}")
+    return d[key]
+
+
+def as_float(value, path, field: str) -> float:
+    """A finite float, or a FormatError naming the field."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise FormatError(path, f"expected a number, got {value!r}", field) from None
+    if not np.isfinite(v):
+        raise FormatError(path, f"expected a finite number, got {v}", field)
+    return v
+
+
+def as_matrix(values, shape: tuple[int, ...], path, field: str, *, alt_shapes=()) -> np.ndarray:
+    """Numbers -> float64 array of ``shape`` (flat lists are reshaped row-major).
+
+    ``alt_shapes`` lists other accepted shapes (e.g. a [4,4] for a [3,4] whose last row is
+    ``0 0 0 1``); the result is always ``shape``.
+    """
+    try:
+        a = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise FormatError(path, f"expected {_shape_str(shape)} numbers, got non-numeric values", field) from None
+    n = int(np.prod(shape))
+    if a.size == n:
+        a = a.reshape(shape)
+    else:
+        for alt in alt_shapes:
+            if a.size == int(np.prod(alt)):
+                a = a.reshape(alt)[tuple(slice(0, s) for s in shape)]
+                break
+        else:
+            accepted = " or ".join(_shape_str(s) for s in (shape, *alt_shapes))
+            raise FormatError(path, f"expected {accepted} = {n} numbers, got {a.size} (shape {a.shape})", field)
+    if not np.all(np.isfinite(a)):
+        raise FormatError(path, "matrix has NaN/Inf entries", field)
+    return a
+
+
+def _shape_str(shape) -> str:
+    return "x".join(str(s) for s in shape)
+
+
+def rotation_error(R: np.ndarray) -> float:
+    """max(|R R^T - I|, |det R - 1|): 0 for an exact rotation."""
+    return float(max(np.abs(R @ R.T - np.eye(3)).max(), abs(np.linalg.det(R) - 1.0)))
+
+
+def checked_rotation(R, path, field: str, *, repair: bool = False) -> np.ndarray:
+    """Accept a [3,3] rotation within ``ROTATION_TOL``; with ``repair`` re-orthonormalise one
+    within ``REPAIR_TOL``; otherwise raise FormatError stating the error and the tolerances."""
+    R = as_matrix(R, (3, 3), path, field)
+    err = rotation_error(R)
+    if err <= ROTATION_TOL:
+        return R
+    if repair and err <= REPAIR_TOL and np.linalg.det(R) > 0:
+        return orthonormalize(R)
+    hint = (" (within the repair tolerance: pass repair=True / --repair to re-orthonormalise)"
+            if err <= REPAIR_TOL and not repair else "")
+    raise FormatError(
+        path, f"not a rotation matrix: error {err:.2e} (max |R R^T - I|, |det - 1|) exceeds the "
+              f"tolerance {ROTATION_TOL:.0e}{hint}", field)
+
+
+def checked_quaternion(q, path, field: str, order: str = "xyzw") -> np.ndarray:
+    """A [4] quaternion -> [3,3] rotation; zero norm or non-finite -> FormatError."""
+    q = as_matrix(q, (4,), path, field)
+    if np.linalg.norm(q) < 1e-9:
+        raise FormatError(path, f"quaternion has zero norm ({order} = {q.tolist()})", field)
+    return quaternion_to_matrix(q, order=order)
+
+
+def path_str(path: str | Path | None) -> str:
+    return "<input>" if path is None else str(path)
