@@ -209,6 +209,8 @@ def load_kitti_calibration(path, *, repair: bool = False) -> KittiCalibration:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"KITTI calib file not found: {path}")
+    if path.suffix == ".pkl":
+        return _calib_from_mmdet3d(path, repair)
     return parse_kitti_calibration(path.read_text(), path, repair=repair)
 
 
@@ -322,11 +324,73 @@ def parse_kitti_labels(text: str, path=None) -> KittiLabels:
 
 
 def load_kitti_labels(path) -> KittiLabels:
-    """Read a label_2 file (``FormatError`` naming the file and line on bad rows)."""
+    """Read a label_2 file (``FormatError`` naming the file and line on bad rows); a ``.pkl``
+    is read as an mmdetection3d KITTI info file (its ``instances``)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"KITTI label file not found: {path}")
+    if path.suffix == ".pkl":
+        return _labels_from_mmdet3d(path)
     return parse_kitti_labels(path.read_text(), path)
+
+
+# mmdetection3d KITTI class ids (bbox_label); -1 = DontCare.
+_MMDET3D_KITTI_CLASSES = ("Pedestrian", "Cyclist", "Car", "Van", "Truck", "Person_sitting", "Tram", "Misc")
+
+
+def _mmdet3d_kitti_info(path: Path) -> dict:
+    from ._pickle import load_pickle_restricted
+
+    d = load_pickle_restricted(path)
+    try:
+        info = d["data_list"][0] if isinstance(d, dict) else d[0]
+        info["images"], info["lidar_points"]
+    except (KeyError, IndexError, TypeError):
+        raise FormatError(path, "expected an mmdetection3d info pickle with data_list[0].images and "
+                                ".lidar_points", "data_list") from None
+    return info
+
+
+def _calib_from_mmdet3d(path: Path, repair: bool) -> KittiCalibration:
+    """KittiCalibration from an mmdetection3d KITTI info pickle: P<i> = images.CAM<i>.cam2img,
+    R0_rect = images.R0_rect, Tr_velo_to_cam / Tr_imu_to_velo from lidar_points."""
+    info = _mmdet3d_kitti_info(path)
+    imgs, lp = info["images"], info["lidar_points"]
+    P = {}
+    for i in range(4):
+        cam = imgs.get(f"CAM{i}")
+        if isinstance(cam, dict) and "cam2img" in cam:
+            P[i] = as_matrix(cam["cam2img"], (3, 4), path, f"images.CAM{i}.cam2img", alt_shapes=[(4, 4)])
+            _check_projection(P[i], path, f"images.CAM{i}.cam2img")
+    if 2 not in P:
+        raise FormatError(path, "no camera-2 projection", "images.CAM2.cam2img")
+    R0 = np.eye(3)
+    if "R0_rect" in imgs:
+        R0 = checked_rotation(as_matrix(imgs["R0_rect"], (3, 3), path, "images.R0_rect", alt_shapes=[(4, 4)]),
+                              path, "images.R0_rect", repair=repair)
+    Tr = _rigid(lp["Tr_velo_to_cam"], path, "lidar_points.Tr_velo_to_cam", repair) if "Tr_velo_to_cam" in lp else None
+    Ti = _rigid(lp["Tr_imu_to_velo"], path, "lidar_points.Tr_imu_to_velo", repair) if "Tr_imu_to_velo" in lp else None
+    return KittiCalibration(P=P, R0_rect=R0, Tr_velo_to_cam=Tr, Tr_imu_to_velo=Ti, path=str(path))
+
+
+def _labels_from_mmdet3d(path: Path) -> KittiLabels:
+    """KittiLabels from the ``instances`` of an mmdetection3d KITTI info pickle (bbox_3d is
+    camera-frame [x, y, z, l, h, w, ry]; bbox_label -1 = DontCare)."""
+    info = _mmdet3d_kitti_info(path)
+    lines = []
+    for j, inst in enumerate(info.get("instances", [])):
+        try:
+            lab = int(inst["bbox_label"])
+            x1, y1, x2, y2 = (float(v) for v in inst["bbox"])
+            x, y, z, l, h, w, ry = (float(v) for v in inst["bbox_3d"])
+        except (KeyError, TypeError, ValueError):
+            raise FormatError(path, "expected bbox_label, bbox [4] and bbox_3d [7]", f"instances[{j}]") from None
+        name = "DontCare" if lab < 0 else (_MMDET3D_KITTI_CLASSES[lab] if lab < len(_MMDET3D_KITTI_CLASSES)
+                                           else f"class{lab}")
+        vals = [inst.get("truncated", 0.0), inst.get("occluded", 0), inst.get("alpha", -10.0),
+                x1, y1, x2, y2, h, w, l, x, y, z, ry]
+        lines.append(name + " " + " ".join(repr(float(v)) for v in vals))
+    return parse_kitti_labels("\n".join(lines), path)
 
 
 # ------------------------------------------------------------------------- box conversion
@@ -398,31 +462,17 @@ def project_box7(boxes7, K, T_cam_lidar, image_size: tuple[int, int] | None = No
 # ------------------------------------------------------------------------------ point clouds
 def read_velodyne_bin(path, num_features: int | None = None) -> np.ndarray:
     """Read a KITTI-style float32 ``.bin`` -> [P, F] float32 (x, y, z metres in the LiDAR frame,
-    then intensity...). ``num_features`` defaults to 4 (KITTI); the file size must divide by it."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"point cloud file not found: {path}")
-    data = np.fromfile(path, dtype="<f4")
-    f = 4 if num_features is None else int(num_features)
-    if f < 3 or data.size % f:
-        raise FormatError(path, f"{data.size} float32 values do not split into rows of {f} features "
-                                f"(x, y, z, ...); file size {path.stat().st_size} B")
-    return data.reshape(-1, f)
+    then intensity...). ``num_features`` defaults to 4 (KITTI); the file size must divide by it.
+    (Thin wrapper over :func:`xcalib.io.pointcloud.read_point_cloud`.)"""
+    from ..io.pointcloud import read_point_cloud
+
+    return read_point_cloud(path, columns=4 if num_features is None else int(num_features)).points
 
 
 def _read_image(path: Path) -> np.ndarray:
-    try:
-        from ..io.images import read_image  # type: ignore[attr-defined]
-    except ImportError:
-        read_image = None
-    if read_image is not None:
-        return read_image(path)
-    import cv2
+    from ..io.images import read_image
 
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise FormatError(path, "could not decode the image")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return read_image(path)
 
 
 def _image_size(path: Path) -> tuple[int, int]:
@@ -478,11 +528,15 @@ def find_kitti_records(root) -> list[KittiRecord]:
         return recs
     for b in sorted(root.glob("*.bin")):
         i = b.stem
+        pkl = _first(root / f"{i}.pkl")
         calib = _first(root / f"{i}_calib.txt", root / f"{i}.txt", root / "calib.txt")
+        label = _first(root / f"{i}_label.txt", root / f"{i}_gt.txt", root / f"{i}_label_2.txt")
+        if pkl is not None and (calib is None or load_kitti_calibration(calib).Tr_velo_to_cam is None):
+            calib, label = pkl, label or pkl  # mmdetection3d demo: full calibration + labels in the pkl
         if calib is None:
             continue
         recs.append(KittiRecord(i, calib, _first(root / f"{i}_image.png", root / f"{i}.png", root / f"{i}.jpg"),
-                                b, _first(root / f"{i}_label.txt", root / f"{i}_gt.txt", root / f"{i}_label_2.txt")))
+                                b, label))
     if not recs and (root / "calib.txt").is_file():
         recs.append(KittiRecord(root.name, root / "calib.txt", _first(root / "image_2.png", root / "image.png"),
                                 _first(root / "velodyne.bin"), _first(root / "label_2.txt", root / "label.txt")))
