@@ -1,0 +1,247 @@
+"""``calibrate``: camera<-LiDAR extrinsics from 2D and 3D detections, with no target and no guess.
+
+Pipeline (one static rig, one pose for all frames):
+
+1. normalise the inputs (``inputs.prepare_frames``; yaw re-estimated for yaw-less 3D boxes);
+2. bring-up: pose hypotheses from box triples per frame (``hypotheses``), pooled over frames
+   and re-scored on all frames by how well every projected 3D box explains the 2D boxes;
+3. refinement of the best distinct hypotheses over all frames (``refine.refine_pose``);
+4. decision: the best pose must explain enough boxes and be clearly better than the runner-up,
+   otherwise ``success=False`` with a message saying why.
+
+A matcher's similarities (``matcher.match``) and a ``prior`` pose only seed the hypotheses;
+every pose is judged by geometry alone.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..geometry.boxes import box2d_centers
+from ..geometry.rotations import rotation_angle
+from .hypotheses import Hypotheses, frame_hypotheses, score_poses
+from .inputs import CalibFrame, prepare_frames
+from .refine import match_all, pair_metrics, pose_covariance, refine_pose
+from .result import CalibrationResult
+
+__all__ = ["calibrate", "calibrate_single", "METHOD"]
+
+log = logging.getLogger("xcalib.calib")
+METHOD = "xcalib-boxes-v1"
+
+
+def _fail(message: str, intr=None, frames: Sequence[CalibFrame] = (), **meta) -> CalibrationResult:
+    return CalibrationResult(success=False, intrinsics=intr, message=message,
+                             frame_keys=[f.key for f in frames], method=METHOD, meta=meta)
+
+
+def _prior_pose(prior):
+    if prior is None:
+        return None
+    if hasattr(prior, "rotation") and hasattr(prior, "translation"):
+        return np.asarray(prior.rotation, float), np.asarray(prior.translation, float)
+    if isinstance(prior, (tuple, list)) and len(prior) == 2:
+        return np.asarray(prior[0], float).reshape(3, 3), np.asarray(prior[1], float).reshape(3)
+    T = np.asarray(prior, dtype=np.float64)
+    if T.shape not in ((4, 4), (3, 4)):
+        raise ValueError(f"prior: expected a CalibrationResult, (R, t) or a 4x4 T_cam_lidar, got shape {T.shape}")
+    return T[:3, :3].copy(), T[:3, 3].copy()
+
+
+def _matcher_priors(matcher, frames_in, cframes: list[CalibFrame]) -> list[np.ndarray | None]:
+    """Per-frame similarity [K,M] (rows/cols of the CalibFrame) from ``matcher.match``; None if unavailable."""
+    out: list[np.ndarray | None] = []
+    for item, fr in zip(frames_in, cframes):
+        try:
+            args = item.inputs() if hasattr(item, "inputs") else tuple(item)
+            mr = matcher.match(*args)
+            full = mr.full_similarity(len(np.asarray(args[2]).reshape(-1, 4)), len(np.asarray(args[3]).reshape(len(args[3]), -1)))
+            out.append(np.asarray(full, dtype=np.float64)[np.ix_(fr.idx2d, fr.idx3d)])
+        except Exception as exc:  # noqa: BLE001 - a matcher failure must not stop geometry
+            log.warning("matcher.match failed on frame %s (%s); using geometry only", fr.key, exc)
+            out.append(None)
+    return out
+
+
+def _distinct(Ra, ta, Rb, tb, rot_deg: float, trans_m: float) -> bool:
+    return rotation_angle(Ra, Rb, degrees=True) > rot_deg or np.linalg.norm(ta - tb) > trans_m
+
+
+def _nms(h: Hypotheses, n: int, rot_deg: float = 3.0, trans_m: float = 1.0) -> Hypotheses:
+    order = np.argsort(-h.score, kind="stable")
+    keep: list[int] = []
+    for i in order:
+        if all(_distinct(h.R[i], h.t[i], h.R[k], h.t[k], rot_deg, trans_m) for k in keep):
+            keep.append(int(i))
+        if len(keep) >= n:
+            break
+    return h.take(np.array(keep, dtype=np.int64))
+
+
+def _collinear(P: np.ndarray, tol: float) -> bool:
+    if len(P) < 3:
+        return True
+    s = np.linalg.svd(P - P.mean(0), compute_uv=False)
+    return s[1] / np.sqrt(len(P)) < tol
+
+
+def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: float = 0.3,
+              max_hyp_frames: int = 10, max_refine: int = 6, min_pairs: int = 4,
+              ambiguity_ratio: float = 0.85, max_rot_std_deg: float = 1.0, max_trans_std_m: float = 0.5,
+              reestimate_yaw: str | bool = "auto", seed: int = 0,
+              progress: Callable[[str, int, int], None] | None = None) -> CalibrationResult:
+    """Estimate ``T_cam_lidar`` from detections over one or many frames of one static rig.
+
+    Args:
+        frames: ``xcalib.types.Frame``s or (image, point_cloud, bboxes_2d, bboxes_3d) tuples
+            (LiDAR frame, metres; pixels). The reference's single-frame form
+            ``calibrate(image, point_cloud, bboxes_2d, bboxes_3d, intrinsics)`` is accepted too.
+        intrinsics: ``CameraIntrinsics`` / 3x3 K (None: taken from the frames).
+        matcher: optional object with ``match(image, pc, b2, b3) -> MatchResult``; its
+            similarities only rank candidate pairs (geometry decides).
+        prior: optional initial pose (``CalibrationResult``, (R, t) or 4x4): skips the bring-up.
+        gate: IoU gate of the final one-to-one matches.
+        ambiguity_ratio: fail when a distinct runner-up pose scores at least this fraction of the best.
+        progress: optional callback(stage, done, total).
+    Returns:
+        ``CalibrationResult``; ``success=False`` with a ``message`` when the inputs do not
+        determine the pose. Raises ValueError for impossible intrinsics or malformed inputs.
+    """
+    if isinstance(frames, np.ndarray) and frames.ndim == 3 and len(args) >= 2:
+        # reference form: calibrate(image, point_cloud, bboxes_2d, bboxes_3d, intrinsics)
+        image, pc = frames, intrinsics
+        b2, b3 = args[0], args[1]
+        intr_arg = args[2] if len(args) > 2 else None
+        return calibrate_single(image, pc, b2, b3, intr_arg, matcher=matcher, prior=prior, gate=gate,
+                                min_pairs=min_pairs, seed=seed)
+    if args:
+        raise TypeError("calibrate(frames, intrinsics, *, ...): unexpected positional arguments")
+    t0 = time.perf_counter()
+    frames_in = list(frames) if not isinstance(frames, (list, tuple)) else frames
+    cframes, intr, problem = prepare_frames(frames_in, intrinsics, reestimate_yaw=reestimate_yaw)
+    camera = next((f.camera for f in cframes if f.camera), "")
+    if problem:
+        return _fail(problem, intr, cframes)
+    n2, n3 = sum(f.n2 for f in cframes), sum(f.n3 for f in cframes)
+    if n2 < 3 or n3 < 3:
+        return _fail(f"too few detections: {n2} valid 2D and {n3} 3D boxes over {len(cframes)} frame(s); "
+                     "need at least 3 of each (better 6+ spread over several frames)", intr, cframes)
+    all3 = np.concatenate([f.boxes3d[:, :3] for f in cframes if f.n3])
+    all2 = np.concatenate([box2d_centers(f.boxes2d) for f in cframes if f.n2])
+    if _collinear(all3, 0.3):
+        return _fail("not identifiable: all 3D boxes lie on one line (the roll about that line is free)", intr, cframes)
+    if _collinear(all2, 3.0):
+        return _fail("not identifiable: all 2D boxes lie on one image line", intr, cframes)
+    rng = np.random.default_rng(seed)
+    meta: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------ bring-up
+    pp = _prior_pose(prior)
+    if pp is not None:
+        hyps = Hypotheses(pp[0][None], pp[1][None], np.zeros(1), np.zeros(1, dtype=np.int64))
+        meta["seed"] = "prior"
+    else:
+        sims = _matcher_priors(matcher, frames_in, cframes) if matcher is not None else [None] * len(cframes)
+        usable = [i for i, f in enumerate(cframes) if f.n2 >= 3 and f.n3 >= 3]
+        if len(usable) > max_hyp_frames:
+            richness = np.array([min(cframes[i].n2, cframes[i].n3) for i in usable])
+            pick = np.sort(np.argsort(-richness, kind="stable")[:max_hyp_frames])
+            usable = [usable[k] for k in pick]
+        parts = []
+        for k, i in enumerate(usable):
+            h = frame_hypotheses(cframes[i], intr, i, prior_sim=sims[i], rng=rng)
+            if sims[i] is not None and len(h) == 0:
+                h = frame_hypotheses(cframes[i], intr, i, rng=rng)
+            parts.append(h)
+            if progress:
+                progress("hypotheses", k + 1, len(usable))
+        hyps = Hypotheses.concat(parts)
+        meta["seed"] = "matcher" if matcher is not None else "geometry"
+        if len(hyps) == 0:
+            return _fail("not identifiable: no frame has 3 detections in both sensors that form a consistent, "
+                         "non-collinear triangle", intr, cframes, **meta)
+        # re-score the pooled hypotheses on every frame (static rig: one pose explains all)
+        total = np.zeros(len(hyps))
+        for k, fr in enumerate(cframes):
+            total += score_poses(fr, intr, hyps.R, hyps.t)
+        hyps.score = total
+    meta["n_hypotheses"] = int(len(hyps))
+    cand = _nms(hyps, max_refine)
+
+    # ---------------------------------------------------------------- refinement
+    refined = []
+    for k in range(len(cand)):
+        rr = refine_pose(cframes, intr, cand.R[k], cand.t[k])
+        _, ious = pair_metrics(cframes, intr, rr.R, rr.t, rr.pairs)
+        refined.append((float(np.sum(ious)), rr))
+        if progress:
+            progress("refine", k + 1, len(cand))
+    refined.sort(key=lambda x: -x[0])
+    best_score, best = refined[0]
+    runner = next((s for s, r in refined[1:] if _distinct(r.R, r.t, best.R, best.t, 1.0, 0.3)), 0.0)
+    meta.update(score=best_score, runner_up_score=runner, refine_history=best.history)
+
+    pairs = match_all(cframes, intr, best.R, best.t, gate_iou=gate)
+    px, ious = pair_metrics(cframes, intr, best.R, best.t, pairs)
+    rot_sd, tr_sd, _ = pose_covariance(cframes, pairs, intr, best.R, best.t)
+    n_pairs = int(sum(len(p) for p in pairs))
+    centre_off = _centre_offsets(cframes, intr, best.R, best.t, pairs)
+    meta.update(centre_offset_px_median=float(np.median(centre_off)) if len(centre_off) else None,
+                n_2d=int(n2), n_3d=int(n3), elapsed_s=time.perf_counter() - t0)
+    caller_pairs = [np.column_stack([f.idx2d[p[:, 0]], f.idx3d[p[:, 1]]]) if len(p) else np.zeros((0, 2), np.int64)
+                    for f, p in zip(cframes, pairs)]
+    res = CalibrationResult(
+        success=True, intrinsics=intr, rotation=best.R, translation=best.t, n_correspondences=n_pairs,
+        n_inliers=int(np.sum(ious >= 0.5)), reproj_error_px=float(np.mean(px)) if len(px) else float("inf"),
+        residual_px_median=float(np.median(px)) if len(px) else float("nan"),
+        iou_median=float(np.median(ious)) if len(ious) else float("nan"),
+        iou_mean=float(np.mean(ious)) if len(ious) else float("nan"),
+        rotation_std_deg=rot_sd, translation_std_m=tr_sd, pairs=caller_pairs,
+        frame_keys=[f.key for f in cframes], camera_name=camera, image_size=cframes[0].size, method=METHOD,
+        meta=meta,
+    )
+    # ------------------------------------------------------------------ decision
+    need = max(min_pairs, 3)
+    why = None
+    if n_pairs < need:
+        why = (f"the best pose explains only {n_pairs} box pair(s) (need {need}); "
+               "too few objects seen by both sensors")
+    elif runner >= ambiguity_ratio * best_score:
+        why = (f"ambiguous: two different poses explain the boxes about equally well (scores {best_score:.2f} "
+               f"vs {runner:.2f}); add frames with objects spread over the image")
+    elif not (np.all(np.isfinite(rot_sd)) and np.all(np.isfinite(tr_sd))) or \
+            np.max(rot_sd) > max_rot_std_deg or np.max(tr_sd) > max_trans_std_m:
+        why = (f"not identifiable: the pose is poorly constrained (1-sigma rotation {np.nanmax(rot_sd):.2f} deg, "
+               f"translation {np.nanmax(tr_sd):.2f} m); add frames or objects at other places/depths")
+    if why:
+        res.success = False
+        res.accepted = False
+        res.message = why
+    return res
+
+
+def _centre_offsets(frames, intr, R, t, pairs) -> np.ndarray:
+    """Pixel distance between each matched 2D box centre and its projected 3D box centre."""
+    from ..geometry.projection import project_points
+
+    out = []
+    for fr, p in zip(frames, pairs):
+        if len(p):
+            uv, _ = project_points(fr.boxes3d[p[:, 1], :3], intr, R, t)
+            out.append(np.linalg.norm(uv - box2d_centers(fr.boxes2d[p[:, 0]]), axis=1))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def calibrate_single(image, point_cloud, bboxes_2d, bboxes_3d, intrinsics, *, matcher=None, prior=None,
+                     gate: float = 0.3, min_pairs: int = 4, seed: int = 0, **kwargs) -> CalibrationResult:
+    """The reference's one-frame form: ``calibrate_single(image, pc, b2, b3, K)`` -> CalibrationResult.
+
+    Same pipeline as :func:`calibrate` on a single frame (best-effort: one frame often leaves the
+    pose ambiguous, which is then reported as a failure, not guessed).
+    """
+    return calibrate([(image, point_cloud, bboxes_2d, bboxes_3d)], intrinsics, matcher=matcher, prior=prior,
+                     gate=gate, min_pairs=min_pairs, seed=seed, **kwargs)

@@ -1,0 +1,153 @@
+"""Normalise calibration inputs (Frames or tuples) into ``CalibFrame`` records.
+
+Everything downstream of this module works on ``CalibFrame``: valid 2D boxes (pixels), box7
+3D boxes (LiDAR frame, metres, yaw re-estimated from the points when the input had none) and
+their corner "shapes" [M,8,3], plus index maps back to the caller's numbering.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..geometry.boxes import as_box7, box7_corners, check_boxes2d, check_boxes3d, valid_boxes2d
+from ..geometry.camera import CameraIntrinsics
+from .boxmodel import estimate_yaw_from_points
+
+__all__ = ["CalibFrame", "as_intrinsics", "prepare_frames"]
+
+
+@dataclass
+class CalibFrame:
+    """One frame as the calibrator sees it.
+
+    boxes2d [K,4] px (valid rows only), boxes3d box7 [M,7] LiDAR frame (metres, radians),
+    corners [M,8,3] LiDAR frame, idx2d [K] / idx3d [M] map rows back to the input numbering.
+    size = (width, height) px. points: [P,3] LiDAR-frame cloud or None (overlays, yaw).
+    """
+
+    key: str
+    camera: str
+    boxes2d: np.ndarray
+    boxes3d: np.ndarray
+    corners: np.ndarray
+    idx2d: np.ndarray
+    idx3d: np.ndarray
+    size: tuple[int, int]
+    points: np.ndarray | None = None
+    image: np.ndarray | None = None
+    gt: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n2(self) -> int:
+        return len(self.boxes2d)
+
+    @property
+    def n3(self) -> int:
+        return len(self.boxes3d)
+
+
+def as_intrinsics(intrinsics) -> CameraIntrinsics:
+    """Accept ``CameraIntrinsics``, a 3x3 K, or a dict; raise ValueError otherwise."""
+    if isinstance(intrinsics, CameraIntrinsics):
+        return intrinsics
+    if isinstance(intrinsics, dict):
+        return CameraIntrinsics.from_dict(intrinsics)
+    if intrinsics is None:
+        raise ValueError("intrinsics: required (CameraIntrinsics, a 3x3 K matrix or a dict), got None")
+    K = np.asarray(intrinsics, dtype=np.float64)
+    if K.shape == (3, 4):  # a KITTI-style P: use its left 3x3 block
+        K = K[:, :3]
+    if K.shape != (3, 3):
+        raise ValueError(f"intrinsics: expected CameraIntrinsics or a 3x3 matrix, got shape {K.shape}")
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError(f"intrinsics: focal lengths must be positive pixels, got fx={K[0, 0]}, fy={K[1, 1]}")
+    return CameraIntrinsics.from_matrix(K)
+
+
+def _frame_fields(item, i: int):
+    """(image, points, b2, b3, camera, key, gt, intrinsics, meta) from a Frame or a tuple."""
+    if hasattr(item, "bboxes_2d") and hasattr(item, "bboxes_3d"):
+        return (getattr(item, "image", None), getattr(item, "point_cloud", None), item.bboxes_2d,
+                item.bboxes_3d, getattr(item, "camera_name", "") or "", getattr(item, "frame_key", "") or f"{i:04d}",
+                getattr(item, "extrinsics", None), getattr(item, "intrinsics", None), dict(getattr(item, "meta", {}) or {}))
+    if isinstance(item, (tuple, list)) and len(item) == 4:
+        image, pts, b2, b3 = item
+        return image, pts, b2, b3, "", f"{i:04d}", None, None, {}
+    raise TypeError(
+        f"frames[{i}]: expected an xcalib.types.Frame or an (image, point_cloud, bboxes_2d, bboxes_3d) "
+        f"tuple, got {type(item).__name__}"
+    )
+
+
+def _image_size(image, intr: CameraIntrinsics, meta: dict) -> tuple[int, int]:
+    img = None if image is None else np.asarray(image)
+    if img is not None and img.ndim >= 2 and img.shape[0] > 1 and img.shape[1] > 1:
+        return int(img.shape[1]), int(img.shape[0])
+    if "image_size" in meta and meta["image_size"] is not None:
+        w, h = meta["image_size"]
+        return int(w), int(h)
+    if intr.width is not None and intr.height is not None:
+        return intr.width, intr.height
+    return int(round(2 * intr.cx)), int(round(2 * intr.cy))
+
+
+def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool = "auto",
+                   min_box_px: float = 2.0) -> tuple[list[CalibFrame], CameraIntrinsics, str | None]:
+    """Normalise ``frames`` -> (CalibFrames, intrinsics, problem message or None).
+
+    The message is set (and the list may be partial) when frames come from different
+    cameras. Raises ValueError for impossible intrinsics or malformed boxes.
+    """
+    if not isinstance(frames, (list, tuple)):
+        frames = list(frames)
+    if len(frames) == 0:
+        raise ValueError("frames: expected at least one frame, got an empty sequence")
+    raw = [_frame_fields(f, i) for i, f in enumerate(frames)]
+    if intrinsics is None:
+        cand = [r[7] for r in raw if r[7] is not None]
+        if not cand:
+            raise ValueError("intrinsics: not given and the frames carry none")
+        intrinsics = cand[0]
+    intr = as_intrinsics(intrinsics)
+    out: list[CalibFrame] = []
+    cams = {r[4] for r in raw if r[4]}
+    problem = None
+    if len(cams) > 1:
+        problem = (f"frames from different cameras are mixed ({', '.join(sorted(cams))}); "
+                   "calibrate one camera at a time")
+    frame_intr = [r[7] for r in raw if r[7] is not None]
+    if problem is None and any(fi != frame_intr[0] for fi in frame_intr[1:]):
+        problem = "frames carry different camera intrinsics (mixed cameras?); calibrate one camera at a time"
+    for i, (image, pts, b2, b3, cam, key, gt, _fi, meta) in enumerate(raw):
+        size = _image_size(image, intr, meta)
+        intr.check_image_size(*size)
+        b2 = check_boxes2d(b2, f"frames[{i}].bboxes_2d")[:, :4]
+        b3 = check_boxes3d(b3, f"frames[{i}].bboxes_3d")
+        if not np.all(np.isfinite(b3)):
+            raise ValueError(f"frames[{i}].bboxes_3d: NaN/Inf values")
+        ok2 = valid_boxes2d(b2) & ((b2[:, 2] - b2[:, 0]) >= min_box_px) & ((b2[:, 3] - b2[:, 1]) >= min_box_px)
+        idx2 = np.flatnonzero(ok2)
+        box7 = as_box7(b3) if len(b3) else np.zeros((0, 7))
+        ok3 = np.all(box7[:, 3:6] > 1e-3, axis=1)
+        idx3 = np.flatnonzero(ok3)
+        box7 = box7[idx3]
+        p = None
+        if pts is not None:
+            p = np.asarray(pts)
+            if p.ndim != 2 or p.shape[1] < 3:
+                raise ValueError(f"frames[{i}].point_cloud: expected shape [P, >=3], got {p.shape}")
+            p = p[:, :3]
+        had_yaw = b3.ndim == 2 and b3.shape[1] == 7
+        if (reestimate_yaw is True or (reestimate_yaw == "auto" and not had_yaw)) and p is not None and len(box7):
+            box7 = estimate_yaw_from_points(box7, p)
+        out.append(CalibFrame(
+            key=str(key), camera=cam, boxes2d=b2[idx2].astype(np.float64), boxes3d=box7,
+            corners=box7_corners(box7) if len(box7) else np.zeros((0, 8, 3)), idx2d=idx2, idx3d=idx3,
+            size=size, points=p, image=None if image is None else np.asarray(image),
+            gt=None if gt is None else np.asarray(gt, dtype=np.float64), meta=meta,
+        ))
+    return out, intr, problem

@@ -1,0 +1,184 @@
+"""Pose refinement over all frames: match by projection, then robust least squares on box edges.
+
+The residual of a matched pair (2D box i, 3D box j) is the difference (pixels) between the four
+edges of the clipped enclosing rectangle of the projected 3D box corners and the 2D box's
+edges. ``refine_pose`` alternates one-to-one matching (Hungarian with a gate) and
+``scipy.optimize.least_squares`` (soft-L1) until the robust cost stops improving. The pose is
+``X_cam = R X_lidar + t``; updates are ``R <- exp([w]x) R``, ``t <- t + dt`` (camera frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares, linear_sum_assignment
+from scipy.spatial.transform import Rotation
+
+from ..geometry.boxes import box2d_centers
+from ..geometry.camera import CameraIntrinsics
+from .boxproj import iou_batched, project_rects
+from .inputs import CalibFrame
+
+__all__ = ["RefineResult", "match_frame", "match_all", "refine_pose", "pose_covariance", "pair_metrics"]
+
+
+@dataclass
+class RefineResult:
+    """Refined pose, the matches (per frame, rows of CalibFrame arrays) and fit statistics."""
+
+    R: np.ndarray
+    t: np.ndarray
+    pairs: list[np.ndarray]
+    cost: float
+    n_iter: int
+    residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    history: list[float] = field(default_factory=list)
+
+
+def match_frame(fr: CalibFrame, intr: CameraIntrinsics, R, t, *, gate_iou: float = 0.3,
+                gate_dist: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One-to-one matches of one frame by projection.
+
+    A pair is allowed when IoU >= ``gate_iou`` or, if ``gate_dist`` > 0, when the centre distance
+    is below ``gate_dist`` times the 2D box diagonal (for rough poses). Hungarian on
+    cost = (1 - IoU) + normalised centre distance. Returns (pairs [n,2] rows, IoU [n], rects [M,4]).
+    """
+    rects, valid = project_rects(fr.corners, R, t, intr, fr.size)
+    if fr.n2 == 0 or fr.n3 == 0 or not np.any(valid):
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0), rects
+    iou = iou_batched(rects[None], fr.boxes2d)[0]
+    c_obs = box2d_centers(fr.boxes2d)
+    c_pred = np.stack([(rects[:, 0] + rects[:, 2]) / 2, (rects[:, 1] + rects[:, 3]) / 2], 1)
+    diag = np.hypot(fr.boxes2d[:, 2] - fr.boxes2d[:, 0], fr.boxes2d[:, 3] - fr.boxes2d[:, 1])
+    dist = np.linalg.norm(c_obs[:, None] - c_pred[None], axis=2) / diag[:, None]
+    dist = np.where(valid[None], dist, np.inf)
+    allowed = (iou >= gate_iou) if gate_dist <= 0 else ((iou >= gate_iou) | (dist <= gate_dist))
+    allowed &= valid[None]
+    if not np.any(allowed):
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0), rects
+    cost = np.where(allowed, (1 - iou) + np.minimum(dist, 10.0), 1e6)
+    r, c = linear_sum_assignment(cost)
+    keep = allowed[r, c]
+    pairs = np.column_stack([r[keep], c[keep]]).astype(np.int64)
+    return pairs, iou[r[keep], c[keep]], rects
+
+
+def match_all(frames, intr, R, t, **kw) -> list[np.ndarray]:
+    return [match_frame(fr, intr, R, t, **kw)[0] for fr in frames]
+
+
+def _stack(frames: list[CalibFrame], pairs: list[np.ndarray]):
+    corners = [fr.corners[p[:, 1]] for fr, p in zip(frames, pairs) if len(p)]
+    obs = [fr.boxes2d[p[:, 0]] for fr, p in zip(frames, pairs) if len(p)]
+    if not corners:
+        return np.zeros((0, 8, 3)), np.zeros((0, 4))
+    return np.concatenate(corners), np.concatenate(obs)
+
+
+def _weights(obs: np.ndarray) -> np.ndarray:
+    """Per-pair residual weight: box models are relatively less exact for big (near) boxes."""
+    s = np.sqrt((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]))
+    return 1.0 / (1.0 + 0.01 * s)
+
+
+def _residual_fn(corners, obs, intr, size, R0, t0):
+    w = _weights(obs)[:, None]
+    fallback = np.sqrt((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]))[:, None]
+
+    def fun(x):
+        R = Rotation.from_rotvec(x[:3]).as_matrix() @ R0
+        t = t0 + x[3:]
+        rects, valid = project_rects(corners, R, t, intr, size)
+        r = rects - obs
+        r = np.where(valid[:, None], r, fallback)
+        return (r * w).ravel()
+
+    return fun
+
+
+def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6):
+    """1-sigma (rotation deg about camera x,y,z; translation m along camera x,y,z) from the
+    Jacobian at the optimum: cov = (J^T J)^-1 * sigma^2, sigma from the inlier residuals (MAD)."""
+    corners, obs = _stack(frames, pairs)
+    nan3 = np.full(3, np.nan)
+    if len(obs) < 2:
+        return nan3, nan3, np.full((6, 6), np.nan)
+    fun = _residual_fn(corners, obs, intr, frames[0].size, R, t)
+    r0 = fun(np.zeros(6))
+    J = np.zeros((len(r0), 6))
+    for k in range(6):
+        dx = np.zeros(6)
+        dx[k] = eps
+        J[:, k] = (fun(dx) - fun(-dx)) / (2 * eps)
+    # edges clipped at the image border carry no information (zero derivative) -> drop them
+    informative = np.any(J != 0, axis=1)
+    sigma = 1.4826 * np.median(np.abs(r0[informative])) if np.any(informative) else np.nan
+    inl = informative & (np.abs(r0) <= 3 * max(sigma, 1e-9))
+    dof = max(int(inl.sum()) - 6, 1)
+    sigma2 = np.sum(r0[inl] ** 2) / dof
+    JtJ = J[inl].T @ J[inl]
+    try:
+        cov = np.linalg.inv(JtJ) * sigma2
+    except np.linalg.LinAlgError:
+        return nan3, nan3, np.full((6, 6), np.nan)
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return np.degrees(sd[:3]), sd[3:], cov
+
+
+def _lsq(frames, pairs, intr, R, t, f_scale, max_nfev):
+    corners, obs = _stack(frames, pairs)
+    fun = _residual_fn(corners, obs, intr, frames[0].size, R, t)
+    res = least_squares(fun, np.zeros(6), loss="soft_l1", f_scale=f_scale, method="trf",
+                        x_scale=np.array([1e-3, 1e-3, 1e-3, 0.05, 0.05, 0.05]), max_nfev=max_nfev)
+    R1 = Rotation.from_rotvec(res.x[:3]).as_matrix() @ R
+    return R1, t + res.x[3:], res.cost, res.fun
+
+
+def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *,
+                gates: tuple = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0)),
+                min_pairs: int = 3, max_nfev: int = 60, tol: float = 1e-3) -> RefineResult:
+    """Alternate matching and robust least squares from the pose (R, t) until the cost settles.
+
+    ``gates`` is the schedule of (IoU gate, centre-distance gate) per outer iteration; the last
+    entry repeats until the robust cost improves by less than ``tol`` (relative).
+    """
+    R, t = np.asarray(R, float), np.asarray(t, float)
+    history: list[float] = []
+    prev = None
+    it = 0
+    pairs = match_all(frames, intr, R, t, gate_iou=gates[0][0], gate_dist=gates[0][1])
+    resid = np.zeros(0)
+    for it in range(len(gates) + 4):
+        gi, gd = gates[min(it, len(gates) - 1)]
+        pairs = match_all(frames, intr, R, t, gate_iou=gi, gate_dist=gd)
+        n = sum(len(p) for p in pairs)
+        if n < min_pairs:
+            break
+        _, obs = _stack(frames, pairs)
+        # robust scale from the current residual level (pixels, >= 1)
+        f_scale = 2.0 if prev is None else max(1.0, 1.5 * float(np.median(np.abs(resid))) if len(resid) else 2.0)
+        R, t, cost, resid = _lsq(frames, pairs, intr, R, t, f_scale, max_nfev)
+        per = cost / max(n, 1)
+        history.append(per)
+        if it >= len(gates) - 1 and prev is not None and abs(prev - per) <= tol * max(prev, 1e-9):
+            break
+        prev = per
+    pairs = match_all(frames, intr, R, t, gate_iou=gates[-1][0], gate_dist=gates[-1][1])
+    return RefineResult(R=R, t=t, pairs=pairs, cost=history[-1] if history else np.inf, n_iter=it + 1,
+                        residuals=resid, history=history)
+
+
+def pair_metrics(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, pairs: list[np.ndarray]):
+    """Per matched pair: mean absolute edge residual (px) and IoU, concatenated over frames."""
+    px, ious = [], []
+    for fr, p in zip(frames, pairs):
+        if len(p) == 0:
+            continue
+        rects, _ = project_rects(fr.corners[p[:, 1]], R, t, intr, fr.size)
+        obs = fr.boxes2d[p[:, 0]]
+        px.append(np.nanmean(np.abs(rects - obs), axis=1))
+        ious.append(np.diagonal(iou_batched(rects[None], obs)[0]))
+    if not px:
+        return np.zeros(0), np.zeros(0)
+    return np.concatenate(px), np.concatenate(ious)
