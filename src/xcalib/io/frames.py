@@ -293,10 +293,7 @@ def write_frame_folder(out_dir, frames: Iterable[Frame], *, camera: str | None =
             intrinsics = fr.intrinsics
     cam = camera or first_camera or ""
     if intrinsics is not None:
-        intr = {"name": cam, "fx": intrinsics.fx, "fy": intrinsics.fy, "cx": intrinsics.cx, "cy": intrinsics.cy,
-                "distortion": [] if intrinsics.distortion is None else _rows(intrinsics.distortion)}
-        if intrinsics.width is not None:
-            intr["width"], intr["height"] = intrinsics.width, intrinsics.height
+        intr = {"name": cam, **intrinsics.to_dict()}
         atomic_write(out / "intrinsics.json", [json.dumps(intr, indent=1).encode()])
     manifest = {"format": FRAME_FOLDER_FORMAT, "site": site, "split": split, "camera": cam, "frames": entries}
     return atomic_write(out / "manifest.json", [json.dumps(manifest, indent=1).encode()])
