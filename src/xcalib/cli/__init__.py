@@ -51,7 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     """Console entry point: run the app and map failures to exit codes (1 failure, 2 usage)."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
-        app(args=argv, standalone_mode=False)
+        # with standalone_mode=False click returns the code of a raised typer.Exit instead of exiting
+        rv = app(args=argv, standalone_mode=False)
+        if isinstance(rv, int):
+            return rv
     except SystemExit as exc:  # typer/click exits
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
         return code
