@@ -30,6 +30,7 @@ from ..geometry.camera import CameraIntrinsics
 from ..geometry.transforms import invert_transform, make_transform
 from ..types import Frame
 from ._checks import as_matrix, checked_rotation
+from ._media import image_size, load_rgb
 
 __all__ = [
     "KittiCalibration", "KittiLabels", "load_kitti_calibration", "parse_kitti_calibration",
@@ -469,22 +470,6 @@ def read_velodyne_bin(path, num_features: int | None = None) -> np.ndarray:
     return read_point_cloud(path, columns=4 if num_features is None else int(num_features)).points
 
 
-def _read_image(path: Path) -> np.ndarray:
-    from ..io.images import read_image
-
-    return read_image(path)
-
-
-def _image_size(path: Path) -> tuple[int, int]:
-    """(W, H) of a PNG from its header (no decode); falls back to a full read."""
-    with open(path, "rb") as fh:
-        head = fh.read(24)
-    if head[:8] == b"\x89PNG\r\n\x1a\n":
-        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
-    img = _read_image(path)
-    return img.shape[1], img.shape[0]
-
-
 # ----------------------------------------------------------------------------------- folders
 @dataclass(frozen=True)
 class KittiRecord:
@@ -593,10 +578,10 @@ class KittiFrames(Sequence):
         size = None
         if rec.image is not None:
             if self.load_image:
-                image = _read_image(rec.image)
+                image = load_rgb(rec.image)
                 size = (image.shape[1], image.shape[0])
             else:
-                size = _image_size(rec.image)
+                size = image_size(rec.image)
         elif self.load_image:
             raise FormatError(rec.calib, f"frame {rec.frame_id}: no image file found next to the calib file")
         points = np.zeros((0, 4), dtype=np.float32)
