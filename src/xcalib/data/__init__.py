@@ -1,0 +1,1 @@
+"""Model inputs and synthetic data: ``crops`` (per-detection model inputs), ``synth`` (generator)."""

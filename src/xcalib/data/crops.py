@@ -1,0 +1,265 @@
+"""Per-detection model inputs: image crops and LiDAR point crops (pure numpy + OpenCV).
+
+Image crops (:func:`crop_images`)
+    Each 2D box (pixels) is cut from the image and resized to ``crop_size`` x ``crop_size``.
+    With ``keep_aspect`` (default) the box is first grown to a square about its centre, so
+    objects are not stretched. Parts of the (square) box outside the image are filled with the
+    normalisation mean, i.e. 0 after normalisation; boxes are never dropped just because they
+    touch or cross an image border. Downscaling uses area averaging (no aliasing), upscaling
+    bilinear. Values: uint8 -> /255 (float images are taken as already in [0, 1]), then
+    ``(x - IMAGENET_MEAN) / IMAGENET_STD`` per channel when ``normalize``. Layout [N,3,S,S].
+    Dropped: boxes with x2<=x1 or y2<=y1, non-finite boxes, boxes entirely outside the image.
+
+LiDAR crops (:func:`crop_points`)
+    Points inside each 3D box scaled by ``bbox_expansion`` (yaw-aware for box7 rows, via
+    :func:`xcalib.geometry.points_in_boxes`), expressed in the box's own frame (origin at the
+    box centre, x along the heading; protocol [M,6] boxes have yaw 0 so this is a translation),
+    metres. Each crop is resampled to ``point_cloud_size`` points with a seeded
+    ``np.random.Generator``: a random subset without replacement when the box holds enough
+    points, otherwise every point once plus random repeats of its own points (never padding at
+    the sensor origin). Dropped: degenerate boxes and boxes with fewer than ``min_points``.
+
+Everything is vectorised over points; the only Python loop is over 2D boxes (one OpenCV
+resize each).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+import cv2
+import numpy as np
+
+from ..geometry.boxes import as_box7, points_in_boxes
+
+__all__ = [
+    "IMAGENET_MEAN", "IMAGENET_STD", "CropConfig", "FrameInputs", "crop_images", "crop_points",
+    "gather_box_points", "resample_points", "prepare_frame", "empty_inputs",
+]
+
+IMAGENET_MEAN = np.array([0.485, 0.456, 0.406], dtype=np.float32)
+IMAGENET_STD = np.array([0.229, 0.224, 0.225], dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class CropConfig:
+    """How a frame becomes model inputs. ``crop_size`` px, ``point_cloud_size`` points,
+    ``bbox_expansion`` (scale on 3D box dims), ``min_points`` per kept 3D box, ``seed`` of the
+    default point-resampling generator."""
+
+    crop_size: int = 32
+    point_cloud_size: int = 1024
+    bbox_expansion: float = 1.25
+    keep_aspect: bool = True
+    normalize: bool = True
+    min_points: int = 1
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if int(self.crop_size) < 4:
+            raise ValueError(f"crop_size must be >= 4 px, got {self.crop_size}")
+        if int(self.point_cloud_size) < 1:
+            raise ValueError(f"point_cloud_size must be >= 1, got {self.point_cloud_size}")
+        if not float(self.bbox_expansion) > 0:
+            raise ValueError(f"bbox_expansion must be > 0, got {self.bbox_expansion}")
+        if int(self.min_points) < 1:
+            raise ValueError(f"min_points must be >= 1, got {self.min_points}")
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any]) -> "CropConfig":
+        """Pick the crop keys out of a model config dict (missing keys keep their defaults)."""
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: cfg[k] for k in names if k in cfg})
+
+
+@dataclass
+class FrameInputs:
+    """One frame as model inputs (numpy; the ONNX Runtime path reuses it).
+
+    crops_2d [N,3,S,S] float32 normalised; crops_3d [M,P,3] float32 box-frame metres;
+    boxes_2d [N,4] float32 caller pixels (unclipped) of kept rows; boxes_3d [M,7] float32 box7
+    (LiDAR frame) of kept columns; point_counts [M] int64 points inside each expanded box;
+    image_size (W, H) px; kept_2d / kept_3d int64 maps to the caller's indices.
+    """
+
+    crops_2d: np.ndarray
+    crops_3d: np.ndarray
+    boxes_2d: np.ndarray
+    boxes_3d: np.ndarray
+    point_counts: np.ndarray
+    image_size: tuple[int, int]
+    kept_2d: np.ndarray
+    kept_3d: np.ndarray
+
+    @property
+    def num_2d(self) -> int:
+        return int(len(self.kept_2d))
+
+    @property
+    def num_3d(self) -> int:
+        return int(len(self.kept_3d))
+
+    @property
+    def empty(self) -> bool:
+        return self.num_2d == 0 or self.num_3d == 0
+
+
+def _image_float_scale(image: np.ndarray) -> float:
+    return 1.0 if image.dtype.kind == "f" else 1.0 / 255.0
+
+
+def crop_images(image: np.ndarray, bboxes_2d, crop_size: int = 32, *, keep_aspect: bool = True,
+                normalize: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Crop + resize every 2D box. Returns (crops [N,3,S,S] float32, kept indices [N] int64)."""
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"image: expected shape [H, W, 3], got {image.shape}")
+    S = int(crop_size)
+    b = np.asarray(bboxes_2d, dtype=np.float64).reshape(-1, 4) if np.size(bboxes_2d) else np.zeros((0, 4))
+    H, W = image.shape[:2]
+    ok = np.all(np.isfinite(b), axis=1) & (b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])
+    ok &= (b[:, 2] > 0) & (b[:, 0] < W) & (b[:, 3] > 0) & (b[:, 1] < H)
+    src = b.copy()
+    if keep_aspect and len(src):
+        c = (src[:, :2] + src[:, 2:]) / 2.0
+        half = np.maximum(src[:, 2] - src[:, 0], src[:, 3] - src[:, 1])[:, None] / 2.0
+        src = np.hstack([c - half, c + half])
+    ix0 = np.floor(np.clip(src[:, 0], 0, W)).astype(np.int64)
+    iy0 = np.floor(np.clip(src[:, 1], 0, H)).astype(np.int64)
+    ix1 = np.ceil(np.clip(src[:, 2], 0, W)).astype(np.int64)
+    iy1 = np.ceil(np.clip(src[:, 3], 0, H)).astype(np.int64)
+    ok &= (ix1 > ix0) & (iy1 > iy0)
+    kept = np.nonzero(ok)[0].astype(np.int64)
+    scale = _image_float_scale(image)
+    fill = IMAGENET_MEAN / scale if normalize else np.zeros(3, np.float32)
+    out = np.empty((len(kept), S, S, 3), dtype=np.float32)
+    out[:] = fill
+    for n, k in enumerate(kept):  # loop over detections (one OpenCV resize each), not points
+        w, h = src[k, 2] - src[k, 0], src[k, 3] - src[k, 1]
+        ox0 = int(np.clip(round((ix0[k] - src[k, 0]) * S / w), 0, S - 1))
+        oy0 = int(np.clip(round((iy0[k] - src[k, 1]) * S / h), 0, S - 1))
+        ox1 = int(np.clip(round((ix1[k] - src[k, 0]) * S / w), ox0 + 1, S))
+        oy1 = int(np.clip(round((iy1[k] - src[k, 1]) * S / h), oy0 + 1, S))
+        patch = image[iy0[k]:iy1[k], ix0[k]:ix1[k]]
+        shrink = patch.shape[0] > (oy1 - oy0) or patch.shape[1] > (ox1 - ox0)
+        patch = cv2.resize(patch, (ox1 - ox0, oy1 - oy0),
+                           interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+        out[n, oy0:oy1, ox0:ox1] = patch.reshape(oy1 - oy0, ox1 - ox0, 3)
+    out *= scale
+    if normalize:
+        out -= IMAGENET_MEAN
+        out /= IMAGENET_STD
+    return np.ascontiguousarray(out.transpose(0, 3, 1, 2)), kept
+
+
+def gather_box_points(points: np.ndarray, boxes7: np.ndarray, expansion: float = 1.25
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Points inside each expanded box7, in that box's frame (metres).
+
+    Returns (points [T,3] float32 grouped box by box, counts [M] int64) with T = counts.sum().
+    """
+    b = np.asarray(boxes7, dtype=np.float64).reshape(-1, 7)
+    xyz = np.asarray(points)[:, :3]
+    mask = points_in_boxes(xyz, b, expansion=expansion)
+    mi, pi = np.nonzero(mask)
+    counts = np.bincount(mi, minlength=len(b)).astype(np.int64)
+    d = xyz[pi].astype(np.float64) - b[mi, :3]
+    c, s = np.cos(b[mi, 6]), np.sin(b[mi, 6])
+    local = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=1)
+    return local.astype(np.float32), counts
+
+
+def resample_points(points: np.ndarray, counts: np.ndarray, n: int,
+                    rng: np.random.Generator) -> np.ndarray:
+    """Resample grouped points (see :func:`gather_box_points`) to ``n`` per group -> [M,n,3].
+
+    Groups with >= n points: a random subset without replacement; smaller groups: all their
+    points plus random repeats. Every count must be >= 1.
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    M = len(counts)
+    if M == 0:
+        return np.zeros((0, n, 3), dtype=np.float32)
+    if np.any(counts < 1):
+        raise ValueError(f"resample_points: every group needs >= 1 point, got counts {counts.tolist()}")
+    starts = np.cumsum(counts) - counts
+    seg = np.repeat(np.arange(M), counts)
+    order = np.lexsort((rng.random(len(seg)), seg))
+    j = np.arange(n)[None, :]
+    fill = np.minimum((rng.random((M, n)) * counts[:, None]).astype(np.int64), counts[:, None] - 1)
+    src = np.where(j < counts[:, None], j, fill)
+    return np.asarray(points, dtype=np.float32)[order[starts[:, None] + src]]
+
+
+def crop_points(point_cloud: np.ndarray, bboxes_3d, point_cloud_size: int = 1024, *,
+                expansion: float = 1.25, rng: np.random.Generator | None = None,
+                min_points: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """LiDAR crops. Returns (crops [M,P,3] float32, box7 [M,7] float32, counts [M], kept [M])."""
+    rng = np.random.default_rng(0) if rng is None else rng
+    b = np.asarray(bboxes_3d, dtype=np.float64)
+    if b.size == 0:
+        return (np.zeros((0, point_cloud_size, 3), np.float32), np.zeros((0, 7), np.float32),
+                np.zeros(0, np.int64), np.zeros(0, np.int64))
+    box7 = as_box7(b)
+    ok = np.all(np.isfinite(box7), axis=1) & np.all(box7[:, 3:6] > 0, axis=1)
+    idx = np.nonzero(ok)[0]
+    pc = np.asarray(point_cloud)
+    if len(idx) and len(pc):
+        pts, counts = gather_box_points(pc, box7[idx], expansion)
+    else:
+        pts, counts = np.zeros((0, 3), np.float32), np.zeros(len(idx), np.int64)
+    keep = counts >= min_points
+    if not keep.all():  # drop the groups of boxes that are too sparse
+        pts = pts[np.repeat(keep, counts)]
+        counts = counts[keep]
+    kept = idx[keep].astype(np.int64)
+    crops = resample_points(pts, counts, int(point_cloud_size), rng)
+    return crops, box7[kept].astype(np.float32), counts, kept
+
+
+def empty_inputs(cfg: CropConfig, image_size: tuple[int, int]) -> FrameInputs:
+    S, P = int(cfg.crop_size), int(cfg.point_cloud_size)
+    return FrameInputs(np.zeros((0, 3, S, S), np.float32), np.zeros((0, P, 3), np.float32),
+                       np.zeros((0, 4), np.float32), np.zeros((0, 7), np.float32),
+                       np.zeros(0, np.int64), image_size, np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+
+def prepare_frame(image: np.ndarray, point_cloud: np.ndarray, bboxes_2d, bboxes_3d,
+                  cfg: CropConfig | None = None, rng: np.random.Generator | None = None, *,
+                  images: Mapping[str, np.ndarray] | None = None,
+                  camera_per_det: list[str] | None = None) -> FrameInputs:
+    """Turn one frame into :class:`FrameInputs` (both sides kept even when the other is empty).
+
+    ``rng`` defaults to ``np.random.default_rng(cfg.seed)`` so the same call gives the same
+    crops. Multi-camera frames: pass ``images`` {camera: image} and ``camera_per_det`` (the
+    source camera of each 2D box); a box whose camera is unknown is dropped.
+    """
+    cfg = cfg or CropConfig()
+    rng = np.random.default_rng(cfg.seed) if rng is None else rng
+    b2 = np.asarray(bboxes_2d, dtype=np.float64).reshape(-1, 4) if np.size(bboxes_2d) else np.zeros((0, 4))
+    size = (int(image.shape[1]), int(image.shape[0]))
+    if images is not None and camera_per_det is not None:
+        if len(camera_per_det) != len(b2):
+            raise ValueError(f"camera_per_det: expected {len(b2)} names (one per 2D box), got {len(camera_per_det)}")
+        crops_l, kept_l = [], []
+        for cam in dict.fromkeys(camera_per_det):
+            if cam not in images:
+                continue
+            sel = np.nonzero(np.array([c == cam for c in camera_per_det]))[0]
+            c, k = crop_images(images[cam], b2[sel], cfg.crop_size, keep_aspect=cfg.keep_aspect,
+                               normalize=cfg.normalize)
+            crops_l.append(c)
+            kept_l.append(sel[k])
+        kept_2d = np.concatenate(kept_l) if kept_l else np.zeros(0, np.int64)
+        order = np.argsort(kept_2d, kind="stable")
+        crops_2d = (np.concatenate(crops_l)[order] if crops_l
+                    else np.zeros((0, 3, cfg.crop_size, cfg.crop_size), np.float32))
+        kept_2d = kept_2d[order].astype(np.int64)
+    else:
+        crops_2d, kept_2d = crop_images(image, b2, cfg.crop_size, keep_aspect=cfg.keep_aspect,
+                                        normalize=cfg.normalize)
+    crops_3d, box7, counts, kept_3d = crop_points(point_cloud, bboxes_3d, cfg.point_cloud_size,
+                                                  expansion=cfg.bbox_expansion, rng=rng,
+                                                  min_points=cfg.min_points)
+    return FrameInputs(crops_2d, crops_3d, b2[kept_2d].astype(np.float32), box7, counts, size,
+                       kept_2d, kept_3d)

@@ -1,0 +1,246 @@
+"""``Matcher``: a matching model with its config, crop settings and device.
+
+``match(image, point_cloud, bboxes_2d, bboxes_3d)`` validates the inputs (protocol v1.0), crops
+(``xcalib.data.crops.prepare_frame``, seeded so a call is deterministic), runs the model and
+returns a :class:`xcalib.types.MatchResult` in the caller's numbering. ``embed`` / ``score``
+expose the two model stages; ``prepare`` is the numpy-only part an ONNX Runtime path reuses.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import torch
+
+from ..data.crops import CropConfig, FrameInputs, prepare_frame
+from ..geometry.boxes import center_size_to_extents
+from ..protocol import WarningRegistry, check_validate_mode, enforce, validate_frame_inputs
+from ..types import Frame, MatchResult
+from .checkpoint import (WeightsNotFoundError, find_site_weights, load_state_strict, read_checkpoint,
+                         read_config, save_weights, weights_in_dir, write_config)
+
+__all__ = ["Matcher", "resolve_device", "assign"]
+
+log = logging.getLogger("xcalib.matcher")
+ASSIGNMENTS = ("argmax", "hungarian")
+
+
+def resolve_device(device: str | torch.device | None) -> torch.device:
+    """None/"auto" -> cuda when available, else cpu."""
+    if device is None or str(device) == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(device)
+
+
+def assign(similarity: np.ndarray, *, top_k: int = 1, threshold: float = 0.0, method: str = "argmax",
+           fill_value: float | None = None) -> tuple[np.ndarray, list[tuple[int, int, float]]]:
+    """Matches from a [K',M'] similarity (kept numbering).
+
+    "argmax": up to ``max(1, top_k)`` best columns per row with score >= threshold;
+    top_indices = per-row argmax. "hungarian": one-to-one assignment maximising the total score
+    (scipy), pairs with score >= threshold; top_indices = assigned column or -1.
+    Entries equal to ``fill_value`` (not scored by the model) never match.
+    """
+    if method not in ASSIGNMENTS:
+        raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {method!r}")
+    K, M = similarity.shape
+    if K == 0 or M == 0:
+        return np.full(K, -1, dtype=np.int64), []
+    valid = np.ones_like(similarity, dtype=bool) if fill_value is None else similarity != fill_value
+    if method == "argmax":
+        top = similarity.argmax(axis=1).astype(np.int64)
+        k = min(max(1, int(top_k)), M)
+        order = np.argsort(-similarity, axis=1, kind="stable")[:, :k]
+        rows = np.repeat(np.arange(K), k)
+        cols = order.reshape(-1)
+        s = similarity[rows, cols]
+        ok = (s >= threshold) & valid[rows, cols]
+        return top, [(int(r), int(c), float(v)) for r, c, v in zip(rows[ok], cols[ok], s[ok])]
+    from scipy.optimize import linear_sum_assignment
+
+    cost = np.where(valid, -similarity.astype(np.float64), 1e6)
+    r, c = linear_sum_assignment(cost)
+    top = np.full(K, -1, dtype=np.int64)
+    pairs = []
+    for i, j in zip(r, c):
+        if valid[i, j] and similarity[i, j] >= threshold:
+            top[i] = j
+            pairs.append((int(i), int(j), float(similarity[i, j])))
+    return top, pairs
+
+
+class Matcher:
+    """Model + config + device. Build with :meth:`from_pretrained` or ``Matcher(model, config)``."""
+
+    def __init__(self, model: "torch.nn.Module | str", config: Mapping[str, Any] | None = None, *,
+                 device: str | torch.device | None = None, weights_path: str | Path | None = None,
+                 site: str | None = None):
+        from ..models import create_model
+
+        if isinstance(model, str):
+            model = create_model(model, config)
+        self.model = model
+        self.model_name = model.model_name
+        self.config = dict(model.config)
+        self.device = resolve_device(device)
+        self.model.to(self.device).eval()
+        self.crop_config = CropConfig.from_config(self.config)
+        self.weights_path = None if weights_path is None else Path(weights_path)
+        self.site = site
+        self._warnings = WarningRegistry()
+
+    # ------------------------------------------------------------------ loading
+    @classmethod
+    def from_pretrained(cls, model: str, weights: str | Path | None = None,
+                        config: str | Path | Mapping[str, Any] | None = None,
+                        device: str | torch.device | None = None, *, site: str = "synthetic") -> "Matcher":
+        """Load ``model`` with weights from the site folders (``weights=None``), a directory
+        written by :meth:`save_pretrained`, or a weights file. The config is ``config`` (YAML path
+        or dict, merged onto the model defaults) or else the YAML beside the weights, else the
+        one stored in the weights file. A checkpoint that does not fit is an error."""
+        from ..models import create_model, default_config, merge_config
+        from ..models.registry import model_class
+
+        model_class(model)  # unknown model -> UnknownModelError
+        if weights is None:
+            path = find_site_weights(model, site)
+        else:
+            p = Path(weights)
+            if p.is_dir():
+                found = weights_in_dir(p, model)
+                if found is None:
+                    raise WeightsNotFoundError(f"no {model}.pt (or .pth) in weights directory {p}")
+                path = found
+            elif p.is_file():
+                path = p
+            else:
+                raise WeightsNotFoundError(f"weights not found: {p}")
+        payload = read_checkpoint(path)
+        if payload.get("model_name", model) != model:
+            raise ValueError(f"{path}: weights are for model {payload['model_name']!r}, not {model!r}")
+        if config is None:
+            yaml_path = path.with_suffix(".yaml")
+            cfg = read_config(yaml_path) if yaml_path.is_file() else payload.get("config") or default_config(model)
+        elif isinstance(config, (str, Path)):
+            cfg = read_config(Path(config))
+        else:
+            cfg = merge_config(default_config(model), config)
+        if cfg.get("model", model) != model:
+            raise ValueError(f"config names model {cfg.get('model')!r}, but {model!r} was requested")
+        net = create_model(model, cfg)
+        load_state_strict(net, payload["state_dict"], str(path))
+        return cls(net, device=device, weights_path=path, site=site if weights is None else None)
+
+    def save_pretrained(self, save_dir: str | Path, *, dtype: str = "float32") -> dict[str, Path]:
+        """Write ``<dir>/<model>.pt`` and ``<dir>/<model>.yaml`` (no device in either)."""
+        d = Path(save_dir)
+        d.mkdir(parents=True, exist_ok=True)
+        w = save_weights(self.model, d / f"{self.model_name}.pt", model_name=self.model_name,
+                         config=self.config, dtype=dtype)
+        c = write_config(d / f"{self.model_name}.yaml", self.config)
+        return {"weights": w, "config": c}
+
+    # ------------------------------------------------------------------ stages
+    def prepare(self, image, point_cloud, bboxes_2d, bboxes_3d, rng: np.random.Generator | None = None,
+                **multi_camera) -> FrameInputs:
+        """Numpy model inputs of one frame (crops, kept-index maps); deterministic by default."""
+        return prepare_frame(image, point_cloud, bboxes_2d, bboxes_3d, self.crop_config, rng, **multi_camera)
+
+    def batch(self, inputs: FrameInputs | list[FrameInputs]):
+        from ..models.inputs import ModelBatch
+
+        return ModelBatch.from_frames(inputs if isinstance(inputs, list) else [inputs], self.device)
+
+    @torch.inference_mode()
+    def embed(self, inputs: FrameInputs):
+        """Stage 1: per-detection embeddings (``xcalib.models.Embeddings``) of one frame."""
+        return self.model.embed(self.batch(inputs))
+
+    @torch.inference_mode()
+    def score(self, emb, inputs: FrameInputs) -> np.ndarray:
+        """Stage 2: [N,M] similarity from embeddings."""
+        return self.model.score(emb, self.batch(inputs)).float().cpu().numpy()
+
+    @torch.inference_mode()
+    def similarity(self, inputs: FrameInputs) -> np.ndarray:
+        """[N,M] float32 similarity of prepared inputs (zeros-shaped when a side is empty)."""
+        if inputs.empty:
+            return np.zeros((inputs.num_2d, inputs.num_3d), dtype=np.float32)
+        b = self.batch(inputs)
+        return self.model.score(self.model.embed(b), b).float().cpu().numpy().astype(np.float32)
+
+    # ------------------------------------------------------------------ matching
+    def _validate(self, image, point_cloud, bboxes_2d, bboxes_3d, mode: str) -> None:
+        check_validate_mode(mode)
+        if mode == "off":
+            return
+        b3 = bboxes_3d
+        a3 = np.asarray(b3, dtype=np.float64) if not isinstance(b3, np.ndarray) else b3
+        if a3.ndim == 2 and a3.shape[1] == 7 and np.all(np.isfinite(a3)):
+            b3 = center_size_to_extents(a3[:, :6])  # box7: checked through its axis-aligned size
+        violations = validate_frame_inputs(image, point_cloud, bboxes_2d, b3,
+                                           bbox_expansion=self.crop_config.bbox_expansion)
+        enforce(violations, mode, registry=self._warnings)
+
+    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float = 0.0,
+              validate: str = "warn", assignment: str = "argmax", *, images=None,
+              camera_per_det=None) -> MatchResult:
+        """Match one frame. ``latency_ms`` = crop + model wall time (validation excluded)."""
+        if assignment not in ASSIGNMENTS:
+            raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {assignment!r}")
+        self._validate(image, point_cloud, bboxes_2d, bboxes_3d, validate)
+        t0 = time.perf_counter()
+        multi = {"images": images, "camera_per_det": camera_per_det} if images is not None else {}
+        inputs = self.prepare(image, point_cloud, bboxes_2d, bboxes_3d, **multi)
+        sim = self.similarity(inputs)
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+        ms = (time.perf_counter() - t0) * 1000.0
+        top, pairs = assign(sim, top_k=top_k, threshold=match_threshold, method=assignment,
+                            fill_value=getattr(self.model, "fill_value", None))
+        k2, k3 = inputs.kept_2d, inputs.kept_3d
+        matches = [(int(k2[i]), int(k3[j]), s) for i, j, s in pairs]
+        return MatchResult(similarity=sim, top_indices=top, matches=matches, kept_2d_indices=k2.astype(np.int64),
+                           kept_3d_indices=k3.astype(np.int64), latency_ms=ms, model=self.model_name,
+                           device=str(self.device), assignment=assignment)
+
+    pair = match
+
+    def match_frame(self, frame: Frame, **kw) -> MatchResult:
+        """:meth:`match` on a :class:`xcalib.types.Frame` (multi-camera frames crop each 2D box
+        from its own camera's image)."""
+        if frame.images and frame.camera_per_det is not None:
+            kw.setdefault("images", frame.images)
+            kw.setdefault("camera_per_det", frame.camera_per_det)
+        return self.match(frame.image, frame.point_cloud, frame.bboxes_2d, frame.bboxes_3d, **kw)
+
+    # ------------------------------------------------------------------ other tasks
+    def calibrate(self, *args, **kw):
+        """``xcalib.calib.api.calibrate(frames, intrinsics, matcher=self, **kw)``; the reference's
+        one-frame form ``calibrate(image, point_cloud, bboxes_2d, bboxes_3d, intrinsics)`` works too."""
+        from ..calib import api
+
+        if args and isinstance(args[0], np.ndarray) and args[0].ndim == 3:
+            return api.calibrate_single(*args, matcher=self, **kw)
+        if args and isinstance(args[0], Frame):
+            args = ([args[0]], *args[1:])
+        return api.calibrate(*args, matcher=self, **kw)
+
+    def train(self, train_data, val_data, *, output_dir: str | Path = "runs/finetune", **kwargs) -> Path:
+        """Fine-tune this matcher's model in place (best checkpoint by validation MRR is loaded
+        back, strictly); returns the path of ``best.pt``."""
+        from .trainer import train
+
+        best = train(self.model, train_data, val_data, output_dir=output_dir, device=str(self.device), **kwargs)
+        payload = read_checkpoint(best)
+        load_state_strict(self.model, payload["state_dict"], str(best))
+        self.model.to(self.device).eval()
+        self.weights_path = Path(best)
+        return Path(best)
+
+    def __repr__(self) -> str:
+        return f"Matcher(model={self.model_name!r}, device={str(self.device)!r}, weights={str(self.weights_path)!r})"

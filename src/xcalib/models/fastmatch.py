@@ -1,0 +1,83 @@
+"""fastmatch: our CPU-first matcher.
+
+Image side: a 3-stage strided CNN on small crops + 2D box geometry (centre, size, aspect,
+bottom edge as fractions of the image size). LiDAR side: a light PointNet on few points + 3D
+box geometry (centre and range in units of ``geo_scale_m`` metres, bearing, log dims, log
+point count, point spread in the box frame). Scored by a tiny pair head over
+[e_i * e_j, |e_i - e_j|, cos]; score = sigmoid pair probability in [0,1] for every pair.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from .backbones.pointnet import TinyPointNet
+from .backbones.resnet import SmallCNN
+from .base import Embeddings, MatchingModel, TrainLogits
+from .inputs import ModelBatch
+from .layers import mlp
+from .registry import register_model
+
+__all__ = ["FastMatch", "geometry_2d", "geometry_3d"]
+
+N_GEO_2D, N_GEO_3D = 9, 14
+
+
+def geometry_2d(boxes: torch.Tensor, wh: torch.Tensor) -> torch.Tensor:
+    """[N,4] px boxes + [N,2] image size -> [N,9] unit-free features."""
+    x1, y1, x2, y2 = (boxes[:, i] / wh[:, i % 2] for i in range(4))
+    w, h = (x2 - x1).clamp_min(1e-4), (y2 - y1).clamp_min(1e-4)
+    return torch.stack([(x1 + x2) / 2, (y1 + y2) / 2, w, h, torch.log(w / h), torch.log(w * h), y2, x1, x2], 1)
+
+
+def geometry_3d(box7: torch.Tensor, counts: torch.Tensor, pts: torch.Tensor, scale_m: float) -> torch.Tensor:
+    """box7 [M,7] m, counts [M], box-frame points [M,P,3] m -> [M,14] features."""
+    xyz = box7[:, :3]
+    rng = torch.linalg.norm(xyz[:, :2], dim=1)
+    bearing = torch.atan2(xyz[:, 1], xyz[:, 0])
+    spread = pts.std(dim=1, unbiased=False) / box7[:, 3:6].clamp_min(1e-2)
+    zr = (pts[:, :, 2].amax(1) - pts[:, :, 2].amin(1)) / box7[:, 5].clamp_min(1e-2)
+    return torch.cat([xyz / scale_m, (rng / scale_m)[:, None], torch.cos(bearing)[:, None],
+                      torch.sin(bearing)[:, None], torch.log(box7[:, 3:6].clamp_min(1e-2)),
+                      torch.log1p(counts)[:, None] / 5, spread, zr[:, None]], 1)
+
+
+@register_model("fastmatch")
+class FastMatch(MatchingModel):
+    score_range = (0.0, 1.0)
+
+    def __init__(self, config):
+        super().__init__(config)
+        c = self.config
+        E, G = int(c.get("embed_dim", 64)), int(c.get("geo_dim", 64))
+        self.geo_scale_m = float(c.get("geo_scale_m", 50.0))
+        self.img_backbone = SmallCNN(tuple(c.get("cnn_widths", (16, 32, 64))))
+        self.lid_backbone = TinyPointNet((3, *c.get("pointnet_dims", (32, 64, 128))))
+        self.img_geo = mlp([N_GEO_2D, G, G], last_act=True)
+        self.lid_geo = mlp([N_GEO_3D, G, G], last_act=True)
+        self.img_head = mlp([self.img_backbone.out_dim + G, 2 * E, E])
+        self.lid_head = mlp([self.lid_backbone.out_dim + G, 2 * E, E])
+        self.pair_head = mlp([2 * E + 1, int(c.get("pair_hidden", 64)), 1])
+        self.cosine_weight = float(c.get("cosine_weight", 0.5))
+
+    def embed(self, batch: ModelBatch) -> Embeddings:
+        gi = self.img_geo(geometry_2d(batch.boxes_2d, batch.image_wh))
+        gl = self.lid_geo(geometry_3d(batch.boxes_3d, batch.point_counts, batch.crops_3d, self.geo_scale_m))
+        fi = self.img_head(torch.cat([self.img_backbone(batch.crops_2d), gi], 1))
+        fl = self.lid_head(torch.cat([self.lid_backbone(batch.crops_3d), gl], 1))
+        return Embeddings(F.normalize(fi, dim=1), F.normalize(fl, dim=1))
+
+    def pair_logits(self, emb: Embeddings) -> torch.Tensor:
+        a, b = emb.img[:, None], emb.lid[None]
+        N, M = len(emb.img), len(emb.lid)
+        x = torch.cat([(a * b), (a - b).abs(), (a * b).sum(-1, keepdim=True)], 2) if N and M else \
+            emb.img.new_zeros((N, M, 2 * emb.img.shape[1] + 1))
+        return self.pair_head(x).squeeze(-1)
+
+    def score(self, emb: Embeddings, batch: ModelBatch) -> torch.Tensor:
+        return torch.sigmoid(self.pair_logits(emb))
+
+    def train_logits(self, emb: Embeddings, batch: ModelBatch) -> list[TrainLogits]:
+        cos = emb.img @ emb.lid.T / self.temperature
+        return [TrainLogits(cos, "cosine", self.cosine_weight), TrainLogits(self.pair_logits(emb), "logit", 1.0)]
