@@ -1,0 +1,120 @@
+"""Frames of a site (``Frame`` records with exact ground truth) and site folders of HDF5 caches."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from ...types import Frame
+from .detections import camera_view, detect
+from .presets import NOISE_FIELDS
+from .scene import simulate_traffic
+from .site import Site, sample_site
+
+__all__ = ["iter_frames", "generate_frames", "write_site", "blank_image", "SPLITS"]
+
+SPLITS = ("train", "val", "test")
+_SPLIT_SEED = {"train": 1, "val": 2, "test": 3}
+
+
+def blank_image(site: Site) -> np.ndarray:
+    """A shared read-only black [H,W,3] image costing no memory (labels-only mode)."""
+    return np.broadcast_to(np.zeros(3, dtype=np.uint8), (site.height, site.width, 3))
+
+
+def iter_frames(site: Site, n_frames: int, seed: int = 0, *, render_images: bool = True, lidar: bool = True,
+                start: int = 0, **noise) -> Iterator[Frame]:
+    """Yield ``n_frames`` consecutive frames (10 Hz by default) of one traffic sequence.
+
+    Labels depend only on (site, seed, frame index): ``render_images`` / ``lidar`` / ``n_frames``
+    never change them. ``noise`` overrides the site's noise fields for this call
+    (``box_noise_px``, ``miss_rate_2d``, ``miss_rate_3d``, ``false_positive_rate_2d``,
+    ``false_positive_rate_3d``, ``center_noise_m``, ``size_noise_frac``, ``yaw_noise_deg``,
+    ``lidar_range_noise_m``, ``lidar_dropout``).
+
+    Each frame: image [H,W,3] RGB (``render_images=False``: a shared blank image), point_cloud
+    [P,3] float32 levelled LiDAR frame (``lidar=False``: [0,3]), bboxes_2d [K,4] px, bboxes_3d
+    protocol [M,6] (site's ``box_convention``), match_matrix [K,M], intrinsics, extrinsics = GT
+    ``T_cam_lidar``; meta: ``box7`` [M,7] (detected, yaw), ``box7_gt``, ``ids_2d`` / ``ids_3d``
+    (track ids, -1 = false positive), ``classes_2d`` / ``classes_3d``, ``boxes_2d_clean``,
+    ``visibility_2d``, ``truncation_2d``, ``n_points_3d`` (with LiDAR), ``timestamp`` (s).
+    """
+    unknown = sorted(set(noise) - set(NOISE_FIELDS))
+    if unknown:
+        raise TypeError(f"iter_frames: unknown noise parameter(s) {unknown}; expected some of {NOISE_FIELDS}")
+    if n_frames < 0:
+        raise ValueError(f"n_frames must be >= 0, got {n_frames}")
+    tracks = simulate_traffic(site, start + n_frames, np.random.default_rng([site.seed, int(seed), 11]))
+    T = site.T_cam_lidar
+    for k in range(start, start + n_frames):
+        objs = tracks.at(k)
+        view = camera_view(site, objs)
+        det = detect(site, objs, np.random.default_rng([site.seed, int(seed), k, 22]), view=view, noise=noise)
+        meta = {"box7": det.box7_3d, "box7_gt": det.box7_gt_3d, "ids_2d": det.ids_2d, "ids_3d": det.ids_3d,
+                "classes_2d": det.classes_2d, "classes_3d": det.classes_3d, "boxes_2d_clean": det.clean_2d,
+                "visibility_2d": det.visibility_2d, "truncation_2d": det.truncation_2d,
+                "timestamp": k * site.config.frame_dt, "sequence_seed": int(seed), "site_seed": site.seed}
+        if render_images:
+            from .render import render_frame
+
+            image = render_frame(site, objs, view)
+        else:
+            image = blank_image(site)
+        if lidar:
+            from .lidar import scan
+
+            scan_out = scan(site, objs, np.random.default_rng([site.seed, int(seed), k, 33]), noise=noise)
+            points = scan_out.points
+            obj_of_id = {int(t): j for j, t in enumerate(objs.ids)}
+            counts = np.bincount(scan_out.labels[scan_out.labels >= 0], minlength=len(objs))
+            meta["n_points_3d"] = np.array([counts[obj_of_id[int(t)]] if t >= 0 else 0 for t in det.ids_3d],
+                                           dtype=np.int64)
+        else:
+            points = np.zeros((0, 3), dtype=np.float32)
+        yield Frame(image=image, point_cloud=points, bboxes_2d=det.boxes_2d.astype(np.float32),
+                    bboxes_3d=det.boxes_3d.astype(np.float32), camera_name=site.camera_name,
+                    frame_key=f"{k:06d}", match_matrix=det.match, intrinsics=site.intrinsics,
+                    extrinsics=T.copy(), meta=meta)
+
+
+def generate_frames(site: Site, n_frames: int, seed: int = 0, *, render_images: bool = True,
+                    lidar: bool = True, **noise) -> list[Frame]:
+    """``list(iter_frames(...))`` — mind the memory for many rendered frames (use iter_frames)."""
+    return list(iter_frames(site, n_frames, seed, render_images=render_images, lidar=lidar, **noise))
+
+
+def write_site(out_dir, n_train: int, n_val: int, n_test: int, seed: int = 0, preset: str = "roadside", *,
+               progress: Callable[[str, int, int], None] | None = None, render_images: bool = True,
+               lidar: bool = True, image_format: str = "jpeg", **overrides) -> Path:
+    """Write ``train.h5``, ``val.h5``, ``test.h5`` (with /calibration) and ``site.json`` to ``out_dir``.
+
+    Each split is its own traffic sequence (no temporal overlap). ``overrides`` go to
+    :func:`sample_site`. ``progress(split, done, total)`` is called after every frame.
+    """
+    from ...io.hdf5 import CacheWriter
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    site = sample_site(seed, preset, **overrides)
+    counts = {"train": int(n_train), "val": int(n_val), "test": int(n_test)}
+    for split, n in counts.items():
+        if n < 0:
+            raise ValueError(f"write_site: n_{split} must be >= 0, got {n}")
+        with CacheWriter(out / f"{split}.h5", camera_names=[site.camera_name], lidar_name=site.lidar_name,
+                         label_sensor=site.camera_name, jpeg_quality=site.config.jpeg_quality,
+                         image_format=image_format) as w:
+            for i, frame in enumerate(iter_frames(site, n, seed=1000 * int(seed) + _SPLIT_SEED[split],
+                                                  render_images=render_images, lidar=lidar)):
+                w.add(frame)
+                if progress is not None:
+                    progress(split, i + 1, n)
+    info = site.to_dict()
+    info["splits"] = {s: {"file": f"{s}.h5", "frames": n, "sequence_seed": 1000 * int(seed) + _SPLIT_SEED[s]}
+                      for s, n in counts.items()}
+    tmp = out / ".site.json.tmp"
+    tmp.write_text(json.dumps(info, indent=2))
+    tmp.replace(out / "site.json")
+    return out
