@@ -92,7 +92,7 @@ def _collinear(P: np.ndarray, tol: float) -> bool:
 def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: float = 0.3,
               max_hyp_frames: int = 10, max_refine: int = 6, min_pairs: int = 4,
               ambiguity_ratio: float = 0.85, max_rot_std_deg: float = 1.0, max_trans_std_m: float = 0.5,
-              reestimate_yaw: str | bool = "auto", seed: int = 0,
+              reestimate_yaw: str | bool = "auto", box_model: str = "auto", seed: int = 0,
               progress: Callable[[str, int, int], None] | None = None) -> CalibrationResult:
     """Estimate ``T_cam_lidar`` from detections over one or many frames of one static rig.
 
@@ -105,6 +105,7 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
             similarities only rank candidate pairs (geometry decides).
         prior: optional initial pose (``CalibrationResult``, (R, t) or 4x4): skips the bring-up.
         gate: IoU gate of the final one-to-one matches.
+        box_model: "auto" | "corners" | "points" (see ``inputs.prepare_frames``).
         ambiguity_ratio: fail when a distinct runner-up pose scores at least this fraction of the best.
         progress: optional callback(stage, done, total).
     Returns:
@@ -122,7 +123,8 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
         raise TypeError("calibrate(frames, intrinsics, *, ...): unexpected positional arguments")
     t0 = time.perf_counter()
     frames_in = list(frames) if not isinstance(frames, (list, tuple)) else frames
-    cframes, intr, problem = prepare_frames(frames_in, intrinsics, reestimate_yaw=reestimate_yaw)
+    cframes, intr, problem = prepare_frames(frames_in, intrinsics, reestimate_yaw=reestimate_yaw,
+                                            box_model=box_model)
     camera = next((f.camera for f in cframes if f.camera), "")
     if problem:
         return _fail(problem, intr, cframes)
@@ -183,7 +185,9 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
     refined.sort(key=lambda x: -x[0])
     best_score, best = refined[0]
     runner = next((s for s, r in refined[1:] if _distinct(r.R, r.t, best.R, best.t, 1.0, 0.3)), 0.0)
-    meta.update(score=best_score, runner_up_score=runner, refine_history=best.history)
+    meta.update(score=best_score, runner_up_score=runner, refine_history=best.history,
+                candidates=[{"score": s, "rot_deg_from_best": rotation_angle(r.R, best.R, degrees=True),
+                             "trans_m_from_best": float(np.linalg.norm(r.t - best.t))} for s, r in refined])
 
     pairs = match_all(cframes, intr, best.R, best.t, gate_iou=gate)
     px, ious = pair_metrics(cframes, intr, best.R, best.t, pairs)

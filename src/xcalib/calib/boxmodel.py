@@ -59,3 +59,59 @@ def estimate_yaw_from_points(boxes7: np.ndarray, points: np.ndarray, *, min_poin
     ok = (n >= min_points) & np.isfinite(yaw) & (np.sqrt(l1 / l2) >= min_elongation)
     b[ok, 6] = yaw[ok]
     return b
+
+
+def shapes_from_points(boxes7: np.ndarray, corners: np.ndarray, points: np.ndarray, *, min_points: int = 15,
+                       max_vertices: int = 64, ground_clearance_m: float = 0.2,
+                       expansion: float = 1.1) -> tuple[np.ndarray, np.ndarray]:
+    """Per-box outline points [M,S,3] (LiDAR frame, metres) from the LiDAR points inside each box.
+
+    The enclosing rectangle of a convex set's projection is that of its hull's projected vertices,
+    so each box keeps the 3D convex-hull vertices of its points (ground points below
+    ``ground_clearance_m`` above the box bottom excluded; the box grown by ``expansion`` in x-y)
+    plus their vertical drop onto the box bottom (objects stand on the ground).
+    Boxes with fewer than ``min_points`` points keep their 8 corners. Rows are padded by repeating
+    their first vertex. Returns (shapes, from_points [M] bool).
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    from ..geometry.boxes import points_in_boxes
+
+    b = np.asarray(boxes7, dtype=np.float64)
+    M = len(b)
+    if M == 0 or points is None or len(points) == 0:
+        return corners, np.zeros(M, dtype=bool)
+    grown = b.copy()
+    grown[:, 3:5] *= expansion
+    grown[:, 2] += ground_clearance_m / 2 + 0.05  # lift the bottom, add 0.1 m at the top
+    grown[:, 5] += 0.1 - ground_clearance_m
+    mask = points_in_boxes(points, grown)
+    rows: list[np.ndarray] = []
+    used = np.zeros(M, dtype=bool)
+    for j in range(M):  # one hull per box (boxes, not points, are looped over)
+        p = points[mask[j], :3].astype(np.float64)
+        v = corners[j]
+        if len(p) >= min_points:
+            try:
+                hv = p[ConvexHull(p).vertices]
+                if len(hv) > max_vertices:
+                    # keep the extremes along many directions
+                    dirs = np.random.default_rng(0).normal(size=(max_vertices // 2, 3))
+                    proj = hv @ dirs.T
+                    keep = np.unique(np.concatenate([proj.argmax(0), proj.argmin(0)]))
+                    hv = hv[keep]
+                # the object stands on the ground: add the hull's shadow on the box bottom, which
+                # the LiDAR rarely sees (wheels, occluded lower parts) but the camera box includes
+                foot = hv.copy()
+                foot[:, 2] = b[j, 2] - b[j, 5] / 2
+                v = np.concatenate([hv, foot])
+                used[j] = True
+            except (QhullError, ValueError):
+                pass
+        rows.append(v)
+    S = max(len(r) for r in rows)
+    out = np.empty((M, S, 3))
+    for j, r in enumerate(rows):
+        out[j, : len(r)] = r
+        out[j, len(r):] = r[0]
+    return out, used

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..geometry.boxes import as_box7, box7_corners, check_boxes2d, check_boxes3d, valid_boxes2d
 from ..geometry.camera import CameraIntrinsics
-from .boxmodel import estimate_yaw_from_points
+from .boxmodel import estimate_yaw_from_points, shapes_from_points
 
 __all__ = ["CalibFrame", "as_intrinsics", "prepare_frames"]
 
@@ -96,11 +96,13 @@ def _image_size(image, intr: CameraIntrinsics, meta: dict) -> tuple[int, int]:
 
 
 def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool = "auto",
-                   min_box_px: float = 2.0) -> tuple[list[CalibFrame], CameraIntrinsics, str | None]:
+                   box_model: str = "auto", min_box_px: float = 2.0) -> tuple[list[CalibFrame], CameraIntrinsics, str | None]:
     """Normalise ``frames`` -> (CalibFrames, intrinsics, problem message or None).
 
     The message is set (and the list may be partial) when frames come from different
-    cameras. Raises ValueError for impossible intrinsics or malformed boxes.
+    cameras. ``box_model``: "corners" (the 8 box corners), "points" (hull of the LiDAR points in
+    each box; corners where too few) or "auto" (points for yaw-less [M,6] boxes when a cloud is
+    given, corners otherwise). Raises ValueError for impossible intrinsics or malformed boxes.
     """
     if not isinstance(frames, (list, tuple)):
         frames = list(frames)
@@ -144,9 +146,16 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
         had_yaw = b3.ndim == 2 and b3.shape[1] == 7
         if (reestimate_yaw is True or (reestimate_yaw == "auto" and not had_yaw)) and p is not None and len(box7):
             box7 = estimate_yaw_from_points(box7, p)
+        if box_model not in ("auto", "corners", "points"):
+            raise ValueError(f"box_model: expected 'auto', 'corners' or 'points', got {box_model!r}")
+        shapes = box7_corners(box7) if len(box7) else np.zeros((0, 8, 3))
+        use_pts = box_model == "points" or (box_model == "auto" and not had_yaw)
+        if use_pts and p is not None and len(p) and len(box7):
+            shapes, from_pts = shapes_from_points(box7, shapes, p)
+            meta = {**meta, "boxes_from_points": int(from_pts.sum())}
         out.append(CalibFrame(
             key=str(key), camera=cam, boxes2d=b2[idx2].astype(np.float64), boxes3d=box7,
-            corners=box7_corners(box7) if len(box7) else np.zeros((0, 8, 3)), idx2d=idx2, idx3d=idx3,
+            corners=shapes, idx2d=idx2, idx3d=idx3,
             size=size, points=p, image=None if image is None else np.asarray(image),
             gt=None if gt is None else np.asarray(gt, dtype=np.float64), meta=meta,
         ))

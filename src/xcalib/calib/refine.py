@@ -73,6 +73,10 @@ def _stack(frames: list[CalibFrame], pairs: list[np.ndarray]):
     obs = [fr.boxes2d[p[:, 0]] for fr, p in zip(frames, pairs) if len(p)]
     if not corners:
         return np.zeros((0, 8, 3)), np.zeros((0, 4))
+    S = max(c.shape[1] for c in corners)
+    # outlines may differ in length between frames: pad by repeating each box's first vertex
+    corners = [c if c.shape[1] == S else np.concatenate([c, np.repeat(c[:, :1], S - c.shape[1], 1)], 1)
+               for c in corners]
     return np.concatenate(corners), np.concatenate(obs)
 
 
