@@ -157,24 +157,37 @@ def points_in_boxes(points, boxes, *, expansion: float = 1.0, convention: str = 
     A[:, :, 3] = -np.einsum("mij,mj->mi", A[:, :, :3], b[:, :3])
     xyz = np.ascontiguousarray(pts[:, :3], dtype=np.float32)
     Af = A.astype(np.float32)
-    # Candidate pairs without a dense [M,P] test: bucket the points along x (radix sort on
-    # int16 cells), then each box only visits the buckets its x-extent overlaps.
-    x = xyz[:, 0]
-    half_x = np.abs(c) * b[:, 3] / 2.0 + np.abs(s) * b[:, 4] / 2.0
-    x0, x1 = float(x.min()), float(x.max())
-    cell = max((x1 - x0) / 4096.0, 0.05)
-    ncell = int((x1 - x0) / cell) + 1
-    cells = ((x - x0) / cell).astype(np.int16)
-    order = np.argsort(cells, kind="stable")
-    starts = np.concatenate([[0], np.cumsum(np.bincount(cells, minlength=ncell))])
-    c0 = np.clip(np.floor((b[:, 0] - half_x - x0) / cell), 0, ncell).astype(np.int64)
-    c1 = np.clip(np.floor((b[:, 0] + half_x - x0) / cell) + 1, 0, ncell).astype(np.int64)
-    seg_start, lens = starts[c0], np.maximum(starts[c1] - starts[c0], 0)
+    # Candidate pairs without a dense [M,P] test: bucket the points on a G x G grid in x, y
+    # (radix sort on uint16 cell ids); each box visits only the cell rows its footprint covers.
+    G = 256
+    x, y = xyz[:, 0], xyz[:, 1]
+    lo = np.array([x.min(), y.min()], dtype=np.float64)
+    cell = np.maximum((np.array([x.max(), y.max()], dtype=np.float64) - lo) / G, 1e-6)
+    ix = ((x - np.float32(lo[0])) * np.float32(1.0 / cell[0])).astype(np.int32)
+    iy = ((y - np.float32(lo[1])) * np.float32(1.0 / cell[1])).astype(np.int32)
+    np.clip(ix, 0, G - 1, out=ix)
+    np.clip(iy, 0, G - 1, out=iy)
+    cid = (iy * G + ix).astype(np.uint16)
+    order = np.argsort(cid, kind="stable")
+    starts = np.zeros(G * G + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cid, minlength=G * G), out=starts[1:])
+    half = np.stack([np.abs(c) * b[:, 3] + np.abs(s) * b[:, 4],
+                     np.abs(s) * b[:, 3] + np.abs(c) * b[:, 4]], 1) / 2 + 1e-3
+    lo_c = np.floor((b[:, :2] - half - lo) / cell) - 1
+    hi_c = np.floor((b[:, :2] + half - lo) / cell) + 1
+    valid = (hi_c[:, 0] >= 0) & (hi_c[:, 1] >= 0) & (lo_c[:, 0] <= G - 1) & (lo_c[:, 1] <= G - 1)
+    lo_c = np.clip(lo_c, 0, G - 1).astype(np.int64)
+    hi_c = np.clip(hi_c, 0, G - 1).astype(np.int64)
+    nrows = np.where(valid, hi_c[:, 1] - lo_c[:, 1] + 1, 0)
+    seg_box = np.repeat(np.arange(M), nrows)
+    seg_row = lo_c[seg_box, 1] + np.arange(len(seg_box)) - np.repeat(np.cumsum(nrows) - nrows, nrows)
+    seg_start = starts[seg_row * G + lo_c[seg_box, 0]]
+    lens = starts[seg_row * G + hi_c[seg_box, 0] + 1] - seg_start
     mask = np.zeros((M, P), dtype=bool)
     total = int(lens.sum())
     if total == 0:
         return mask
-    mi = np.repeat(np.arange(M), lens)
+    mi = np.repeat(seg_box, lens)
     offs = np.arange(total) - np.repeat(np.cumsum(lens) - lens, lens)
     pi = order[np.repeat(seg_start, lens) + offs]
     px, py, pz = xyz[pi, 0], xyz[pi, 1], xyz[pi, 2]
