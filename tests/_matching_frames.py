@@ -55,3 +55,23 @@ def make_frame(seed: int, n_obj: int = 4, points_per_obj: int = 300, shift=(0.0,
 
 def make_frames(n: int, seed: int = 0, **kw) -> list[Frame]:
     return [make_frame(seed * 1000 + i, **kw) for i in range(n)]
+
+
+# Tiny configs of every model (fast tests; same code paths as the full-size defaults).
+TINY = {
+    "fastmatch": {"point_cloud_size": 32, "embed_dim": 16, "geo_dim": 16, "cnn_widths": [8, 8, 16],
+                  "pointnet_dims": [16, 16, 32], "pair_hidden": 16},
+    "crlite": {"point_cloud_size": 32, "embed_dim": 32, "token_len": 16, "top_k": 3},
+    "crlite_2dpe": {"point_cloud_size": 32, "embed_dim": 32, "token_len": 16, "top_k": 3},
+    "crlite_vit_exp1": {"crop_size": 16, "point_cloud_size": 32, "embed_dim": 32,
+                        "vit": {"patch_size": 8, "embed_dim": 16, "depth": 1, "num_heads": 2}},
+    "crlite_vit_exp3": {"crop_size": 16, "point_cloud_size": 32, "embed_dim": 32, "token_len": 16,
+                        "vit": {"patch_size": 8, "embed_dim": 16, "depth": 1, "num_heads": 2}},
+    "crlite_vit_exp4": {"crop_size": 16, "point_cloud_size": 32, "embed_dim": 32,
+                        "vit": {"patch_size": 8, "embed_dim": 16, "depth": 1, "num_heads": 2},
+                        "gnn": {"hidden_dim": 16}},
+    "calibrefine": {"point_cloud_size": 32, "num_blocks": [1, 1, 1, 1], "base_width": 4, "embed_dim": 32,
+                    "token_len": 16, "dense": {"embed_dim": 16, "fusion_dim": 16, "hidden_dim": 8},
+                    "pointnet2": [{"npoint": 8, "radius": 0.5, "nsample": 8, "mlp": [8, 16]},
+                                  {"npoint": None, "mlp": [16, 32]}]},
+}

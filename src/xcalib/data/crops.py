@@ -119,7 +119,7 @@ def crop_images(image: np.ndarray, bboxes_2d, crop_size: int = 32, *, keep_aspec
     H, W = image.shape[:2]
     ok = np.all(np.isfinite(b), axis=1) & (b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])
     ok &= (b[:, 2] > 0) & (b[:, 0] < W) & (b[:, 3] > 0) & (b[:, 1] < H)
-    src = b.copy()
+    src = np.where(ok[:, None], b, 0.0)
     if keep_aspect and len(src):
         c = (src[:, :2] + src[:, 2:]) / 2.0
         half = np.maximum(src[:, 2] - src[:, 0], src[:, 3] - src[:, 1])[:, None] / 2.0
