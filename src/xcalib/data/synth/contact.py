@@ -1,0 +1,88 @@
+"""Contact sheet: a PNG grid of frames with 2D boxes and LiDAR points projected by the GT calibration."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ...types import Frame
+
+__all__ = ["contact_sheet", "draw_frame"]
+
+
+def draw_frame(frame: Frame, *, max_points: int = 40000) -> np.ndarray:
+    """One annotated RGB image: points coloured by depth (needs ``intrinsics`` + ``extrinsics``),
+    matched 2D boxes green, unmatched 2D boxes red, projected matched 3D boxes (box7) yellow."""
+    import cv2
+
+    from ...geometry.boxes import box7_corners
+    from ...geometry.projection import project_points
+
+    img = np.ascontiguousarray(frame.image).copy()
+    H, W = img.shape[:2]
+    if frame.intrinsics is not None and frame.extrinsics is not None and len(frame.point_cloud):
+        T = np.asarray(frame.extrinsics)
+        pts = frame.point_cloud[:, :3]
+        if len(pts) > max_points:
+            pts = pts[np.random.default_rng(0).choice(len(pts), max_points, replace=False)]
+        uv, depth = project_points(pts, frame.intrinsics, T[:3, :3], T[:3, 3])
+        ok = np.isfinite(uv[:, 0]) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+        uv, depth = uv[ok].astype(np.int32), depth[ok]
+        hue = np.clip(depth / 80.0 * 150, 0, 150).astype(np.uint8)
+        hsv = np.stack([hue, np.full_like(hue, 255), np.full_like(hue, 255)], axis=1)[None]
+        rgb = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0]
+        r = max(1, W // 900)
+        for dx in range(-r, r + 1):
+            for dy in range(-r, r + 1):
+                img[np.clip(uv[:, 1] + dy, 0, H - 1), np.clip(uv[:, 0] + dx, 0, W - 1)] = rgb
+        b7 = frame.meta.get("box7")
+        if b7 is not None and frame.match_matrix is not None and len(b7):
+            sel = np.flatnonzero(frame.match_matrix.any(axis=0))
+            if len(sel):
+                c = box7_corners(np.asarray(b7)[sel])
+                uvc, dc = project_points(c.reshape(-1, 3), frame.intrinsics, T[:3, :3], T[:3, 3])
+                uvc = uvc.reshape(-1, 8, 2)
+                for k in range(len(sel)):
+                    if np.all(np.isfinite(uvc[k])):
+                        q = np.round(uvc[k]).astype(np.int32)
+                        for a, b in ((0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4),
+                                     (0, 4), (1, 5), (2, 6), (3, 7)):
+                            cv2.line(img, tuple(map(int, q[a])), tuple(map(int, q[b])), (255, 230, 0), 1, cv2.LINE_AA)
+    matched = frame.match_matrix.any(axis=1) if frame.match_matrix is not None else np.zeros(frame.num_2d, bool)
+    th = max(2, W // 640)
+    for k, b in enumerate(np.asarray(frame.bboxes_2d)):
+        col = (0, 255, 0) if matched[k] else (255, 40, 40)
+        cv2.rectangle(img, (int(b[0]), int(b[1])), (int(b[2]), int(b[3])), col, th)
+    txt = f"{frame.frame_key}  K={frame.num_2d} M={frame.num_3d} P={len(frame.point_cloud)}"
+    cv2.putText(img, txt, (12, 20 + 20 * th), cv2.FONT_HERSHEY_SIMPLEX, 0.6 * th, (255, 255, 255), th + 1, cv2.LINE_AA)
+    return img
+
+
+def contact_sheet(frames: Sequence[Frame], path, *, cols: int = 3, tile_width: int = 640) -> Path:
+    """Write a PNG grid of annotated frames (see :func:`draw_frame`) to ``path``; returns the path."""
+    import cv2
+
+    frames = list(frames)
+    if not frames:
+        raise ValueError("contact_sheet: no frames given")
+    tiles = []
+    for f in frames:
+        im = draw_frame(f)
+        h = int(round(im.shape[0] * tile_width / im.shape[1]))
+        tiles.append(cv2.resize(im, (tile_width, h), interpolation=cv2.INTER_AREA))
+    th = max(t.shape[0] for t in tiles)
+    rows = []
+    for r in range(0, len(tiles), cols):
+        row = [np.pad(t, ((0, th - t.shape[0]), (0, 0), (0, 0))) for t in tiles[r:r + cols]]
+        row += [np.zeros((th, tile_width, 3), np.uint8)] * (cols - len(row))
+        rows.append(np.hstack(row))
+    sheet = np.vstack(rows)
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    ok, enc = cv2.imencode(".png", cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise ValueError(f"contact_sheet: could not encode {p}")
+    p.write_bytes(enc.tobytes())
+    return p
