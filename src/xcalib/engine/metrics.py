@@ -87,7 +87,8 @@ class MetricsAccumulator:
 
     @staticmethod
     def from_sums(s: np.ndarray, latencies=()) -> MatchingMetrics:
-        n, nf = max(s[0], 1), max(s[4], 1)
+        s = [float(v) for v in s]
+        n, nf = max(s[0], 1.0), max(s[4], 1.0)
         return MatchingMetrics(top1=s[1] / n, top3=s[2] / n, mrr=s[3] / n, frame_top1=s[5] / nf,
                                frame_top3=s[6] / nf, frame_mrr=s[7] / nf, n_frames=int(s[8]),
                                n_cameras_with_match=int(s[0]), latency=latency_stats(latencies))

@@ -144,14 +144,15 @@ def _block_gt(samples: Sequence[TrainSample], device) -> torch.Tensor:
 @torch.no_grad()
 def evaluate(model, samples: Sequence[TrainSample], n_points: int, device, seed: int = 0,
              acc: MetricsAccumulator | None = None) -> MetricsAccumulator:
-    """Inference scores (``model.score``) of every sample with seeded crops -> accumulator."""
+    """Inference scores (``model.score``) of every sample -> accumulator. Each frame's points are
+    resampled with ``default_rng(seed)``, exactly as ``Matcher.match`` does with the config seed."""
     from ..models.inputs import ModelBatch
 
     acc = acc or MetricsAccumulator()
     was = model.training
     model.eval()
     for i, s in enumerate(samples):
-        fi = s.inputs(n_points, np.random.default_rng([seed, i]))
+        fi = s.inputs(n_points, np.random.default_rng(seed))
         t0 = time.perf_counter()
         b = ModelBatch.from_frames([fi], device)
         sim = model.score(model.embed(b), b).float().cpu().numpy()
@@ -294,7 +295,7 @@ def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None 
             tot = _allreduce(np.array([float(np.sum(losses)), float(len(losses))]))
             mean_loss = float(tot[0] / max(tot[1], 1.0))
             if val_s:
-                acc = evaluate(net, val_s[rank::world], P, dev, seed)
+                acc = evaluate(net, val_s[rank::world], P, dev, cfg.seed)
                 met = MetricsAccumulator.from_sums(_allreduce(acc.sums()))
             else:
                 met = MatchingMetrics(mrr=-mean_loss)
