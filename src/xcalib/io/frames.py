@@ -231,8 +231,19 @@ def is_frame_folder(path) -> bool:
 # Dispatch table for read_frames: (name, detect(path) -> bool, open(path, **kw) -> Sequence[Frame]).
 # Owners of other formats (HDF5 caches, KITTI, CalibAnything, ...) add an entry with
 # register_reader; the first whose detect() accepts the path wins.
+def _is_hdf5(p: Path) -> bool:
+    return p.is_file() and p.suffix.lower() in (".h5", ".hdf5")
+
+
+def _open_hdf5(p: Path, **kwargs) -> Sequence[Frame]:
+    from .hdf5 import CacheReader  # h5py only when an HDF5 cache is opened
+
+    return CacheReader(p, **kwargs)
+
+
 _READERS: list[tuple[str, Callable[[Path], bool], Callable[..., Sequence[Frame]]]] = [
     ("frame-folder", is_frame_folder, FrameFolder),
+    ("hdf5-cache", _is_hdf5, _open_hdf5),
 ]
 
 
