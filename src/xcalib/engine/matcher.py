@@ -17,16 +17,15 @@ import numpy as np
 import torch
 
 from ..data.crops import CropConfig, FrameInputs, prepare_frame
-from ..geometry.boxes import center_size_to_extents
-from ..protocol import WarningRegistry, check_validate_mode, enforce, validate_frame_inputs
+from ..protocol import WarningRegistry
 from ..types import Frame, MatchResult
+from .host import ASSIGNMENTS, assign, validate_match_inputs  # torch-free, shared with ONNX Runtime
 from .checkpoint import (WeightsNotFoundError, find_site_weights, load_state_strict, read_checkpoint,
                          read_config, save_weights, weights_in_dir, write_config)
 
 __all__ = ["Matcher", "resolve_device", "assign"]
 
 log = logging.getLogger("xcalib.matcher")
-ASSIGNMENTS = ("argmax", "hungarian")
 
 
 def resolve_device(device: str | torch.device | None) -> torch.device:
@@ -34,43 +33,6 @@ def resolve_device(device: str | torch.device | None) -> torch.device:
     if device is None or str(device) == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(device)
-
-
-def assign(similarity: np.ndarray, *, top_k: int = 1, threshold: float = 0.0, method: str = "argmax",
-           fill_value: float | None = None) -> tuple[np.ndarray, list[tuple[int, int, float]]]:
-    """Matches from a [K',M'] similarity (kept numbering).
-
-    "argmax": up to ``max(1, top_k)`` best columns per row with score >= threshold;
-    top_indices = per-row argmax. "hungarian": one-to-one assignment maximising the total score
-    (scipy), pairs with score >= threshold; top_indices = assigned column or -1.
-    Entries equal to ``fill_value`` (not scored by the model) never match.
-    """
-    if method not in ASSIGNMENTS:
-        raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {method!r}")
-    K, M = similarity.shape
-    if K == 0 or M == 0:
-        return np.full(K, -1, dtype=np.int64), []
-    valid = np.ones_like(similarity, dtype=bool) if fill_value is None else similarity != fill_value
-    if method == "argmax":
-        top = similarity.argmax(axis=1).astype(np.int64)
-        k = min(max(1, int(top_k)), M)
-        order = np.argsort(-similarity, axis=1, kind="stable")[:, :k]
-        rows = np.repeat(np.arange(K), k)
-        cols = order.reshape(-1)
-        s = similarity[rows, cols]
-        ok = (s >= threshold) & valid[rows, cols]
-        return top, [(int(r), int(c), float(v)) for r, c, v in zip(rows[ok], cols[ok], s[ok])]
-    from scipy.optimize import linear_sum_assignment
-
-    cost = np.where(valid, -similarity.astype(np.float64), 1e6)
-    r, c = linear_sum_assignment(cost)
-    top = np.full(K, -1, dtype=np.int64)
-    pairs = []
-    for i, j in zip(r, c):
-        if valid[i, j] and similarity[i, j] >= threshold:
-            top[i] = j
-            pairs.append((int(i), int(j), float(similarity[i, j])))
-    return top, pairs
 
 
 class Matcher:
@@ -175,16 +137,8 @@ class Matcher:
 
     # ------------------------------------------------------------------ matching
     def _validate(self, image, point_cloud, bboxes_2d, bboxes_3d, mode: str) -> None:
-        check_validate_mode(mode)
-        if mode == "off":
-            return
-        b3 = bboxes_3d
-        a3 = np.asarray(b3, dtype=np.float64) if not isinstance(b3, np.ndarray) else b3
-        if a3.ndim == 2 and a3.shape[1] == 7 and np.all(np.isfinite(a3)):
-            b3 = center_size_to_extents(a3[:, :6])  # box7: checked through its axis-aligned size
-        violations = validate_frame_inputs(image, point_cloud, bboxes_2d, b3,
-                                           bbox_expansion=self.crop_config.bbox_expansion)
-        enforce(violations, mode, registry=self._warnings)
+        validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, mode,
+                              bbox_expansion=self.crop_config.bbox_expansion, registry=self._warnings)
 
     def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float = 0.0,
               validate: str = "warn", assignment: str = "argmax", *, images=None,
@@ -241,6 +195,22 @@ class Matcher:
         self.model.to(self.device).eval()
         self.weights_path = Path(best)
         return Path(best)
+
+    # ------------------------------------------------------------------ deployment (xcalib.deploy)
+    def build(self, target: str = "onnx", output_dir: str | Path | None = None, **kwargs):
+        """Export for deployment: ``"onnx"`` graphs + manifest with a parity check, or ``"trt"``
+        TensorRT engines via trtexec. See :func:`xcalib.deploy.build.build`."""
+        from ..deploy.build import build
+
+        return build(self, target, output_dir, **kwargs)
+
+    @staticmethod
+    def from_onnx(onnx_dir: str | Path, **kwargs):
+        """Torch-free ONNX Runtime matcher (same ``match`` API) from a folder written by
+        :meth:`build`. See :class:`xcalib.deploy.ort_runtime.OnnxMatcher`."""
+        from ..deploy.ort_runtime import OnnxMatcher
+
+        return OnnxMatcher(onnx_dir, **kwargs)
 
     def __repr__(self) -> str:
         return f"Matcher(model={self.model_name!r}, device={str(self.device)!r}, weights={str(self.weights_path)!r})"
