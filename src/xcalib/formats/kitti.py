@@ -626,3 +626,20 @@ def kitti_frames(root, ids=None, **kwargs) -> KittiFrames:
     return KittiFrames(root, ids, **kwargs)
 
 
+
+
+def is_kitti_root(path) -> bool:
+    """True for a folder :func:`kitti_frames` can read (calib/ dir, [training/]calib/, or
+    ``<id>.bin`` with a calib txt / mmdetection3d pkl next to it)."""
+    p = Path(path)
+    if not p.is_dir():
+        return False
+    if (p / "calib").is_dir() or (p / "training" / "calib").is_dir():
+        return True
+    if (p / "calib.txt").is_file() and (p / "label_2.txt").is_file():
+        return True
+    for b in p.glob("*.bin"):
+        i = b.stem
+        if any((p / n).is_file() for n in (f"{i}_calib.txt", f"{i}.txt", f"{i}.pkl")):
+            return True
+    return False

@@ -1,0 +1,266 @@
+"""One registry of calibration file formats: name -> writer + reader (+ content sniffing).
+
+Every writer takes a :class:`~xcalib.calib.result.CalibrationResult` (``T_cam_lidar``: LiDAR ->
+OpenCV camera) and returns the files it wrote; every reader returns a ``CalibrationResult`` with
+the same direction, whatever the file's own convention (see each format module's docstring).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..calib.result import CalibrationResult
+from ..errors import FormatError
+
+__all__ = ["CalibFormat", "FORMATS", "format_names", "export_calibration", "read_calibration",
+           "detect_format", "default_filename"]
+
+
+@dataclass(frozen=True)
+class CalibFormat:
+    """A calibration format: ``write(result, path) -> [paths]`` (None: read-only) and
+    ``read(path, repair) -> CalibrationResult``; ``filename`` is the default output name."""
+
+    name: str
+    description: str
+    filename: str
+    write: Callable[..., list[Path]] | None
+    read: Callable[..., CalibrationResult]
+
+
+# ----------------------------------------------------------------------------- adapters
+def _w_kitti(res, path):
+    import numpy as np
+
+    from .kitti import KittiCalibration, write_kitti_calibration
+
+    if res.intrinsics is None:
+        raise ValueError("kitti: the calibration has no camera intrinsics (P2 needs K)")
+    if res.intrinsics.distortion is not None:
+        import logging
+
+        logging.getLogger("xcalib.formats").warning(
+            "kitti calib files describe rectified images: the distortion %s is not written",
+            res.intrinsics.distortion.tolist())
+    P = np.hstack([res.intrinsics.K, np.zeros((3, 1))])
+    calib = KittiCalibration(P={i: P.copy() for i in range(4)}, R0_rect=np.eye(3), Tr_velo_to_cam=res.extrinsics)
+    return [write_kitti_calibration(calib, path)]
+
+
+def _r_kitti(path, repair=False):
+    from .kitti import load_kitti_calibration
+
+    return load_kitti_calibration(path, repair=repair).to_calibration_result(2)
+
+
+def _w_calib_json(res, path):
+    from .calibanything import write_calib_json
+
+    return [write_calib_json(res, path)]
+
+
+def _r_calib_json(path, repair=False):
+    from .calibanything import read_calib_json
+
+    return read_calib_json(path, repair=repair)
+
+
+def _w_lucid(res, path):
+    from .calibanything import write_lucid_calib
+
+    return [write_lucid_calib(res, path)]
+
+
+def _r_lucid(path, repair=False):
+    from .calibanything import read_lucid_calib
+
+    return read_lucid_calib(path, repair=repair)
+
+
+def _w_calib_txt(res, path):
+    from .calibanything import write_calib_txt
+
+    return [write_calib_txt(res, path)]
+
+
+def _r_calib_txt(path, repair=False):
+    from .calibanything import read_calib_txt
+
+    return read_calib_txt(path, repair=repair)
+
+
+def _w_opencalib(res, path):
+    from .calibanything import write_opencalib
+
+    return [p for p in write_opencalib(res, Path(path).parent if Path(path).suffix else path) if p is not None]
+
+
+def _r_opencalib(path, repair=False):
+    from .calibanything import read_opencalib
+
+    p = Path(path)
+    if p.is_dir():
+        found = sorted(p.glob("*-extrinsic.json"))
+        if not found:
+            raise FormatError(p, "no *-extrinsic.json in the folder")
+        p = found[0]
+    return read_opencalib(p, repair=repair)
+
+
+def _w_openlabel(res, path):
+    from .openlabel import write_openlabel
+
+    return [write_openlabel(res, path)]
+
+
+def _r_openlabel(path, repair=False):
+    from .openlabel import read_openlabel
+
+    return read_openlabel(path, repair=repair)
+
+
+def _w_ros(res, path):
+    from .ros import write_ros
+
+    return list(write_ros(res, path))
+
+
+def _r_ros(path, repair=False):
+    from .ros import read_ros
+
+    return read_ros(path)
+
+
+def _w_nuscenes(res, path):
+    from .nuscenes import write_calibrated_sensor_json
+
+    p = write_calibrated_sensor_json(res, path)
+    return [p, p.parent / "sensor.json"]
+
+
+def _r_nuscenes(path, repair=False):
+    from .nuscenes import read_calibrated_sensor_json
+
+    p = Path(path)
+    return read_calibrated_sensor_json(p / "calibrated_sensor.json" if p.is_dir() else p)
+
+
+def _w_json(res, path):
+    return [res.save(Path(path).with_suffix(".json") if Path(path).suffix != ".json" else path)]
+
+
+def _w_npz(res, path):
+    return [res.save(Path(path).with_suffix(".npz") if Path(path).suffix != ".npz" else path)]
+
+
+def _r_xcalib(path, repair=False):
+    return CalibrationResult.load(path)
+
+
+def _r_waymo(path, repair=False):
+    from .waymo import read_waymo_tfrecord, waymo_calibration
+
+    return waymo_calibration(read_waymo_tfrecord(path, max_frames=1)[0], "FRONT")
+
+
+FORMATS: dict[str, CalibFormat] = {f.name: f for f in [
+    CalibFormat("kitti", "KITTI calib txt (P0-P3 = [K|0], R0_rect = I, Tr_velo_to_cam = T_cam_lidar)",
+                "calib.txt", _w_kitti, _r_kitti),
+    CalibFormat("calib_json", "CalibAnything v2 calib.json (T_lidar_to_cam, cam_K, cam_dist)", "calib.json",
+                _w_calib_json, _r_calib_json),
+    CalibFormat("lucid", "CalibAnything lucid_calib.json (camera pose in the LiDAR frame, roll/pitch/yaw deg)",
+                "lucid_calib.json", _w_lucid, _r_lucid),
+    CalibFormat("calib_txt", "CalibAnything v1 calib.txt (K:, D:, T: LiDAR->camera)", "calib_v1.txt",
+                _w_calib_txt, _r_calib_txt),
+    CalibFormat("opencalib", "OpenCalib <lidar>-to-<camera>-extrinsic.json + <camera>-intrinsic.json",
+                "opencalib", _w_opencalib, _r_opencalib),
+    CalibFormat("openlabel", "OpenLABEL coordinate_systems + streams (camera pose_wrt_parent = T_lidar_cam)",
+                "openlabel.json", _w_openlabel, _r_openlabel),
+    CalibFormat("ros", "ROS camera_info YAML + <stem>_tf.yaml static transform (lidar -> camera_optical pose)",
+                "camera_info.yaml", _w_ros, _r_ros),
+    CalibFormat("nuscenes", "nuScenes calibrated_sensor.json + sensor.json (sensor->ego, w,x,y,z)",
+                "calibrated_sensor.json", _w_nuscenes, _r_nuscenes),
+    CalibFormat("json", "xcalib CalibrationResult JSON", "calibration.json", _w_json, _r_xcalib),
+    CalibFormat("npz", "xcalib CalibrationResult npz", "calibration.npz", _w_npz, _r_xcalib),
+    CalibFormat("waymo", "Waymo segment .tfrecord (read only: FRONT camera, vehicle frame)", "", None, _r_waymo),
+]}
+
+
+def format_names(writable: bool = False) -> list[str]:
+    return [n for n, f in FORMATS.items() if f.write is not None or not writable]
+
+
+def default_filename(fmt: str) -> str:
+    return _get(fmt).filename
+
+
+def _get(fmt: str) -> CalibFormat:
+    if fmt not in FORMATS:
+        raise ValueError(f"unknown calibration format {fmt!r}; known: {', '.join(FORMATS)}")
+    return FORMATS[fmt]
+
+
+def export_calibration(result: CalibrationResult, fmt: str, path) -> list[Path]:
+    """Write ``result`` in format ``fmt`` to ``path``; returns every file written."""
+    f = _get(fmt)
+    if f.write is None:
+        raise ValueError(f"format {fmt!r} is read-only; writable: {', '.join(format_names(True))}")
+    if not result.success:
+        raise ValueError(f"refusing to export a failed calibration ({result.message})")
+    return [Path(p) for p in f.write(result, path)]
+
+
+def detect_format(path) -> str:
+    """Guess a calibration file's format from its name and content."""
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"calibration file not found: {p}")
+    if p.is_dir():
+        if (p / "calibrated_sensor.json").is_file():
+            return "nuscenes"
+        if any(p.glob("*-extrinsic.json")):
+            return "opencalib"
+        raise FormatError(p, "folder is neither a nuScenes table folder nor an OpenCalib folder")
+    name = p.name.lower()
+    if name.endswith(".npz"):
+        return "npz"
+    if name.endswith((".yaml", ".yml")):
+        return "ros"
+    if ".tfrecord" in name:
+        return "waymo"
+    if name.endswith(".pkl"):
+        return "kitti"
+    if name.endswith(".json"):
+        try:
+            d = json.loads(p.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise FormatError(p, f"not valid JSON ({exc})") from None
+        if isinstance(d, list):
+            return "nuscenes"
+        if isinstance(d, dict):
+            if d.get("format") == "xcalib-calibration-v1":
+                return "json"
+            if "openlabel" in d:
+                return "openlabel"
+            if "intrinsic_params" in d or "extrinsic_params" in d:
+                return "lucid"
+            if "cam_K" in d or "T_lidar_to_cam" in d:
+                return "calib_json"
+            if len(d) == 1 and str(next(iter(d))).endswith("-extrinsic"):
+                return "opencalib"
+        raise FormatError(p, "unrecognised calibration JSON (expected xcalib, lucid_calib, calib.json, "
+                             "OpenLABEL, OpenCalib or calibrated_sensor)")
+    text = p.read_text(errors="replace")
+    keys = {line.split(":", 1)[0].strip() for line in text.splitlines() if ":" in line}
+    if {"K", "T"} <= keys:
+        return "calib_txt"
+    return "kitti"
+
+
+def read_calibration(path, fmt: str | None = None, *, repair: bool = False) -> CalibrationResult:
+    """Read any supported calibration file (format detected when ``fmt`` is None)."""
+    fmt = fmt or detect_format(path)
+    return _get(fmt).read(path, repair=repair)

@@ -1,0 +1,224 @@
+"""mmdetection3d (v1.x) info pickles (``data_list`` / ``metainfo``) for nuScenes, Waymo (KITTI
+format) and similar datasets, read with a restricted unpickler (numpy data only).
+
+Per sample and camera the info holds ``cam2img`` ([3,3] or [3,4]/[4,4]: camera -> pixels) and
+``lidar2cam`` [4,4] (LiDAR -> camera, OpenCV optical axes). xcalib's ``T_cam_lidar`` is
+``Translate(K^-1 cam2img[:3,3]) @ lidar2cam`` (the offset is zero except for KITTI's P2), so
+``K @ T_cam_lidar[:3] == cam2img[:3] @ lidar2cam``.
+
+``instances[*].bbox_3d`` are LiDAR-frame ``[x, y, z, dx, dy, dz, yaw]``; the z origin differs:
+nuScenes/Lyft infos store the box's geometric centre, Waymo infos its bottom centre (checked on
+the samples by projecting the boxes onto the 2D labels). :func:`read_mmdet3d_infos` returns
+xcalib box7 (geometric centre) in both cases. KITTI infos (camera-frame boxes) are read by
+:mod:`xcalib.formats.kitti`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import FormatError
+from ..geometry.camera import CameraIntrinsics
+from ..geometry.transforms import make_transform
+from ..types import Frame
+from ._checks import as_matrix, checked_rotation
+from ._media import IMAGE_EXTS, image_size, load_cloud, load_rgb
+from ._pickle import load_pickle_restricted
+
+__all__ = ["InfoCamera", "InfoSample", "read_mmdet3d_infos", "Mmdet3dFrames", "mmdet3d_frames",
+           "BOX_Z_ORIGIN"]
+
+#: Fraction of the box height between the stored z and the bottom face, per dataset.
+BOX_Z_ORIGIN = {"nuscenes": 0.5, "lyft": 0.5, "waymo": 0.0}
+
+
+@dataclass
+class InfoCamera:
+    """One camera of a sample: intrinsics (pixels), ``T_cam_lidar`` [4,4] (LiDAR -> camera),
+    2D boxes [K,4] (x1 y1 x2 y2) with ``box_index`` [K] into the sample's box7 (-1 = none)."""
+
+    name: str
+    intrinsics: CameraIntrinsics
+    T_cam_lidar: np.ndarray
+    image_path: Path | None
+    boxes_2d: np.ndarray
+    box_index: np.ndarray
+
+
+@dataclass
+class InfoSample:
+    """One sample: LiDAR file, box7 [M,7] (LiDAR frame, geometric centre), labels [M], cameras."""
+
+    key: str
+    dataset: str
+    lidar_path: Path | None
+    num_pts_feats: int
+    boxes7: np.ndarray
+    labels: np.ndarray
+    cameras: dict[str, InfoCamera]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def _find(name: str | None, roots: list[Path], subdirs: tuple[str, ...], exts: tuple[str, ...]) -> Path | None:
+    if not name:
+        return None
+    base = Path(name)
+    for r in roots:
+        for cand in (r / base, r / base.name):
+            if cand.is_file():
+                return cand
+    for r in roots:  # KITTI-format exports: training/image_0/<stem>.png for img_path <stem>.jpg
+        for sub in subdirs:
+            for e in exts:
+                for cand in (r / sub / (base.stem + e), r / "training" / sub / (base.stem + e)):
+                    if cand.is_file():
+                        return cand
+    return None
+
+
+def _cam_calib(cam: dict, path: Path, where: str) -> tuple[CameraIntrinsics, np.ndarray]:
+    M = np.asarray(cam.get("cam2img", []), dtype=np.float64)
+    if M.size == 9:
+        M = np.hstack([M.reshape(3, 3), np.zeros((3, 1))])
+    else:
+        M = as_matrix(M, (3, 4), path, where + ".cam2img", alt_shapes=[(4, 4)])
+    L = as_matrix(cam.get("lidar2cam", []), (4, 4), path, where + ".lidar2cam")
+    R = checked_rotation(L[:3, :3], path, where + ".lidar2cam")
+    K = M[:, :3]
+    off = np.linalg.solve(K, M[:, 3])
+    T = make_transform(np.eye(3), off) @ make_transform(R, L[:3, 3])
+    try:
+        intr = CameraIntrinsics.from_matrix(K, width=cam.get("width"), height=cam.get("height"))
+    except ValueError as exc:
+        raise FormatError(path, str(exc), where + ".cam2img") from None
+    return intr, T
+
+
+def read_mmdet3d_infos(path, data_root=None) -> list[InfoSample]:
+    """Samples of an mmdetection3d v1.x info pickle (nuScenes / Waymo / Lyft style).
+
+    Files are looked up under ``data_root`` and next to the pickle. Each camera's 2D boxes come
+    from ``cam_instances`` and are tied to the LiDAR boxes by their 3D centre (they are the same
+    boxes expressed in the camera frame; tolerance 1 cm)."""
+    path = Path(path)
+    d = load_pickle_restricted(path)
+    if not isinstance(d, dict) or "data_list" not in d:
+        raise FormatError(path, "expected an mmdetection3d v1.x info dict with 'data_list'", "data_list")
+    meta = d.get("metainfo", {}) or {}
+    dataset = str(meta.get("dataset", meta.get("DATASET", ""))).lower()
+    if dataset == "kitti":
+        raise FormatError(path, "KITTI infos hold camera-frame boxes: read them with xcalib.formats.kitti "
+                                "(load_kitti_calibration / kitti_frames)", "metainfo.dataset")
+    z0 = BOX_Z_ORIGIN.get(dataset, 0.0)
+    roots = [Path(data_root)] if data_root is not None else []
+    roots.append(path.parent)
+    out = []
+    for si, info in enumerate(d["data_list"]):
+        where = f"data_list[{si}]"
+        insts = info.get("instances", []) or []
+        try:
+            b = np.array([[float(v) for v in i["bbox_3d"]] for i in insts], dtype=np.float64).reshape(-1, 7)
+        except (KeyError, TypeError, ValueError):
+            raise FormatError(path, "instances need bbox_3d with 7 numbers", where + ".instances") from None
+        b[:, 2] += (0.5 - z0) * b[:, 5]
+        labels = np.array([int(i.get("bbox_label_3d", i.get("bbox_label", -1))) for i in insts], dtype=np.int64)
+        lp = info.get("lidar_points", {}) or {}
+        nfeat = int(lp.get("num_pts_feats", 4))
+        lidar = _find(lp.get("lidar_path"), roots, ("velodyne",), (".bin",))
+        cams: dict[str, InfoCamera] = {}
+        for name, cam in (info.get("images", {}) or {}).items():
+            if not isinstance(cam, dict) or "lidar2cam" not in cam:
+                continue
+            intr, T = _cam_calib(cam, path, f"{where}.images.{name}")
+            ci = (info.get("cam_instances", {}) or {}).get(name, []) or []
+            b2 = np.array([[float(v) for v in c["bbox"]] for c in ci], dtype=np.float64).reshape(-1, 4)
+            idx = np.full(len(ci), -1, dtype=np.int64)
+            if len(ci) and len(b):
+                c3 = np.array([[float(v) for v in c["bbox_3d"][:3]] for c in ci])
+                L = np.asarray(cam["lidar2cam"], dtype=np.float64)
+                stored = b.copy()
+                stored[:, 2] -= (0.5 - z0) * b[:, 5]
+                pc = stored[:, :3] @ L[:3, :3].T + L[:3, 3]
+                dist = np.linalg.norm(c3[:, None] - pc[None], axis=2)
+                j = dist.argmin(axis=1)
+                idx = np.where(dist[np.arange(len(ci)), j] < 0.01, j, -1)
+            img = _find(cam.get("img_path"), roots, ("image_0", "image_2"), IMAGE_EXTS)
+            cams[name] = InfoCamera(name, intr, T, img, b2, idx)
+        key = str(info.get("token", info.get("sample_idx", si)))
+        out.append(InfoSample(key, dataset, lidar, nfeat, b, labels, cams,
+                              {"source": str(path), "ego2global": info.get("ego2global"),
+                               "lidar2ego": (lp.get("lidar2ego"))}))
+    return out
+
+
+class Mmdet3dFrames(Sequence):
+    """Lazy ``Sequence[Frame]``: one frame per (sample, camera) with the camera's 2D boxes, the
+    LiDAR box7 that have a 2D box in it or whose centre projects into the image, the match matrix
+    from the info's own association, ``intrinsics`` and ``extrinsics`` = ``T_cam_lidar``."""
+
+    def __init__(self, path, camera: str | None = None, *, data_root=None, load_image: bool = True,
+                 load_points: bool = True):
+        self.path = Path(path)
+        self.samples = read_mmdet3d_infos(self.path, data_root)
+        self.items = [(s, c) for s in self.samples for c in s.cameras if camera is None or c == camera]
+        if camera is not None and not self.items:
+            raise KeyError(f"{self.path}: no camera {camera!r}; cameras: "
+                           f"{sorted({c for s in self.samples for c in s.cameras})}")
+        self.load_image, self.load_points = load_image, load_points
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        s, name = self.items[index]
+        return self._load(s, s.cameras[name])
+
+    def _load(self, s: InfoSample, cam: InfoCamera) -> Frame:
+        image = np.zeros((0, 0, 3), dtype=np.uint8)
+        size = (cam.intrinsics.width, cam.intrinsics.height)
+        if cam.image_path is not None:
+            if self.load_image:
+                image = load_rgb(cam.image_path)
+                size = (image.shape[1], image.shape[0])
+            elif size[0] is None:
+                size = image_size(cam.image_path)
+        elif self.load_image:
+            raise FormatError(self.path, f"sample {s.key} camera {cam.name}: image file not found")
+        points, fields = np.zeros((0, 3), dtype=np.float32), ("x", "y", "z")
+        if self.load_points:
+            if s.lidar_path is None:
+                raise FormatError(self.path, f"sample {s.key}: LiDAR file not found")
+            points, fields = load_cloud(s.lidar_path, columns=s.num_pts_feats)
+        T = cam.T_cam_lidar
+        centre = s.boxes7[:, :3] @ T[:3, :3].T + T[:3, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = (centre @ cam.intrinsics.K.T)[:, :2] / centre[:, 2:3]
+        visible = centre[:, 2] > 0.5
+        if size[0] is not None:
+            visible &= (uv[:, 0] >= 0) & (uv[:, 0] < size[0]) & (uv[:, 1] >= 0) & (uv[:, 1] < size[1])
+        visible[cam.box_index[cam.box_index >= 0]] = True
+        keep = np.flatnonzero(visible)
+        col = {j: k for k, j in enumerate(keep)}
+        mm = np.zeros((len(cam.boxes_2d), len(keep)), dtype=bool)
+        for i, j in enumerate(cam.box_index):
+            if j >= 0:
+                mm[i, col[j]] = True
+        intr = cam.intrinsics if size[0] is None else cam.intrinsics.with_image_size(*size)
+        return Frame(image=image, point_cloud=np.ascontiguousarray(points, dtype=np.float32),
+                     bboxes_2d=cam.boxes_2d.astype(np.float32), bboxes_3d=s.boxes7[keep].astype(np.float32),
+                     camera_name=cam.name, frame_key=f"{s.key}/{cam.name}", match_matrix=mm, intrinsics=intr,
+                     extrinsics=T.copy(), point_fields=tuple(fields),
+                     meta={"source": f"mmdet3d:{s.dataset}", "labels_3d": s.labels[keep].tolist(),
+                           "box_indices": keep, "image_path": cam.image_path, "lidar_path": s.lidar_path})
+
+
+def mmdet3d_frames(path, camera: str | None = None, **kwargs) -> Mmdet3dFrames:
+    """An mmdetection3d info pickle as a lazy ``Sequence[Frame]`` (see :class:`Mmdet3dFrames`)."""
+    return Mmdet3dFrames(path, camera, **kwargs)
