@@ -207,3 +207,17 @@ def test_kitti_frames_full_load():
     ext = kitti_frames(shared_path("kitti", "openpcdet_pr653"), ids=["000001"], box_format="extents",
                        load_image=False, load_points=False)[0]
     assert ext.bboxes_3d.shape == (3, 6)
+
+
+@pytest.mark.shared_data
+def test_read_frames_dispatch():
+    from xcalib.formats.calibanything_scene import CalibAnythingFrames
+    from xcalib.formats.kitti import KittiFrames
+    from xcalib.formats.mmdet3d import Mmdet3dFrames
+    from xcalib.io.frames import read_frames
+
+    assert isinstance(read_frames(shared_path("kitti", "openpcdet_pr653")), KittiFrames)
+    assert isinstance(read_frames(shared_path("kitti", "mmdet3d_demo", "000008.pkl")), KittiFrames)
+    assert isinstance(read_frames(shared_path("calibanything", "sensorscalibration")), CalibAnythingFrames)
+    nus = read_frames(shared_path("nuscenes", "mmdet3d_demo", "n015-2018-07-24-11-22-45+0800.pkl"), load_points=False)
+    assert isinstance(nus, Mmdet3dFrames) and len(nus) == 6

@@ -219,6 +219,15 @@ class Mmdet3dFrames(Sequence):
                            "box_indices": keep, "image_path": cam.image_path, "lidar_path": s.lidar_path})
 
 
-def mmdet3d_frames(path, camera: str | None = None, **kwargs) -> Mmdet3dFrames:
-    """An mmdetection3d info pickle as a lazy ``Sequence[Frame]`` (see :class:`Mmdet3dFrames`)."""
+def mmdet3d_frames(path, camera: str | None = None, **kwargs) -> Sequence[Frame]:
+    """An mmdetection3d info pickle as a lazy ``Sequence[Frame]`` (see :class:`Mmdet3dFrames`);
+    a KITTI info pickle (``<id>.pkl`` next to ``<id>.bin``) is read by :func:`~.kitti.kitti_frames`."""
+    path = Path(path)
+    d = load_pickle_restricted(path)
+    meta = d.get("metainfo", {}) if isinstance(d, dict) else {}
+    if str((meta or {}).get("dataset", (meta or {}).get("DATASET", ""))).lower() == "kitti":
+        from .kitti import kitti_frames
+
+        kwargs.pop("data_root", None)
+        return kitti_frames(path.parent, ids=[path.stem], **kwargs)
     return Mmdet3dFrames(path, camera, **kwargs)

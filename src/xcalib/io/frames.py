@@ -241,9 +241,46 @@ def _open_hdf5(p: Path, **kwargs) -> Sequence[Frame]:
     return CacheReader(p, **kwargs)
 
 
+def _is_kitti(p: Path) -> bool:
+    from ..formats.kitti import is_kitti_root  # xcalib.formats (issue 8) loads only when asked
+
+    return is_kitti_root(p)
+
+
+def _open_kitti(p: Path, **kwargs) -> Sequence[Frame]:
+    from ..formats.kitti import kitti_frames
+
+    return kitti_frames(p, **kwargs)
+
+
+def _is_calibanything(p: Path) -> bool:
+    from ..formats.calibanything_scene import is_calibanything_scene
+
+    return is_calibanything_scene(p)
+
+
+def _open_calibanything(p: Path, **kwargs) -> Sequence[Frame]:
+    from ..formats.calibanything_scene import calibanything_frames
+
+    return calibanything_frames(p, **kwargs)
+
+
+def _is_mmdet3d_info(p: Path) -> bool:
+    return p.is_file() and p.suffix.lower() == ".pkl"
+
+
+def _open_mmdet3d_info(p: Path, **kwargs) -> Sequence[Frame]:
+    from ..formats.mmdet3d import mmdet3d_frames
+
+    return mmdet3d_frames(p, **kwargs)
+
+
 _READERS: list[tuple[str, Callable[[Path], bool], Callable[..., Sequence[Frame]]]] = [
     ("frame-folder", is_frame_folder, FrameFolder),
     ("hdf5-cache", _is_hdf5, _open_hdf5),
+    ("kitti", _is_kitti, _open_kitti),
+    ("calibanything", _is_calibanything, _open_calibanything),
+    ("mmdet3d-info", _is_mmdet3d_info, _open_mmdet3d_info),
 ]
 
 
