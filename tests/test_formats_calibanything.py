@@ -208,6 +208,12 @@ def test_sample_lucid_convention_proof():
         assert np.degrees((R * R_q.inv()).magnitude()) > 0.9, seq
     # conversions lucid -> calib.json -> lucid keep everything incl. distortion
     assert lucid.intrinsics.distortion is not None and lucid.intrinsics.distortion.size == 8
+    # direction: the camera sits 2.46 m ahead of the LiDAR looking along LiDAR +x, so a point 30 m
+    # ahead lands 27.5 m in front of it, near the image centre; the inverse direction does not
+    uv, depth = lucid.project(np.array([[30.0, 0.0, 0.0]]))
+    assert depth[0] == pytest.approx(27.5, abs=0.2) and np.all(np.abs(uv[0] - [1915, 1103]) < 800)
+    wrong = np.linalg.inv(lucid.extrinsics)
+    assert transform_points(wrong, np.array([[30.0, 0.0, 0.0]]))[0][2] < 5
 
 
 @pytest.mark.shared_data
@@ -243,3 +249,13 @@ def test_every_calibanything_sample_loads():
         assert f.point_cloud.shape[0] > 60_000 and f.intrinsics is not None
         assert f.bboxes_2d.shape == (0, 4) and f.bboxes_3d.shape == (0, 6)
     assert sum(f.extrinsics is not None for f in frames) == 4  # the lab scene has no ground truth
+    # direction LiDAR -> camera: a point 20 m ahead of the LiDAR is ~20 m in front of every camera
+    # and projects inside the image; through the inverse transform it would not be in front
+    for f in frames:
+        if f.extrinsics is None:
+            continue
+        p = transform_points(f.extrinsics, np.array([[20.0, 0.0, 0.0]]))[0]
+        assert 19 < p[2] < 21, f.frame_key
+        u, v = (f.intrinsics.K @ (p / p[2]))[:2]
+        assert 0 <= u < f.intrinsics.width and 0 <= v < f.intrinsics.height
+        assert transform_points(np.linalg.inv(f.extrinsics), np.array([[20.0, 0.0, 0.0]]))[0][2] < 2

@@ -141,3 +141,33 @@ def test_nuscenes_record_direction():
     np.testing.assert_allclose(calibrated_sensor_to_T(rec), calibrated_sensor_to_T(cam), atol=1e-12)
     with pytest.raises(FormatError, match="zero norm"):
         calibrated_sensor_to_T({"translation": [0, 0, 0], "rotation": [0, 0, 0, 0]}, "cs.json")
+
+
+def test_euler_quaternion_matrix_conventions_agree_with_scipy():
+    """Every quaternion / Euler field each writer emits decodes with scipy to the stated rotation."""
+    from xcalib.formats.calibanything import T_cam_lidar_to_lucid_pose
+    from xcalib.formats.nuscenes import T_to_calibrated_sensor
+    from xcalib.formats.openlabel import openlabel_dict
+    from xcalib.formats.ros import static_transform_dict
+
+    rng = np.random.default_rng(7)
+    for seed in range(15):
+        res = _result(seed, None)
+        T_lc = np.linalg.inv(res.extrinsics)  # camera -> LiDAR (camera pose in the LiDAR frame)
+        pose = T_cam_lidar_to_lucid_pose(res.extrinsics)
+        R_e = Rotation.from_euler("xyz", [pose["roll"], pose["pitch"], pose["yaw"]], degrees=True).as_matrix()
+        q = pose["quaternion"]
+        np.testing.assert_allclose(R_e, T_lc[:3, :3], atol=1e-9)
+        np.testing.assert_allclose(Rotation.from_quat([q["x"], q["y"], q["z"], q["w"]]).as_matrix(), T_lc[:3, :3],
+                                   atol=1e-12)
+        T_ego = np.eye(4)
+        T_ego[:3, :3] = Rotation.from_rotvec(rng.normal(size=3)).as_matrix()
+        rec = T_to_calibrated_sensor(T_ego)
+        np.testing.assert_allclose(Rotation.from_quat(rec["rotation"], scalar_first=True).as_matrix(), T_ego[:3, :3],
+                                   atol=1e-12)
+        r = static_transform_dict(res.extrinsics)["transform"]["rotation"]
+        np.testing.assert_allclose(Rotation.from_quat([r["x"], r["y"], r["z"], r["w"]]).as_matrix(), T_lc[:3, :3],
+                                   atol=1e-12)
+        cs = openlabel_dict(res)["openlabel"]["coordinate_systems"]["cam_front"]["pose_wrt_parent"]
+        np.testing.assert_allclose(Rotation.from_quat(cs["quaternion"]).as_matrix(), T_lc[:3, :3], atol=1e-12)
+        np.testing.assert_allclose(np.reshape(cs["matrix4x4"], (4, 4)), T_lc, atol=1e-12)
