@@ -26,7 +26,7 @@ from xcalib.formats.calibanything import (
     write_opencalib,
 )
 from xcalib.formats.calibanything_scene import calibanything_frames, scene_layout
-from xcalib.geometry import CameraIntrinsics, make_transform, transform_points
+from xcalib.geometry import CameraIntrinsics, transform_points
 
 LUCID = {
     "intrinsic_params": {"fx": 1000.0, "fy": 1001.0, "cx": 320.0, "cy": 240.0, "k1": -0.05, "k2": 0.01,

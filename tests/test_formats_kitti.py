@@ -221,3 +221,22 @@ def test_read_frames_dispatch():
     assert isinstance(read_frames(shared_path("calibanything", "sensorscalibration")), CalibAnythingFrames)
     nus = read_frames(shared_path("nuscenes", "mmdet3d_demo", "n015-2018-07-24-11-22-45+0800.pkl"), load_points=False)
     assert isinstance(nus, Mmdet3dFrames) and len(nus) == 6
+
+
+def test_kitti_to_kitti_keeps_matrices_and_estimate_inversion(calib, tmp_path):
+    from xcalib.formats.export import export_calibration, read_calibration
+
+    p = tmp_path / "c.txt"
+    p.write_text(CALIB_TEXT)
+    res = read_calibration(p, "kitti")
+    out = export_calibration(res, "kitti", tmp_path / "again.txt")[0]
+    again = load_kitti_calibration(out)
+    for i in range(4):
+        np.testing.assert_array_equal(again.P[i], calib.P[i])
+    np.testing.assert_array_equal(again.R0_rect, calib.R0_rect)
+    np.testing.assert_allclose(again.Tr_velo_to_cam, calib.Tr_velo_to_cam, atol=1e-12)
+    # an estimate of T_cam_lidar(2) becomes the Tr_velo_to_cam that reproduces it
+    est = calib.T_cam_lidar(2) @ make_transform(euler_to_matrix([0.01, -0.02, 0.005]), [0.05, 0, -0.02])
+    c2 = calib.with_T_cam_lidar(est, 2)
+    np.testing.assert_allclose(c2.T_cam_lidar(2), est, atol=1e-12)
+    np.testing.assert_allclose(c2.projection(2), calib.K(2) @ est[:3], atol=1e-9)

@@ -393,8 +393,9 @@ def write_opencalib(result: CalibrationResult, out_dir, *, lidar: str = "lidar",
     if result.intrinsics is not None:
         intr = result.intrinsics
         dist = intr.dist_coeffs.tolist()
-        param: dict[str, Any] = {"cam_K": {"rows": 3, "cols": 3, "type": 6, "continuous": True, "data": intr.K.tolist()},
-                                 "cam_dist": {"rows": 1, "cols": len(dist), "type": 6, "continuous": True, "data": [dist]}}
+        param: dict[str, Any] = {
+            "cam_K": {"rows": 3, "cols": 3, "type": 6, "continuous": True, "data": intr.K.tolist()},
+            "cam_dist": {"rows": 1, "cols": len(dist), "type": 6, "continuous": True, "data": [dist]}}
         if intr.width is not None and intr.height is not None:
             param = {"img_dist_w": intr.width, "img_dist_h": intr.height, **param}
         iname = f"{camera}-intrinsic"

@@ -33,20 +33,15 @@ class CalibFormat:
 
 # ----------------------------------------------------------------------------- adapters
 def _w_kitti(res, path):
-    import numpy as np
-
     from .kitti import KittiCalibration, write_kitti_calibration
 
-    if res.intrinsics is None:
-        raise ValueError("kitti: the calibration has no camera intrinsics (P2 needs K)")
+    calib = KittiCalibration.from_calibration_result(res)
     if res.intrinsics.distortion is not None:
         import logging
 
         logging.getLogger("xcalib.formats").warning(
             "kitti calib files describe rectified images: the distortion %s is not written",
             res.intrinsics.distortion.tolist())
-    P = np.hstack([res.intrinsics.K, np.zeros((3, 1))])
-    calib = KittiCalibration(P={i: P.copy() for i in range(4)}, R0_rect=np.eye(3), Tr_velo_to_cam=res.extrinsics)
     return [write_kitti_calibration(calib, path)]
 
 
@@ -167,7 +162,8 @@ def _r_waymo(path, repair=False):
 
 
 FORMATS: dict[str, CalibFormat] = {f.name: f for f in [
-    CalibFormat("kitti", "KITTI calib txt (P0-P3 = [K|0], R0_rect = I, Tr_velo_to_cam = T_cam_lidar)",
+    CalibFormat("kitti", "KITTI calib txt (camera 2; a KITTI-born result keeps its P0-P3/R0_rect, else "
+                         "P0-P3 = [K|0], R0_rect = I, Tr_velo_to_cam = T_cam_lidar)",
                 "calib.txt", _w_kitti, _r_kitti),
     CalibFormat("calib_json", "CalibAnything v2 calib.json (T_lidar_to_cam, cam_K, cam_dist)", "calib.json",
                 _w_calib_json, _r_calib_json),

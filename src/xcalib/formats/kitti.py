@@ -106,18 +106,53 @@ class KittiCalibration:
         """[3,4] LiDAR points -> camera ``cam`` pixels: ``P_cam @ R0_rect @ Tr_velo_to_cam``."""
         return self._P(cam) @ self.T_rect_velo
 
+    def with_T_cam_lidar(self, T_cam_lidar, cam: int = 2) -> "KittiCalibration":
+        """A copy whose ``Tr_velo_to_cam`` is chosen so that ``T_cam_lidar(cam)`` equals the given
+        [4,4] (LiDAR -> rectified camera ``cam``): ``Tr = inv(R0_rect) @ Translate(-t_offset) @ T``.
+        P0..P3, R0_rect and Tr_imu_to_velo are kept (e.g. to write an estimate as a KITTI file)."""
+        from ..geometry.transforms import as_transform
+
+        T = as_transform(T_cam_lidar, "T_cam_lidar")
+        R0_inv = make_transform(np.linalg.inv(self.R0_rect), np.zeros(3))  # exact even for 7-digit files
+        Tr = R0_inv @ make_transform(np.eye(3), -self.t_offset(cam)) @ T
+        return KittiCalibration(P=dict(self.P), R0_rect=self.R0_rect, Tr_velo_to_cam=Tr,
+                                Tr_imu_to_velo=self.Tr_imu_to_velo, path=None)
+
     def to_calibration_result(self, cam: int = 2, image_size: tuple[int, int] | None = None,
                               camera_name: str | None = None):
-        """``CalibrationResult`` (success, ground truth) of camera ``cam``; image_size = (W, H)."""
+        """``CalibrationResult`` (success, ground truth) of camera ``cam``; image_size = (W, H).
+        ``meta["kitti"]`` keeps P0..P3 / R0_rect / Tr_imu_to_velo so a KITTI export can reuse them."""
         from ..calib.result import CalibrationResult
 
         T = self.T_cam_lidar(cam)
         w, h = image_size if image_size is not None else (None, None)
+        kmeta = {"camera": cam, "P": {str(i): P.tolist() for i, P in self.P.items()},
+                 "R0_rect": self.R0_rect.tolist(),
+                 "Tr_imu_to_velo": None if self.Tr_imu_to_velo is None else self.Tr_imu_to_velo.tolist()}
         return CalibrationResult(
             success=True, intrinsics=self.intrinsics(cam, w, h), rotation=T[:3, :3], translation=T[:3, 3],
             camera_name=camera_name or f"image_{cam}", image_size=image_size, method="kitti",
-            message=f"KITTI calibration {self.path or ''}".strip(),
+            message=f"KITTI calibration {self.path or ''}".strip(), meta={"kitti": kmeta},
         )
+
+    @classmethod
+    def from_calibration_result(cls, result) -> "KittiCalibration":
+        """KITTI matrices of a ``CalibrationResult``: the original P0..P3 / R0_rect when
+        ``result.meta["kitti"]`` has them and K still matches P<cam>, else ``P0..P3 = [K|0]``,
+        ``R0_rect = I``; ``Tr_velo_to_cam`` such that ``T_cam_lidar(cam) == result.extrinsics``."""
+        if result.intrinsics is None:
+            raise ValueError("kitti: the calibration has no camera intrinsics (P2 needs K)")
+        km = (result.meta or {}).get("kitti")
+        if isinstance(km, dict) and "P" in km:
+            cam = int(km.get("camera", 2))
+            P = {int(i): np.asarray(v, dtype=np.float64).reshape(3, 4) for i, v in km["P"].items()}
+            if cam in P and np.allclose(P[cam][:, :3], result.intrinsics.K, atol=1e-9):
+                Ti = km.get("Tr_imu_to_velo")
+                base = cls(P=P, R0_rect=np.asarray(km.get("R0_rect", np.eye(3)), dtype=np.float64).reshape(3, 3),
+                           Tr_imu_to_velo=None if Ti is None else np.asarray(Ti, dtype=np.float64).reshape(4, 4))
+                return base.with_T_cam_lidar(result.extrinsics, cam)
+        P2 = np.hstack([result.intrinsics.K, np.zeros((3, 1))])
+        return cls(P={i: P2.copy() for i in range(4)}, R0_rect=np.eye(3), Tr_velo_to_cam=result.extrinsics)
 
 
 def _split_line(line: str) -> tuple[str | None, list[str]]:
@@ -301,7 +336,8 @@ def parse_kitti_labels(text: str, path=None) -> KittiLabels:
     if n == 0:
         z = np.zeros((0,))
         return KittiLabels(np.zeros((0,), dtype=object).astype(str), z, z.astype(np.int64), z,
-                           np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 3)), z, z, None if path is None else str(path))
+                           np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 3)), z, z,
+                           None if path is None else str(path))
     try:
         num = np.array([[float(v) for v in r[1:15]] + [float(r[15]) if len(r) == 16 else np.nan] for r in rows])
     except ValueError as exc:
