@@ -29,7 +29,7 @@ def sincos_2d(xy: torch.Tensor, dim: int, min_period: float, max_period: float) 
     periods = torch.exp(torch.linspace(math.log(max_period), math.log(min_period), nf,
                                        device=xy.device, dtype=xy.dtype))
     ang = xy[:, :, None] * (2 * math.pi / periods)  # [N,2,nf]
-    return torch.cat([torch.sin(ang), torch.cos(ang)], dim=2).reshape(len(xy), dim)
+    return torch.cat([torch.sin(ang), torch.cos(ang)], dim=2).flatten(1)  # [N,dim]; traceable N (ONNX)
 
 
 class _PEBase(nn.Module):

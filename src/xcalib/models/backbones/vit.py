@@ -38,6 +38,6 @@ class CropViT(nn.Module):
         if x.shape[-1] != self.img_size or x.shape[-2] != self.img_size:
             raise ValueError(f"vit: expected crops of {self.img_size}x{self.img_size}, got {tuple(x.shape[-2:])}")
         t = self.patch(x).flatten(2).transpose(1, 2)
-        t = torch.cat([self.cls_token.expand(len(t), -1, -1), t], dim=1) + self.pos_embed
+        t = torch.cat([self.cls_token.expand(t.shape[0], -1, -1), t], dim=1) + self.pos_embed  # traceable N
         t = self.norm(self.encoder(t))
         return t[:, 0] if self.pool == "cls" else t[:, 1:].mean(dim=1)
