@@ -256,11 +256,11 @@ def draw_matching_overlay(image, point_cloud, bboxes_2d, bboxes_3d, matches=None
     for gx in np.arange(np.ceil((xc - half_x) / step), np.floor((xc + half_x) / step) + 1) * step:
         r = int(round(view.to_pixels([[gx, yc]])[0, 1]))
         cv2.line(pane, (0, r), (bev_w - 1, r), _GRID, 1)
-        _text(pane, f"x={gx:g}", (4, r - 3), (120, 126, 140), 0.38)
+        _text(pane, f"x={gx + 0.0:g}", (4, r - 3), (120, 126, 140), 0.38)
     for gy in np.arange(np.ceil((yc - half_y) / step), np.floor((yc + half_y) / step) + 1) * step:
         c = int(round(view.to_pixels([[xc, gy]])[0, 0]))
         cv2.line(pane, (c, 0), (c, H - 1), _GRID, 1)
-        _text(pane, f"y={gy:g}", (c + 3, H - 6), (120, 126, 140), 0.38)
+        _text(pane, f"y={gy + 0.0:g}", (c + 3, H - 6), (120, 126, 140), 0.38)
     if len(pts):
         cr = np.round(view.to_pixels(pts[:, :2])).astype(np.int64)
         ok = (cr[:, 0] >= 0) & (cr[:, 0] < bev_w) & (cr[:, 1] >= 0) & (cr[:, 1] < H)

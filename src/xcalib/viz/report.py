@@ -64,6 +64,13 @@ def _pick(n: int, k: int) -> list[int]:
     return sorted({int(round(v)) for v in np.linspace(0, n - 1, k)})
 
 
+def _write_png(path: Path, rgb: np.ndarray, max_width: int = _MAX_WIDTH) -> None:
+    from ..io.images import write_image
+
+    write_image(path, _shrink(rgb, max_width))
+    path.chmod(0o644)  # readable by a web server like the HTML beside it
+
+
 def _shrink(rgb: np.ndarray, max_width: int = _MAX_WIDTH) -> np.ndarray:
     import cv2
 
@@ -149,7 +156,6 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         :class:`CalibrationReport` with the HTML path, figures and numbers.
     """
     from ..geometry.boxes import as_box7, box7_corners, boxes2d_from_points, iou_matrix
-    from ..io.images import write_image
     from .calibration import draw_calibration_overlay
     from .matching import draw_matching_overlay
 
@@ -166,7 +172,7 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         if have_pose:
             ov = draw_calibration_overlay(image, pc, calibration=result, bboxes_3d=b3, bboxes_2d=b2, pairs=pairs,
                                           point_radius=point_radius, title=f"{key}: after calibration")
-            write_image(out / "img" / f"{stem}_calibration.png", _shrink(ov))
+            _write_png(out / "img" / f"{stem}_calibration.png", ov)
             figures.append(ReportFigure(f"img/{stem}_calibration.png",
                                         f"Frame {key}, estimated pose: LiDAR points coloured by camera depth "
                                         f"(blue near, red far), projected 3D boxes (orange), 2D boxes (green), "
@@ -175,7 +181,7 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
             ov = draw_calibration_overlay(image, pc, intrinsics=result.intrinsics, rotation=initial[0],
                                           translation=initial[1], bboxes_3d=b3, bboxes_2d=b2,
                                           point_radius=point_radius, title=f"{key}: before refinement")
-            write_image(out / "img" / f"{stem}_before.png", _shrink(ov))
+            _write_png(out / "img" / f"{stem}_before.png", ov)
             figures.append(ReportFigure(f"img/{stem}_before.png", f"Frame {key}, initial pose (before refinement)",
                                         "calibration_before", key))
         m = None
@@ -190,7 +196,7 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         if m is not None:
             mo = draw_matching_overlay(image, pc, b2, b3, m, match_matrix=truth, camera=result if have_pose else None,
                                        title=f"{key}: matching ({source})")
-            write_image(out / "img" / f"{stem}_matching.png", _shrink(mo, 1600))
+            _write_png(out / "img" / f"{stem}_matching.png", mo, 1600)
             figures.append(ReportFigure(f"img/{stem}_matching.png",
                                         f"Frame {key}: camera image with 2D boxes beside the LiDAR bird's-eye view "
                                         f"(+x up, +y left) with 3D boxes; pairs coloured by {source}, unmatched "
