@@ -173,6 +173,7 @@ class CacheReader:
         self._image_index = {k: (int(k) if _numeric(k) else pos[k]) for k in keys}
         self._key_pos = {k: i for i, k in enumerate(keys)}
         self._calib_cache: dict | None = None
+        self._static: dict[str, dict] = {}
 
     def _choose(self, wanted, names, what, group) -> str:
         if wanted is not None:
@@ -253,34 +254,34 @@ class CacheReader:
             yield frame.for_camera(cam)
 
     # ----------------------------------------------------------------- one frame
-    def _ds(self, group, name: str, key: str, where: str):
-        if name not in group:
-            raise FormatError(self.path, f"frame {key!r}: missing dataset {name!r}", field=f"{where}/{name}")
-        return group[name]
+    def _group(self, path: str, key: str, what: str) -> "_Group":
+        try:
+            return _Group(self._f.id, path)
+        except KeyError:
+            raise FormatError(self.path, f"frame {key!r}: missing {what} group", field=path) from None
 
     def read_frame(self, key: str) -> Frame:
         """Read frame ``key`` (labels, points, images per the reader's options, calibration)."""
         if self.closed:
             raise ValueError(f"{self.path}: the cache is closed")
-        f = self._f
         where = f"/labels/{self.label_sensor}/{key}"
-        g = f.get(where)
-        if g is None:
-            raise FormatError(self.path, f"frame {key!r}: missing labels group", field=where)
+        g = self._group(where, key, "labels")
         try:
-            K = int(self._ds(g, "num_camera_detections", key, where)[()])
-            M = int(self._ds(g, "num_lidar_detections", key, where)[()])
+            K = int(g.require("num_camera_detections", self, key))
+            M = int(g.require("num_lidar_detections", self, key))
         except (TypeError, ValueError) as exc:
             raise FormatError(self.path, f"frame {key!r}: detection counts are not integers ({exc})",
                               field=where) from None
-        b2 = self._rows(g, "camera_bbox_2d", K, 4, key, where)
-        b3 = self._rows(g, "lidar_bbox_3d", M, 6, key, where)
+        b2_all = g.require("camera_bbox_2d", self, key)
+        b3_all = g.require("lidar_bbox_3d", self, key)
+        b2 = self._rows(b2_all, "camera_bbox_2d", K, 4, key, where)
+        b3 = self._rows(b3_all, "lidar_bbox_3d", M, 6, key, where)
         mm = None
         if "match_matrix" in g:
-            raw = np.asarray(g["match_matrix"][()])
+            raw = g.read("match_matrix")
             if raw.ndim != 2 and raw.size == 0 and K * M == 0:
                 raw = raw.reshape(K, M)
-            stored = (g["camera_bbox_2d"].shape[:1] + g["lidar_bbox_3d"].shape[:1])
+            stored = (b2_all.shape[:1] + b3_all.shape[:1])
             ok = raw.ndim == 2 and (raw.shape == (K, M) or raw.shape == stored)
             if not ok:
                 raise FormatError(self.path, f"frame {key!r}: match_matrix has shape {tuple(raw.shape)}, "
@@ -288,8 +289,7 @@ class CacheReader:
             mm = raw[:K, :M].astype(bool)
         cams_per_det = None
         if "camera_names" in g:
-            names = g["camera_names"][()]
-            names = [_as_str(n) for n in np.asarray(names).reshape(-1)]
+            names = [_as_str(n) for n in g.read("camera_names").reshape(-1)]
             if len(names) < K:
                 raise FormatError(self.path, f"frame {key!r}: camera_names has {len(names)} entries, "
                                              f"expected K = {K}", field=f"{where}/camera_names")
@@ -306,14 +306,14 @@ class CacheReader:
             if dname in g:
                 n = K if kind.endswith("2d") else M
                 if kind == "f3d7":
-                    meta[mkey] = self._rows(g, dname, M, 7, key, where, np.float64)
+                    meta[mkey] = self._rows(g.read(dname), dname, M, 7, key, where, np.float64)
                 else:
-                    arr = np.asarray(g[dname][()]).reshape(-1)
+                    arr = g.read(dname).reshape(-1)
                     if len(arr) < n:
                         raise FormatError(self.path, f"frame {key!r}: {dname} has {len(arr)} rows, expected "
                                                      f">= {n}", field=f"{where}/{dname}")
-                    meta[mkey] = (np.asarray([_as_str(s) for s in arr[:n]], dtype=object).tolist()
-                                  if kind.startswith("s") else arr[:n].astype(np.int64))
+                    meta[mkey] = ([_as_str(s) for s in arr[:n]] if kind.startswith("s")
+                                  else arr[:n].astype(np.int64))
         points, fields = self._points(key)
         # Images: every camera referenced by the frame (or the first camera).
         primary = cams_per_det[0] if cams_per_det else self.camera_names[0]
@@ -337,12 +337,12 @@ class CacheReader:
                      camera_per_det=cams_per_det if cams_per_det is not None else [primary] * K,
                      point_fields=fields, meta=meta)
 
-    def _rows(self, g, name: str, n: int, width: int, key: str, where: str, dtype=np.float32) -> np.ndarray:
-        ds = self._ds(g, name, key, where)
+    def _rows(self, arr: np.ndarray, name: str, n: int, width: int, key: str, where: str,
+              dtype=np.float32) -> np.ndarray:
         if n < 0:
             raise FormatError(self.path, f"frame {key!r}: negative detection count {n}", field=f"{where}/{name}")
-        shape = ds.shape
-        if n == 0 and (len(shape) == 0 or shape[0] == 0):
+        shape = arr.shape
+        if n == 0 and (len(shape) == 0 or shape[0] == 0 or (len(shape) == 2 and shape[1] == width)):
             return np.zeros((0, width), dtype=dtype)
         if len(shape) != 2 or shape[1] != width:
             raise FormatError(self.path, f"frame {key!r}: {name} has shape {shape}, expected [>= {n}, {width}]",
@@ -350,25 +350,22 @@ class CacheReader:
         if shape[0] < n:
             raise FormatError(self.path, f"frame {key!r}: {name} stores {shape[0]} rows but the count says "
                                          f"{n}", field=f"{where}/{name}")
-        return np.asarray(ds[:n], dtype=dtype) if n else np.zeros((0, width), dtype=dtype)
+        return np.ascontiguousarray(arr[:n], dtype=dtype)
 
     def _points(self, key: str) -> tuple[np.ndarray, tuple[str, ...]]:
         where = f"/point_clouds/{self.lidar_name}/{key}"
-        pg = self._f.get(where)
-        if pg is None:
-            raise FormatError(self.path, f"frame {key!r}: missing point cloud group", field=where)
-        ds = self._ds(pg, "xyz", key, where)
-        if ds.ndim != 2 or ds.shape[1] < 3:
-            raise FormatError(self.path, f"frame {key!r}: xyz has shape {ds.shape}, expected [P, 3]",
+        pg = self._group(where, key, "point cloud")
+        xyz = pg.require("xyz", self, key)
+        if xyz.ndim != 2 or xyz.shape[1] < 3:
+            raise FormatError(self.path, f"frame {key!r}: xyz has shape {xyz.shape}, expected [P, 3]",
                               field=f"{where}/xyz")
-        xyz = ds[()].astype(np.float32, copy=False)
-        extra = [_as_str(s) for s in pg.attrs.get("fields", [])]
+        xyz = xyz.astype(np.float32, copy=False)
+        extra = pg.field_names()
         if not extra:
-            return xyz[:, :3] if xyz.shape[1] != 3 else xyz, ("x", "y", "z")
+            return (xyz[:, :3] if xyz.shape[1] != 3 else xyz), ("x", "y", "z")
         cols = [xyz[:, :3]]
         for name in extra:
-            col = np.asarray(self._ds(pg, name, key, where)[()], dtype=np.float32).reshape(len(xyz), -1)
-            cols.append(col)
+            cols.append(np.asarray(pg.require(name, self, key), dtype=np.float32).reshape(len(xyz), -1))
         return np.hstack(cols), ("x", "y", "z", *extra)
 
     def _blob(self, cam: str, key: str) -> bytes:
@@ -413,33 +410,98 @@ class CacheReader:
             cname = groups.get(cam)
             if cname is None:
                 continue
-            cg = self._f[f"calibration/{cname}"]
-            where = f"/calibration/{cname}"
-            if "intrinsics" in cg:
-                ds = cg["intrinsics"]
-                Km = np.asarray(ds[()], dtype=np.float64)
-                if Km.shape != (3, 3):
-                    raise FormatError(self.path, f"intrinsics have shape {Km.shape}, expected [3, 3]",
-                                      field=f"{where}/intrinsics")
-                dist = np.asarray(cg["distortion"][()], dtype=np.float64) if "distortion" in cg else None
-                w, h = ds.attrs.get("width"), ds.attrs.get("height")
-                if w is None and image.size and cam == primary:
-                    h, w = image.shape[:2]
-                intr_all[cam] = CameraIntrinsics.from_matrix(
-                    Km, dist, width=None if w is None else int(w), height=None if h is None else int(h))
-            if "extrinsics" in cg:
-                e = cg["extrinsics"]
-                if hasattr(e, "keys"):
-                    T = e[key][()] if key in e else None
-                else:
-                    T = e[()]
-                if T is not None:
-                    T = np.asarray(T, dtype=np.float64)
-                    if T.shape != (4, 4):
-                        raise FormatError(self.path, f"frame {key!r}: extrinsics have shape {T.shape}, "
-                                                     "expected [4, 4]", field=f"{where}/extrinsics")
-                    extr_all[cam] = T
+            static = self._static_calib(cam, cname, image if cam == primary else None)
+            if static["intrinsics"] is not None:
+                intr_all[cam] = static["intrinsics"]
+            T = static["extrinsics"]
+            if T is None and static["per_frame"]:
+                eg = f"/calibration/{cname}/extrinsics"
+                g = _Group(self._f.id, eg)
+                T = g.read(key) if key in g else None
+                if T is not None and T.shape != (4, 4):
+                    raise FormatError(self.path, f"frame {key!r}: extrinsics have shape {T.shape}, "
+                                                 "expected [4, 4]", field=f"{eg}/{key}")
+            if T is not None:
+                extr_all[cam] = np.array(T, dtype=np.float64)
         return intr_all.get(primary), extr_all.get(primary), intr_all, extr_all
+
+    def _static_calib(self, cam: str, cname: str, image) -> dict:
+        """Intrinsics and a single extrinsics matrix of one camera, read once."""
+        cache = self._static.get(cam)
+        if cache is not None and not (cache["intrinsics"] is not None and cache["intrinsics"].width is None
+                                      and image is not None and image.size):
+            return cache
+        cg = self._f[f"calibration/{cname}"]
+        where = f"/calibration/{cname}"
+        intr = None
+        if "intrinsics" in cg:
+            ds = cg["intrinsics"]
+            Km = np.asarray(ds[()], dtype=np.float64)
+            if Km.shape != (3, 3):
+                raise FormatError(self.path, f"intrinsics have shape {Km.shape}, expected [3, 3]",
+                                  field=f"{where}/intrinsics")
+            dist = np.asarray(cg["distortion"][()], dtype=np.float64) if "distortion" in cg else None
+            w, h = ds.attrs.get("width"), ds.attrs.get("height")
+            if w is None and image is not None and image.size:
+                h, w = image.shape[:2]
+            intr = CameraIntrinsics.from_matrix(Km, dist, width=None if w is None else int(w),
+                                                height=None if h is None else int(h))
+        T, per_frame = None, False
+        if "extrinsics" in cg:
+            e = cg["extrinsics"]
+            if hasattr(e, "keys"):
+                per_frame = True
+            else:
+                T = np.asarray(e[()], dtype=np.float64)
+                if T.shape != (4, 4):
+                    raise FormatError(self.path, f"extrinsics have shape {T.shape}, expected [4, 4]",
+                                      field=f"{where}/extrinsics")
+        cache = {"intrinsics": intr, "extrinsics": T, "per_frame": per_frame}
+        self._static[cam] = cache
+        return cache
+
+
+class _Group:
+    """Low-level view of one HDF5 group: member names and whole-dataset reads (fast per-frame access)."""
+
+    __slots__ = ("gid", "names", "path")
+
+    def __init__(self, fid, path: str):
+        import h5py
+
+        try:
+            self.gid = h5py.h5g.open(fid, path.encode())
+        except (KeyError, ValueError):
+            raise KeyError(path) from None
+        self.path = path
+        self.names = {n.decode() for n in self.gid}
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.names
+
+    def read(self, name: str) -> np.ndarray:
+        import h5py
+
+        d = h5py.h5d.open(self.gid, name.encode())
+        arr = np.empty(d.shape, dtype=d.dtype)
+        if arr.size:
+            d.read(h5py.h5s.ALL, h5py.h5s.ALL, arr)
+        return arr
+
+    def require(self, name: str, reader: "CacheReader", key: str) -> np.ndarray:
+        if name not in self.names:
+            raise FormatError(reader.path, f"frame {key!r}: missing dataset {name!r}", field=f"{self.path}/{name}")
+        return self.read(name)
+
+    def field_names(self) -> list[str]:
+        import h5py
+
+        if not h5py.h5a.exists(self.gid, b"fields"):
+            return []
+        a = h5py.h5a.open(self.gid, b"fields")
+        arr = np.empty(a.shape, dtype=a.dtype)
+        a.read(arr)
+        return [_as_str(v) for v in arr.reshape(-1)]
 
 
 def load_dataset(site_or_path, split: str = "test", **reader_kwargs) -> CacheReader:
@@ -520,7 +582,7 @@ class CacheWriter:
             raise ValueError(f"CacheWriter: {self.path} should end in .h5 or .hdf5")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = self.path.with_name(f".{self.path.name}.{uuid.uuid4().hex[:8]}.tmp")
-        self._f = h5py.File(self._tmp, "w")
+        self._f = h5py.File(self._tmp, "w", libver=("v110", "latest"))
         self._finalizer = weakref.finalize(self, _abandon, self._f, self._tmp)
         self.camera_names = list(camera_names) if camera_names else []
         self.lidar_name = lidar_name
@@ -603,22 +665,22 @@ class CacheWriter:
         lg = self._f.create_group(f"labels/{self.label_sensor}/{key}")
         if fk and fk != key:
             lg.attrs["source_key"] = fk
-        lg.create_dataset("num_camera_detections", data=np.int64(K))
-        lg.create_dataset("num_lidar_detections", data=np.int64(M))
-        lg.create_dataset("camera_bbox_2d", data=b2)
-        lg.create_dataset("lidar_bbox_3d", data=b3)
+        _small(lg, "num_camera_detections", np.int64(K))
+        _small(lg, "num_lidar_detections", np.int64(M))
+        _small(lg, "camera_bbox_2d", b2)
+        _small(lg, "lidar_bbox_3d", b3)
         if frame.match_matrix is not None:
             mm = np.asarray(frame.match_matrix)
             if mm.shape != (K, M):
                 raise ValueError(f"CacheWriter: frame {key!r}: match_matrix has shape {mm.shape}, expected "
                                  f"(K, M) = ({K}, {M})")
-            lg.create_dataset("match_matrix", data=mm.astype(np.uint8))
+            _small(lg, "match_matrix", mm.astype(np.uint8))
         if frame.camera_per_det is not None and (frame.images is not None or
                                                  any(c != cam_primary for c in frame.camera_per_det)):
             if len(frame.camera_per_det) != K:
                 raise ValueError(f"CacheWriter: frame {key!r}: camera_per_det has {len(frame.camera_per_det)} "
                                  f"entries, expected K = {K}")
-            lg.create_dataset("camera_names", data=np.array([c.encode() for c in frame.camera_per_det], dtype="S"))
+            _small(lg, "camera_names", np.array([c.encode() for c in frame.camera_per_det], dtype="S"))
         for mkey, (dname, kind) in _META_DATASETS.items():
             v = meta.get(mkey)
             if v is None:
@@ -632,7 +694,7 @@ class CacheWriter:
                 arr = np.asarray(v, dtype=np.int64).reshape(-1)
             if len(arr) != n:
                 raise ValueError(f"CacheWriter: frame {key!r}: meta[{mkey!r}] has {len(arr)} rows, expected {n}")
-            lg.create_dataset(dname, data=arr)
+            _small(lg, dname, arr)
         # points
         pts = np.asarray(frame.point_cloud)
         if pts.ndim != 2 or (pts.size and pts.shape[1] < 3):
@@ -714,6 +776,19 @@ class CacheWriter:
         os.replace(self._tmp, self.path)
         self._finalizer.detach()
         return self.path
+
+
+def _small(group, name: str, data: np.ndarray) -> None:
+    """Create a dataset; small ones use the compact layout (stored in the object header: one read)."""
+    import h5py
+
+    data = np.asarray(data)
+    if data.nbytes < 32_000 and data.size:
+        dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+        dcpl.set_layout(h5py.h5d.COMPACT)
+        group.create_dataset(name, data=data, dcpl=dcpl)
+    else:
+        group.create_dataset(name, data=data)
 
 
 def _abandon(f, tmp: Path) -> None:

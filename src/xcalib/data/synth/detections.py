@@ -122,7 +122,6 @@ def _visible_boxes(site: Site, view: CameraView):
     trunc = np.ones(N)
     if not N:
         return boxes, vis, trunc
-    counts = np.bincount(view.mask.ravel(), minlength=N + 1)[1:]
     for i in np.flatnonzero(view.in_view):
         lo, hi = view.uv[i].min(axis=0), view.uv[i].max(axis=0)
         full = max((hi[0] - lo[0]) * (hi[1] - lo[1]), 1e-9)
@@ -137,14 +136,16 @@ def _visible_boxes(site: Site, view: CameraView):
         solo = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
         hull = view.hulls[i] - np.array([x0 << _SHIFT, y0 << _SHIFT], dtype=np.int32)
         cv2.fillConvexPoly(solo, hull, 1, lineType=cv2.LINE_8, shift=_SHIFT)
-        n_full = int(solo.sum())
-        if n_full == 0 or counts[i] == 0:
+        n_full = int(np.count_nonzero(solo))
+        own = view.mask[y0:y1, x0:x1] == i + 1
+        n_vis = int(np.count_nonzero(own))
+        if n_full == 0 or n_vis == 0:
             continue
-        vis[i] = counts[i] / n_full
-        if counts[i] >= n_full:
+        vis[i] = n_vis / n_full
+        if n_vis >= n_full:
             boxes[i] = a
             continue
-        ys, xs = np.nonzero(view.mask[y0:y1, x0:x1] == i + 1)
+        ys, xs = np.nonzero(own)
         m = np.array([xs.min() + x0 - 1.0, ys.min() + y0 - 1.0, xs.max() + x0 + 2.0, ys.max() + y0 + 2.0])
         boxes[i] = [max(a[0], m[0]), max(a[1], m[1]), min(a[2], m[2]), min(a[3], m[3])]
     return boxes, vis, trunc
