@@ -20,14 +20,19 @@ ROTATION_TOL = 1e-5
 REPAIR_TOL = 1e-3
 
 
-def require(d: dict, key: str, path, field_prefix: str = "") -> Any:
-    """``d[key]`` or a FormatError naming the missing field."""
+def require(d: dict, key: str, path, field_prefix: str = "", kind: type | None = None) -> Any:
+    """``d[key]`` or a FormatError naming the missing field; ``kind=dict``/``list`` also checks
+    the value's type."""
     if not isinstance(d, dict):
-        raise FormatError(path, f"expected a JSON object, got {type(d).__name__}", field_prefix or None)
+        raise FormatError(path, f"expected a JSON object, got {type(d).__name__}", field_prefix.rstrip(".") or None)
     if key not in d:
         have = ", ".join(sorted(map(str, d))) or "nothing"
         raise FormatError(path, f"missing key (found: {have})", f"{field_prefix}{key}")
-    return d[key]
+    v = d[key]
+    if kind is not None and not isinstance(v, kind):
+        raise FormatError(path, f"expected a JSON {'object' if kind is dict else 'array'}, got {type(v).__name__}",
+                          f"{field_prefix}{key}")
+    return v
 
 
 def as_float(value, path, field: str) -> float:

@@ -114,8 +114,8 @@ def read_lucid_calib(path, *, quaternion_tol_deg: float = _QUAT_TOL_DEG, repair:
     off by more than 1e-3. ``data``: the parsed JSON (then ``path`` only names it in errors).
     """
     d = load_json(path) if data is None else data
-    intr_d = require(d, "intrinsic_params", path)
-    ext_d = require(d, "extrinsic_params", path)
+    intr_d = require(d, "intrinsic_params", path, kind=dict)
+    ext_d = require(d, "extrinsic_params", path, kind=dict)
     ip = "intrinsic_params."
     ep = "extrinsic_params."
     fx, fy, cx, cy = (as_float(require(intr_d, k, path, ip), path, ip + k) for k in ("fx", "fy", "cx", "cy"))
@@ -129,7 +129,7 @@ def read_lucid_calib(path, *, quaternion_tol_deg: float = _QUAT_TOL_DEG, repair:
     height = intr_d.get("height", intr_d.get("image_height"))
     try:
         intr = CameraIntrinsics(fx, fy, cx, cy, dist, width, height)
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:
         raise FormatError(path, str(exc), "intrinsic_params") from None
     coord = str(ext_d.get("camera_coordinate", "OPTICAL")).upper()
     if coord != "OPTICAL":
@@ -143,7 +143,7 @@ def read_lucid_calib(path, *, quaternion_tol_deg: float = _QUAT_TOL_DEG, repair:
         if k in ext_d:
             meta[k] = ext_d[k]
     if "quaternion" in ext_d:
-        qd = ext_d["quaternion"]
+        qd = require(ext_d, "quaternion", path, ep, kind=dict)
         qv = [as_float(require(qd, k, path, ep + "quaternion."), path, ep + f"quaternion.{k}") for k in "xyzw"]
         norm = float(np.linalg.norm(qv))
         if norm > 1e-9 and abs(norm - 1.0) > 1e-3 and not repair:
@@ -200,7 +200,12 @@ def _K_and_offset(M: np.ndarray, path, field: str) -> tuple[np.ndarray, np.ndarr
 
 def _distortion_list(node, path, field: str) -> np.ndarray | None:
     data = node.get("data", []) if isinstance(node, dict) else node
-    d = np.asarray(data, dtype=np.float64).reshape(-1) if data is not None else np.zeros(0)
+    try:
+        d = np.asarray(data, dtype=np.float64).reshape(-1) if data is not None else np.zeros(0)
+    except (TypeError, ValueError):
+        raise FormatError(path, f"expected a list of numbers, got {data!r:.60}", field) from None
+    if not np.all(np.isfinite(d)):
+        raise FormatError(path, "distortion has NaN/Inf entries", field)
     if d.size == 0 or not np.any(d):
         return None
     if d.size not in (4, 5, 8, 12, 14):
@@ -243,7 +248,7 @@ def read_calib_json(path, *, use_gt: bool = False, repair: bool = False) -> Cali
     dist = _distortion_list(d.get("cam_dist", {}), path, "cam_dist")
     try:
         intr = CameraIntrinsics.from_matrix(K, dist)
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:
         raise FormatError(path, str(exc), "cam_K") from None
     shift = make_transform(np.eye(3), off)
     T_init = shift @ _rigid4(require(d, "T_lidar_to_cam", path), path, "T_lidar_to_cam", repair)
@@ -322,7 +327,7 @@ def read_calib_txt(path, *, repair: bool = False) -> CalibrationResult:
     T = make_transform(checked_rotation(Tm[:, :3], path, "T", repair=repair), Tm[:, 3])
     try:
         intr = CameraIntrinsics.from_matrix(K, dist)
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:
         raise FormatError(path, str(exc), "K") from None
     return calibration_record(intr, T, method="calib_txt", meta={"format": "calib_txt"})
 
@@ -371,7 +376,7 @@ def read_opencalib(extrinsic_path, intrinsic_path=None, *, repair: bool = False)
         dist = _distortion_list(ip.get("cam_dist", {}), ipath, f"{iname}.param.cam_dist")
         try:
             intr = CameraIntrinsics.from_matrix(K, dist, width=ip.get("img_dist_w"), height=ip.get("img_dist_h"))
-        except ValueError as exc:
+        except (TypeError, ValueError) as exc:
             raise FormatError(ipath, str(exc), f"{iname}.param") from None
     return calibration_record(intr, T, method="opencalib", camera_name=cam,
                               meta={"format": "opencalib", "lidar_name": lidar})

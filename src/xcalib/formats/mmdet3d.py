@@ -94,7 +94,7 @@ def _cam_calib(cam: dict, path: Path, where: str) -> tuple[CameraIntrinsics, np.
     T = make_transform(np.eye(3), off) @ make_transform(R, L[:3, 3])
     try:
         intr = CameraIntrinsics.from_matrix(K, width=cam.get("width"), height=cam.get("height"))
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:
         raise FormatError(path, str(exc), where + ".cam2img") from None
     return intr, T
 

@@ -87,12 +87,14 @@ class NuScenesSensor:
 
 def _intrinsics(rec: dict, path, where: str) -> CameraIntrinsics | None:
     Kd = rec.get("camera_intrinsic") or []
+    if not isinstance(Kd, list):
+        raise FormatError(path, f"expected [] or a 3x3 nested list, got {Kd!r:.40}", where + ".camera_intrinsic")
     if len(Kd) == 0:
         return None
     K = as_matrix(Kd, (3, 3), path, where + ".camera_intrinsic")
     try:
         return CameraIntrinsics.from_matrix(K)
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:
         raise FormatError(path, str(exc), where + ".camera_intrinsic") from None
 
 
@@ -104,12 +106,12 @@ def read_nuscenes_sensors(table_dir) -> dict[str, NuScenesSensor]:
     cs, sensors = load_json(cs_path), load_json(s_path)
     if not isinstance(cs, list) or not isinstance(sensors, list):
         raise FormatError(cs_path, "expected JSON lists of records (calibrated_sensor.json, sensor.json)")
-    by_token = {s.get("token"): s for s in sensors if isinstance(s, dict)}
+    by_token = {s.get("token"): s for s in sensors if isinstance(s, dict) and isinstance(s.get("token"), str)}
     out: dict[str, NuScenesSensor] = {}
     for i, rec in enumerate(cs):
         where = f"[{i}]"
         st = require(rec, "sensor_token", cs_path, where + ".")
-        if st not in by_token:
+        if not isinstance(st, str) or st not in by_token:
             raise FormatError(cs_path, f"sensor_token {st!r} not found in {s_path.name}", where + ".sensor_token")
         s = by_token[st]
         ch = str(s.get("channel", st))

@@ -72,6 +72,8 @@ def _pose(cs: dict, path, where: str, repair: bool) -> np.ndarray:
     p = cs.get("pose_wrt_parent")
     if p is None:
         return np.eye(4)
+    if not isinstance(p, dict):
+        raise FormatError(path, f"expected a JSON object, got {type(p).__name__}", where)
     if "matrix4x4" in p:
         M = as_matrix(p["matrix4x4"], (4, 4), path, where + ".matrix4x4")
         R = checked_rotation(M[:3, :3], path, where + ".matrix4x4", repair=repair)
@@ -97,8 +99,11 @@ def _root_pose(name: str, css: dict, path, repair: bool) -> np.ndarray:
         seen.add(name)
         if name not in css:
             raise FormatError(path, f"unknown coordinate system {name!r}", "coordinate_systems")
-        T = _pose(css[name], path, f"coordinate_systems.{name}.pose_wrt_parent", repair) @ T
-        name = css[name].get("parent", "") or ""
+        cs = require(css, name, path, "coordinate_systems.", kind=dict)
+        T = _pose(cs, path, f"coordinate_systems.{name}.pose_wrt_parent", repair) @ T
+        name = cs.get("parent", "") or ""
+        if not isinstance(name, str):
+            raise FormatError(path, f"parent must be a name, got {name!r:.40}", "coordinate_systems.parent")
     return T
 
 
@@ -107,9 +112,13 @@ def read_openlabel(path, *, camera: str | None = None, lidar: str | None = None,
     """Read an OpenLABEL JSON -> ``CalibrationResult`` (``T_cam_lidar``: LiDAR -> camera). Picks the
     first camera stream with ``intrinsics_pinhole`` and the first lidar stream unless named."""
     path = Path(path)
-    ol = require(load_json(path), "openlabel", path)
-    css = require(ol, "coordinate_systems", path, "openlabel.")
-    streams = ol.get("streams", {}) or {}
+    ol = require(load_json(path), "openlabel", path, kind=dict)
+    css = require(ol, "coordinate_systems", path, "openlabel.", kind=dict)
+    streams = require(ol, "streams", path, "openlabel.", kind=dict)
+    for n, s in streams.items():
+        require(streams, n, path, "openlabel.streams.", kind=dict)
+        if not isinstance(s.get("stream_properties") or {}, dict):
+            raise FormatError(path, "expected a JSON object", f"openlabel.streams.{n}.stream_properties")
     if camera is None:
         cams = [n for n, s in streams.items() if s.get("type") == "camera"
                 and "intrinsics_pinhole" in (s.get("stream_properties") or {})]
@@ -123,19 +132,27 @@ def read_openlabel(path, *, camera: str | None = None, lidar: str | None = None,
         lidar = lids[0]
     where = f"openlabel.streams.{camera}.stream_properties.intrinsics_pinhole"
     pin = (((streams.get(camera) or {}).get("stream_properties")) or {}).get("intrinsics_pinhole")
-    if pin is None:
-        raise FormatError(path, "missing", where)
+    if not isinstance(pin, dict):
+        raise FormatError(path, f"expected a JSON object, got {type(pin).__name__}", where)
     raw = pin.get("camera_matrix_3x4", pin.get("camera_matrix"))
     if raw is None:
         raise FormatError(path, "missing key camera_matrix_3x4", where)
-    n = np.asarray(raw, dtype=np.float64).size
-    M = as_matrix(raw, (3, 3), path, where) if n == 9 else as_matrix(raw, (3, 4), path, where + ".camera_matrix_3x4")
+    try:
+        n = np.asarray(raw, dtype=np.float64).size
+    except (TypeError, ValueError):
+        n = -1
+    if n == 9:
+        M = np.hstack([as_matrix(raw, (3, 3), path, where + ".camera_matrix"), np.zeros((3, 1))])
+    else:
+        M = as_matrix(raw, (3, 4), path, where + ".camera_matrix_3x4")
     K = M[:, :3]
-    off = np.linalg.solve(K, M[:, 3]) if M.shape[1] == 4 else np.zeros(3)
+    if abs(np.linalg.det(K)) < 1e-12:
+        raise FormatError(path, f"camera matrix is singular: {K.tolist()}", where)
+    off = np.linalg.solve(K, M[:, 3])
     dist = pin.get("distortion_coeffs_1xN") or None
     try:
         intr = CameraIntrinsics.from_matrix(K, dist, width=pin.get("width_px"), height=pin.get("height_px"))
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:
         raise FormatError(path, str(exc), where) from None
     T_root_cam = _root_pose(camera, css, path, repair)
     T_root_lidar = _root_pose(lidar, css, path, repair)

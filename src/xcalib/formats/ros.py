@@ -110,7 +110,12 @@ def read_camera_info(path) -> CameraIntrinsics:
                   "camera_matrix.data")
     dist = None
     if "distortion_coefficients" in d:
-        dist = np.asarray(require(d["distortion_coefficients"], "data", path, "distortion_coefficients."), float)
+        raw = require(d["distortion_coefficients"], "data", path, "distortion_coefficients.")
+        try:
+            dist = np.asarray(raw, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise FormatError(path, f"expected a list of numbers, got {raw!r:.60}",
+                              "distortion_coefficients.data") from None
         model = str(d.get("distortion_model", "plumb_bob"))
         if model not in ("plumb_bob", "rational_polynomial"):
             raise FormatError(path, f"unsupported distortion_model {model!r} (plumb_bob or rational_polynomial)",
@@ -123,7 +128,7 @@ def read_camera_info(path) -> CameraIntrinsics:
                                     "not a plain LiDAR->camera calibration)", "rectification_matrix")
     try:
         return CameraIntrinsics.from_matrix(K, dist, width=d.get("image_width"), height=d.get("image_height"))
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:
         raise FormatError(path, str(exc), "camera_matrix") from None
 
 
@@ -140,7 +145,10 @@ def read_static_transform(path) -> tuple[np.ndarray, str, str]:
     if norm > 1e-9 and abs(norm - 1.0) > 1e-3:
         raise FormatError(path, f"rotation quaternion norm is {norm:.6f}, expected 1", "transform.rotation")
     R = checked_quaternion(qv, path, "transform.rotation")
-    parent = str((d.get("header") or {}).get("frame_id", ""))
+    header = d.get("header") or {}
+    if not isinstance(header, dict):
+        raise FormatError(path, f"expected a mapping, got {type(header).__name__}", "header")
+    parent = str(header.get("frame_id", ""))
     return make_transform(R, tv), parent, str(d.get("child_frame_id", ""))
 
 
