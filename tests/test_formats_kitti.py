@@ -240,3 +240,16 @@ def test_kitti_to_kitti_keeps_matrices_and_estimate_inversion(calib, tmp_path):
     c2 = calib.with_T_cam_lidar(est, 2)
     np.testing.assert_allclose(c2.T_cam_lidar(2), est, atol=1e-12)
     np.testing.assert_allclose(c2.projection(2), calib.K(2) @ est[:3], atol=1e-9)
+
+
+@pytest.mark.shared_data
+def test_kitti_frames_survive_hdf5_cache(tmp_path):
+    from xcalib.io.hdf5 import CacheReader, write_cache
+
+    f = kitti_frames(shared_path("kitti", "openpcdet_pr653"), ids=[1])[0]
+    write_cache(tmp_path / "k.h5", [f])
+    g = CacheReader(tmp_path / "k.h5")[0]
+    np.testing.assert_allclose(g.meta["box7"], f.meta["box7"], atol=1e-6)
+    assert g.meta["classes_3d"] == ["Truck", "Car", "Cyclist"]
+    np.testing.assert_allclose(g.extrinsics, f.extrinsics, atol=1e-9)
+    np.testing.assert_array_equal(g.match_matrix, f.match_matrix)

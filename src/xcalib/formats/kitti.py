@@ -575,7 +575,8 @@ class KittiFrames(Sequence):
     ``bboxes_3d`` (box7 [K,7] by default, protocol extents [K,6] with ``box_format="extents"``),
     ``match_matrix`` = identity (row i of the label gives 2D box i and 3D box i),
     ``intrinsics`` from P2 and ``extrinsics`` = ``KittiCalibration.T_cam_lidar(2)``.
-    ``meta``: ``types``, ``kitti_calibration``, ``label_path``, ``dontcare_boxes_2d``.
+    ``meta``: ``types`` (= ``classes_2d`` = ``classes_3d``), ``box7`` [K,7] float64,
+    ``kitti_calibration``, ``label_path``, ``dontcare_boxes_2d``.
     """
 
     def __init__(self, root, ids=None, *, box_format: str = "box7", camera: int = 2,
@@ -628,6 +629,7 @@ class KittiFrames(Sequence):
         has_tr = calib.Tr_velo_to_cam is not None
         extr = calib.T_cam_lidar(self.camera) if has_tr else None
         b2, b3 = np.zeros((0, 4)), np.zeros((0, 7 if self.box_format == "box7" else 6))
+        b7 = np.zeros((0, 7))
         types = np.zeros((0,), dtype=str)
         dontcare = np.zeros((0, 4))
         if rec.label is not None:
@@ -650,7 +652,8 @@ class KittiFrames(Sequence):
             match_matrix=np.eye(k, dtype=bool) if rec.label is not None else None,
             intrinsics=calib.intrinsics(self.camera, *(size or (None, None))), extrinsics=extr,
             point_fields=("x", "y", "z", "intensity"),
-            meta={"types": types.tolist(), "kitti_calibration": calib, "label_path": rec.label,
+            meta={"types": types.tolist(), "classes_2d": types.tolist(), "classes_3d": types.tolist(),
+                  "box7": b7.astype(np.float64), "kitti_calibration": calib, "label_path": rec.label,
                   "dontcare_boxes_2d": dontcare, "source": "kitti", "image_path": rec.image,
                   "velodyne_path": rec.velodyne},
         )

@@ -33,6 +33,9 @@ from ._pickle import load_pickle_restricted
 __all__ = ["InfoCamera", "InfoSample", "read_mmdet3d_infos", "Mmdet3dFrames", "mmdet3d_frames",
            "BOX_Z_ORIGIN"]
 
+# mmdetection3d's class lists when the info's metainfo has none.
+_DEFAULT_CLASSES = {"waymo": ["Car", "Pedestrian", "Cyclist"]}
+
 #: Fraction of the box height between the stored z and the bottom face, per dataset.
 BOX_Z_ORIGIN = {"nuscenes": 0.5, "lyft": 0.5, "waymo": 0.0}
 
@@ -48,6 +51,7 @@ class InfoCamera:
     image_path: Path | None
     boxes_2d: np.ndarray
     box_index: np.ndarray
+    classes_2d: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -115,6 +119,9 @@ def read_mmdet3d_infos(path, data_root=None) -> list[InfoSample]:
         raise FormatError(path, "KITTI infos hold camera-frame boxes: read them with xcalib.formats.kitti "
                                 "(load_kitti_calibration / kitti_frames)", "metainfo.dataset")
     z0 = BOX_Z_ORIGIN.get(dataset, 0.0)
+    cats = meta.get("categories", meta.get("classes")) or _DEFAULT_CLASSES.get(dataset, {})
+    names = ({int(v): str(k) for k, v in cats.items()} if isinstance(cats, dict)
+             else {i: str(c) for i, c in enumerate(cats)})
     roots = [Path(data_root)] if data_root is not None else []
     roots.append(path.parent)
     out = []
@@ -138,6 +145,7 @@ def read_mmdet3d_infos(path, data_root=None) -> list[InfoSample]:
             ci = (info.get("cam_instances", {}) or {}).get(name, []) or []
             b2 = np.array([[float(v) for v in c["bbox"]] for c in ci], dtype=np.float64).reshape(-1, 4)
             idx = np.full(len(ci), -1, dtype=np.int64)
+            cls2d = [names.get(int(c.get("bbox_label", -1)), str(c.get("bbox_label", ""))) for c in ci]
             if len(ci) and len(b):
                 c3 = np.array([[float(v) for v in c["bbox_3d"][:3]] for c in ci])
                 L = np.asarray(cam["lidar2cam"], dtype=np.float64)
@@ -148,11 +156,12 @@ def read_mmdet3d_infos(path, data_root=None) -> list[InfoSample]:
                 j = dist.argmin(axis=1)
                 idx = np.where(dist[np.arange(len(ci)), j] < 0.01, j, -1)
             img = _find(cam.get("img_path"), roots, ("image_0", "image_2"), IMAGE_EXTS)
-            cams[name] = InfoCamera(name, intr, T, img, b2, idx)
+            cams[name] = InfoCamera(name, intr, T, img, b2, idx, cls2d)
         key = str(info.get("token", info.get("sample_idx", si)))
         out.append(InfoSample(key, dataset, lidar, nfeat, b, labels, cams,
                               {"source": str(path), "ego2global": info.get("ego2global"),
-                               "lidar2ego": (lp.get("lidar2ego"))}))
+                               "lidar2ego": (lp.get("lidar2ego")),
+                               "classes": [names.get(int(v), str(int(v))) for v in labels]}))
     return out
 
 
@@ -216,6 +225,8 @@ class Mmdet3dFrames(Sequence):
                      camera_name=cam.name, frame_key=f"{s.key}/{cam.name}", match_matrix=mm, intrinsics=intr,
                      extrinsics=T.copy(), point_fields=tuple(fields),
                      meta={"source": f"mmdet3d:{s.dataset}", "labels_3d": s.labels[keep].tolist(),
+                           "classes_2d": list(cam.classes_2d), "box7": s.boxes7[keep].copy(),
+                           "classes_3d": [s.meta["classes"][j] for j in keep],
                            "box_indices": keep, "image_path": cam.image_path, "lidar_path": s.lidar_path})
 
 
