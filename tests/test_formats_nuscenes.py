@@ -81,3 +81,24 @@ def test_waymo_kitti_format_infos():
     val = mmdet3d_frames(shared_path("waymo", "mmdet3d_tests", "kitti_format", "waymo_infos_val.pkl"),
                          load_points=False)
     assert len(val) == 1
+
+
+@pytest.mark.shared_data
+def test_calibrated_sensor_direction_on_nuscenes_sample():
+    """cam2ego / lidar2ego of the sample are sensor -> ego poses: as calibrated_sensor records
+    (w, x, y, z) they reproduce the sample's own lidar2cam through nuscenes_T_cam_lidar, up to the
+    ego motion between the LiDAR and camera timestamps that mmdetection3d folds in (<= 40 ms)."""
+    from xcalib.formats.nuscenes import T_to_calibrated_sensor, nuscenes_T_cam_lidar
+    from xcalib.geometry import pose_error
+
+    info = load_pickle_restricted(shared_path("nuscenes", "mmdet3d_demo", "n015-2018-07-24-11-22-45+0800.pkl"))
+    info = info["data_list"][0]
+    lidar_rec = T_to_calibrated_sensor(np.asarray(info["lidar_points"]["lidar2ego"], dtype=np.float64))
+    for name, cam in info["images"].items():
+        cam_rec = T_to_calibrated_sensor(np.asarray(cam["cam2ego"], dtype=np.float64))
+        ref = np.asarray(cam["lidar2cam"], dtype=np.float64)
+        drift = 10.0 * abs(info["timestamp"] - cam["timestamp"]) + 0.02  # metres at <= 10 m/s
+        rot, trans = pose_error(nuscenes_T_cam_lidar(cam_rec, lidar_rec), ref)
+        assert rot < 0.1 and trans < drift, (name, rot, trans, drift)
+        rot_w, trans_w = pose_error(nuscenes_T_cam_lidar(lidar_rec, cam_rec), ref)  # the other direction
+        assert rot_w > 1.0 or trans_w > drift, (name, rot_w, trans_w)

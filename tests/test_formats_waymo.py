@@ -20,6 +20,7 @@ from xcalib.formats.waymo import (
     waymo_calibration,
     waymo_extrinsic_to_T_cam_lidar,
     waymo_intrinsics,
+    waymo_T_cam_laser,
     waymo_to_kitti_calibration,
 )
 from xcalib.geometry import box7_corners, boxes2d_from_points, clip_boxes2d, iou_matrix, project_points, transform_points
@@ -110,3 +111,7 @@ def test_sample_tfrecord_calibrations_project_labels():
     assert len(ious) == 17 and np.mean(ious) > 0.8
     res = waymo_calibration(rec, "FRONT")
     np.testing.assert_allclose(res.extrinsics, front.T_cam_lidar)
+    # the TOP laser origin (vehicle frame ~ (1.43, 0, 2.18) m) maps to the camera like that vehicle point
+    top = rec.lasers["TOP"].T_vehicle_laser
+    np.testing.assert_allclose(waymo_T_cam_laser(rec, "FRONT", "TOP")[:3, 3],
+                               transform_points(front.T_cam_lidar, top[None, :3, 3])[0], atol=1e-12)

@@ -36,7 +36,7 @@ __all__ = [
     "R_OPTICAL_FROM_FLU", "CAMERA_NAMES", "LASER_NAMES", "flu_to_optical", "optical_to_flu",
     "waymo_extrinsic_to_T_cam_lidar", "T_cam_lidar_to_waymo_extrinsic", "waymo_intrinsics",
     "waymo_to_kitti_calibration", "WaymoCamera", "WaymoLaser", "WaymoFrameRecord", "read_waymo_tfrecord",
-    "waymo_calibration",
+    "waymo_calibration", "waymo_T_cam_laser",
 ]
 
 #: Rotation Waymo camera (front-left-up) -> OpenCV optical (right-down-front):
@@ -247,5 +247,11 @@ def waymo_calibration(record: WaymoFrameRecord, camera: str = "FRONT") -> Calibr
                                     "T_vehicle_cam_flu": cam.T_vehicle_cam.tolist()})
 
 
-def _is_tfrecord(path: Path) -> bool:
-    return path.suffix == ".tfrecord" or ".tfrecord" in path.name
+def waymo_T_cam_laser(record: WaymoFrameRecord, camera: str = "FRONT", laser: str = "TOP") -> np.ndarray:
+    """[4,4] ``T_cam_laser``: points in one laser's own frame -> OpenCV camera,
+    ``T_cam_vehicle @ T_vehicle_laser`` (Waymo's released points are already in the vehicle frame;
+    use this only for raw, per-laser points)."""
+    if camera not in record.cameras or laser not in record.lasers:
+        raise KeyError(f"waymo frame: need camera {camera!r} and laser {laser!r}; have cameras "
+                       f"{sorted(record.cameras)}, lasers {sorted(record.lasers)}")
+    return record.cameras[camera].T_cam_lidar @ record.lasers[laser].T_vehicle_laser
