@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gc
+import json
 import logging
 
 import h5py
@@ -327,3 +328,21 @@ def test_read_frames_dispatches_hdf5(tmp_path, rng):
     frames = read_frames(p)
     assert len(frames) == 1 and frames[0].num_2d == 3
     frames.close()
+
+
+def test_cli_cache_build_from_frame_folder(tmp_path, rng, capsys):
+    from xcalib.cli import main
+    from xcalib.io.frames import write_frame_folder
+
+    frames = [_frame(rng, k) for k in range(3)]
+    for k, f in enumerate(frames):
+        f.frame_key = f"{k:04d}"
+    write_frame_folder(tmp_path / "ff", frames, camera="cam", intrinsics=frames[0].intrinsics)
+    out = tmp_path / "c.h5"
+    assert main(["cache", "build", str(tmp_path / "ff"), "--out", str(out), "--lossless", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["frames"] == 3 and summary["cameras"] == ["cam"]
+    with CacheReader(out) as r:
+        for a, b in zip(frames, r):
+            assert np.array_equal(a.image, b.image) and np.array_equal(a.bboxes_2d, b.bboxes_2d)
+            assert np.allclose(a.point_cloud, b.point_cloud)

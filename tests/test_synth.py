@@ -197,3 +197,19 @@ def test_write_site_round_trip(tmp_path):
             assert f.meta["box7"].shape == (f.num_3d, 7) and len(f.meta["ids_2d"]) == f.num_2d
     with CacheReader(out / "train.h5") as a, CacheReader(out / "test.h5") as b:
         assert not np.array_equal(a[0].bboxes_3d, b[0].bboxes_3d)   # splits are different sequences
+
+
+def test_cli_synth_and_cache_info(tmp_path, capsys):
+    from xcalib.cli import main
+
+    out = tmp_path / "site"
+    rc = main(["synth", "--out", str(out), "--frames", "4", "--seed", "2", "--set", "width=320", "--set", "height=200",
+               "--set", "focal_px=[170, 400]", "--no-lidar", "--json", "--contact-sheet", str(tmp_path / "s.png")])
+    assert rc == 0
+    res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert res["splits"]["train"]["frames"] == 2 and res["splits"]["test"]["frames"] == 1
+    assert (tmp_path / "s.png").stat().st_size > 1000
+    assert main(["cache", "info", str(out / "train.h5"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert info["frames"] == 2 and info["calibration"]["camera"]["extrinsics"] == "single"
+    assert main(["synth", "--out", str(out), "--preset", "drone"]) == 2

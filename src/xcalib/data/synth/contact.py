@@ -29,6 +29,16 @@ def draw_frame(frame: Frame, *, max_points: int = 40000) -> np.ndarray:
             pts = pts[np.random.default_rng(0).choice(len(pts), max_points, replace=False)]
         uv, depth = project_points(pts, frame.intrinsics, T[:3, :3], T[:3, 3])
         ok = np.isfinite(uv[:, 0]) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+        if frame.intrinsics.has_distortion:  # beyond the image's field the distortion polynomial folds back
+            from ...geometry.projection import undistort_pixels
+
+            Km = frame.intrinsics.K
+            corners = undistort_pixels(np.array([[0, 0], [W, 0], [0, H], [W, H]], float), Km,
+                                       frame.intrinsics.distortion)
+            r_max = 1.05 * np.linalg.norm((corners - Km[:2, 2]) / np.diag(Km)[:2], axis=1).max()
+            pc = pts @ T[:3, :3].T + T[:3, 3]
+            with np.errstate(all="ignore"):
+                ok &= np.linalg.norm(pc[:, :2] / pc[:, 2:3], axis=1) < r_max
         uv, depth = uv[ok].astype(np.int32), depth[ok]
         hue = np.clip(depth / 80.0 * 150, 0, 150).astype(np.uint8)
         hsv = np.stack([hue, np.full_like(hue, 255), np.full_like(hue, 255)], axis=1)[None]

@@ -47,8 +47,8 @@ class SiteConfig:
     aspect: float = 1.0                      # fy / fx
     principal_jitter_px: float = 20.0        # cx, cy offset from the image centre
     distortion: bool = False                 # OpenCV k1 k2 p1 p2 k3 when True
-    k1: Range = (-0.25, 0.05)
-    k2: Range = (-0.05, 0.08)
+    k1: Range = (-0.15, 0.05)
+    k2: Range = (-0.03, 0.05)
     tangential: Range = (-5e-4, 5e-4)
     # ---- road layout (metres)
     lanes_per_direction: tuple[int, int] | int = (1, 3)

@@ -173,10 +173,28 @@ def render_background(site: Site) -> np.ndarray:
     sky_img = _HAZE * (1 - g) + top * g
     rng = np.random.default_rng([site.seed, 99])
     az = np.arctan2(d[..., 1], d[..., 0])
-    prof = 1.2 + 1.6 * (0.5 + 0.5 * np.sin(az * 23 + 1.3) * np.sin(az * 7.1)) + 0.5 * np.sin(az * 61)
-    trees = (elev >= 0) & (elev < prof)
-    tree_col = np.array([70, 88, 66], np.float32) + rng.normal(0, 6, (H, W, 1)).astype(np.float32)
-    sky_img = np.where(trees[..., None], tree_col * 0.75 + _HAZE * 0.25, sky_img)
+    # skyline 300 m away: tree crowns (smooth random heights) and a few rectangular buildings
+    n_az = 2048
+    grid = np.linspace(-math.pi, math.pi, n_az + 1)
+    crowns = np.convolve(rng.uniform(6, 16, n_az + 40), np.ones(9) / 9, mode="same")[20:n_az + 21]
+    crowns += rng.uniform(0, 2.5, n_az + 1)
+    bld = np.zeros(n_az + 1)
+    bcol = np.zeros((n_az + 1, 3), np.float32)
+    for _ in range(int(rng.integers(3, 9))):
+        a0 = int(rng.integers(0, n_az))
+        wdt = int(rng.integers(15, 70))
+        bld[a0:a0 + wdt] = rng.uniform(14, 40)
+        bcol[a0:a0 + wdt] = rng.uniform(120, 190) * np.array([1.0, 0.98, 0.95]) * rng.uniform(0.9, 1.1, 3)
+    idx = np.clip(((az + math.pi) / (2 * math.pi) * n_az).astype(np.int32), 0, n_az)
+    h_tree = np.degrees(np.arctan(crowns[idx] / 300.0))
+    h_bld = np.degrees(np.arctan(bld[idx] / 300.0))
+    trees = (elev >= -0.2) & (elev < h_tree)
+    building = (elev >= -0.2) & (elev < h_bld) & (h_bld > h_tree * 0.0)
+    tree_col = np.array([62, 82, 58], np.float32) + rng.normal(0, 7, (H, W, 1)).astype(np.float32)
+    sky_img = np.where(trees[..., None], tree_col * 0.7 + _HAZE * 0.3, sky_img)
+    win = ((np.floor(elev * 12) % 2) == 0)[..., None]
+    bimg = bcol[idx] * np.where(win, 0.92, 1.0)
+    sky_img = np.where(building[..., None], bimg * 0.65 + _HAZE * 0.35, sky_img)
     img = np.where(sky[..., None], sky_img, img)
     return np.clip(img, 0, 255).astype(np.uint8)
 
