@@ -195,6 +195,9 @@ def test_write_site_round_trip(tmp_path):
             assert np.allclose(f.extrinsics, np.array(info["T_cam_lidar"]))
             assert f.intrinsics.width == 480 and f.image.shape == (300, 480, 3)
             assert f.meta["box7"].shape == (f.num_3d, 7) and len(f.meta["ids_2d"]) == f.num_2d
+            assert f.meta["boxes_2d_clean"].shape == (f.num_2d, 4) and len(f.meta["visibility_2d"]) == f.num_2d
+            assert f.meta["box7_gt"].shape == (f.num_3d, 7) and f.meta["classes_3d"][0] in (
+                "car", "van", "truck", "bus", "pedestrian", "cyclist", "false_positive")
     with CacheReader(out / "train.h5") as a, CacheReader(out / "test.h5") as b:
         assert not np.array_equal(a[0].bboxes_3d, b[0].bboxes_3d)   # splits are different sequences
 

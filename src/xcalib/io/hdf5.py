@@ -15,8 +15,11 @@ Layout (spec) ::
 xcalib's additive extras (ignored by spec readers): ``/calibration/<cam>/distortion`` [n]
 (OpenCV order), image size as ``width``/``height`` attributes of ``intrinsics``;
 ``lidar_bbox_7`` float64 [>=M,7] (box7 with yaw, exposed as ``Frame.meta["box7"]``),
-``camera_object_ids`` / ``lidar_object_ids`` int64 and ``camera_classes`` / ``lidar_classes``
-bytes per detection (``meta["ids_2d"]``, ``["ids_3d"]``, ``["classes_2d"]``, ``["classes_3d"]``);
+``lidar_bbox_7_gt`` [M,7] / ``camera_bbox_2d_clean`` [K,4] (noise-free boxes: ``meta["box7_gt"]``,
+``["boxes_2d_clean"]``), ``camera_visibility`` / ``camera_truncation`` float64 [K]
+(``meta["visibility_2d"]``, ``["truncation_2d"]``), ``camera_object_ids`` / ``lidar_object_ids``
+int64 and ``camera_classes`` / ``lidar_classes`` bytes per detection (``meta["ids_2d"]``,
+``["ids_3d"]``, ``["classes_2d"]``, ``["classes_3d"]``);
 extra point columns as ``/point_clouds/<lidar>/<key>/<field>`` [P] listed in the group's
 ``fields`` attribute.
 
@@ -32,7 +35,7 @@ import logging
 import os
 import uuid
 import weakref
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +54,10 @@ _KEY_ORDERS = ("lexicographic", "numeric")
 # Frame.meta key -> (dataset name, kind) of the additive per-detection extras.
 _META_DATASETS = {
     "box7": ("lidar_bbox_7", "f3d7"),
+    "box7_gt": ("lidar_bbox_7_gt", "f3d7"),
+    "boxes_2d_clean": ("camera_bbox_2d_clean", "f2d4"),
+    "visibility_2d": ("camera_visibility", "v2d"),
+    "truncation_2d": ("camera_truncation", "v2d"),
     "ids_2d": ("camera_object_ids", "i2d"),
     "ids_3d": ("lidar_object_ids", "i3d"),
     "classes_2d": ("camera_classes", "s2d"),
@@ -94,7 +101,7 @@ def _match_camera(name: str, candidates: Iterable[str]) -> str | None:
 
 
 # --------------------------------------------------------------------------------- reader
-class CacheReader:
+class CacheReader(Sequence):
     """Lazy ``Sequence[Frame]`` over an HDF5 cache (one frame read per access).
 
     Args:
@@ -304,16 +311,20 @@ class CacheReader:
         meta: dict = {}
         for mkey, (dname, kind) in _META_DATASETS.items():
             if dname in g:
-                n = K if kind.endswith("2d") else M
+                n = K if "2d" in kind else M
                 if kind == "f3d7":
                     meta[mkey] = self._rows(g.read(dname), dname, M, 7, key, where, np.float64)
+                elif kind == "f2d4":
+                    meta[mkey] = self._rows(g.read(dname), dname, K, 4, key, where, np.float64)
                 else:
                     arr = g.read(dname).reshape(-1)
                     if len(arr) < n:
                         raise FormatError(self.path, f"frame {key!r}: {dname} has {len(arr)} rows, expected "
                                                      f">= {n}", field=f"{where}/{dname}")
-                    meta[mkey] = ([_as_str(s) for s in arr[:n]] if kind.startswith("s")
-                                  else arr[:n].astype(np.int64))
+                    if kind.startswith("s"):
+                        meta[mkey] = [_as_str(s) for s in arr[:n]]
+                    else:
+                        meta[mkey] = arr[:n].astype(np.float64 if kind.startswith("v") else np.int64)
         points, fields = self._points(key)
         # Images: every camera referenced by the frame (or the first camera).
         primary = cams_per_det[0] if cams_per_det else self.camera_names[0]
@@ -685,9 +696,13 @@ class CacheWriter:
             v = meta.get(mkey)
             if v is None:
                 continue
-            n = K if kind.endswith("2d") else M
+            n = K if "2d" in kind else M
             if kind == "f3d7":
                 arr = np.asarray(v, dtype=np.float64).reshape(-1, 7)
+            elif kind == "f2d4":
+                arr = np.asarray(v, dtype=np.float64).reshape(-1, 4)
+            elif kind.startswith("v"):
+                arr = np.asarray(v, dtype=np.float64).reshape(-1)
             elif kind.startswith("s"):
                 arr = np.array([str(s).encode() for s in v], dtype="S") if len(v) else np.zeros(0, dtype="S1")
             else:
