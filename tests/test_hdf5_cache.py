@@ -307,7 +307,7 @@ def test_writer_multi_camera(tmp_path, rng):
     assert np.array_equal(g.images["left"], f.images["left"]) and np.array_equal(g.images["right"], f.images["right"])
 
 
-def test_summary_and_load_dataset(tmp_path, rng):
+def test_summary_and_load_dataset(tmp_path, rng, monkeypatch):
     (tmp_path / "site").mkdir()
     write_cache(tmp_path / "site" / "test.h5", [_frame(rng, k) for k in range(3)])
     s = cache_summary(tmp_path / "site" / "test.h5")
@@ -319,6 +319,17 @@ def test_summary_and_load_dataset(tmp_path, rng):
         load_dataset("a9_dataset_r02_s01")
     with pytest.raises(FileNotFoundError, match="val"):
         load_dataset(tmp_path / "site", split="val")
+    with pytest.raises(ValueError, match="never downloads"):
+        load_dataset("a9_dataset_r02_s01", repo_id="UArizona/xcalib-a9")
+    with load_dataset("ignored", local=tmp_path / "site") as r:
+        assert len(r) == 3
+    # the reference's checkout-local default: ./datasets/<site>/hdf5_cache/*_<split>.h5
+    d = tmp_path / "datasets" / "a9_dataset_r02_s01" / "hdf5_cache"
+    d.mkdir(parents=True)
+    (tmp_path / "site" / "test.h5").rename(d / "a9_r02_s01_test.h5")
+    monkeypatch.chdir(tmp_path)
+    with load_dataset("a9_dataset_r02_s01") as r:
+        assert len(r) == 3
 
 
 def test_read_frames_dispatches_hdf5(tmp_path, rng):

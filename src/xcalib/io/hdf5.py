@@ -515,24 +515,46 @@ class _Group:
         return [_as_str(v) for v in arr.reshape(-1)]
 
 
-def load_dataset(site_or_path, split: str = "test", **reader_kwargs) -> CacheReader:
-    """Open a cache: an .h5 file, or a folder holding ``<split>.h5`` (as ``xcalib synth`` writes)
-    or ``*_<split>.h5``. Never downloads anything."""
+def load_dataset(site_or_path, split: str = "test", *, local=None, repo_id: str | None = None,
+                 revision: str | None = None, token: str | None = None, **reader_kwargs) -> CacheReader:
+    """Open a cache split; never downloads anything.
+
+    Resolution (reference-compatible, minus the Hub): ``local`` (must exist) -> ``site_or_path`` as an
+    .h5 file -> a folder holding ``<split>.h5`` (as ``xcalib synth`` writes) or ``*_<split>.h5`` ->
+    the checkout-local ``datasets/<site>/hdf5_cache/*_<split>.h5`` under the working directory.
+    ``repo_id`` / ``revision`` / ``token`` are accepted for API compatibility and rejected.
+    """
+    if repo_id is not None or revision is not None or token is not None:
+        raise ValueError("load_dataset: xcalib never downloads datasets (repo_id/revision/token given); "
+                         "pass a local .h5 file or folder")
+    if split not in ("train", "val", "test") and not Path(str(site_or_path)).is_file():
+        log.warning("load_dataset: unusual split name %r (expected train, val or test)", split)
+    if local is not None:
+        lp = Path(local)
+        if not lp.exists():
+            raise FileNotFoundError(f"load_dataset: local={str(lp)!r} does not exist")
+        return load_dataset(lp, split, **reader_kwargs)
     p = Path(site_or_path)
     if p.is_file():
         return CacheReader(p, **reader_kwargs)
-    if p.is_dir():
-        cands = [p / f"{split}{s}" for s in HDF5_SUFFIXES]
-        cands += sorted(q for s in HDF5_SUFFIXES for q in p.glob(f"*_{split}{s}"))
+    folders = [p] if p.is_dir() else []
+    folders.append(Path.cwd() / "datasets" / str(site_or_path) / "hdf5_cache")
+    for folder in folders:
+        if not folder.is_dir():
+            continue
+        cands = [folder / f"{split}{s}" for s in HDF5_SUFFIXES]
+        cands += sorted(q for s in HDF5_SUFFIXES for q in folder.glob(f"*_{split}{s}"))
         for c in cands:
             if c.is_file():
                 return CacheReader(c, **reader_kwargs)
+    if p.is_dir():
         raise FileNotFoundError(
             f"load_dataset: no {split!r} split in {p} (looked for {split}.h5, {split}.hdf5, *_{split}.h5). "
             f"Make a synthetic site with `xcalib synth --out {p}`.")
     raise FileNotFoundError(
-        f"load_dataset: {str(site_or_path)!r} is neither an HDF5 cache nor a site folder. xcalib never "
-        "downloads datasets; pass a local .h5 file or make a synthetic site with `xcalib synth --out DIR`.")
+        f"load_dataset: {str(site_or_path)!r} is neither an HDF5 cache, a site folder nor "
+        f"./datasets/{site_or_path}/hdf5_cache. xcalib never downloads datasets; pass a local .h5 file or "
+        "make a synthetic site with `xcalib synth --out DIR`.")
 
 
 def cache_summary(path) -> dict:
