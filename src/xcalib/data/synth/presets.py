@@ -73,7 +73,7 @@ class SiteConfig:
     # ---- LiDAR scanner
     lidar_beams: int = 64
     lidar_vfov_deg: tuple[float, float] = (-30.0, 15.0)
-    lidar_azimuth_steps: int = 1536
+    lidar_azimuth_steps: int = 2048
     lidar_max_range: float = 120.0
     lidar_min_range: float = 0.8
     lidar_range_noise_m: float = 0.02
