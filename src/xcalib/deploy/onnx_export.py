@@ -55,10 +55,17 @@ FAMILIES = {
 }
 # families whose embeddings depend on the other detections of the frame (no N/M chunking)
 JOINT_EMBEDDING = {"crlite_vit_exp4"}
+# models that cannot be exported yet, with the reason
+NOT_EXPORTABLE = {
+    "crlite_vit_exp4": "its structure GNNs build a data-dependent sparse kNN graph per frame (nonzero, index_add "
+                       "with repeated indices) that the TorchScript ONNX exporter rejects; use the PyTorch Matcher",
+}
 
 
 
 def family_of(model_name: str) -> str:
+    if model_name in NOT_EXPORTABLE:
+        raise ExportError(f"model {model_name!r} cannot be exported to ONNX: {NOT_EXPORTABLE[model_name]}")
     if model_name not in FAMILIES:
         raise ExportError(f"model {model_name!r} has no ONNX export plan; exportable: {sorted(FAMILIES)}")
     return FAMILIES[model_name]

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +31,7 @@ from .errors import EnvelopeError, OnnxFolderError
 from .manifest import MANIFEST, Manifest, read_manifest
 from .onnx_feeds import frame_feeds, pair_feeds
 
-__all__ = ["OnnxMatcher", "load_onnx", "resolve_folder", "l2_normalize"]
+__all__ = ["OnnxMatcher", "OnnxModelInfo", "load_onnx", "resolve_folder", "l2_normalize"]
 
 log = logging.getLogger("xcalib.deploy")
 
@@ -53,6 +54,17 @@ def resolve_folder(path: str | Path, model: str | None = None, site: str | None 
         raise OnnxFolderError(p, f"no manifest.json and no export folder for model {model!r}"
                                  f"{' site ' + repr(site) if site else ''} inside")
     raise OnnxFolderError(p, f"several export folders for model {model!r}: {[c.name for c in cands]}; pass site=")
+
+
+@dataclass(frozen=True)
+class OnnxModelInfo:
+    """What ``Matcher.model`` offers to callers that only read it (no torch): name, family,
+    ``fill_value`` of unscored pairs and the config."""
+
+    model_name: str
+    family: str
+    fill_value: float | None
+    config: dict
 
 
 class OnnxMatcher:
@@ -84,6 +96,7 @@ class OnnxMatcher:
         self.family = man.family
         self.host: dict[str, Any] = dict(man.host)
         self.fill_value = self.host.get("fill_value")
+        self.model = OnnxModelInfo(man.model, man.family, self.fill_value, dict(man.config))
         self._warnings = WarningRegistry()
         so = ort.SessionOptions()
         so.intra_op_num_threads = int(threads)
