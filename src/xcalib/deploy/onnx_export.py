@@ -115,8 +115,15 @@ def _crlite_pair(m, a, b):
     return m.stage2(torch.cat([a, b], dim=1))
 
 
-def _fastmatch_pair(m, a, b):
-    return m.pair_head(torch.cat([a * b, (a - b).abs(), (a * b).sum(-1, keepdim=True)], 1)).squeeze(-1)
+def _fastmatch_pair(m, a, *rest):
+    """Per-pair form of ``FastMatch.pair_logits``; inputs img_embed[, box_img], lid_embed[, box_lid]."""
+    if len(rest) == 3:  # with box-geometry extras
+        bi, b, bl = rest
+        feats = [a * b, (a - b).abs(), (a * b).sum(-1, keepdim=True), (bi - bl) ** 2]
+    else:
+        b = rest[0]
+        feats = [a * b, (a - b).abs(), (a * b).sum(-1, keepdim=True)]
+    return m.pair_head(torch.cat(feats, 1)).squeeze(-1)
 
 
 def _calibrefine_pair(m, ei, ci, pi, el, cl, pl):
