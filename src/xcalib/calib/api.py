@@ -153,19 +153,30 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
             richness = np.array([min(cframes[i].n2, cframes[i].n3) for i in usable])
             pick = np.sort(np.argsort(-richness, kind="stable")[:max_hyp_frames])
             usable = [usable[k] for k in pick]
+        groups = [[i] for i in usable]
+        # sparse scenes: a static rig makes pairs from different frames rigidly consistent too,
+        # so pool frames (a few detections each) into groups of about 12 detections
+        sparse = [i for i, f in enumerate(cframes) if f.n2 and f.n3 and i not in usable]
+        if sparse:
+            per = max(1, 12 // max(1, int(np.median([cframes[i].n2 for i in sparse]))))
+            step = max(1, len(sparse) // max(1, (max_hyp_frames - len(groups))) // per) if len(sparse) > per else 1
+            pool = sparse[::step] if len(sparse) > per * max_hyp_frames else sparse
+            groups += [pool[k:k + per] for k in range(0, len(pool), per) if len(pool[k:k + per]) > 0]
+            groups = groups[: max(max_hyp_frames, 1)]
         parts = []
-        for k, i in enumerate(usable):
-            h = frame_hypotheses(cframes[i], intr, i, prior_sim=sims[i], rng=rng)
-            if sims[i] is not None and len(h) == 0:
-                h = frame_hypotheses(cframes[i], intr, i, rng=rng)
+        for k, g in enumerate(groups):
+            gs = [sims[i] for i in g]
+            h = frame_hypotheses([cframes[i] for i in g], intr, g[0], prior_sims=gs, rng=rng)
+            if any(x is not None for x in gs) and len(h) == 0:
+                h = frame_hypotheses([cframes[i] for i in g], intr, g[0], rng=rng)
             parts.append(h)
             if progress:
-                progress("hypotheses", k + 1, len(usable))
+                progress("hypotheses", k + 1, len(groups))
         hyps = Hypotheses.concat(parts)
         meta["seed"] = "matcher" if matcher is not None else "geometry"
         if len(hyps) == 0:
-            return _fail("not identifiable: no frame has 3 detections in both sensors that form a consistent, "
-                         "non-collinear triangle", intr, cframes, **meta)
+            return _fail("not identifiable: no 3 detections seen by both sensors form a consistent, "
+                         "non-collinear triangle (objects on one line, or too few objects)", intr, cframes, **meta)
         # re-score the pooled hypotheses on every frame (static rig: one pose explains all)
         total = np.zeros(len(hyps))
         for k, fr in enumerate(cframes):
@@ -176,12 +187,26 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
 
     # ---------------------------------------------------------------- refinement
     refined = []
-    for k in range(len(cand)):
-        rr = refine_pose(cframes, intr, cand.R[k], cand.t[k])
+    short = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0))
+    for k in range(len(cand)):  # quick refinement of every candidate ...
+        rr = refine_pose(cframes, intr, cand.R[k], cand.t[k], gates=short, max_nfev=15, max_outer=3)
         _, ious = pair_metrics(cframes, intr, rr.R, rr.t, rr.pairs)
         refined.append((float(np.sum(ious)), rr))
         if progress:
-            progress("refine", k + 1, len(cand))
+            progress("refine", k + 1, len(cand) + 2)
+    refined.sort(key=lambda x: -x[0])
+    finals = [refined[0]]
+    other = next((x for x in refined[1:] if _distinct(x[1].R, x[1].t, refined[0][1].R, refined[0][1].t, 1.0, 0.3)),
+                 None)
+    if other is not None:
+        finals.append(other)
+    refined = []
+    for k, (_, r0) in enumerate(finals):  # ... then a full one of the best and the best distinct runner-up
+        rr = refine_pose(cframes, intr, r0.R, r0.t, gates=((0.2, 0.5), (0.3, 0.0), (0.3, 0.0)))
+        _, ious = pair_metrics(cframes, intr, rr.R, rr.t, rr.pairs)
+        refined.append((float(np.sum(ious)), rr))
+        if progress:
+            progress("refine", len(cand) + k + 1, len(cand) + 2)
     refined.sort(key=lambda x: -x[0])
     best_score, best = refined[0]
     runner = next((s for s, r in refined[1:] if _distinct(r.R, r.t, best.R, best.t, 1.0, 0.3)), 0.0)

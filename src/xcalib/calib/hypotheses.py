@@ -107,72 +107,95 @@ def _p3p_newton(lam: np.ndarray, cosang: np.ndarray, d2: np.ndarray, iters: int 
     return lam, rel.max(1)
 
 
-def frame_hypotheses(fr: CalibFrame, intr: CameraIntrinsics, fi: int, *, prior_sim: np.ndarray | None = None,
-                     max_triples: int = 3000, rng: np.random.Generator | None = None,
-                     min_altitude_m: float = 0.8, keep: int = 25) -> Hypotheses:
-    """Pose hypotheses from one frame's box triples, scored on that frame; keep the best ``keep``."""
-    rng = np.random.default_rng(0) if rng is None else rng
+def _candidate_pairs(fr: CalibFrame, intr: CameraIntrinsics, prior_sim, top_k: int = 3):
+    """Candidate (2D, 3D) pairs of one frame: rows i, cols j, ray [n,3], size depth [n], truncated [n], weight [n]."""
     K, M = fr.n2, fr.n3
-    if K < 3 or M < 3:
-        return Hypotheses.empty()
     c2 = box2d_centers(fr.boxes2d)
     s2 = np.sqrt(np.prod(box2d_sizes(fr.boxes2d), axis=1))
     W, Hh = fr.size
     trunc = ((fr.boxes2d[:, 0] < 2) | (fr.boxes2d[:, 1] < 2) | (fr.boxes2d[:, 2] > W - 2)
              | (fr.boxes2d[:, 3] > Hh - 2))
     b = bearings(intr, c2)
-    X = fr.boxes3d[:, :3]
     f = np.sqrt(intr.fx * intr.fy)
-    lam0 = f * _size3(fr.boxes3d)[None, :] / s2[:, None]  # [K,M]
+    lam0 = f * _size3(fr.boxes3d)[None, :] / s2[:, None]  # [K,M] metres along the ray
     ii, jj = np.meshgrid(np.arange(K), np.arange(M), indexing="ij")
     ii, jj = ii.ravel(), jj.ravel()
+    w = np.zeros(len(ii))
     if prior_sim is not None:
         sim = np.nan_to_num(np.asarray(prior_sim, dtype=np.float64), nan=-np.inf)
-        top = np.argsort(-sim, axis=1)[:, : min(3, M)]
+        top = np.argsort(-sim, axis=1)[:, : min(top_k, M)]
         allowed = np.zeros((K, M), dtype=bool)
         allowed[np.arange(K)[:, None], top] = True
         allowed &= np.isfinite(sim)
         sel = allowed[ii, jj]
         ii, jj = ii[sel], jj[sel]
-        pair_w = sim[ii, jj]
-    else:
-        pair_w = np.zeros(len(ii))
-    lam = lam0[ii, jj]
-    Xc = lam[:, None] * b[ii]
-    tr = trunc[ii]
+        w = sim[ii, jj]
+    return ii, jj, b[ii], lam0[ii, jj], trunc[ii], w
+
+
+def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, fi: int, *,
+                     prior_sims: list | None = None, max_triples: int = 3000,
+                     rng: np.random.Generator | None = None, min_altitude_m: float = 0.8,
+                     keep: int = 25) -> Hypotheses:
+    """Pose hypotheses from box triples of one frame (or a group of frames of the same static rig,
+    whose pairs are rigidly consistent with each other too), scored on those frames; keep ``keep``."""
+    rng = np.random.default_rng(0) if rng is None else rng
+    frs = [frs] if isinstance(frs, CalibFrame) else list(frs)
+    prior_sims = [None] * len(frs) if prior_sims is None else list(prior_sims)
+    parts = [(k,) + _candidate_pairs(fr, intr, ps) for k, (fr, ps) in enumerate(zip(frs, prior_sims))
+             if fr.n2 and fr.n3]
+    if not parts:
+        return Hypotheses.empty()
+    fk = np.concatenate([np.full(len(p[1]), p[0]) for p in parts])
+    ii = np.concatenate([p[1] for p in parts])
+    jj = np.concatenate([p[2] for p in parts])
+    ray = np.concatenate([p[3] for p in parts])
+    lam = np.concatenate([p[4] for p in parts])
+    tr = np.concatenate([p[5] for p in parts])
+    pair_w = np.concatenate([p[6] for p in parts])
+    X = np.concatenate([frs[p[0]].boxes3d[p[2], :3] for p in parts])  # LiDAR centre of each pair
+    if len(ii) < 3:
+        return Hypotheses.empty()
+    have_prior = any(ps is not None for ps in prior_sims)
+    Xc = lam[:, None] * ray
     dc = np.linalg.norm(Xc[:, None] - Xc[None], axis=2)
-    dl = np.linalg.norm(X[jj][:, None] - X[jj][None], axis=2)
+    dl = np.linalg.norm(X[:, None] - X[None], axis=2)
     lmax = np.maximum(lam[:, None], lam[None])
     tol = np.where(tr[:, None] | tr[None], 0.8, 0.45) * lmax + 1.5
-    C = (np.abs(dc - dl) <= tol) & (ii[:, None] != ii[None]) & (jj[:, None] != jj[None])
+    same = fk[:, None] == fk[None]
+    C = (np.abs(dc - dl) <= tol) & (~same | ((ii[:, None] != ii[None]) & (jj[:, None] != jj[None])))
+    C &= dl > 0.5  # two pairs on (nearly) the same LiDAR point say nothing about rotation
     C = np.triu(C, 1)
     pq = np.argwhere(C)
     if len(pq) == 0:
         return Hypotheses.empty()
-    both = C[pq[:, 0]] & C[pq[:, 1]]
-    rr = np.argwhere(both)
-    if len(rr) == 0:
+    max_pq = max(max_triples // 2, 1)
+    if len(pq) > max_pq:  # keep the enumeration bounded on crowded frames
+        if have_prior:
+            pq = pq[np.argsort(-(pair_w[pq[:, 0]] + pair_w[pq[:, 1]]), kind="stable")[:max_pq]]
+        else:
+            pq = pq[rng.choice(len(pq), max_pq, replace=False)]
+    Cs = C | C.T
+    both = Cs[pq[:, 0]] & Cs[pq[:, 1]]
+    # up to 2 third members per pair of pairs, drawn at random among the compatible ones
+    keys = np.where(both, rng.random(both.shape), -1.0)
+    if have_prior:
+        keys = np.where(both, keys + pair_w[None, :], -np.inf)
+    third = np.argsort(-keys, axis=1)[:, :2]
+    okr = np.take_along_axis(both, third, 1)
+    tri = np.column_stack([np.repeat(pq, 2, axis=0), third.ravel()])[okr.ravel()]
+    if len(tri) == 0:
         return Hypotheses.empty()
-    tri = np.column_stack([pq[rr[:, 0], 0], pq[rr[:, 0], 1], rr[:, 1]])
-    # all three 2D boxes and all three 3D boxes distinct
-    ti, tj = ii[tri], jj[tri]
-    ok = (ti[:, 0] != ti[:, 2]) & (ti[:, 1] != ti[:, 2]) & (tj[:, 0] != tj[:, 2]) & (tj[:, 1] != tj[:, 2])
-    tri = tri[ok]
     # reject thin 3D triangles (collinear boxes leave the roll about their line free)
-    P3 = X[jj[tri]]
+    P3 = X[tri]
     e1, e2, e3 = P3[:, 1] - P3[:, 0], P3[:, 2] - P3[:, 0], P3[:, 2] - P3[:, 1]
     area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
     longest = np.maximum(np.maximum(np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)), np.linalg.norm(e3, axis=1))
     tri = tri[area2 / np.maximum(longest, 1e-9) >= min_altitude_m]
     if len(tri) == 0:
         return Hypotheses.empty()
-    if len(tri) > max_triples:
-        if prior_sim is not None:
-            tri = tri[np.argsort(-pair_w[tri].sum(1), kind="stable")[:max_triples]]
-        else:
-            tri = tri[rng.choice(len(tri), max_triples, replace=False)]
-    B = b[ii[tri]]  # [T,3,3]
-    A = X[jj[tri]]
+    B = ray[tri]  # [T,3,3]
+    A = X[tri]
     a_idx, b_idx = np.array([0, 0, 1]), np.array([1, 2, 2])
     cosang = np.einsum("tki,tki->tk", B[:, a_idx], B[:, b_idx])
     d2 = np.sum((A[:, a_idx] - A[:, b_idx]) ** 2, axis=2)
@@ -182,9 +205,28 @@ def frame_hypotheses(fr: CalibFrame, intr: CameraIntrinsics, fi: int, *, prior_s
         return Hypotheses.empty()
     Bc = lam_t[good, :, None] * B[good]
     R, t = kabsch(A[good], Bc)
-    sc = score_poses(fr, intr, R, t)
-    order = np.argsort(-sc)[:keep]
+    # cheap pre-score (projected 3D centres inside 2D boxes), then IoU on the best few hundred
+    pre = sum(_centre_hits(fr, intr, R, t) for fr in frs)
+    top = np.argsort(-pre, kind="stable")[: max(8 * keep, 200)]
+    R, t = R[top], t[top]
+    sc = sum(score_poses(fr, intr, R, t) for fr in frs)
+    order = np.argsort(-sc, kind="stable")[:keep]
     return Hypotheses(R[order], t[order], sc[order], np.full(len(order), fi, dtype=np.int64))
+
+
+def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Per pose [H]: number of 2D boxes containing at least one projected 3D box centre (no distortion)."""
+    if fr.n2 == 0 or fr.n3 == 0:
+        return np.zeros(len(R))
+    Xc = np.einsum("hij,mj->hmi", R, fr.boxes3d[:, :3]) + t[:, None, :]
+    z = Xc[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.where(z > 0.5, Xc[..., 0] / z * intr.fx + intr.cx, np.nan)
+        v = np.where(z > 0.5, Xc[..., 1] / z * intr.fy + intr.cy, np.nan)
+    b = fr.boxes2d
+    inside = ((u[:, None, :] >= b[None, :, 0, None]) & (u[:, None, :] <= b[None, :, 2, None])
+              & (v[:, None, :] >= b[None, :, 1, None]) & (v[:, None, :] <= b[None, :, 3, None]))
+    return inside.any(2).sum(1).astype(np.float64)
 
 
 def score_poses(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.ndarray, *,

@@ -129,6 +129,9 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
         intr.check_image_size(*size)
         b2 = check_boxes2d(b2, f"frames[{i}].bboxes_2d")[:, :4]
         b3 = check_boxes3d(b3, f"frames[{i}].bboxes_3d")
+        m7 = meta.get("box7")
+        if b3.shape[1] == 6 and m7 is not None and np.shape(m7) == (len(b3), 7):
+            b3 = np.asarray(m7, dtype=np.float64)  # the detector's yawed boxes (synth, readers)
         if not np.all(np.isfinite(b3)):
             raise ValueError(f"frames[{i}].bboxes_3d: NaN/Inf values")
         ok2 = valid_boxes2d(b2) & ((b2[:, 2] - b2[:, 0]) >= min_box_px) & ((b2[:, 3] - b2[:, 1]) >= min_box_px)

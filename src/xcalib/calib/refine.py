@@ -80,14 +80,27 @@ def _stack(frames: list[CalibFrame], pairs: list[np.ndarray]):
     return np.concatenate(corners), np.concatenate(obs)
 
 
-def _weights(obs: np.ndarray) -> np.ndarray:
-    """Per-pair residual weight: box models are relatively less exact for big (near) boxes."""
+# Expected per-edge disagreement (1 sigma) of a matched pair, in pixels:
+#   sigma^2 = SIGMA_PX^2 + (f * SIGMA_3D_M / Z)^2 + (SIGMA_SIZE * s)^2
+# (2D box noise, 3D box position noise seen at depth Z, relative 3D size/shape error of a
+# box of size s px). Residuals are divided by sigma, which makes near and far boxes comparable.
+SIGMA_PX = 1.0
+SIGMA_3D_M = 0.03
+SIGMA_SIZE = 0.01
+F_SCALE = 2.0
+
+
+def _weights(obs: np.ndarray, corners: np.ndarray, intr: CameraIntrinsics, R, t) -> np.ndarray:
+    """Per-pair residual weight 1/sigma (1/px) at the pose (R, t); see SIGMA_* above."""
     s = np.sqrt((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]))
-    return 1.0 / (1.0 + 0.01 * s)
+    ctr = corners.mean(1) @ np.asarray(R).T + np.asarray(t)
+    z = np.maximum(ctr[:, 2], 1.0)
+    f = np.sqrt(intr.fx * intr.fy)
+    return 1.0 / np.sqrt(SIGMA_PX ** 2 + (f * SIGMA_3D_M / z) ** 2 + (SIGMA_SIZE * s) ** 2)
 
 
 def _residual_fn(corners, obs, intr, size, R0, t0):
-    w = _weights(obs)[:, None]
+    w = _weights(obs, corners, intr, R0, t0)[:, None]
     fallback = np.sqrt((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]))[:, None]
 
     def fun(x):
@@ -141,31 +154,33 @@ def _lsq(frames, pairs, intr, R, t, f_scale, max_nfev):
 
 def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *,
                 gates: tuple = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0)),
-                min_pairs: int = 3, max_nfev: int = 60, tol: float = 1e-3) -> RefineResult:
+                min_pairs: int = 3, max_nfev: int = 60, tol: float = 1e-3, max_outer: int | None = None) -> RefineResult:
     """Alternate matching and robust least squares from the pose (R, t) until the cost settles.
 
     ``gates`` is the schedule of (IoU gate, centre-distance gate) per outer iteration; the last
-    entry repeats until the robust cost improves by less than ``tol`` (relative).
+    entry repeats until the robust cost improves by less than ``tol`` (relative) or the pose stops
+    moving (about 2e-6 rad / 0.2 mm), at most ``max_outer`` iterations.
     """
     R, t = np.asarray(R, float), np.asarray(t, float)
     history: list[float] = []
     prev = None
     it = 0
-    pairs = match_all(frames, intr, R, t, gate_iou=gates[0][0], gate_dist=gates[0][1])
     resid = np.zeros(0)
-    for it in range(len(gates) + 4):
+    for it in range(len(gates) + 4 if max_outer is None else max_outer):
         gi, gd = gates[min(it, len(gates) - 1)]
         pairs = match_all(frames, intr, R, t, gate_iou=gi, gate_dist=gd)
         n = sum(len(p) for p in pairs)
         if n < min_pairs:
             break
         _, obs = _stack(frames, pairs)
-        # robust scale from the current residual level (pixels, >= 1)
-        f_scale = 2.0 if prev is None else max(1.0, 1.5 * float(np.median(np.abs(resid))) if len(resid) else 2.0)
+        # robust scale from the current (weighted) residual level
+        f_scale = F_SCALE if prev is None or not len(resid) else max(0.5, 1.5 * float(np.median(np.abs(resid))))
+        R_old, t_old = R, t
         R, t, cost, resid = _lsq(frames, pairs, intr, R, t, f_scale, max_nfev)
         per = cost / max(n, 1)
         history.append(per)
-        if it >= len(gates) - 1 and prev is not None and abs(prev - per) <= tol * max(prev, 1e-9):
+        moved = np.linalg.norm(Rotation.from_matrix(R @ R_old.T).as_rotvec()) + np.linalg.norm(t - t_old) / 100.0
+        if it >= len(gates) - 1 and prev is not None and (abs(prev - per) <= tol * max(prev, 1e-9) or moved < 2e-6):
             break
         prev = per
     pairs = match_all(frames, intr, R, t, gate_iou=gates[-1][0], gate_dist=gates[-1][1])
