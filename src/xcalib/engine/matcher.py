@@ -184,6 +184,13 @@ class Matcher:
             args = ([args[0]], *args[1:])
         return api.calibrate(*args, matcher=self, **kw)
 
+    def oneshot(self, intrinsics, **options):
+        """Label-free adaptation to a new site: ``xcalib.oneshot.OneShotSession(self, intrinsics,
+        **options)`` (observe frames -> correspondence-free pose -> pseudo-labels -> adapt -> save)."""
+        from ..oneshot.session import OneShotSession
+
+        return OneShotSession(self, intrinsics, **options)
+
     def train(self, train_data, val_data, *, output_dir: str | Path = "runs/finetune", **kwargs) -> Path:
         """Fine-tune this matcher's model in place (best checkpoint by validation MRR is loaded
         back, strictly); returns the path of ``best.pt``."""

@@ -1,0 +1,84 @@
+"""``xcalib bootstrap``: unlabelled recording of a new site -> site weights (no matcher needed)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+_EXAMPLE = ("Example: xcalib bootstrap ../shared/data/a9_sample --intrinsics ../shared/data/a9_sample/intrinsics.json "
+            "--site a9_south1 --model fastmatch --limit 10")
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("bootstrap", help="Bring a matcher up at a new site from unlabelled frames: calibrate from the "
+                                   "detections alone, pseudo-label by projection, train, and install the weights "
+                                   "where `Matcher.from_pretrained(MODEL, site=SITE)` finds them "
+                                   "($XCALIB_HOME/sites/SITE).\n\n" + _EXAMPLE)
+    def bootstrap_cmd(
+        frames: Path = typer.Argument(..., help="Recording: frame folder, HDF5 cache or any source read_frames opens."),
+        intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", "-K", help="Camera intrinsics JSON "
+                                                  "(pixels); default: the recording's own (e.g. its intrinsics.json)."),
+        site: str = typer.Option(..., "--site", help="Name to install the weights under."),
+        model: str = typer.Option("fastmatch", "--model", help="Registered model name."),
+        limit: Optional[int] = typer.Option(None, "--limit", min=1, help="Use only the first N frames."),
+        init: str = typer.Option("auto", "--init", help="Starting weights: auto (the 'synthetic' site if present, "
+                                                        "else scratch) | scratch | SITE | weights path."),
+        steps: int = typer.Option(400, "--steps", min=1, help="Training steps."),
+        mode: Optional[str] = typer.Option(None, "--mode", help="heads | full (default: full from scratch, "
+                                                                "else heads)."),
+        out_dir: Optional[Path] = typer.Option(None, "--out", help="Also save the weights + calibration here."),
+        no_install: bool = typer.Option(False, "--no-install", help="Do not install as a site (needs --out)."),
+        seed: int = typer.Option(0, "--seed"),
+        device: str = typer.Option("cpu", "--device"),
+        as_json: bool = typer.Option(False, "--json", help="Machine-readable summary on stdout."),
+    ) -> None:
+        import itertools
+
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        from ..io.frames import read_frames, read_intrinsics_json
+        from ..oneshot.bootstrap import bootstrap
+
+        if no_install and out_dir is None:
+            raise typer.BadParameter("--no-install needs --out DIR (the weights must go somewhere)")
+        source = read_frames(frames)
+        K = read_intrinsics_json(intrinsics) if intrinsics is not None else getattr(source, "intrinsics", None)
+        if K is None:
+            raise typer.BadParameter(f"--intrinsics is required: {frames} carries no camera intrinsics")
+        n_total = len(source) if hasattr(source, "__len__") else None
+        n = min(limit, n_total) if (limit and n_total is not None) else (limit or n_total)
+        it = itertools.islice(iter(source), limit) if limit else iter(source)
+        console = Console(stderr=True)
+        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                      TextColumn("{task.fields[info]}"), TimeElapsedColumn(), console=console,
+                      transient=as_json) as bar:
+            t_obs = bar.add_task("observe + calibrate", total=n, info="")
+            t_fit = bar.add_task("train", total=steps, info="", start=False)
+
+            def on_frame(k, rep):
+                state = "calibrated" if rep.calibrated else f"next pose attempt at frame {rep.next_calibration_at}"
+                bar.update(t_obs, completed=k, info=state)
+
+            def on_step(k, total, loss):
+                if k == 1:
+                    bar.start_task(t_fit)
+                bar.update(t_fit, completed=k, info=f"loss {loss:.3f}")
+
+            res = bootstrap(it, K, site, model=model, init=init, steps=steps, mode=mode, install=not no_install,
+                            out_dir=out_dir, device=device, seed=seed, on_frame=on_frame, on_step=on_step)
+        summary = res.summary()
+        if as_json:
+            typer.echo(json.dumps(summary))
+            return
+        a = res.adapt
+        typer.echo(res.calibration.summary())
+        typer.echo(f"trained {model} ({res.init}, mode {a.mode}) on {a.n_pairs} pseudo-labelled pairs in "
+                   f"{a.n_train_frames} frames: loss {a.loss_first:.3f} -> {a.loss_last:.3f}; held-out Top-1 vs "
+                   f"pseudo-labels {a.top1_before:.3f} -> {a.top1_after:.3f} ({a.n_heldout_frames} frames)")
+        where = res.paths.get("weights") or res.paths.get("out_weights")
+        typer.echo(f"weights: {where}" + (f"  (load with Matcher.from_pretrained({model!r}, site={site!r}))"
+                                          if not no_install else ""))

@@ -1,0 +1,113 @@
+"""``bootstrap``: a recording of a new site -> site weights, with no matcher to start with.
+
+1. calibrate the rig from the detections alone (correspondence-free bring-up over the frames);
+2. pseudo-label every frame by projecting its 3D boxes through that pose;
+3. train a matcher on the pseudo-labels: from the weights of ``init`` (a site or a weights
+   file; "auto" = the packaged ``synthetic`` site when present) with the heads mode, or from
+   random weights with the full mode ("scratch");
+4. install the weights (and ``calibration.json``) where ``Matcher.from_pretrained(model, site=SITE)``
+   finds them (``$XCALIB_HOME/sites/<site>/``), unless ``install=False``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable
+
+from ..calib.result import CalibrationResult
+from ..types import Frame
+from .adapt import AdaptReport
+
+__all__ = ["BootstrapResult", "bootstrap", "starting_matcher"]
+
+log = logging.getLogger("xcalib.oneshot")
+
+
+@dataclass
+class BootstrapResult:
+    """Outcome of :func:`bootstrap`: where the weights went, the pose, the training report."""
+
+    site: str
+    model: str
+    init: str
+    n_frames: int
+    calibration: CalibrationResult
+    adapt: AdaptReport
+    paths: dict[str, Path] = field(default_factory=dict)
+    elapsed_s: float = 0.0
+
+    def summary(self) -> dict:
+        c = self.calibration
+        return {"site": self.site, "model": self.model, "init": self.init, "frames": self.n_frames,
+                "calibrated": bool(c.success), "calibration_pairs": c.n_pairs,
+                "calibration_iou_median": c.iou_median, "calibration_residual_px_median": c.residual_px_median,
+                "T_cam_lidar": c.extrinsics.tolist(), "adapt": {k: v for k, v in self.adapt.to_dict().items()
+                                                                if k != "losses"},
+                "paths": {k: str(v) for k, v in self.paths.items()}, "elapsed_s": self.elapsed_s}
+
+
+def starting_matcher(model: str, init: str = "auto", *, device: str | None = "cpu", seed: int = 0):
+    """(Matcher, description, adapt mode) to start from: site weights, a weights path, or random."""
+    import torch
+
+    from ..engine.checkpoint import WeightsNotFoundError
+    from ..engine.matcher import Matcher
+    from ..models import create_model
+
+    if init in ("auto", "synthetic"):
+        try:
+            return Matcher.from_pretrained(model, site="synthetic", device=device), "site:synthetic", "heads"
+        except WeightsNotFoundError:
+            if init == "synthetic":
+                raise
+            log.info("bootstrap: no %s weights for site 'synthetic'; training from scratch", model)
+            init = "scratch"
+    if init == "scratch":
+        torch.manual_seed(seed)
+        return Matcher(create_model(model), device=device), "scratch", "full"
+    p = Path(init)
+    if p.exists():
+        return Matcher.from_pretrained(model, weights=p, device=device), f"weights:{p}", "heads"
+    return Matcher.from_pretrained(model, site=init, device=device), f"site:{init}", "heads"
+
+
+def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "fastmatch", init: str = "auto",
+              steps: int = 400, mode: str | None = None, lr: float = 1e-3, holdout: float = 0.2,
+              install: bool = True, out_dir: str | Path | None = None, device: str | None = "cpu", seed: int = 0,
+              session_options: dict | None = None,
+              on_frame: Callable[[int, object], None] | None = None,
+              on_step: Callable[[int, int, float], None] | None = None) -> BootstrapResult:
+    """Site weights from unlabelled frames (see the module docstring).
+
+    Raises ``OneShotError`` when the frames do not determine a pose (nothing is written then).
+    ``out_dir``: also (or, with ``install=False``, only) save there.
+    """
+    from .session import OneShotError, OneShotSession
+
+    t0 = time.perf_counter()
+    matcher, init_desc, default_mode = starting_matcher(model, init, device=device, seed=seed)
+    session = OneShotSession(matcher, intrinsics, mode=mode or default_mode, seed=seed, **(session_options or {}))
+    n = 0
+    for n, frame in enumerate(frames, start=1):
+        rep = session.observe_frame(frame, validate="off")
+        if on_frame is not None:
+            on_frame(n, rep)
+    if n == 0:
+        raise OneShotError("bootstrap: no frames in the recording")
+    session.calibrate()  # a last attempt on the whole recording (the gate keeps the better pose)
+    if not session.is_calibrated:
+        raise OneShotError(f"bootstrap: no calibration from {n} frame(s): the detections do not determine the pose; "
+                           "record more frames with several objects seen by both sensors")
+    report = session.adapt(steps=steps, lr=lr, holdout=holdout, progress=on_step)
+    if not report.trained:
+        raise OneShotError(f"bootstrap: training did not produce weights ({report.message}); nothing installed")
+    paths: dict[str, Path] = {}
+    if out_dir is not None:
+        paths.update({f"out_{k}": v for k, v in session.save(out_dir).items()})
+    if install:
+        paths.update(session.save_site(site))
+    return BootstrapResult(site=site, model=model, init=init_desc, n_frames=n, calibration=session.calibration,
+                           adapt=report, paths=paths, elapsed_s=time.perf_counter() - t0)

@@ -1,0 +1,309 @@
+"""``OneShotSession``: label-free adaptation of a matcher to a new site.
+
+Loop: :meth:`OneShotSession.observe` crops each frame **once** (the same crops serve matching
+now and training later), matches it with the current model, and buffers it. The pose comes
+from the correspondence-free calibrator over the buffered detections (no matcher involved, so
+supervision is not circular); calibration is attempted at the explicit schedule
+``next_calibration_at`` (observed-frame counts growing by ``recalibrate_growth``), and a new
+pose is adopted only when it explains the whole buffer better (:class:`PoseGate`).
+:meth:`adapt` fine-tunes the model on pseudo-labels projected through the pose, weighted by
+confidence; the starting weights stay in memory (:meth:`reset_weights`). :meth:`save` writes a
+folder ``Matcher.from_pretrained(model, weights=DIR)`` reloads bit-exactly; :meth:`save_site`
+installs it where ``Matcher.from_pretrained(model, site=NAME)`` looks.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import warnings
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..calib.inputs import as_intrinsics
+from ..calib.result import CalibrationResult
+from ..engine.host import assign
+from ..types import Frame
+from .adapt import ADAPT_MODES, AdaptReport, adapt_model
+from .evidence import EvidenceBuffer, Observation, observe_frame_inputs
+from .pose_gate import CalibrationUpdate, PoseGate
+from .pseudo import PseudoTargets, pseudo_targets
+
+__all__ = ["OneShotSession", "ObserveReport", "OneShotError", "ImageSizeChangedError", "NotCalibratedError"]
+
+log = logging.getLogger("xcalib.oneshot")
+
+
+class OneShotError(RuntimeError):
+    """A one-shot session cannot do what was asked in its current state."""
+
+
+class NotCalibratedError(OneShotError):
+    """Pseudo-labels need a calibration and the session has none yet."""
+
+
+class ImageSizeChangedError(OneShotError, ValueError):
+    """A frame's image size differs from the session's (one camera, one lens per session)."""
+
+
+@dataclass
+class ObserveReport:
+    """What one :meth:`OneShotSession.observe` did.
+
+    n_detections_2d/3d: boxes given; n_kept_2d/3d: boxes the model sees; n_matches: one-to-one
+    matches of the current model with score >= ``match_threshold``; n_pseudo_pairs: matches
+    implied by the current pose in this frame (0 when uncalibrated); agreement: share of those
+    the model's matches reproduce (NaN without pseudo pairs); calibration: the attempt made on
+    this frame, if any; next_calibration_at: observed-frame count of the next scheduled attempt.
+    """
+
+    frame_key: str
+    index: int
+    n_detections_2d: int
+    n_detections_3d: int
+    n_kept_2d: int
+    n_kept_3d: int
+    n_matches: int
+    calibrated: bool
+    n_pseudo_pairs: int
+    agreement: float
+    buffer_frames: int
+    calibration: CalibrationUpdate | None
+    next_calibration_at: int
+
+
+def _as_calibration(cal, intrinsics) -> CalibrationResult:
+    if isinstance(cal, CalibrationResult):
+        if not cal.success:
+            raise ValueError(f"set_calibration: the calibration failed ({cal.message}); give a successful one")
+        if cal.intrinsics is None:
+            cal.intrinsics = intrinsics
+        return cal
+    T = np.asarray(cal, dtype=np.float64)
+    if T.shape not in ((4, 4), (3, 4)) or not np.all(np.isfinite(T)):
+        raise ValueError(f"set_calibration: expected a CalibrationResult or a finite 4x4 T_cam_lidar, got shape {T.shape}")
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
+        raise ValueError("set_calibration: the 3x3 block of T_cam_lidar is not a rotation")
+    return CalibrationResult(success=True, intrinsics=intrinsics, rotation=R, translation=T[:3, 3],
+                             method="survey", message="set_calibration")
+
+
+class OneShotSession:
+    """Label-free site adaptation of ``matcher`` (see the module docstring).
+
+    Args:
+        matcher: an ``xcalib.Matcher`` (its model is adapted in place).
+        intrinsics: ``CameraIntrinsics``, a 3x3 K or a dict (pixels).
+        gate: IoU gate of pseudo-matches and of the buffer score.
+        neg_iou: pairs whose projected IoU is below this are negatives in training.
+        min_frames: observed frames before the first calibration attempt.
+        recalibrate_growth: later attempts when the observed-frame count reaches
+            ceil(growth x count at the last attempt) (>= 1 more frame).
+        max_frames: evidence buffer capacity (FIFO).
+        min_gain: relative buffer-score gain a new pose needs to replace the current one.
+        match_threshold: score a model match needs to count in reports.
+        mode: default adaptation mode ("heads" or "full").
+        calib_options: extra keyword arguments of ``xcalib.calib.api.calibrate``.
+        seed: seeds pose search and training; validate: protocol mode of :meth:`observe`.
+    """
+
+    def __init__(self, matcher, intrinsics, *, gate: float = 0.3, neg_iou: float = 0.05, min_frames: int = 3,
+                 recalibrate_growth: float = 1.5, max_frames: int = 64, min_gain: float = 0.0,
+                 match_threshold: float = 0.5, mode: str = "heads", calib_options: dict[str, Any] | None = None,
+                 seed: int = 0, validate: str = "warn"):
+        if mode not in ADAPT_MODES:
+            raise ValueError(f"mode must be one of {ADAPT_MODES}, got {mode!r}")
+        if int(min_frames) < 1:
+            raise ValueError(f"min_frames must be >= 1, got {min_frames}")
+        if not recalibrate_growth >= 1.0:
+            raise ValueError(f"recalibrate_growth must be >= 1, got {recalibrate_growth}")
+        self.matcher = matcher
+        self.intrinsics = as_intrinsics(intrinsics)
+        self.gate, self.neg_iou = float(gate), float(neg_iou)
+        self.min_frames = int(min_frames)
+        self.recalibrate_growth = float(recalibrate_growth)
+        self.match_threshold = float(match_threshold)
+        self.mode = mode
+        self.seed = int(seed)
+        self.validate = validate
+        self.buffer = EvidenceBuffer(max_frames)
+        self.pose = PoseGate(self.intrinsics, gate_iou=gate, min_gain=min_gain, calib_options=calib_options, seed=seed)
+        self.next_calibration_at = self.min_frames
+        self.image_size: tuple[int, int] | None = None
+        self.history: list[AdaptReport] = []
+        self.base_state = {k: v.detach().clone() for k, v in matcher.model.state_dict().items()}
+
+    # ------------------------------------------------------------------ state
+    @property
+    def model(self):
+        return self.matcher.model
+
+    @property
+    def calibration(self) -> CalibrationResult | None:
+        """The current pose (``None`` until one is accepted or set)."""
+        return self.pose.current
+
+    @property
+    def is_calibrated(self) -> bool:
+        return self.pose.current is not None
+
+    @property
+    def n_observed(self) -> int:
+        return self.buffer.total_seen
+
+    def set_calibration(self, calibration, *, lock: bool = True) -> CalibrationResult:
+        """Use a known (surveyed) pose: a successful ``CalibrationResult`` or a 4x4 ``T_cam_lidar``.
+        With ``lock`` the automatic calibration never replaces it."""
+        cal = _as_calibration(calibration, self.intrinsics)
+        self.pose.set(cal, lock=lock)
+        return cal
+
+    def reset_weights(self) -> None:
+        """Restore the weights the session started with."""
+        self.model.load_state_dict(self.base_state)
+        self.model.eval()
+
+    # ------------------------------------------------------------------ observing
+    def _check_size(self, image: np.ndarray, key: str) -> None:
+        if not isinstance(image, np.ndarray) or image.ndim != 3 or image.shape[2] != 3:
+            raise ValueError(f"observe({key}): image must be an [H, W, 3] array, got "
+                             f"{getattr(image, 'shape', type(image).__name__)}")
+        wh = (int(image.shape[1]), int(image.shape[0]))
+        ref = self.image_size
+        if ref is None and self.intrinsics.width is not None and self.intrinsics.height is not None:
+            ref = (int(self.intrinsics.width), int(self.intrinsics.height))
+        if ref is not None and wh != ref:
+            raise ImageSizeChangedError(
+                f"observe({key}): image is {wh[0]}x{wh[1]} px but this session's camera is {ref[0]}x{ref[1]} px "
+                f"(from {'the first frame' if self.image_size else 'the intrinsics'}); one session serves one camera "
+                "and lens: start a new session for a different image size")
+        self.intrinsics.check_image_size(*wh)
+
+    def observe(self, image, point_cloud, bboxes_2d, bboxes_3d, *, frame_key: str | None = None,
+                meta: dict | None = None, validate: str | None = None,
+                progress: Callable[[str, int, int], None] | None = None) -> ObserveReport:
+        """Add one frame (RGB [H,W,3]; LiDAR [P,>=3] metres; boxes in pixels / LiDAR frame).
+        ``meta`` may carry ``box7`` [M,7] yawed boxes for the calibrator."""
+        index = self.buffer.total_seen
+        key = str(frame_key) if frame_key is not None else f"{index:06d}"
+        self._check_size(image, key)
+        self.matcher._validate(image, point_cloud, bboxes_2d, bboxes_3d, validate or self.validate)
+        obs = observe_frame_inputs(image, point_cloud, bboxes_2d, bboxes_3d, self.matcher.crop_config,
+                                   key=key, index=index, meta=meta)
+        obs.frame.frame_key = f"{index:06d}"  # unique within the buffer
+        if self.image_size is None:
+            self.image_size = obs.image_size
+        self.buffer.add(obs)
+        matches = self._match(obs)
+        update = None
+        if self.n_observed >= self.next_calibration_at and not self.pose.locked:
+            update = self.pose.propose(self.buffer.frames(), progress=progress)
+            self.next_calibration_at = max(self.n_observed + 1,
+                                           int(math.ceil(self.n_observed * self.recalibrate_growth)))
+        n_pseudo, agree = 0, float("nan")
+        if self.is_calibrated and not obs.empty:
+            t = pseudo_targets(obs, self.calibration, gate=self.gate, neg_iou=self.neg_iou)
+            n_pseudo = t.n_pairs
+            if n_pseudo:
+                mi = np.array(matches, dtype=np.int64).reshape(-1, 2)
+                agree = float(t.positive[mi[:, 0], mi[:, 1]].sum() / n_pseudo)
+        return ObserveReport(frame_key=key, index=index, n_detections_2d=int(len(np.asarray(bboxes_2d).reshape(-1, 4))),
+                             n_detections_3d=int(len(np.asarray(bboxes_3d))), n_kept_2d=obs.num_2d,
+                             n_kept_3d=obs.num_3d, n_matches=len(matches), calibrated=self.is_calibrated,
+                             n_pseudo_pairs=n_pseudo, agreement=agree, buffer_frames=len(self.buffer),
+                             calibration=update, next_calibration_at=self.next_calibration_at)
+
+    def observe_frame(self, frame: Frame, **kw) -> ObserveReport:
+        """:meth:`observe` on an ``xcalib.types.Frame`` (its ``meta['box7']`` reaches the calibrator)."""
+        meta = {"box7": frame.meta["box7"]} if frame.meta and "box7" in frame.meta else None
+        return self.observe(frame.image, frame.point_cloud, frame.bboxes_2d, frame.bboxes_3d,
+                            frame_key=frame.frame_key or None, meta=meta, **kw)
+
+    def _match(self, obs: Observation) -> list[tuple[int, int]]:
+        """One-to-one model matches (kept numbering) with score >= match_threshold."""
+        if obs.empty:
+            return []
+        cfg = self.matcher.crop_config
+        sim = self.matcher.similarity(obs.inputs(cfg.point_cloud_size, np.random.default_rng(cfg.seed)))
+        _, pairs = assign(sim, threshold=self.match_threshold, method="hungarian",
+                          fill_value=getattr(self.model, "fill_value", None))
+        return [(i, j) for i, j, _ in pairs]
+
+    def calibrate(self, progress: Callable[[str, int, int], None] | None = None) -> CalibrationUpdate:
+        """Attempt a calibration on the whole buffer now (the gate still decides)."""
+        return self.pose.propose(self.buffer.frames(), progress=progress)
+
+    # ------------------------------------------------------------------ adapting
+    def pseudo_labels(self) -> list[PseudoTargets]:
+        """Pseudo-targets of every buffered observation through the current pose."""
+        if not self.is_calibrated:
+            raise NotCalibratedError(
+                f"no calibration yet after {self.n_observed} observed frame(s) (next attempt at "
+                f"{self.next_calibration_at}): observe more frames with objects seen by both sensors, or give a "
+                "known pose with set_calibration(...)")
+        return [pseudo_targets(o, self.calibration, gate=self.gate, neg_iou=self.neg_iou) for o in self.buffer]
+
+    def adapt(self, steps: int = 300, *, lr: float = 1e-3, mode: str | None = None, frames_per_batch: int = 4,
+              anchor: float = 1e-3, holdout: float = 0.2, min_pairs: int = 8, keep_if_worse: bool = False,
+              progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
+        """Fine-tune the matcher on the pseudo-labels of the buffer (see :mod:`xcalib.oneshot.adapt`).
+
+        Raises :class:`NotCalibratedError` before any calibration. With fewer than ``min_pairs``
+        pseudo-matches it warns and returns a report with ``trained=False`` (weights untouched).
+        """
+        targets = self.pseudo_labels()
+        obs = list(self.buffer)
+        dev = self.matcher.device
+        rep = adapt_model(self.model, obs, targets, steps=int(steps), n_points=self.matcher.crop_config.point_cloud_size,
+                          device=dev, mode=mode or self.mode, lr=lr, frames_per_batch=frames_per_batch, anchor=anchor,
+                          holdout=holdout, min_pairs=min_pairs, keep_if_worse=keep_if_worse,
+                          eval_seed=self.matcher.crop_config.seed, seed=self.seed + len(self.history),
+                          progress=progress)
+        if not rep.trained and not rep.reverted and steps > 0:
+            warnings.warn(f"OneShotSession.adapt: {rep.message}; the weights are unchanged", RuntimeWarning,
+                          stacklevel=2)
+        self.history.append(rep)
+        return rep
+
+    # ------------------------------------------------------------------ saving
+    def save(self, save_dir: str | Path) -> dict[str, Path]:
+        """Write ``<model>.pt`` + ``<model>.yaml`` (``Matcher.from_pretrained(model, weights=DIR)``
+        reloads them bit-exactly), ``calibration.json`` (when calibrated) and ``oneshot.json``."""
+        d = Path(save_dir)
+        paths = self.matcher.save_pretrained(d)
+        if self.is_calibrated:
+            paths["calibration"] = self.calibration.save(d / "calibration.json")
+        info = {"format": "xcalib-oneshot-v1", "model": self.matcher.model_name, "observed_frames": self.n_observed,
+                "buffer_frames": len(self.buffer), "image_size": self.image_size,
+                "intrinsics": self.intrinsics.to_dict(), "calibrated": self.is_calibrated,
+                "pose_locked": self.pose.locked, "adapt": [r.to_dict() for r in self.history],
+                "options": {"gate": self.gate, "neg_iou": self.neg_iou, "mode": self.mode, "seed": self.seed}}
+        p = d / "oneshot.json"
+        p.write_text(json.dumps(info, indent=1, default=_json_default))
+        paths["oneshot"] = p
+        return paths
+
+    def save_site(self, site: str) -> dict[str, Path]:
+        """:meth:`save` into the user site folder, where ``from_pretrained(model, site=site)`` looks."""
+        from ..engine.checkpoint import site_dirs
+
+        if not site or any(c in site for c in "/\\") or site in (".", ".."):
+            raise ValueError(f"site: expected a plain folder name, got {site!r}")
+        return self.save(site_dirs(site)[0])
+
+
+def _json_default(v):
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, tuple):
+        return list(v)
+    if hasattr(v, "__dataclass_fields__"):
+        return asdict(v)
+    return str(v)
