@@ -357,3 +357,12 @@ def test_cli_cache_build_from_frame_folder(tmp_path, rng, capsys):
         for a, b in zip(frames, r):
             assert np.array_equal(a.image, b.image) and np.array_equal(a.bboxes_2d, b.bboxes_2d)
             assert np.allclose(a.point_cloud, b.point_cloud)
+
+
+def test_read_extras_switch(tmp_path, rng):
+    p = write_cache(tmp_path / "c.h5", [_frame(rng, 0)])
+    with CacheReader(p, read_extras=False, read_images=False) as r:
+        f = r[0]
+    assert "box7" not in f.meta and f.bboxes_3d.shape == (4, 6)
+    with CacheReader(p, read_images=False) as r:
+        assert r[0].meta["box7"].shape == (4, 7)

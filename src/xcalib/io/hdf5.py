@@ -114,7 +114,10 @@ class CacheReader(Sequence):
             differ from numeric order.
         read_images: False skips images entirely (``Frame.image`` is an empty [0,0,3] array).
         decode_images: False keeps the encoded blobs in ``Frame.meta["image_bytes"]`` ({cam: bytes})
-            instead of decoding them (the fast path for labels + points).
+            instead of decoding them.
+        read_extras: False skips xcalib's additive per-detection datasets (``lidar_bbox_7``, ids,
+            classes, ...; see the module docstring). ``read_images=False, read_extras=False`` is the
+            fastest path (labels + points only).
 
     ``len`` counts every labelled frame. ``reader[i]`` / ``reader[key]`` raise
     :class:`CorruptImageError` for a frame whose image does not decode; iteration skips such
@@ -124,7 +127,8 @@ class CacheReader(Sequence):
     """
 
     def __init__(self, path, *, label_sensor: str | None = None, lidar_name: str | None = None,
-                 key_order: str = "lexicographic", read_images: bool = True, decode_images: bool = True):
+                 key_order: str = "lexicographic", read_images: bool = True, decode_images: bool = True,
+                 read_extras: bool = True):
         h5py = _h5py()
         self.path = Path(path)
         if not self.path.exists():
@@ -138,6 +142,7 @@ class CacheReader(Sequence):
         self._finalizer = weakref.finalize(self, self._f.close)
         self.read_images = bool(read_images)
         self.decode_images = bool(decode_images)
+        self.read_extras = bool(read_extras)
         self.skipped_keys: list[str] = []
         f = self._f
         for grp in ("labels", "point_clouds", "images"):
@@ -309,7 +314,7 @@ class CacheReader(Sequence):
                                       field=f"{where}/camera_names")
                 cams_per_det.append(c)
         meta: dict = {}
-        for mkey, (dname, kind) in _META_DATASETS.items():
+        for mkey, (dname, kind) in (_META_DATASETS.items() if self.read_extras else ()):
             if dname in g:
                 n = K if "2d" in kind else M
                 if kind == "f3d7":
