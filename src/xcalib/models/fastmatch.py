@@ -3,8 +3,10 @@
 Image side: a 3-stage strided CNN on small crops + 2D box geometry (centre, size, aspect,
 bottom edge as fractions of the image size). LiDAR side: a light PointNet on few points + 3D
 box geometry (centre and range in units of ``geo_scale_m`` metres, bearing, log dims, log
-point count, point spread in the box frame). Scored by a tiny pair head over
-[e_i * e_j, |e_i - e_j|, cos]; score = sigmoid pair probability in [0,1] for every pair.
+point count, point spread in the box frame). A small MLP also maps the 3D geometry to
+a predicted 2D box (centre, size as image fractions; it learns the site's projection). Scored
+by a tiny pair head over [e_i * e_j, |e_i - e_j|, cos, (2D box - predicted 2D box)^2];
+score = sigmoid pair probability in [0,1] for every pair.
 """
 
 from __future__ import annotations
@@ -58,21 +60,26 @@ class FastMatch(MatchingModel):
         self.lid_geo = mlp([N_GEO_3D, G, G], last_act=True)
         self.img_head = mlp([self.img_backbone.out_dim + G, 2 * E, E])
         self.lid_head = mlp([self.lid_backbone.out_dim + G, 2 * E, E])
-        self.pair_head = mlp([2 * E + 1, int(c.get("pair_hidden", 64)), 1])
+        self.lid_to_box = mlp([N_GEO_3D, 2 * G, 2 * G, 4])
+        self.pair_head = mlp([2 * E + 1 + 4, int(c.get("pair_hidden", 64)), 1])
         self.cosine_weight = float(c.get("cosine_weight", 0.5))
 
     def embed(self, batch: ModelBatch) -> Embeddings:
-        gi = self.img_geo(geometry_2d(batch.boxes_2d, batch.image_wh))
-        gl = self.lid_geo(geometry_3d(batch.boxes_3d, batch.point_counts, batch.crops_3d, self.geo_scale_m))
+        g2 = geometry_2d(batch.boxes_2d, batch.image_wh)
+        g3 = geometry_3d(batch.boxes_3d, batch.point_counts, batch.crops_3d, self.geo_scale_m)
+        gi, gl = self.img_geo(g2), self.lid_geo(g3)
         fi = self.img_head(torch.cat([self.img_backbone(batch.crops_2d), gi], 1))
         fl = self.lid_head(torch.cat([self.lid_backbone(batch.crops_3d), gl], 1))
-        return Embeddings(F.normalize(fi, dim=1), F.normalize(fl, dim=1))
+        extra = {"box_img": torch.cat([g2[:, :2], torch.log(g2[:, 2:4])], 1), "box_lid": self.lid_to_box(g3)}
+        return Embeddings(F.normalize(fi, dim=1), F.normalize(fl, dim=1), extra)
 
     def pair_logits(self, emb: Embeddings) -> torch.Tensor:
         a, b = emb.img[:, None], emb.lid[None]
         N, M = len(emb.img), len(emb.lid)
-        x = torch.cat([(a * b), (a - b).abs(), (a * b).sum(-1, keepdim=True)], 2) if N and M else \
-            emb.img.new_zeros((N, M, 2 * emb.img.shape[1] + 1))
+        if not (N and M):
+            return emb.img.new_zeros((N, M))
+        d = (emb.extra["box_img"][:, None] - emb.extra["box_lid"][None]) ** 2
+        x = torch.cat([(a * b), (a - b).abs(), (a * b).sum(-1, keepdim=True), d], 2)
         return self.pair_head(x).squeeze(-1)
 
     def score(self, emb: Embeddings, batch: ModelBatch) -> torch.Tensor:

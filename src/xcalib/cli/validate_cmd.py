@@ -1,0 +1,77 @@
+"""``xcalib validate``: Top-1 / Top-3 / MRR and latency of models on an HDF5 cache -> report JSON."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+_EXAMPLE = ("Example: xcalib validate --model fastmatch --model crlite --hdf5 site/test.h5 "
+            "--output report.json --site synthetic")
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("validate", help="Evaluate matchers on a labelled HDF5 cache.\n\n" + _EXAMPLE)
+    def validate(
+        model: List[str] = typer.Option(["fastmatch"], "--model", help="Model name (repeatable)."),
+        hdf5: Path = typer.Option(..., "--hdf5", help="Labelled HDF5 cache (with match_matrix)."),
+        output: Optional[Path] = typer.Option(None, "--output", help="Write the report JSON here."),
+        site: str = typer.Option("synthetic", "--site", help="Site whose weights to use."),
+        weights: Optional[Path] = typer.Option(None, "--weights", help="Weights file/dir (single model only)."),
+        config: Optional[Path] = typer.Option(None, "--config", help="Model config YAML (single model only)."),
+        device: Optional[str] = typer.Option("cpu", "--device", help="cpu, cuda or auto."),
+        limit_frames: Optional[int] = typer.Option(None, "--limit-frames", help="Evaluate the first N frames."),
+        as_json: bool = typer.Option(False, "--json", help="Print the report JSON."),
+        runtime: str = typer.Option("torch", "--runtime", help="torch, or onnx: torch-free ONNX Runtime over the "
+                                                               "graphs of `xcalib export` (needs --onnx-dir)."),
+        onnx_dir: Optional[Path] = typer.Option(None, "--onnx-dir", help="--runtime onnx: export root (OUT of "
+                                                                          "`xcalib export`) or a <model>_<site> folder."),
+    ) -> None:
+        from rich.progress import Progress
+
+        from ..engine.evaluate import REPORT_SCHEMA, evaluate_matcher, portable_path, report_entry
+        from ..io.hdf5 import CacheReader
+        from .match_cmd import load_matcher
+
+        if runtime not in ("torch", "onnx"):
+            raise typer.BadParameter(f"--runtime must be torch or onnx, got {runtime!r}", param_hint="--runtime")
+        if runtime == "onnx" and onnx_dir is None:
+            raise typer.BadParameter("--runtime onnx needs --onnx-dir", param_hint="--onnx-dir")
+        if (weights or config) and len(model) > 1:
+            raise typer.BadParameter("--weights/--config need exactly one --model", param_hint="--weights")
+        results, dev = {}, None
+        with CacheReader(hdf5) as reader:
+            n = len(reader) if limit_frames is None else min(limit_frames, len(reader))
+            with Progress(transient=True, disable=as_json) as bar:
+                for name in model:
+                    if runtime == "onnx":
+                        from ..deploy.ort_runtime import load_onnx
+
+                        m = load_onnx(onnx_dir, model=name, site=site)
+                    else:
+                        m = load_matcher(name, site, weights, config, device)
+                    dev = str(m.device)
+                    task = bar.add_task(f"validate {name}", total=n)
+                    met, wall = evaluate_matcher(m, reader, limit=limit_frames,
+                                                 progress=lambda k, t=task: bar.update(t, completed=k))
+                    results[name] = report_entry(met, wall)
+        report = {"_schema": REPORT_SCHEMA, "site": site, "hdf5": portable_path(hdf5), "device": dev,
+                  "runtime": runtime, "results": results}
+        if output is not None:
+            output.parent.mkdir(parents=True, exist_ok=True)
+            output.write_text(json.dumps(report, indent=2))
+        if as_json:
+            typer.echo(json.dumps(report))
+            return
+        from rich.console import Console
+        from rich.table import Table
+
+        t = Table(title=f"{hdf5.name} ({site})")
+        for col in ("model", "top1", "top3", "mrr", "frame top1", "p50 ms", "frames"):
+            t.add_column(col, justify="right")
+        for name, r in results.items():
+            t.add_row(name, f"{r['top1']:.4f}", f"{r['top3']:.4f}", f"{r['mrr']:.4f}", f"{r['frame_top1']:.4f}",
+                      f"{r.get('latency_ms_p50', float('nan')):.1f}", str(r["n_frames"]))
+        Console().print(t)
