@@ -214,14 +214,15 @@ def register(app: typer.Typer) -> None:
         t = Table(title="Synthetic site vs ground truth", show_header=True, header_style="bold")
         t.add_column("what")
         t.add_column("value", justify="right")
-        t.add_row("site", f"{summary['synthetic']['mount']}, camera {summary['synthetic']['camera_height_m']} m up, "
-                          f"{n_frames} frames {summary['synthetic']['image']}")
+        t.add_row("site", f"{summary['synthetic']['mount']}, camera {summary['synthetic']['camera_height_m']} m up")
+        t.add_row("frames", f"{n_frames} x {summary['synthetic']['image']} px")
         if mo.ok:
             t.add_row(f"matching Top-1 / Top-3 ({mo.model})", f"{mo.top1:.1%} / {mo.top3:.1%}")
             t.add_row("matching MRR", f"{mo.mrr:.3f} over {mo.n_rows} detections")
             t.add_row("matcher latency p50", f"{mo.latency_ms_p50:.1f} ms / frame")
         else:
-            t.add_row("matching", f"[yellow]skipped[/] ({mo.message[:80]})")
+            short = mo.message.split(" (looked in")[0].replace("no matcher: ", "")
+            t.add_row("matching", f"[yellow]skipped[/]: {short[:90]}")
         r = syn.result
         if r is not None and r.success:
             t.add_row("calibration", "[green]success[/]")
