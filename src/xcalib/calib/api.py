@@ -82,6 +82,10 @@ def _nms(h: Hypotheses, n: int, rot_deg: float = 3.0, trans_m: float = 1.0) -> H
     return h.take(np.array(keep, dtype=np.int64))
 
 
+def _pose_err(T, R, t):
+    return rotation_angle(T[:3, :3], R, degrees=True), float(np.linalg.norm(T[:3, 3] - t))
+
+
 def _collinear(P: np.ndarray, tol: float) -> bool:
     if len(P) < 3:
         return True
@@ -184,6 +188,7 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
         hyps.score = total
     meta["n_hypotheses"] = int(len(hyps))
     cand = _nms(hyps, max_refine)
+    meta["bringup_T"] = np.vstack([np.hstack([cand.R[0], cand.t[0][:, None]]), [0, 0, 0, 1]]).tolist()
 
     # ---------------------------------------------------------------- refinement
     refined = []
@@ -193,7 +198,7 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
         _, ious = pair_metrics(cframes, intr, rr.R, rr.t, rr.pairs)
         refined.append((float(np.sum(ious)), rr))
         if progress:
-            progress("refine", k + 1, len(cand) + 2)
+            progress("refine", k + 1, len(cand) + 1)
     refined.sort(key=lambda x: -x[0])
     finals = [refined[0]]
     other = next((x for x in refined[1:] if _distinct(x[1].R, x[1].t, refined[0][1].R, refined[0][1].t, 1.0, 0.3)),
@@ -206,13 +211,14 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
         _, ious = pair_metrics(cframes, intr, rr.R, rr.t, rr.pairs)
         refined.append((float(np.sum(ious)), rr))
         if progress:
-            progress("refine", len(cand) + k + 1, len(cand) + 2)
+            progress("refine", len(cand) + k + 1, len(cand) + len(finals))
     refined.sort(key=lambda x: -x[0])
     best_score, best = refined[0]
     runner = next((s for s, r in refined[1:] if _distinct(r.R, r.t, best.R, best.t, 1.0, 0.3)), 0.0)
     meta.update(score=best_score, runner_up_score=runner, refine_history=best.history,
                 candidates=[{"score": s, "rot_deg_from_best": rotation_angle(r.R, best.R, degrees=True),
-                             "trans_m_from_best": float(np.linalg.norm(r.t - best.t))} for s, r in refined])
+                             "trans_m_from_best": float(np.linalg.norm(r.t - best.t))} for s, r in refined],
+                bringup_error_vs_final=list(_pose_err(np.asarray(meta["bringup_T"]), best.R, best.t)))
 
     pairs = match_all(cframes, intr, best.R, best.t, gate_iou=gate)
     px, ious = pair_metrics(cframes, intr, best.R, best.t, pairs)

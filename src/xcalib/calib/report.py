@@ -1,0 +1,124 @@
+"""Calibration report: result files, overlay PNGs and a human-readable summary in one folder.
+
+Layout written by :func:`write_report`::
+
+    DIR/calibration.json        CalibrationResult.save (everything, incl. distortion)
+    DIR/calibration.npz         arrays + the same JSON blob
+    DIR/summary.txt             result summary + per-frame table
+    DIR/overlays/<key>.png      points coloured by depth, projected 3D boxes, 2D boxes, matches
+    DIR/overlays/<key>_bringup.png   the same through the bring-up pose, before refinement
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .inputs import prepare_frames
+from .refine import pair_metrics
+from .result import CalibrationResult
+
+__all__ = ["ReportPaths", "write_report", "frame_table"]
+
+
+@dataclass
+class ReportPaths:
+    """Files written by ``write_report``."""
+
+    json: Path
+    npz: Path
+    summary: Path
+    overlays: list[Path] = field(default_factory=list)
+
+
+def frame_table(result: CalibrationResult, frames: Sequence) -> list[dict]:
+    """Per frame: key, 2D/3D counts, matched pairs, median edge residual (px) and IoU."""
+    cframes, intr, _ = prepare_frames(list(frames), result.intrinsics)
+    rows = []
+    for k, (fr, f) in enumerate(zip(cframes, frames)):
+        p = result.pairs[k] if k < len(result.pairs) else np.zeros((0, 2), np.int64)
+        # caller numbering -> CalibFrame rows
+        r2 = {int(v): n for n, v in enumerate(fr.idx2d)}
+        r3 = {int(v): n for n, v in enumerate(fr.idx3d)}
+        rows_p = np.array([[r2[int(i)], r3[int(j)]] for i, j in p if int(i) in r2 and int(j) in r3],
+                          dtype=np.int64).reshape(-1, 2)
+        px, iou = pair_metrics([fr], intr, result.rotation, result.translation, [rows_p]) if result.success \
+            else (np.zeros(0), np.zeros(0))
+        rows.append({"frame": fr.key, "n_2d": int(len(np.asarray(f.bboxes_2d))), "n_3d": int(len(np.asarray(f.bboxes_3d))),
+                     "pairs": int(len(p)), "px_median": float(np.median(px)) if len(px) else None,
+                     "iou_median": float(np.median(iou)) if len(iou) else None})
+    return rows
+
+
+def _summary_text(result: CalibrationResult, rows: list[dict]) -> str:
+    lines = [result.summary(), ""]
+    m = result.meta
+    if result.success:
+        co = m.get("centre_offset_px_median")
+        lines += [f"  pairs with IoU >= 0.5: {result.n_inliers} of {result.n_pairs}",
+                  f"  mean edge residual: {result.reproj_error_px:.2f} px",
+                  f"  box-centre offset (2D centre vs projected 3D centre): "
+                  f"{'n/a' if co is None else f'{co:.1f} px median'}",
+                  f"  bring-up: {m.get('n_hypotheses', 0)} hypotheses ({m.get('seed', '?')}); score "
+                  f"{m.get('score', float('nan')):.2f}, runner-up {m.get('runner_up_score', float('nan')):.2f}",
+                  ""]
+    lines.append(f"{'frame':>12} {'2D':>4} {'3D':>4} {'pairs':>5} {'px med':>7} {'IoU med':>7}")
+    for r in rows:
+        px = "-" if r["px_median"] is None else f"{r['px_median']:.2f}"
+        iou = "-" if r["iou_median"] is None else f"{r['iou_median']:.3f}"
+        lines.append(f"{r['frame']:>12} {r['n_2d']:>4} {r['n_3d']:>4} {r['pairs']:>5} {px:>7} {iou:>7}")
+    return "\n".join(lines) + "\n"
+
+
+def write_report(result: CalibrationResult, frames: Sequence, out_dir, *, max_overlays: int = 8,
+                 bringup_overlays: bool = True, progress: Callable[[str, int, int], None] | None = None) -> ReportPaths:
+    """Write the calibration, overlays of up to ``max_overlays`` frames (spread over the sequence)
+    and ``summary.txt`` into ``out_dir``. ``progress(stage, done, total)`` is called per overlay."""
+    import cv2
+
+    from ..viz.calibration import draw_calibration_overlay
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = ReportPaths(json=result.save(out / "calibration.json"), npz=result.save(out / "calibration.npz"),
+                        summary=out / "summary.txt")
+    rows = frame_table(result, frames)
+    paths.summary.write_text(_summary_text(result, rows))
+    if not result.success or max_overlays <= 0:
+        return paths
+    n = len(frames)
+    pick = np.unique(np.linspace(0, n - 1, min(max_overlays, n)).round().astype(int))
+    bring = result.meta.get("bringup_T")
+    (out / "overlays").mkdir(exist_ok=True)
+    for k, fi in enumerate(pick):
+        f = frames[int(fi)]
+        image = np.asarray(f.image)
+        if image.ndim != 3 or image.shape[0] < 2:
+            w, h = result.image_size or (int(2 * result.intrinsics.cx), int(2 * result.intrinsics.cy))
+            image = np.full((h, w, 3), 40, np.uint8)
+        cf, _, _ = prepare_frames([f], result.intrinsics)
+        key = cf[0].key
+        p = result.pairs[int(fi)] if int(fi) < len(result.pairs) else None
+        # draw the yaw-corrected boxes the calibration used, indexed like the caller's boxes
+        b3 = np.zeros((len(np.asarray(f.bboxes_3d)), 7))
+        b3[cf[0].idx3d] = cf[0].boxes3d
+        img = draw_calibration_overlay(image, f.point_cloud, calibration=result, bboxes_3d=b3,
+                                       bboxes_2d=f.bboxes_2d, pairs=p,
+                                       title=f"{key}: refined, {0 if p is None else len(p)} pairs")
+        path = out / "overlays" / f"{key}.png"
+        cv2.imwrite(str(path), img[:, :, ::-1])
+        paths.overlays.append(path)
+        if bringup_overlays and bring is not None and k == 0:
+            T = np.asarray(bring)
+            img = draw_calibration_overlay(image, f.point_cloud, intrinsics=result.intrinsics, rotation=T[:3, :3],
+                                           translation=T[:3, 3], bboxes_3d=b3, bboxes_2d=f.bboxes_2d,
+                                           title=f"{key}: bring-up pose (before refinement)")
+            bpath = out / "overlays" / f"{key}_bringup.png"
+            cv2.imwrite(str(bpath), img[:, :, ::-1])
+            paths.overlays.append(bpath)
+        if progress:
+            progress("overlays", k + 1, len(pick))
+    return paths

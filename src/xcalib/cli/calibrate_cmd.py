@@ -1,0 +1,77 @@
+"""``xcalib calibrate``: targetless camera<-LiDAR calibration of a frame folder, with a report."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+_HELP = """Estimate T_cam_lidar from the frames' 2D and 3D detections (no target, no labels, no guess).
+
+Writes DIR/calibration.json + .npz, DIR/summary.txt and overlay PNGs (DIR/overlays/).
+Exit code 1 when the frames do not determine the pose (the reason is printed and saved).
+
+Example: xcalib calibrate ../shared/data/a9_sample --intrinsics ../shared/data/a9_sample/intrinsics.json --out runs/a9_calib
+"""
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("calibrate", help=_HELP)
+    def calibrate_command(
+        frames: Path = typer.Argument(..., help="Frame folder (read by xcalib.io.frames.read_frames)."),
+        intrinsics: Path = typer.Option(None, "--intrinsics", "-k",
+                                        help="Intrinsics JSON {fx, fy, cx, cy, distortion}; default: the folder's."),
+        out: Path = typer.Option(Path("calibration_report"), "--out", "-o", help="Report folder."),
+        prior: Path = typer.Option(None, "--prior", help="Initial guess: a calibration .json/.npz (skips bring-up)."),
+        box_model: str = typer.Option("auto", "--box-model", help="auto | corners | points (3D box outline)."),
+        max_overlays: int = typer.Option(8, "--max-overlays", help="Overlay PNGs to draw (0: none)."),
+        limit: int = typer.Option(0, "--limit", help="Use only the first N frames (0: all)."),
+        seed: int = typer.Option(0, "--seed", help="Random seed of the hypothesis sampling."),
+        as_json: bool = typer.Option(False, "--json", help="Print the result dict as JSON."),
+    ) -> None:
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        from ..calib.api import calibrate
+        from ..calib.report import write_report
+        from ..calib.result import CalibrationResult
+        from ..geometry.camera import CameraIntrinsics
+        from ..io.frames import read_frames
+
+        console = Console(stderr=True)
+        seq = read_frames(frames)
+        n = len(seq) if limit <= 0 else min(limit, len(seq))
+        if n == 0:
+            raise typer.BadParameter(f"{frames}: no frames found", param_hint="FRAMES")
+        if intrinsics is not None:
+            intr = CameraIntrinsics.from_json(intrinsics)
+        else:
+            intr = getattr(seq, "intrinsics", None)
+            if intr is None:
+                raise typer.BadParameter(f"{frames} has no intrinsics.json; pass --intrinsics K.json",
+                                         param_hint="--intrinsics")
+        prior_res = CalibrationResult.load(prior) if prior is not None else None
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=console, disable=as_json, transient=False) as bar:
+            task = bar.add_task("reading frames", total=n)
+            items = []
+            for i in range(n):
+                items.append(seq[i])
+                bar.advance(task)
+            tasks: dict[str, int] = {}
+
+            def progress(stage: str, done: int, total: int) -> None:
+                if stage not in tasks:
+                    tasks[stage] = bar.add_task(stage, total=total)
+                bar.update(tasks[stage], completed=done, total=total)
+
+            result = calibrate(items, intr, prior=prior_res, box_model=box_model, seed=seed, progress=progress)
+            paths = write_report(result, items, out, max_overlays=max_overlays, progress=progress)
+        if as_json:
+            typer.echo(json.dumps(result.to_dict(), indent=2))
+        else:
+            typer.echo(paths.summary.read_text())
+            typer.echo(f"wrote {paths.json}, {paths.npz}, {paths.summary} and {len(paths.overlays)} overlay(s)")
+        if not result.success:
+            raise typer.Exit(1)
