@@ -5,7 +5,8 @@ step), best checkpoint by validation MRR. Frames are batched (``frames_per_batch
 between detections of different frames are masked. Loss per model output: multi-positive
 cross-entropy over rows and columns (every positive of a row is a target) on logits; outputs
 of kind "logit" add a class-balanced binary cross-entropy so their sigmoid is a probability.
-Augmentation: the LiDAR crops are re-sampled every epoch (seeded by ``seed`` and the epoch).
+Augmentation: the LiDAR crops are re-sampled every epoch and the boxes jittered (``box_jitter``),
+seeded by ``seed`` and the epoch.
 
 Distributed: run the same script under ``torchrun --nproc_per_node=N``; each rank trains on
 its shard of every epoch's frames inside DistributedDataParallel (gloo on CPU, NCCL on GPU);
@@ -55,11 +56,18 @@ class TrainSample:
     gt: np.ndarray
     key: str = ""
 
-    def inputs(self, n_points: int, rng: np.random.Generator) -> FrameInputs:
+    def inputs(self, n_points: int, rng: np.random.Generator, jitter: float = 0.0) -> FrameInputs:
+        """Model inputs with freshly resampled points; ``jitter`` > 0 also perturbs the boxes
+        (2D corners by ``jitter`` x box size px, 3D centres by ``jitter`` x box dims, Gaussian)."""
         crops = resample_points(self.points, self.counts, n_points, rng)
         n, m = len(self.crops_2d), len(self.counts)
-        return FrameInputs(self.crops_2d, crops, self.boxes_2d, self.boxes_3d, self.counts, self.image_size,
-                           np.arange(n), np.arange(m))
+        b2, b3 = self.boxes_2d, self.boxes_3d
+        if jitter > 0:
+            wh = np.tile(b2[:, 2:4] - b2[:, 0:2], 2)
+            b2 = (b2 + rng.normal(0, jitter, b2.shape) * wh).astype(np.float32)
+            b3 = b3.copy()
+            b3[:, :3] += (rng.normal(0, jitter, (m, 3)) * b3[:, 3:6]).astype(np.float32)
+        return FrameInputs(self.crops_2d, crops, b2, b3, self.counts, self.image_size, np.arange(n), np.arange(m))
 
 
 def load_frames(data, limit: int | None = None) -> Iterable[Frame]:
@@ -202,11 +210,12 @@ def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None 
           weights: str | Path | None = None, resume: str | Path | bool | None = None,
           output_dir: str | Path = "runs/train", device: str = "auto", seed: int = 42,
           limit_train_frames: int | None = None, limit_val_frames: int | None = None,
-          progress: bool = True, weights_dtype: str = "float32") -> Path:
+          progress: bool = True, weights_dtype: str = "float32", box_jitter: float = 0.02) -> Path:
     """Train ``model`` (a registered name or a ``MatchingModel``); returns the path of best.pt.
 
     train_data / val_data: ``Frame`` sequences with ``match_matrix``, or .h5 caches / site
-    folders. weights: warm start (strict). resume: ``last.pt`` path (or True for
+    folders. box_jitter: training-time box perturbation (fraction of box size; 0 = off).
+    weights: warm start (strict). resume: ``last.pt`` path (or True for
     ``output_dir/last.pt``) to continue an interrupted run.
     """
     from ..models import MatchingModel, create_model
@@ -276,7 +285,7 @@ def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None 
                 if len(idx) == 0:
                     idx = order[:1]
                 samples = [train_s[i] for i in idx]
-                batch = ModelBatch.from_frames([s.inputs(P, rng) for s in samples], dev)
+                batch = ModelBatch.from_frames([s.inputs(P, rng, box_jitter) for s in samples], dev)
                 gt = _block_gt(samples, dev)
                 g = epoch * steps_per_epoch + step
                 for pg in opt.param_groups:
