@@ -98,6 +98,7 @@ def test_import_and_match_without_torch(exports, tmp_path):
 import sys, numpy as np
 import xcalib, xcalib.deploy
 from xcalib.deploy import OnnxMatcher
+assert xcalib.OnnxMatcher is OnnxMatcher
 m = OnnxMatcher({str(res.output_dir)!r})
 rng = np.random.default_rng(0)
 img = rng.integers(0, 255, (480, 640, 3), dtype=np.uint8)

@@ -27,6 +27,7 @@ _LAZY = {
     "create_model": "xcalib.models",
     "list_models": "xcalib.models",
     "BuildResult": "xcalib.deploy.build",
+    "OnnxMatcher": "xcalib.deploy.ort_runtime",
     "CalibrationResult": "xcalib.calib.result",
     "calibrate": "xcalib.calib.api",
     "load_dataset": "xcalib.io.hdf5",
