@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import html
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -91,9 +92,30 @@ def _initial_pose(result, before):
             raise ValueError(f"before: expected a CalibrationResult, (R, t) or a 4x4 T_cam_lidar, got shape {T.shape}")
         return T[:3, :3], T[:3, 3]
     meta = getattr(result, "meta", {}) or {}
+    if meta.get("bringup_T") is not None:  # the calibrator's best bring-up pose, before refinement
+        T = np.asarray(meta["bringup_T"], dtype=np.float64)
+        return T[:3, :3], T[:3, 3]
     if "initial_rotation" in meta and "initial_translation" in meta:
         return np.asarray(meta["initial_rotation"], float), np.asarray(meta["initial_translation"], float)
     return None
+
+
+def calibrator_boxes(frame, intrinsics, b3: np.ndarray) -> np.ndarray:
+    """The 3D boxes as the calibrator used them (box7; yaw re-estimated from the points for
+    yaw-less [M,6] boxes), in the caller's numbering; ``b3`` as box7 when that fails."""
+    from ..geometry.boxes import as_box7
+
+    out = as_box7(b3) if len(b3) else np.zeros((0, 7))
+    if np.asarray(b3).shape[-1] == 7 or intrinsics is None or not len(b3):
+        return out
+    try:
+        from ..calib.inputs import prepare_frames
+
+        cf, _, _ = prepare_frames([frame], intrinsics)
+        out[cf[0].idx3d] = cf[0].boxes3d
+    except Exception:  # noqa: BLE001 - drawing falls back to the boxes as given
+        pass
+    return out
 
 
 def _fmt(v: Any) -> str:
@@ -139,7 +161,8 @@ def result_numbers(result, ground_truth=None) -> dict[str, Any]:
 
 def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=None, matches=None,
                              before=None, extra: dict[str, Any] | None = None, title: str = "xcalib calibration",
-                             max_frames: int = 4, point_radius: int = 2) -> CalibrationReport:
+                             max_frames: int = 4, point_radius: int = 2,
+                             calibration_overlays: Sequence | None = None) -> CalibrationReport:
     """Write ``<out_dir>/report.html`` + ``<out_dir>/img/*.png`` for one calibration run.
 
     Args:
@@ -152,6 +175,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
             (default: ``result.meta["initial_rotation"/"initial_translation"]`` when present).
         extra: more rows for the numbers table (e.g. matching accuracy).
         max_frames: frames shown (evenly spaced).
+        calibration_overlays: PNGs already drawn (``xcalib.calib.report.write_report``'s
+            ``overlays/<key>.png`` and ``<key>_bringup.png``) to show instead of drawing new ones.
     Returns:
         :class:`CalibrationReport` with the HTML path, figures and numbers.
     """
@@ -164,12 +189,31 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
     frames = list(frames)
     figures: list[ReportFigure] = []
     initial = _initial_pose(result, before)
+    existing: dict[str, list[tuple[Path, bool]]] = {}
+    for p in calibration_overlays or []:
+        p = Path(p)
+        key, before_fig = (p.stem[:-len("_bringup")], True) if p.stem.endswith("_bringup") else (p.stem, False)
+        existing.setdefault(key, []).append((p, before_fig))
+    if existing:  # show the frames that were drawn
+        keys = [frame_arrays(f, i)[4] for i, f in enumerate(frames)]
+        shown = [i for i, k in enumerate(keys) if k in existing]
+    else:
+        shown = _pick(len(frames), max_frames)
     have_pose = result.intrinsics is not None and bool(result.success or result.n_pairs)
-    for idx in _pick(len(frames), max_frames):
+    for idx in shown:
         image, pc, b2, b3, key, truth = frame_arrays(frames[idx], idx)
         pairs = result.pairs[idx] if idx < len(result.pairs) else np.zeros((0, 2), np.int64)
         stem = f"frame_{idx:03d}"
-        if have_pose:
+        given_yaw = np.asarray(b3).shape[-1] == 7
+        b3 = calibrator_boxes(frames[idx], result.intrinsics, np.asarray(b3))
+        if existing and have_pose:
+            for path, before_fig in existing.get(key, []):
+                figures.append(ReportFigure(
+                    Path(os.path.relpath(path, out)).as_posix(),
+                    f"Frame {key}, " + ("bring-up pose before refinement" if before_fig else "estimated pose")
+                    + ": LiDAR points coloured by camera depth, projected 3D boxes, 2D boxes, matched pairs",
+                    "calibration_before" if before_fig else "calibration", key))
+        elif have_pose:
             ov = draw_calibration_overlay(image, pc, calibration=result, bboxes_3d=b3, bboxes_2d=b2, pairs=pairs,
                                           point_radius=point_radius, title=f"{key}: after calibration")
             _write_png(out / "img" / f"{stem}_calibration.png", ov)
@@ -177,7 +221,7 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
                                         f"Frame {key}, estimated pose: LiDAR points coloured by camera depth "
                                         f"(blue near, red far), projected 3D boxes (orange), 2D boxes (green), "
                                         f"{len(pairs)} matched pairs linked (cyan)", "calibration", key))
-        if initial is not None and result.intrinsics is not None:
+        if initial is not None and result.intrinsics is not None and not existing:
             ov = draw_calibration_overlay(image, pc, intrinsics=result.intrinsics, rotation=initial[0],
                                           translation=initial[1], bboxes_3d=b3, bboxes_2d=b2,
                                           point_radius=point_radius, title=f"{key}: before refinement")
@@ -200,7 +244,9 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
             figures.append(ReportFigure(f"img/{stem}_matching.png",
                                         f"Frame {key}: camera image with 2D boxes beside the LiDAR bird's-eye view "
                                         f"(+x up, +y left) with 3D boxes; pairs coloured by {source}, unmatched "
-                                        "boxes grey and dashed" + ("; red crosses = wrong vs ground truth"
+                                        "boxes grey and dashed"
+                                        + ("" if given_yaw else "; box yaw re-estimated from the points")
+                                        + ("; red crosses = wrong vs ground truth"
                                                                    if truth is not None else "")
                                         + "; the amber wedge is the camera's field of view", "matching", key))
     nums = result_numbers(result, ground_truth)
