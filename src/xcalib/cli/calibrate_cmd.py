@@ -68,10 +68,15 @@ def register(app: typer.Typer) -> None:
 
             result = calibrate(items, intr, prior=prior_res, box_model=box_model, seed=seed, progress=progress)
             paths = write_report(result, items, out, max_overlays=max_overlays, progress=progress)
+            from ..viz.report import write_calibration_report  # HTML page: numbers + overlays
+
+            html = write_calibration_report(out, result, items, calibration_overlays=paths.overlays,
+                                            max_frames=max_overlays, title=f"xcalib calibrate: {frames}").html
         if as_json:
             typer.echo(json.dumps(result.to_dict(), indent=2))
         else:
             typer.echo(paths.summary.read_text())
             typer.echo(f"wrote {paths.json}, {paths.npz}, {paths.summary} and {len(paths.overlays)} overlay(s)")
+            typer.echo(f"report: {html}")
         if not result.success:
             raise typer.Exit(1)

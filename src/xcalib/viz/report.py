@@ -199,7 +199,7 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         shown = [i for i, k in enumerate(keys) if k in existing]
     else:
         shown = _pick(len(frames), max_frames)
-    have_pose = result.intrinsics is not None and bool(result.success or result.n_pairs)
+    have_pose = result.intrinsics is not None and bool(result.success)
     for idx in shown:
         image, pc, b2, b3, key, truth = frame_arrays(frames[idx], idx)
         pairs = result.pairs[idx] if idx < len(result.pairs) else np.zeros((0, 2), np.int64)
@@ -207,7 +207,7 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         given_yaw = np.asarray(b3).shape[-1] == 7
         b3 = calibrator_boxes(frames[idx], result.intrinsics, np.asarray(b3))
         if existing and have_pose:
-            for path, before_fig in existing.get(key, []):
+            for path, before_fig in sorted(existing.get(key, []), key=lambda e: not e[1]):  # before first
                 figures.append(ReportFigure(
                     Path(os.path.relpath(path, out)).as_posix(),
                     f"Frame {key}, " + ("bring-up pose before refinement" if before_fig else "estimated pose")
