@@ -180,17 +180,19 @@ def calibrate_frames(frames: list, intrinsics, out_dir: Path, *, truth=None, mat
         out.pair_precision, out.pair_recall = pair_accuracy(res, frames)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    res.save(out_dir / "calibration.json")
-    res.save(out_dir / "calibration.npz")
     ex = dict(extra or {})
     if truth is not None and res.success:
         ex["matched pairs correct vs ground truth (precision)"] = out.pair_precision
         ex["true pairs recovered (recall)"] = out.pair_recall
     try:
+        from ..calib.report import write_report  # calibration.json/.npz, summary.txt, overlays/ (as `xcalib calibrate`)
+
+        paths = write_report(res, frames, out_dir, max_overlays=max_frames)
         rep = write_calibration_report(out_dir, res, frames, ground_truth=truth, matches=matches, extra=ex,
-                                       title=title, max_frames=max_frames)
+                                       title=title, max_frames=max_frames, calibration_overlays=paths.overlays)
         out.report, out.figures = rep.html, rep.figures
     except Exception as exc:  # noqa: BLE001 - numbers first; a drawing failure must not hide them
+        res.save(out_dir / "calibration.json")
         out.message = (out.message + "; " if out.message else "") + f"report failed: {type(exc).__name__}: {exc}"
     return out
 
