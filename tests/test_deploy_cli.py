@@ -59,9 +59,10 @@ def test_validate_runtime_bad_usage(setup, capsys):
 
 def test_export_bad_input(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("XCALIB_HOME", str(tmp_path / "home"))
-    rc = main(["export", "--model", "crlite_vit_exp4", "--site", "nowhere", "--out", str(tmp_path), "--allow-random"])
+    rc = main(["export", "--model", "fastmatch", "--site", "nowhere", "--out", str(tmp_path)])
     err = capsys.readouterr().err
-    assert rc == 1 and "cannot be exported" in err
+    assert rc == 1 and "no weights for model 'fastmatch' at site 'nowhere'" in err
+    assert not any(tmp_path.glob("fastmatch_*"))
     rc = main(["export", "--model", "fastmatch", "--format", "tflite", "--out", str(tmp_path)])
     assert rc == 2
 

@@ -188,10 +188,28 @@ def test_random_weights_refused(tmp_path):
     assert r.site == "random" and (tmp_path / "fastmatch_random" / "manifest.json").is_file()
 
 
-def test_exp4_export_error_is_clear(tmp_path):
-    m = Matcher("crlite_vit_exp4", device="cpu")
-    with pytest.raises(ExportError, match="crlite_vit_exp4.*cannot be exported"):
-        m.build("onnx", tmp_path, allow_random=True)
+def test_exp4_dense_graph_export(tmp_path):
+    """exp4's sparse per-frame kNN GNN is exported in dense form and checked against the model."""
+    m = loaded_matcher("crlite_vit_exp4", tmp_path / "w", point_cloud_size=64)
+    res = m.build("onnx", tmp_path / "o", site="s")
+    assert res.parity_ok, res.parity
+    om = OnnxMatcher(res.output_dir)
+    assert om.host["joint_embedding"] is True
+    image, pts, b2, b3 = crowded_frame(40, seed=2)
+    for n in (1, 2, 3, 6, 40):  # fewer detections than k neighbours, and more
+        a = m.match(image, pts, b2[:n], b3[:n], validate="off")
+        b = om.match(image, pts, b2[:n], b3[:n], validate="off")
+        np.testing.assert_allclose(b.similarity, a.similarity, atol=1e-5)
+    env = OnnxMatcher(res.output_dir, envelope="protocol")
+    with pytest.raises(EnvelopeError, match="jointly.*40 image detections"):
+        env.match(image, pts, b2, b3, validate="off")
+
+
+def test_unknown_model_has_no_plan():
+    from xcalib.deploy.onnx_export import family_of
+
+    with pytest.raises(ExportError, match="no ONNX export plan"):
+        family_of("no_such_model")
 
 
 def test_fastpath_flag_restored(tmp_path):

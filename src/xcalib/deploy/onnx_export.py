@@ -56,10 +56,7 @@ FAMILIES = {
 # families whose embeddings depend on the other detections of the frame (no N/M chunking)
 JOINT_EMBEDDING = {"crlite_vit_exp4"}
 # models that cannot be exported yet, with the reason
-NOT_EXPORTABLE = {
-    "crlite_vit_exp4": "its structure GNNs build a data-dependent sparse kNN graph per frame (nonzero, index_add "
-                       "with repeated indices) that the TorchScript ONNX exporter rejects; use the PyTorch Matcher",
-}
+NOT_EXPORTABLE: dict[str, str] = {}
 
 
 
@@ -140,12 +137,16 @@ PAIR_FNS: dict[str, Callable[..., torch.Tensor]] = {
 # ---------------------------------------------------------------------------------- plan
 @dataclass
 class GraphPlan:
+    """One graph: the module exported, and ``reference`` (default: the same module), the torch
+    computation the graph is checked against (exp4: the model's own sparse GNN code)."""
+
     name: str
     module: nn.Module
     input_names: list[str]
     output_names: list[str]
     axis: str
     role: str
+    reference: nn.Module | None = None
 
 
 @dataclass
@@ -197,6 +198,11 @@ def make_plan(model: nn.Module, probe: FrameInputs) -> ExportPlan:
         GraphPlan("lidar_embed", _SideEmbed(model, "lidar", _dummy_side(probe, "image"), lid_keys),
                   list(LIDAR_INPUTS), lid_keys, "M", "lidar"),
     ]
+    if name == "crlite_vit_exp4":  # sparse per-frame kNN GNN -> dense export form, checked against the model
+        from .exp4_dense import Exp4DenseSide
+
+        for g, side in zip(graphs, ("image", "lidar")):
+            g.reference, g.module = g.module, Exp4DenseSide(model, side)
     host = {"top_k": None, "fill_value": None, "pair_activation": None,
             "joint_embedding": name in JOINT_EMBEDDING}
     if family in ("hybrid", "pairwise"):
@@ -210,6 +216,8 @@ def make_plan(model: nn.Module, probe: FrameInputs) -> ExportPlan:
         host["fill_value"] = float(model.fill_value)
     for g in graphs:  # wrappers start in training mode; the exporter restores that mode after tracing
         g.module.eval()
+        if g.reference is not None:
+            g.reference.eval()
     return ExportPlan(name, family, graphs, host)
 
 
@@ -218,10 +226,11 @@ def _torch_inputs(g: GraphPlan, feeds: dict[str, np.ndarray]) -> tuple[torch.Ten
 
 
 def run_torch(g: GraphPlan, feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """The torch module of a graph on numpy feeds -> {output name: array}."""
-    g.module.eval()
+    """The torch reference of a graph on numpy feeds -> {output name: array}."""
+    mod = g.reference if g.reference is not None else g.module
+    mod.eval()
     with torch.inference_mode(), export_mode():
-        out = g.module(*_torch_inputs(g, feeds))
+        out = mod(*_torch_inputs(g, feeds))
     out = out if isinstance(out, tuple) else (out,)
     return {n: o.float().numpy() for n, o in zip(g.output_names, out)}
 
