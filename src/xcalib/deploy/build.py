@@ -225,7 +225,7 @@ def build(matcher, target: str = "onnx", output_dir: str | Path | None = None, *
           allow_random: bool = False, verify: bool = True, opset: int = OPSET,
           parity_tolerance: float = PARITY_TOLERANCE, precision: str = "fp16", onnx_dir: str | Path | None = None,
           trtexec: str | Path | None = None, extra_trt_args: Sequence[str] = (), envelope=None,
-          timeout_s: float | None = None) -> BuildResult:
+          timeout_s: float | None = None, device: str | None = None) -> BuildResult:
     """Export ``matcher`` (see module docstring). ``target``: "onnx" or "trt" ("tensorrt",
     "engine"). ``output_dir`` default ``./onnx`` (ONNX) / ``./engines`` (TRT); the files go to
     ``<output_dir>/<model>_<site>/``. ``site`` defaults to the matcher's site, else
