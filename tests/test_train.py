@@ -127,3 +127,15 @@ def test_torchrun_two_cpu_processes(tmp_path):
     hist = json.loads((tmp_path / "run" / "history.json").read_text())
     assert len(hist) == 2 and np.isfinite(hist[-1]["train_loss_mean"])
     Matcher.from_pretrained("crlite", weights=tmp_path / "run" / "best.pt", device="cpu")
+
+
+def test_negative_sampling_keeps_every_matched_3d_box():
+    from xcalib.data.crops import CropConfig
+    from xcalib.engine.trainer import prepare_samples
+
+    f = make_frame(9, n_obj=3)
+    (s,), skipped = prepare_samples([f], CropConfig(point_cloud_size=8))
+    fi, gt = s.draw(8, np.random.default_rng(0), 0.0, max_3d=3)
+    assert skipped == 0 and fi.num_3d == 3 and gt.shape == (3, 3) and gt.any(axis=0).all()
+    fi, gt = s.draw(8, np.random.default_rng(0), 0.05, max_3d=None)
+    assert fi.num_3d == 4 and not np.allclose(fi.boxes_2d, s.boxes_2d)  # jittered boxes

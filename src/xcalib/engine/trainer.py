@@ -59,15 +59,33 @@ class TrainSample:
     def inputs(self, n_points: int, rng: np.random.Generator, jitter: float = 0.0) -> FrameInputs:
         """Model inputs with freshly resampled points; ``jitter`` > 0 also perturbs the boxes
         (2D corners by ``jitter`` x box size px, 3D centres by ``jitter`` x box dims, Gaussian)."""
-        crops = resample_points(self.points, self.counts, n_points, rng)
-        n, m = len(self.crops_2d), len(self.counts)
-        b2, b3 = self.boxes_2d, self.boxes_3d
+        return self.draw(n_points, rng, jitter)[0]
+
+    def draw(self, n_points: int, rng: np.random.Generator, jitter: float = 0.0,
+             max_3d: int | None = None) -> tuple[FrameInputs, np.ndarray]:
+        """(inputs, ground truth [N,M']). ``max_3d``: keep every 3D box with a match plus random
+        unmatched ones up to this many columns (negative sampling; None keeps all)."""
+        m = len(self.counts)
+        cols = np.arange(m)
+        pts, counts, b3, gt = self.points, self.counts, self.boxes_3d, self.gt
+        if max_3d is not None and m > max_3d:
+            pos = gt.any(axis=0)
+            neg = np.nonzero(~pos)[0]
+            k = max(max_3d - int(pos.sum()), 0)
+            cols = np.sort(np.concatenate([np.nonzero(pos)[0], rng.choice(neg, min(k, len(neg)), replace=False)]))
+            keep = np.zeros(m, dtype=bool)
+            keep[cols] = True
+            pts, counts, b3, gt = pts[np.repeat(keep, counts)], counts[cols], b3[cols], gt[:, cols]
+        crops = resample_points(pts, counts, n_points, rng)
+        n = len(self.crops_2d)
+        b2 = self.boxes_2d
         if jitter > 0:
             wh = np.tile(b2[:, 2:4] - b2[:, 0:2], 2)
             b2 = (b2 + rng.normal(0, jitter, b2.shape) * wh).astype(np.float32)
             b3 = b3.copy()
-            b3[:, :3] += (rng.normal(0, jitter, (m, 3)) * b3[:, 3:6]).astype(np.float32)
-        return FrameInputs(self.crops_2d, crops, b2, b3, self.counts, self.image_size, np.arange(n), np.arange(m))
+            b3[:, :3] += (rng.normal(0, jitter, (len(cols), 3)) * b3[:, 3:6]).astype(np.float32)
+        fi = FrameInputs(self.crops_2d, crops, b2, b3, counts, self.image_size, np.arange(n), np.arange(len(cols)))
+        return fi, gt
 
 
 def load_frames(data, limit: int | None = None) -> Iterable[Frame]:
@@ -138,15 +156,14 @@ def matching_loss(outputs, batch, gt: torch.Tensor) -> torch.Tensor:
     return total
 
 
-def _block_gt(samples: Sequence[TrainSample], device) -> torch.Tensor:
-    n = sum(len(s.crops_2d) for s in samples)
-    m = sum(len(s.counts) for s in samples)
-    gt = np.zeros((n, m), dtype=bool)
+def _block_gt(gts: Sequence[np.ndarray], device) -> torch.Tensor:
+    n, m = sum(g.shape[0] for g in gts), sum(g.shape[1] for g in gts)
+    out = np.zeros((n, m), dtype=bool)
     i = j = 0
-    for s in samples:
-        gt[i:i + s.gt.shape[0], j:j + s.gt.shape[1]] = s.gt
-        i, j = i + s.gt.shape[0], j + s.gt.shape[1]
-    return torch.from_numpy(gt).to(device)
+    for g in gts:
+        out[i:i + g.shape[0], j:j + g.shape[1]] = g
+        i, j = i + g.shape[0], j + g.shape[1]
+    return torch.from_numpy(out).to(device)
 
 
 @torch.no_grad()
@@ -210,11 +227,13 @@ def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None 
           weights: str | Path | None = None, resume: str | Path | bool | None = None,
           output_dir: str | Path = "runs/train", device: str = "auto", seed: int = 42,
           limit_train_frames: int | None = None, limit_val_frames: int | None = None,
-          progress: bool = True, weights_dtype: str = "float32", box_jitter: float = 0.02) -> Path:
+          progress: bool = True, weights_dtype: str = "float32", box_jitter: float = 0.02,
+          max_3d: int | None = None) -> Path:
     """Train ``model`` (a registered name or a ``MatchingModel``); returns the path of best.pt.
 
     train_data / val_data: ``Frame`` sequences with ``match_matrix``, or .h5 caches / site
-    folders. box_jitter: training-time box perturbation (fraction of box size; 0 = off).
+    folders. max_3d: per training frame, keep the matched 3D boxes plus random unmatched ones up
+    to this many (negative sampling; validation always uses all). box_jitter: training-time box perturbation (fraction of box size; 0 = off).
     weights: warm start (strict). resume: ``last.pt`` path (or True for
     ``output_dir/last.pt``) to continue an interrupted run.
     """
@@ -284,9 +303,9 @@ def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None 
                 idx = order[step * frames_per_batch:(step + 1) * frames_per_batch]
                 if len(idx) == 0:
                     idx = order[:1]
-                samples = [train_s[i] for i in idx]
-                batch = ModelBatch.from_frames([s.inputs(P, rng, box_jitter) for s in samples], dev)
-                gt = _block_gt(samples, dev)
+                drawn = [train_s[i].draw(P, rng, box_jitter, max_3d) for i in idx]
+                batch = ModelBatch.from_frames([d[0] for d in drawn], dev)
+                gt = _block_gt([d[1] for d in drawn], dev)
                 g = epoch * steps_per_epoch + step
                 for pg in opt.param_groups:
                     pg["lr"] = _lr_at(g, total_steps, warm_steps, lr, min_lr, scheduler)
