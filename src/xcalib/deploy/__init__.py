@@ -17,7 +17,6 @@ _LAZY = {
     "Envelope": "xcalib.deploy.chunking",
     "PROTOCOL_ENVELOPE": "xcalib.deploy.chunking",
     "find_trtexec": "xcalib.deploy.trt",
-    "evaluate_frames": "xcalib.deploy.evaluate",
 }
 
 __all__ = list(_LAZY)
