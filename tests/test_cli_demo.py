@@ -64,7 +64,7 @@ def test_demo_end_to_end(tmp_path, capsys, untrained_weights):
     assert 'href="synthetic/report.html"' in index
     imgs = _images_of(out / "synthetic" / "report.html")
     assert len(imgs) >= 4 and all(p.is_file() and p.stat().st_size > 1000 for p in imgs)
-    assert any("matching" in p.name for p in imgs) and any("calibration" in p.name for p in imgs)
+    assert any("matching" in p.name for p in imgs) and any(p.parent.name == "overlays" for p in imgs)
     assert (out / "synthetic" / "calibration.json").is_file()
 
 
