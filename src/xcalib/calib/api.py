@@ -96,7 +96,8 @@ def _collinear(P: np.ndarray, tol: float) -> bool:
 def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: float = 0.3,
               max_hyp_frames: int = 10, max_refine: int = 6, min_pairs: int = 4,
               ambiguity_ratio: float = 0.85, max_rot_std_deg: float = 1.0, max_trans_std_m: float = 0.5,
-              reestimate_yaw: str | bool = "auto", box_model: str = "auto", seed: int = 0,
+              reestimate_yaw: str | bool = "auto", box_model: str = "auto", max_baseline_m: float | None = 8.0,
+              min_explained: float = 0.3, seed: int = 0,
               progress: Callable[[str, int, int], None] | None = None) -> CalibrationResult:
     """Estimate ``T_cam_lidar`` from detections over one or many frames of one static rig.
 
@@ -110,6 +111,10 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
         prior: optional initial pose (``CalibrationResult``, (R, t) or 4x4): skips the bring-up.
         gate: IoU gate of the final one-to-one matches.
         box_model: "auto" | "corners" | "points" (see ``inputs.prepare_frames``).
+        max_baseline_m: bring-up assumes the camera within this distance of the LiDAR-frame origin
+            (a co-located rig in the sensor's own frame); when that search fails it is repeated
+            without the assumption. None: never assume it.
+        min_explained: fail when the pose explains fewer than this fraction of the 2D boxes.
         ambiguity_ratio: fail when a distinct runner-up pose scores at least this fraction of the best.
         progress: optional callback(stage, done, total).
     Returns:
@@ -125,6 +130,10 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
                                 min_pairs=min_pairs, seed=seed)
     if args:
         raise TypeError("calibrate(frames, intrinsics, *, ...): unexpected positional arguments")
+    _kw = dict(matcher=matcher, prior=prior, gate=gate, max_hyp_frames=max_hyp_frames, max_refine=max_refine,
+               min_pairs=min_pairs, ambiguity_ratio=ambiguity_ratio, max_rot_std_deg=max_rot_std_deg,
+               max_trans_std_m=max_trans_std_m, reestimate_yaw=reestimate_yaw, box_model=box_model,
+               max_baseline_m=max_baseline_m, min_explained=min_explained, seed=seed, progress=progress)
     t0 = time.perf_counter()
     frames_in = list(frames) if not isinstance(frames, (list, tuple)) else frames
     cframes, intr, problem = prepare_frames(frames_in, intrinsics, reestimate_yaw=reestimate_yaw,
@@ -170,14 +179,17 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
         parts = []
         for k, g in enumerate(groups):
             gs = [sims[i] for i in g]
-            h = frame_hypotheses([cframes[i] for i in g], intr, g[0], prior_sims=gs, rng=rng)
+            h = frame_hypotheses([cframes[i] for i in g], intr, g[0], prior_sims=gs, rng=rng,
+                                 max_baseline_m=max_baseline_m)
             if any(x is not None for x in gs) and len(h) == 0:
-                h = frame_hypotheses([cframes[i] for i in g], intr, g[0], rng=rng)
+                h = frame_hypotheses([cframes[i] for i in g], intr, g[0], rng=rng, max_baseline_m=max_baseline_m)
             parts.append(h)
             if progress:
                 progress("hypotheses", k + 1, len(groups))
         hyps = Hypotheses.concat(parts)
         meta["seed"] = "matcher" if matcher is not None else "geometry"
+        if len(hyps) == 0 and max_baseline_m is not None:
+            return calibrate(frames_in, intr, **{**_kw, "max_baseline_m": None})
         if len(hyps) == 0:
             return _fail("not identifiable: no 3 detections seen by both sensors form a consistent, "
                          "non-collinear triangle (objects on one line, or too few objects)", intr, cframes, **meta)
@@ -242,9 +254,9 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
     # ------------------------------------------------------------------ decision
     need = max(min_pairs, 3)
     why = None
-    if n_pairs < need:
-        why = (f"the best pose explains only {n_pairs} box pair(s) (need {need}); "
-               "too few objects seen by both sensors")
+    if n_pairs < need or n_pairs < min_explained * n2:
+        why = (f"the best pose explains only {n_pairs} of {n2} 2D boxes (need {max(need, int(np.ceil(min_explained * n2)))}); "
+               "too few objects seen by both sensors, or no pose explains the detections")
     elif runner >= ambiguity_ratio * best_score:
         why = (f"ambiguous: two different poses explain the boxes about equally well (scores {best_score:.2f} "
                f"vs {runner:.2f}); add frames with objects spread over the image")
@@ -252,6 +264,12 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
             np.max(rot_sd) > max_rot_std_deg or np.max(tr_sd) > max_trans_std_m:
         why = (f"not identifiable: the pose is poorly constrained (1-sigma rotation {np.nanmax(rot_sd):.2f} deg, "
                f"translation {np.nanmax(tr_sd):.2f} m); add frames or objects at other places/depths")
+    if why and max_baseline_m is not None and pp is None:
+        # the co-located-rig assumption may be wrong (e.g. boxes in a global frame): search again
+        retry = calibrate(frames_in, intr, **{**_kw, "max_baseline_m": None})
+        if retry.success:
+            return retry
+    meta["max_baseline_m"] = max_baseline_m
     if why:
         res.success = False
         res.accepted = False

@@ -107,8 +107,16 @@ def _p3p_newton(lam: np.ndarray, cosang: np.ndarray, d2: np.ndarray, iters: int 
     return lam, rel.max(1)
 
 
-def _candidate_pairs(fr: CalibFrame, intr: CameraIntrinsics, prior_sim, top_k: int = 3):
-    """Candidate (2D, 3D) pairs of one frame: rows i, cols j, ray [n,3], size depth [n], truncated [n], weight [n]."""
+def _candidate_pairs(fr: CalibFrame, intr: CameraIntrinsics, prior_sim, top_k: int = 3,
+                     max_baseline_m: float | None = None):
+    """Candidate (2D, 3D) pairs of one frame: rows i, cols j, ray [n,3], depth guess [n] (m),
+    depth tolerance [n] (m), weight [n].
+
+    Depth guess: focal * 3D size / 2D size (occlusion and truncation make it an overestimate).
+    With ``max_baseline_m`` (camera and LiDAR within that distance of each other, LiDAR-frame
+    origin at the sensor), the camera distance of box j is within the baseline of its LiDAR range
+    ``|X_j|``: pairs whose size depth disagrees grossly are dropped and the guess is clipped.
+    """
     K, M = fr.n2, fr.n3
     c2 = box2d_centers(fr.boxes2d)
     s2 = np.sqrt(np.prod(box2d_sizes(fr.boxes2d), axis=1))
@@ -120,6 +128,16 @@ def _candidate_pairs(fr: CalibFrame, intr: CameraIntrinsics, prior_sim, top_k: i
     lam0 = f * _size3(fr.boxes3d)[None, :] / s2[:, None]  # [K,M] metres along the ray
     ii, jj = np.meshgrid(np.arange(K), np.arange(M), indexing="ij")
     ii, jj = ii.ravel(), jj.ravel()
+    lam = lam0[ii, jj]
+    tr = trunc[ii]
+    tol = np.where(tr, 0.8, 0.45) * lam + 1.5  # half-width of the depth interval (metres)
+    if max_baseline_m is not None:
+        rng3 = np.linalg.norm(fr.boxes3d[jj, :3], axis=1)
+        B = float(max_baseline_m)
+        ok = (rng3 <= 2.0 * lam + B) & ((rng3 >= lam / 2.5 - B) | tr)
+        ii, jj, lam, tr, tol, rng3 = ii[ok], jj[ok], lam[ok], tr[ok], tol[ok], rng3[ok]
+        lam = np.clip(lam, np.maximum(rng3 - B, 0.5), rng3 + B)
+        tol = np.minimum(tol, B + 0.05 * lam + 0.5)
     w = np.zeros(len(ii))
     if prior_sim is not None:
         sim = np.nan_to_num(np.asarray(prior_sim, dtype=np.float64), nan=-np.inf)
@@ -128,22 +146,22 @@ def _candidate_pairs(fr: CalibFrame, intr: CameraIntrinsics, prior_sim, top_k: i
         allowed[np.arange(K)[:, None], top] = True
         allowed &= np.isfinite(sim)
         sel = allowed[ii, jj]
-        ii, jj = ii[sel], jj[sel]
+        ii, jj, lam, tol = ii[sel], jj[sel], lam[sel], tol[sel]
         w = sim[ii, jj]
-    return ii, jj, b[ii], lam0[ii, jj], trunc[ii], w
+    return ii, jj, b[ii], lam, tol, w
 
 
 def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, fi: int, *,
                      prior_sims: list | None = None, max_triples: int = 3000,
                      rng: np.random.Generator | None = None, min_altitude_m: float = 0.8,
-                     keep: int = 25) -> Hypotheses:
+                     keep: int = 25, max_baseline_m: float | None = None) -> Hypotheses:
     """Pose hypotheses from box triples of one frame (or a group of frames of the same static rig,
     whose pairs are rigidly consistent with each other too), scored on those frames; keep ``keep``."""
     rng = np.random.default_rng(0) if rng is None else rng
     frs = [frs] if isinstance(frs, CalibFrame) else list(frs)
     prior_sims = [None] * len(frs) if prior_sims is None else list(prior_sims)
-    parts = [(k,) + _candidate_pairs(fr, intr, ps) for k, (fr, ps) in enumerate(zip(frs, prior_sims))
-             if fr.n2 and fr.n3]
+    parts = [(k,) + _candidate_pairs(fr, intr, ps, max_baseline_m=max_baseline_m)
+             for k, (fr, ps) in enumerate(zip(frs, prior_sims)) if fr.n2 and fr.n3]
     if not parts:
         return Hypotheses.empty()
     fk = np.concatenate([np.full(len(p[1]), p[0]) for p in parts])
@@ -151,7 +169,7 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
     jj = np.concatenate([p[2] for p in parts])
     ray = np.concatenate([p[3] for p in parts])
     lam = np.concatenate([p[4] for p in parts])
-    tr = np.concatenate([p[5] for p in parts])
+    dtol = np.concatenate([p[5] for p in parts])
     pair_w = np.concatenate([p[6] for p in parts])
     X = np.concatenate([frs[p[0]].boxes3d[p[2], :3] for p in parts])  # LiDAR centre of each pair
     if len(ii) < 3:
@@ -160,8 +178,7 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
     Xc = lam[:, None] * ray
     dc = np.linalg.norm(Xc[:, None] - Xc[None], axis=2)
     dl = np.linalg.norm(X[:, None] - X[None], axis=2)
-    lmax = np.maximum(lam[:, None], lam[None])
-    tol = np.where(tr[:, None] | tr[None], 0.8, 0.45) * lmax + 1.5
+    tol = np.maximum(dtol[:, None], dtol[None])
     same = fk[:, None] == fk[None]
     C = (np.abs(dc - dl) <= tol) & (~same | ((ii[:, None] != ii[None]) & (jj[:, None] != jj[None])))
     C &= dl > 0.5  # two pairs on (nearly) the same LiDAR point say nothing about rotation
