@@ -47,6 +47,8 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter("--no-install needs --out DIR (the weights must go somewhere)")
         source = read_frames(frames)
         K = read_intrinsics_json(intrinsics) if intrinsics is not None else getattr(source, "intrinsics", None)
+        if K is None and hasattr(source, "__getitem__") and len(source):  # HDF5 caches: per-frame /calibration
+            K = getattr(source[0], "intrinsics", None)
         if K is None:
             raise typer.BadParameter(f"--intrinsics is required: {frames} carries no camera intrinsics")
         n_total = len(source) if hasattr(source, "__len__") else None

@@ -48,6 +48,8 @@ def register(app: typer.Typer) -> None:
             intr = CameraIntrinsics.from_json(intrinsics)
         else:
             intr = getattr(seq, "intrinsics", None)
+            if intr is None and n:  # HDF5 caches carry the intrinsics per frame (/calibration)
+                intr = getattr(seq[0], "intrinsics", None)
             if intr is None:
                 raise typer.BadParameter(f"{frames} has no intrinsics.json; pass --intrinsics K.json",
                                          param_hint="--intrinsics")
