@@ -58,7 +58,8 @@ def _matcher_priors(matcher, frames_in, cframes: list[CalibFrame]) -> list[np.nd
     for item, fr in zip(frames_in, cframes):
         try:
             args = item.inputs() if hasattr(item, "inputs") else tuple(item)
-            mr = matcher.match(*args)
+            mr = matcher.match_frame(item) if hasattr(item, "inputs") and hasattr(matcher, "match_frame") \
+                else matcher.match(*args)
             full = mr.full_similarity(len(np.asarray(args[2]).reshape(-1, 4)), len(np.asarray(args[3]).reshape(len(args[3]), -1)))
             out.append(np.asarray(full, dtype=np.float64)[np.ix_(fr.idx2d, fr.idx3d)])
         except Exception as exc:  # noqa: BLE001 - a matcher failure must not stop geometry
@@ -289,12 +290,19 @@ def _centre_offsets(frames, intr, R, t, pairs) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0)
 
 
+_REFERENCE_ONLY = ("match_threshold", "ransac_reproj_px", "validate")
+
+
 def calibrate_single(image, point_cloud, bboxes_2d, bboxes_3d, intrinsics, *, matcher=None, prior=None,
                      gate: float = 0.3, min_pairs: int = 4, seed: int = 0, **kwargs) -> CalibrationResult:
     """The reference's one-frame form: ``calibrate_single(image, pc, b2, b3, K)`` -> CalibrationResult.
 
     Same pipeline as :func:`calibrate` on a single frame (best-effort: one frame often leaves the
-    pose ambiguous, which is then reported as a failure, not guessed).
+    pose ambiguous, which is then reported as a failure, not guessed). The reference's
+    ``match_threshold``, ``ransac_reproj_px`` and ``validate`` keywords are accepted and ignored
+    (matcher scores only rank candidates here; geometry decides).
     """
+    for k in _REFERENCE_ONLY:
+        kwargs.pop(k, None)
     return calibrate([(image, point_cloud, bboxes_2d, bboxes_3d)], intrinsics, matcher=matcher, prior=prior,
                      gate=gate, min_pairs=min_pairs, seed=seed, **kwargs)
