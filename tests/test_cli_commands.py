@@ -5,6 +5,7 @@ their output is checked. (demo, synth, cache, convert, version have their own te
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -127,3 +128,56 @@ def test_export_onnx_passes_parity(weights, tmp_path, capsys):
     folder = Path(out["output_dir"])
     assert folder.name == "fastmatch_clitest" and (folder / "manifest.json").is_file()
     assert all(Path(a).is_file() for a in out["artifacts"])
+
+
+@pytest.fixture(scope="module")
+def calib_site(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("calsite")
+    rc = main(["synth", "--out", str(d), "--frames", "8", "--train", "0", "--val", "0", "--test", "8", "--seed", "1",
+               "--set", "width=960", "--set", "height=600", "--set", "focal_px=900"])
+    assert rc == 0
+    return d
+
+
+def test_calibrate_a_cache_writes_result_and_html_report(calib_site, tmp_path, capsys):
+    import numpy as np
+
+    from xcalib.calib.result import CalibrationResult
+    from xcalib.io.hdf5 import CacheReader
+
+    out = tmp_path / "cal"
+    rc = main(["calibrate", str(calib_site / "test.h5"), "--out", str(out), "--max-overlays", "2"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "calibration OK" in printed and "report.html" in printed
+    res = CalibrationResult.load(out / "calibration.json")
+    truth = CacheReader(calib_site / "test.h5")[0].extrinsics
+    rot_deg, trans_m = res.pose_error(truth)
+    assert res.success and rot_deg < 1.0 and trans_m < 0.5
+    html = (out / "report.html").read_text()
+    srcs = re.findall(r'<img src="([^"]+)"', html)
+    assert any(s.startswith("overlays/") for s in srcs) and any("matching" in s for s in srcs)
+    assert all((out / s).is_file() for s in srcs)
+    assert np.allclose(CalibrationResult.load(out / "calibration.npz").extrinsics, res.extrinsics)
+
+
+def test_calibrate_too_few_frames_fails_with_exit_1(calib_site, tmp_path, capsys):
+    rc = main(["calibrate", str(calib_site / "test.h5"), "--out", str(tmp_path / "c"), "--limit", "1", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert (rc == 1) == (not out["success"])
+    if rc == 1:
+        assert out["message"]
+
+
+@pytest.mark.slow
+def test_bootstrap_installs_site_weights(calib_site, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("XCALIB_HOME", str(tmp_path / "home"))
+    rc = main(["bootstrap", str(calib_site / "test.h5"), "--site", "boot", "--steps", "3", "--init", "scratch",
+               "--json"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["calibrated"] and out["adapt"]["trained"] and out["adapt"]["steps"] == 3
+    assert Path(out["paths"]["weights"]).is_file()
+    assert Path(out["paths"]["weights"]).parent == tmp_path / "home" / "sites" / "boot"
+    # the installed weights load by site name
+    assert main(["match", str(calib_site / "test.h5"), "--site", "boot", "--validate", "off", "--json"]) == 0
