@@ -31,19 +31,19 @@ SITE = "synthetic"
 # Shipped configs (merged over the reference-size defaults) and schedules.
 VIT_SMALL = {"crop_size": 32, "point_cloud_size": 128, "embed_dim": 128,
              "vit": {"patch_size": 8, "embed_dim": 64, "depth": 2, "num_heads": 4, "mlp_ratio": 2.0}}
-SHIPPED = {
-    "fastmatch": ({}, dict(epochs=30, lr=3e-3, weight_decay=1e-4)),
-    "crlite": ({"point_cloud_size": 128}, dict(epochs=12, lr=1e-3)),
-    "crlite_2dpe": ({"point_cloud_size": 128}, dict(epochs=12, lr=1e-3)),
-    "crlite_vit_exp1": (VIT_SMALL, dict(epochs=12, lr=1e-3)),
-    "crlite_vit_exp3": ({**VIT_SMALL, "token_len": 64}, dict(epochs=12, lr=1e-3)),
-    "crlite_vit_exp4": ({**VIT_SMALL, "gnn": {"hidden_dim": 64}}, dict(epochs=12, lr=1e-3)),
+SHIPPED = {  # name: (config overrides, schedule; "stride" = use every n-th training frame)
+    "fastmatch": ({}, dict(epochs=12, lr=3e-3, weight_decay=1e-4, max_3d=24, stride=1)),
+    "crlite": ({"point_cloud_size": 128}, dict(epochs=5, lr=1e-3, max_3d=16, stride=2)),
+    "crlite_vit_exp1": (VIT_SMALL, dict(epochs=4, lr=1e-3, max_3d=16, stride=3)),
+    "crlite_vit_exp3": ({**VIT_SMALL, "token_len": 64}, dict(epochs=4, lr=1e-3, max_3d=16, stride=3)),
+    "crlite_vit_exp4": ({**VIT_SMALL, "gnn": {"hidden_dim": 64}}, dict(epochs=4, lr=1e-3, max_3d=16, stride=3)),
+    "crlite_2dpe": ({"point_cloud_size": 128}, dict(epochs=5, lr=1e-3, max_3d=16, stride=2)),
     "calibrefine": ({"point_cloud_size": 128, "num_blocks": [1, 1, 1, 1], "base_width": 16, "embed_dim": 128,
                      "token_len": 64, "dense": {"embed_dim": 128, "fusion_dim": 128, "hidden_dim": 64},
                      "pointnet2": [{"npoint": 64, "radius": 0.4, "nsample": 16, "mlp": [32, 32, 64]},
                                    {"npoint": 16, "radius": 1.0, "nsample": 16, "mlp": [64, 64, 128]},
                                    {"npoint": None, "mlp": [128, 256]}]},
-                    dict(epochs=8, lr=1e-3)),
+                    dict(epochs=3, lr=1e-3, max_3d=12, stride=4)),
 }
 SITES = {"A": dict(seed=0, preset="roadside"), "B": dict(seed=3, preset="roadside", n_objects=20),
          "C": dict(seed=5, preset="vehicle", n_objects=20)}
@@ -63,7 +63,7 @@ def make_caches(work: Path, train_seqs: int = 8, frames_per_seq: int = 150, val_
     if not (a / "train.h5").exists() or (a / "train.h5").stat().st_size < 1e6:
         kw = dict(SITES["A"])
         site = sample_site(kw.pop("seed"), kw.pop("preset"), **kw)
-        tmp = a / "train.h5.partial"
+        tmp = a / "train_partial.h5"
         with CacheWriter(tmp, camera_names=[site.camera_name], lidar_name=site.lidar_name,
                          label_sensor=site.camera_name) as w:
             for s in range(train_seqs):  # independent traffic sequences (seeds disjoint from val/test)
@@ -74,6 +74,25 @@ def make_caches(work: Path, train_seqs: int = 8, frames_per_seq: int = 150, val_
         print(f"site A: train cache {train_seqs} x {frames_per_seq} frames", flush=True)
 
 
+_SAMPLES: dict = {}
+
+
+def _samples(name: str, cfg: dict, work: Path):
+    """Training/validation crops, prepared once per crop setting and shared by the models."""
+    from xcalib.data.crops import CropConfig
+    from xcalib.engine.trainer import prepare_samples
+    from xcalib.models import default_config, merge_config
+
+    cc = CropConfig.from_config(merge_config(default_config(name), cfg))
+    key = (cc.crop_size, cc.bbox_expansion, cc.keep_aspect, cc.normalize, cc.min_points)
+    if key not in _SAMPLES:
+        t0 = time.perf_counter()
+        _SAMPLES[key] = tuple(prepare_samples(work / "siteA" / f"{s}.h5", cc)[0] for s in ("train", "val"))
+        print(f"cropped {len(_SAMPLES[key][0])} train / {len(_SAMPLES[key][1])} val frames "
+              f"in {time.perf_counter() - t0:.0f}s", flush=True)
+    return _SAMPLES[key]
+
+
 def train_model(name: str, work: Path) -> Path:
     import torch
 
@@ -81,15 +100,18 @@ def train_model(name: str, work: Path) -> Path:
     from xcalib.engine.trainer import train
 
     cfg, sched = SHIPPED[name]
+    sched = dict(sched)
     out = work / "runs" / name
+    tr, va = _samples(name, cfg, work)
+    tr = tr[::sched.pop("stride", 1)]
     t0 = time.perf_counter()
-    best = train(name, work / "siteA" / "train.h5", work / "siteA" / "val.h5", config=cfg, output_dir=out,
-                 warmup_epochs=1, frames_per_batch=4, seed=0, device="cpu", progress=False, **sched)
+    best = train(name, tr, va, config=cfg, output_dir=out, warmup_epochs=1, frames_per_batch=4, seed=0,
+                 device="cpu", progress=False, **sched)
     m = Matcher.from_pretrained(name, weights=best, device="cpu")
     paths = m.save_pretrained(WEIGHTS / SITE, dtype="float16")
     hist = json.loads((out / "history.json").read_text())
     info = {"train_wall_s": time.perf_counter() - t0, "epochs": len(hist), "config_overrides": cfg,
-            "schedule": sched, "best_val_mrr": max(h["val_mrr"] for h in hist),
+            "schedule": SHIPPED[name][1], "train_frames": len(tr), "best_val_mrr": max(h["val_mrr"] for h in hist),
             "parameters": m.model.num_parameters(), "weights_bytes": paths["weights"].stat().st_size}
     _update_manifest(name, {"training": info})
     print(f"{name}: trained in {info['train_wall_s']:.0f}s, best val MRR {info['best_val_mrr']:.4f}", flush=True)

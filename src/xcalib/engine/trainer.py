@@ -107,7 +107,10 @@ def load_frames(data, limit: int | None = None) -> Iterable[Frame]:
 
 def prepare_samples(data, cfg: CropConfig, limit: int | None = None) -> tuple[list[TrainSample], int]:
     """Crop every usable frame once. Returns (samples, number of frames skipped: no ground
-    truth, or no positive among the kept detections)."""
+    truth, or no positive among the kept detections). A list of ``TrainSample`` passes through
+    (prepare once, train several models with the same crop settings)."""
+    if isinstance(data, (list, tuple)) and data and all(isinstance(x, TrainSample) for x in data):
+        return list(data[:limit] if limit is not None else data), 0
     out, skipped = [], 0
     for f in load_frames(data, limit):
         if f.match_matrix is None:
