@@ -76,7 +76,8 @@ class CalibrationOutcome:
     def to_dict(self) -> dict[str, Any]:
         r = self.result
         d = {"ok": self.ok, "message": self.message, "frames": self.n_frames, "seconds": round(self.seconds, 3),
-             "report": None if self.report is None else str(self.report)}
+             "report": None if self.report is None else str(self.report),
+             "figures": [] if self.report is None else [str(self.report.parent / f.path) for f in self.figures]}
         if r is not None:
             d.update(success=bool(r.success), pairs=int(r.n_pairs), residual_px_median=_j(r.residual_px_median),
                      residual_px_mean=_j(r.reproj_error_px), iou_median=_j(r.iou_median),

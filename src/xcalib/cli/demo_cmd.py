@@ -91,8 +91,14 @@ def _fmt(v, spec: str, unit: str = "") -> str:
 
 def _write_index(out: Path, summary: dict) -> Path:
     e = html.escape
-    rows = []
+    rows, thumbs = [], []
     for name, run in summary.get("calibrations", {}).items():
+        figs = [f for f in run.get("figures", []) if not f.endswith("_bringup.png")]
+        picks = [next((f for f in figs if "/overlays/" in f), None), next((f for f in figs if "matching" in f), None)]
+        for fig in [f for f in picks if f]:
+            src = Path(fig).relative_to(out).as_posix()
+            thumbs.append(f'<figure><a href="{e(src)}"><img src="{e(src)}" alt="{e(name)}"></a>'
+                          f"<figcaption>{e(name)}: {e(Path(src).name)}</figcaption></figure>")
         link = Path(run["report"]).relative_to(out).as_posix() if run.get("report") else None
         cells = [e(name), "yes" if run.get("success") else "no", e(str(run.get("pairs", "-"))),
                  _fmt(run.get("residual_px_median"), ".2f", " px"), _fmt(run.get("iou_median"), ".3f"),
@@ -106,11 +112,14 @@ def _write_index(out: Path, summary: dict) -> Path:
                   f"Matching skipped: {e(m.get('message', ''))}")
     page = f"""<!doctype html><html lang="en"><head><meta charset="utf-8"><title>xcalib demo</title>
 <style>body {{ font-family: system-ui, sans-serif; margin: 24px; }} table {{ border-collapse: collapse; }}
-th, td {{ border: 1px solid #ddd; padding: 4px 10px; }} th {{ background: #f5f5f5; }}</style></head><body>
+th, td {{ border: 1px solid #ddd; padding: 4px 10px; }} th {{ background: #f5f5f5; }}
+figure {{ display: inline-block; margin: 8px; width: 45%; }} img {{ width: 100%; border: 1px solid #ccc; }}</style>
+</head><body>
 <h1>xcalib demo</h1><p>{match_line}</p>
 <table><tr><th>run</th><th>calibrated</th><th>pairs</th><th>residual median</th><th>IoU median</th>
 <th>rotation error</th><th>translation error</th><th></th></tr>{''.join(rows)}</table>
-<p>Total time {summary.get('seconds', 0):.1f} s. Numbers: <a href="summary.json">summary.json</a>.</p></body></html>
+<p>Total time {summary.get('seconds', 0):.1f} s. Numbers: <a href="summary.json">summary.json</a>.</p>
+{''.join(thumbs)}</body></html>
 """
     (out / "index.html").write_text(page)
     return out / "index.html"
