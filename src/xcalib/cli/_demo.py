@@ -198,6 +198,20 @@ def calibrate_frames(frames: list, intrinsics, out_dir: Path, *, truth=None, mat
     return out
 
 
+def matcher_agreement(matcher, frames: list, result) -> tuple[float, int]:
+    """Fraction of the calibration's pairs (pseudo-labels, no ground truth) that the matcher's
+    one-to-one matches reproduce, and the number of pairs compared."""
+    hit = total = 0
+    for fr, p in zip(frames, result.pairs):
+        if not len(p):
+            continue
+        r = matcher.match_frame(fr, assignment="hungarian", validate="off")
+        mine = {int(i): int(j) for i, j, _ in r.matches}
+        hit += sum(mine.get(int(i)) == int(j) for i, j in p)
+        total += len(p)
+    return (hit / total if total else float("nan")), total
+
+
 def find_real_frames(explicit: Optional[Path]) -> Optional[Path]:
     """``explicit``, else ``../shared/data/a9_sample`` beside the cwd or the repository, else
     ``$XCALIB_SHARED_DATA/a9_sample``; None when absent."""

@@ -208,6 +208,10 @@ def register(app: typer.Typer) -> None:
                                                       title=f"xcalib demo: real frames {real_dir.name}",
                                                       progress=stage, max_frames=3)
                     summary["calibrations"][real_dir.name] = real_out.to_dict()
+                    if mo.matcher is not None and real_out.result is not None and real_out.result.success:
+                        agree, n_cmp = _demo.matcher_agreement(mo.matcher, frames, real_out.result)
+                        summary["calibrations"][real_dir.name].update(matcher_agreement=agree,
+                                                                      matcher_agreement_pairs=n_cmp)
                 except Exception as exc:  # noqa: BLE001 - real data is a bonus, not a requirement
                     progress.console.print(f"[yellow]real frames skipped[/]: {type(exc).__name__}: {exc}")
                     summary["calibrations"][real_dir.name] = {"ok": False, "message": f"{type(exc).__name__}: {exc}"}
@@ -257,6 +261,10 @@ def register(app: typer.Typer) -> None:
                 rt.add_row("box-centre offset (median)", f"{_fmt(off, '.1f', ' px')} (reference: ~30 px)")
                 rt.add_row("1-sigma rot / trans", f"{max(rr.rotation_std_deg):.3f} deg / {max(rr.translation_std_m):.3f} m")
                 rt.add_row("calibration time", f"{real_out.seconds:.1f} s")
+                rs = summary["calibrations"][real_dir.name]
+                if "matcher_agreement" in rs:
+                    rt.add_row(f"{mo.model} agrees with calibration pairs",
+                               f"{rs['matcher_agreement']:.1%} of {rs['matcher_agreement_pairs']}")
             else:
                 rt.add_row("calibration", f"[red]failed[/]: {real_out.message}")
             console.print(rt)
