@@ -210,8 +210,10 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
             for path, before_fig in sorted(existing.get(key, []), key=lambda e: not e[1]):  # before first
                 figures.append(ReportFigure(
                     Path(os.path.relpath(path, out)).as_posix(),
-                    f"Frame {key}, " + ("bring-up pose before refinement" if before_fig else "estimated pose")
-                    + ": LiDAR points coloured by camera depth, projected 3D boxes, 2D boxes, matched pairs",
+                    f"Frame {key}, " + ("bring-up pose, before refinement: LiDAR points coloured by camera "
+                                        "depth, projected 3D boxes (orange), 2D boxes (green)" if before_fig else
+                                        "refined pose: LiDAR points coloured by camera depth (blue near, red far), "
+                                        "projected 3D boxes (orange), 2D boxes (green), matched pairs linked"),
                     "calibration_before" if before_fig else "calibration", key))
         elif have_pose:
             ov = draw_calibration_overlay(image, pc, calibration=result, bboxes_3d=b3, bboxes_2d=b2, pairs=pairs,
