@@ -7,7 +7,7 @@ file order (a field with ``COUNT n > 1`` becomes ``name_0 .. name_{n-1}``; PCD p
 header field and what was wrong (a missing file is a ``FileNotFoundError``); nothing is returned
 half-read.
 
-The PCD parser is our own (numpy + LZF from ``python-lzf``, which ``pypcd4`` brings): pypcd4
+The PCD parser is our own (numpy + LZF from ``python-neo-lzf``): pypcd4
 1.5 accepts POINTS != WIDTH*HEIGHT, short binary payloads, stops reading the header after 10
 lines, and lays out ``COUNT > 1`` fields of binary_compressed files differently from PCL.
 """
