@@ -5,6 +5,10 @@
    false 2D detections. The 3D boxes are exact here (``center_noise_m = size_noise_frac =
    yaw_noise_deg = 0``); one extra row uses the generator's default 3D-detection noise.
    A "wrong" success is one with a rotation error > 1 deg or a translation error > 0.5 m.
+   Sites are drawn from seeds 0, 1, 2, ... until ``--sites`` of them are *identifiable*: at
+   least 3 distinct objects seen by both sensors and 20 true 2D-3D detections over the 20
+   frames (ground truth of the generator). Sites that are not (the camera sees 0-2 objects)
+   are calibrated too and must fail with a message: they are counted separately.
 2. KITTI frames 000001-000005 (one shared calibration): ``T_cam_lidar`` (camera 2) from the
    label boxes with P2 as intrinsics, compared with the file's Tr_velo_to_cam.
 3. A9 sample (16 real frames, no labels): residuals, matched pairs, box-centre offset, and the
@@ -34,6 +38,18 @@ OUT = REPO / "benchmarks" / "results" / "calibration.json"
 NOISE_3D_OFF = dict(center_noise_m=0.0, size_noise_frac=0.0, yaw_noise_deg=0.0)
 
 
+def _identifiable(frames) -> tuple[bool, int, int]:
+    """(identifiable, distinct objects seen by both sensors, true 2D-3D detections)."""
+    ids = set()
+    n_true = 0
+    for f in frames:
+        mm = f.match_matrix
+        rows = np.flatnonzero(mm.any(1))
+        n_true += len(rows)
+        ids.update(int(f.meta["ids_2d"][i]) for i in rows)
+    return len(ids) >= 3 and n_true >= 20, len(ids), n_true
+
+
 def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
     from xcalib.calib.api import calibrate
     from xcalib.data.synth import generate_frames, sample_site
@@ -43,37 +59,48 @@ def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
     configs.append(("1 px, synth default 3D noise", dict(box_noise_px=1.0)))
     for name, noise in configs:
         recs = []
-        for seed in range(n_sites):
+        seed = 0
+        while sum(r["identifiable"] for r in recs) < n_sites:
             site = sample_site(seed, preset="roadside")
             frames = generate_frames(site, n_frames, seed=seed, render_images=False, lidar=False,
                                      miss_rate_2d=0.1, false_positive_rate_2d=0.05, **noise)
+            ident, n_obj, n_true = _identifiable(frames)
             t0 = time.perf_counter()
             res = calibrate(frames, frames[0].intrinsics)
             dt = time.perf_counter() - t0
-            rec = {"seed": seed, "success": bool(res.success), "time_s": dt, "message": res.message,
+            rec = {"seed": seed, "identifiable": ident, "objects": n_obj, "true_pairs": n_true,
+                   "success": bool(res.success), "time_s": dt, "message": res.message,
                    "n_pairs": res.n_pairs, "n_2d": int(sum(f.num_2d for f in frames))}
             if res.success:
                 rec["rot_deg"], rec["trans_m"] = res.pose_error(frames[0].extrinsics)
                 rec["rot_std_deg"] = float(np.max(res.rotation_std_deg))
                 rec["trans_std_m"] = float(np.max(res.translation_std_m))
             recs.append(rec)
-            log(f"  {name:>30} site {seed:3d}: {'ok ' if res.success else 'FAIL'} "
+            log(f"  {name:>30} site {seed:3d}{'' if ident else ' (not identifiable)'}: "
+                f"{'ok ' if res.success else 'FAIL'} "
                 + (f"{rec['rot_deg']:.4f} deg {rec['trans_m']:.4f} m" if res.success else res.message[:60])
                 + f"  ({dt:.1f} s)")
-        ok = [r for r in recs if r["success"]]
+            seed += 1
+        idr = [r for r in recs if r["identifiable"]]
+        ok = [r for r in idr if r["success"]]
         rot = np.array([r["rot_deg"] for r in ok]) if ok else np.zeros(0)
         tr = np.array([r["trans_m"] for r in ok]) if ok else np.zeros(0)
         wrong = int(np.sum((rot > 1.0) | (tr > 0.5)))
+        non = [r for r in recs if not r["identifiable"]]
+        non_wrong = sum(1 for r in non if r["success"] and (r["rot_deg"] > 1.0 or r["trans_m"] > 0.5))
         rows.append({
-            "config": name, "noise": noise, "sites": n_sites, "frames": n_frames,
-            "success_rate": len(ok) / max(n_sites, 1), "wrong_successes": wrong,
+            "config": name, "noise": noise, "sites": len(idr), "frames": n_frames,
+            "success_rate": len(ok) / max(len(idr), 1), "wrong_successes": wrong,
             "rot_deg_median": float(np.median(rot)) if len(rot) else None,
             "rot_deg_p90": float(np.percentile(rot, 90)) if len(rot) else None,
             "trans_m_median": float(np.median(tr)) if len(tr) else None,
             "trans_m_p90": float(np.percentile(tr, 90)) if len(tr) else None,
-            "time_s_median": float(np.median([r["time_s"] for r in recs])),
-            "failures": [{"seed": r["seed"], "message": r["message"], "n_2d": r["n_2d"]} for r in recs
-                         if not r["success"]],
+            "time_s_median": float(np.median([r["time_s"] for r in idr])),
+            "non_identifiable_sites": len(non),
+            "non_identifiable_failed": sum(1 for r in non if not r["success"]),
+            "non_identifiable_wrong_successes": non_wrong,
+            "failures": [{"seed": r["seed"], "message": r["message"], "objects": r["objects"],
+                          "true_pairs": r["true_pairs"]} for r in idr if not r["success"]],
             "per_site": recs,
         })
     return rows
@@ -154,14 +181,17 @@ def main(argv=None) -> int:
     result["kitti"] = _kitti()
     result["synthetic"] = [] if args.skip_synth else _synthetic(n_sites, args.levels, args.frames, log)
 
-    print("\nSynthetic roadside sites (20 frames, 10% missed + 5% false 2D boxes, no initial guess)")
+    print("\nSynthetic roadside sites (20 frames, 10% missed + 5% false 2D boxes, no initial guess; "
+          "rot in deg, trans in m;\n'wrong' = successes off by > 1 deg or > 0.5 m; non-identifiable sites "
+          "(< 3 objects or < 20 true pairs) must fail)")
     print(f"{'config':>30} {'sites':>5} {'success':>8} {'wrong':>5} {'rot med':>9} {'rot p90':>9} "
-          f"{'trans med':>9} {'trans p90':>9} {'time med':>8}")
+          f"{'trans med':>9} {'trans p90':>9} {'time med':>8} {'non-ident. failed':>17}")
     for r in result["synthetic"]:
         f = (lambda v, d=4: "-" if v is None else f"{v:.{d}f}")
         print(f"{r['config']:>30} {r['sites']:>5} {r['success_rate'] * 100:>7.1f}% {r['wrong_successes']:>5} "
               f"{f(r['rot_deg_median']):>9} {f(r['rot_deg_p90']):>9} {f(r['trans_m_median']):>9} "
-              f"{f(r['trans_m_p90']):>9} {r['time_s_median']:>7.2f}s")
+              f"{f(r['trans_m_p90']):>9} {r['time_s_median']:>7.2f}s "
+              f"{r['non_identifiable_failed']:>8}/{r['non_identifiable_sites']:<8}")
     k = result["kitti"]
     if k:
         print("\nKITTI 000001-000005 (label boxes, P2):", "OK" if k["success"] else f"FAILED ({k['message']})")

@@ -9,7 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["estimate_yaw_from_points"]
+__all__ = ["estimate_yaw_from_points", "shapes_from_points"]
+
+# fixed, well-spread unit directions (Fibonacci sphere) for picking hull extremes
+_n = np.arange(64) + 0.5
+_phi = np.arccos(1 - 2 * _n / 64)
+_theta = np.pi * (1 + 5 ** 0.5) * _n
+_DIRS = np.stack([np.cos(_theta) * np.sin(_phi), np.sin(_theta) * np.sin(_phi), np.cos(_phi)], 1)
+del _n, _phi, _theta
 
 
 def estimate_yaw_from_points(boxes7: np.ndarray, points: np.ndarray, *, min_points: int = 12,
@@ -62,7 +69,7 @@ def estimate_yaw_from_points(boxes7: np.ndarray, points: np.ndarray, *, min_poin
 
 
 def shapes_from_points(boxes7: np.ndarray, corners: np.ndarray, points: np.ndarray, *, min_points: int = 15,
-                       max_vertices: int = 64, ground_clearance_m: float = 0.2,
+                       max_vertices: int = 40, ground_clearance_m: float = 0.2,
                        expansion: float = 1.1) -> tuple[np.ndarray, np.ndarray]:
     """Per-box outline points [M,S,3] (LiDAR frame, metres) from the LiDAR points inside each box.
 
@@ -96,7 +103,7 @@ def shapes_from_points(boxes7: np.ndarray, corners: np.ndarray, points: np.ndarr
                 hv = p[ConvexHull(p).vertices]
                 if len(hv) > max_vertices:
                     # keep the extremes along many directions
-                    dirs = np.random.default_rng(0).normal(size=(max_vertices // 2, 3))
+                    dirs = _DIRS[: max(max_vertices // 2, 3)]
                     proj = hv @ dirs.T
                     keep = np.unique(np.concatenate([proj.argmax(0), proj.argmin(0)]))
                     hv = hv[keep]

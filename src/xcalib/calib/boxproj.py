@@ -37,17 +37,21 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
     if M == 0:
         out = np.zeros((H, 0, 4)), np.zeros((H, 0), dtype=bool)
         return (out[0][0], out[1][0]) if single else out
-    X = np.einsum("hij,msj->hmsi", R, c) + t[:, None, None, :]
-    z = X[..., 2]
+    S = c.shape[1]
+    X = np.matmul(R, c.reshape(-1, 3).T) + t[:, :, None]  # [H,3,M*S] (batched BLAS)
+    z = X[:, 2].reshape(H, M, S)
     front = np.all(z > MIN_DEPTH_M, axis=2)
-    zs = np.where(z > MIN_DEPTH_M, z, np.nan)
-    xy = X[..., :2] / zs[..., None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(z > MIN_DEPTH_M, 1.0 / z, np.nan)
+    x = X[:, 0].reshape(H, M, S) * inv
+    y = X[:, 1].reshape(H, M, S) * inv
     if intr.distortion is not None:
         # The polynomial model is meaningless far outside the field of view; clamp first.
-        flat = np.clip(xy.reshape(-1, 2), -1.5, 1.5)
-        xy = distort_normalized(flat, intr.distortion).reshape(xy.shape)
-    u = xy[..., 0] * intr.fx + intr.cx
-    v = xy[..., 1] * intr.fy + intr.cy
+        flat = np.clip(np.stack([x.ravel(), y.ravel()], 1), -1.5, 1.5)
+        d = distort_normalized(flat, intr.distortion)
+        x, y = d[:, 0].reshape(H, M, S), d[:, 1].reshape(H, M, S)
+    u = x * intr.fx + intr.cx
+    v = y * intr.fy + intr.cy
     with np.errstate(invalid="ignore"):
         rect = np.stack([u.min(2), v.min(2), u.max(2), v.max(2)], axis=-1)
     if clip:

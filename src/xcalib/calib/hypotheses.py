@@ -253,7 +253,8 @@ def score_poses(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nda
     if fr.n2 == 0 or fr.n3 == 0:
         return out
     for s in range(0, len(R), chunk):
-        rects, _ = project_rects(fr.corners, R[s:s + chunk], t[s:s + chunk], intr, fr.size)
+        shape = fr.corners if fr.box_corners is None else fr.box_corners
+        rects, _ = project_rects(shape, R[s:s + chunk], t[s:s + chunk], intr, fr.size)
         iou = iou_batched(rects, fr.boxes2d)  # [h,K,M]
         best = iou.max(2)
         # a 2D box explained by a 3D box that another 2D box explains better counts once:

@@ -36,6 +36,7 @@ class CalibFrame:
     idx2d: np.ndarray
     idx3d: np.ndarray
     size: tuple[int, int]
+    box_corners: np.ndarray | None = None
     points: np.ndarray | None = None
     image: np.ndarray | None = None
     gt: np.ndarray | None = None
@@ -158,7 +159,8 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
             meta = {**meta, "boxes_from_points": int(from_pts.sum())}
         out.append(CalibFrame(
             key=str(key), camera=cam, boxes2d=b2[idx2].astype(np.float64), boxes3d=box7,
-            corners=shapes, idx2d=idx2, idx3d=idx3,
+            corners=shapes, box_corners=box7_corners(box7) if len(box7) else np.zeros((0, 8, 3)),
+            idx2d=idx2, idx3d=idx3,
             size=size, points=p, image=None if image is None else np.asarray(image),
             gt=None if gt is None else np.asarray(gt, dtype=np.float64), meta=meta,
         ))
