@@ -102,13 +102,15 @@ def main() -> None:
     for r in rows:
         if r["size"] in ref:
             r["speedup_vs_crlite_default"] = ref[r["size"]] / r["p50_ms"]
-    print("\n| model | config | size | p50 ms | x vs crlite(default) |\n|---|---|---|---|---|")
+    print(f"load average (1/5/15 min): {os.getloadavg()}")
+    print("\n| model | config | size | p50 ms | min ms | x vs crlite(default) |\n|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['model']} | {r['config']} | {r['size']} | {r['p50_ms']:.2f} | "
+        print(f"| {r['model']} | {r['config']} | {r['size']} | {r['p50_ms']:.2f} | {r['min_ms']:.2f} | "
               f"{r.get('speedup_vs_crlite_default', float('nan')):.1f} |")
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps({"threads": args.threads, "torch": torch.__version__, "cpu": platform.processor() or
-                               platform.machine(), "a9_source": a9_source, "rows": rows}, indent=1))
+                               platform.machine(), "a9_source": a9_source, "loadavg_1_5_15": list(os.getloadavg()),
+                               "rows": rows}, indent=1))
     print(f"wrote {OUT}")
 
 
