@@ -96,7 +96,7 @@ def _collinear(P: np.ndarray, tol: float) -> bool:
 
 def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: float = 0.3,
               max_hyp_frames: int = 10, max_refine: int = 6, min_pairs: int = 4,
-              ambiguity_ratio: float = 0.85, max_rot_std_deg: float = 1.0, max_trans_std_m: float = 0.5,
+              ambiguity_ratio: float = 0.85, max_rot_std_deg: float = 0.5, max_trans_std_m: float = 0.25,
               reestimate_yaw: str | bool = "auto", box_model: str = "auto", max_baseline_m: float | None = 8.0,
               min_explained: float = 0.3, seed: int = 0,
               progress: Callable[[str, int, int], None] | None = None) -> CalibrationResult:
@@ -177,11 +177,20 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
             pool = sparse[::step] if len(sparse) > per * max_hyp_frames else sparse
             groups += [pool[k:k + per] for k in range(0, len(pool), per) if len(pool[k:k + per]) > 0]
             groups = groups[: max(max_hyp_frames, 1)]
+        # few detections in all: search exhaustively-ish (cheap here) so that a second pose that
+        # explains the boxes as well is found, and reported as an ambiguity, not silently dropped
+        sparse_scene = n2 <= 80
+        if sparse_scene:
+            every = [i for i, f in enumerate(cframes) if f.n2 and f.n3]
+            groups.append(every)
+        meta["sparse_search"] = bool(sparse_scene)
         parts = []
         for k, g in enumerate(groups):
             gs = [sims[i] for i in g]
+            big = sparse_scene and len(g) > 1
             h = frame_hypotheses([cframes[i] for i in g], intr, g[0], prior_sims=gs, rng=rng,
-                                 max_baseline_m=max_baseline_m)
+                                 max_baseline_m=max_baseline_m, max_triples=20000 if big else 3000,
+                                 keep=60 if big else 25)
             if any(x is not None for x in gs) and len(h) == 0:
                 h = frame_hypotheses([cframes[i] for i in g], intr, g[0], rng=rng, max_baseline_m=max_baseline_m)
             parts.append(h)
@@ -200,7 +209,7 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
             total += score_poses(fr, intr, hyps.R, hyps.t)
         hyps.score = total
     meta["n_hypotheses"] = int(len(hyps))
-    cand = _nms(hyps, max_refine)
+    cand = _nms(hyps, max_refine * 2 if meta.get("sparse_search") else max_refine)
     meta["bringup_T"] = np.vstack([np.hstack([cand.R[0], cand.t[0][:, None]]), [0, 0, 0, 1]]).tolist()
 
     # ---------------------------------------------------------------- refinement
