@@ -116,7 +116,9 @@ def _residual_fn(corners, obs, intr, size, R0, t0):
 
 def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6):
     """1-sigma (rotation deg about camera x,y,z; translation m along camera x,y,z) from the
-    Jacobian at the optimum: cov = (J^T J)^-1 * sigma^2, sigma from the inlier residuals (MAD)."""
+    Jacobian at the optimum: the larger (per parameter) of the classic (J^T J)^-1 * sigma^2
+    (sigma from the inlier residuals) and the cluster-robust sandwich with one cluster per
+    matched pair (its 4 edges share the box-model error)."""
     corners, obs = _stack(frames, pairs)
     nan3 = np.full(3, np.nan)
     if len(obs) < 2:
@@ -136,10 +138,18 @@ def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6):
     sigma2 = np.sum(r0[inl] ** 2) / dof
     JtJ = J[inl].T @ J[inl]
     try:
-        cov = np.linalg.inv(JtJ) * sigma2
+        A = np.linalg.inv(JtJ)
     except np.linalg.LinAlgError:
         return nan3, nan3, np.full((6, 6), np.nan)
-    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    cov = A * sigma2
+    # sandwich: per-pair score vectors g_c = J_c^T r_c over the inlier edges of pair c
+    g = ((J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 6)).sum(1)  # [n_pairs, 6]
+    nc = int(np.sum(inl.reshape(-1, 4).any(1)))
+    meat = g.T @ g * (nc / max(nc - 6, 1))
+    cov_s = A @ meat @ A
+    if np.trace(cov_s) > np.trace(cov):
+        cov = cov_s
+    sd = np.sqrt(np.clip(np.maximum(np.diag(A * sigma2), np.diag(cov_s)), 0, None))
     return np.degrees(sd[:3]), sd[3:], cov
 
 
