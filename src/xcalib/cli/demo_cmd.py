@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import html
 import json
+import logging
 import time
 from pathlib import Path
 from typing import Optional
@@ -147,8 +148,6 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.panel import Panel
         from rich.table import Table
-
-        import logging
 
         from . import _demo
 
