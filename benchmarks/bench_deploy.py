@@ -75,7 +75,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=20)
     ap.add_argument("--budget-s", type=float, default=20.0, help="time budget per timing (min 3 runs)")
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--cache-frames", type=int, default=6, help="frames of the synthetic test cache (0: skip)")
+    ap.add_argument("--cache-frames", type=int, default=10, help="frames of the synthetic test cache (0: skip)")
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--merge", action="store_true", help="keep the other models' results already in --out")
     args = ap.parse_args(argv)
@@ -95,7 +95,7 @@ def main(argv=None) -> int:
         tmp = Path(tmp)
         cache = None
         if args.cache_frames > 0:
-            write_site(tmp / "site", 0, 0, args.cache_frames, seed=3)
+            write_site(tmp / "site", 0, 0, args.cache_frames, seed=0)
             cache = tmp / "site" / "test.h5"
         for name in args.models:
             m, weights = _matcher(name, tmp)
@@ -110,7 +110,8 @@ def main(argv=None) -> int:
                 "a9": {"torch": _p50(lambda: m.match_frame(frame, validate="off"), args.repeat, args.budget_s),
                        "onnx": _p50(lambda: om.match_frame(frame, validate="off"), args.repeat, args.budget_s)},
             }
-            entry = {"weights": weights, "parity": res.parity, "parity_ok": res.parity_ok,
+            cfg = {k: m.config.get(k) for k in ("crop_size", "point_cloud_size", "embed_dim")}
+            entry = {"weights": weights, "config": cfg, "parity": res.parity, "parity_ok": res.parity_ok,
                      "max_parity_error": res.max_parity_error, "export_s": export_s, "latency": lat}
             if cache is not None:
                 with CacheReader(cache) as reader:
@@ -139,7 +140,8 @@ def main(argv=None) -> int:
     import onnxruntime
 
     report = {"benchmark": "deploy", "a9_source": a9_source, "threads": args.threads,
-              "cache": f"synthetic roadside site seed 3, {args.cache_frames} test frames" if args.cache_frames else None,
+              "cache": (f"synthetic roadside site seed 0 (the shipped 'synthetic' site), {args.cache_frames} held-out "
+                        "test frames") if args.cache_frames else None,
               "gpu": "not measured (no GPU lent to this run)", "python": sys.version.split()[0],
               "torch": torch.__version__, "onnxruntime": onnxruntime.__version__, "machine": platform.machine(),
               "cpu_count": os.cpu_count(), "results": results}
