@@ -97,9 +97,12 @@ def _nice_step(span_m: float, target_lines: int = 6) -> float:
 def _text(img, s: str, org, color=_WHITE, scale: float = 0.5, thick: int = 1) -> None:
     import cv2
 
-    org = (int(org[0]), int(org[1]))
-    cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
-    cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, tuple(int(c) for c in color), thick, cv2.LINE_AA)
+    x, y = int(org[0]), int(org[1])
+    # dark halo from offset copies: a thicker stroke would advance each glyph further (OpenCV adds
+    # the thickness to the advance) and leave a shifted ghost after the text
+    for dx, dy in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, 1), (-1, 1), (1, -1)):
+        cv2.putText(img, s, (x + dx, y + dy), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick, cv2.LINE_AA)
+    cv2.putText(img, s, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, tuple(int(c) for c in color), thick, cv2.LINE_AA)
 
 
 def _dashed_polygon(img, pts: np.ndarray, color, thick: int = 1, dash: float = 7.0) -> None:
