@@ -133,3 +133,15 @@ def test_impossible_intrinsics_raise(site):
 def test_empty_frames_raise():
     with pytest.raises(ValueError, match="at least one frame"):
         calibrate([], INTR)
+
+
+def test_bringup_with_lens_distortion():
+    intr = CameraIntrinsics(1300.0, 1300.0, 960.0, 600.0, distortion=[-0.12, 0.02, 1e-4, -2e-4, 0.0],
+                            width=1920, height=1200)
+    frames, T = sim_frames(seed=3, n_frames=6, intr=intr)
+    res = calibrate(frames, intr)
+    assert res.success, res.message
+    assert res.pose_error(T)[0] < 0.15 and res.pose_error(T)[1] < 0.1
+    # ignoring the distortion must not fit as well
+    plain = calibrate(frames, CameraIntrinsics(1300.0, 1300.0, 960.0, 600.0, width=1920, height=1200))
+    assert (not plain.success) or plain.residual_px_median > 2 * res.residual_px_median
