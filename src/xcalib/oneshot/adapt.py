@@ -124,13 +124,14 @@ def _block(targets: Sequence[PseudoTargets], device) -> tuple[torch.Tensor, torc
 
 def adapt_model(model, observations: Sequence[Observation], targets: Sequence[PseudoTargets], *, steps: int,
                 n_points: int, device, mode: str = "heads", lr: float = 1e-3, frames_per_batch: int = 4,
-                anchor: float = 1e-3, holdout: float = 0.2, grad_clip: float = 5.0, keep_if_worse: bool = False,
-                min_pairs: int = 8, eval_seed: int = 0, seed: int = 0,
+                anchor: float = 1e-2, holdout: float = 0.2, grad_clip: float = 5.0, keep_if_worse: bool = False,
+                min_pairs: int = 8, eval_seed: int = 0, seed: int = 0, augment=None, p_augment: float = 0.75,
                 progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
     """Fine-tune ``model`` in place on pseudo-labelled ``observations`` (see the module docstring).
 
-    Returns an :class:`AdaptReport`; ``trained=False`` (weights untouched) when fewer than
-    ``min_pairs`` pseudo-matches are available for training.
+    ``augment``: optional :class:`xcalib.oneshot.augment.GeometricAugment` applied to a share
+    ``p_augment`` of the training frames. Returns an :class:`AdaptReport`; ``trained=False``
+    (weights untouched) when fewer than ``min_pairs`` pseudo-matches are available for training.
     """
     from ..models.inputs import ModelBatch
 
@@ -175,9 +176,14 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
             if len(order) < frames_per_batch:
                 order = np.concatenate([order, rng.permutation(len(tr))])
             pick, order = order[:frames_per_batch], order[frames_per_batch:]
-            obs = [observations[tr[i]] for i in pick]
-            tg = [targets[tr[i]] for i in pick]
-            batch = ModelBatch.from_frames([o.inputs(n_points, rng) for o in obs], device)
+            fis, tg = [], []
+            for i in pick:
+                fi, t = observations[tr[i]].inputs(n_points, rng), targets[tr[i]]
+                if augment is not None and rng.random() < p_augment:
+                    fi, t = augment.apply(fi, t, rng)
+                fis.append(fi)
+                tg.append(t)
+            batch = ModelBatch.from_frames(fis, device)
             pos, w, neg = _block(tg, device)
             for g in opt.param_groups:  # cosine decay to 5% of lr
                 g["lr"] = lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * step / max(steps, 1))))

@@ -248,22 +248,32 @@ class OneShotSession:
                 "known pose with set_calibration(...)")
         return [pseudo_targets(o, self.calibration, gate=self.gate, neg_iou=self.neg_iou) for o in self.buffer]
 
-    def adapt(self, steps: int = 300, *, lr: float = 1e-3, mode: str | None = None, frames_per_batch: int = 4,
-              anchor: float = 1e-3, holdout: float = 0.2, min_pairs: int = 8, keep_if_worse: bool = False,
+    def adapt(self, steps: int = 600, *, lr: float = 1e-3, mode: str | None = None, frames_per_batch: int = 4,
+              anchor: float = 1e-2, holdout: float = 0.2, min_pairs: int = 8, keep_if_worse: bool = False,
+              augment: bool = True, shift_m: float = 12.0, p_augment: float = 0.75,
               progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
         """Fine-tune the matcher on the pseudo-labels of the buffer (see :mod:`xcalib.oneshot.adapt`).
 
+        ``augment``: move objects through the pose (:mod:`xcalib.oneshot.augment`, up to
+        ``shift_m`` metres) in a share ``p_augment`` of the training frames, so a short recording
+        teaches the site's geometry rather than its few objects.
         Raises :class:`NotCalibratedError` before any calibration. With fewer than ``min_pairs``
         pseudo-matches it warns and returns a report with ``trained=False`` (weights untouched).
         """
         targets = self.pseudo_labels()
         obs = list(self.buffer)
         dev = self.matcher.device
+        aug = None
+        if augment:
+            from .augment import GeometricAugment
+
+            aug = GeometricAugment(self.intrinsics, self.calibration.rotation, self.calibration.translation,
+                                   shift_m=shift_m, neg_iou=self.neg_iou)
         rep = adapt_model(self.model, obs, targets, steps=int(steps), n_points=self.matcher.crop_config.point_cloud_size,
                           device=dev, mode=mode or self.mode, lr=lr, frames_per_batch=frames_per_batch, anchor=anchor,
                           holdout=holdout, min_pairs=min_pairs, keep_if_worse=keep_if_worse,
                           eval_seed=self.matcher.crop_config.seed, seed=self.seed + len(self.history),
-                          progress=progress)
+                          augment=aug, p_augment=p_augment, progress=progress)
         if not rep.trained and not rep.reverted and steps > 0:
             warnings.warn(f"OneShotSession.adapt: {rep.message}; the weights are unchanged", RuntimeWarning,
                           stacklevel=2)

@@ -1,0 +1,125 @@
+"""Geometric augmentation through the calibration: few frames, whole field of view.
+
+A short recording shows few distinct objects at few places, and a model trained on it learns
+to recognise those objects instead of the site's geometry. With the pose known, an object can
+be moved: its 3D box is shifted on the ground plane (LiDAR x, y by up to ``shift_m`` metres),
+and its 2D box is re-derived by projecting the moved box through the pose and carrying over
+the detector's offset from the projection of the original box (scaled with the projected size).
+The crops stay (image crops are size-normalised; LiDAR crops are in the box frame), so only
+the box geometry changes. Optional decoys (``p_decoy``, off by default: they lowered held-out
+Top-1 in ``benchmarks/bench_oneshot.py``) leave an unmoved copy of one side of a moved pair
+behind (its 3D box or its 2D box, never both) that matches nothing. Moved 2D boxes leaving the image (visible part < 50 % or
+smaller than ``min_box_px``) are dropped. Negatives are recomputed from the new geometry.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..data.crops import FrameInputs
+from ..geometry.boxes import box7_corners
+from ..geometry.camera import CameraIntrinsics
+from ..geometry.projection import project_points
+from .pseudo import PseudoTargets
+
+__all__ = ["GeometricAugment"]
+
+
+def _rects(box7: np.ndarray, intr: CameraIntrinsics, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Unclipped enclosing rectangles [M,4] px of projected box7 corners (NaN if any corner is behind)."""
+    if len(box7) == 0:
+        return np.zeros((0, 4))
+    c = box7_corners(box7).reshape(-1, 3)
+    uv, depth = project_points(c, intr, R, t, min_depth=0.5)
+    uv = uv.reshape(-1, 8, 2)
+    r = np.concatenate([uv.min(1), uv.max(1)], axis=1)
+    r[np.isnan(uv).any(axis=(1, 2))] = np.nan
+    return r
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU [K,M] of boxes a [K,4] with b [M,4]; NaN boxes give 0."""
+    a = np.nan_to_num(a, nan=0.0)
+    b = np.nan_to_num(b, nan=0.0)
+    x1 = np.maximum(a[:, None, 0], b[None, :, 0])
+    y1 = np.maximum(a[:, None, 1], b[None, :, 1])
+    x2 = np.minimum(a[:, None, 2], b[None, :, 2])
+    y2 = np.minimum(a[:, None, 3], b[None, :, 3])
+    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
+    area = lambda r: np.clip(r[:, 2] - r[:, 0], 0, None) * np.clip(r[:, 3] - r[:, 1], 0, None)  # noqa: E731
+    union = area(a)[:, None] + area(b)[None, :] - inter
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(union > 0, inter / union, 0.0)
+
+
+@dataclass
+class GeometricAugment:
+    """Moves objects through the pose ``R``, ``t`` (LiDAR -> camera) and ``intrinsics`` (see module)."""
+
+    intrinsics: CameraIntrinsics
+    R: np.ndarray
+    t: np.ndarray
+    shift_m: float = 12.0
+    p_move: float = 0.8
+    p_decoy: float = 0.0
+    neg_iou: float = 0.05
+    min_box_px: float = 8.0
+
+    def apply(self, fi: FrameInputs, tg: PseudoTargets, rng: np.random.Generator) -> tuple[FrameInputs, PseudoTargets]:
+        """A moved copy of one frame's inputs and targets (the inputs are not modified)."""
+        N, M = fi.num_2d, fi.num_3d
+        if N == 0 or M == 0:
+            return fi, tg
+        W, H = fi.image_size
+        b3 = fi.boxes_3d.astype(np.float64)
+        b2 = fi.boxes_2d.astype(np.float64)
+        pos = tg.positive
+        pi, pj = np.nonzero(pos)
+        move = rng.random(M) < self.p_move
+        new3 = b3.copy()
+        new3[move, :2] += rng.uniform(-self.shift_m, self.shift_m, size=(int(move.sum()), 2))
+        old_r, new_r = _rects(b3, self.intrinsics, self.R, self.t), _rects(new3, self.intrinsics, self.R, self.t)
+        # predicted 2D rectangle of every 3D box after the move (detector offset carried over for matched ones)
+        pred = new_r.copy()
+        new2 = b2.copy()
+        keep2 = np.ones(N, bool)
+        if len(pi):
+            ow = np.maximum(old_r[pj, 2] - old_r[pj, 0], 1e-3)
+            oh = np.maximum(old_r[pj, 3] - old_r[pj, 1], 1e-3)
+            sx = (new_r[pj, 2] - new_r[pj, 0]) / ow
+            sy = (new_r[pj, 3] - new_r[pj, 1]) / oh
+            off = b2[pi] - old_r[pj]
+            cand = new_r[pj] + off * np.stack([sx, sy, sx, sy], 1)
+            moved = move[pj]
+            cand = np.where(moved[:, None], cand, b2[pi])
+            clipped = cand.copy()
+            clipped[:, [0, 2]] = np.clip(clipped[:, [0, 2]], 0, W)
+            clipped[:, [1, 3]] = np.clip(clipped[:, [1, 3]], 0, H)
+            area = lambda r: np.clip(r[:, 2] - r[:, 0], 0, None) * np.clip(r[:, 3] - r[:, 1], 0, None)  # noqa: E731
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ok = np.isfinite(cand).all(1) & (area(clipped) >= 0.5 * area(cand)) & \
+                    ((clipped[:, 2] - clipped[:, 0]) >= self.min_box_px) & ((clipped[:, 3] - clipped[:, 1]) >= self.min_box_px)
+            ok |= ~moved
+            new2[pi[ok]] = clipped[ok]
+            keep2[pi[~ok]] = False
+            pred[pj] = np.where(moved[:, None], cand, b2[pi])
+        # decoys: an unmoved copy of one side of a moved pair
+        dec = np.zeros(len(pi), bool) if not len(pi) else (move[pj] & keep2[pi] & (rng.random(len(pi)) < self.p_decoy))
+        side3 = rng.random(len(pi)) < 0.5
+        d3 = pj[dec & side3]          # 3D boxes copied at their old place
+        d2 = pi[dec & ~side3]         # 2D boxes copied at their old place
+        rows = np.concatenate([np.flatnonzero(keep2), d2])
+        cols = np.concatenate([np.arange(M), d3])
+        boxes2 = np.concatenate([new2[keep2], b2[d2]]).astype(np.float32)
+        boxes3 = np.concatenate([new3, b3[d3]]).astype(np.float32)
+        pred3 = np.concatenate([pred, old_r[d3]])
+        P = np.zeros((len(rows), len(cols)), bool)
+        P[:int(keep2.sum()), :M] = pos[keep2]
+        w = np.zeros(P.shape, np.float32)
+        w[:int(keep2.sum()), :M] = tg.weight[keep2]
+        neg = (_iou(boxes2.astype(np.float64), pred3) < self.neg_iou) & ~P
+        out = FrameInputs(fi.crops_2d[rows], fi.crops_3d[cols], boxes2, boxes3, fi.point_counts[cols], fi.image_size,
+                          fi.kept_2d[rows], fi.kept_3d[cols])
+        return out, PseudoTargets(P, w, neg)

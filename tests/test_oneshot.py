@@ -1,0 +1,266 @@
+"""One-shot site adaptation: session calibration gate, pseudo-labels, loss, augmentation, adapt,
+bad input, bit-exact save/reload, site lookup, ``xcalib bootstrap``."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from _matching_frames import TINY
+from xcalib.calib.result import CalibrationResult
+from xcalib.data.synth import generate_frames, sample_site
+from xcalib.engine.matcher import Matcher
+from xcalib.models import create_model
+from xcalib.oneshot.augment import GeometricAugment, _iou, _rects
+from xcalib.oneshot.loss import weighted_matching_loss
+from xcalib.oneshot.pseudo import PseudoTargets
+from xcalib.oneshot.session import ImageSizeChangedError, NotCalibratedError, OneShotSession
+
+
+@pytest.fixture(scope="module")
+def site():
+    return sample_site(3, width=640, height=480, focal_px=560.0, n_objects=20, lidar_beams=32, lidar_azimuth_steps=512)
+
+
+@pytest.fixture(scope="module")
+def frames(site):
+    return generate_frames(site, 8, seed=1, render_images=False)
+
+
+def _matcher(seed: int = 0) -> Matcher:
+    torch.manual_seed(seed)
+    return Matcher(create_model("fastmatch", TINY["fastmatch"]), device="cpu")
+
+
+def _observe(session: OneShotSession, frames):
+    return [session.observe_frame(f, validate="off") for f in frames]
+
+
+def _gt_pose(site) -> CalibrationResult:
+    T = site.T_cam_lidar
+    return CalibrationResult(success=True, intrinsics=site.intrinsics, rotation=T[:3, :3], translation=T[:3, 3])
+
+
+def _states_equal(a: torch.nn.Module, b: torch.nn.Module) -> bool:
+    sa, sb = a.state_dict(), b.state_dict()
+    return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
+
+
+def test_session_calibrates_from_detections_on_an_explicit_schedule(site, frames):
+    s = _matcher().oneshot(site.intrinsics, min_frames=3, recalibrate_growth=1.5)
+    reps = _observe(s, frames[:6])
+    assert [r.calibration is not None for r in reps] == [False, False, True, False, True, False]  # at 3, then 5
+    assert [r.next_calibration_at for r in reps[:3]] == [3, 3, 5]
+    assert s.is_calibrated and reps[-1].calibrated
+    rot, tr = s.calibration.pose_error(site.T_cam_lidar)
+    assert rot < 1.0 and tr < 0.5
+    assert reps[-1].n_pseudo_pairs >= 5 and reps[-1].buffer_frames == 6
+    assert s.calibration.meta["buffer_frames"] >= 3 and np.isfinite(s.calibration.buffer_reproj_px)
+
+
+def test_gate_accepts_only_a_pose_that_explains_the_buffer_better(site, frames, monkeypatch):
+    import xcalib.calib.api as api
+
+    s = _matcher().oneshot(site.intrinsics, min_frames=100)  # no automatic attempt
+    _observe(s, frames[:4])
+    gt = _gt_pose(site)
+    bad = CalibrationResult(success=True, intrinsics=site.intrinsics, rotation=gt.rotation,
+                            translation=gt.translation + [1.5, 0.0, 0.0])
+    s.set_calibration(gt, lock=False)
+    monkeypatch.setattr(api, "calibrate", lambda *a, **k: bad)
+    up = s.calibrate()
+    assert up.attempted and not up.accepted and s.calibration is gt
+    assert up.candidate_score < up.current_score
+    s.set_calibration(bad, lock=False)
+    monkeypatch.setattr(api, "calibrate", lambda *a, **k: gt)
+    up = s.calibrate()
+    assert up.accepted and s.calibration is gt and up.candidate_score > up.current_score
+    s.set_calibration(bad, lock=True)  # a surveyed pose is never replaced automatically
+    up = s.calibrate()
+    assert not up.attempted and s.calibration is bad
+
+
+def test_pseudo_labels_through_the_true_pose_agree_with_ground_truth(site, frames):
+    s = _matcher().oneshot(site.intrinsics, min_frames=100)
+    _observe(s, frames[:4])
+    s.set_calibration(site.T_cam_lidar)
+    tp = n_pl = n_gt = 0
+    for obs, t, f in zip(s.buffer, s.pseudo_labels(), frames):
+        gt = f.match_matrix[np.ix_(obs.kept_2d, obs.kept_3d)]
+        tp, n_pl, n_gt = tp + int((t.positive & gt).sum()), n_pl + t.n_pairs, n_gt + int(gt.sum())
+        assert not (t.positive & t.negative).any()
+        assert np.all((t.weight > 0) == t.positive) and t.weight.max() <= 1.0
+        assert not (t.negative & gt).any()  # a true match is never used as a negative
+    assert tp / n_pl >= 0.95 and tp / n_gt >= 0.85
+
+
+def test_weighted_loss_ignores_zero_weight_rows_and_other_frames():
+    from xcalib.models.base import TrainLogits
+
+    class B:
+        seg_2d, seg_3d = torch.tensor([0, 0, 1]), torch.tensor([0, 0, 1])
+
+        def same_frame(self):
+            return self.seg_2d[:, None] == self.seg_3d[None]
+
+    pos = torch.tensor([[1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=torch.bool)
+    neg = ~pos
+    w = torch.tensor([[0.9, 0, 0], [0, 0.0, 0], [0, 0, 0.5]])  # row 1: weight 0
+    L = torch.tensor([[5.0, -5.0, 9.0], [0.0, 0.0, 9.0], [9.0, 9.0, 5.0]])
+    base = weighted_matching_loss([TrainLogits(L)], B(), pos, w, neg)
+    other = L.clone()
+    other[0, 2], other[2, 0] = -9.0, 30.0  # scores between different frames are masked
+    assert torch.allclose(weighted_matching_loss([TrainLogits(other)], B(), pos, w, neg), base)
+    only_rows = torch.tensor([[5.0, -5.0, 0.0], [7.0, 0.0, 0.0], [0.0, 0.0, 5.0]])
+    a = weighted_matching_loss([TrainLogits(only_rows)], B(), pos, w, torch.zeros_like(neg))
+    only_rows[1, 0] = -7.0
+    b = weighted_matching_loss([TrainLogits(only_rows)], B(), pos, w, torch.zeros_like(neg))
+    assert torch.allclose(a, b)  # with no negatives allowed, a zero-weight row contributes nothing
+    wrong = L.clone()
+    wrong[0] = torch.tensor([-5.0, 5.0, 9.0])
+    assert weighted_matching_loss([TrainLogits(wrong)], B(), pos, w, neg) > base + 1.0
+    logit = weighted_matching_loss([TrainLogits(L, "logit")], B(), pos, w, neg)
+    assert logit > base  # the balanced BCE is added for "logit" outputs
+
+
+def test_augmentation_moves_boxes_consistently_through_the_pose(site, frames):
+    s = _matcher().oneshot(site.intrinsics, min_frames=100)
+    _observe(s, frames[:4])
+    s.set_calibration(site.T_cam_lidar)
+    T = site.T_cam_lidar
+    targets = s.pseudo_labels()
+    rng = np.random.default_rng(0)
+    still = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3], shift_m=0.0)
+    moved = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3], shift_m=10.0, p_move=1.0)
+    before, after = [], []
+    for obs, t in zip(s.buffer, targets):
+        fi = obs.inputs(16, rng)
+        f0, t0 = still.apply(fi, t, rng)
+        np.testing.assert_array_equal(f0.boxes_2d, fi.boxes_2d)
+        np.testing.assert_array_equal(t0.positive, t.positive)
+        f1, t1 = moved.apply(fi, t, rng)
+        assert f1.crops_2d.shape[0] == f1.boxes_2d.shape[0] == t1.positive.shape[0]
+        assert f1.crops_3d.shape[0] == f1.boxes_3d.shape[0] == t1.positive.shape[1]
+        assert not np.allclose(f1.boxes_3d[:, :2], fi.boxes_3d[:, :2])
+        i, j = np.nonzero(t.positive)
+        before += list(np.diag(_iou(fi.boxes_2d[i].astype(float), _rects(fi.boxes_3d.astype(float), site.intrinsics,
+                                                                         T[:3, :3], T[:3, 3])[j])))
+        i, j = np.nonzero(t1.positive)
+        after += list(np.diag(_iou(f1.boxes_2d[i].astype(float), _rects(f1.boxes_3d.astype(float), site.intrinsics,
+                                                                        T[:3, :3], T[:3, 3])[j])))
+        assert np.all((f1.boxes_2d[:, 2] <= 640) & (f1.boxes_2d[:, 0] >= 0))
+    assert len(after) >= 5
+    assert abs(np.median(after) - np.median(before)) < 0.1  # moved pairs stay as consistent as real ones
+
+
+def test_adapt_before_any_calibration_is_a_clear_error(site, frames):
+    s = _matcher().oneshot(site.intrinsics, min_frames=100)
+    _observe(s, frames[:2])
+    with pytest.raises(NotCalibratedError, match="no calibration yet after 2 observed frame"):
+        s.adapt(steps=5)
+
+
+def test_image_size_change_mid_session_is_rejected_and_not_buffered(site, frames):
+    s = _matcher().oneshot(site.intrinsics, min_frames=100)
+    _observe(s, frames[:1])
+    f = frames[1]
+    small = np.zeros((240, 320, 3), np.uint8)
+    with pytest.raises(ImageSizeChangedError, match=r"320x240 px but this session's camera is 640x480"):
+        s.observe(small, f.point_cloud, f.bboxes_2d / 2, f.bboxes_3d, validate="off")
+    assert len(s.buffer) == 1 and s.n_observed == 1
+
+
+def test_too_few_pseudo_labels_warn_and_leave_weights_untouched(site, frames):
+    m = _matcher()
+    s = m.oneshot(site.intrinsics, min_frames=100)
+    _observe(s, frames[:3])
+    T = site.T_cam_lidar.copy()
+    T[:3, :3] = np.diag([-1.0, 1.0, -1.0]) @ T[:3, :3]  # camera turned around: nothing projects into view
+    s.set_calibration(T)
+    before = {k: v.clone() for k, v in m.model.state_dict().items()}
+    with pytest.warns(RuntimeWarning, match="pseudo-labelled pair"):
+        rep = s.adapt(steps=5)
+    assert not rep.trained and rep.n_pairs < 8
+    assert all(torch.equal(before[k], v) for k, v in m.model.state_dict().items())
+
+
+def test_adapt_learns_the_pseudo_labels_and_reloads_bit_exactly(site, frames, tmp_path, monkeypatch):
+    m = _matcher()
+    s = m.oneshot(site.intrinsics, min_frames=100, seed=0)
+    _observe(s, frames)
+    s.set_calibration(site.T_cam_lidar)
+    rep = s.adapt(steps=40, holdout=0.25)
+    assert rep.trained and not rep.reverted and rep.n_heldout_frames == 2
+    assert rep.loss_last < rep.loss_first
+    assert rep.top1_after >= rep.top1_before
+    # the base weights are kept: they differ from the adapted ones and come back exactly
+    assert not all(torch.equal(s.base_state[k], v) for k, v in m.model.state_dict().items())
+    paths = s.save(tmp_path / "adapted")
+    assert json.loads(paths["oneshot"].read_text())["adapt"][0]["trained"] is True
+    assert CalibrationResult.load(paths["calibration"]).pose_error(site.T_cam_lidar)[0] < 1e-6
+    again = Matcher.from_pretrained("fastmatch", weights=tmp_path / "adapted", device="cpu")
+    assert _states_equal(again.model, m.model)
+    f = frames[0]
+    np.testing.assert_array_equal(again.match(*f.inputs(), validate="off").similarity,
+                                  m.match(*f.inputs(), validate="off").similarity)
+    monkeypatch.setenv("XCALIB_HOME", str(tmp_path / "home"))
+    s.save_site("my_site")
+    assert _states_equal(Matcher.from_pretrained("fastmatch", site="my_site", device="cpu").model, m.model)
+    with pytest.raises(ValueError, match="plain folder name"):
+        s.save_site("../escape")
+    s.reset_weights()
+    assert all(torch.equal(s.base_state[k], v) for k, v in m.model.state_dict().items())
+
+
+def test_observe_crops_once_and_matches_like_matcher(site, frames):
+    m = _matcher()
+    s = m.oneshot(site.intrinsics, min_frames=100)
+    f = frames[0]
+    s.observe_frame(f, validate="off")
+    obs = s.buffer[0]
+    cfg = m.crop_config
+    sim_session = m.similarity(obs.inputs(cfg.point_cloud_size, np.random.default_rng(cfg.seed)))
+    mr = m.match(*f.inputs(), validate="off")
+    np.testing.assert_array_equal(obs.kept_2d, mr.kept_2d_indices)
+    np.testing.assert_array_equal(obs.kept_3d, mr.kept_3d_indices)
+    np.testing.assert_allclose(sim_session, mr.similarity, atol=1e-6)
+    assert obs.frame.image.strides[:2] == (0, 0)  # no image pixels kept in the buffer
+
+
+def test_set_calibration_rejects_failed_results_and_non_rotations(site):
+    s = _matcher().oneshot(site.intrinsics)
+    with pytest.raises(ValueError, match="failed"):
+        s.set_calibration(CalibrationResult(success=False, message="nope"))
+    with pytest.raises(ValueError, match="not a rotation"):
+        s.set_calibration(np.diag([2.0, 1.0, 1.0, 1.0]))
+    with pytest.raises(ValueError, match="4x4"):
+        s.set_calibration(np.eye(3))
+    with pytest.raises(ValueError, match="mode"):
+        _matcher().oneshot(site.intrinsics, mode="everything")
+
+
+def test_cli_bootstrap_installs_site_weights(site, frames, tmp_path, monkeypatch):
+    from xcalib.cli import main
+    from xcalib.io.hdf5 import CacheWriter
+
+    cache = tmp_path / "rec.h5"
+    with CacheWriter(cache, camera_names=[site.camera_name], lidar_name=site.lidar_name,
+                     label_sensor=site.camera_name) as w:
+        for f in generate_frames(site, 6, seed=4, render_images=False):
+            f.match_matrix = None  # unlabelled recording
+            w.add(f)
+    K = tmp_path / "K.json"
+    K.write_text(json.dumps(site.intrinsics.to_dict()))
+    monkeypatch.setenv("XCALIB_HOME", str(tmp_path / "home"))
+    rc = main(["bootstrap", str(cache), "--intrinsics", str(K), "--site", "cli_site", "--init", "scratch",
+               "--steps", "5", "--limit", "5", "--json"])
+    assert rc == 0
+    m = Matcher.from_pretrained("fastmatch", site="cli_site", device="cpu")
+    assert m.weights_path.parent == tmp_path / "home" / "sites" / "cli_site"
+    assert (m.weights_path.parent / "calibration.json").is_file()
+    rc = main(["bootstrap", str(cache), "--site", "x", "--no-install"])
+    assert rc == 2  # --no-install needs --out
