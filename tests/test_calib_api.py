@@ -145,3 +145,10 @@ def test_bringup_with_lens_distortion():
     # ignoring the distortion must not fit as well
     plain = calibrate(frames, CameraIntrinsics(1300.0, 1300.0, 960.0, 600.0, width=1920, height=1200))
     assert (not plain.success) or plain.residual_px_median > 2 * res.residual_px_median
+
+
+def test_one_object_per_frame_is_not_identifiable():
+    frames, T = sim_frames(seed=8, n_frames=10, n_objects=(1, 2), miss=0.0, false_pos=0.0, extra_3d=3)
+    res = calibrate(frames, INTR)
+    assert not res.success
+    assert "not identifiable" in res.message or "ambiguous" in res.message or "too few" in res.message

@@ -264,7 +264,11 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
     # ------------------------------------------------------------------ decision
     need = max(min_pairs, 3)
     why = None
-    if n_pairs < need or n_pairs < min_explained * n2:
+    most = max((len(p) for p in pairs), default=0)
+    if most < 3:
+        why = (f"not identifiable: no frame has 3 or more objects matched between the sensors (at most {most}); "
+               "one or two objects, even moving, leave the pose ambiguous")
+    elif n_pairs < need or n_pairs < min_explained * n2:
         why = (f"the best pose explains only {n_pairs} of {n2} 2D boxes (need {max(need, int(np.ceil(min_explained * n2)))}); "
                "too few objects seen by both sensors, or no pose explains the detections")
     elif runner >= ambiguity_ratio * best_score:
