@@ -148,7 +148,8 @@ def test_bringup_with_lens_distortion():
 
 
 def test_one_object_per_frame_is_not_identifiable():
-    frames, T = sim_frames(seed=8, n_frames=10, n_objects=(1, 2), miss=0.0, false_pos=0.0, extra_3d=3)
+    frames, T = sim_frames(seed=8, n_frames=10, n_objects=(1, 2), miss=0.0, false_pos=0.0, extra_3d=0)
+    assert max(f.num_2d for f in frames) == 1
     res = calibrate(frames, INTR)
     assert not res.success
     assert "not identifiable" in res.message or "ambiguous" in res.message or "too few" in res.message
