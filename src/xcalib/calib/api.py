@@ -6,8 +6,9 @@ Pipeline (one static rig, one pose for all frames):
 2. bring-up: pose hypotheses from box triples per frame (``hypotheses``), pooled over frames
    and re-scored on all frames by how well every projected 3D box explains the 2D boxes;
 3. refinement of the best distinct hypotheses over all frames (``refine.refine_pose``);
-4. decision: the best pose must explain enough boxes and be clearly better than the runner-up,
-   otherwise ``success=False`` with a message saying why.
+4. decision: the best pose must match 3+ objects in some frame, explain enough of the 2D boxes,
+   be clearly better than any distinct runner-up and be well constrained (1-sigma from the
+   Jacobian), otherwise ``success=False`` with a message saying why.
 
 A matcher's similarities (``matcher.match``) and a ``prior`` pose only seed the hypotheses;
 every pose is judged by geometry alone.
