@@ -72,6 +72,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--runs", type=int, default=20)
     ap.add_argument("--configs", nargs="*", default=["default", "shipped"])
+    ap.add_argument("--tag", default="", help="write results/matching_<tag>.json instead of matching.json")
     args = ap.parse_args()
     import torch
 
@@ -107,11 +108,12 @@ def main() -> None:
     for r in rows:
         print(f"| {r['model']} | {r['config']} | {r['size']} | {r['p50_ms']:.2f} | {r['min_ms']:.2f} | "
               f"{r.get('speedup_vs_crlite_default', float('nan')):.1f} |")
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps({"threads": args.threads, "torch": torch.__version__, "cpu": platform.processor() or
+    out = OUT.with_name(f"matching_{args.tag}.json") if args.tag else OUT
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"threads": args.threads, "torch": torch.__version__, "cpu": platform.processor() or
                                platform.machine(), "a9_source": a9_source, "loadavg_1_5_15": list(os.getloadavg()),
                                "rows": rows}, indent=1))
-    print(f"wrote {OUT}")
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":

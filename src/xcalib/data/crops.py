@@ -5,8 +5,9 @@ Image crops (:func:`crop_images`)
     With ``keep_aspect`` (default) the box is first grown to a square about its centre, so
     objects are not stretched. Parts of the (square) box outside the image are filled with the
     normalisation mean, i.e. 0 after normalisation; boxes are never dropped just because they
-    touch or cross an image border. Downscaling uses area averaging (no aliasing), upscaling
-    bilinear. Values: uint8 -> /255 (float images are taken as already in [0, 1]), then
+    touch or cross an image border. Downscaling subsamples big boxes to about twice the output
+    size, then area-averages (little aliasing, cheap); upscaling is bilinear. Values: uint8 ->
+    /255 (float images are taken as already in [0, 1]), then
     ``(x - IMAGENET_MEAN) / IMAGENET_STD`` per channel when ``normalize``. Layout [N,3,S,S].
     Dropped: boxes with x2<=x1 or y2<=y1, non-finite boxes, boxes entirely outside the image.
 
@@ -141,6 +142,9 @@ def crop_images(image: np.ndarray, bboxes_2d, crop_size: int = 32, *, keep_aspec
         ox1 = int(np.clip(round((ix1[k] - src[k, 0]) * S / w), ox0 + 1, S))
         oy1 = int(np.clip(round((iy1[k] - src[k, 1]) * S / h), oy0 + 1, S))
         patch = image[iy0[k]:iy1[k], ix0[k]:ix1[k]]
+        step = int(min(patch.shape[0] / (oy1 - oy0), patch.shape[1] / (ox1 - ox0)) // 2)
+        if step > 1:  # big box: subsample to ~2x the output size first, then area-average
+            patch = patch[::step, ::step]
         shrink = patch.shape[0] > (oy1 - oy0) or patch.shape[1] > (ox1 - ox0)
         patch = cv2.resize(patch, (ox1 - ox0, oy1 - oy0),
                            interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
@@ -161,7 +165,8 @@ def gather_box_points(points: np.ndarray, boxes7: np.ndarray, expansion: float =
     b = np.asarray(boxes7, dtype=np.float64).reshape(-1, 7)
     xyz = np.asarray(points)[:, :3]
     mask = points_in_boxes(xyz, b, expansion=expansion)
-    mi, pi = np.nonzero(mask)
+    flat = np.flatnonzero(mask)  # row-major: grouped box by box (much faster than 2D nonzero)
+    mi, pi = flat // mask.shape[1], flat % mask.shape[1]
     counts = np.bincount(mi, minlength=len(b)).astype(np.int64)
     d = xyz[pi].astype(np.float64) - b[mi, :3]
     c, s = np.cos(b[mi, 6]), np.sin(b[mi, 6])
