@@ -84,7 +84,9 @@ def synthetic(args, tmp: Path) -> dict:
     t_base = time.perf_counter() - t0
     test_a = generate_frames(site_a, args.test_frames, seed=103)
     adapt_b = generate_frames(site_b, args.adapt_frames, seed=201)
-    test_b = generate_frames(site_b, args.test_frames, seed=202)
+    # held-out sequences of B; seed 202 was the split used while choosing the adaptation defaults
+    test_b_split = {sd: generate_frames(site_b, args.test_frames, seed=sd) for sd in args.test_seeds}
+    test_b = [f for fr in test_b_split.values() for f in fr]
     a_before = _top1(matcher, test_a)
     b_before = _top1(matcher, test_b)
 
@@ -101,6 +103,7 @@ def synthetic(args, tmp: Path) -> dict:
     session.calibrate()
     t_obs = time.perf_counter() - t1
     cal = session.calibration
+    cal_frames = len(cal.pairs)
     rot_err, tr_err = cal.pose_error(site_b.T_cam_lidar)
     # pseudo-label quality against the (hidden) ground truth of the adaptation frames
     targets = session.pseudo_labels()
@@ -114,6 +117,7 @@ def synthetic(args, tmp: Path) -> dict:
     rep = session.adapt(steps=args.steps)
     t_adapt = time.perf_counter() - t2
     b_after = _top1(matcher, test_b)
+    per_split = {str(sd): _top1(matcher, fr)["top1"] for sd, fr in test_b_split.items()}
     a_after = _top1(matcher, test_a)
     # bit-exact reload of the adapted weights
     from xcalib.engine.matcher import Matcher
@@ -132,9 +136,10 @@ def synthetic(args, tmp: Path) -> dict:
         "top1_site_a_before": a_before["top1"], "top1_site_a_after": a_after["top1"],
         "top1_site_b_before": b_before["top1"], "top1_site_b_after": b_after["top1"],
         "mrr_site_b_before": b_before["mrr"], "mrr_site_b_after": b_after["mrr"],
-        "heldout_rows_site_b": b_before["rows"],
+        "heldout_rows_site_b": b_before["rows"], "test_seeds_site_b": list(args.test_seeds),
+        "top1_site_b_after_per_sequence": per_split,
         "calibration_rot_err_deg": rot_err, "calibration_trans_err_m": tr_err,
-        "calibration_attempts": attempts,
+        "calibration_attempts": attempts, "calibration_frames": cal_frames,
         "pseudo_precision": tp / max(n_pl, 1), "pseudo_recall": tp / max(n_gt, 1), "pseudo_pairs": n_pl,
         "adapt_report": {k: v for k, v in rep.to_dict().items() if k != "losses"},
         "observe_calibrate_seconds": t_obs, "adapt_seconds": t_adapt, "reload_bit_exact": bool(bit_exact),
@@ -181,7 +186,8 @@ def a9(args, tmp: Path) -> dict:
     cv2.imwrite(str(args.overlay), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
     c = res.calibration
     return {"model": args.model, "fit_frames": [f.frame_key for f in fit], "heldout_frames": [f.frame_key for f in held],
-            "init": res.init, "calibration_pairs": c.n_pairs, "calibration_iou_median": c.iou_median,
+            "init": res.init, "calibration_pairs": c.n_pairs, "calibration_frames": len(c.pairs),
+            "calibration_buffer_score": c.meta.get("buffer_score"), "calibration_iou_median": c.iou_median,
             "calibration_residual_px_median": c.residual_px_median,
             "calibration_rotation_std_deg": c.rotation_std_deg.tolist(),
             "calibration_translation_std_m": c.translation_std_m.tolist(),
@@ -199,13 +205,15 @@ def main(argv=None) -> int:
     ap.add_argument("--part", choices=["synthetic", "a9", "all"], default="all")
     ap.add_argument("--model", default="fastmatch")
     ap.add_argument("--adapt-frames", type=int, default=30)
-    ap.add_argument("--test-frames", type=int, default=20)
+    ap.add_argument("--test-frames", type=int, default=20, help="frames per held-out sequence")
+    ap.add_argument("--test-seeds", type=int, nargs="+", default=[203, 204, 202],
+                    help="held-out traffic sequences of site B (202 was used to choose the defaults)")
     ap.add_argument("--steps", type=int, default=600)
     ap.add_argument("--a-frames", type=int, default=60, help="site-A training frames (when no shipped weights)")
     ap.add_argument("--a-epochs", type=int, default=15)
     ap.add_argument("--train-base", action="store_true", help="train the site-A matcher even if weights ship")
     ap.add_argument("--a9-init", default="auto")
-    ap.add_argument("--a9-steps", type=int, default=400)
+    ap.add_argument("--a9-steps", type=int, default=600)
     ap.add_argument("--overlay", type=Path, default=Path(tempfile.gettempdir()) / "xcalib_oneshot_a9_overlay.png")
     ap.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args(argv)
@@ -234,6 +242,8 @@ def main(argv=None) -> int:
                  ("site A Top-1 (held-out)", f"{s['top1_site_a_before']:.4f}"),
                  ("site B Top-1 before", f"{s['top1_site_b_before']:.4f}  ({s['heldout_rows_site_b']} rows)"),
                  (f"site B Top-1 after oneshot ({s['adapt_frames']} frames)", f"{s['top1_site_b_after']:.4f}"),
+                 ("  per held-out sequence (seed: Top-1)", ", ".join(f"{k}: {v:.3f}" for k, v in
+                                                                     s["top1_site_b_after_per_sequence"].items())),
                  ("site A Top-1 after (forgetting)", f"{s['top1_site_a_after']:.4f}"),
                  ("pose error", f"{s['calibration_rot_err_deg']:.3f} deg, {s['calibration_trans_err_m']:.3f} m"),
                  ("pseudo-label precision / recall", f"{s['pseudo_precision']:.4f} / {s['pseudo_recall']:.4f}"),

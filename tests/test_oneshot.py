@@ -4,7 +4,6 @@ bad input, bit-exact save/reload, site lookup, ``xcalib bootstrap``."""
 from __future__ import annotations
 
 import json
-import warnings
 
 import numpy as np
 import pytest
@@ -17,7 +16,6 @@ from xcalib.engine.matcher import Matcher
 from xcalib.models import create_model
 from xcalib.oneshot.augment import GeometricAugment, _iou, _rects
 from xcalib.oneshot.loss import weighted_matching_loss
-from xcalib.oneshot.pseudo import PseudoTargets
 from xcalib.oneshot.session import ImageSizeChangedError, NotCalibratedError, OneShotSession
 
 
@@ -134,14 +132,17 @@ def test_augmentation_moves_boxes_consistently_through_the_pose(site, frames):
     T = site.T_cam_lidar
     targets = s.pseudo_labels()
     rng = np.random.default_rng(0)
-    still = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3], shift_m=0.0)
-    moved = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3], shift_m=10.0, p_move=1.0)
+    still = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3], shift_m=0.0, p_view=0.0, p_blank=0.0)
+    moved = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3], shift_m=10.0, p_move=1.0, p_view=0.5, p_blank=0.0)
+    blank = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3], p_blank=1.0)
     before, after = [], []
     for obs, t in zip(s.buffer, targets):
         fi = obs.inputs(16, rng)
         f0, t0 = still.apply(fi, t, rng)
         np.testing.assert_array_equal(f0.boxes_2d, fi.boxes_2d)
         np.testing.assert_array_equal(t0.positive, t.positive)
+        fb, _ = blank.apply(fi, t, rng)
+        assert not fb.crops_2d.any() and not fb.crops_3d.any() and fi.crops_2d.any()
         f1, t1 = moved.apply(fi, t, rng)
         assert f1.crops_2d.shape[0] == f1.boxes_2d.shape[0] == t1.positive.shape[0]
         assert f1.crops_3d.shape[0] == f1.boxes_3d.shape[0] == t1.positive.shape[1]

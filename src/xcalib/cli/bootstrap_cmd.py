@@ -26,7 +26,7 @@ def register(app: typer.Typer) -> None:
         limit: Optional[int] = typer.Option(None, "--limit", min=1, help="Use only the first N frames."),
         init: str = typer.Option("auto", "--init", help="Starting weights: auto (the 'synthetic' site if present, "
                                                         "else scratch) | scratch | SITE | weights path."),
-        steps: int = typer.Option(400, "--steps", min=1, help="Training steps."),
+        steps: int = typer.Option(600, "--steps", min=1, help="Training steps."),
         mode: Optional[str] = typer.Option(None, "--mode", help="heads | full (default: full from scratch, "
                                                                 "else heads)."),
         out_dir: Optional[Path] = typer.Option(None, "--out", help="Also save the weights + calibration here."),

@@ -125,7 +125,7 @@ def _block(targets: Sequence[PseudoTargets], device) -> tuple[torch.Tensor, torc
 def adapt_model(model, observations: Sequence[Observation], targets: Sequence[PseudoTargets], *, steps: int,
                 n_points: int, device, mode: str = "heads", lr: float = 1e-3, frames_per_batch: int = 4,
                 anchor: float = 1e-2, holdout: float = 0.2, grad_clip: float = 5.0, keep_if_worse: bool = False,
-                min_pairs: int = 8, eval_seed: int = 0, seed: int = 0, augment=None, p_augment: float = 0.75,
+                min_pairs: int = 8, eval_seed: int = 0, seed: int = 0, augment=None, p_augment: float = 1.0,
                 progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
     """Fine-tune ``model`` in place on pseudo-labelled ``observations`` (see the module docstring).
 

@@ -75,7 +75,7 @@ def starting_matcher(model: str, init: str = "auto", *, device: str | None = "cp
 
 
 def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "fastmatch", init: str = "auto",
-              steps: int = 400, mode: str | None = None, lr: float = 1e-3, holdout: float = 0.2,
+              steps: int = 600, mode: str | None = None, lr: float = 1e-3, holdout: float = 0.2,
               install: bool = True, out_dir: str | Path | None = None, device: str | None = "cpu", seed: int = 0,
               session_options: dict | None = None,
               on_frame: Callable[[int, object], None] | None = None,

@@ -250,13 +250,13 @@ class OneShotSession:
 
     def adapt(self, steps: int = 600, *, lr: float = 1e-3, mode: str | None = None, frames_per_batch: int = 4,
               anchor: float = 1e-2, holdout: float = 0.2, min_pairs: int = 8, keep_if_worse: bool = False,
-              augment: bool = True, shift_m: float = 12.0, p_augment: float = 0.75,
+              augment: bool = True, p_augment: float = 1.0, augment_options: dict | None = None,
               progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
         """Fine-tune the matcher on the pseudo-labels of the buffer (see :mod:`xcalib.oneshot.adapt`).
 
-        ``augment``: move objects through the pose (:mod:`xcalib.oneshot.augment`, up to
-        ``shift_m`` metres) in a share ``p_augment`` of the training frames, so a short recording
-        teaches the site's geometry rather than its few objects.
+        ``augment``: move objects through the pose (:mod:`xcalib.oneshot.augment`; fields of
+        ``GeometricAugment`` in ``augment_options``) in a share ``p_augment`` of the training
+        frames, so a short recording teaches the site's geometry rather than its few objects.
         Raises :class:`NotCalibratedError` before any calibration. With fewer than ``min_pairs``
         pseudo-matches it warns and returns a report with ``trained=False`` (weights untouched).
         """
@@ -268,7 +268,7 @@ class OneShotSession:
             from .augment import GeometricAugment
 
             aug = GeometricAugment(self.intrinsics, self.calibration.rotation, self.calibration.translation,
-                                   shift_m=shift_m, neg_iou=self.neg_iou)
+                                   neg_iou=self.neg_iou, **(augment_options or {}))
         rep = adapt_model(self.model, obs, targets, steps=int(steps), n_points=self.matcher.crop_config.point_cloud_size,
                           device=dev, mode=mode or self.mode, lr=lr, frames_per_batch=frames_per_batch, anchor=anchor,
                           holdout=holdout, min_pairs=min_pairs, keep_if_worse=keep_if_worse,
