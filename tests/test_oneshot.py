@@ -134,8 +134,9 @@ def test_augmentation_moves_boxes_consistently_through_the_pose(site, frames):
     rng = np.random.default_rng(0)
     still = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3], shift_m=0.0, p_view=0.0, p_blank=0.0)
     moved = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3], shift_m=10.0, p_move=1.0, p_view=0.5, p_blank=0.0)
-    blank = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3], p_blank=1.0)
-    before, after = [], []
+    blank = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3], p_blank=1.0, p_virtual=0.0)
+    virtual = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3], p_blank=0.0, p_virtual=1.0)
+    before, after, n_virtual = [], [], 0
     for obs, t in zip(s.buffer, targets):
         fi = obs.inputs(16, rng)
         f0, t0 = still.apply(fi, t, rng)
@@ -143,6 +144,12 @@ def test_augmentation_moves_boxes_consistently_through_the_pose(site, frames):
         np.testing.assert_array_equal(t0.positive, t.positive)
         fb, _ = blank.apply(fi, t, rng)
         assert not fb.crops_2d.any() and not fb.crops_3d.any() and fi.crops_2d.any()
+        fv, tv = virtual.apply(fi, t, rng)
+        v = fv.kept_2d < 0  # virtual rows: blank image crop, one positive each, on a 3D box unmatched before
+        assert not fv.crops_2d[v].any() and np.all(tv.positive[v].sum(1) == 1)
+        assert np.all(tv.weight[v][tv.positive[v]] == 0.5)
+        assert not t.positive[:, np.flatnonzero(tv.positive[v].any(0))].any()
+        n_virtual += int(v.sum())
         f1, t1 = moved.apply(fi, t, rng)
         assert f1.crops_2d.shape[0] == f1.boxes_2d.shape[0] == t1.positive.shape[0]
         assert f1.crops_3d.shape[0] == f1.boxes_3d.shape[0] == t1.positive.shape[1]
@@ -154,7 +161,7 @@ def test_augmentation_moves_boxes_consistently_through_the_pose(site, frames):
         after += list(np.diag(_iou(f1.boxes_2d[i].astype(float), _rects(f1.boxes_3d.astype(float), site.intrinsics,
                                                                         T[:3, :3], T[:3, 3])[j])))
         assert np.all((f1.boxes_2d[:, 2] <= 640) & (f1.boxes_2d[:, 0] >= 0))
-    assert len(after) >= 5
+    assert len(after) >= 5 and n_virtual >= 3
     assert abs(np.median(after) - np.median(before)) < 0.1  # moved pairs stay as consistent as real ones
 
 
