@@ -1,5 +1,7 @@
-"""calibrate() on the real A9 sample (every other of its 16 frames, no labels): the pose must
-explain the boxes. The full 16-frame figures are in benchmarks/bench_calibration.py."""
+"""calibrate() on the real A9 sample (all 16 frames, no labels): the pose must explain the boxes.
+(With every other frame only, the honest 1-sigma -- frame halves and occlusion model included --
+is about 0.5 deg / 0.26 m for these noisy real 3D boxes, and the result is rightly refused.)
+The benchmark figures are in benchmarks/bench_calibration.py."""
 
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ def test_a9_calibration_explains_the_boxes():
     from xcalib.io.frames import read_frames
 
     seq = read_frames(shared_path("a9_sample"))
-    frames = [seq[i] for i in range(0, len(seq), 2)]
+    frames = [seq[i] for i in range(len(seq))]
     res = calibrate(frames, seq.intrinsics)
     assert res.success, res.message
     assert res.n_pairs >= 0.6 * res.meta["n_2d"]
@@ -23,5 +25,7 @@ def test_a9_calibration_explains_the_boxes():
     # better than the reference's ~30 px median box-centre offset
     assert res.meta["centre_offset_px_median"] < 25
     assert np.all(res.rotation_std_deg < 0.5) and np.all(res.translation_std_m < 0.3)
+    # the uncertainty covers the real 3D-detection noise: the fitted error model is wide
+    assert res.meta["noise_model"]["sigma_3d_m"] > 0.05 or res.meta["noise_model"]["sigma_size"] > 0.03
     # camera and LiDAR sit on the same gantry: the baseline is short
     assert np.linalg.norm(res.translation) < 3.0

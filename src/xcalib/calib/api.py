@@ -26,7 +26,7 @@ from ..geometry.boxes import box2d_centers
 from ..geometry.rotations import rotation_angle
 from .hypotheses import Hypotheses, frame_hypotheses, score_poses
 from .inputs import CalibFrame, prepare_frames
-from .refine import match_all, pair_metrics, pose_covariance, refine_pose
+from .refine import match_all, pair_metrics, pose_covariance, pose_spread, refine_pose
 from .result import CalibrationResult
 
 __all__ = ["calibrate", "calibrate_single", "METHOD"]
@@ -245,7 +245,14 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
 
     pairs = match_all(cframes, intr, best.R, best.t, gate_iou=gate)
     px, ious = pair_metrics(cframes, intr, best.R, best.t, pairs)
-    rot_sd, tr_sd, _ = pose_covariance(cframes, pairs, intr, best.R, best.t)
+    rot_sd, tr_sd, _ = pose_covariance(cframes, pairs, intr, best.R, best.t, noise=best.noise)
+    meta["noise_model"] = dict(zip(("sigma_px", "sigma_3d_m", "sigma_size"), best.noise))
+    f_scale = max(0.5, 1.5 * float(np.median(np.abs(best.residuals)))) if len(best.residuals) else 2.0
+    halves, occl = pose_spread(cframes, pairs, intr, best.R, best.t, noise=best.noise, f_scale=f_scale)
+    meta["jacobian_std"] = {"rotation_deg": np.asarray(rot_sd).tolist(), "translation_m": np.asarray(tr_sd).tolist()}
+    meta["halves_delta"] = None if halves is None else halves.tolist()
+    meta["occlusion_delta"] = occl.tolist()
+    rot_sd, tr_sd = _honest_std(np.concatenate([rot_sd, tr_sd]), halves, occl)
     n_pairs = int(sum(len(p) for p in pairs))
     centre_off = _centre_offsets(cframes, intr, best.R, best.t, pairs)
     meta.update(centre_offset_px_median=float(np.median(centre_off)) if len(centre_off) else None,
@@ -276,9 +283,10 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
         why = (f"ambiguous: two different poses explain the boxes about equally well (scores {best_score:.2f} "
                f"vs {runner:.2f}); add frames with objects spread over the image")
     elif not (np.all(np.isfinite(rot_sd)) and np.all(np.isfinite(tr_sd))) or \
-            np.max(rot_sd) > max_rot_std_deg or np.max(tr_sd) > max_trans_std_m:
-        why = (f"not identifiable: the pose is poorly constrained (1-sigma rotation {np.nanmax(rot_sd):.2f} deg, "
-               f"translation {np.nanmax(tr_sd):.2f} m); add frames or objects at other places/depths")
+            np.linalg.norm(rot_sd) > max_rot_std_deg or np.linalg.norm(tr_sd) > max_trans_std_m:
+        why = (f"not identifiable: the pose is poorly constrained (1-sigma rotation {np.linalg.norm(rot_sd):.2f} deg, "
+               f"translation {np.linalg.norm(tr_sd):.2f} m, over all axes; the frame halves and the occlusion "
+               "model included); add frames or objects at other places/depths")
     if why and max_baseline_m is not None and pp is None:
         # the co-located-rig assumption may be wrong (e.g. boxes in a global frame): search again
         retry = calibrate(frames_in, intr, **{**_kw, "max_baseline_m": None})
@@ -290,6 +298,23 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
         res.accepted = False
         res.message = why
     return res
+
+
+def _honest_std(jac_sd: np.ndarray, halves: np.ndarray | None, occl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis 1-sigma (rotation deg, translation m) that also covers what the Jacobian misses.
+
+    Statistical part: the larger of the Jacobian (sandwich) sigma and half the difference of the
+    two frame-half poses (a one-sample check that frames agree; inflates when a few frames or
+    boxes with bad 3D detections drive the pose). Systematic part, added in quadrature: the shift
+    of the pose when the occlusion model is switched off (how much the pose leans on it; grows
+    with the 3D-box error). On the synthetic benchmark 2 sigma (vector norm) covers >= 90 % of
+    the true errors with exact and with noisy 3D boxes.
+    """
+    var = jac_sd ** 2
+    if halves is not None:
+        var = np.fmax(var, (np.asarray(halves) / 2.0) ** 2)
+    sd = np.sqrt(var + np.asarray(occl) ** 2)
+    return sd[:3], sd[3:]
 
 
 def _centre_offsets(frames, intr, R, t, pairs) -> np.ndarray:

@@ -34,6 +34,7 @@ class RefineResult:
     n_iter: int
     residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
     history: list[float] = field(default_factory=list)
+    noise: tuple = (1.0, 0.03, 0.01)  # fitted (sigma_px, sigma_3d_m, sigma_size), see estimate_noise
 
 
 def match_frame(fr: CalibFrame, intr: CameraIntrinsics, R, t, *, gate_iou: float = 0.3,
@@ -90,13 +91,59 @@ SIGMA_SIZE = 0.01
 F_SCALE = 2.0
 
 
-def _weights(obs: np.ndarray, corners: np.ndarray, intr: CameraIntrinsics, R, t) -> np.ndarray:
-    """Per-pair residual weight 1/sigma (1/px) at the pose (R, t); see SIGMA_* above."""
-    s = np.sqrt((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]))
+NoiseModel = tuple  # (sigma_px, sigma_3d_m, sigma_size) of the per-edge disagreement, see above
+DEFAULT_NOISE: NoiseModel = (SIGMA_PX, SIGMA_3D_M, SIGMA_SIZE)
+
+
+def _pair_features(obs: np.ndarray, corners: np.ndarray, intr: CameraIntrinsics, R, t):
+    """Per pair: 2D box size s (px, sqrt of its area) and f/Z (px per metre at the box centre)."""
+    s = np.sqrt(np.clip((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]), 0, None))
     ctr = corners.mean(1) @ np.asarray(R).T + np.asarray(t)
     z = np.maximum(ctr[:, 2], 1.0)
-    f = np.sqrt(intr.fx * intr.fy)
-    return 1.0 / np.sqrt(SIGMA_PX ** 2 + (f * SIGMA_3D_M / z) ** 2 + (SIGMA_SIZE * s) ** 2)
+    return s, np.sqrt(intr.fx * intr.fy) / z
+
+
+def _weights(obs: np.ndarray, corners: np.ndarray, intr: CameraIntrinsics, R, t,
+             noise: NoiseModel | None = None) -> np.ndarray:
+    """Per-pair residual weight 1/sigma (1/px) at the pose (R, t); see SIGMA_* above."""
+    sp, s3, ss = DEFAULT_NOISE if noise is None else noise
+    s, fz = _pair_features(obs, corners, intr, R, t)
+    return 1.0 / np.sqrt(sp ** 2 + (fz * s3) ** 2 + (ss * s) ** 2)
+
+
+def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
+    """Fit the per-edge error model sigma^2 = sp^2 + (f/Z s3)^2 + (ss s)^2 to the residuals.
+
+    Only *outward* edge residuals are used (the 2D box reaching beyond the projected 3D box):
+    occlusion and truncation never produce them, so for symmetric detector noise their mean
+    square is half the edge variance. Non-negative least squares on those squares, trimmed
+    twice at 8x the fitted variance (false matches); each term is floored at DEFAULT_NOISE
+    (exact 3D boxes keep the default model; noisy 3D detections widen it).
+    """
+    from scipy.optimize import nnls
+
+    corners, obs = _stack(frames, pairs)
+    if len(obs) < 8:
+        return DEFAULT_NOISE
+    rects, valid = project_rects(corners, R, t, intr, frames[0].size)
+    W, H = frames[0].size
+    e = rects - obs
+    s, fz = _pair_features(obs, corners, intr, R, t)
+    X = np.repeat(np.column_stack([np.ones(len(s)), fz ** 2, s ** 2]), 4, axis=0)
+    border = np.column_stack([rects[:, 0] <= 0.5, rects[:, 1] <= 0.5, rects[:, 2] >= W - 0.5, rects[:, 3] >= H - 0.5])
+    out = valid[:, None] & ~border & np.isfinite(e) & (np.nan_to_num(e) * _INWARD < 0)
+    y = 2.0 * np.nan_to_num(e).ravel() ** 2
+    use = out.ravel()
+    floor = np.array(DEFAULT_NOISE) ** 2
+    coef = floor.copy()
+    for _ in range(3):
+        if use.sum() < 12:
+            return DEFAULT_NOISE
+        scale = np.maximum(X[use] @ coef, 1e-6)  # relative (heteroscedastic) least squares
+        c, _ = nnls(X[use] / scale[:, None], y[use] / scale)
+        coef = np.maximum(c, floor)
+        use = out.ravel() & (y <= 8.0 * 2.0 * (X @ coef))
+    return tuple(float(v) for v in np.sqrt(coef))
 
 
 # Occlusion (and a detector's truncation) only ever moves a 2D box edge *into* the projected
@@ -107,8 +154,8 @@ OCCL_SLOPE = 0.2
 _INWARD = np.array([-1.0, -1.0, 1.0, 1.0])  # sign of (pred - obs) when the 2D box is inside
 
 
-def _residual_fn(corners, obs, intr, size, R0, t0):
-    w = _weights(obs, corners, intr, R0, t0)[:, None]
+def _residual_fn(corners, obs, intr, size, R0, t0, noise: NoiseModel | None = None):
+    w = _weights(obs, corners, intr, R0, t0, noise)[:, None]
     fallback = np.sqrt((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]))[:, None]
 
     def fun(x):
@@ -123,7 +170,7 @@ def _residual_fn(corners, obs, intr, size, R0, t0):
     return fun
 
 
-def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6):
+def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel | None = None):
     """1-sigma (rotation deg about camera x,y,z; translation m along camera x,y,z) from the
     Jacobian at the optimum: the larger (per parameter) of the classic (J^T J)^-1 * sigma^2
     (sigma from the inlier residuals) and the cluster-robust sandwich with one cluster per
@@ -132,7 +179,7 @@ def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6):
     nan3 = np.full(3, np.nan)
     if len(obs) < 2:
         return nan3, nan3, np.full((6, 6), np.nan)
-    fun = _residual_fn(corners, obs, intr, frames[0].size, R, t)
+    fun = _residual_fn(corners, obs, intr, frames[0].size, R, t, noise)
     r0 = fun(np.zeros(6))
     J = np.zeros((len(r0), 6))
     for k in range(6):
@@ -162,9 +209,9 @@ def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6):
     return np.degrees(sd[:3]), sd[3:], cov
 
 
-def _lsq(frames, pairs, intr, R, t, f_scale, max_nfev):
+def _lsq(frames, pairs, intr, R, t, f_scale, max_nfev, noise: NoiseModel | None = None):
     corners, obs = _stack(frames, pairs)
-    fun = _residual_fn(corners, obs, intr, frames[0].size, R, t)
+    fun = _residual_fn(corners, obs, intr, frames[0].size, R, t, noise)
     res = least_squares(fun, np.zeros(6), loss="soft_l1", f_scale=f_scale, method="trf",
                         x_scale=np.array([1e-3, 1e-3, 1e-3, 0.05, 0.05, 0.05]), max_nfev=max_nfev)
     R1 = Rotation.from_rotvec(res.x[:3]).as_matrix() @ R
@@ -173,13 +220,17 @@ def _lsq(frames, pairs, intr, R, t, f_scale, max_nfev):
 
 def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *,
                 gates: tuple = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0)),
-                min_pairs: int = 3, max_nfev: int = 60, tol: float = 1e-3, max_outer: int | None = None) -> RefineResult:
+                min_pairs: int = 3, max_nfev: int = 60, tol: float = 1e-3, max_outer: int | None = None,
+                adapt_noise: bool = True) -> RefineResult:
     """Alternate matching and robust least squares from the pose (R, t) until the cost settles.
 
     ``gates`` is the schedule of (IoU gate, centre-distance gate) per outer iteration; the last
     entry repeats until the robust cost improves by less than ``tol`` (relative) or the pose stops
-    moving (about 2e-6 rad / 0.2 mm), at most ``max_outer`` iterations.
+    moving (about 2e-6 rad / 0.2 mm), at most ``max_outer`` iterations. With ``adapt_noise`` the
+    per-edge error model is re-fitted to the residuals (``estimate_noise``) from the second
+    iteration on, so noisy 3D boxes are weighted by their actual error.
     """
+    noise = DEFAULT_NOISE
     R, t = np.asarray(R, float), np.asarray(t, float)
     history: list[float] = []
     prev = None
@@ -195,7 +246,9 @@ def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *,
         # robust scale from the current (weighted) residual level
         f_scale = F_SCALE if prev is None or not len(resid) else max(0.5, 1.5 * float(np.median(np.abs(resid))))
         R_old, t_old = R, t
-        R, t, cost, resid = _lsq(frames, pairs, intr, R, t, f_scale, max_nfev)
+        if adapt_noise and it >= 1:
+            noise = estimate_noise(frames, pairs, intr, R, t)
+        R, t, cost, resid = _lsq(frames, pairs, intr, R, t, f_scale, max_nfev, noise)
         per = cost / max(n, 1)
         history.append(per)
         moved = np.linalg.norm(Rotation.from_matrix(R @ R_old.T).as_rotvec()) + np.linalg.norm(t - t_old) / 100.0
@@ -204,7 +257,7 @@ def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *,
         prev = per
     pairs = match_all(frames, intr, R, t, gate_iou=gates[-1][0], gate_dist=gates[-1][1])
     return RefineResult(R=R, t=t, pairs=pairs, cost=history[-1] if history else np.inf, n_iter=it + 1,
-                        residuals=resid, history=history)
+                        residuals=resid, history=history, noise=noise)
 
 
 def pair_metrics(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, pairs: list[np.ndarray]):
@@ -220,3 +273,42 @@ def pair_metrics(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, pairs: 
     if not px:
         return np.zeros(0), np.zeros(0)
     return np.concatenate(px), np.concatenate(ious)
+
+
+def _delta(Ra, ta, Rb, tb) -> np.ndarray:
+    """6-vector (rotation vector of Ra Rb^T in degrees, camera axes; ta - tb in metres)."""
+    return np.concatenate([np.degrees(Rotation.from_matrix(Ra @ Rb.T).as_rotvec()), ta - tb])
+
+
+def pose_spread(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f_scale: float = F_SCALE,
+                max_nfev: int = 40):
+    """Two checks of the pose beyond the Jacobian, both with the matches held fixed.
+
+    * ``halves``: refit on the even and on the odd frames separately (or on alternate pairs when
+      there is one frame); returns their difference (6-vector, deg / m). For independent frame
+      errors the full-data pose has about a quarter of its variance per component.
+    * ``occlusion``: refit without the inward (occlusion) compression; the shift of the pose is
+      how much it depends on the occlusion model (a systematic error the Jacobian cannot see).
+    Returns (halves_delta [6] or None, occlusion_delta [6]).
+    """
+    global OCCL_TAU
+    R, t = np.asarray(R, float), np.asarray(t, float)
+    halves = None
+    nz = [k for k, p in enumerate(pairs) if len(p)]
+    if len(nz) >= 4:
+        ev = [p if (i in nz[0::2]) else p[:0] for i, p in enumerate(pairs)]
+        od = [p if (i in nz[1::2]) else p[:0] for i, p in enumerate(pairs)]
+    else:
+        ev = [p[0::2] for p in pairs]
+        od = [p[1::2] for p in pairs]
+    if sum(len(p) for p in ev) >= 6 and sum(len(p) for p in od) >= 6:
+        Re, te, _, _ = _lsq(frames, ev, intr, R, t, f_scale, max_nfev, noise)
+        Ro, to, _, _ = _lsq(frames, od, intr, R, t, f_scale, max_nfev, noise)
+        halves = _delta(Re, te, Ro, to)
+    tau = OCCL_TAU
+    try:
+        OCCL_TAU = 1e9
+        Rs, ts, _, _ = _lsq(frames, pairs, intr, R, t, f_scale, max_nfev, noise)
+    finally:
+        OCCL_TAU = tau
+    return halves, _delta(Rs, ts, R, t)
