@@ -30,13 +30,14 @@ import copy
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 import torch
 from torch import nn
 
 from ..data.crops import FrameInputs
+from ..models.base import MatchingModel
 from .errors import ExportError
 from .manifest import GraphInfo, TensorInfo, sha256_file
 from .onnx_feeds import IMAGE_INPUTS, LIDAR_INPUTS, frame_feeds, pair_feeds
@@ -47,7 +48,7 @@ __all__ = ["OPSET", "EXPORTER", "FAMILIES", "family_of", "ExportPlan", "make_pla
 OPSET = 20
 EXPORTER = f"torch.onnx.export (TorchScript-based, dynamo=False), torch {torch.__version__}"
 
-# model name -> family; pair wrappers below are per model
+# model name -> family; the pair graph is the model's own ``score_pairs``
 FAMILIES = {
     "crlite": "hybrid", "crlite_2dpe": "hybrid",
     "crlite_vit_exp1": "cosine", "crlite_vit_exp3": "cosine", "crlite_vit_exp4": "cosine",
@@ -98,40 +99,14 @@ class _SideEmbed(nn.Module):
 
 
 class _PairScore(nn.Module):
-    """Pair graph: ``fn(*pair tensors) -> [B]`` logits."""
+    """Pair graph: the model's own ``score_pairs(*pair tensors) -> [B]`` logits."""
 
-    def __init__(self, model: nn.Module, fn: Callable[..., torch.Tensor]):
+    def __init__(self, model: nn.Module):
         super().__init__()
-        self.model, self.fn = model, fn
+        self.model = model
 
     def forward(self, *x):
-        return self.fn(self.model, *x)
-
-
-def _crlite_pair(m, a, b):
-    return m.stage2(torch.cat([a, b], dim=1))
-
-
-def _fastmatch_pair(m, a, *rest):
-    """Per-pair form of ``FastMatch.pair_logits``; inputs img_embed[, box_img], lid_embed[, box_lid]."""
-    if len(rest) == 3:  # with box-geometry extras
-        bi, b, bl = rest
-        feats = [a * b, (a - b).abs(), (a * b).sum(-1, keepdim=True), (bi - bl) ** 2]
-    else:
-        b = rest[0]
-        feats = [a * b, (a - b).abs(), (a * b).sum(-1, keepdim=True)]
-    return m.pair_head(torch.cat(feats, 1)).squeeze(-1)
-
-
-def _calibrefine_pair(m, ei, ci, pi, el, cl, pl):
-    x = torch.cat([m.fc1(torch.cat([ei, el], 1)), m.fc2(torch.cat([ci, cl], 1)), m.fc3(torch.cat([pi, pl], 1))], 1)
-    return m.fc6(m.fc5(m.fc4(x))).squeeze(-1)
-
-
-PAIR_FNS: dict[str, Callable[..., torch.Tensor]] = {
-    "crlite": _crlite_pair, "crlite_2dpe": _crlite_pair, "fastmatch": _fastmatch_pair,
-    "calibrefine": _calibrefine_pair,
-}
+        return self.model.score_pairs(*x)
 
 
 # ---------------------------------------------------------------------------------- plan
@@ -206,9 +181,9 @@ def make_plan(model: nn.Module, probe: FrameInputs) -> ExportPlan:
     host = {"top_k": None, "fill_value": None, "pair_activation": None,
             "joint_embedding": name in JOINT_EMBEDDING}
     if family in ("hybrid", "pairwise"):
-        if name not in PAIR_FNS:
-            raise ExportError(f"model {name!r}: no pair-score wrapper for family {family!r}")
-        graphs.append(GraphPlan("pair_score", _PairScore(model, PAIR_FNS[name]), img_keys + lid_keys, ["logit"],
+        if type(model).score_pairs is MatchingModel.score_pairs:
+            raise ExportError(f"model {name!r}: no score_pairs (pair head) for family {family!r}")
+        graphs.append(GraphPlan("pair_score", _PairScore(model), img_keys + lid_keys, ["logit"],
                                 "B", "stage2" if family == "hybrid" else "pairwise"))
         host["pair_activation"] = "sigmoid"
     if family == "hybrid":

@@ -66,6 +66,13 @@ class MatchingModel(nn.Module):
     def train_logits(self, emb: Embeddings, batch: ModelBatch) -> list[TrainLogits]:
         return [TrainLogits(cosine_matrix(emb.img, emb.lid) / self.temperature, "cosine", 1.0)]
 
+    def score_pairs(self, *pair_tensors: torch.Tensor) -> torch.Tensor:
+        """Pair-head logits [...] (raw, before the sigmoid) of pairs given as the embedding
+        tensors of both sides broadcast to a common leading shape: the image side first
+        (``img`` then its ``extra`` tensors in order), then the LiDAR side likewise. Models
+        without a pair head (cosine scoring) do not implement it."""
+        raise NotImplementedError(f"{self.model_name or type(self).__name__} has no pair head")
+
     def forward(self, batch: ModelBatch, train: bool = False):
         emb = self.embed(batch)
         return self.train_logits(emb, batch) if train else self.score(emb, batch)

@@ -64,16 +64,20 @@ class CalibRefine(MatchingModel):
         pl = sincos_2d(batch.boxes_3d[:, :2], self.token_len, 0.5, 400.0)
         return Embeddings(ei, el, {"cls_img": ci, "cls_lid": cl, "pos_img": pi, "pos_lid": pl})
 
+    def score_pairs(self, ei: torch.Tensor, ci: torch.Tensor, pi: torch.Tensor,
+                    el: torch.Tensor, cl: torch.Tensor, pl: torch.Tensor) -> torch.Tensor:
+        """Pair logits [B] from the per-pair embedding, class and position tensors [B, ...]
+        of the image side (ei, ci, pi) and the LiDAR side (el, cl, pl)."""
+        x = torch.cat([self.fc1(torch.cat([ei, el], 1)), self.fc2(torch.cat([ci, cl], 1)),
+                       self.fc3(torch.cat([pi, pl], 1))], 1)
+        return self.fc6(self.fc5(self.fc4(x))).squeeze(-1)
+
     def pair_logits(self, emb: Embeddings) -> torch.Tensor:
         N, M = len(emb.img), len(emb.lid)
-
-        def pair(a, b):
-            return torch.cat([a[:, None].expand(N, M, -1), b[None].expand(N, M, -1)], 2).reshape(N * M, -1)
-
-        x = torch.cat([self.fc1(pair(emb.img, emb.lid)),
-                       self.fc2(pair(emb.extra["cls_img"], emb.extra["cls_lid"])),
-                       self.fc3(pair(emb.extra["pos_img"], emb.extra["pos_lid"]))], 1)
-        return self.fc6(self.fc5(self.fc4(x))).reshape(N, M)
+        x = emb.extra
+        img = [t[:, None].expand(N, M, -1).reshape(N * M, -1) for t in (emb.img, x["cls_img"], x["pos_img"])]
+        lid = [t[None].expand(N, M, -1).reshape(N * M, -1) for t in (emb.lid, x["cls_lid"], x["pos_lid"])]
+        return self.score_pairs(*img, *lid).reshape(N, M)
 
     def score(self, emb: Embeddings, batch: ModelBatch) -> torch.Tensor:
         return torch.sigmoid(self.pair_logits(emb))

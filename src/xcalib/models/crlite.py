@@ -80,6 +80,10 @@ class CRLite(MatchingModel):
         """[..., 2E] pair features -> [...] logits."""
         return self.similarity_head(self.embed_fusion(pairs)).squeeze(-1)
 
+    def score_pairs(self, img: torch.Tensor, lid: torch.Tensor) -> torch.Tensor:
+        """img [..., E], lid [..., E] of the same pairs -> stage-2 logits [...]."""
+        return self.stage2(torch.cat([img, lid], dim=-1))
+
     def score(self, emb: Embeddings, batch: ModelBatch) -> torch.Tensor:
         N, M = len(emb.img), len(emb.lid)
         out = torch.full((N, M), float(self.fill_value), device=emb.img.device)
@@ -88,8 +92,7 @@ class CRLite(MatchingModel):
         cos = cosine_matrix(emb.img, emb.lid)
         k = min(self.top_k, M) if self.top_k > 0 else M
         idx = cos.topk(k, dim=1).indices  # [N,k]
-        pairs = torch.cat([emb.img[:, None].expand(N, k, -1), emb.lid[idx]], dim=2)
-        return out.scatter(1, idx, torch.sigmoid(self.stage2(pairs)))
+        return out.scatter(1, idx, torch.sigmoid(self.score_pairs(emb.img[:, None].expand(N, k, -1), emb.lid[idx])))
 
     def train_logits(self, emb: Embeddings, batch: ModelBatch) -> list[TrainLogits]:
         cos = cosine_matrix(emb.img, emb.lid) / self.temperature

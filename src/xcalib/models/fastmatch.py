@@ -73,14 +73,19 @@ class FastMatch(MatchingModel):
         extra = {"box_img": torch.cat([g2[:, :2], torch.log(g2[:, 2:4])], 1), "box_lid": self.lid_to_box(g3)}
         return Embeddings(F.normalize(fi, dim=1), F.normalize(fl, dim=1), extra)
 
+    def score_pairs(self, a: torch.Tensor, box_img: torch.Tensor, b: torch.Tensor,
+                    box_lid: torch.Tensor) -> torch.Tensor:
+        """Pair logits [...] from img [..., E], box_img [..., 4], lid [..., E], box_lid [..., 4]
+        (broadcast against each other)."""
+        x = torch.cat([(a * b), (a - b).abs(), (a * b).sum(-1, keepdim=True), (box_img - box_lid) ** 2], -1)
+        return self.pair_head(x).squeeze(-1)
+
     def pair_logits(self, emb: Embeddings) -> torch.Tensor:
-        a, b = emb.img[:, None], emb.lid[None]
         N, M = len(emb.img), len(emb.lid)
         if not (N and M):
             return emb.img.new_zeros((N, M))
-        d = (emb.extra["box_img"][:, None] - emb.extra["box_lid"][None]) ** 2
-        x = torch.cat([(a * b), (a - b).abs(), (a * b).sum(-1, keepdim=True), d], 2)
-        return self.pair_head(x).squeeze(-1)
+        return self.score_pairs(emb.img[:, None], emb.extra["box_img"][:, None], emb.lid[None],
+                                emb.extra["box_lid"][None])
 
     def score(self, emb: Embeddings, batch: ModelBatch) -> torch.Tensor:
         return torch.sigmoid(self.pair_logits(emb))
