@@ -5,6 +5,9 @@
    false 2D detections. The 3D boxes are exact here (``center_noise_m = size_noise_frac =
    yaw_noise_deg = 0``); one extra row uses the generator's default 3D-detection noise.
    A "wrong" success is one with a rotation error > 1 deg or a translation error > 0.5 m.
+   Uncertainty calibration: the fraction of successes whose rotation / translation error is
+   within 2x the reported 1-sigma (the norm of the per-axis sigmas). Every seed drawn is also
+   counted (identifiable or not): correct successes / failures / wrong successes.
    Sites are drawn from seeds 0, 1, 2, ... until ``--sites`` of them are *identifiable*: at
    least 3 distinct objects seen by both sensors and 20 true 2D-3D detections over the 20
    frames (ground truth of the generator). Sites that are not (the camera sees 0-2 objects)
@@ -75,6 +78,11 @@ def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
                 rec["rot_deg"], rec["trans_m"] = res.pose_error(frames[0].extrinsics)
                 rec["rot_std_deg"] = float(np.max(res.rotation_std_deg))
                 rec["trans_std_m"] = float(np.max(res.translation_std_m))
+                # 1-sigma length of the error vector (norm of the per-axis sigmas)
+                rec["rot_sigma_deg"] = float(np.linalg.norm(res.rotation_std_deg))
+                rec["trans_sigma_m"] = float(np.linalg.norm(res.translation_std_m))
+                rec["rot_within_2sigma"] = bool(rec["rot_deg"] <= 2 * rec["rot_sigma_deg"])
+                rec["trans_within_2sigma"] = bool(rec["trans_m"] <= 2 * rec["trans_sigma_m"])
             recs.append(rec)
             log(f"  {name:>30} site {seed:3d}{'' if ident else ' (not identifiable)'}: "
                 f"{'ok ' if res.success else 'FAIL'} "
@@ -88,6 +96,8 @@ def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
         wrong = int(np.sum((rot > 1.0) | (tr > 0.5)))
         non = [r for r in recs if not r["identifiable"]]
         non_wrong = sum(1 for r in non if r["success"] and (r["rot_deg"] > 1.0 or r["trans_m"] > 0.5))
+        all_ok = [r for r in recs if r["success"]]
+        all_wrong = sum(1 for r in all_ok if r["rot_deg"] > 1.0 or r["trans_m"] > 0.5)
         rows.append({
             "config": name, "noise": noise, "sites": len(idr), "frames": n_frames,
             "success_rate": len(ok) / max(len(idr), 1), "wrong_successes": wrong,
@@ -99,6 +109,15 @@ def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
             "non_identifiable_sites": len(non),
             "non_identifiable_failed": sum(1 for r in non if not r["success"]),
             "non_identifiable_wrong_successes": non_wrong,
+            # uncertainty calibration over the identifiable successes: fraction whose true error is
+            # within 2x the reported 1-sigma (norm of the per-axis sigmas); ~0.9-0.95 is honest
+            "rot_within_2sigma": float(np.mean([r["rot_within_2sigma"] for r in ok])) if ok else None,
+            "trans_within_2sigma": float(np.mean([r["trans_within_2sigma"] for r in ok])) if ok else None,
+            "err_over_sigma_rot_median": float(np.median([r["rot_deg"] / r["rot_sigma_deg"] for r in ok])) if ok else None,
+            "err_over_sigma_trans_median": float(np.median([r["trans_m"] / r["trans_sigma_m"] for r in ok])) if ok else None,
+            # every seed drawn (identifiable or not)
+            "all_seeds": len(recs), "all_seeds_success": len(all_ok) - all_wrong,
+            "all_seeds_failed": len(recs) - len(all_ok), "all_seeds_wrong_successes": all_wrong,
             "failures": [{"seed": r["seed"], "message": r["message"], "objects": r["objects"],
                           "true_pairs": r["true_pairs"]} for r in idr if not r["success"]],
             "per_site": recs,
@@ -185,13 +204,16 @@ def main(argv=None) -> int:
           "rot in deg, trans in m;\n'wrong' = successes off by > 1 deg or > 0.5 m; non-identifiable sites "
           "(< 3 objects or < 20 true pairs) must fail)")
     print(f"{'config':>30} {'sites':>5} {'success':>8} {'wrong':>5} {'rot med':>9} {'rot p90':>9} "
-          f"{'trans med':>9} {'trans p90':>9} {'time med':>8} {'non-ident. failed':>17}")
+          f"{'trans med':>9} {'trans p90':>9} {'time med':>8} {'non-ident. failed':>17} {'<=2sig r/t':>11} "
+          f"{'all seeds ok/failed/wrong':>26}")
     for r in result["synthetic"]:
         f = (lambda v, d=4: "-" if v is None else f"{v:.{d}f}")
         print(f"{r['config']:>30} {r['sites']:>5} {r['success_rate'] * 100:>7.1f}% {r['wrong_successes']:>5} "
               f"{f(r['rot_deg_median']):>9} {f(r['rot_deg_p90']):>9} {f(r['trans_m_median']):>9} "
               f"{f(r['trans_m_p90']):>9} {r['time_s_median']:>7.2f}s "
-              f"{r['non_identifiable_failed']:>8}/{r['non_identifiable_sites']:<8}")
+              f"{r['non_identifiable_failed']:>8}/{r['non_identifiable_sites']:<8} "
+              f"{f(r['rot_within_2sigma'], 2):>5}/{f(r['trans_within_2sigma'], 2):<5} "
+              f"{r['all_seeds_success']:>12}/{r['all_seeds_failed']}/{r['all_seeds_wrong_successes']} of {r['all_seeds']}")
     k = result["kitti"]
     if k:
         print("\nKITTI 000001-000005 (label boxes, P2):", "OK" if k["success"] else f"FAILED ({k['message']})")
