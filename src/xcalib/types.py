@@ -76,6 +76,11 @@ class MatchResult:
     top_indices: [K'] int64 best column per kept row (index into the kept 3D boxes).
     matches: list of (2D index, 3D index, score) in the caller's original numbering.
     kept_2d_indices / kept_3d_indices: int64 maps from kept rows/columns to caller indices.
+    geometry_iou: [K',M'] IoU of each 2D box with the 3D box projected through the matcher's
+    calibration when the scores were fused, else None. fusion_weight: weight w of that
+    geometry (0 = model scores alone). Fused scores keep the model's range and meaning
+    ("match probability", mapped to [-1, 1] for cosine models): sigmoid((1-w) logit(p_model) +
+    w logit(clip(IoU, eps, 1-eps))) (see ``xcalib.engine.fusion``).
     """
 
     similarity: np.ndarray
@@ -87,6 +92,8 @@ class MatchResult:
     model: str = ""
     device: str = "cpu"
     assignment: str = "argmax"
+    geometry_iou: np.ndarray | None = None
+    fusion_weight: float = 0.0
 
     def as_pairs(self) -> np.ndarray:
         """Matches as an int64 array [n, 2] of (2D index, 3D index)."""

@@ -4,6 +4,11 @@
 (``xcalib.data.crops.prepare_frame``, seeded so a call is deterministic), runs the model and
 returns a :class:`xcalib.types.MatchResult` in the caller's numbering. ``embed`` / ``score``
 expose the two model stages; ``prepare`` is the numpy-only part an ONNX Runtime path reuses.
+
+A matcher may carry its site calibration (``set_calibration`` / ``calibration``; loaded from
+``calibration.json`` beside site weights, written by ``save_pretrained``). ``match`` then fuses
+the model's scores with the IoU of each 3D box projected through the calibration against each
+2D box (``use_calibration="auto"``; see :mod:`xcalib.engine.fusion` for the formula).
 """
 
 from __future__ import annotations
@@ -20,12 +25,25 @@ from ..data.crops import CropConfig, FrameInputs, prepare_frame
 from ..protocol import WarningRegistry
 from ..types import Frame, MatchResult
 from .host import ASSIGNMENTS, assign, validate_match_inputs  # torch-free, shared with ONNX Runtime
+from .fusion import FUSION_WEIGHT, GEO_EPS, fuse_scores, geometric_iou, resolve_use_calibration
 from .checkpoint import (WeightsNotFoundError, find_site_weights, load_state_strict, read_checkpoint,
                          read_config, save_weights, weights_in_dir, write_config)
 
 __all__ = ["Matcher", "resolve_device", "assign"]
 
 log = logging.getLogger("xcalib.matcher")
+
+CALIBRATION_FILE = "calibration.json"  # beside the weights (OneShotSession.save writes the same name)
+
+
+def load_calibration_beside(weights_dir: Path):
+    """The ``CalibrationResult`` in ``weights_dir/calibration.json``, or None when absent."""
+    p = Path(weights_dir) / CALIBRATION_FILE
+    if not p.is_file():
+        return None
+    from ..calib.result import CalibrationResult
+
+    return CalibrationResult.load(p)
 
 
 def resolve_device(device: str | torch.device | None) -> torch.device:
@@ -36,7 +54,9 @@ def resolve_device(device: str | torch.device | None) -> torch.device:
 
 
 class Matcher:
-    """Model + config + device. Build with :meth:`from_pretrained` or ``Matcher(model, config)``."""
+    """Model + config + device (+ optional site calibration). Build with :meth:`from_pretrained`
+    or ``Matcher(model, config)``. ``fusion_weight`` / ``fusion_eps``: weight of the geometric
+    score and its IoU clip when a calibration is set (:mod:`xcalib.engine.fusion`)."""
 
     def __init__(self, model: "torch.nn.Module | str", config: Mapping[str, Any] | None = None, *,
                  device: str | torch.device | None = None, weights_path: str | Path | None = None,
@@ -54,6 +74,27 @@ class Matcher:
         self.weights_path = None if weights_path is None else Path(weights_path)
         self.site = site
         self._warnings = WarningRegistry()
+        self._calibration = None
+        self.fusion_weight = FUSION_WEIGHT
+        self.fusion_eps = GEO_EPS
+
+    # ------------------------------------------------------------------ calibration
+    @property
+    def calibration(self):
+        """The site's ``CalibrationResult`` (``T_cam_lidar`` + intrinsics) or None."""
+        return self._calibration
+
+    def set_calibration(self, calibration) -> None:
+        """Use ``calibration`` (a successful ``CalibrationResult`` with intrinsics) in ``match``;
+        None removes it."""
+        if calibration is not None:
+            if not hasattr(calibration, "rotation") or not hasattr(calibration, "intrinsics"):
+                raise TypeError(f"set_calibration: expected a CalibrationResult or None, got {type(calibration).__name__}")
+            if not calibration.success:
+                raise ValueError(f"set_calibration: the calibration failed ({calibration.message})")
+            if calibration.intrinsics is None:
+                raise ValueError("set_calibration: the calibration has no camera intrinsics (needed to project boxes)")
+        self._calibration = calibration
 
     # ------------------------------------------------------------------ loading
     @classmethod
@@ -63,7 +104,8 @@ class Matcher:
         """Load ``model`` with weights from the site folders (``weights=None``), a directory
         written by :meth:`save_pretrained`, or a weights file. The config is ``config`` (YAML path
         or dict, merged onto the model defaults) or else the YAML beside the weights, else the
-        one stored in the weights file. A checkpoint that does not fit is an error."""
+        one stored in the weights file. A checkpoint that does not fit is an error. Site folders
+        and weights directories with a ``calibration.json`` give the matcher that calibration."""
         from ..models import create_model, default_config, merge_config
         from ..models.registry import model_class
 
@@ -95,16 +137,23 @@ class Matcher:
             raise ValueError(f"config names model {cfg.get('model')!r}, but {model!r} was requested")
         net = create_model(model, cfg)
         load_state_strict(net, payload["state_dict"], str(path))
-        return cls(net, device=device, weights_path=path, site=site if weights is None else None)
+        out = cls(net, device=device, weights_path=path, site=site if weights is None else None)
+        if weights is None or Path(weights).is_dir():  # a site / saved folder: its calibration.json
+            out.set_calibration(load_calibration_beside(path.parent))
+        return out
 
     def save_pretrained(self, save_dir: str | Path, *, dtype: str = "float32") -> dict[str, Path]:
-        """Write ``<dir>/<model>.pt`` and ``<dir>/<model>.yaml`` (no device in either)."""
+        """Write ``<dir>/<model>.pt`` and ``<dir>/<model>.yaml`` (no device in either), and
+        ``<dir>/calibration.json`` when a calibration is set."""
         d = Path(save_dir)
         d.mkdir(parents=True, exist_ok=True)
         w = save_weights(self.model, d / f"{self.model_name}.pt", model_name=self.model_name,
                          config=self.config, dtype=dtype)
         c = write_config(d / f"{self.model_name}.yaml", self.config)
-        return {"weights": w, "config": c}
+        out = {"weights": w, "config": c}
+        if self._calibration is not None:
+            out["calibration"] = self._calibration.save(d / CALIBRATION_FILE)
+        return out
 
     # ------------------------------------------------------------------ stages
     def prepare(self, image, point_cloud, bboxes_2d, bboxes_3d, rng: np.random.Generator | None = None,
@@ -142,10 +191,15 @@ class Matcher:
 
     def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float = 0.0,
               validate: str = "warn", assignment: str = "argmax", *, images=None,
-              camera_per_det=None) -> MatchResult:
-        """Match one frame. ``latency_ms`` = crop + model wall time (validation excluded)."""
+              camera_per_det=None, use_calibration: str | bool = "auto", box7=None) -> MatchResult:
+        """Match one frame. ``latency_ms`` = crop + model (+ projection and fusion) wall time
+        (validation excluded). ``use_calibration``: "auto" fuses the model's scores with the
+        projection IoU through :attr:`calibration` when one is set (single-camera frames), True
+        requires it, False gives the model's scores alone. ``box7`` [M,7]: optional yawed 3D boxes
+        for the projection when ``bboxes_3d`` are axis-aligned [M,6]."""
         if assignment not in ASSIGNMENTS:
             raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {assignment!r}")
+        fuse = resolve_use_calibration(use_calibration, self._calibration, images is not None)
         self._validate(image, point_cloud, bboxes_2d, bboxes_3d, validate)
         t0 = time.perf_counter()
         multi = {"images": images, "camera_per_det": camera_per_det} if images is not None else {}
@@ -153,14 +207,21 @@ class Matcher:
         sim = self.similarity(inputs)
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
-        ms = (time.perf_counter() - t0) * 1000.0
-        top, pairs = assign(sim, top_k=top_k, threshold=match_threshold, method=assignment,
-                            fill_value=getattr(self.model, "fill_value", None))
+        fill = getattr(self.model, "fill_value", None)
         k2, k3 = inputs.kept_2d, inputs.kept_3d
+        geo, weight = None, 0.0
+        if fuse and sim.size:
+            geo = geometric_iou(image, point_cloud, bboxes_2d, bboxes_3d, self._calibration, k2, k3, box7=box7)
+            weight = float(self.fusion_weight)
+            sim = fuse_scores(sim, geo, score_range=getattr(self.model, "score_range", (-1.0, 1.0)),
+                              weight=weight, eps=self.fusion_eps, fill_value=fill)
+        ms = (time.perf_counter() - t0) * 1000.0
+        top, pairs = assign(sim, top_k=top_k, threshold=match_threshold, method=assignment, fill_value=fill)
         matches = [(int(k2[i]), int(k3[j]), s) for i, j, s in pairs]
         return MatchResult(similarity=sim, top_indices=top, matches=matches, kept_2d_indices=k2.astype(np.int64),
                            kept_3d_indices=k3.astype(np.int64), latency_ms=ms, model=self.model_name,
-                           device=str(self.device), assignment=assignment)
+                           device=str(self.device), assignment=assignment, geometry_iou=geo,
+                           fusion_weight=weight)
 
     pair = match
 
@@ -170,6 +231,8 @@ class Matcher:
         if frame.images and frame.camera_per_det is not None:
             kw.setdefault("images", frame.images)
             kw.setdefault("camera_per_det", frame.camera_per_det)
+        if frame.meta and "box7" in frame.meta:
+            kw.setdefault("box7", frame.meta["box7"])
         return self.match(frame.image, frame.point_cloud, frame.bboxes_2d, frame.bboxes_3d, **kw)
 
     # ------------------------------------------------------------------ other tasks
@@ -220,4 +283,6 @@ class Matcher:
         return OnnxMatcher(onnx_dir, **kwargs)
 
     def __repr__(self) -> str:
-        return f"Matcher(model={self.model_name!r}, device={str(self.device)!r}, weights={str(self.weights_path)!r})"
+        cal = "" if self._calibration is None else ", calibrated=True"
+        return (f"Matcher(model={self.model_name!r}, device={str(self.device)!r}, "
+                f"weights={str(self.weights_path)!r}{cal})")
