@@ -113,14 +113,18 @@ class CameraIntrinsics:
         if not path.is_file():
             raise FileNotFoundError(f"intrinsics file not found: {path}")
         try:
-            d = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
+            d = json.loads(path.read_text(encoding="utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise FormatError(path, f"not valid JSON ({exc})") from None
         if not isinstance(d, dict):
             raise FormatError(path, f"expected a JSON object, got {type(d).__name__}")
+        missing = [k for k in ("fx", "fy", "cx", "cy") if k not in d]
+        if missing and "K" not in d:
+            raise FormatError(path, f"missing key; expected fx, fy, cx, cy (pixels) or K [3,3], found {sorted(d)}",
+                              field=missing[0])
         try:
-            return cls.from_dict(d, source=str(path))
-        except ValueError as exc:
+            return cls.from_dict(d, source="CameraIntrinsics")
+        except (TypeError, ValueError) as exc:
             raise FormatError(path, str(exc)) from None
 
     def to_dict(self) -> dict:

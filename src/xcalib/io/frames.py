@@ -70,18 +70,9 @@ def _box_array(path: Path, key: str, value, widths: tuple[int, ...]) -> np.ndarr
 
 
 def read_intrinsics_json(path) -> CameraIntrinsics:
-    """``{"fx", "fy", "cx", "cy", "distortion"?, "width"?, "height"?}`` (pixels) -> intrinsics."""
-    path = Path(path)
-    obj = _load_json(path)
-    for key in ("fx", "fy", "cx", "cy"):
-        if key not in obj:
-            raise FormatError(path, "missing key", field=key)
-    dist = obj.get("distortion") or None
-    try:
-        return CameraIntrinsics(obj["fx"], obj["fy"], obj["cx"], obj["cy"], distortion=dist,
-                                width=obj.get("width"), height=obj.get("height"))
-    except (TypeError, ValueError) as exc:
-        raise FormatError(path, str(exc)) from None
+    """``{"fx", "fy", "cx", "cy", "distortion"?, "width"?, "height"?}`` (pixels) -> intrinsics
+    (:meth:`CameraIntrinsics.from_json`)."""
+    return CameraIntrinsics.from_json(path)
 
 
 def read_detections(path, *, default_key: str = "", default_camera: str = "",
