@@ -15,6 +15,7 @@ Site weights are looked up in ``$XCALIB_HOME/sites/<site>/`` (default
 
 from __future__ import annotations
 
+import io
 import os
 from importlib import resources
 from pathlib import Path
@@ -25,6 +26,7 @@ import yaml
 
 from .._version import __version__
 from ..errors import XcalibError
+from ..io._files import atomic_write
 
 __all__ = ["FORMAT", "WeightsMismatchError", "WeightsNotFoundError", "xcalib_home", "site_dirs",
            "find_site_weights", "save_weights", "read_checkpoint", "load_state_strict", "write_config",
@@ -92,8 +94,7 @@ def find_site_weights(model: str, site: str) -> Path:
 
 def write_config(path: Path, config: dict[str, Any]) -> Path:
     cfg = {k: v for k, v in config.items() if k not in ("device", "weights_path")}
-    path.write_text(yaml.safe_dump(cfg, sort_keys=False))
-    return path
+    return atomic_write(path, [yaml.safe_dump(cfg, sort_keys=False).encode()])
 
 
 def read_config(path: Path) -> dict[str, Any]:
@@ -119,12 +120,9 @@ def save_weights(model: torch.nn.Module, path: Path, *, model_name: str, config:
     payload = {"format": FORMAT, "model_name": model_name, "package_version": __version__,
                "config": {k: v for k, v in config.items() if k not in ("device", "weights_path")},
                "dtype": dtype, "state_dict": sd, **(extra or {})}
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(payload, tmp)
-    tmp.replace(path)
-    return path
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    return atomic_write(path, [buf.getbuffer()])
 
 
 def read_checkpoint(path: Path) -> dict[str, Any]:

@@ -39,6 +39,7 @@ from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.rotations import matrix_to_quaternion, rotation_angle
 from ..geometry.transforms import invert_transform, make_transform
+from ..io._files import atomic_write
 from ._checks import as_float, as_matrix, checked_quaternion, checked_rotation, require
 from ._result import calibration_record, opencv_distortion, require_intrinsics, split_opencv_distortion
 
@@ -76,10 +77,7 @@ def load_json(path) -> Any:
 
 
 def _write_json(path, obj) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(obj, indent=2) + "\n")
-    return path
+    return atomic_write(path, [(json.dumps(obj, indent=2) + "\n").encode()])
 
 
 # ------------------------------------------------------------------------- lucid pose maths

@@ -17,6 +17,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..io._files import atomic_write
+
 __all__ = ["ReportFigure", "CalibrationReport", "write_calibration_report", "frame_arrays"]
 
 _MAX_WIDTH = 1280  # px of the written overlay PNGs
@@ -255,9 +257,7 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
     if extra:
         nums.update(extra)
     html_path = out / "report.html"
-    tmp = out / ".report.html.tmp"
-    tmp.write_text(_render_html(title, result, nums, figures, out))
-    tmp.replace(html_path)
+    atomic_write(html_path, [_render_html(title, result, nums, figures, out).encode()])
     return CalibrationReport(html=html_path, figures=figures, numbers=nums)
 
 

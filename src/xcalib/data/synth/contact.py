@@ -89,10 +89,7 @@ def contact_sheet(frames: Sequence[Frame], path, *, cols: int = 3, tile_width: i
         row += [np.zeros((th, tile_width, 3), np.uint8)] * (cols - len(row))
         rows.append(np.hstack(row))
     sheet = np.vstack(rows)
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    ok, enc = cv2.imencode(".png", cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise ValueError(f"contact_sheet: could not encode {p}")
-    p.write_bytes(enc.tobytes())
-    return p
+    from ...io._files import atomic_write
+    from ...io.images import encode_image
+
+    return atomic_write(path, [encode_image(sheet, ".png")])

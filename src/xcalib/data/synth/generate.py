@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...io._files import atomic_write
 from ...types import Frame
 from .detections import camera_view, detect
 from .presets import NOISE_FIELDS
@@ -114,7 +115,5 @@ def write_site(out_dir, n_train: int, n_val: int, n_test: int, seed: int = 0, pr
     info = site.to_dict()
     info["splits"] = {s: {"file": f"{s}.h5", "frames": n, "sequence_seed": 1000 * int(seed) + _SPLIT_SEED[s]}
                       for s, n in counts.items()}
-    tmp = out / ".site.json.tmp"
-    tmp.write_text(json.dumps(info, indent=2))
-    tmp.replace(out / "site.json")
+    atomic_write(out / "site.json", [json.dumps(info, indent=2).encode()])
     return out
