@@ -27,6 +27,7 @@ import numpy as np
 from ..errors import FormatError
 from ..geometry.boxes import box7_corners, boxes2d_from_points, check_boxes3d
 from ..geometry.camera import CameraIntrinsics
+from ..geometry.projection import project_points
 from ..geometry.transforms import invert_transform, make_transform
 from ..types import Frame
 from ._checks import as_matrix, checked_rotation
@@ -482,12 +483,7 @@ def project_box7(boxes7, K, T_cam_lidar, image_size: tuple[int, int] | None = No
     if n == 0:
         return np.zeros((0, 4))
     T = np.asarray(T_cam_lidar, dtype=np.float64)
-    pc = corners.reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
-    z = pc[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uvw = pc @ np.asarray(K, dtype=np.float64).T
-        uv = uvw[:, :2] / uvw[:, 2:3]
-    uv[z < min_depth] = np.nan
+    uv, _ = project_points(corners.reshape(-1, 3), K, T[:3, :3], T[:3, 3], min_depth=min_depth)
     boxes = boxes2d_from_points(uv.reshape(n, 8, 2))
     if image_size is not None:
         w, h = image_size

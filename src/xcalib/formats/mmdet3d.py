@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
+from ..geometry.projection import project_points
 from ..geometry.transforms import make_transform
 from ..types import Frame
 from ._checks import as_matrix, checked_rotation
@@ -206,10 +207,8 @@ class Mmdet3dFrames(Sequence):
                 raise FormatError(self.path, f"sample {s.key}: LiDAR file not found")
             points, fields = load_cloud(s.lidar_path, columns=s.num_pts_feats)
         T = cam.T_cam_lidar
-        centre = s.boxes7[:, :3] @ T[:3, :3].T + T[:3, 3]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uv = (centre @ cam.intrinsics.K.T)[:, :2] / centre[:, 2:3]
-        visible = centre[:, 2] > 0.5
+        uv, depth = project_points(s.boxes7[:, :3], cam.intrinsics.K, T[:3, :3], T[:3, 3])
+        visible = depth > 0.5
         if size[0] is not None:
             visible &= (uv[:, 0] >= 0) & (uv[:, 0] < size[0]) & (uv[:, 1] >= 0) & (uv[:, 1] < size[1])
         visible[cam.box_index[cam.box_index >= 0]] = True
