@@ -6,7 +6,8 @@
    file; "auto" = the packaged ``synthetic`` site when present) with the heads mode, or from
    random weights with the full mode ("scratch");
 4. install the weights (and ``calibration.json``) where ``Matcher.from_pretrained(model, site=SITE)``
-   finds them (``$XCALIB_HOME/sites/<site>/``), unless ``install=False``.
+   finds them (``$XCALIB_HOME/sites/<site>/``), unless ``install=False``; the reloaded matcher
+   carries that calibration and fuses it into ``match``.
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ log = logging.getLogger("xcalib.oneshot")
 
 @dataclass
 class BootstrapResult:
-    """Outcome of :func:`bootstrap`: where the weights went, the pose, the training report."""
+    """Outcome of :func:`bootstrap`: where the weights went, the pose, the training report, and
+    the trained ``matcher`` (carrying the pose: its ``match`` fuses model and projection)."""
 
     site: str
     model: str
@@ -38,6 +40,7 @@ class BootstrapResult:
     adapt: AdaptReport
     paths: dict[str, Path] = field(default_factory=dict)
     elapsed_s: float = 0.0
+    matcher: object = None
 
     def summary(self) -> dict:
         c = self.calibration
@@ -110,4 +113,4 @@ def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "f
     if install:
         paths.update(session.save_site(site))
     return BootstrapResult(site=site, model=model, init=init_desc, n_frames=n, calibration=session.calibration,
-                           adapt=report, paths=paths, elapsed_s=time.perf_counter() - t0)
+                           adapt=report, paths=paths, elapsed_s=time.perf_counter() - t0, matcher=session.matcher)

@@ -10,6 +10,12 @@ pose is adopted only when it explains the whole buffer better (:class:`PoseGate`
 confidence; the starting weights stay in memory (:meth:`reset_weights`). :meth:`save` writes a
 folder ``Matcher.from_pretrained(model, weights=DIR)`` reloads bit-exactly; :meth:`save_site`
 installs it where ``Matcher.from_pretrained(model, site=NAME)`` looks.
+
+The session's matcher carries the session's pose (``matcher.calibration``, None until one is
+accepted or set; a calibration the matcher had from another site is dropped), so its ``match``
+fuses the model with the projection geometry, and the saved folder's ``calibration.json`` gives
+the reloaded matcher the same. The session's own matching (agreement reports) uses the model
+alone, so pseudo-labels never feed on themselves.
 """
 
 from __future__ import annotations
@@ -137,6 +143,11 @@ class OneShotSession:
         self.image_size: tuple[int, int] | None = None
         self.history: list[AdaptReport] = []
         self.base_state = {k: v.detach().clone() for k, v in matcher.model.state_dict().items()}
+        self._sync_matcher()
+
+    def _sync_matcher(self) -> None:
+        """The matcher carries the session's current pose (None before one)."""
+        self.matcher.set_calibration(self.pose.current)
 
     # ------------------------------------------------------------------ state
     @property
@@ -161,6 +172,7 @@ class OneShotSession:
         With ``lock`` the automatic calibration never replaces it."""
         cal = _as_calibration(calibration, self.intrinsics)
         self.pose.set(cal, lock=lock)
+        self._sync_matcher()
         return cal
 
     def reset_weights(self) -> None:
@@ -205,6 +217,7 @@ class OneShotSession:
             update = self.pose.propose(self.buffer.frames(), progress=progress)
             self.next_calibration_at = max(self.n_observed + 1,
                                            int(math.ceil(self.n_observed * self.recalibrate_growth)))
+            self._sync_matcher()
         n_pseudo, agree = 0, float("nan")
         if self.is_calibrated and not obs.empty:
             t = pseudo_targets(obs, self.calibration, gate=self.gate, neg_iou=self.neg_iou)
@@ -236,7 +249,9 @@ class OneShotSession:
 
     def calibrate(self, progress: Callable[[str, int, int], None] | None = None) -> CalibrationUpdate:
         """Attempt a calibration on the whole buffer now (the gate still decides)."""
-        return self.pose.propose(self.buffer.frames(), progress=progress)
+        update = self.pose.propose(self.buffer.frames(), progress=progress)
+        self._sync_matcher()
+        return update
 
     # ------------------------------------------------------------------ adapting
     def pseudo_labels(self) -> list[PseudoTargets]:
@@ -285,9 +300,11 @@ class OneShotSession:
         """Write ``<model>.pt`` + ``<model>.yaml`` (``Matcher.from_pretrained(model, weights=DIR)``
         reloads them bit-exactly), ``calibration.json`` (when calibrated) and ``oneshot.json``."""
         d = Path(save_dir)
-        paths = self.matcher.save_pretrained(d)
-        if self.is_calibrated:
-            paths["calibration"] = self.calibration.save(d / "calibration.json")
+        self._sync_matcher()
+        stale = d / "calibration.json"
+        if not self.is_calibrated and stale.is_file():
+            stale.unlink()  # never leave another pose beside these weights
+        paths = self.matcher.save_pretrained(d)  # + calibration.json when calibrated
         info = {"format": "xcalib-oneshot-v1", "model": self.matcher.model_name, "observed_frames": self.n_observed,
                 "buffer_frames": len(self.buffer), "image_size": self.image_size,
                 "intrinsics": self.intrinsics.to_dict(), "calibrated": self.is_calibrated,
