@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 
 from ..errors import FormatError
-from ..geometry.rotations import orthonormalize, quaternion_to_matrix
+from ..geometry.rotations import orthonormality_error, orthonormalize, quaternion_to_matrix
 
 __all__ = ["ROTATION_TOL", "REPAIR_TOL", "as_matrix", "checked_rotation", "checked_quaternion",
-           "require", "as_float", "rotation_error"]
+           "require", "as_float"]
 
 #: A rotation read from a file is accepted as-is when max|R R^T - I| and |det - 1| are within this.
 ROTATION_TOL = 1e-5
@@ -76,16 +76,11 @@ def _shape_str(shape) -> str:
     return "x".join(str(s) for s in shape)
 
 
-def rotation_error(R: np.ndarray) -> float:
-    """max(|R R^T - I|, |det R - 1|): 0 for an exact rotation."""
-    return float(max(np.abs(R @ R.T - np.eye(3)).max(), abs(np.linalg.det(R) - 1.0)))
-
-
 def checked_rotation(R, path, field: str, *, repair: bool = False) -> np.ndarray:
     """Accept a [3,3] rotation within ``ROTATION_TOL``; with ``repair`` re-orthonormalise one
     within ``REPAIR_TOL``; otherwise raise FormatError stating the error and the tolerances."""
     R = as_matrix(R, (3, 3), path, field)
-    err = rotation_error(R)
+    err = orthonormality_error(R)
     if err <= ROTATION_TOL:
         return R
     if repair and err <= REPAIR_TOL and np.linalg.det(R) > 0:

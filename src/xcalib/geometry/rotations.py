@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 __all__ = [
     "euler_to_matrix", "matrix_to_euler", "quaternion_to_matrix", "matrix_to_quaternion",
     "rotvec_to_matrix", "matrix_to_rotvec", "is_rotation_matrix", "orthonormalize",
-    "rotation_angle", "check_rotation_matrix",
+    "rotation_angle", "check_rotation_matrix", "orthonormality_error",
 ]
 
 
@@ -64,12 +64,18 @@ def matrix_to_rotvec(R) -> np.ndarray:
     return Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_rotvec()
 
 
+def orthonormality_error(R) -> float:
+    """max(|R R^T - I|, |det R - 1|) of a [3,3] matrix: 0 for an exact rotation."""
+    R = np.asarray(R, dtype=np.float64)
+    return float(max(np.abs(R @ R.T - np.eye(3)).max(), abs(np.linalg.det(R) - 1.0)))
+
+
 def is_rotation_matrix(R, tol: float = 1e-6) -> bool:
     """True when ``R`` is 3x3, orthonormal within ``tol`` and has determinant +1."""
     R = np.asarray(R, dtype=np.float64)
     if R.shape != (3, 3) or not np.all(np.isfinite(R)):
         return False
-    return bool(np.abs(R @ R.T - np.eye(3)).max() <= tol and abs(np.linalg.det(R) - 1.0) <= tol)
+    return orthonormality_error(R) <= tol
 
 
 def check_rotation_matrix(R, name: str = "rotation", tol: float = 1e-4) -> np.ndarray:
