@@ -11,6 +11,7 @@ import numpy as np
 from ..geometry.boxes import as_box7, box7_corners, check_boxes2d
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.projection import project_points
+from .matching import _to_uint8
 
 __all__ = ["draw_calibration_overlay", "BOX_EDGES"]
 
@@ -67,11 +68,7 @@ def draw_calibration_overlay(image, point_cloud=None, *, calibration=None, proje
     import cv2
 
     intr, R, t = _pose_args(calibration, projection, intrinsics, rotation, translation)
-    img = np.asarray(image)
-    if img.ndim != 3 or img.shape[2] != 3:
-        raise ValueError(f"image: expected [H,W,3] RGB, got shape {img.shape}")
-    if img.dtype != np.uint8:
-        img = np.clip(img * (255.0 if img.max() <= 1.0 else 1.0), 0, 255).astype(np.uint8)
+    img = _to_uint8(image)
     out = np.ascontiguousarray(img.copy())
     Hh, W = out.shape[:2]
     if point_cloud is not None and len(point_cloud):
