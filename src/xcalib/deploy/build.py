@@ -197,6 +197,8 @@ def export_onnx(matcher, folder: Path, *, site: str, weights_sha: str, opset: in
             res.notes.append("verify=False: parity NOT checked (parity_ok is False)")
         man.parity, man.parity_ok = res.parity, res.parity_ok
         write_manifest(tmp, man)
+        if getattr(matcher, "calibration", None) is not None:  # OnnxMatcher fuses it into match, as Matcher
+            matcher.calibration.save(tmp / "calibration.json")
         _replace_dir(tmp, folder)
     finally:
         if tmp.exists():

@@ -10,6 +10,10 @@ per-row top-k + pair graph + sigmoid with -1 elsewhere; all-pairs graph + sigmoi
 With ``envelope=`` an :class:`~xcalib.deploy.chunking.Envelope` (or ``"protocol"``), every graph
 call stays inside the engine envelope: larger frames are split into chunks along the graph's
 batch axis and merged (a TensorRT runtime has to do the same). This module never imports torch.
+
+A ``calibration.json`` in the folder (written by ``Matcher.build`` for a matcher with a site
+calibration), or ``set_calibration``, makes ``match`` fuse the scores with the projection
+geometry exactly as ``Matcher.match`` does (:mod:`xcalib.engine.fusion`, numpy only).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..data.crops import CropConfig, FrameInputs, prepare_frame
+from ..engine.fusion import FUSION_WEIGHT, GEO_EPS, fuse_scores, geometric_iou, resolve_use_calibration
 from ..engine.host import ASSIGNMENTS, assign, validate_match_inputs
 from ..protocol import WarningRegistry
 from ..types import Frame, MatchResult
@@ -120,6 +125,24 @@ class OnnxMatcher:
             if need not in self.sessions:
                 raise OnnxFolderError(mpath, f"family {self.family!r} needs graph {need!r}; graphs: {sorted(self.sessions)}")
         self.device = f"onnxruntime:{self.sessions['image_embed'].get_providers()[0]}"
+        self.score_range = (-1.0, 1.0) if self.family == "cosine" else (0.0, 1.0)
+        self.fusion_weight, self.fusion_eps = FUSION_WEIGHT, GEO_EPS
+        self._calibration = None
+        if (self.folder / "calibration.json").is_file():
+            from ..calib.result import CalibrationResult  # numpy only
+
+            self.set_calibration(CalibrationResult.load(self.folder / "calibration.json"))
+
+    @property
+    def calibration(self):
+        """The site's ``CalibrationResult`` or None (see ``Matcher.calibration``)."""
+        return self._calibration
+
+    def set_calibration(self, calibration) -> None:
+        """As ``Matcher.set_calibration``: a successful ``CalibrationResult`` with intrinsics, or None."""
+        if calibration is not None and (not calibration.success or calibration.intrinsics is None):
+            raise ValueError("set_calibration: expected a successful CalibrationResult with intrinsics")
+        self._calibration = calibration
 
     # ------------------------------------------------------------------ graphs
     def _max_rows(self, graph: str) -> int | None:
@@ -187,24 +210,31 @@ class OnnxMatcher:
 
     def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float = 0.0,
               validate: str = "warn", assignment: str = "argmax", *, images=None,
-              camera_per_det=None) -> MatchResult:
+              camera_per_det=None, use_calibration: str | bool = "auto", box7=None) -> MatchResult:
         """Match one frame (see ``Matcher.match``). ``latency_ms`` = crop + graphs + host scoring."""
         if assignment not in ASSIGNMENTS:
             raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {assignment!r}")
+        fuse = resolve_use_calibration(use_calibration, self._calibration, images is not None)
         validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, validate,
                               bbox_expansion=self.crop_config.bbox_expansion, registry=self._warnings)
         t0 = time.perf_counter()
         multi = {"images": images, "camera_per_det": camera_per_det} if images is not None else {}
         inputs = self.prepare(image, point_cloud, bboxes_2d, bboxes_3d, **multi)
         sim = self.similarity(inputs)
+        k2, k3 = inputs.kept_2d, inputs.kept_3d
+        geo, weight = None, 0.0
+        if fuse and sim.size:
+            geo = geometric_iou(image, point_cloud, bboxes_2d, bboxes_3d, self._calibration, k2, k3, box7=box7)
+            weight = float(self.fusion_weight)
+            sim = fuse_scores(sim, geo, score_range=self.score_range, weight=weight, eps=self.fusion_eps,
+                              fill_value=self.fill_value)
         ms = (time.perf_counter() - t0) * 1000.0
         top, pairs = assign(sim, top_k=top_k, threshold=match_threshold, method=assignment,
                             fill_value=self.fill_value)
-        k2, k3 = inputs.kept_2d, inputs.kept_3d
         matches = [(int(k2[i]), int(k3[j]), s) for i, j, s in pairs]
         return MatchResult(similarity=sim, top_indices=top, matches=matches, kept_2d_indices=k2.astype(np.int64),
                            kept_3d_indices=k3.astype(np.int64), latency_ms=ms, model=self.model_name,
-                           device=self.device, assignment=assignment)
+                           device=self.device, assignment=assignment, geometry_iou=geo, fusion_weight=weight)
 
     pair = match
 
@@ -213,6 +243,8 @@ class OnnxMatcher:
         if frame.images and frame.camera_per_det is not None:
             kw.setdefault("images", frame.images)
             kw.setdefault("camera_per_det", frame.camera_per_det)
+        if frame.meta and "box7" in frame.meta:
+            kw.setdefault("box7", frame.meta["box7"])
         return self.match(frame.image, frame.point_cloud, frame.bboxes_2d, frame.bboxes_3d, **kw)
 
     def __repr__(self) -> str:
