@@ -19,17 +19,6 @@ def load_matcher(model: str, site: str, weights: Optional[Path], config: Optiona
     return Matcher.from_pretrained(model, weights=weights, config=config, device=device, site=site)
 
 
-def open_frames(path: Path):
-    """A frame folder or an HDF5 cache as a sequence of ``Frame``s."""
-    from ..io.hdf5 import CacheReader, is_hdf5_cache
-
-    if path.is_file() and is_hdf5_cache(path):
-        return CacheReader(path)
-    from ..io.frames import read_frames
-
-    return read_frames(path)
-
-
 def register(app: typer.Typer) -> None:
     @app.command("match", help="Match the 2D and 3D detections of one frame.\n\n" + _EXAMPLE)
     def match(
@@ -47,7 +36,9 @@ def register(app: typer.Typer) -> None:
         validate: str = typer.Option("warn", "--validate", help="warn, strict or off."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
     ) -> None:
-        frames = open_frames(path)
+        from ..io.frames import read_frames
+
+        frames = read_frames(path)
         if key is not None:
             keys = list(getattr(frames, "frame_keys", []))
             if key not in keys:

@@ -223,7 +223,9 @@ def is_frame_folder(path) -> bool:
 # Owners of other formats (HDF5 caches, KITTI, CalibAnything, ...) add an entry with
 # register_reader; the first whose detect() accepts the path wins.
 def _is_hdf5(p: Path) -> bool:
-    return p.is_file() and p.suffix.lower() in (".h5", ".hdf5")
+    from .hdf5 import is_hdf5_cache  # the module; h5py itself only when a cache is opened
+
+    return is_hdf5_cache(p)
 
 
 def _open_hdf5(p: Path, **kwargs) -> Sequence[Frame]:
