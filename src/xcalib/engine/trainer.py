@@ -92,11 +92,9 @@ def load_frames(data, limit: int | None = None) -> Iterable[Frame]:
     """Frames from a sequence of ``Frame``s, an .h5 cache path or a folder/site accepted by
     ``xcalib.io.hdf5.load_dataset``."""
     if isinstance(data, (str, Path)):
-        from ..io.hdf5 import CacheReader, load_dataset
+        from ..io.hdf5 import load_dataset  # an .h5 file opens as a CacheReader
 
-        p = Path(data)
-        reader = CacheReader(p) if p.is_file() else load_dataset(p)
-        frames: Iterable[Frame] = reader
+        frames: Iterable[Frame] = load_dataset(Path(data))
     else:
         frames = data
     for i, f in enumerate(frames):
