@@ -19,7 +19,6 @@ T_front_cam_to_ref @ inv(T_front_cam_to_vehicle)`` (``T_front_cam_to_ref`` = ``R
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
