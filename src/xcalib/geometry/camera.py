@@ -55,7 +55,7 @@ class CameraIntrinsics:
                     f"(k1 k2 p1 p2 [k3 [k4 k5 k6]]), got {d.size}"
                 )
             elif not np.all(np.isfinite(d)):
-                raise ValueError("CameraIntrinsics.distortion: coefficients must be finite")
+                raise ValueError(f"CameraIntrinsics.distortion: expected finite coefficients, got {d.tolist()}")
             object.__setattr__(self, "distortion", d)
         for name in ("width", "height"):
             value = getattr(self, name)

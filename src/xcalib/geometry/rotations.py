@@ -40,7 +40,8 @@ def quaternion_to_matrix(q, order: str = "xyzw") -> np.ndarray:
         raise ValueError(f"quaternion must have 4 components, got shape {q.shape}")
     norm = np.linalg.norm(q, axis=-1)
     if np.any(norm < 1e-12) or not np.all(np.isfinite(q)):
-        raise ValueError("quaternion has zero norm or non-finite components")
+        bad = q.reshape(-1, 4)[(norm.reshape(-1) < 1e-12) | ~np.all(np.isfinite(q.reshape(-1, 4)), axis=1)]
+        raise ValueError(f"quaternion ({order}): zero norm or non-finite components; expected a finite, non-zero 4-vector, got {bad[0].tolist()}")
     if _check_order(order) == "wxyz":
         q = np.roll(q, -1, axis=-1)
     return Rotation.from_quat(q).as_matrix()
