@@ -19,7 +19,6 @@ geometry exactly as ``Matcher.match`` does (:mod:`xcalib.engine.fusion`, numpy o
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,8 +26,8 @@ from typing import Any
 import numpy as np
 
 from ..data.crops import CropConfig, FrameInputs, prepare_frame
-from ..engine.fusion import FUSION_WEIGHT, GEO_EPS, fuse_scores, geometric_iou, resolve_use_calibration
-from ..engine.host import ASSIGNMENTS, assign, validate_match_inputs
+from ..engine.fusion import FUSION_WEIGHT, GEO_EPS
+from ..engine.host import frame_match_args, run_match
 from ..protocol import WarningRegistry
 from ..types import Frame, MatchResult
 from .chunking import PROTOCOL_ENVELOPE, Envelope, run_chunked
@@ -212,40 +211,17 @@ class OnnxMatcher:
               validate: str = "warn", assignment: str = "argmax", *, images=None,
               camera_per_det=None, use_calibration: str | bool = "auto", box7=None) -> MatchResult:
         """Match one frame (see ``Matcher.match``). ``latency_ms`` = crop + graphs + host scoring."""
-        if assignment not in ASSIGNMENTS:
-            raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {assignment!r}")
-        fuse = resolve_use_calibration(use_calibration, self._calibration, images is not None)
-        validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, validate,
-                              bbox_expansion=self.crop_config.bbox_expansion, registry=self._warnings)
-        t0 = time.perf_counter()
-        multi = {"images": images, "camera_per_det": camera_per_det} if images is not None else {}
-        inputs = self.prepare(image, point_cloud, bboxes_2d, bboxes_3d, **multi)
-        sim = self.similarity(inputs)
-        k2, k3 = inputs.kept_2d, inputs.kept_3d
-        geo, weight = None, 0.0
-        if fuse and sim.size:
-            geo = geometric_iou(image, point_cloud, bboxes_2d, bboxes_3d, self._calibration, k2, k3, box7=box7)
-            weight = float(self.fusion_weight)
-            sim = fuse_scores(sim, geo, score_range=self.score_range, weight=weight, eps=self.fusion_eps,
-                              fill_value=self.fill_value)
-        ms = (time.perf_counter() - t0) * 1000.0
-        top, pairs = assign(sim, top_k=top_k, threshold=match_threshold, method=assignment,
-                            fill_value=self.fill_value)
-        matches = [(int(k2[i]), int(k3[j]), s) for i, j, s in pairs]
-        return MatchResult(similarity=sim, top_indices=top, matches=matches, kept_2d_indices=k2.astype(np.int64),
-                           kept_3d_indices=k3.astype(np.int64), latency_ms=ms, model=self.model_name,
-                           device=self.device, assignment=assignment, geometry_iou=geo, fusion_weight=weight)
+        return run_match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k=top_k, match_threshold=match_threshold,
+                         validate=validate, assignment=assignment, images=images, camera_per_det=camera_per_det,
+                         use_calibration=use_calibration, box7=box7, score_range=self.score_range,
+                         fill_value=self.fill_value)
 
     pair = match
 
     def match_frame(self, frame: Frame, **kw) -> MatchResult:
         """:meth:`match` on a :class:`xcalib.types.Frame` (multi-camera aware)."""
-        if frame.images and frame.camera_per_det is not None:
-            kw.setdefault("images", frame.images)
-            kw.setdefault("camera_per_det", frame.camera_per_det)
-        if frame.meta and "box7" in frame.meta:
-            kw.setdefault("box7", frame.meta["box7"])
-        return self.match(frame.image, frame.point_cloud, frame.bboxes_2d, frame.bboxes_3d, **kw)
+        args, kw = frame_match_args(frame, kw)
+        return self.match(*args, **kw)
 
     def __repr__(self) -> str:
         return (f"OnnxMatcher(model={self.model_name!r}, site={self.site!r}, folder={str(self.folder)!r}, "

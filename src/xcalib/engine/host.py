@@ -1,14 +1,19 @@
 """Torch-free host-side steps of ``Matcher.match`` shared by the PyTorch and ONNX Runtime
-paths: input validation (protocol v1.0) and assignment of matches from a similarity matrix."""
+paths: input validation (protocol v1.0), assignment of matches from a similarity matrix and
+the ``match`` / ``match_frame`` bodies themselves (:func:`run_match`, :func:`frame_match_args`)."""
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 
 from ..geometry.boxes import center_size_to_extents
 from ..protocol import WarningRegistry, check_validate_mode, enforce, validate_frame_inputs
+from ..types import Frame, MatchResult
+from .fusion import fuse_scores, geometric_iou, resolve_use_calibration
 
-__all__ = ["ASSIGNMENTS", "assign", "validate_match_inputs"]
+__all__ = ["ASSIGNMENTS", "assign", "validate_match_inputs", "run_match", "frame_match_args"]
 
 ASSIGNMENTS = ("argmax", "hungarian")
 
@@ -63,3 +68,45 @@ def assign(similarity: np.ndarray, *, top_k: int = 1, threshold: float = 0.0, me
             top[i] = j
             pairs.append((int(i), int(j), float(similarity[i, j])))
     return top, pairs
+
+
+def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_threshold: float, validate: str,
+              assignment: str, images, camera_per_det, use_calibration, box7, score_range,
+              fill_value: float | None) -> MatchResult:
+    """One frame through matcher ``m`` (``Matcher`` or ``OnnxMatcher``: ``crop_config``,
+    ``_warnings``, ``prepare``, ``similarity`` -> numpy [K',M'], ``calibration``,
+    ``fusion_weight``, ``fusion_eps``, ``model_name``, ``device``). ``latency_ms`` = crop + model
+    (+ projection and fusion) wall time, validation excluded; matches in the caller's numbering."""
+    if assignment not in ASSIGNMENTS:
+        raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {assignment!r}")
+    fuse = resolve_use_calibration(use_calibration, m.calibration, images is not None)
+    validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, validate,
+                          bbox_expansion=m.crop_config.bbox_expansion, registry=m._warnings)
+    t0 = time.perf_counter()
+    multi = {"images": images, "camera_per_det": camera_per_det} if images is not None else {}
+    inputs = m.prepare(image, point_cloud, bboxes_2d, bboxes_3d, **multi)
+    sim = m.similarity(inputs)
+    k2, k3 = inputs.kept_2d, inputs.kept_3d
+    geo, weight = None, 0.0
+    if fuse and sim.size:
+        geo = geometric_iou(image, point_cloud, bboxes_2d, bboxes_3d, m.calibration, k2, k3, box7=box7)
+        weight = float(m.fusion_weight)
+        sim = fuse_scores(sim, geo, score_range=score_range, weight=weight, eps=m.fusion_eps, fill_value=fill_value)
+    ms = (time.perf_counter() - t0) * 1000.0
+    top, pairs = assign(sim, top_k=top_k, threshold=match_threshold, method=assignment, fill_value=fill_value)
+    matches = [(int(k2[i]), int(k3[j]), s) for i, j, s in pairs]
+    return MatchResult(similarity=sim, top_indices=top, matches=matches, kept_2d_indices=k2.astype(np.int64),
+                       kept_3d_indices=k3.astype(np.int64), latency_ms=ms, model=m.model_name,
+                       device=str(m.device), assignment=assignment, geometry_iou=geo, fusion_weight=weight)
+
+
+def frame_match_args(frame: Frame, kw: dict) -> tuple[tuple, dict]:
+    """``match`` arguments of a :class:`~xcalib.types.Frame`: its arrays, plus (unless given in
+    ``kw``) its per-camera images for multi-camera frames and ``meta["box7"]``."""
+    kw = dict(kw)
+    if frame.images and frame.camera_per_det is not None:
+        kw.setdefault("images", frame.images)
+        kw.setdefault("camera_per_det", frame.camera_per_det)
+    if frame.meta and "box7" in frame.meta:
+        kw.setdefault("box7", frame.meta["box7"])
+    return (frame.image, frame.point_cloud, frame.bboxes_2d, frame.bboxes_3d), kw

@@ -14,7 +14,6 @@ the model's scores with the IoU of each 3D box projected through the calibration
 from __future__ import annotations
 
 import logging
-import time
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -24,8 +23,8 @@ import torch
 from ..data.crops import CropConfig, FrameInputs, prepare_frame
 from ..protocol import WarningRegistry
 from ..types import Frame, MatchResult
-from .host import ASSIGNMENTS, assign, validate_match_inputs  # torch-free, shared with ONNX Runtime
-from .fusion import FUSION_WEIGHT, GEO_EPS, fuse_scores, geometric_iou, resolve_use_calibration
+from .host import assign, frame_match_args, run_match, validate_match_inputs  # torch-free, shared with ONNX Runtime
+from .fusion import FUSION_WEIGHT, GEO_EPS
 from .checkpoint import (WeightsNotFoundError, find_site_weights, load_state_strict, read_checkpoint,
                          read_config, save_weights, weights_in_dir, write_config)
 
@@ -197,43 +196,19 @@ class Matcher:
         projection IoU through :attr:`calibration` when one is set (single-camera frames), True
         requires it, False gives the model's scores alone. ``box7`` [M,7]: optional yawed 3D boxes
         for the projection when ``bboxes_3d`` are axis-aligned [M,6]."""
-        if assignment not in ASSIGNMENTS:
-            raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {assignment!r}")
-        fuse = resolve_use_calibration(use_calibration, self._calibration, images is not None)
-        self._validate(image, point_cloud, bboxes_2d, bboxes_3d, validate)
-        t0 = time.perf_counter()
-        multi = {"images": images, "camera_per_det": camera_per_det} if images is not None else {}
-        inputs = self.prepare(image, point_cloud, bboxes_2d, bboxes_3d, **multi)
-        sim = self.similarity(inputs)
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
-        fill = getattr(self.model, "fill_value", None)
-        k2, k3 = inputs.kept_2d, inputs.kept_3d
-        geo, weight = None, 0.0
-        if fuse and sim.size:
-            geo = geometric_iou(image, point_cloud, bboxes_2d, bboxes_3d, self._calibration, k2, k3, box7=box7)
-            weight = float(self.fusion_weight)
-            sim = fuse_scores(sim, geo, score_range=getattr(self.model, "score_range", (-1.0, 1.0)),
-                              weight=weight, eps=self.fusion_eps, fill_value=fill)
-        ms = (time.perf_counter() - t0) * 1000.0
-        top, pairs = assign(sim, top_k=top_k, threshold=match_threshold, method=assignment, fill_value=fill)
-        matches = [(int(k2[i]), int(k3[j]), s) for i, j, s in pairs]
-        return MatchResult(similarity=sim, top_indices=top, matches=matches, kept_2d_indices=k2.astype(np.int64),
-                           kept_3d_indices=k3.astype(np.int64), latency_ms=ms, model=self.model_name,
-                           device=str(self.device), assignment=assignment, geometry_iou=geo,
-                           fusion_weight=weight)
+        return run_match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k=top_k, match_threshold=match_threshold,
+                         validate=validate, assignment=assignment, images=images, camera_per_det=camera_per_det,
+                         use_calibration=use_calibration, box7=box7,
+                         score_range=getattr(self.model, "score_range", (-1.0, 1.0)),
+                         fill_value=getattr(self.model, "fill_value", None))
 
     pair = match
 
     def match_frame(self, frame: Frame, **kw) -> MatchResult:
         """:meth:`match` on a :class:`xcalib.types.Frame` (multi-camera frames crop each 2D box
         from its own camera's image)."""
-        if frame.images and frame.camera_per_det is not None:
-            kw.setdefault("images", frame.images)
-            kw.setdefault("camera_per_det", frame.camera_per_det)
-        if frame.meta and "box7" in frame.meta:
-            kw.setdefault("box7", frame.meta["box7"])
-        return self.match(frame.image, frame.point_cloud, frame.bboxes_2d, frame.bboxes_3d, **kw)
+        args, kw = frame_match_args(frame, kw)
+        return self.match(*args, **kw)
 
     # ------------------------------------------------------------------ other tasks
     def calibrate(self, *args, **kw):
