@@ -72,11 +72,12 @@ def assign(similarity: np.ndarray, *, top_k: int = 1, threshold: float = 0.0, me
 
 def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_threshold: float, validate: str,
               assignment: str, images, camera_per_det, use_calibration, box7, score_range,
-              fill_value: float | None) -> MatchResult:
+              fill_value: float | None, return_latency: bool = False) -> MatchResult:
     """One frame through matcher ``m`` (``Matcher`` or ``OnnxMatcher``: ``crop_config``,
     ``_warnings``, ``prepare``, ``similarity`` -> numpy [K',M'], ``calibration``,
     ``fusion_weight``, ``fusion_eps``, ``model_name``, ``device``). ``latency_ms`` = crop + model
-    (+ projection and fusion) wall time, validation excluded; matches in the caller's numbering."""
+    (+ projection and fusion) wall time, validation excluded (``return_latency``: the model's
+    ``similarity`` call alone); matches in the caller's numbering."""
     if assignment not in ASSIGNMENTS:
         raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {assignment!r}")
     fuse = resolve_use_calibration(use_calibration, m.calibration, images is not None)
@@ -85,14 +86,16 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
     t0 = time.perf_counter()
     multi = {"images": images, "camera_per_det": camera_per_det} if images is not None else {}
     inputs = m.prepare(image, point_cloud, bboxes_2d, bboxes_3d, **multi)
+    t1 = time.perf_counter()
     sim = m.similarity(inputs)
+    forward_ms = (time.perf_counter() - t1) * 1000.0
     k2, k3 = inputs.kept_2d, inputs.kept_3d
     geo, weight = None, 0.0
     if fuse and sim.size:
         geo = geometric_iou(image, point_cloud, bboxes_2d, bboxes_3d, m.calibration, k2, k3, box7=box7)
         weight = float(m.fusion_weight)
         sim = fuse_scores(sim, geo, score_range=score_range, weight=weight, eps=m.fusion_eps, fill_value=fill_value)
-    ms = (time.perf_counter() - t0) * 1000.0
+    ms = forward_ms if return_latency else (time.perf_counter() - t0) * 1000.0
     top, pairs = assign(sim, top_k=top_k, threshold=match_threshold, method=assignment, fill_value=fill_value)
     matches = [(int(k2[i]), int(k3[j]), s) for i, j, s in pairs]
     return MatchResult(similarity=sim, top_indices=top, matches=matches, kept_2d_indices=k2.astype(np.int64),

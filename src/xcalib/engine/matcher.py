@@ -99,14 +99,23 @@ class Matcher:
     @classmethod
     def from_pretrained(cls, model: str, weights: str | Path | None = None,
                         config: str | Path | Mapping[str, Any] | None = None,
-                        device: str | torch.device | None = None, *, site: str = "synthetic") -> "Matcher":
+                        device: str | torch.device | None = None, *, site: str = "synthetic",
+                        repo_id: str | None = None, revision: str | None = None,
+                        token: str | None = None) -> "Matcher":
         """Load ``model`` with weights from the site folders (``weights=None``), a directory
         written by :meth:`save_pretrained`, or a weights file. The config is ``config`` (YAML path
         or dict, merged onto the model defaults) or else the YAML beside the weights, else the
         one stored in the weights file. A checkpoint that does not fit is an error. Site folders
-        and weights directories with a ``calibration.json`` give the matcher that calibration."""
+        and weights directories with a ``calibration.json`` give the matcher that calibration.
+        ``repo_id`` / ``revision`` / ``token`` are accepted for API compatibility and rejected
+        (xcalib never downloads weights)."""
         from ..models import create_model, default_config, merge_config
         from ..models.registry import model_class
+
+        if repo_id is not None or revision is not None or token is not None:
+            raise ValueError("Matcher.from_pretrained: xcalib never downloads weights (repo_id/revision/token "
+                             f"given); expected weights=None (site folders, site={site!r}), a save_pretrained "
+                             "directory or a weights file")
 
         model_class(model)  # unknown model -> UnknownModelError
         if weights is None:
@@ -190,14 +199,16 @@ class Matcher:
 
     def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float = 0.0,
               validate: str = "warn", assignment: str = "argmax", *, images=None,
-              camera_per_det=None, use_calibration: str | bool = "auto", box7=None) -> MatchResult:
+              camera_per_det=None, use_calibration: str | bool = "auto", box7=None,
+              return_latency: bool = False) -> MatchResult:
         """Match one frame. ``latency_ms`` = crop + model (+ projection and fusion) wall time
-        (validation excluded). ``use_calibration``: "auto" fuses the model's scores with the
+        (validation excluded), or the model's forward alone with ``return_latency=True``. ``use_calibration``: "auto" fuses the model's scores with the
         projection IoU through :attr:`calibration` when one is set (single-camera frames), True
         requires it, False gives the model's scores alone. ``box7`` [M,7]: optional yawed 3D boxes
         for the projection when ``bboxes_3d`` are axis-aligned [M,6]."""
         return run_match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k=top_k, match_threshold=match_threshold,
                          validate=validate, assignment=assignment, images=images, camera_per_det=camera_per_det,
+                         return_latency=return_latency,
                          use_calibration=use_calibration, box7=box7,
                          score_range=getattr(self.model, "score_range", (-1.0, 1.0)),
                          fill_value=getattr(self.model, "fill_value", None))
