@@ -112,4 +112,4 @@ def frame_match_args(frame: Frame, kw: dict) -> tuple[tuple, dict]:
         kw.setdefault("camera_per_det", frame.camera_per_det)
     if frame.meta and "box7" in frame.meta:
         kw.setdefault("box7", frame.meta["box7"])
-    return (frame.image, frame.point_cloud, frame.bboxes_2d, frame.bboxes_3d), kw
+    return frame.inputs(), kw
