@@ -31,7 +31,8 @@ def _write_tiny_frames(out: Path, num_frames: int = 3, seed: int = 0) -> Path:
     """A few synthetic frames: boxes of points in front of a camera, 2D boxes from projection."""
     import numpy as np
 
-    from ..geometry import CameraIntrinsics, box7_corners, boxes2d_from_points, make_transform, project_points
+    from ..geometry import (CameraIntrinsics, box7_corners, boxes2d_from_points, center_size_to_extents,
+                            make_transform, project_points)
     from ..io.frames import write_frame_folder
     from ..types import Frame
 
@@ -44,7 +45,7 @@ def _write_tiny_frames(out: Path, num_frames: int = 3, seed: int = 0) -> Path:
         m = 4
         cs = np.column_stack([rng.uniform(8, 30, m), rng.uniform(-6, 6, m), np.full(m, 0.0),
                               rng.uniform(3.5, 4.8, m), rng.uniform(1.6, 2.0, m), rng.uniform(1.4, 1.8, m)])
-        ext = np.hstack([cs[:, :3] - cs[:, 3:] / 2, cs[:, :3] + cs[:, 3:] / 2])
+        ext = center_size_to_extents(cs)
         inside = [rng.uniform(e[:3], e[3:], size=(300, 3)) for e in ext]
         ground = np.column_stack([rng.uniform(2, 40, 3000), rng.uniform(-15, 15, 3000), np.full(3000, -1.0)])
         pts = np.vstack(inside + [ground]).astype(np.float32)
