@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError
-from ..geometry.boxes import box7_corners, boxes2d_from_points, check_boxes3d
+from ..geometry.boxes import box7_corners, box7_to_extents, boxes2d_from_points, check_boxes3d
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.projection import project_points
 from ..geometry.transforms import invert_transform, make_transform
@@ -465,12 +465,9 @@ def lidar_boxes_to_camera(boxes7, calib: KittiCalibration) -> np.ndarray:
 
 def box7_to_protocol(boxes7) -> np.ndarray:
     """box7 [N,7] -> protocol [N,6] extents (xmin, ymin, zmin, xmax, ymax, zmax): the
-    axis-aligned box enclosing each yawed box (LiDAR frame, metres)."""
-    b = check_boxes3d(boxes7)
-    if len(b) == 0:
-        return np.zeros((0, 6))
-    c = box7_corners(b)
-    return np.hstack([c.min(axis=1), c.max(axis=1)])
+    axis-aligned box enclosing each yawed box (LiDAR frame, metres); see
+    :func:`xcalib.geometry.boxes.box7_to_extents`."""
+    return box7_to_extents(boxes7)
 
 
 def project_box7(boxes7, K, T_cam_lidar, image_size: tuple[int, int] | None = None,

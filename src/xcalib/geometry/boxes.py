@@ -20,7 +20,7 @@ import numpy as np
 
 __all__ = [
     "CONVENTIONS", "detect_box3d_convention", "boxes3d_to_center_size", "boxes3d_to_extents",
-    "center_size_to_extents", "extents_to_center_size", "as_box7", "box7_corners", "expand_box7",
+    "center_size_to_extents", "extents_to_center_size", "as_box7", "box7_corners", "box7_to_extents", "expand_box7",
     "points_in_boxes", "box2d_centers", "box2d_sizes", "box2d_areas", "iou_matrix", "clip_boxes2d",
     "valid_boxes2d", "xyxy_to_xywh", "xywh_to_xyxy", "xyxy_to_cxcywh", "cxcywh_to_xyxy",
     "boxes2d_from_points", "check_boxes2d", "check_boxes3d",
@@ -119,6 +119,13 @@ def box7_corners(boxes7) -> np.ndarray:
     x = local[..., 0] * c[:, None] - local[..., 1] * s[:, None]
     y = local[..., 0] * s[:, None] + local[..., 1] * c[:, None]
     return np.stack([x, y, local[..., 2]], axis=-1) + b[:, None, :3]
+
+
+def box7_to_extents(boxes7) -> np.ndarray:
+    """box7 [M,7] -> protocol extents [M,6] (xmin, ymin, zmin, xmax, ymax, zmax): the
+    axis-aligned box enclosing each yawed box (LiDAR frame, metres)."""
+    c = box7_corners(boxes7)
+    return np.hstack([c.min(axis=1), c.max(axis=1)]) if len(c) else np.zeros((0, 6))
 
 
 def expand_box7(boxes7, factor: float = 1.25) -> np.ndarray:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...geometry.boxes import box7_corners
+from ...geometry.boxes import box7_corners, box7_to_extents, extents_to_center_size
 from ...geometry.projection import project_points, undistort_pixels
 from .scene import CLASSES, SceneObjects, sample_sizes
 from .site import Site
@@ -166,14 +166,8 @@ def box7_to_protocol(box7: np.ndarray, convention: str = "extents") -> np.ndarra
     (``"extents"``: xmin..zmax, ``"center"``: cx, cy, cz, dx, dy, dz)."""
     if convention not in ("extents", "center"):
         raise ValueError(f"box_convention must be 'extents' or 'center', got {convention!r}")
-    b = np.asarray(box7, dtype=np.float64).reshape(-1, 7)
-    if not len(b):
-        return np.zeros((0, 6))
-    c = box7_corners(b)
-    lo, hi = c.min(axis=1), c.max(axis=1)
-    if convention == "extents":
-        return np.hstack([lo, hi])
-    return np.hstack([(lo + hi) / 2, hi - lo])
+    ext = box7_to_extents(np.asarray(box7, dtype=np.float64).reshape(-1, 7))
+    return ext if convention == "extents" else extents_to_center_size(ext)
 
 
 def _ground_point(site: Site, uv: np.ndarray) -> np.ndarray:
