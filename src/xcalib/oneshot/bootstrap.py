@@ -100,10 +100,10 @@ def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "f
             on_frame(n, rep)
     if n == 0:
         raise OneShotError("bootstrap: no frames in the recording")
-    session.calibrate()  # a last attempt on the whole recording (the gate keeps the better pose)
+    last = session.calibrate()  # a last attempt on the whole recording (the gate keeps the better pose)
     if not session.is_calibrated:
-        raise OneShotError(f"bootstrap: no calibration from {n} frame(s): the detections do not determine the pose; "
-                           "record more frames with several objects seen by both sensors")
+        raise OneShotError(f"bootstrap: no calibration from {n} frame(s): the detections do not determine the pose "
+                           f"(calibrator: {last.reason}); record more frames with several objects seen by both sensors")
     report = session.adapt(steps=steps, lr=lr, holdout=holdout, progress=on_step)
     if not report.trained:
         raise OneShotError(f"bootstrap: training did not produce weights ({report.message}); nothing installed")
