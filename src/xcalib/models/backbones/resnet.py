@@ -10,12 +10,21 @@ from torch import nn
 
 from ..layers import SafeBatchNorm1d
 
-__all__ = ["ResNetEmbeddingDeep", "BottleneckResNet", "SmallCNN", "conv_bn_relu"]
+__all__ = ["ResNetEmbeddingDeep", "BottleneckResNet", "SmallCNN", "conv_bn_relu", "conv_stack"]
 
 
 def conv_bn_relu(c_in: int, c_out: int, stride: int = 1) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(c_in, c_out, 3, stride, 1, bias=False), nn.BatchNorm2d(c_out),
                          nn.ReLU(inplace=True))
+
+
+def conv_stack(widths: Sequence[int], strides: Sequence[int]) -> tuple[nn.Sequential, int]:
+    """conv3x3+BN+ReLU stages from 3 input channels -> (the stack, its output channels)."""
+    layers, c = [], 3
+    for w, s in zip(widths, strides):
+        layers.append(conv_bn_relu(c, w, s))
+        c = w
+    return nn.Sequential(*layers), c
 
 
 class ResNetEmbeddingDeep(nn.Module):
@@ -25,11 +34,7 @@ class ResNetEmbeddingDeep(nn.Module):
     def __init__(self, embed_dim: int = 256, widths: Sequence[int] = (32, 64, 64, 128, 128, 256),
                  strides: Sequence[int] = (1, 2, 1, 2, 1, 2), dropout: float = 0.1):
         super().__init__()
-        layers, c = [], 3
-        for w, s in zip(widths, strides):
-            layers.append(conv_bn_relu(c, w, s))
-            c = w
-        self.features = nn.Sequential(*layers)
+        self.features, c = conv_stack(widths, strides)
         self.head = nn.Sequential(nn.Linear(c, c), SafeBatchNorm1d(c), nn.ReLU(inplace=True), nn.Dropout(dropout),
                                   nn.Linear(c, embed_dim), nn.ReLU(inplace=True), nn.Linear(embed_dim, embed_dim))
         self.out_dim = embed_dim
@@ -43,11 +48,7 @@ class SmallCNN(nn.Module):
 
     def __init__(self, widths: Sequence[int] = (16, 32, 64), strides: Sequence[int] = (2, 2, 2)):
         super().__init__()
-        layers, c = [], 3
-        for w, s in zip(widths, strides):
-            layers.append(conv_bn_relu(c, w, s))
-            c = w
-        self.features = nn.Sequential(*layers)
+        self.features, c = conv_stack(widths, strides)
         self.out_dim = 2 * c
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
