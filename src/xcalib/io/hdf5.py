@@ -520,30 +520,30 @@ class _Group:
         return [_as_str(v) for v in arr.reshape(-1)]
 
 
-def load_dataset(site_or_path, split: str = "test", *, local=None, repo_id: str | None = None,
+def load_dataset(site, split: str = "test", *, local=None, repo_id: str | None = None,
                  revision: str | None = None, token: str | None = None, **reader_kwargs) -> CacheReader:
     """Open a cache split; never downloads anything.
 
-    Resolution (reference-compatible, minus the Hub): ``local`` (must exist) -> ``site_or_path`` as an
-    .h5 file -> a folder holding ``<split>.h5`` (as ``xcalib synth`` writes) or ``*_<split>.h5`` ->
+    Resolution (reference-compatible, minus the Hub): ``local`` (must exist) -> ``site`` as an
+    .h5 file (``site`` is a site folder name or a path, as in the reference) -> a folder holding ``<split>.h5`` (as ``xcalib synth`` writes) or ``*_<split>.h5`` ->
     the checkout-local ``datasets/<site>/hdf5_cache/*_<split>.h5`` under the working directory.
     ``repo_id`` / ``revision`` / ``token`` are accepted for API compatibility and rejected.
     """
     if repo_id is not None or revision is not None or token is not None:
         raise ValueError("load_dataset: xcalib never downloads datasets (repo_id/revision/token given); "
                          "pass a local .h5 file or folder")
-    if split not in ("train", "val", "test") and not Path(str(site_or_path)).is_file():
+    if split not in ("train", "val", "test") and not Path(str(site)).is_file():
         log.warning("load_dataset: unusual split name %r (expected train, val or test)", split)
     if local is not None:
         lp = Path(local)
         if not lp.exists():
             raise FileNotFoundError(f"load_dataset: local={str(lp)!r} does not exist")
         return load_dataset(lp, split, **reader_kwargs)
-    p = Path(site_or_path)
+    p = Path(site)
     if p.is_file():
         return CacheReader(p, **reader_kwargs)
     folders = [p] if p.is_dir() else []
-    folders.append(Path.cwd() / "datasets" / str(site_or_path) / "hdf5_cache")
+    folders.append(Path.cwd() / "datasets" / str(site) / "hdf5_cache")
     for folder in folders:
         if not folder.is_dir():
             continue
@@ -557,8 +557,8 @@ def load_dataset(site_or_path, split: str = "test", *, local=None, repo_id: str 
             f"load_dataset: no {split!r} split in {p} (looked for {split}.h5, {split}.hdf5, *_{split}.h5). "
             f"Make a synthetic site with `xcalib synth --out {p}`.")
     raise FileNotFoundError(
-        f"load_dataset: {str(site_or_path)!r} is neither an HDF5 cache, a site folder nor "
-        f"./datasets/{site_or_path}/hdf5_cache. xcalib never downloads datasets; pass a local .h5 file or "
+        f"load_dataset: {str(site)!r} is neither an HDF5 cache, a site folder nor "
+        f"./datasets/{site}/hdf5_cache. xcalib never downloads datasets; pass a local .h5 file or "
         "make a synthetic site with `xcalib synth --out DIR`.")
 
 
