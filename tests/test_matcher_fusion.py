@@ -150,3 +150,23 @@ def test_onnx_runtime_matcher_fuses_the_same_way(site, frames, tmp_path):
     assert np.max(np.abs(a.similarity - b.similarity)) < 1e-4
     plain = om.match(*f.inputs(), validate="off", use_calibration=False)
     assert plain.geometry_iou is None and np.max(np.abs(plain.similarity - m.similarity(m.prepare(*f.inputs())))) < 1e-4
+
+
+def test_match_cli_fuses_a_site_calibration(site, frames, tmp_path, monkeypatch, capsys):
+    import json
+
+    from xcalib.cli import main
+    from xcalib.io.hdf5 import write_cache
+
+    monkeypatch.setenv("XCALIB_HOME", str(tmp_path / "home"))
+    m = _matcher()
+    m.set_calibration(_gt_pose(site))
+    m.save_pretrained(tmp_path / "home" / "sites" / "cal_site")
+    fr = frames[:2]
+    for f in fr:
+        f.camera_name = "cam"
+    cache = write_cache(tmp_path / "b.h5", fr, camera_names=["cam"])
+    assert main(["match", str(cache), "--site", "cal_site", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["fusion_weight"] == m.fusion_weight
+    assert main(["match", str(cache), "--site", "cal_site", "--json", "--no-calibration"]) == 0
+    assert json.loads(capsys.readouterr().out)["fusion_weight"] == 0.0

@@ -35,6 +35,9 @@ def register(app: typer.Typer) -> None:
         assignment: str = typer.Option("argmax", "--assignment", help="argmax or hungarian (one-to-one)."),
         validate: str = typer.Option("warn", "--validate", help="warn, strict or off."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
+        use_calibration: bool = typer.Option(True, "--calibration/--no-calibration",
+                                             help="Fuse the scores with the site calibration (calibration.json "
+                                                  "beside the weights) when there is one."),
     ) -> None:
         from ..io.frames import read_frames
 
@@ -48,11 +51,13 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter(f"{path} has {len(frames)} frame(s); got --index {index}", param_hint="--index")
         frame = frames[index]
         m = load_matcher(model, site, weights, config, device)
-        r = m.match_frame(frame, top_k=top_k, match_threshold=threshold, validate=validate, assignment=assignment)
+        r = m.match_frame(frame, top_k=top_k, match_threshold=threshold, validate=validate, assignment=assignment,
+                          use_calibration="auto" if use_calibration else False)
         if as_json:
             typer.echo(json.dumps({
                 "frame_key": frame.frame_key, "model": r.model, "device": r.device, "latency_ms": r.latency_ms,
                 "assignment": r.assignment, "num_2d": frame.num_2d, "num_3d": frame.num_3d,
+                "fusion_weight": r.fusion_weight,
                 "kept_2d_indices": r.kept_2d_indices.tolist(), "kept_3d_indices": r.kept_3d_indices.tolist(),
                 "matches": [{"index_2d": i, "index_3d": j, "score": s} for i, j, s in r.matches],
                 "similarity": r.similarity.tolist()}))
@@ -60,7 +65,9 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.table import Table
 
-        t = Table(title=f"{frame.frame_key or path.name}: {r.model} ({len(r.matches)} matches, {r.latency_ms:.1f} ms)")
+        fused = f", fused with the calibration (w={r.fusion_weight:g})" if r.fusion_weight else ""
+        t = Table(title=f"{frame.frame_key or path.name}: {r.model} ({len(r.matches)} matches, {r.latency_ms:.1f} ms"
+                        f"{fused})")
         for col in ("2D index", "3D index", "score"):
             t.add_column(col, justify="right")
         for i, j, s in r.matches:

@@ -26,12 +26,22 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["FUSION_WEIGHT", "GEO_EPS", "USE_CALIBRATION", "fuse_scores", "geometric_iou", "resolve_use_calibration"]
+__all__ = ["FUSION_WEIGHT", "GEO_EPS", "USE_CALIBRATION", "fuse_scores", "geometric_iou", "is_multi_camera",
+           "resolve_use_calibration"]
 
 FUSION_WEIGHT = 0.85
 GEO_EPS = 0.02
 USE_CALIBRATION = ("auto", True, False)
 _P_CLIP = 1e-6
+
+
+def is_multi_camera(images, camera_per_det) -> bool:
+    """True when the detections come from more than one camera (a calibration is of one camera)."""
+    if images is None:
+        return False
+    if camera_per_det is None:
+        return len(images) > 1
+    return len(set(camera_per_det)) > 1
 
 
 def resolve_use_calibration(use_calibration, calibration, multi_camera: bool) -> bool:

@@ -11,7 +11,7 @@ import numpy as np
 from ..geometry.boxes import center_size_to_extents
 from ..protocol import WarningRegistry, check_validate_mode, enforce, validate_frame_inputs
 from ..types import Frame, MatchResult
-from .fusion import fuse_scores, geometric_iou, resolve_use_calibration
+from .fusion import fuse_scores, geometric_iou, is_multi_camera, resolve_use_calibration
 
 __all__ = ["ASSIGNMENTS", "assign", "validate_match_inputs", "run_match", "frame_match_args"]
 
@@ -80,7 +80,7 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
     ``similarity`` call alone); matches in the caller's numbering."""
     if assignment not in ASSIGNMENTS:
         raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {assignment!r}")
-    fuse = resolve_use_calibration(use_calibration, m.calibration, images is not None)
+    fuse = resolve_use_calibration(use_calibration, m.calibration, is_multi_camera(images, camera_per_det))
     validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, validate,
                           bbox_expansion=m.crop_config.bbox_expansion, registry=m._warnings)
     t0 = time.perf_counter()
