@@ -18,7 +18,11 @@ the model's ``fill_value`` (pairs it does not score) keep it. ``FUSION_WEIGHT`` 
 ``GEO_EPS`` = 0.02 were chosen on the tuning sequences of ``benchmarks/bench_oneshot.py`` (site B
 seeds 202-204, fastmatch after one-shot adaptation): the smallest weight reaching the best
 tuning Top-1 (1.000; w = 0.5: 0.998, w = 0.3: 0.986, model alone: 0.953); eps in 0.005-0.05
-changed nothing at w >= 0.5.
+changed nothing at w >= 0.5. The geometry is only as good as the pose: with the pose off by
+0.5 deg / 0.2 m the same tuning Top-1 is 0.991 (w = 0.85) / 0.987 (w = 0.5), off by 1 deg /
+0.5 m 0.928 / 0.951, off by 2 deg / 1 m 0.831 / 0.939 (model alone 0.953): give a matcher a
+calibration it can trust (``use_calibration=False`` or a lower ``Matcher.fusion_weight``
+otherwise).
 This module never imports torch (the ONNX Runtime matcher uses it too).
 """
 
