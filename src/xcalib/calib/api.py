@@ -237,9 +237,16 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
             progress("refine", len(cand) + k + 1, len(cand) + len(finals))
     refined.sort(key=lambda x: -x[0])
     best_score, best = refined[0]
-    runner = next((s for s, r in refined[1:] if _distinct(r.R, r.t, best.R, best.t, 1.0, 0.3)), 0.0)
+    # a runner-up only makes the result ambiguous when it is admissible under the same assumption
+    # as the search: with ``max_baseline_m`` the camera sits within that distance of the LiDAR
+    # origin (|t| = |camera centre|); a runner-up far outside it is no competing explanation
+    # (when the best pose is outside it too, the assumption is dropped and every runner-up counts)
+    in_base = (lambda r: True) if max_baseline_m is None or np.linalg.norm(best.t) > max_baseline_m \
+        else (lambda r: np.linalg.norm(r.t) <= max_baseline_m)
+    runner = next((s for s, r in refined[1:] if _distinct(r.R, r.t, best.R, best.t, 1.0, 0.3) and in_base(r)), 0.0)
     meta.update(score=best_score, runner_up_score=runner, refine_history=best.history,
                 candidates=[{"score": s, "rot_deg_from_best": rotation_angle(r.R, best.R, degrees=True),
+                             "baseline_m": float(np.linalg.norm(r.t)),
                              "trans_m_from_best": float(np.linalg.norm(r.t - best.t))} for s, r in refined],
                 bringup_error_vs_final=list(_pose_err(np.asarray(meta["bringup_T"]), best.R, best.t)))
 
