@@ -5,10 +5,15 @@ Pipeline (one static rig, one pose for all frames):
 1. normalise the inputs (``inputs.prepare_frames``; yaw re-estimated for yaw-less 3D boxes);
 2. bring-up: pose hypotheses from box triples per frame (``hypotheses``), pooled over frames
    and re-scored on all frames by how well every projected 3D box explains the 2D boxes;
-3. refinement of the best distinct hypotheses over all frames (``refine.refine_pose``);
-4. decision: the best pose must match 3+ objects in some frame, explain enough of the 2D boxes,
-   be clearly better than any distinct runner-up and be well constrained (1-sigma from the
-   Jacobian), otherwise ``success=False`` with a message saying why.
+3. refinement of the best distinct hypotheses over all frames (``refine.refine_pose``); the
+   per-edge error model (2D noise, 3D centre error seen at depth Z, 3D size error) is fitted to
+   the residuals, so noisy 3D detections are weighted by their actual error;
+4. uncertainty (per axis, 1-sigma): the larger of the Jacobian sandwich and the two frame-halves
+   spread, plus the pose shift without the occlusion model (``_honest_std``);
+5. decision: the best pose must match 3+ objects in some frame, explain enough of the 2D boxes,
+   be clearly better than any distinct admissible runner-up and be well constrained (norm of the
+   1-sigma vector <= ``max_rot_std_deg`` / ``max_trans_std_m``, i.e. 2 sigma within 1 deg / 0.5 m),
+   otherwise ``success=False`` with a message saying why.
 
 A matcher's similarities (``matcher.match``) and a ``prior`` pose only seed the hypotheses;
 every pose is judged by geometry alone.
