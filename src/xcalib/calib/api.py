@@ -11,7 +11,7 @@ Pipeline (one static rig, one pose for all frames):
 4. uncertainty (per axis, 1-sigma): the larger of the Jacobian sandwich and the two frame-halves
    spread, plus the pose shift without the occlusion model (``_honest_std``);
 5. decision: the best pose must match 3+ objects in some frame, explain enough of the 2D boxes,
-   be clearly better than any distinct admissible runner-up and be well constrained (norm of the
+   be clearly better than any admissible runner-up beyond 2 sigma and be well constrained (norm of the
    1-sigma vector <= ``max_rot_std_deg`` / ``max_trans_std_m``, i.e. 2 sigma within 1 deg / 0.5 m),
    otherwise ``success=False`` with a message saying why.
 
@@ -265,6 +265,12 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
     meta["halves_delta"] = None if halves is None else halves.tolist()
     meta["occlusion_delta"] = occl.tolist()
     rot_sd, tr_sd = _honest_std(np.concatenate([rot_sd, tr_sd]), halves, occl)
+    # a runner-up within 2 sigma of the best is the same solution (the decision below then bounds
+    # the error by 2 sigma <= 1 deg / 0.5 m); only one beyond that is a competing explanation
+    r2, t2 = 2 * float(np.linalg.norm(rot_sd)), 2 * float(np.linalg.norm(tr_sd))
+    runner = next((s for s, r in refined[1:] if _distinct(r.R, r.t, best.R, best.t, 1.0, 0.3) and in_base(r)
+                   and _distinct(r.R, r.t, best.R, best.t, r2, t2)), 0.0)
+    meta["ambiguity_runner_up_score"] = runner
     n_pairs = int(sum(len(p) for p in pairs))
     centre_off = _centre_offsets(cframes, intr, best.R, best.t, pairs)
     meta.update(centre_offset_px_median=float(np.median(centre_off)) if len(centre_off) else None,
