@@ -31,6 +31,10 @@ def register(app: typer.Typer) -> None:
                                                                 "else heads)."),
         out_dir: Optional[Path] = typer.Option(None, "--out", help="Also save the weights + calibration here."),
         no_install: bool = typer.Option(False, "--no-install", help="Do not install as a site (needs --out)."),
+        max_rot_std: float = typer.Option(0.5, "--max-rot-std", help="Refuse a pose whose 1-sigma rotation "
+                                          "uncertainty exceeds this (deg)."),
+        max_trans_std: float = typer.Option(0.25, "--max-trans-std", help="Refuse a pose whose 1-sigma translation "
+                                            "uncertainty exceeds this (m); loosen for short recordings."),
         seed: int = typer.Option(0, "--seed"),
         device: str = typer.Option("cpu", "--device"),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable summary on stdout."),
@@ -71,6 +75,8 @@ def register(app: typer.Typer) -> None:
                 bar.update(t_fit, completed=k, info=f"loss {loss:.3f}")
 
             res = bootstrap(it, K, site, model=model, init=init, steps=steps, mode=mode, install=not no_install,
+                            session_options={"calib_options": {"max_rot_std_deg": max_rot_std,
+                                                              "max_trans_std_m": max_trans_std}},
                             out_dir=out_dir, device=device, seed=seed, on_frame=on_frame, on_step=on_step)
         summary = res.summary()
         if as_json:
