@@ -8,8 +8,8 @@ Pipeline (one static rig, one pose for all frames):
 3. refinement of the best distinct hypotheses over all frames (``refine.refine_pose``); the
    per-edge error model (2D noise, 3D centre error seen at depth Z, 3D size error) is fitted to
    the residuals, so noisy 3D detections are weighted by their actual error;
-4. uncertainty (per axis, 1-sigma): the larger of the Jacobian sandwich and the frame-group
-   jackknife spread (two frame halves when there are few frames), plus the pose shift without the occlusion model (``_honest_std``);
+4. uncertainty (per axis, 1-sigma): the larger of the Jacobian sandwich and the two frame-halves
+   spread, plus the pose shift without the occlusion model (``_honest_std``);
 5. decision: the best pose must match 3+ objects in some frame, explain enough of the 2D boxes,
    be clearly better than any admissible runner-up beyond 2 sigma and be well constrained (norm of the
    1-sigma vector <= ``max_rot_std_deg`` / ``max_trans_std_m``, i.e. 2 sigma within 1 deg / 0.5 m),
@@ -321,10 +321,9 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
 def _honest_std(jac_sd: np.ndarray, halves: np.ndarray | None, occl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-axis 1-sigma (rotation deg, translation m) that also covers what the Jacobian misses.
 
-    Statistical part: the larger of the Jacobian (sandwich) sigma and the frame-group jackknife
-    sigma (``pose_spread``; with few frames half the difference of the two frame-half poses): a
-    check that frames agree, which inflates when a few frames or boxes with bad 3D detections
-    drive the pose. Systematic part, added in quadrature: the shift
+    Statistical part: the larger of the Jacobian (sandwich) sigma and half the difference of the
+    two frame-half poses (a one-sample check that frames agree; inflates when a few frames or
+    boxes with bad 3D detections drive the pose). Systematic part, added in quadrature: the shift
     of the pose when the occlusion model is switched off (how much the pose leans on it; grows
     with the 3D-box error). On the synthetic benchmark 2 sigma (vector norm) covers >= 90 % of
     the true errors with exact and with noisy 3D boxes.

@@ -275,10 +275,6 @@ def pair_metrics(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, pairs: 
     return np.concatenate(px), np.concatenate(ious)
 
 
-JK_GROUPS = 4  # frame groups of the jackknife in pose_spread
-JK_MIN_FRAMES = 5  # frames (with matches) per group needed for it; fewer: the two frame halves
-
-
 def _delta(Ra, ta, Rb, tb) -> np.ndarray:
     """6-vector (rotation vector of Ra Rb^T in degrees, camera axes; ta - tb in metres)."""
     return np.concatenate([np.degrees(Rotation.from_matrix(Ra @ Rb.T).as_rotvec()), ta - tb])
@@ -288,13 +284,9 @@ def pose_spread(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f
                 max_nfev: int = 40):
     """Two checks of the pose beyond the Jacobian, both with the matches held fixed.
 
-    * ``halves``: with JK_MIN_FRAMES * JK_GROUPS (20) or more frames with matches, a
-      delete-a-group jackknife (refit without each of JK_GROUPS interleaved frame groups; the
-      jackknife 1-sigma per component, returned doubled so that ``halves / 2`` is the 1-sigma
-      as below); otherwise refit
-      on the even and on the odd frames separately (or on alternate pairs when there is one frame)
-      and return their difference (6-vector, deg / m): for independent frame errors the full-data
-      pose has about a quarter of its variance per component.
+    * ``halves``: refit on the even and on the odd frames separately (or on alternate pairs when
+      there is one frame); returns their difference (6-vector, deg / m). For independent frame
+      errors the full-data pose has about a quarter of its variance per component.
     * ``occlusion``: refit without the inward (occlusion) compression; the shift of the pose is
       how much it depends on the occlusion model (a systematic error the Jacobian cannot see).
     Returns (halves_delta [6] or None, occlusion_delta [6]).
@@ -309,13 +301,7 @@ def pose_spread(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f
     else:
         ev = [p[0::2] for p in pairs]
         od = [p[1::2] for p in pairs]
-    if len(nz) >= JK_MIN_FRAMES * JK_GROUPS:
-        # delete-a-group jackknife over JK_GROUPS interleaved groups of frames: JK_GROUPS - 1
-        # degrees of freedom instead of the single one of the two halves (a steadier spread)
-        D = np.array([_delta(*_lsq(frames, [p[:0] if i in nz[k::JK_GROUPS] else p for i, p in enumerate(pairs)],
-                                   intr, R, t, f_scale, max_nfev, noise)[:2], R, t) for k in range(JK_GROUPS)])
-        halves = 2.0 * np.sqrt((JK_GROUPS - 1) / JK_GROUPS * np.sum((D - D.mean(0)) ** 2, axis=0))
-    elif sum(len(p) for p in ev) >= 6 and sum(len(p) for p in od) >= 6:
+    if sum(len(p) for p in ev) >= 6 and sum(len(p) for p in od) >= 6:
         Re, te, _, _ = _lsq(frames, ev, intr, R, t, f_scale, max_nfev, noise)
         Ro, to, _, _ = _lsq(frames, od, intr, R, t, f_scale, max_nfev, noise)
         halves = _delta(Re, te, Ro, to)
