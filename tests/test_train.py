@@ -110,13 +110,16 @@ def test_torchrun_two_cpu_processes(tmp_path):
         torch.set_num_threads(1)
         import torch.distributed as dist
         from _matching_frames import TINY, make_frames
-        from xcalib.engine.trainer import train
+        from xcalib.engine.trainer import shutdown_distributed, train
         best = train("crlite", make_frames(4, 1, n_obj=2), make_frames(2, 2, n_obj=2), config=TINY["crlite"],
                      epochs=2, warmup_epochs=0, frames_per_batch=1, output_dir={str(tmp_path / 'run')!r},
                      device="cpu", progress=False)
         open({str(tmp_path)!r} + f"/rank{{dist.get_rank()}}.json", "w").write(
             json.dumps([dist.get_world_size(), str(best)]))
-        dist.destroy_process_group()
+        shutdown_distributed()
+        assert not dist.is_initialized()
+        sys.stdout.flush(); sys.stderr.flush()
+        import os; os._exit(0)  # skip interpreter finalisation: torch's gloo threads may abort there (torch bug)
     """))
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     proc = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",

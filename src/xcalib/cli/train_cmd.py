@@ -39,14 +39,16 @@ def register(app: typer.Typer) -> None:
         import torch.distributed as dist
 
         from ..engine.checkpoint import read_config, site_dirs
-        from ..engine.trainer import train
+        from ..engine.trainer import shutdown_distributed, train
 
         cfg = read_config(config) if config else None
         best = train(model, train_data, val_data, config=cfg, epochs=epochs, lr=lr, warmup_epochs=warmup_epochs,
                      frames_per_batch=frames_per_batch, weights=weights, resume=resume or None,
                      output_dir=output_dir, device=device, seed=seed, limit_train_frames=limit_train_frames,
                      limit_val_frames=limit_val_frames, progress=not as_json)
-        if dist.is_initialized() and dist.get_rank() != 0:
+        rank = dist.get_rank() if dist.is_initialized() else 0
+        shutdown_distributed()
+        if rank != 0:
             return
         installed = None
         if site:

@@ -10,7 +10,9 @@ seeded by ``seed`` and the epoch.
 
 Distributed: run the same script under ``torchrun --nproc_per_node=N``; each rank trains on
 its shard of every epoch's frames inside DistributedDataParallel (gloo on CPU, NCCL on GPU);
-validation counts are all-reduced; rank 0 writes the files.
+validation counts are all-reduced; rank 0 writes the files. Call ``shutdown_distributed()`` once
+training is over (the ``xcalib train`` command does): every rank waits for the others, then
+the process group is destroyed before the interpreter shuts down.
 
 Outputs in ``output_dir``: ``best.pt`` + ``best.yaml`` (loadable by
 ``Matcher.from_pretrained(model, weights=".../best.pt")``), ``last.pt`` (resume state, one
@@ -19,6 +21,7 @@ file overwritten each epoch) and ``history.json``.
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import math
@@ -37,7 +40,7 @@ from ..types import Frame
 from .checkpoint import load_state_strict, read_checkpoint, save_weights, write_config
 from .metrics import MatchingMetrics, MetricsAccumulator
 
-__all__ = ["train", "TrainSample", "prepare_samples", "matching_loss", "evaluate", "load_frames"]
+__all__ = ["train", "shutdown_distributed", "TrainSample", "prepare_samples", "matching_loss", "evaluate", "load_frames"]
 
 log = logging.getLogger("xcalib.train")
 
@@ -214,6 +217,14 @@ def _dist_setup(device: str) -> tuple[int, int, torch.device]:
     return rank, world, dev
 
 
+def shutdown_distributed() -> None:
+    """End a ``torchrun`` job cleanly: barrier, then destroy the process group (no-op when not distributed)."""
+    if dist.is_available() and dist.is_initialized():
+        dist.barrier()
+        dist.destroy_process_group()
+        gc.collect()
+
+
 def _allreduce(x: np.ndarray) -> np.ndarray:
     if not dist.is_initialized():
         return x
@@ -352,6 +363,10 @@ def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None 
     finally:
         if bar is not None:
             bar.stop()
+        if world > 1:
+            # release DDP's reducer (it holds gloo/NCCL work) while the interpreter is fully alive
+            del ddp
+            gc.collect()
     net.eval()
     if not best_path.exists() and rank == 0:
         raise RuntimeError(f"train: no best checkpoint was written in {out}")
