@@ -165,6 +165,40 @@ def test_augmentation_moves_boxes_consistently_through_the_pose(site, frames):
     assert abs(np.median(after) - np.median(before)) < 0.1  # moved pairs stay as consistent as real ones
 
 
+def test_projection_targets_use_matched_2d_boxes_else_the_clipped_projection(site, frames):
+    s = _matcher().oneshot(site.intrinsics, min_frames=100)
+    _observe(s, frames[:3])
+    s.set_calibration(site.T_cam_lidar)
+    T = site.T_cam_lidar
+    aug = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3])
+    n_proj = 0
+    for obs, t in zip(s.buffer, s.pseudo_labels()):
+        fi = obs.inputs(16, np.random.default_rng(0))
+        r = aug.project(fi, t)
+        assert r.shape == (fi.num_3d, 4)
+        i, j = np.nonzero(t.positive)
+        np.testing.assert_array_equal(r[j], fi.boxes_2d[i])
+        other = np.setdiff1d(np.flatnonzero(np.isfinite(r).all(1)), j)
+        raw = _rects(fi.boxes_3d.astype(float), site.intrinsics, T[:3, :3], T[:3, 3])[other]
+        np.testing.assert_allclose(r[other][:, [0, 2]], np.clip(raw[:, [0, 2]], 0, 640))
+        np.testing.assert_allclose(r[other][:, [1, 3]], np.clip(raw[:, [1, 3]], 0, 480))
+        n_proj += len(other)
+    assert n_proj >= 1
+
+
+def test_fastmatch_box_gain_rescale_keeps_scores_and_rejects_bad_gains(frames):
+    m = _matcher()
+    f = frames[0]
+    before = m.match(*f.inputs(), validate="off").similarity
+    m.model.set_box_gain(30.0)
+    np.testing.assert_allclose(m.match(*f.inputs(), validate="off").similarity, before, atol=1e-5)
+    assert m.model.box_gain == 30.0 and m.model.config["box_gain"] == 30.0
+    m.model.set_box_gain(60.0, rescale=False)  # the box term is 4x stronger now
+    assert not np.allclose(m.match(*f.inputs(), validate="off").similarity, before, atol=1e-5)
+    with pytest.raises(ValueError, match="box_gain must be a finite number > 0, got -1.0"):
+        m.model.set_box_gain(-1.0)
+
+
 def test_adapt_before_any_calibration_is_a_clear_error(site, frames):
     s = _matcher().oneshot(site.intrinsics, min_frames=100)
     _observe(s, frames[:2])
@@ -201,8 +235,29 @@ def test_adapt_learns_the_pseudo_labels_and_reloads_bit_exactly(site, frames, tm
     s = m.oneshot(site.intrinsics, min_frames=100, seed=0)
     _observe(s, frames)
     s.set_calibration(site.T_cam_lidar)
+    T = site.T_cam_lidar
+    aug = GeometricAugment(site.intrinsics, T[:3, :3], T[:3, 3])
+
+    def box_err() -> float:  # predicted 2D box of every 3D box vs the pose's, image fractions / log sizes
+        from xcalib.models.inputs import ModelBatch
+        from xcalib.oneshot.adapt import _box_features
+
+        errs = []
+        for obs, t in zip(s.buffer, s.pseudo_labels()):
+            fi = obs.inputs(16, np.random.default_rng(0))
+            tgt = _box_features(aug.project(fi, t), fi.image_size)
+            with torch.no_grad():
+                pred = m.model.embed(ModelBatch.from_frames([fi], "cpu")).extra["box_lid"].numpy()
+            ok = np.isfinite(tgt).all(1)
+            errs.append(((pred[ok] - tgt[ok]) ** 2).sum(1))
+        return float(np.concatenate(errs).mean())
+
+    err0 = box_err()
     rep = s.adapt(steps=40, holdout=0.25)
     assert rep.trained and not rep.reverted and rep.n_heldout_frames == 2
+    assert box_err() < 0.5 * err0  # the geometry branch learned the pose's projection
+    g = rep.box_gain  # "auto": from the detector-vs-pose residual of the pseudo-matches
+    assert 1.0 < g <= 100.0 and m.model.box_gain == g and m.config["box_gain"] == g
     assert rep.loss_last < rep.loss_first
     assert rep.top1_after >= rep.top1_before
     # the base weights are kept: they differ from the adapted ones and come back exactly
@@ -211,7 +266,7 @@ def test_adapt_learns_the_pseudo_labels_and_reloads_bit_exactly(site, frames, tm
     assert json.loads(paths["oneshot"].read_text())["adapt"][0]["trained"] is True
     assert CalibrationResult.load(paths["calibration"]).pose_error(site.T_cam_lidar)[0] < 1e-6
     again = Matcher.from_pretrained("fastmatch", weights=tmp_path / "adapted", device="cpu")
-    assert _states_equal(again.model, m.model)
+    assert _states_equal(again.model, m.model) and again.model.box_gain == g
     f = frames[0]
     np.testing.assert_array_equal(again.match(*f.inputs(), validate="off").similarity,
                                   m.match(*f.inputs(), validate="off").similarity)
@@ -222,6 +277,7 @@ def test_adapt_learns_the_pseudo_labels_and_reloads_bit_exactly(site, frames, tm
         s.save_site("../escape")
     s.reset_weights()
     assert all(torch.equal(s.base_state[k], v) for k, v in m.model.state_dict().items())
+    assert m.model.box_gain == 1.0 and m.config["box_gain"] == 1.0
 
 
 def test_observe_crops_once_and_matches_like_matcher(site, frames):

@@ -5,8 +5,11 @@ bottom edge as fractions of the image size). LiDAR side: a light PointNet on few
 box geometry (centre and range in units of ``geo_scale_m`` metres, bearing, log dims, log
 point count, point spread in the box frame). A small MLP also maps the 3D geometry to
 a predicted 2D box (centre, size as image fractions; it learns the site's projection). Scored
-by a tiny pair head over [e_i * e_j, |e_i - e_j|, cos, (2D box - predicted 2D box)^2];
-score = sigmoid pair probability in [0,1] for every pair.
+by a tiny pair head over [e_i * e_j, |e_i - e_j|, cos, (box_gain x (2D box - predicted 2D box))^2];
+score = sigmoid pair probability in [0,1] for every pair. ``box_gain`` (config, default 1) only
+changes how the pair head's box weights are parametrised (:meth:`FastMatch.set_box_gain` keeps
+the function): one-shot adaptation raises it so that training can resolve box differences of a
+few pixels (small, far objects) at ordinary learning rates.
 """
 
 from __future__ import annotations
@@ -63,6 +66,19 @@ class FastMatch(MatchingModel):
         self.lid_to_box = mlp([N_GEO_3D, 2 * G, 2 * G, 4])
         self.pair_head = mlp([2 * E + 1 + 4, int(c.get("pair_hidden", 64)), 1])
         self.cosine_weight = float(c.get("cosine_weight", 0.5))
+        self.box_gain = float(c.get("box_gain", 1.0))
+
+    def set_box_gain(self, gain: float, *, rescale: bool = True) -> None:
+        """Set ``box_gain`` (> 0, unit-free); with ``rescale`` the pair head's box-difference weights
+        are divided by (gain / old gain)^2, so every score stays the same."""
+        gain = float(gain)
+        if not (gain > 0 and gain < float("inf")):
+            raise ValueError(f"box_gain must be a finite number > 0, got {gain}")
+        if rescale and gain != self.box_gain:
+            with torch.no_grad():
+                self.pair_head[0].weight[:, -4:] *= (self.box_gain / gain) ** 2
+        self.box_gain = gain
+        self.config["box_gain"] = gain
 
     def embed(self, batch: ModelBatch) -> Embeddings:
         g2 = geometry_2d(batch.boxes_2d, batch.image_wh)
@@ -77,7 +93,7 @@ class FastMatch(MatchingModel):
                     box_lid: torch.Tensor) -> torch.Tensor:
         """Pair logits [...] from img [..., E], box_img [..., 4], lid [..., E], box_lid [..., 4]
         (broadcast against each other)."""
-        x = torch.cat([(a * b), (a - b).abs(), (a * b).sum(-1, keepdim=True), (box_img - box_lid) ** 2], -1)
+        x = torch.cat([(a * b), (a - b).abs(), (a * b).sum(-1, keepdim=True), (self.box_gain * (box_img - box_lid)) ** 2], -1)
         return self.pair_head(x).squeeze(-1)
 
     def pair_logits(self, emb: Embeddings) -> torch.Tensor:

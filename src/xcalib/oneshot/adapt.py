@@ -31,7 +31,8 @@ from .evidence import Observation
 from .loss import weighted_matching_loss
 from .pseudo import PseudoTargets
 
-__all__ = ["AdaptReport", "ADAPT_MODES", "trainable_parameters", "pseudo_top1", "adapt_model", "holdout_split"]
+__all__ = ["AdaptReport", "ADAPT_MODES", "BOX_GAIN_SCALE", "auto_box_gain", "trainable_parameters", "pseudo_top1",
+           "adapt_model", "holdout_split"]
 
 log = logging.getLogger("xcalib.oneshot")
 
@@ -59,6 +60,7 @@ class AdaptReport:
     reverted: bool = False
     message: str = ""
     elapsed_s: float = 0.0
+    box_gain: float = float("nan")
     losses: list[float] = field(default_factory=list)
 
     def to_dict(self) -> dict:
@@ -122,15 +124,68 @@ def _block(targets: Sequence[PseudoTargets], device) -> tuple[torch.Tensor, torc
     return (torch.from_numpy(pos).to(device), torch.from_numpy(w).to(device), torch.from_numpy(neg).to(device))
 
 
+def _box_features(rects: np.ndarray, wh: tuple[int, int]) -> np.ndarray:
+    """[M,4] px rectangles -> [M,4] (centre x, y as image fractions, log width, log height fractions)."""
+    W, H = wh
+    w = np.maximum(rects[:, 2] - rects[:, 0], 1e-3) / W
+    h = np.maximum(rects[:, 3] - rects[:, 1], 1e-3) / H
+    return np.stack([(rects[:, 0] + rects[:, 2]) / (2 * W), (rects[:, 1] + rects[:, 3]) / (2 * H), np.log(w),
+                     np.log(h)], 1)
+
+
+BOX_GAIN_SCALE = 3.4  # box_gain="auto": gain x mean pair residual; chosen on bench_oneshot's tuning sequences
+
+
+def auto_box_gain(observations: Sequence[Observation], targets: Sequence[PseudoTargets], augment,
+                  lo: float = 1.0, hi: float = 100.0) -> float:
+    """``BOX_GAIN_SCALE`` / mean norm of (2D box - projected 3D box) features over the pseudo-matches
+    (centre as image fractions, log sizes; the site's detector-vs-pose noise), clipped to [lo, hi]:
+    sharp sites get a sharp box term, loose detections or poses a gentle one. ``lo`` without pairs."""
+    res = []
+    for o, t in zip(observations, targets):
+        i, j = np.nonzero(t.positive)
+        if o.empty or not len(i):
+            continue
+        fi = o.inputs(1, np.random.default_rng(0))
+        r = augment.project(fi, None)
+        d = _box_features(fi.boxes_2d[i].astype(np.float64), fi.image_size) - _box_features(r[j], fi.image_size)
+        res.append(np.linalg.norm(d, axis=1))
+    r = np.concatenate(res) if res else np.zeros(0)
+    r = r[np.isfinite(r)]
+    if not len(r):
+        return float(lo)
+    return float(np.clip(BOX_GAIN_SCALE / max(float(r.mean()), 1e-6), lo, hi))
+
+
+def _box_loss(box_lid: torch.Tensor, fis, tgs, augment, device) -> torch.Tensor:
+    """Mean squared error of predicted 2D boxes [M,4] against the pose's (NaN rows skipped)."""
+    tgt = np.concatenate([_box_features(augment.project(fi, t), fi.image_size) for fi, t in zip(fis, tgs)])
+    ok = np.isfinite(tgt).all(1)
+    if not ok.any():
+        return box_lid.new_zeros(())
+    sel = torch.from_numpy(np.flatnonzero(ok)).to(device)
+    return ((box_lid[sel] - torch.from_numpy(tgt[ok]).to(box_lid)) ** 2).sum(1).mean()
+
+
 def adapt_model(model, observations: Sequence[Observation], targets: Sequence[PseudoTargets], *, steps: int,
                 n_points: int, device, mode: str = "heads", lr: float = 1e-3, frames_per_batch: int = 4,
                 anchor: float = 1e-2, holdout: float = 0.2, grad_clip: float = 5.0, keep_if_worse: bool = False,
                 min_pairs: int = 8, eval_seed: int = 0, seed: int = 0, augment=None, p_augment: float = 1.0,
+                box_weight: float = 0.0, box_gain: float | str | None = None,
                 progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
     """Fine-tune ``model`` in place on pseudo-labelled ``observations`` (see the module docstring).
 
     ``augment``: optional :class:`xcalib.oneshot.augment.GeometricAugment` applied to a share
-    ``p_augment`` of the training frames. Returns an :class:`AdaptReport`; ``trained=False``
+    ``p_augment`` of the training frames. ``box_weight`` > 0 (with ``augment``, for models whose
+    embeddings carry ``box_lid``/``box_img``, e.g. fastmatch): adds ``box_weight`` x the mean
+    squared error of the model's predicted 2D box of every 3D box against where the pose puts it
+    (:meth:`GeometricAugment.project`), so the geometry branch learns the site's projection.
+    ``box_gain``: for models with ``set_box_gain`` (fastmatch), set the gain on the pair head's
+    box differences before training without rescaling its weights, i.e. the box term starts
+    (gain / old gain)^2 times stronger: with a known pose the geometry is what transfers, and
+    differences of a few pixels (small, far objects) become resolvable (the old gain comes back on
+    revert; Top-1 before is measured with it). ``"auto"`` (needs ``augment``): :func:`auto_box_gain`
+    over the training frames. Returns an :class:`AdaptReport`; ``trained=False``
     (weights untouched) when fewer than ``min_pairs`` pseudo-matches are available for training.
     """
     from ..models.inputs import ModelBatch
@@ -159,6 +214,13 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
         return rep
 
     start = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    old_gain = getattr(model, "box_gain", None)
+    if box_gain == "auto":
+        box_gain = auto_box_gain([observations[k] for k in tr], [targets[k] for k in tr], augment) \
+            if augment is not None else None
+    if box_gain is not None and hasattr(model, "set_box_gain"):
+        model.set_box_gain(float(box_gain), rescale=False)
+        rep.box_gain = float(box_gain)
     anchors = [p.detach().clone() for _, p in named]
     flags = {n: p.requires_grad for n, p in model.named_parameters()}
     train_names = {n for n, _ in named}
@@ -187,7 +249,10 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
             pos, w, neg = _block(tg, device)
             for g in opt.param_groups:  # cosine decay to 5% of lr
                 g["lr"] = lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * step / max(steps, 1))))
-            loss = weighted_matching_loss(model(batch, train=True), batch, pos, w, neg)
+            emb = model.embed(batch)
+            loss = weighted_matching_loss(model.train_logits(emb, batch), batch, pos, w, neg)
+            if box_weight > 0 and augment is not None and "box_lid" in emb.extra:
+                loss = loss + box_weight * _box_loss(emb.extra["box_lid"], fis, tg, augment, device)
             if anchor > 0:
                 loss = loss + anchor * sum(((p - a) ** 2).sum() for p, a in zip(params, anchors))
             opt.zero_grad(set_to_none=True)
@@ -211,6 +276,8 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
     worse = np.isfinite(rep.top1_before) and np.isfinite(rep.top1_after) and rep.top1_after < rep.top1_before
     if not finite or (worse and not keep_if_worse):
         model.load_state_dict(start)
+        if old_gain is not None and hasattr(model, "set_box_gain"):
+            model.set_box_gain(old_gain, rescale=False)
         rep.reverted = True
         rep.message = ("reverted: training produced non-finite weights" if not finite else
                        f"reverted: held-out Top-1 against pseudo-labels fell from {rep.top1_before:.3f} to "

@@ -102,6 +102,28 @@ class GeometricAugment:
         out[~ok.any(axis=1)] = np.nan
         return out
 
+    def project(self, fi: FrameInputs, tg: PseudoTargets | None = None) -> np.ndarray:
+        """Where each 3D box of ``fi`` appears in the image: [M,4] px rectangles (x1, y1, x2, y2).
+
+        A pseudo-matched box gets its 2D box (the detector's own framing); any other box its
+        projected corners' rectangle clipped to the image. NaN rows: behind the camera, or less
+        than half (or under ``min_box_px``) of the rectangle inside the image.
+        """
+        W, H = fi.image_size
+        r = _rects(fi.boxes_3d.astype(np.float64), self.intrinsics, self.R, self.t)
+        c = r.copy()
+        c[:, [0, 2]] = np.clip(c[:, [0, 2]], 0, W)
+        c[:, [1, 3]] = np.clip(c[:, [1, 3]], 0, H)
+        area = lambda q: np.clip(q[:, 2] - q[:, 0], 0, None) * np.clip(q[:, 3] - q[:, 1], 0, None)  # noqa: E731
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(r).all(1) & (area(c) >= 0.5 * area(r)) & ((c[:, 2] - c[:, 0]) >= self.min_box_px) \
+                & ((c[:, 3] - c[:, 1]) >= self.min_box_px)
+        c[~ok] = np.nan
+        if tg is not None and tg.positive.any():
+            pi, pj = np.nonzero(tg.positive)
+            c[pj] = fi.boxes_2d[pi]
+        return c
+
     def apply(self, fi: FrameInputs, tg: PseudoTargets, rng: np.random.Generator) -> tuple[FrameInputs, PseudoTargets]:
         """A moved copy of one frame's inputs and targets (the inputs are not modified)."""
         N, M = fi.num_2d, fi.num_3d

@@ -143,6 +143,7 @@ class OneShotSession:
         self.image_size: tuple[int, int] | None = None
         self.history: list[AdaptReport] = []
         self.base_state = {k: v.detach().clone() for k, v in matcher.model.state_dict().items()}
+        self._base_box_gain = getattr(matcher.model, "box_gain", None)
         self._sync_matcher()
 
     def _sync_matcher(self) -> None:
@@ -178,7 +179,15 @@ class OneShotSession:
     def reset_weights(self) -> None:
         """Restore the weights the session started with."""
         self.model.load_state_dict(self.base_state)
+        if self._base_box_gain is not None:
+            self.model.set_box_gain(self._base_box_gain, rescale=False)
+            self._sync_box_gain()
         self.model.eval()
+
+    def _sync_box_gain(self) -> None:
+        """The matcher's config (written beside saved weights) carries the model's ``box_gain``."""
+        if "box_gain" in self.model.config:
+            self.matcher.config["box_gain"] = self.model.config["box_gain"]
 
     # ------------------------------------------------------------------ observing
     def _check_size(self, image: np.ndarray, key: str) -> None:
@@ -266,12 +275,17 @@ class OneShotSession:
     def adapt(self, steps: int = 600, *, lr: float = 1e-3, mode: str | None = None, frames_per_batch: int = 4,
               anchor: float = 1e-2, holdout: float = 0.2, min_pairs: int = 8, keep_if_worse: bool = False,
               augment: bool = True, p_augment: float = 1.0, augment_options: dict | None = None,
-              progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
+              box_weight: float = 10.0, box_gain: float | str | None = "auto", progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
         """Fine-tune the matcher on the pseudo-labels of the buffer (see :mod:`xcalib.oneshot.adapt`).
 
         ``augment``: move objects through the pose (:mod:`xcalib.oneshot.augment`; fields of
         ``GeometricAugment`` in ``augment_options``) in a share ``p_augment`` of the training
         frames, so a short recording teaches the site's geometry rather than its few objects.
+        With ``augment``, models that predict each 3D box's 2D box (fastmatch) also regress it onto
+        the pose's projection (``box_weight`` x squared error in image fractions / log sizes) and
+        their pair head's box term is raised to ``box_gain`` (see :func:`adapt_model`; "auto": from the
+        site's detector-vs-pose box noise; None: as is).
+        Defaults chosen on the tuning sequences of ``benchmarks/bench_oneshot.py``.
         Raises :class:`NotCalibratedError` before any calibration. With fewer than ``min_pairs``
         pseudo-matches it warns and returns a report with ``trained=False`` (weights untouched).
         """
@@ -288,7 +302,9 @@ class OneShotSession:
                           device=dev, mode=mode or self.mode, lr=lr, frames_per_batch=frames_per_batch, anchor=anchor,
                           holdout=holdout, min_pairs=min_pairs, keep_if_worse=keep_if_worse,
                           eval_seed=self.matcher.crop_config.seed, seed=self.seed + len(self.history),
-                          augment=aug, p_augment=p_augment, progress=progress)
+                          augment=aug, p_augment=p_augment, box_weight=box_weight if augment else 0.0, box_gain=box_gain if augment else None,
+                          progress=progress)
+        self._sync_box_gain()
         if not rep.trained and not rep.reverted and steps > 0:
             warnings.warn(f"OneShotSession.adapt: {rep.message}; the weights are unchanged", RuntimeWarning,
                           stacklevel=2)
