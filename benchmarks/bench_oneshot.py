@@ -8,7 +8,10 @@
    against the ground truth of the adaptation frames. Target after: >= 97 %. Top-1 after is
    reported for the model alone and with calibration fusion (``Matcher.match`` of the saved and
    reloaded site folder, whose ``calibration.json`` carries the session's pose; the fusion weight
-   was chosen on the tuning sequences), and fused before adaptation (base model + pose).
+   was chosen on the tuning sequences), and fused before adaptation (base model + pose). The
+   adaptation picks fastmatch's box gain itself (``box_gain="auto"``: the own gain or the one from
+   the detector-vs-pose residual, whichever scores better on the session's held-out buffer frames);
+   every candidate's held-out score is in ``adapt_report.gain_trials``.
 2. A9 (real, 16 sample frames, when ``../shared/data/a9_sample`` exists): ``bootstrap`` (the code
    behind ``xcalib bootstrap``) on the first 10 frames; Top-1 on the other 6 against the matches
    implied by the calibration (model alone and fused; the fused figure is close to circular, as
@@ -254,6 +257,12 @@ def a9(args, tmp: Path) -> dict:
             "overlay_matches_agreeing": int(sum(bool(f.match_matrix[i, j]) for i, j, _ in mr.matches))}
 
 
+def _gains(report: dict) -> str:
+    """'gain: held-out Top-1, ...' of an adapt report's box-gain trials, the chosen one starred."""
+    return ", ".join(f"{t['box_gain']:.3g}: {t['top1']:.3f}" + ("*" if t["chosen"] else "")
+                     for t in report.get("gain_trials", [])) or "-"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--part", choices=["synthetic", "a9", "all"], default="all")
@@ -317,6 +326,7 @@ def main(argv=None) -> int:
                  ("site A Top-1 after (forgetting)", f"{s['top1_site_a_after']:.4f}"),
                  ("pose error", f"{s['calibration_rot_err_deg']:.3f} deg, {s['calibration_trans_err_m']:.3f} m"),
                  ("pseudo-label precision / recall", f"{s['pseudo_precision']:.4f} / {s['pseudo_recall']:.4f}"),
+                 ("box_gain trials (held-out buffer Top-1)", _gains(s["adapt_report"])),
                  ("observe+calibrate / adapt s", f"{s['observe_calibrate_seconds']:.1f} / {s['adapt_seconds']:.1f}"),
                  ("reload bit-exact / same calibration", f"{s['reload_bit_exact']} / "
                                                          f"{s['reload_calibration_equal']}")]
@@ -331,6 +341,7 @@ def main(argv=None) -> int:
                  ("A9 Top-1 on 6 held-out, after", f"{a['top1_heldout_after']:.4f}"),
                  ("A9 Top-1 on 6 held-out, fused before / after", f"{a['top1_heldout_before_fused']:.4f} / "
                                                                   f"{a['top1_heldout_after_fused']:.4f}"),
+                 ("A9 box_gain trials (held-out buffer Top-1)", _gains(a["adapt_report"])),
                  ("A9 bootstrap s", f"{a['bootstrap_seconds']:.1f}"), ("A9 overlay", a["overlay"])]
     w = max(len(r[0]) for r in rows) if rows else 0
     for k, v in rows:

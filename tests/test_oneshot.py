@@ -256,8 +256,11 @@ def test_adapt_learns_the_pseudo_labels_and_reloads_bit_exactly(site, frames, tm
     rep = s.adapt(steps=40, holdout=0.25)
     assert rep.trained and not rep.reverted and rep.n_heldout_frames == 2
     assert box_err() < 0.5 * err0  # the geometry branch learned the pose's projection
-    g = rep.box_gain  # "auto": from the detector-vs-pose residual of the pseudo-matches
-    assert 1.0 < g <= 100.0 and m.model.box_gain == g and m.config["box_gain"] == g
+    g = rep.box_gain  # "auto": the own gain 1 or the one from the detector-vs-pose residual, whichever held out better
+    assert [t.chosen for t in rep.gain_trials].count(True) == 1 and len(rep.gain_trials) == 2
+    assert rep.gain_trials[0].box_gain == 1.0 and 1.0 < rep.gain_trials[1].box_gain <= 100.0
+    assert g == next(t.box_gain for t in rep.gain_trials if t.chosen)
+    assert m.model.box_gain == g and m.config["box_gain"] == g
     assert rep.loss_last < rep.loss_first
     assert rep.top1_after >= rep.top1_before
     # the base weights are kept: they differ from the adapted ones and come back exactly
@@ -278,6 +281,43 @@ def test_adapt_learns_the_pseudo_labels_and_reloads_bit_exactly(site, frames, tm
     s.reset_weights()
     assert all(torch.equal(s.base_state[k], v) for k, v in m.model.state_dict().items())
     assert m.model.box_gain == 1.0 and m.config["box_gain"] == 1.0
+
+
+def test_box_gain_selection_keeps_the_best_held_out_candidate_bit_exactly(site, frames, monkeypatch):
+    import xcalib.oneshot.adapt as adapt
+
+    def session(seed=0):
+        m = _matcher()
+        s = m.oneshot(site.intrinsics, min_frames=100, seed=seed)
+        _observe(s, frames)
+        s.set_calibration(site.T_cam_lidar)
+        return m, s
+
+    m, s = session()
+    with pytest.raises(ValueError, match="box_gain must be a number"):
+        s.adapt(steps=2, box_gain="bogus")
+    assert len(s.adapt(steps=2, box_gain=(None, 1.0)).gain_trials) == 1  # the own gain is 1: one candidate
+    s.reset_weights()
+    # the selection rule alone: held-out Top-1 first, then held-out loss, a tie keeps the first candidate
+    top1 = {1.0: 0.5, 7.0: 0.9, 9.0: 0.9}
+    monkeypatch.setattr(adapt, "pseudo_top1", lambda model, *a: top1.get(model.box_gain, 0.1))
+    monkeypatch.setattr(adapt, "pseudo_loss", lambda model, *a: {7.0: 0.3, 9.0: 0.2}.get(model.box_gain, 1.0))
+    rep = s.adapt(steps=2, box_gain=(None, 7.0, 9.0))
+    assert [t.top1 for t in rep.gain_trials] == [0.5, 0.9, 0.9] and [t.chosen for t in rep.gain_trials] == [0, 0, 1]
+    assert rep.box_gain == 9.0 == m.model.box_gain and rep.top1_after == 0.9 and "9: held-out Top-1" in rep.message
+    s.reset_weights()
+    top1[9.0] = 0.5
+    monkeypatch.setattr(adapt, "pseudo_loss", lambda model, *a: 0.5)
+    rep = s.adapt(steps=2, box_gain=(None, 9.0))  # equal scores: the simpler first candidate (own gain)
+    assert [t.chosen for t in rep.gain_trials] == [True, False] and m.model.box_gain == 1.0
+    monkeypatch.undo()
+    # the kept candidate is exactly what training that gain alone gives (same start, same batches)
+    m, s = session(seed=3)
+    rep = s.adapt(steps=15, holdout=0.25, box_gain=(None, 40.0))
+    assert rep.trained and len(rep.gain_trials) == 2 and np.isfinite([t.loss for t in rep.gain_trials]).all()
+    m2, s2 = session(seed=3)
+    s2.adapt(steps=15, holdout=0.25, box_gain=rep.box_gain)
+    assert _states_equal(m.model, m2.model) and m.model.box_gain == m2.model.box_gain == rep.box_gain
 
 
 def test_observe_crops_once_and_matches_like_matcher(site, frames):

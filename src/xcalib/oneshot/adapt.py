@@ -13,6 +13,13 @@ The model stays in eval mode (dropout off, normalisation statistics frozen), the
 measured on the **same** held-out observations, with the same crops and point samples, before and
 after. The starting weights are restored when training produces non-finite weights, and (unless
 ``keep_if_worse``) when held-out Top-1 drops.
+
+Box-gain selection (fastmatch's pair-head box term, ``box_gain="auto"``): how far to trust the
+pose's geometry depends on the site (real detector boxes sit several times further from the
+projected 3D boxes than synthetic ones), so each candidate gain is trained from the same start
+with the same batches, and the one with the best held-out pseudo-label score wins (Top-1, then
+the held-out matching loss; a tie keeps the first, simplest candidate). Every candidate's score
+is recorded in :class:`AdaptReport`.
 """
 
 from __future__ import annotations
@@ -31,13 +38,26 @@ from .evidence import Observation
 from .loss import weighted_matching_loss
 from .pseudo import PseudoTargets
 
-__all__ = ["AdaptReport", "ADAPT_MODES", "BOX_GAIN_SCALE", "auto_box_gain", "trainable_parameters", "pseudo_top1",
-           "adapt_model", "holdout_split"]
+__all__ = ["AdaptReport", "GainTrial", "ADAPT_MODES", "BOX_GAIN_SCALE", "auto_box_gain", "trainable_parameters",
+           "pseudo_top1", "pseudo_loss", "adapt_model", "holdout_split"]
 
 log = logging.getLogger("xcalib.oneshot")
 
 ADAPT_MODES = ("heads", "full")
 _BACKBONES = ("img_backbone.", "lid_backbone.")
+
+
+@dataclass
+class GainTrial:
+    """One candidate ``box_gain`` of a selection: its held-out pseudo-label Top-1 (fraction) and
+    matching loss (confidence-weighted CE, nats; lower is better) after training, and the
+    training loss over its last tenth of steps."""
+
+    box_gain: float
+    top1: float = float("nan")
+    loss: float = float("nan")
+    loss_last: float = float("nan")
+    chosen: bool = False
 
 
 @dataclass
@@ -61,11 +81,13 @@ class AdaptReport:
     message: str = ""
     elapsed_s: float = 0.0
     box_gain: float = float("nan")
+    gain_trials: list[GainTrial] = field(default_factory=list)
     losses: list[float] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
         d["losses"] = [float(v) for v in self.losses]
+        d["gain_trials"] = [dict(g.__dict__) for g in self.gain_trials]
         return d
 
 
@@ -98,6 +120,23 @@ def pseudo_top1(model, observations: Sequence[Observation], targets: Sequence[Ps
     if not items:
         return float("nan")
     return float(evaluate(model, items, n_points, device, seed).result().top1)
+
+
+def pseudo_loss(model, observations: Sequence[Observation], targets: Sequence[PseudoTargets], n_points: int,
+                device, seed: int) -> float:
+    """Mean per-frame :func:`weighted_matching_loss` (nats) of ``model`` on pseudo-labelled
+    frames, deterministic crops as :func:`pseudo_top1`; NaN when no frame has a pseudo-match."""
+    from ..models.inputs import ModelBatch
+
+    vals = []
+    with torch.no_grad():
+        for o, t in zip(observations, targets):
+            if o.empty or not t.n_pairs:
+                continue
+            b = ModelBatch.from_frames([o.inputs(n_points, np.random.default_rng(seed))], device)
+            pos, w, neg = _block([t], device)
+            vals.append(float(weighted_matching_loss(model.train_logits(model.embed(b), b), b, pos, w, neg)))
+    return float(np.mean(vals)) if vals else float("nan")
 
 
 def holdout_split(n: int, fraction: float) -> tuple[np.ndarray, np.ndarray]:
@@ -167,11 +206,37 @@ def _box_loss(box_lid: torch.Tensor, fis, tgs, augment, device) -> torch.Tensor:
     return ((box_lid[sel] - torch.from_numpy(tgt[ok]).to(box_lid)) ** 2).sum(1).mean()
 
 
+def _gain_candidates(box_gain, model, observations, targets, augment) -> list[float | None]:
+    """Candidate gains of ``box_gain`` (None: the model's own). "auto" = (None, "residual");
+    "residual" = :func:`auto_box_gain` (needs ``augment``, dropped without); duplicates dropped."""
+    if box_gain is None or isinstance(box_gain, (int, float)):
+        return [None if box_gain is None else float(box_gain)]
+    if isinstance(box_gain, str):
+        if box_gain not in ("auto", "residual"):
+            raise ValueError(f"box_gain must be a number, None, 'auto', 'residual' or a sequence of those, "
+                             f"got {box_gain!r}")
+        box_gain = (None, "residual") if box_gain == "auto" else ("residual",)
+    own = getattr(model, "box_gain", None)
+    out: list[float | None] = []
+    for g in box_gain:
+        if isinstance(g, str) and g == "auto":
+            raise ValueError("box_gain: 'auto' cannot be a candidate of a sequence; use None and 'residual'")
+        if g == "residual":
+            if augment is None:
+                continue
+            g = auto_box_gain(observations, targets, augment)
+        g = None if g is None else float(g)
+        key = own if g is None else g
+        if all((own if h is None else h) != key for h in out):
+            out.append(g)
+    return out or [None]
+
+
 def adapt_model(model, observations: Sequence[Observation], targets: Sequence[PseudoTargets], *, steps: int,
                 n_points: int, device, mode: str = "heads", lr: float = 1e-3, frames_per_batch: int = 4,
                 anchor: float = 1e-2, holdout: float = 0.2, grad_clip: float = 5.0, keep_if_worse: bool = False,
                 min_pairs: int = 8, eval_seed: int = 0, seed: int = 0, augment=None, p_augment: float = 1.0,
-                box_weight: float = 0.0, box_gain: float | str | None = None,
+                box_weight: float = 0.0, box_gain=None,
                 progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
     """Fine-tune ``model`` in place on pseudo-labelled ``observations`` (see the module docstring).
 
@@ -184,12 +249,15 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
     box differences before training without rescaling its weights, i.e. the box term starts
     (gain / old gain)^2 times stronger: with a known pose the geometry is what transfers, and
     differences of a few pixels (small, far objects) become resolvable (the old gain comes back on
-    revert; Top-1 before is measured with it). ``"auto"`` (needs ``augment``): :func:`auto_box_gain`
-    over the training frames. Returns an :class:`AdaptReport`; ``trained=False``
-    (weights untouched) when fewer than ``min_pairs`` pseudo-matches are available for training.
+    revert; Top-1 before is measured with it). A number: that gain; None: the model's own;
+    ``"residual"`` (needs ``augment``): :func:`auto_box_gain` over the training frames; a sequence
+    of those: each is trained from the same start with the same batches (``steps`` each, so the
+    time multiplies) and the best on the held-out frames is kept (higher pseudo-label Top-1, then
+    lower :func:`pseudo_loss`; ties keep the earlier candidate); ``"auto"`` = ``(None, "residual")``.
+    Without held-out pseudo-matches the first candidate is trained alone. Returns an
+    :class:`AdaptReport` (``gain_trials``: every candidate's scores); ``trained=False`` (weights
+    untouched) when fewer than ``min_pairs`` pseudo-matches are available for training.
     """
-    from ..models.inputs import ModelBatch
-
     t0 = time.perf_counter()
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
@@ -215,12 +283,79 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
 
     start = {k: v.detach().clone() for k, v in model.state_dict().items()}
     old_gain = getattr(model, "box_gain", None)
-    if box_gain == "auto":
-        box_gain = auto_box_gain([observations[k] for k in tr], [targets[k] for k in tr], augment) \
-            if augment is not None else None
-    if box_gain is not None and hasattr(model, "set_box_gain"):
-        model.set_box_gain(float(box_gain), rescale=False)
-        rep.box_gain = float(box_gain)
+    can_gain = hasattr(model, "set_box_gain")
+    gains = _gain_candidates(box_gain, model, [observations[k] for k in tr], [targets[k] for k in tr], augment) \
+        if can_gain else [None]
+    if rep.n_heldout_pairs == 0:
+        gains = gains[:1]
+    tr_obs, tr_t = [observations[k] for k in tr], [targets[k] for k in tr]
+    best: tuple | None = None  # (key, trial index, state, losses, gain)
+    for k, g in enumerate(gains):
+        if k:
+            model.load_state_dict(start)
+        gain = old_gain if g is None else g
+        if can_gain and gain is not None:
+            model.set_box_gain(float(gain), rescale=False)
+        losses = _train(model, named, tr_obs, tr_t, steps=steps, n_points=n_points, device=device, lr=lr,
+                        frames_per_batch=frames_per_batch, anchor=anchor, grad_clip=grad_clip, seed=seed,
+                        augment=augment, p_augment=p_augment, box_weight=box_weight,
+                        progress=None if progress is None else
+                        (lambda i, n, v, k=k: progress(k * steps + i, len(gains) * steps, v)))
+        trial = GainTrial(box_gain=float("nan") if gain is None else float(gain),
+                          loss_last=float(np.mean(losses[-max(1, steps // 10):])))
+        finite = all(torch.isfinite(v).all() for v in model.state_dict().values() if v.is_floating_point())
+        if finite:
+            trial.top1 = pseudo_top1(model, ho_obs, ho_t, n_points, device, eval_seed)
+            if len(gains) > 1:
+                trial.loss = pseudo_loss(model, ho_obs, ho_t, n_points, device, eval_seed)
+        rep.gain_trials.append(trial)
+        # higher Top-1, then lower held-out loss; NaN ranks last; a tie keeps the earlier candidate
+        key = (trial.top1 if np.isfinite(trial.top1) else -1.0, -trial.loss if np.isfinite(trial.loss) else -np.inf)
+        if finite and (best is None or key > best[0]):
+            best = (key, k, {n: v.detach().clone() for n, v in model.state_dict().items()}
+                    if len(gains) > 1 else None, losses, gain)
+    if best is not None:
+        _, k, state, rep.losses, gain = best
+        if state is not None:
+            model.load_state_dict(state)
+            if can_gain and gain is not None:
+                model.set_box_gain(float(gain), rescale=False)
+        rep.gain_trials[k].chosen = True
+        rep.box_gain = float(gain) if can_gain and gain is not None else float("nan")
+        rep.top1_after = rep.gain_trials[k].top1
+    else:
+        rep.losses = losses
+        rep.top1_after = float("nan")
+    rep.steps = steps
+    rep.loss_first, rep.loss_last = rep.losses[0], float(np.mean(rep.losses[-max(1, steps // 10):]))
+    worse = np.isfinite(rep.top1_before) and np.isfinite(rep.top1_after) and rep.top1_after < rep.top1_before
+    if best is None or (worse and not keep_if_worse):
+        model.load_state_dict(start)
+        if old_gain is not None and can_gain:
+            model.set_box_gain(old_gain, rescale=False)
+        rep.reverted = True
+        rep.message = ("reverted: training produced non-finite weights" if best is None else
+                       f"reverted: held-out Top-1 against pseudo-labels fell from {rep.top1_before:.3f} to "
+                       f"{rep.top1_after:.3f}")
+        log.warning("one-shot adapt %s", rep.message)
+        rep.top1_after = rep.top1_before
+    else:
+        rep.trained = True
+        rep.message = f"trained {steps} steps on {n_pairs} pseudo-labelled pairs in {len(tr)} frames"
+        if len(gains) > 1:
+            rep.message += "; box_gain " + ", ".join(
+                f"{t.box_gain:.3g}: held-out Top-1 {t.top1:.3f}, loss {t.loss:.3f}" + (" (chosen)" if t.chosen else "")
+                for t in rep.gain_trials)
+    rep.elapsed_s = time.perf_counter() - t0
+    return rep
+
+
+def _train(model, named, observations, targets, *, steps, n_points, device, lr, frames_per_batch, anchor,
+           grad_clip, seed, augment, p_augment, box_weight, progress) -> list[float]:
+    """``steps`` Adam steps on ``named`` parameters (the rest frozen, model in eval mode); the
+    batches and augmentations depend on ``seed`` only. Returns the per-step losses."""
+    from ..models.inputs import ModelBatch
+
     anchors = [p.detach().clone() for _, p in named]
     flags = {n: p.requires_grad for n, p in model.named_parameters()}
     train_names = {n for n, _ in named}
@@ -233,14 +368,15 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
     was_training = model.training
     model.eval()
     order = np.zeros(0, np.int64)
+    losses: list[float] = []
     try:
         for step in range(steps):
             if len(order) < frames_per_batch:
-                order = np.concatenate([order, rng.permutation(len(tr))])
+                order = np.concatenate([order, rng.permutation(len(observations))])
             pick, order = order[:frames_per_batch], order[frames_per_batch:]
             fis, tg = [], []
             for i in pick:
-                fi, t = observations[tr[i]].inputs(n_points, rng), targets[tr[i]]
+                fi, t = observations[i].inputs(n_points, rng), targets[i]
                 if augment is not None and rng.random() < p_augment:
                     fi, t = augment.apply(fi, t, rng)
                 fis.append(fi)
@@ -261,31 +397,12 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
                 if grad_clip:
                     torch.nn.utils.clip_grad_norm_(params, grad_clip)
                 opt.step()
-            rep.losses.append(float(loss.detach()))
+            losses.append(float(loss.detach()))
             if progress is not None:
-                progress(step + 1, steps, rep.losses[-1])
+                progress(step + 1, steps, losses[-1])
     finally:
         for n, p in model.named_parameters():
             p.requires_grad_(flags[n])
         model.train(was_training)
         model.eval()
-    rep.steps = steps
-    rep.loss_first, rep.loss_last = rep.losses[0], float(np.mean(rep.losses[-max(1, steps // 10):]))
-    finite = all(torch.isfinite(v).all() for v in model.state_dict().values() if v.is_floating_point())
-    rep.top1_after = pseudo_top1(model, ho_obs, ho_t, n_points, device, eval_seed) if finite else float("nan")
-    worse = np.isfinite(rep.top1_before) and np.isfinite(rep.top1_after) and rep.top1_after < rep.top1_before
-    if not finite or (worse and not keep_if_worse):
-        model.load_state_dict(start)
-        if old_gain is not None and hasattr(model, "set_box_gain"):
-            model.set_box_gain(old_gain, rescale=False)
-        rep.reverted = True
-        rep.message = ("reverted: training produced non-finite weights" if not finite else
-                       f"reverted: held-out Top-1 against pseudo-labels fell from {rep.top1_before:.3f} to "
-                       f"{rep.top1_after:.3f}")
-        log.warning("one-shot adapt %s", rep.message)
-        rep.top1_after = rep.top1_before
-    else:
-        rep.trained = True
-        rep.message = f"trained {steps} steps on {n_pairs} pseudo-labelled pairs in {len(tr)} frames"
-    rep.elapsed_s = time.perf_counter() - t0
-    return rep
+    return losses

@@ -275,7 +275,8 @@ class OneShotSession:
     def adapt(self, steps: int = 600, *, lr: float = 1e-3, mode: str | None = None, frames_per_batch: int = 4,
               anchor: float = 1e-2, holdout: float = 0.2, min_pairs: int = 8, keep_if_worse: bool = False,
               augment: bool = True, p_augment: float = 1.0, augment_options: dict | None = None,
-              box_weight: float = 10.0, box_gain: float | str | None = "auto", progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
+              box_weight: float = 10.0, box_gain: float | str | tuple | None = "auto",
+              progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
         """Fine-tune the matcher on the pseudo-labels of the buffer (see :mod:`xcalib.oneshot.adapt`).
 
         ``augment``: move objects through the pose (:mod:`xcalib.oneshot.augment`; fields of
@@ -283,8 +284,10 @@ class OneShotSession:
         frames, so a short recording teaches the site's geometry rather than its few objects.
         With ``augment``, models that predict each 3D box's 2D box (fastmatch) also regress it onto
         the pose's projection (``box_weight`` x squared error in image fractions / log sizes) and
-        their pair head's box term is raised to ``box_gain`` (see :func:`adapt_model`; "auto": from the
-        site's detector-vs-pose box noise; None: as is).
+        their pair head's box term is set by ``box_gain`` (see :func:`adapt_model`): "auto" trains
+        the model's own gain and the gain from the site's detector-vs-pose box noise ("residual")
+        and keeps the better on the held-out buffer frames (twice the training time; the report's
+        ``gain_trials`` has both scores); a number or "residual": that gain alone; None: as is.
         Defaults chosen on the tuning sequences of ``benchmarks/bench_oneshot.py``.
         Raises :class:`NotCalibratedError` before any calibration. With fewer than ``min_pairs``
         pseudo-matches it warns and returns a report with ``trained=False`` (weights untouched).
@@ -302,8 +305,8 @@ class OneShotSession:
                           device=dev, mode=mode or self.mode, lr=lr, frames_per_batch=frames_per_batch, anchor=anchor,
                           holdout=holdout, min_pairs=min_pairs, keep_if_worse=keep_if_worse,
                           eval_seed=self.matcher.crop_config.seed, seed=self.seed + len(self.history),
-                          augment=aug, p_augment=p_augment, box_weight=box_weight if augment else 0.0, box_gain=box_gain if augment else None,
-                          progress=progress)
+                          augment=aug, p_augment=p_augment, box_weight=box_weight if augment else 0.0,
+                          box_gain=box_gain if augment else None, progress=progress)
         self._sync_box_gain()
         if not rep.trained and not rep.reverted and steps > 0:
             warnings.warn(f"OneShotSession.adapt: {rep.message}; the weights are unchanged", RuntimeWarning,
