@@ -287,6 +287,21 @@ def test_atomic_write(tmp_path, rng):
     assert (tmp_path / "d.h5").exists()
 
 
+def test_atomic_write_gives_umask_permissions(tmp_path):
+    import os
+    import stat
+
+    from xcalib.io._files import atomic_write
+
+    old = os.umask(0o027)
+    try:
+        p = atomic_write(tmp_path / "w.bin", [b"ab", b"c"])
+    finally:
+        os.umask(old)
+    assert p.read_bytes() == b"abc"
+    assert stat.S_IMODE(p.stat().st_mode) == 0o640  # like open(), not mkstemp's 0o600
+
+
 def test_writer_rejects_bad_match_matrix(tmp_path, rng):
     f = _frame(rng, 0)
     f.match_matrix = np.zeros((2, 2), bool)
