@@ -347,7 +347,7 @@ def test_set_calibration_rejects_failed_results_and_non_rotations(site):
         _matcher().oneshot(site.intrinsics, mode="everything")
 
 
-def test_cli_bootstrap_installs_site_weights(site, frames, tmp_path, monkeypatch):
+def test_cli_bootstrap_installs_site_weights(site, frames, tmp_path, monkeypatch, capsys):
     from xcalib.cli import main
     from xcalib.io.hdf5 import CacheWriter
 
@@ -361,9 +361,13 @@ def test_cli_bootstrap_installs_site_weights(site, frames, tmp_path, monkeypatch
     K.write_text(json.dumps(site.intrinsics.to_dict()))
     monkeypatch.setenv("XCALIB_HOME", str(tmp_path / "home"))
     rc = main(["bootstrap", str(cache), "--intrinsics", str(K), "--site", "cli_site", "--init", "scratch",
-               "--steps", "5", "--limit", "5", "--json"])
+               "--steps", "5", "--limit", "5"])  # the human-readable summary (the --json one: test_cli_commands)
     assert rc == 0
+    out = capsys.readouterr().out
+    assert "calibration OK" in out and "trained fastmatch" in out and "held-out Top-1" in out
+    assert "box-geometry gain kept on the held-out frames" in out and ", kept)" in out
     m = Matcher.from_pretrained("fastmatch", site="cli_site", device="cpu")
+    assert f"weights: {m.weights_path}" in out
     assert m.weights_path.parent == tmp_path / "home" / "sites" / "cli_site"
     assert (m.weights_path.parent / "calibration.json").is_file()
     rc = main(["bootstrap", str(cache), "--site", "x", "--no-install"])

@@ -69,10 +69,10 @@ def register(app: typer.Typer) -> None:
                 state = "calibrated" if rep.calibrated else f"next pose attempt at frame {rep.next_calibration_at}"
                 bar.update(t_obs, completed=k, info=state)
 
-            def on_step(k, total, loss):
+            def on_step(k, total, loss):  # total covers every gain candidate adapt trains
                 if k == 1:
                     bar.start_task(t_fit)
-                bar.update(t_fit, completed=k, info=f"loss {loss:.3f}")
+                bar.update(t_fit, completed=k, total=total, info=f"loss {loss:.3f}")
 
             res = bootstrap(it, K, site, model=model, init=init, steps=steps, mode=mode, install=not no_install,
                             session_options={"calib_options": {"max_rot_std_deg": max_rot_std,
@@ -87,6 +87,10 @@ def register(app: typer.Typer) -> None:
         typer.echo(f"trained {model} ({res.init}, mode {a.mode}) on {a.n_pairs} pseudo-labelled pairs in "
                    f"{a.n_train_frames} frames: loss {a.loss_first:.3f} -> {a.loss_last:.3f}; held-out Top-1 vs "
                    f"pseudo-labels {a.top1_before:.3f} -> {a.top1_after:.3f} ({a.n_heldout_frames} frames)")
+        if len(a.gain_trials) > 1:
+            typer.echo("box-geometry gain kept on the held-out frames: " + ", ".join(
+                f"{g.box_gain:.3g} (Top-1 {g.top1:.3f}, loss {g.loss:.3f}{', kept' if g.chosen else ''})"
+                for g in a.gain_trials))
         where = res.paths.get("weights") or res.paths.get("out_weights")
         typer.echo(f"weights: {where}" + (f"  (load with Matcher.from_pretrained({model!r}, site={site!r}))"
                                           if not no_install else ""))
