@@ -4,13 +4,17 @@ Pipeline (one static rig, one pose for all frames):
 
 1. normalise the inputs (``inputs.prepare_frames``; yaw re-estimated for yaw-less 3D boxes);
 2. bring-up: pose hypotheses from box triples per frame (``hypotheses``), pooled over frames
-   and re-scored on all frames by how well every projected 3D box explains the 2D boxes;
+   and re-scored on all frames by how well every projected 3D box explains the 2D boxes; with
+   too few rich frames, triples also mix frames spread over the recording (``_pooled_groups``:
+   one static rig, so pairs of different frames are rigidly consistent too);
 3. refinement of the best distinct hypotheses over all frames (``refine.refine_pose``); the
    per-edge error model (2D noise, 3D centre error seen at depth Z, 3D size error) is fitted to
    the residuals, so noisy 3D detections are weighted by their actual error;
 4. uncertainty (per axis, 1-sigma): the larger of the Jacobian sandwich and the two frame-halves
    spread, plus the pose shift without the occlusion model (``_honest_std``);
-5. decision: the best pose must match 3+ objects in some frame, explain enough of the 2D boxes,
+5. decision: the best pose must match 3+ objects in some frame (or, with 1-2 per frame, match
+   boxes at 4+ places over the recording, 2+ of them off one line, and 12+ matches so that each
+   half of the frames is checked on its own), explain enough of the 2D boxes,
    be clearly better than any admissible runner-up beyond 2 sigma and be well constrained (norm of the
    1-sigma vector <= ``max_rot_std_deg`` / ``max_trans_std_m``, i.e. 2 sigma within 1 deg / 0.5 m),
    otherwise ``success=False`` with a message saying why.
@@ -91,6 +95,69 @@ def _nms(h: Hypotheses, n: int, rot_deg: float = 3.0, trans_m: float = 1.0) -> H
 
 def _pose_err(T, R, t):
     return rotation_angle(T[:3, :3], R, degrees=True), float(np.linalg.norm(T[:3, 3] - t))
+
+
+# pooled identifiability (frames with only 1-2 matched objects each): the matched 3D boxes over
+# all frames must sit at POOLED_MIN_PLACES+ places at least POOLED_SEP_M apart, two of which lie
+# more than POOLED_OFF_LINE_M off the line through all of them (else the roll about it is free)
+POOLED_MIN_PLACES = 4
+POOLED_SEP_M = 1.0
+POOLED_OFF_LINE_M = 1.0
+
+
+def _matched_places(frames: Sequence[CalibFrame], pairs: list[np.ndarray],
+                    max_centres: int = 1000) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct places [D,3] (LiDAR frame, m) of the matched 3D boxes over all frames and their
+    distances [D] (m) from the principal line through them. Places are a maximal set of box
+    centres at least ``POOLED_SEP_M`` apart (every matched centre lies within that of one);
+    beyond ``max_centres`` matches an even subsample is used (fewer places, never more)."""
+    X = [f.boxes3d[p[:, 1], :3] for f, p in zip(frames, pairs) if len(p)]
+    if not X:
+        return np.zeros((0, 3)), np.zeros(0)
+    X = np.concatenate(X)
+    if len(X) > max_centres:
+        X = X[np.linspace(0, len(X) - 1, max_centres).round().astype(np.int64)]
+    # random priorities (fixed seed): a slow track is a chain of near centres, which in time order
+    # would take one round per link; random order takes a few rounds (Luby's independent set)
+    X = X[np.random.default_rng(0).permutation(len(X))]
+    near = np.linalg.norm(X[:, None] - X[None], axis=2) < POOLED_SEP_M
+    kept = np.zeros(len(X), dtype=bool)
+    open_ = np.ones(len(X), dtype=bool)
+    while np.any(open_):  # each round keeps every open centre with no lower-index open neighbour
+        first = open_ & ~np.any(np.tril(near & open_[None, :], -1), axis=1)
+        kept |= first
+        open_ &= ~np.any(near[first], axis=0)
+    P = X[kept]
+    if len(P) < 2:
+        return P, np.zeros(len(P))
+    c = P - P.mean(0)
+    axis = np.linalg.svd(c, full_matrices=False)[2][0]
+    return P, np.linalg.norm(c - np.outer(c @ axis, axis), axis=1)
+
+
+def _pooled_groups(frames: Sequence[CalibFrame], n_groups: int = 3, per_group: int = 24,
+                   every_max: int = 80) -> list[list[int]]:
+    """Frame groups for hypotheses pooled across a sparse recording (1-2 objects per frame).
+
+    One static rig: the LiDAR -> camera transform is the same in every frame, so a box pair of
+    one frame and a box pair of another keep their distance (rigid) exactly like two pairs of
+    one frame, and triples may mix frames. ``n_groups`` groups of about ``per_group`` 2D boxes
+    each take every n-th frame, so that each spans the whole recording (objects far apart
+    give well-conditioned triangles); with ``every_max`` > 0, one more group of frames spread
+    over the recording holds up to that many 2D boxes. Returns lists of frame indices.
+    """
+    have = np.array([i for i, f in enumerate(frames) if f.n2 and f.n3], dtype=np.int64)
+    if len(have) < 2:
+        return []
+    n2 = np.array([frames[i].n2 for i in have])
+    per = max(2, int(per_group // max(1, np.median(n2))))
+    G = int(min(n_groups, max(1, len(have) // per)))
+    pick = have[np.unique(np.linspace(0, len(have) - 1, min(len(have), G * per)).round().astype(np.int64))]
+    groups = [pick[g::G].tolist() for g in range(G)]
+    if every_max > 0 and n2.sum() > every_max:
+        m = max(2, int(len(have) * every_max / n2.sum()))
+        groups.append(have[np.unique(np.linspace(0, len(have) - 1, m).round().astype(np.int64))].tolist())
+    return [g for g in groups if len(g) >= 2]
 
 
 def _collinear(P: np.ndarray, tol: float) -> bool:
@@ -190,10 +257,16 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
             every = [i for i, f in enumerate(cframes) if f.n2 and f.n3]
             groups.append(every)
         meta["sparse_search"] = bool(sparse_scene)
+        # too few rich frames (4+ detections of each kind): extra groups pooled across the whole
+        # recording (see _pooled_groups); their hypotheses only add to the per-frame ones
+        n_before = len(groups)
+        if sum(min(f.n2, f.n3) >= 4 for f in cframes) < max_hyp_frames:
+            groups += _pooled_groups(cframes, every_max=0 if sparse_scene else 80)
+        meta["pooled_search"] = len(groups) > n_before
         parts = []
         for k, g in enumerate(groups):
             gs = [sims[i] for i in g]
-            big = sparse_scene and len(g) > 1
+            big = (sparse_scene or k >= n_before) and len(g) > 1
             h = frame_hypotheses([cframes[i] for i in g], intr, g[0], prior_sims=gs, rng=rng,
                                  max_baseline_m=max_baseline_m, max_triples=20000 if big else 3000,
                                  keep=60 if big else 25)
@@ -291,9 +364,23 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
     need = max(min_pairs, 3)
     why = None
     most = max((len(p) for p in pairs), default=0)
+    meta["max_pairs_per_frame"] = int(most)
     if most < 3:
-        why = (f"not identifiable: no frame has 3 or more objects matched between the sensors (at most {most}); "
-               "one or two objects, even moving, leave the pose ambiguous")
+        places, off_line = _matched_places(cframes, pairs)
+        meta.update(matched_places=int(len(places)), matched_places_off_line=int(np.sum(off_line > POOLED_OFF_LINE_M)))
+    if most < 3 and (len(places) < POOLED_MIN_PLACES or np.sum(off_line > POOLED_OFF_LINE_M) < 2):
+        # a static rig: objects at other places in other frames constrain the one pose together,
+        # but only when the matched objects cover enough places that are not on one line
+        why = (f"not identifiable: no frame has 3 or more objects matched between the sensors (at most {most}) "
+               f"and over all frames the matched objects are at {len(places)} distinct place(s), "
+               f"{int(np.sum(off_line > POOLED_OFF_LINE_M))} of them off one line (need {POOLED_MIN_PLACES}+, "
+               f"2+ off the line by > {POOLED_OFF_LINE_M:g} m); one or two objects on one path leave the pose ambiguous")
+    elif most < 3 and halves is None:
+        # with 1-2 objects per frame each half of the frames must determine the pose on its own
+        # (the frame-halves check of the uncertainty needs 6+ matches per half)
+        why = (f"not identifiable: no frame has 3 or more objects matched between the sensors (at most {most}) "
+               f"and the {n_pairs} matches over all frames are too few to check the pose on each half of the "
+               "frames (need 6+ per half); add frames")
     elif n_pairs < need or n_pairs < min_explained * n2:
         why = (f"the best pose explains only {n_pairs} of {n2} 2D boxes (need {max(need, int(np.ceil(min_explained * n2)))}); "
                "too few objects seen by both sensors, or no pose explains the detections")
