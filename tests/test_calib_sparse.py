@@ -92,3 +92,35 @@ def test_matched_places_merge_repeats_but_not_a_slow_track():
     parked = [np.array([[0, 0]])] + [np.zeros((0, 2), np.int64)] * (len(cf) - 1)
     places, _ = _matched_places(cf + cf[:1], parked + [np.array([[0, 0]])])  # the same box twice
     assert len(places) == 1
+
+
+def _few_pairs_frame(seed: int, k: int):
+    """One synthetic roadside frame keeping k objects seen by both sensors (and the false 2D
+    boxes), with the generator's default 3D-detection noise (0.1 m centre, 3 % size, 2 deg yaw)."""
+    from xcalib.data.synth import generate_frames, sample_site
+
+    site = sample_site(seed, preset="roadside")
+    for f in generate_frames(site, 60, seed=seed, render_images=False, lidar=False, miss_rate_2d=0.1,
+                             false_positive_rate_2d=0.05, box_noise_px=1.0)[::10]:
+        mm = np.asarray(f.match_matrix, bool)
+        rows = np.flatnonzero(mm.any(1))
+        if len(rows) >= k:
+            k3 = np.sort(mm[rows[:k]].argmax(1))
+            k2 = np.sort(np.r_[rows[:k], np.flatnonzero(np.asarray(f.meta["ids_2d"]) < 0)])
+            return Frame(**{**f.__dict__, "bboxes_2d": f.bboxes_2d[k2], "bboxes_3d": f.bboxes_3d[k3],
+                            "match_matrix": mm[np.ix_(k2, k3)]}), site.T_cam_lidar
+    raise AssertionError("no frame with enough objects")
+
+
+def test_few_pairs_with_noisy_3d_boxes_are_refused_not_wrong():
+    # 5 pairs, no frame-halves check: the Jacobian (and the error model, which cannot be fitted
+    # to 5 pairs) believe the pose to 0.23 deg / 0.12 m, but it is 1.2 m off; leaving one pair
+    # out at a time shows the spread, and the pose is refused with the reason
+    frame, T = _few_pairs_frame(seed=14, k=5)
+    res = calibrate([frame], frame.intrinsics)
+    assert not res.success and res.n_pairs == 5
+    assert "too few matched pairs to verify the pose" in res.message and "at least 7 more matched pairs" in res.message
+    assert np.linalg.norm(T[:3, 3] - res.translation) > 0.5  # what was refused is wrong
+    jac, occl = res.meta["jacobian_std"], np.asarray(res.meta["occlusion_delta"])
+    assert np.linalg.norm(np.hypot(jac["translation_m"], occl[3:])) < 0.25  # the Jacobian alone would accept it
+    assert res.meta["halves_delta"] is None and np.linalg.norm(res.meta["jackknife_std"][3:]) > 0.5

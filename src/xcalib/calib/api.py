@@ -11,7 +11,9 @@ Pipeline (one static rig, one pose for all frames):
    per-edge error model (2D noise, 3D centre error seen at depth Z, 3D size error) is fitted to
    the residuals, so noisy 3D detections are weighted by their actual error;
 4. uncertainty (per axis, 1-sigma): the larger of the Jacobian sandwich and the two frame-halves
-   spread, plus the pose shift without the occlusion model (``_honest_std``);
+   spread (with too few matches for the halves, fewer than 12: the leave-one-pair-out jackknife
+   spread, ``refine.pose_jackknife``), plus the pose shift without the occlusion model
+   (``_honest_std``);
 5. decision: the best pose must match 3+ objects in some frame (or, with 1-2 per frame, match
    boxes at 4+ places over the recording, 2+ of them off one line, and 12+ matches so that each
    half of the frames is checked on its own), explain enough of the 2D boxes,
@@ -35,7 +37,7 @@ from ..geometry.boxes import box2d_centers
 from ..geometry.rotations import rotation_angle
 from .hypotheses import Hypotheses, frame_hypotheses, score_poses
 from .inputs import CalibFrame, prepare_frames
-from .refine import match_all, pair_metrics, pose_covariance, pose_spread, refine_pose
+from .refine import match_all, pair_metrics, pose_covariance, pose_jackknife, pose_spread, refine_pose
 from .result import CalibrationResult
 
 __all__ = ["calibrate", "calibrate_single", "METHOD"]
@@ -337,7 +339,10 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
     meta["jacobian_std"] = {"rotation_deg": np.asarray(rot_sd).tolist(), "translation_m": np.asarray(tr_sd).tolist()}
     meta["halves_delta"] = None if halves is None else halves.tolist()
     meta["occlusion_delta"] = occl.tolist()
-    rot_sd, tr_sd = _honest_std(np.concatenate([rot_sd, tr_sd]), halves, occl)
+    jack = pose_jackknife(cframes, pairs, intr, best.R, best.t, noise=best.noise, f_scale=f_scale) \
+        if halves is None else None
+    meta["jackknife_std"] = None if jack is None else jack.tolist()
+    rot_sd, tr_sd = _honest_std(np.concatenate([rot_sd, tr_sd]), halves, occl, jack)
     # a runner-up within 2 sigma of the best is the same solution (the decision below then bounds
     # the error by 2 sigma <= 1 deg / 0.5 m); only one beyond that is a competing explanation
     r2, t2 = 2 * float(np.linalg.norm(rot_sd)), 2 * float(np.linalg.norm(tr_sd))
@@ -387,6 +392,10 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
     elif runner >= ambiguity_ratio * best_score:
         why = (f"ambiguous: two different poses explain the boxes about equally well (scores {best_score:.2f} "
                f"vs {runner:.2f}); add frames with objects spread over the image")
+    elif halves is None and (not (np.all(np.isfinite(rot_sd)) and np.all(np.isfinite(tr_sd)))
+                             or np.linalg.norm(rot_sd) > max_rot_std_deg or np.linalg.norm(tr_sd) > max_trans_std_m):
+        # few matches: no frame-halves check; the leave-one-pair-out spread judged the pose
+        why = _few_pairs_message(n_pairs, rot_sd, tr_sd, max_rot_std_deg, max_trans_std_m)
     elif not (np.all(np.isfinite(rot_sd)) and np.all(np.isfinite(tr_sd))) or \
             np.linalg.norm(rot_sd) > max_rot_std_deg or np.linalg.norm(tr_sd) > max_trans_std_m:
         why = (f"not identifiable: the pose is poorly constrained (1-sigma rotation {np.linalg.norm(rot_sd):.2f} deg, "
@@ -405,7 +414,8 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
     return res
 
 
-def _honest_std(jac_sd: np.ndarray, halves: np.ndarray | None, occl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _honest_std(jac_sd: np.ndarray, halves: np.ndarray | None, occl: np.ndarray,
+                jack: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-axis 1-sigma (rotation deg, translation m) that also covers what the Jacobian misses.
 
     Statistical part: the larger of the Jacobian (sandwich) sigma and half the difference of the
@@ -414,12 +424,34 @@ def _honest_std(jac_sd: np.ndarray, halves: np.ndarray | None, occl: np.ndarray)
     of the pose when the occlusion model is switched off (how much the pose leans on it; grows
     with the 3D-box error). On the synthetic benchmark 2 sigma (vector norm) covers >= 90 % of
     the true errors with exact and with noisy 3D boxes.
+
+    With too few matches for the frame halves (fewer than 6 per half), the data-fitted error
+    model and the linearised covariance are optimistic (a few pairs whose 3D boxes are off by
+    0.1 m fit each other well); the leave-one-pair-out spread ``jack`` takes the halves' place.
+    With neither, the pose cannot be checked at all: infinite sigma.
     """
     var = jac_sd ** 2
     if halves is not None:
         var = np.fmax(var, (np.asarray(halves) / 2.0) ** 2)
+    elif jack is not None:
+        var = np.fmax(var, np.asarray(jack) ** 2)
+    else:
+        var = np.full_like(var, np.inf)
     sd = np.sqrt(var + np.asarray(occl) ** 2)
     return sd[:3], sd[3:]
+
+
+HALVES_MIN_MATCHES = 12  # pose_spread refits each half of the frames (or pairs) with 6+ matches
+
+
+def _few_pairs_message(n_pairs: int, rot_sd, tr_sd, max_rot: float, max_tr: float) -> str:
+    """Refusal text when there are too few matched pairs to verify the pose (no frame-halves check)."""
+    r, t = float(np.linalg.norm(rot_sd)), float(np.linalg.norm(tr_sd))
+    spread = (f"; leaving one pair out moves the pose by 1-sigma {r:.2f} deg / {t:.2f} m (limit {max_rot:g} deg / "
+              f"{max_tr:g} m)") if np.isfinite(r) and np.isfinite(t) else ""
+    return (f"not identifiable: too few matched pairs to verify the pose ({n_pairs} matched pairs; the frame-halves "
+            f"check needs {HALVES_MIN_MATCHES}+, 6+ per half){spread}; add frames or objects seen by both sensors: "
+            f"at least {max(HALVES_MIN_MATCHES - n_pairs, 1)} more matched pairs, at other places")
 
 
 def _centre_offsets(frames, intr, R, t, pairs) -> np.ndarray:
