@@ -41,16 +41,34 @@ OUT = REPO / "benchmarks" / "results" / "calibration.json"
 NOISE_3D_OFF = dict(center_noise_m=0.0, size_noise_frac=0.0, yaw_noise_deg=0.0)
 
 
+def truth_counts(frames) -> tuple[int, int, int]:
+    """(distinct objects seen by both sensors, true 2D-3D detections, most true ones in one frame)."""
+    ids, n_true, most = set(), 0, 0
+    for f in frames:
+        rows = np.flatnonzero(f.match_matrix.any(1))
+        n_true += len(rows)
+        most = max(most, len(rows))
+        ids.update(int(f.meta["ids_2d"][i]) for i in rows)
+    return len(ids), n_true, most
+
+
 def _identifiable(frames) -> tuple[bool, int, int]:
     """(identifiable, distinct objects seen by both sensors, true 2D-3D detections)."""
-    ids = set()
-    n_true = 0
-    for f in frames:
-        mm = f.match_matrix
-        rows = np.flatnonzero(mm.any(1))
-        n_true += len(rows)
-        ids.update(int(f.meta["ids_2d"][i]) for i in rows)
-    return len(ids) >= 3 and n_true >= 20, len(ids), n_true
+    n_obj, n_true, _ = truth_counts(frames)
+    return n_obj >= 3 and n_true >= 20, n_obj, n_true
+
+
+def machine_info() -> dict:
+    """Interpreter, platform, CPU count and OMP threads, stored with every result file."""
+    return {"python": sys.version.split()[0], "platform": platform.platform(), "cpus": os.cpu_count(),
+            "omp_threads": os.environ.get("OMP_NUM_THREADS")}
+
+
+def write_result(out: Path, result: dict) -> None:
+    """Write ``result`` as JSON to ``out`` (folders created) and say where."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2, default=float))
+    print(f"\nwrote {out}")
 
 
 def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
@@ -194,8 +212,7 @@ def main(argv=None) -> int:
     n_sites = 5 if args.quick else args.sites
     log = (lambda s: print(s, flush=True)) if args.verbose else (lambda s: None)
 
-    result = {"machine": {"python": sys.version.split()[0], "platform": platform.platform(),
-                          "cpus": os.cpu_count(), "omp_threads": os.environ.get("OMP_NUM_THREADS")}}
+    result = {"machine": machine_info()}
     result["a9"] = _a9(args.repeat)
     result["kitti"] = _kitti()
     result["synthetic"] = [] if args.skip_synth else _synthetic(n_sites, args.levels, args.frames, log)
@@ -230,9 +247,7 @@ def main(argv=None) -> int:
         print(f"  edge residual {a['residual_px_median']:.2f} px median ({a['residual_px_mean']:.2f} mean), "
               f"IoU {a['iou_median']:.3f} median; box-centre offset {a['centre_offset_px_median']:.1f} px median "
               f"(reference: ~30 px)")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2, default=float))
-    print(f"\nwrote {args.out}")
+    write_result(args.out, result)
     return 0
 
 

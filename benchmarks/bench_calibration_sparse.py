@@ -22,18 +22,17 @@ Prints a table and writes ``benchmarks/results/calibration_sparse.json``.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_calibration import NOISE_3D_OFF, machine_info, truth_counts, write_result  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "benchmarks" / "results" / "calibration_sparse.json"
-NOISE_3D_OFF = dict(center_noise_m=0.0, size_noise_frac=0.0, yaw_noise_deg=0.0)
 
 
 def thin_frame(frame, rng: np.random.Generator, max_shared: int = 2, max_lidar_only: int = 1):
@@ -73,13 +72,8 @@ def sparse_recording(seed: int, n_frames: int, *, stride: int = 10, noisy_3d: bo
 
 def _truth(frames) -> tuple[bool, int, int, int]:
     """(identifiable, distinct objects seen by both, true pairs, most true pairs in one frame)."""
-    ids, n_true, most = set(), 0, 0
-    for f in frames:
-        rows = np.flatnonzero(f.match_matrix.any(1))
-        n_true += len(rows)
-        most = max(most, len(rows))
-        ids.update(int(f.meta["ids_2d"][i]) for i in rows)
-    return len(ids) >= 3 and n_true >= 10, len(ids), n_true, most
+    n_obj, n_true, most = truth_counts(frames)
+    return n_obj >= 3 and n_true >= 10, n_obj, n_true, most
 
 
 def run(seeds, n_frames: int, noisy_3d: bool, stride: int, log, max_shared: int = 2) -> dict:
@@ -152,12 +146,7 @@ def main(argv=None) -> int:
               f"{r['non_identifiable_failed']:>7}/{r['non_identifiable']:<6} {f(r['rot_deg_median']):>8} "
               f"{f(r['trans_m_median']):>9} {f(r['rot_deg_max']):>8} {f(r['trans_m_max']):>9} "
               f"{r['time_s_median']:>7.2f}s {r['time_s_max']:>7.2f}s")
-    result = {"machine": {"python": sys.version.split()[0], "platform": platform.platform(),
-                          "cpus": os.cpu_count(), "omp_threads": os.environ.get("OMP_NUM_THREADS")},
-              "rows": rows}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2, default=float))
-    print(f"\nwrote {args.out}")
+    write_result(args.out, {"machine": machine_info(), "rows": rows})
     return 0
 
 

@@ -257,6 +257,11 @@ def a9(args, tmp: Path) -> dict:
             "overlay_matches_agreeing": int(sum(bool(f.match_matrix[i, j]) for i, j, _ in mr.matches))}
 
 
+def _per_seed(top1: dict) -> str:
+    """"seed: Top-1, ..." of a per-sequence Top-1 dict."""
+    return ", ".join(f"{k}: {v:.3f}" for k, v in top1.items())
+
+
 def _gains(report: dict) -> str:
     """'gain: held-out Top-1, ...' of an adapt report's box-gain trials, the chosen one starred."""
     return ", ".join(f"{t['box_gain']:.3g}: {t['top1']:.3f}" + ("*" if t["chosen"] else "")
@@ -312,17 +317,13 @@ def main(argv=None) -> int:
                  (f"site B Top-1 after oneshot ({s['adapt_frames']} frames)", f"{s['top1_site_b_after']:.4f}"),
                  ("site B Top-1 after, with calibration fusion", f"{s['top1_site_b_after_fused']:.4f}  (w = "
                                                                   f"{s['fusion']['weight']})"),
-                 ("  fused, per held-out sequence", ", ".join(f"{k}: {v:.3f}" for k, v in
-                                                             s["top1_site_b_after_fused_per_sequence"].items())),
-                 ("  fused, tuning sequences", ", ".join(f"{k}: {v:.3f}" for k, v in
-                                                        s["top1_site_b_after_fused_tuning_sequences"].items())),
+                 ("  fused, per held-out sequence", _per_seed(s["top1_site_b_after_fused_per_sequence"])),
+                 ("  fused, tuning sequences", _per_seed(s["top1_site_b_after_fused_tuning_sequences"])),
                  ("site B Top-1 before adaptation, fused", f"{s['top1_site_b_before_adapt_fused']:.4f}"),
                  ("match latency ms median, model / fused", f"{s['match_latency_ms_median_model_only']:.1f} / "
                                                            f"{s['match_latency_ms_median_fused']:.1f}"),
-                 ("  per held-out sequence (seed: Top-1)", ", ".join(f"{k}: {v:.3f}" for k, v in
-                                                                     s["top1_site_b_after_per_sequence"].items())),
-                 ("  tuning sequences (seed: Top-1)", ", ".join(f"{k}: {v:.3f}" for k, v in
-                                                               s["top1_site_b_after_tuning_sequences"].items())),
+                 ("  per held-out sequence (seed: Top-1)", _per_seed(s["top1_site_b_after_per_sequence"])),
+                 ("  tuning sequences (seed: Top-1)", _per_seed(s["top1_site_b_after_tuning_sequences"])),
                  ("site A Top-1 after (forgetting)", f"{s['top1_site_a_after']:.4f}"),
                  ("pose error", f"{s['calibration_rot_err_deg']:.3f} deg, {s['calibration_trans_err_m']:.3f} m"),
                  ("pseudo-label precision / recall", f"{s['pseudo_precision']:.4f} / {s['pseudo_recall']:.4f}"),

@@ -75,3 +75,29 @@ TINY = {
                     "pointnet2": [{"npoint": 8, "radius": 0.5, "nsample": 8, "mlp": [8, 16]},
                                   {"npoint": None, "mlp": [16, 32]}]},
 }
+
+
+def small_site():
+    """A small roadside synthetic site (640x480, 32 beams) for the one-shot and fusion tests."""
+    from xcalib.data.synth import sample_site
+
+    return sample_site(3, width=640, height=480, focal_px=560.0, n_objects=20, lidar_beams=32, lidar_azimuth_steps=512)
+
+
+def tiny_matcher(seed: int = 0, model: str = "fastmatch"):
+    """A ``Matcher`` with a seeded, untrained TINY model on the CPU."""
+    import torch
+
+    from xcalib.engine.matcher import Matcher
+    from xcalib.models import create_model
+
+    torch.manual_seed(seed)
+    return Matcher(create_model(model, TINY[model]), device="cpu")
+
+
+def states_equal(a, b) -> bool:
+    """Same state-dict keys and bit-identical tensors (two ``torch.nn.Module``)."""
+    import torch
+
+    sa, sb = a.state_dict(), b.state_dict()
+    return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)

@@ -6,20 +6,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
-from _matching_frames import TINY
+from _matching_frames import small_site, states_equal, tiny_matcher
 from xcalib.calib.result import CalibrationResult
-from xcalib.data.synth import generate_frames, sample_site
+from xcalib.data.synth import generate_frames
 from xcalib.engine.fusion import fuse_scores
 from xcalib.engine.matcher import Matcher
 from xcalib.engine.metrics import MetricsAccumulator
-from xcalib.models import create_model
 
 
 @pytest.fixture(scope="module")
 def site():
-    return sample_site(3, width=640, height=480, focal_px=560.0, n_objects=20, lidar_beams=32, lidar_azimuth_steps=512)
+    return small_site()
 
 
 @pytest.fixture(scope="module")
@@ -27,9 +25,7 @@ def frames(site):
     return generate_frames(site, 6, seed=1, render_images=False)
 
 
-def _matcher(seed: int = 0, model: str = "fastmatch") -> Matcher:
-    torch.manual_seed(seed)
-    return Matcher(create_model(model, TINY[model]), device="cpu")
+_matcher = tiny_matcher
 
 
 def _gt_pose(site) -> CalibrationResult:
@@ -48,9 +44,7 @@ def _top1(matcher, frames, use_calibration) -> float:
     return acc.result().top1
 
 
-def _states_equal(a: torch.nn.Module, b: torch.nn.Module) -> bool:
-    sa, sb = a.state_dict(), b.state_dict()
-    return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
+_states_equal = states_equal
 
 
 def test_fusion_lifts_top1_on_a_site_the_model_was_not_trained_on(site, frames):

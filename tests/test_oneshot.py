@@ -9,11 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from _matching_frames import TINY
+from _matching_frames import small_site, states_equal, tiny_matcher
 from xcalib.calib.result import CalibrationResult
-from xcalib.data.synth import generate_frames, sample_site
+from xcalib.data.synth import generate_frames
 from xcalib.engine.matcher import Matcher
-from xcalib.models import create_model
 from xcalib.oneshot.augment import GeometricAugment, _iou, _rects
 from xcalib.oneshot.loss import weighted_matching_loss
 from xcalib.oneshot.session import ImageSizeChangedError, NotCalibratedError, OneShotSession
@@ -21,7 +20,7 @@ from xcalib.oneshot.session import ImageSizeChangedError, NotCalibratedError, On
 
 @pytest.fixture(scope="module")
 def site():
-    return sample_site(3, width=640, height=480, focal_px=560.0, n_objects=20, lidar_beams=32, lidar_azimuth_steps=512)
+    return small_site()
 
 
 @pytest.fixture(scope="module")
@@ -29,9 +28,7 @@ def frames(site):
     return generate_frames(site, 8, seed=1, render_images=False)
 
 
-def _matcher(seed: int = 0) -> Matcher:
-    torch.manual_seed(seed)
-    return Matcher(create_model("fastmatch", TINY["fastmatch"]), device="cpu")
+_matcher = tiny_matcher
 
 
 def _observe(session: OneShotSession, frames):
@@ -43,9 +40,7 @@ def _gt_pose(site) -> CalibrationResult:
     return CalibrationResult(success=True, intrinsics=site.intrinsics, rotation=T[:3, :3], translation=T[:3, 3])
 
 
-def _states_equal(a: torch.nn.Module, b: torch.nn.Module) -> bool:
-    sa, sb = a.state_dict(), b.state_dict()
-    return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
+_states_equal = states_equal
 
 
 def test_session_calibrates_from_detections_on_an_explicit_schedule(site, frames):
@@ -240,12 +235,12 @@ def test_adapt_learns_the_pseudo_labels_and_reloads_bit_exactly(site, frames, tm
 
     def box_err() -> float:  # predicted 2D box of every 3D box vs the pose's, image fractions / log sizes
         from xcalib.models.inputs import ModelBatch
-        from xcalib.oneshot.adapt import _box_features
+        from xcalib.oneshot.adapt import _box_space
 
         errs = []
         for obs, t in zip(s.buffer, s.pseudo_labels()):
             fi = obs.inputs(16, np.random.default_rng(0))
-            tgt = _box_features(aug.project(fi, t), fi.image_size)
+            tgt = _box_space(m.model, aug.project(fi, t), fi.image_size)
             with torch.no_grad():
                 pred = m.model.embed(ModelBatch.from_frames([fi], "cpu")).extra["box_lid"].numpy()
             ok = np.isfinite(tgt).all(1)

@@ -37,7 +37,7 @@ from ..geometry.boxes import box2d_centers
 from ..geometry.rotations import rotation_angle
 from .hypotheses import Hypotheses, frame_hypotheses, score_poses
 from .inputs import CalibFrame, prepare_frames
-from .refine import match_all, pair_metrics, pose_covariance, pose_jackknife, pose_spread, refine_pose
+from .refine import HALF_MIN_MATCHES, match_all, pair_metrics, pose_covariance, pose_jackknife, pose_spread, refine_pose
 from .result import CalibrationResult
 
 __all__ = ["calibrate", "calibrate_single", "METHOD"]
@@ -385,22 +385,21 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
         # (the frame-halves check of the uncertainty needs 6+ matches per half)
         why = (f"not identifiable: no frame has 3 or more objects matched between the sensors (at most {most}) "
                f"and the {n_pairs} matches over all frames are too few to check the pose on each half of the "
-               "frames (need 6+ per half); add frames")
+               f"frames (need {HALF_MIN_MATCHES}+ per half); add frames")
     elif n_pairs < need or n_pairs < min_explained * n2:
         why = (f"the best pose explains only {n_pairs} of {n2} 2D boxes (need {max(need, int(np.ceil(min_explained * n2)))}); "
                "too few objects seen by both sensors, or no pose explains the detections")
     elif runner >= ambiguity_ratio * best_score:
         why = (f"ambiguous: two different poses explain the boxes about equally well (scores {best_score:.2f} "
                f"vs {runner:.2f}); add frames with objects spread over the image")
-    elif halves is None and (not (np.all(np.isfinite(rot_sd)) and np.all(np.isfinite(tr_sd)))
-                             or np.linalg.norm(rot_sd) > max_rot_std_deg or np.linalg.norm(tr_sd) > max_trans_std_m):
-        # few matches: no frame-halves check; the leave-one-pair-out spread judged the pose
-        why = _few_pairs_message(n_pairs, rot_sd, tr_sd, max_rot_std_deg, max_trans_std_m)
     elif not (np.all(np.isfinite(rot_sd)) and np.all(np.isfinite(tr_sd))) or \
             np.linalg.norm(rot_sd) > max_rot_std_deg or np.linalg.norm(tr_sd) > max_trans_std_m:
-        why = (f"not identifiable: the pose is poorly constrained (1-sigma rotation {np.linalg.norm(rot_sd):.2f} deg, "
-               f"translation {np.linalg.norm(tr_sd):.2f} m, over all axes; the frame halves and the occlusion "
-               "model included); add frames or objects at other places/depths")
+        if halves is None:  # few matches: no frame-halves check; the leave-one-pair-out spread judged the pose
+            why = _few_pairs_message(n_pairs, rot_sd, tr_sd, max_rot_std_deg, max_trans_std_m)
+        else:
+            why = (f"not identifiable: the pose is poorly constrained (1-sigma rotation {np.linalg.norm(rot_sd):.2f} "
+                   f"deg, translation {np.linalg.norm(tr_sd):.2f} m, over all axes; the frame halves and the "
+                   "occlusion model included); add frames or objects at other places/depths")
     if why and max_baseline_m is not None and pp is None:
         # the co-located-rig assumption may be wrong (e.g. boxes in a global frame): search again
         retry = calibrate(frames_in, intr, **{**_kw, "max_baseline_m": None})
@@ -441,7 +440,7 @@ def _honest_std(jac_sd: np.ndarray, halves: np.ndarray | None, occl: np.ndarray,
     return sd[:3], sd[3:]
 
 
-HALVES_MIN_MATCHES = 12  # pose_spread refits each half of the frames (or pairs) with 6+ matches
+HALVES_MIN_MATCHES = 2 * HALF_MIN_MATCHES  # the frame-halves check (pose_spread) needs this many matches
 
 
 def _few_pairs_message(n_pairs: int, rot_sd, tr_sd, max_rot: float, max_tr: float) -> str:
@@ -450,7 +449,7 @@ def _few_pairs_message(n_pairs: int, rot_sd, tr_sd, max_rot: float, max_tr: floa
     spread = (f"; leaving one pair out moves the pose by 1-sigma {r:.2f} deg / {t:.2f} m (limit {max_rot:g} deg / "
               f"{max_tr:g} m)") if np.isfinite(r) and np.isfinite(t) else ""
     return (f"not identifiable: too few matched pairs to verify the pose ({n_pairs} matched pairs; the frame-halves "
-            f"check needs {HALVES_MIN_MATCHES}+, 6+ per half){spread}; add frames or objects seen by both sensors: "
+            f"check needs {HALVES_MIN_MATCHES}+, {HALF_MIN_MATCHES}+ per half){spread}; add frames or objects seen by both sensors: "
             f"at least {max(HALVES_MIN_MATCHES - n_pairs, 1)} more matched pairs, at other places")
 
 

@@ -21,7 +21,7 @@ from .boxproj import iou_batched, project_rects
 from .inputs import CalibFrame
 
 __all__ = ["RefineResult", "match_frame", "match_all", "refine_pose", "pose_covariance", "pair_metrics",
-           "pose_spread", "pose_jackknife"]
+           "pose_spread", "pose_jackknife", "HALF_MIN_MATCHES"]
 
 
 @dataclass
@@ -281,6 +281,9 @@ def _delta(Ra, ta, Rb, tb) -> np.ndarray:
     return np.concatenate([np.degrees(Rotation.from_matrix(Ra @ Rb.T).as_rotvec()), ta - tb])
 
 
+HALF_MIN_MATCHES = 6  # matches each half of the frames (or pairs) needs for the frame-halves check
+
+
 def pose_spread(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f_scale: float = F_SCALE,
                 max_nfev: int = 40):
     """Two checks of the pose beyond the Jacobian, both with the matches held fixed.
@@ -302,7 +305,7 @@ def pose_spread(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f
     else:
         ev = [p[0::2] for p in pairs]
         od = [p[1::2] for p in pairs]
-    if sum(len(p) for p in ev) >= 6 and sum(len(p) for p in od) >= 6:
+    if sum(len(p) for p in ev) >= HALF_MIN_MATCHES and sum(len(p) for p in od) >= HALF_MIN_MATCHES:
         Re, te, _, _ = _lsq(frames, ev, intr, R, t, f_scale, max_nfev, noise)
         Ro, to, _, _ = _lsq(frames, od, intr, R, t, f_scale, max_nfev, noise)
         halves = _delta(Re, te, Ro, to)

@@ -24,7 +24,7 @@ from .inputs import ModelBatch
 from .layers import mlp
 from .registry import register_model
 
-__all__ = ["FastMatch", "geometry_2d", "geometry_3d"]
+__all__ = ["FastMatch", "geometry_2d", "geometry_3d", "box_features"]
 
 N_GEO_2D, N_GEO_3D = 9, 14
 
@@ -34,6 +34,17 @@ def geometry_2d(boxes: torch.Tensor, wh: torch.Tensor) -> torch.Tensor:
     x1, y1, x2, y2 = (boxes[:, i] / wh[:, i % 2] for i in range(4))
     w, h = (x2 - x1).clamp_min(1e-4), (y2 - y1).clamp_min(1e-4)
     return torch.stack([(x1 + x2) / 2, (y1 + y2) / 2, w, h, torch.log(w / h), torch.log(w * h), y2, x1, x2], 1)
+
+
+def _box_part(g2: torch.Tensor) -> torch.Tensor:
+    """[N,9] ``geometry_2d`` features -> [N,4] (centre x, y, log width, log height; image fractions)."""
+    return torch.cat([g2[:, :2], torch.log(g2[:, 2:4])], 1)
+
+
+def box_features(boxes: torch.Tensor, wh: torch.Tensor) -> torch.Tensor:
+    """[N,4] px boxes + [N,2] image size -> [N,4] box space of fastmatch's pair head: the 2D
+    boxes' ``box_img`` and what ``box_lid`` predicts for a 3D box (NaN rows stay NaN)."""
+    return _box_part(geometry_2d(boxes, wh))
 
 
 def geometry_3d(box7: torch.Tensor, counts: torch.Tensor, pts: torch.Tensor, scale_m: float) -> torch.Tensor:
@@ -68,6 +79,8 @@ class FastMatch(MatchingModel):
         self.cosine_weight = float(c.get("cosine_weight", 0.5))
         self.box_gain = float(c.get("box_gain", 1.0))
 
+    box_features = staticmethod(box_features)
+
     def set_box_gain(self, gain: float, *, rescale: bool = True) -> None:
         """Set ``box_gain`` (> 0, unit-free); with ``rescale`` the pair head's box-difference weights
         are divided by (gain / old gain)^2, so every score stays the same."""
@@ -86,7 +99,7 @@ class FastMatch(MatchingModel):
         gi, gl = self.img_geo(g2), self.lid_geo(g3)
         fi = self.img_head(torch.cat([self.img_backbone(batch.crops_2d), gi], 1))
         fl = self.lid_head(torch.cat([self.lid_backbone(batch.crops_3d), gl], 1))
-        extra = {"box_img": torch.cat([g2[:, :2], torch.log(g2[:, 2:4])], 1), "box_lid": self.lid_to_box(g3)}
+        extra = {"box_img": _box_part(g2), "box_lid": self.lid_to_box(g3)}
         return Embeddings(F.normalize(fi, dim=1), F.normalize(fl, dim=1), extra)
 
     def score_pairs(self, a: torch.Tensor, box_img: torch.Tensor, b: torch.Tensor,

@@ -163,19 +163,17 @@ def _block(targets: Sequence[PseudoTargets], device) -> tuple[torch.Tensor, torc
     return (torch.from_numpy(pos).to(device), torch.from_numpy(w).to(device), torch.from_numpy(neg).to(device))
 
 
-def _box_features(rects: np.ndarray, wh: tuple[int, int]) -> np.ndarray:
-    """[M,4] px rectangles -> [M,4] (centre x, y as image fractions, log width, log height fractions)."""
-    W, H = wh
-    w = np.maximum(rects[:, 2] - rects[:, 0], 1e-3) / W
-    h = np.maximum(rects[:, 3] - rects[:, 1], 1e-3) / H
-    return np.stack([(rects[:, 0] + rects[:, 2]) / (2 * W), (rects[:, 1] + rects[:, 3]) / (2 * H), np.log(w),
-                     np.log(h)], 1)
+def _box_space(model, rects: np.ndarray, wh: tuple[int, int]) -> np.ndarray:
+    """[M,4] px rectangles -> [M,4] in the space the model predicts boxes in
+    (``model.box_features``, e.g. fastmatch's centre and log sizes as image fractions)."""
+    b = torch.from_numpy(np.asarray(rects, np.float64))
+    return model.box_features(b, b.new_tensor([float(wh[0]), float(wh[1])]).expand(len(b), 2)).numpy()
 
 
 BOX_GAIN_SCALE = 3.4  # box_gain="auto": gain x mean pair residual; chosen on bench_oneshot's tuning sequences
 
 
-def auto_box_gain(observations: Sequence[Observation], targets: Sequence[PseudoTargets], augment,
+def auto_box_gain(model, observations: Sequence[Observation], targets: Sequence[PseudoTargets], augment,
                   lo: float = 1.0, hi: float = 100.0) -> float:
     """``BOX_GAIN_SCALE`` / mean norm of (2D box - projected 3D box) features over the pseudo-matches
     (centre as image fractions, log sizes; the site's detector-vs-pose noise), clipped to [lo, hi]:
@@ -187,7 +185,7 @@ def auto_box_gain(observations: Sequence[Observation], targets: Sequence[PseudoT
             continue
         fi = o.inputs(1, np.random.default_rng(0))
         r = augment.project(fi, None)
-        d = _box_features(fi.boxes_2d[i].astype(np.float64), fi.image_size) - _box_features(r[j], fi.image_size)
+        d = _box_space(model, fi.boxes_2d[i], fi.image_size) - _box_space(model, r[j], fi.image_size)
         res.append(np.linalg.norm(d, axis=1))
     r = np.concatenate(res) if res else np.zeros(0)
     r = r[np.isfinite(r)]
@@ -196,9 +194,9 @@ def auto_box_gain(observations: Sequence[Observation], targets: Sequence[PseudoT
     return float(np.clip(BOX_GAIN_SCALE / max(float(r.mean()), 1e-6), lo, hi))
 
 
-def _box_loss(box_lid: torch.Tensor, fis, tgs, augment, device) -> torch.Tensor:
+def _box_loss(model, box_lid: torch.Tensor, fis, tgs, augment, device) -> torch.Tensor:
     """Mean squared error of predicted 2D boxes [M,4] against the pose's (NaN rows skipped)."""
-    tgt = np.concatenate([_box_features(augment.project(fi, t), fi.image_size) for fi, t in zip(fis, tgs)])
+    tgt = np.concatenate([_box_space(model, augment.project(fi, t), fi.image_size) for fi, t in zip(fis, tgs)])
     ok = np.isfinite(tgt).all(1)
     if not ok.any():
         return box_lid.new_zeros(())
@@ -224,7 +222,7 @@ def _gain_candidates(box_gain, model, observations, targets, augment) -> list[fl
         if g == "residual":
             if augment is None:
                 continue
-            g = auto_box_gain(observations, targets, augment)
+            g = auto_box_gain(model, observations, targets, augment)
         g = None if g is None else float(g)
         key = own if g is None else g
         if all((own if h is None else h) != key for h in out):
@@ -388,7 +386,7 @@ def _train(model, named, observations, targets, *, steps, n_points, device, lr, 
             emb = model.embed(batch)
             loss = weighted_matching_loss(model.train_logits(emb, batch), batch, pos, w, neg)
             if box_weight > 0 and augment is not None and "box_lid" in emb.extra:
-                loss = loss + box_weight * _box_loss(emb.extra["box_lid"], fis, tg, augment, device)
+                loss = loss + box_weight * _box_loss(model, emb.extra["box_lid"], fis, tg, augment, device)
             if anchor > 0:
                 loss = loss + anchor * sum(((p - a) ** 2).sum() for p, a in zip(params, anchors))
             opt.zero_grad(set_to_none=True)
