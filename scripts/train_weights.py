@@ -148,21 +148,33 @@ def _update_manifest(name: str, entry: dict, site: str = SITE) -> None:
     p.write_text(json.dumps(man, indent=1, sort_keys=True))
 
 
-def evaluate_model(name: str, work: Path) -> dict:
+MANIFEST_METRICS = ("top1", "top3", "mrr", "frame_top1", "n_frames", "n_cameras_with_match")
+
+
+def _eval_sites(name: str, site: str, work: Path, label: str) -> dict:
+    """Report entries of weights ``site`` of model ``name`` on the A/B/C test caches under ``work``."""
     from xcalib.engine.evaluate import evaluate_matcher, report_entry
     from xcalib.engine.matcher import Matcher
     from xcalib.io.hdf5 import CacheReader
 
-    m = Matcher.from_pretrained(name, site=SITE, device="cpu")
+    m = Matcher.from_pretrained(name, site=site, device="cpu")
     res = {}
     for s in SITES:
         with CacheReader(work / f"site{s}" / "test.h5") as r:
             met, wall = evaluate_matcher(m, r)
         res[f"site{s}_test"] = report_entry(met, wall)
-        print(f"{name} site {s}: top1 {met.top1:.4f} top3 {met.top3:.4f} mrr {met.mrr:.4f} "
+        print(f"{label} site {s}: top1 {met.top1:.4f} top3 {met.top3:.4f} mrr {met.mrr:.4f} "
               f"({met.n_cameras_with_match} rows, {met.n_frames} frames)", flush=True)
-    _update_manifest(name, {"test": {k: {x: v[x] for x in ("top1", "top3", "mrr", "frame_top1", "n_frames",
-                                                            "n_cameras_with_match")} for k, v in res.items()}})
+    return res
+
+
+def _manifest_metrics(res: dict) -> dict:
+    return {k: {x: v[x] for x in MANIFEST_METRICS} for k, v in res.items()}
+
+
+def evaluate_model(name: str, work: Path) -> dict:
+    res = _eval_sites(name, SITE, work, name)
+    _update_manifest(name, {"test": _manifest_metrics(res)})
     out = REPO / "benchmarks" / "results" / "weights_eval.json"
     allres = json.loads(out.read_text()) if out.exists() else {}
     allres[name] = res
@@ -211,10 +223,8 @@ def _generic_cache(path: Path, seed: int) -> None:
 def generic_step(work: Path, n_sites: int = 240, epochs: int = 12) -> dict:
     """Caches, training and evaluation of the ``generic`` fastmatch (see the module docstring)."""
     from xcalib.data.crops import CropConfig
-    from xcalib.engine.evaluate import evaluate_matcher, report_entry
     from xcalib.engine.matcher import Matcher
     from xcalib.engine.trainer import prepare_samples, train
-    from xcalib.io.hdf5 import CacheReader
     from xcalib.models import default_config
 
     g = work / "generic"
@@ -247,23 +257,12 @@ def generic_step(work: Path, n_sites: int = 240, epochs: int = 12) -> dict:
         _update_manifest("fastmatch", {"training": info}, site=GENERIC)
         print(f"generic fastmatch: trained in {info['train_wall_s']:.0f}s, best val MRR "
               f"{info['best_val_mrr']:.4f}", flush=True)
-    res = {}
-    for site in (GENERIC, SITE):
-        m = Matcher.from_pretrained("fastmatch", site=site, device="cpu")
-        res[site] = {}
-        for s in SITES:
-            with CacheReader(work / f"site{s}" / "test.h5") as r:
-                met, wall = evaluate_matcher(m, r)
-            res[site][f"site{s}_test"] = report_entry(met, wall)
-            print(f"fastmatch[{site}] site {s}: top1 {met.top1:.4f} top3 {met.top3:.4f} mrr {met.mrr:.4f}",
-                  flush=True)
-    keep = ("top1", "top3", "mrr", "frame_top1", "n_frames", "n_cameras_with_match")
-    _update_manifest("fastmatch", {"test": {k: {x: v[x] for x in keep} for k, v in res[GENERIC].items()}},
-                     site=GENERIC)
+    res = {site: _eval_sites("fastmatch", site, work, f"fastmatch[{site}]") for site in (GENERIC, SITE)}
+    _update_manifest("fastmatch", {"test": _manifest_metrics(res[GENERIC])}, site=GENERIC)
     man = json.loads((WEIGHTS / GENERIC / "manifest.json").read_text())
     doc = {"model": "fastmatch", "made_by": "scripts/train_weights.py --steps generic",
            "training": man["models"]["fastmatch"].get("training", {}), "test_sites": SITES,
-           "results": {site: {k: {x: v[x] for x in keep} for k, v in r.items()} for site, r in res.items()}}
+           "results": {site: _manifest_metrics(r) for site, r in res.items()}}
     p = REPO / "benchmarks" / "results" / "weights_generic.json"
     p.parent.mkdir(parents=True, exist_ok=True)
     old = json.loads(p.read_text()) if p.exists() else {}  # keeps entries other runs added
