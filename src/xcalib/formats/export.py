@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ..calib.result import CalibrationResult
 from ..errors import FormatError
+from ..io._files import MAX_TEXT_BYTES, load_json, read_bytes
 
 __all__ = ["CalibFormat", "FORMATS", "format_names", "export_calibration", "read_calibration",
            "detect_format", "default_filename"]
@@ -230,10 +231,7 @@ def detect_format(path) -> str:
     if name.endswith(".pkl"):
         return "kitti"
     if name.endswith(".json"):
-        try:
-            d = json.loads(p.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise FormatError(p, f"not valid JSON ({exc})") from None
+        d = load_json(p, what="calibration file")
         if isinstance(d, list):
             return "nuscenes"
         if isinstance(d, dict):
@@ -249,7 +247,7 @@ def detect_format(path) -> str:
                 return "opencalib"
         raise FormatError(p, "unrecognised calibration JSON (expected xcalib, lucid_calib, calib.json, "
                              "OpenLABEL, OpenCalib or calibrated_sensor)")
-    text = p.read_text(errors="replace")
+    text = read_bytes(p, max_bytes=MAX_TEXT_BYTES, what="calibration file").decode("utf-8", errors="replace")
     keys = {line.split(":", 1)[0].strip() for line in text.splitlines() if ":" in line}
     if {"K", "T"} <= keys:
         return "calib_txt"

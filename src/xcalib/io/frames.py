@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..types import Frame
-from ._files import atomic_write
+from ._files import atomic_dir, atomic_write, inside, load_json
 from .images import read_image, write_image
 from .pointcloud import read_point_cloud, write_pcd
 
@@ -42,10 +42,7 @@ _REQUIRED_KEYS = ("image", "point_cloud", "bboxes_2d", "bboxes_3d")
 def _load_json(path: Path) -> dict:
     if not path.exists():
         raise FileNotFoundError(f"JSON file not found: {path}")
-    try:
-        obj = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FormatError(path, f"not valid JSON ({exc})") from None
+    obj = load_json(path)
     if not isinstance(obj, dict):
         raise FormatError(path, f"expected a JSON object at the top level, got {type(obj).__name__}")
     return obj
