@@ -153,7 +153,8 @@ def atomic_dir(path, *, overwrite: bool = False, keep_existing: bool = False) ->
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise FileExistsError(f"{path} exists and is not a folder")
-    check_overwrite(path, overwrite or keep_existing, "output folder")
+    if path.is_dir() and any(path.iterdir()):  # an existing empty folder is no output to protect
+        check_overwrite(path, overwrite or keep_existing, "output folder")
     path.parent.mkdir(parents=True, exist_ok=True)
     sweep_stale(path.parent, path.name)
     tmp = Path(tempfile.mkdtemp(prefix=_tmp_prefix(path.name), suffix=".tmp", dir=path.parent))
