@@ -15,6 +15,7 @@ Terms here:
   (inward edges -- an occluded or truncated 2D box -- pull less).
 * ``PosePriorTerm``: a known pose with its 1-sigma.
 * ``FocalScaleTerm``: one log scale of fx and fy (optional prior); used by the misfit check.
+* ``TimeOffsetTerm``: a camera-LiDAR time offset; moves each 3D outline along its velocity.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from .boxproj import project_rects
 from .diagnostics import NoiseModel
 from .pose import Pose
 
-__all__ = ["PoseState", "CostTerm", "Occlusion", "BoxEdgeTerm", "PosePriorTerm", "FocalScaleTerm", "CostModel",
+__all__ = ["PoseState", "CostTerm", "Occlusion", "BoxEdgeTerm", "PosePriorTerm", "FocalScaleTerm", "TimeOffsetTerm", "CostModel",
            "CostFit", "edge_sigma", "INWARD", "POSE_X_SCALE"]
 
 INWARD = np.array([-1.0, -1.0, 1.0, 1.0])  # sign of (pred - obs) per edge when the 2D box lies inside
@@ -44,6 +45,7 @@ class PoseState:
     pose: Pose
     intr: CameraIntrinsics
     params: dict[str, np.ndarray] = field(default_factory=dict)
+    shift_lidar: np.ndarray | None = None  # per matched pair [n,3], m: moves its 3D outline (a time offset)
 
 
 class CostTerm:
@@ -112,7 +114,8 @@ class BoxEdgeTerm(CostTerm):
 
     def edges(self, state: PoseState) -> np.ndarray:
         """Unweighted, unshaped residuals [n,4] (px): projected rectangle - 2D box."""
-        rects, valid = project_rects(self.outlines, state.pose.R, state.pose.t, state.intr, self.size)
+        outlines = self.outlines if state.shift_lidar is None else self.outlines + state.shift_lidar[:, None, :]
+        rects, valid = project_rects(outlines, state.pose.R, state.pose.t, state.intr, self.size)
         return np.where(valid[:, None], rects - self.obs, self.fallback)
 
     def residuals(self, state: PoseState) -> np.ndarray:
@@ -158,6 +161,26 @@ class FocalScaleTerm(CostTerm):
         if self.sigma_log is None:
             return np.zeros(0)
         return np.asarray(state.params[self.name], dtype=np.float64) / self.sigma_log
+
+
+class TimeOffsetTerm(CostTerm):
+    """One parameter: the camera-minus-LiDAR time offset dt (in the unit of ``velocity``'s time);
+    each matched 3D outline moves by dt x its velocity [n,3] (LiDAR frame) before projection."""
+
+    name = "time_offset"
+    n_params = 1
+    x_scale = (0.05,)
+
+    def __init__(self, velocity: np.ndarray):
+        self.velocity = np.asarray(velocity, dtype=np.float64)
+
+    def apply(self, state: PoseState, x: np.ndarray) -> PoseState:
+        state.params[self.name] = x
+        state.shift_lidar = float(x[0]) * self.velocity
+        return state
+
+    def residuals(self, state: PoseState) -> np.ndarray:
+        return np.zeros(0)
 
 
 @dataclass
