@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from conftest import shared_path
 from xcalib.data.synth import generate_frames, sample_site
 from xcalib.errors import FormatError
 from xcalib.io.frames import FrameFolder, write_frame_folder
@@ -60,3 +61,14 @@ def test_bad_timing_in_detections_json(frames, tmp_path, key, value, problem):
     with pytest.raises(FormatError) as e:
         FrameFolder(tmp_path / "ff")[0]
     assert e.value.field == key and problem in e.value.problem and "detections.json" in str(e.value)
+
+
+def test_real_readers_fill_timing():
+    from xcalib.io.sources import open_source
+
+    pkl = next(shared_path("nuscenes", "mmdet3d_demo").glob("*.pkl"))
+    f = open_source(pkl, camera="CAM_FRONT")[0]
+    assert f.camera_time_s - f.lidar_time_s == pytest.approx(-0.0355, abs=1e-3)  # info timestamps
+    assert f.velocities_3d.shape == (f.num_3d, 3) and np.all(np.isfinite(f.velocities_3d))
+    w = open_source(shared_path("waymo", "mmdet3d_tests", "waymo_format", "validation", "val.tfrecord"))[0]
+    assert w.lidar_time_s > 1.5e9 and len(set(w.track_ids_3d.tolist())) == w.num_3d
