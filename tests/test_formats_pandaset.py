@@ -1,4 +1,4 @@
-"""PandaSet loader (real sample, skipped when absent) and synthetic 2D boxes made from its cuboids."""
+"""PandaSet and SUSTechPOINTS loaders (real samples, skipped when absent) and synthetic 2D boxes made from their 3D boxes."""
 
 from __future__ import annotations
 
@@ -87,3 +87,16 @@ def test_bad_cuboid_file_names_field(tmp_path):
     with pytest.raises(FormatError) as e:
         seq[0]
     assert e.value.field == "[1].size" and "00.json" in str(e.value)
+
+
+def test_sustech_frames_and_synthetic_boxes():
+    from xcalib.formats.sustech import SustechFrames
+
+    root = shared_path("sustech_example")
+    seq = open_source(root)
+    assert isinstance(seq, SustechFrames) and seq.frame_keys == ["000965", "000970", "000975"]
+    f = SustechFrames(root, read_images=False)[0]
+    assert f.point_cloud.shape == (66781, 4) and 0 <= f.point_cloud[:, 3].max() <= 255
+    assert f.bboxes_3d.shape[1] == 7 and f.track_ids_3d.shape == (f.num_3d,) and f.lidar_time_s > 1000
+    g = synthetic_2d_boxes(f, 0, EXACT)
+    assert g.num_2d >= 5 and g.match_matrix.sum() == g.num_2d

@@ -44,5 +44,6 @@ from .kitti import (  # noqa: F401
 )
 from .mmdet3d import mmdet3d_frames, read_mmdet3d_infos  # noqa: F401
 from .pandaset import PandaSetFrames, is_pandaset_root, pandaset_frames  # noqa: F401
+from .sustech import SustechFrames, is_sustech_root  # noqa: F401
 from .nuscenes import calibrated_sensor_to_T, nuscenes_T_cam_lidar, T_to_calibrated_sensor  # noqa: F401
 from .waymo import read_waymo_tfrecord, waymo_extrinsic_to_T_cam_lidar, waymo_to_kitti_calibration  # noqa: F401
