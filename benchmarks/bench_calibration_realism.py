@@ -59,7 +59,7 @@ def run_case(task: tuple[str, int, int]) -> dict:
                 "message": f"exception: {exc!r}", "time_s": time.perf_counter() - t0}
     rec = {"condition": name, "seed": seed, "success": bool(res.success), "message": res.message,
            "time_s": time.perf_counter() - t0, "n_pairs": res.n_pairs, "objects_seen": case.objects_seen,
-           "true_pairs": case.true_pairs}
+           "true_pairs": case.true_pairs, "identifiable": case.identifiable}
     if res.success:
         rot, tr = res.pose_error(case.T_cam_lidar)
         rs, ts = float(np.linalg.norm(res.rotation_std_deg)), float(np.linalg.norm(res.translation_std_m))
@@ -98,6 +98,8 @@ def summarise(name: str, recs: list[dict]) -> dict:
         "wrong_rot_sigma_deg_median": _median([r["rot_sigma_deg"] for r in wrong]),
         "wrong_trans_sigma_m_median": _median([r["trans_sigma_m"] for r in wrong]),
         "exceptions": sum(1 for r in recs if "exception" in r),
+        # sites still identifiable under this condition (>= 3 objects, >= 20 true pairs seen by both)
+        "n_identifiable": sum(1 for r in recs if r.get("identifiable", True)),
         "time_s_median": _median([r["time_s"] for r in recs]),
         "per_site": recs,
     }
