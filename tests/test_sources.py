@@ -32,7 +32,7 @@ def test_parse_frame_range():
 
 def test_every_source_registered_and_io_does_not_import_formats():
     names = [s.name for s in frame_sources()]
-    for want in ("frame-folder", "hdf5-cache", "kitti", "calibanything", "mmdet3d-info", "waymo"):
+    for want in ("frame-folder", "hdf5-cache", "kitti", "calibanything", "mmdet3d-info", "waymo", "bag"):
         assert want in names
     code = "import sys, xcalib.io, xcalib.io.frames, xcalib.io.sources; print('xcalib.formats' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -28,7 +28,7 @@ from ..errors import FormatError
 from ..types import Frame
 
 __all__ = ["FrameSource", "register_source", "unregister_source", "frame_sources", "find_source", "open_source",
-           "parse_frame_range", "FrameSubset", "CameraView", "camera_view", "SOURCE_MODULES"]
+           "parse_frame_range", "FrameSubset", "CameraView", "camera_view", "merge_cameras", "SOURCE_MODULES"]
 
 # Modules that register sources on import (imported by the registry on first use).
 SOURCE_MODULES = ("xcalib.io.frames", "xcalib.io.hdf5", "xcalib.io.bags", "xcalib.formats")
@@ -206,3 +206,50 @@ def open_source(path, *, source: str | None = None, camera: str | None = None, f
     if frames is not None:
         seq = FrameSubset(seq, parse_frame_range(frames, len(seq)))
     return seq
+
+
+def merge_cameras(views: dict[str, Sequence[Frame]]) -> list[Frame]:
+    """Per-camera views of the same recording (frame ``i`` of each = the same LiDAR sweep) -> one
+    multi-camera frame per sweep: ``images`` per camera, every camera's 2D boxes
+    (``camera_per_det``), the union of their 3D boxes (identical rows merged), the match matrix
+    against that union, per-camera intrinsics / extrinsics in ``meta``."""
+    names = list(views)
+    counts = {n: len(v) for n, v in views.items()}
+    if len(set(counts.values())) != 1:
+        raise ValueError(f"merge_cameras: cameras have different frame counts {counts}")
+    out = []
+    for i in range(counts[names[0]]):
+        frames = {n: views[n][i] for n in names}
+        rows: dict[bytes, int] = {}
+        boxes, b2, per_det, mm_parts = [], [], [], []
+        for n, f in frames.items():
+            b3 = np.asarray(f.bboxes_3d, dtype=np.float32)
+            cols = []
+            for r in b3:
+                key = r.tobytes()
+                if key not in rows:
+                    rows[key] = len(boxes)
+                    boxes.append(r)
+                cols.append(rows[key])
+            b2.append(np.asarray(f.bboxes_2d, dtype=np.float32).reshape(-1, 4))
+            per_det += [n] * f.num_2d
+            mm_parts.append((f.match_matrix, cols, f.num_2d))
+        width = frames[names[0]].bboxes_3d.shape[1] if boxes else 6
+        union = np.asarray(boxes, dtype=np.float32).reshape(-1, width)
+        mm = None
+        if all(m is not None for m, _, _ in mm_parts):
+            mm = np.zeros((len(per_det), len(union)), dtype=bool)
+            r0 = 0
+            for m, cols, k in mm_parts:
+                if k:
+                    mm[r0:r0 + k][:, cols] = np.asarray(m, dtype=bool)
+                r0 += k
+        first = frames[names[0]]
+        out.append(Frame(image=first.image, point_cloud=first.point_cloud, bboxes_2d=np.vstack(b2), bboxes_3d=union,
+                         camera_name=names[0], frame_key=first.frame_key, match_matrix=mm,
+                         intrinsics=first.intrinsics, extrinsics=first.extrinsics,
+                         images={n: f.image for n, f in frames.items()}, camera_per_det=per_det,
+                         point_fields=first.point_fields,
+                         meta={"intrinsics_by_camera": {n: f.intrinsics for n, f in frames.items()},
+                               "extrinsics_by_camera": {n: f.extrinsics for n, f in frames.items()}}))
+    return out
