@@ -41,23 +41,27 @@ def register(app: typer.Typer) -> None:
         tolerance: float = typer.Option(0.05, "--tolerance", help="Bags: largest LiDAR/image stamp difference (s)."),
         seed: int = typer.Option(0, "--seed", help="Random seed of the hypothesis sampling."),
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
+        force: bool = typer.Option(False, "--force", help="Replace an existing report folder."),
     ) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         from ..calib.api import calibrate
         from ..calib.result import CalibrationResult
-        from ..geometry.camera import CameraIntrinsics
+        from ..io._files import atomic_dir
+        from ..io.frames import read_intrinsics_json
         from ..site import calibrate_site
         from ..viz.site_report import site_table, write_site_report
 
+        if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
+            raise FileExistsError(f"{out} already exists; pass --force to replace it")
         cams = list(camera or [])
         if intrinsics is not None and len(cams) > 1:
             raise typer.BadParameter("--intrinsics applies to one camera; give one --camera",
                                      param_hint="--intrinsics")
         if prior is not None and len(cams) > 1:
             raise typer.BadParameter("--prior applies to one camera; give one --camera", param_hint="--prior")
-        intr = CameraIntrinsics.from_json(intrinsics) if intrinsics is not None else None
+        intr = read_intrinsics_json(intrinsics) if intrinsics is not None else None
         views = _open_views(frames, cams, frame_range, limit, intr, tolerance)
         name0 = next(iter(views))
         if len(views) == 1 and intr is None and getattr(views[name0], "intrinsics", None) is None and len(views[name0]) \
@@ -79,8 +83,10 @@ def register(app: typer.Typer) -> None:
 
             site, loaded = calibrate_site(views, {name0: intr} if intr is not None else None, source=str(frames),
                                           calibrate=run, progress=progress)
-            paths = write_site_report(out, site, loaded, max_overlays=max_overlays, progress=progress,
-                                      title=f"xcalib calibrate: {frames}")
+            with atomic_dir(out, overwrite=force) as tmp:  # the whole folder is swapped in at once
+                paths = write_site_report(tmp, site, loaded, max_overlays=max_overlays, progress=progress,
+                                          title=f"xcalib calibrate: {frames}")
+            paths = paths.relocated(tmp, out)
         _print(site, paths, as_json, site_table)
         if not all(c.result.success for c in site.cameras):
             raise typer.Exit(1)
