@@ -28,6 +28,14 @@ class SiteReportPaths:
     ros: list[Path] = field(default_factory=list)
     cameras: dict[str, Path] = field(default_factory=dict)  # camera -> its summary.txt
 
+    def relocated(self, old, new) -> "SiteReportPaths":
+        """The same paths after the folder ``old`` was moved to ``new``."""
+        def mv(p: Path) -> Path:
+            return Path(new) / Path(p).relative_to(old)
+
+        return SiteReportPaths(mv(self.html), mv(self.site_json), mv(self.review_mcap), [mv(p) for p in self.ros],
+                               {k: mv(v) for k, v in self.cameras.items()})
+
 
 def _fmt(v, nd=3) -> str:
     return "-" if v is None else f"{v:.{nd}f}"
