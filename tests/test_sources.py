@@ -78,3 +78,17 @@ def test_dataset_sources_take_camera():
     nus = open_source(pkl, camera="CAM_BACK", load_points=False)
     assert len(nus) == 1 and nus[0].camera_name == "CAM_BACK"
     assert len(open_source(pkl, load_points=False, load_image=False)) == 6
+
+
+def test_sustech_scene_three_cameras():
+    root = shared_path("sustech_example")
+    assert find_source(root).name == "sustech"
+    for cam, n2d in (("front", 9), ("left", 7), ("right", 3)):
+        seq = open_source(root, camera=cam, frames="0")
+        f = seq[0]
+        assert f.camera_name == cam and f.frame_key == "000965" and f.point_fields == ("x", "y", "z", "intensity")
+        assert f.bboxes_2d.shape == (n2d, 4) and f.bboxes_3d.shape == (21, 7) and f.match_matrix.sum() == n2d
+        assert 60000 < len(f.point_cloud) < 70000 and np.abs(f.point_cloud[:, :3]).max() < 300
+        assert f.intrinsics.width == 2048 and f.meta["boxes_2d_source"] == "projected_labels"
+    with pytest.raises(FormatError, match="cameras"):
+        open_source(root, camera="rear")
