@@ -7,8 +7,9 @@ Topics (``<cam>`` = camera name with characters other than ``[A-Za-z0-9_]`` as `
 (Detection2DArray), ``/tf_static`` (ground-truth LiDAR -> ``<cam>_optical_frame`` when frames
 carry ``extrinsics``) and ``/xcalib/frames`` (std_msgs/String JSON per frame: frame key, per-camera
 match matrix and ground truth, the 3D box layout), so frames read back equal the frames written.
-Frame ``i`` is stamped ``start_s + i * period_s`` (LiDAR); camera ``c`` (0, 1, ...)
-``camera_delay_s`` + ``c`` ms later.
+Frame ``i`` is stamped ``lidar_time_s`` / ``camera_time_s`` when the frame has them, else
+``start_s + i * period_s`` (LiDAR) and camera ``c`` (0, 1, ...) ``camera_delay_s`` + ``c`` ms
+later; track ids go into ``Detection3D.id`` (ROS 2 layout) and the record.
 """
 
 from __future__ import annotations
@@ -128,17 +129,23 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
     static: dict[str, np.ndarray] = {}
     t0 = int(round(start_s * 1e9))
     for i, frame in enumerate(frames):
-        ls = t0 + int(round(i * period_s * 1e9))
+        ls = t0 + int(round(i * period_s * 1e9)) if frame.lidar_time_s is None else int(round(frame.lidar_time_s * 1e9))
         pts = np.asarray(frame.point_cloud, dtype=np.float32)
         fields = tuple(frame.point_fields) if len(frame.point_fields) == pts.shape[1] else \
             ("x", "y", "z") + tuple(f"f{k}" for k in range(3, pts.shape[1]))
         sink.add("/lidar/points", POINTCLOUD2, ls, cv.make_pointcloud2(store, pts, fields, ls, lidar_frame))
         box7, rows = _box7_and_rows(frame.bboxes_3d)
-        sink.add("/lidar/detections", DET3D, ls, cv.make_detection3d_array(store, box7, ls, lidar_frame))
-        record = {"lidar_stamp_ns": ls, "frame_key": frame.frame_key, "box3d_rows": rows, "cameras": {}}
+        tracks = None if frame.track_ids_3d is None else np.asarray(frame.track_ids_3d, dtype=np.int64).tolist()
+        sink.add("/lidar/detections", DET3D, ls, cv.make_detection3d_array(store, box7, ls, lidar_frame, ids=tracks))
+        record = {"lidar_stamp_ns": ls, "frame_key": frame.frame_key, "box3d_rows": rows, "cameras": {},
+                  "lidar_time_s": frame.lidar_time_s, "track_ids_3d": tracks,
+                  "velocities_3d": None if frame.velocities_3d is None else
+                  np.asarray(frame.velocities_3d, dtype=np.float64).tolist()}
         for c, cam in enumerate(_cameras(frame)):
             seg = topic_name(cam)
             cs = ls + int(round(camera_delay_s * 1e9)) + c * 1_000_000  # camera c: 1 ms after camera c-1
+            if frame.camera_time_s is not None and not frame.images:
+                cs = int(round(frame.camera_time_s * 1e9))
             image, b2, mm, intr, extr = _view(frame, cam)
             optical = f"{seg}_optical_frame"
             if image_format == "raw":
@@ -150,7 +157,7 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
                 sink.add(f"/{seg}/camera_info", CAMERA_INFO, cs,
                          cv.make_camera_info(store, intr, cs, optical, image.shape[1], image.shape[0]))
             sink.add(f"/{seg}/detections", DET2D, cs, cv.make_detection2d_array(store, b2, cs, optical))
-            rec = {"camera_name": cam}
+            rec = {"camera_name": cam, "camera_time_s": None if frame.images else frame.camera_time_s}
             if mm is not None:
                 rec["match_matrix"] = np.asarray(mm).astype(int).tolist()
             if extr is not None:
