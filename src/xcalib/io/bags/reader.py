@@ -512,8 +512,7 @@ class BagFrames(Sequence):
         mm = rec.get("match_matrix")
         extr = rec.get("extrinsics")
         meta = {"source": "bag", "bag": str(self.path), "lidar_topic": tp["lidar"], "image_topic": tp["image"],
-                "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "ids_2d": ids2, "ids_3d": ids3,
-                "box7": box7}
+                "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "detection_ids_2d": ids2}
         if n_bad:
             meta["points_dropped_nonfinite"] = n_bad
         tracks = e.meta.get("track_ids_3d")

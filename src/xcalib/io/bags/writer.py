@@ -144,8 +144,10 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
         for c, cam in enumerate(_cameras(frame)):
             seg = topic_name(cam)
             cs = ls + int(round(camera_delay_s * 1e9)) + c * 1_000_000  # camera c: 1 ms after camera c-1
-            if frame.camera_time_s is not None and not frame.images:
-                cs = int(round(frame.camera_time_s * 1e9))
+            cam_time = (frame.meta.get("camera_time_s_by_camera") or {}).get(cam) if frame.images \
+                else frame.camera_time_s
+            if cam_time is not None:
+                cs = int(round(cam_time * 1e9))
             image, b2, mm, intr, extr = _view(frame, cam)
             optical = f"{seg}_optical_frame"
             if image_format == "raw":
@@ -157,7 +159,7 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
                 sink.add(f"/{seg}/camera_info", CAMERA_INFO, cs,
                          cv.make_camera_info(store, intr, cs, optical, image.shape[1], image.shape[0]))
             sink.add(f"/{seg}/detections", DET2D, cs, cv.make_detection2d_array(store, b2, cs, optical))
-            rec = {"camera_name": cam, "camera_time_s": None if frame.images else frame.camera_time_s}
+            rec = {"camera_name": cam, "camera_time_s": cam_time}
             if mm is not None:
                 rec["match_matrix"] = np.asarray(mm).astype(int).tolist()
             if extr is not None:
