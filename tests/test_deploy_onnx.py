@@ -181,7 +181,7 @@ def test_parity_ok_is_never_vacuous():
 
 def test_random_weights_refused(tmp_path):
     torch.manual_seed(0)
-    m = Matcher("fastmatch", device="cpu")
+    m = Matcher("fastmatch", device="cpu", allow_random=True)
     with pytest.raises(RandomWeightsError, match="never loaded"):
         m.build("onnx", tmp_path)
     r = m.build("onnx", tmp_path, allow_random=True, verify=False)

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import CalibrationFailedError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.projection import project_points, projection_matrix
 from ..geometry.transforms import make_transform, pose_error as _pose_error
@@ -24,13 +25,16 @@ class CalibrationResult:
     one-to-one matches per frame as int arrays [n,2] of (2D index, 3D index) in each frame's
     own numbering. Residuals are in pixels (box-edge disagreement) and IoU of projected 3D
     boxes vs their matched 2D boxes. ``rotation_std_deg`` / ``translation_std_m`` are 1-sigma
-    uncertainty estimates ([3] each: about/along the camera x, y, z axes).
+    uncertainty estimates ([3] each: about/along the camera x, y, z axes). A failed result
+    (``success=False``) has ``rotation`` / ``translation`` None (as the reference), and its pose
+    views (``extrinsics``, ``projection``, ``pose_error``, ``project``) raise
+    :class:`xcalib.errors.CalibrationFailedError` (a ``RuntimeError`` and a ``ValueError``).
     """
 
     success: bool
     intrinsics: CameraIntrinsics | None = None
-    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
-    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rotation: np.ndarray | None = None
+    translation: np.ndarray | None = None
     message: str = ""
     n_correspondences: int = 0
     n_inliers: int = 0
@@ -50,16 +54,26 @@ class CalibrationResult:
     meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.rotation = np.asarray(self.rotation, dtype=np.float64).reshape(3, 3)
-        self.translation = np.asarray(self.translation, dtype=np.float64).reshape(3)
+        if self.success and (self.rotation is None or self.translation is None):
+            raise ValueError("CalibrationResult: a successful result needs a rotation and a translation")
+        if self.rotation is not None:
+            self.rotation = np.asarray(self.rotation, dtype=np.float64).reshape(3, 3)
+        if self.translation is not None:
+            self.translation = np.asarray(self.translation, dtype=np.float64).reshape(3)
         self.rotation_std_deg = np.asarray(self.rotation_std_deg, dtype=np.float64).reshape(3)
         self.translation_std_m = np.asarray(self.translation_std_m, dtype=np.float64).reshape(3)
         self.pairs = [np.asarray(p, dtype=np.int64).reshape(-1, 2) for p in self.pairs]
 
     # ----------------------------------------------------------------- views
+    def _require_pose(self, what: str) -> None:
+        if self.rotation is None or self.translation is None:
+            raise CalibrationFailedError(f"{what}: the calibration failed ({self.message or 'no pose'}); "
+                                         "there is no pose")
+
     @property
     def extrinsics(self) -> np.ndarray:
         """[4,4] ``T_cam_lidar``."""
+        self._require_pose("extrinsics")
         return make_transform(self.rotation, self.translation)
 
     @property
@@ -71,23 +85,26 @@ class CalibrationResult:
     @property
     def projection(self) -> np.ndarray:
         """[3,4] ``P = K [R|t]`` (LiDAR-frame points -> pixels, distortion excluded)."""
+        self._require_pose("projection")
         return projection_matrix(self.K, self.rotation, self.translation)
 
     @property
     def n_pairs(self) -> int:
         return int(sum(len(p) for p in self.pairs))
 
-    def pose_error(self, gt) -> tuple[float, float]:
-        """(rotation error in degrees, translation error in metres) against a [4,4]/[3,4] truth."""
+    def pose_error(self, gt_extrinsics) -> tuple[float, float]:
+        """(rotation error in degrees, translation error in metres) against a [4,4]/[3,4] truth;
+        :class:`CalibrationFailedError` (a RuntimeError) for a failed result."""
         if not self.success:
-            raise ValueError(f"calibration failed ({self.message}); there is no pose to compare")
-        return _pose_error(self.extrinsics, gt)
+            raise CalibrationFailedError(f"calibration failed ({self.message}); there is no pose to compare")
+        return _pose_error(self.extrinsics, gt_extrinsics)
 
-    def project(self, points):
+    def project(self, points_3d):
         """LiDAR-frame points [N,>=3] -> (uv [N,2] pixels with distortion, depth [N] metres)."""
+        self._require_pose("project")
         if self.intrinsics is None:
             raise ValueError("CalibrationResult has no intrinsics")
-        return project_points(points, self.intrinsics, self.rotation, self.translation)
+        return project_points(points_3d, self.intrinsics, self.rotation, self.translation)
 
     # ------------------------------------------------------------------ I/O
     def to_dict(self) -> dict[str, Any]:
@@ -100,10 +117,10 @@ class CalibrationResult:
             "camera_name": self.camera_name,
             "image_size": None if self.image_size is None else list(self.image_size),
             "intrinsics": None if self.intrinsics is None else self.intrinsics.to_dict(),
-            "rotation": self.rotation.tolist(),
-            "translation": self.translation.tolist(),
-            "extrinsics_T_cam_lidar": self.extrinsics.tolist(),
-            "projection": None if self.intrinsics is None else self.projection.tolist(),
+            "rotation": None if self.rotation is None else self.rotation.tolist(),
+            "translation": None if self.translation is None else self.translation.tolist(),
+            "extrinsics_T_cam_lidar": None if self.rotation is None else self.extrinsics.tolist(),
+            "projection": None if self.intrinsics is None or self.rotation is None else self.projection.tolist(),
             "n_correspondences": int(self.n_correspondences),
             "n_inliers": int(self.n_inliers),
             "reproj_error_px": _num(self.reproj_error_px),
@@ -125,8 +142,8 @@ class CalibrationResult:
         return cls(
             success=bool(d["success"]),
             intrinsics=None if intr is None else CameraIntrinsics.from_dict(intr),
-            rotation=np.asarray(d["rotation"], dtype=np.float64),
-            translation=np.asarray(d["translation"], dtype=np.float64),
+            rotation=None if d.get("rotation") is None else np.asarray(d["rotation"], dtype=np.float64),
+            translation=None if d.get("translation") is None else np.asarray(d["translation"], dtype=np.float64),
             message=d.get("message", ""),
             n_correspondences=int(d.get("n_correspondences", 0)),
             n_inliers=int(d.get("n_inliers", 0)),
@@ -147,17 +164,24 @@ class CalibrationResult:
         )
 
     def save(self, path: str | Path) -> Path:
-        """Write ``.json`` (everything, exact float repr) or ``.npz`` (arrays + JSON blob)."""
+        """Write ``.json`` (everything, exact float repr) or ``.npz`` (the reference's arrays
+        rotation, translation, projection, K, reproj_error_px, n_inliers, plus extrinsics,
+        dist_coeffs, success, n_correspondences and a JSON blob; a failed result's pose arrays
+        are NaN)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp")
         if path.suffix == ".npz":
             with open(tmp, "wb") as fh:
-                np.savez(fh, rotation=self.rotation, translation=self.translation,
-                         extrinsics=self.extrinsics,
+                posed = self.rotation is not None and self.translation is not None
+                np.savez(fh, rotation=self.rotation if posed else np.full((3, 3), np.nan),
+                         translation=self.translation if posed else np.full(3, np.nan),
+                         extrinsics=self.extrinsics if posed else np.full((4, 4), np.nan),
                          K=self.K if self.intrinsics is not None else np.full((3, 3), np.nan),
                          dist_coeffs=self.intrinsics.dist_coeffs if self.intrinsics is not None else np.zeros(5),
-                         projection=self.projection if self.intrinsics is not None else np.full((3, 4), np.nan),
+                         projection=self.projection if self.intrinsics is not None and posed else np.full((3, 4), np.nan),
+                         reproj_error_px=np.float64(self.reproj_error_px), n_inliers=np.int64(self.n_inliers),
+                         n_correspondences=np.int64(self.n_correspondences), success=np.bool_(self.success),
                          json=np.frombuffer(json.dumps(self.to_dict()).encode(), dtype=np.uint8))
         else:
             tmp.write_text(json.dumps(self.to_dict(), indent=2))
@@ -178,7 +202,8 @@ class CalibrationResult:
                         raise FormatError(path, "missing the 'json' array; not an xcalib calibration npz", "json")
                     d = json.loads(bytes(z["json"]).decode())
                     res = cls.from_dict(d)
-                    res.rotation, res.translation = z["rotation"], z["translation"]
+                    if res.rotation is not None:
+                        res.rotation, res.translation = z["rotation"], z["translation"]
                     return res
             d = json.loads(path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError, OSError, ValueError) as exc:
@@ -188,6 +213,8 @@ class CalibrationResult:
         for key in ("success", "rotation", "translation"):
             if key not in d:
                 raise FormatError(path, "missing key", key)
+        if d["success"] and (d["rotation"] is None or d["translation"] is None):
+            raise FormatError(path, "a successful calibration needs a rotation and a translation", "rotation")
         return cls.from_dict(d)
 
     def summary(self) -> str:

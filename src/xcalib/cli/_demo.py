@@ -84,7 +84,7 @@ class CalibrationOutcome:
                      centre_offset_px_median=_j((r.meta or {}).get("centre_offset_px_median")),
                      rotation_std_deg=[_j(v) for v in r.rotation_std_deg],
                      translation_std_m=[_j(v) for v in r.translation_std_m],
-                     extrinsics_T_cam_lidar=np.asarray(r.extrinsics).tolist())
+                     extrinsics_T_cam_lidar=r.extrinsics.tolist() if r.success else None)
         if np.isfinite(self.rotation_error_deg):
             d.update(rotation_error_deg=_j(self.rotation_error_deg), translation_error_m=_j(self.translation_error_m),
                      pair_precision=_j(self.pair_precision), pair_recall=_j(self.pair_recall))

@@ -45,7 +45,7 @@ def register(app: typer.Typer) -> None:
                 try:
                     m = Matcher.from_pretrained(model, config=config, device="cpu", site=site)
                 except WeightsNotFoundError:
-                    m = Matcher(model, device="cpu")
+                    m = Matcher(model, device="cpu", allow_random=True)
             else:
                 m = Matcher.from_pretrained(model, weights=weights, config=config, device="cpu", site=site)
         with console.status(f"exporting {model} to {fmt} (parity check included)"):

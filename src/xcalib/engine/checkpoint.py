@@ -33,7 +33,7 @@ __all__ = ["FORMAT", "WeightsMismatchError", "WeightsNotFoundError", "xcalib_hom
            "read_config", "list_sites"]
 
 FORMAT = "xcalib-weights-v1"
-WEIGHT_SUFFIXES = (".pt", ".pth")
+WEIGHT_SUFFIXES = (".pth", ".pt")  # save_pretrained writes .pth (as the reference); .pt still loads
 
 
 class WeightsMismatchError(XcalibError, ValueError):

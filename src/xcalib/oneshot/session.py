@@ -187,7 +187,7 @@ class OneShotSession:
     def _sync_box_gain(self) -> None:
         """The matcher's config (written beside saved weights) carries the model's ``box_gain``."""
         if "box_gain" in self.model.config:
-            self.matcher.config["box_gain"] = self.model.config["box_gain"]
+            self.matcher.update_config(box_gain=self.model.config["box_gain"])
 
     # ------------------------------------------------------------------ observing
     def _check_size(self, image: np.ndarray, key: str) -> None:
@@ -213,7 +213,7 @@ class OneShotSession:
         index = self.buffer.total_seen
         key = str(frame_key) if frame_key is not None else f"{index:06d}"
         self._check_size(image, key)
-        self.matcher._validate(image, point_cloud, bboxes_2d, bboxes_3d, validate or self.validate)
+        self.matcher.validate_inputs(image, point_cloud, bboxes_2d, bboxes_3d, validate or self.validate)
         obs = observe_frame_inputs(image, point_cloud, bboxes_2d, bboxes_3d, self.matcher.crop_config,
                                    key=key, index=index, meta=meta)
         obs.frame.frame_key = f"{index:06d}"  # unique within the buffer

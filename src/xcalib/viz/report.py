@@ -183,8 +183,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         :class:`CalibrationReport` with the HTML path, figures and numbers.
     """
     from ..geometry.boxes import as_box7, box7_corners, boxes2d_from_points, iou_matrix
-    from .calibration import draw_calibration_overlay
-    from .matching import draw_matching_overlay
+    from .calibration import REPORT_MAX_POINTS, draw_calibration_overlay
+    from .matching import REPORT_HEIGHT, draw_matching_overlay
 
     out = Path(out_dir)
     (out / "img").mkdir(parents=True, exist_ok=True)
@@ -219,7 +219,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
                     "calibration_before" if before_fig else "calibration", key))
         elif have_pose:
             ov = draw_calibration_overlay(image, pc, calibration=result, bboxes_3d=b3, bboxes_2d=b2, pairs=pairs,
-                                          point_radius=point_radius, title=f"{key}: after calibration")
+                                          point_radius=point_radius, max_points=REPORT_MAX_POINTS,
+                                          title=f"{key}: after calibration")
             _write_png(out / "img" / f"{stem}_calibration.png", ov)
             figures.append(ReportFigure(f"img/{stem}_calibration.png",
                                         f"Frame {key}, estimated pose: LiDAR points coloured by camera depth "
@@ -228,7 +229,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         if initial is not None and result.intrinsics is not None and not existing:
             ov = draw_calibration_overlay(image, pc, intrinsics=result.intrinsics, rotation=initial[0],
                                           translation=initial[1], bboxes_3d=b3, bboxes_2d=b2,
-                                          point_radius=point_radius, title=f"{key}: before refinement")
+                                          point_radius=point_radius, max_points=REPORT_MAX_POINTS,
+                                          title=f"{key}: before refinement")
             _write_png(out / "img" / f"{stem}_before.png", ov)
             figures.append(ReportFigure(f"img/{stem}_before.png", f"Frame {key}, initial pose (before refinement)",
                                         "calibration_before", key))
@@ -242,7 +244,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
             iou = np.diag(iou_matrix(np.asarray(b2, float)[pairs[:, 0]], proj)) if len(pairs) else np.zeros(0)
             m, source = [(int(i), int(j), float(s)) for (i, j), s in zip(pairs, np.nan_to_num(iou))], "projected IoU"
         if m is not None:
-            mo = draw_matching_overlay(image, pc, b2, b3, m, match_matrix=truth, camera=result if have_pose else None,
+            mo = draw_matching_overlay(image, pc, b2, b3, m, output_height=REPORT_HEIGHT, match_matrix=truth,
+                                       camera=result if have_pose else None,
                                        title=f"{key}: matching ({source})")
             _write_png(out / "img" / f"{stem}_matching.png", mo, 1600)
             figures.append(ReportFigure(f"img/{stem}_matching.png",
