@@ -407,9 +407,11 @@ def calibrate(frames, intrinsics=None, *args, matcher=None, prior=None, gate: fl
             return retry
     meta["max_baseline_m"] = max_baseline_m
     if why:
+        meta["refused_T_cam_lidar"] = res.extrinsics.tolist()  # for diagnostics; a failed result has no pose
         res.success = False
         res.accepted = False
         res.message = why
+        res.rotation = res.translation = None
     return res
 
 

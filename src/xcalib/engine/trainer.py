@@ -338,7 +338,7 @@ def train(model, train_data, val_data=None, *, model_name: str | None = None,
     steps_per_epoch = math.ceil(per_rank / max(1, frames_per_batch))
     schedule = Schedule(lr, epochs * steps_per_epoch, int(round(warmup_epochs * steps_per_epoch)),
                         min_lr / lr if lr else 0.0, scheduler)
-    start_epoch, best_mrr, history = 0, -1.0, []
+    start_epoch, best_mrr, history = 0, -math.inf, []  # without val data "MRR" is -loss, which may be < -1
     if resume:
         rpath = out / "last.pt" if resume is True else Path(resume)
         state = torch.load(rpath, map_location="cpu", weights_only=False)

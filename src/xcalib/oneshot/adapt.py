@@ -85,6 +85,11 @@ class AdaptReport:
     gain_trials: list[GainTrial] = field(default_factory=list)
     losses: list[float] = field(default_factory=list)
 
+    @property
+    def n_bank_pairs(self) -> int:
+        """The reference's name of :attr:`n_pairs` (pseudo-labelled pairs trained on)."""
+        return self.n_pairs
+
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
         d["losses"] = [float(v) for v in self.losses]
