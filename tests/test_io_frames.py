@@ -84,9 +84,9 @@ def test_register_reader_takes_precedence(tmp_path):
     try:
         assert read_frames(tmp_path / "x.custom") == ["sentinel"]
     finally:
-        from xcalib.io import frames as mod
+        from xcalib.io.sources import unregister_source
 
-        mod._READERS[:] = [r for r in mod._READERS if r[0] != "custom-test"]
+        unregister_source("custom-test")
 
 
 def _edit(root: Path, rel: str, fn) -> Path:

@@ -25,7 +25,7 @@ app = typer.Typer(
 # Order = order in --help.
 _COMMAND_MODULES = [
     "demo", "match", "calibrate", "bootstrap", "train", "validate", "export", "synth", "cache",
-    "convert", "version", "reference",
+    "convert", "bag", "version", "reference",
 ]
 
 

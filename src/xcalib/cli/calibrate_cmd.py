@@ -19,7 +19,10 @@ Example: xcalib calibrate ../shared/data/a9_sample --intrinsics ../shared/data/a
 def register(app: typer.Typer) -> None:
     @app.command("calibrate", help=_HELP)
     def calibrate_command(
-        frames: Path = typer.Argument(..., help="Frame folder (read by xcalib.io.frames.read_frames)."),
+        frames: Path = typer.Argument(..., help="Frame source: frame folder, HDF5 cache, KITTI, nuScenes/mmdet3d "
+                                                "pickle, bag/MCAP, ... (xcalib.io.sources)."),
+        camera: str = typer.Option(None, "--camera", "-c", help="Camera of a multi-camera source."),
+        frame_range: str = typer.Option(None, "--frames", help="Frames to use: 0:8, 0,3,5, 8: (indices)."),
         intrinsics: Path = typer.Option(None, "--intrinsics", "-k",
                                         help="Intrinsics JSON {fx, fy, cx, cy, distortion}; default: the folder's."),
         out: Path = typer.Option(Path("calibration_report"), "--out", "-o", help="Report folder."),
@@ -40,7 +43,10 @@ def register(app: typer.Typer) -> None:
         from ..io.frames import read_frames
 
         console = Console(stderr=True)
-        seq = read_frames(frames)
+        try:
+            seq = read_frames(frames, camera=camera, frames=frame_range)
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc), param_hint="--frames") from None
         n = len(seq) if limit <= 0 else min(limit, len(seq))
         if n == 0:
             raise typer.BadParameter(f"{frames}: no frames found", param_hint="FRAMES")

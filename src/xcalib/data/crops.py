@@ -20,8 +20,10 @@ LiDAR crops (:func:`crop_points`)
     points, otherwise every point once plus random repeats of its own points (never padding at
     the sensor origin). Dropped: degenerate boxes and boxes with fewer than ``min_points``.
 
-Everything is vectorised over points; the only Python loop is over 2D boxes (one OpenCV
-resize each).
+Everything is vectorised over points and boxes (the integer crop windows of all 2D boxes at
+once, :func:`xcalib.geometry.box_point_pairs` for the points); the only Python loop cuts and
+resizes, one OpenCV call per 2D box. The outputs are bit-identical to 0.3.1's
+(tests/test_crops_equivalence.py).
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from typing import Any, Mapping
 import cv2
 import numpy as np
 
-from ..geometry.boxes import as_box7, points_in_boxes
+from ..geometry.boxes import as_box7, box_point_pairs
 
 __all__ = [
     "IMAGENET_MEAN", "IMAGENET_STD", "CropConfig", "FrameInputs", "crop_images", "crop_points",
@@ -110,14 +112,10 @@ def _image_float_scale(image: np.ndarray) -> float:
     return 1.0 if image.dtype.kind == "f" else 1.0 / 255.0
 
 
-def crop_images(image: np.ndarray, bboxes_2d, crop_size: int = 32, *, keep_aspect: bool = True,
-                normalize: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Crop + resize every 2D box. Returns (crops [N,3,S,S] float32, kept indices [N] int64)."""
-    if image.ndim != 3 or image.shape[2] != 3:
-        raise ValueError(f"image: expected shape [H, W, 3], got {image.shape}")
-    S = int(crop_size)
-    b = np.asarray(bboxes_2d, dtype=np.float64).reshape(-1, 4) if np.size(bboxes_2d) else np.zeros((0, 4))
-    H, W = image.shape[:2]
+def _crop_windows(b: np.ndarray, W: int, H: int, S: int, keep_aspect: bool):
+    """Integer crop geometry of every 2D box, vectorised: (kept [N] int64, image windows
+    [N,4] (x0, y0, x1, y1) px, output windows [N,4] (x0, y0, x1, y1) in the S x S crop,
+    subsampling steps [N], whether each resize shrinks [N])."""
     ok = np.all(np.isfinite(b), axis=1) & (b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])
     ok &= (b[:, 2] > 0) & (b[:, 0] < W) & (b[:, 3] > 0) & (b[:, 1] < H)
     src = np.where(ok[:, None], b, 0.0)
@@ -125,35 +123,61 @@ def crop_images(image: np.ndarray, bboxes_2d, crop_size: int = 32, *, keep_aspec
         c = (src[:, :2] + src[:, 2:]) / 2.0
         half = np.maximum(src[:, 2] - src[:, 0], src[:, 3] - src[:, 1])[:, None] / 2.0
         src = np.hstack([c - half, c + half])
-    ix0 = np.floor(np.clip(src[:, 0], 0, W)).astype(np.int64)
-    iy0 = np.floor(np.clip(src[:, 1], 0, H)).astype(np.int64)
-    ix1 = np.ceil(np.clip(src[:, 2], 0, W)).astype(np.int64)
-    iy1 = np.ceil(np.clip(src[:, 3], 0, H)).astype(np.int64)
-    ok &= (ix1 > ix0) & (iy1 > iy0)
+    lim = np.array([W, H, W, H])
+    win = np.clip(src, 0, lim)
+    win = np.hstack([np.floor(win[:, :2]), np.ceil(win[:, 2:])]).astype(np.int64)
+    ok &= (win[:, 2] > win[:, 0]) & (win[:, 3] > win[:, 1])
     kept = np.nonzero(ok)[0].astype(np.int64)
+    src, win = src[kept], win[kept]
+    size = np.tile(src[:, 2:] - src[:, :2], 2)  # (w, h, w, h) of the (square) source box
+    rel = np.rint((win - np.tile(src[:, :2], 2)) * S / size)  # round half to even, as round()
+    out = np.empty_like(win)
+    out[:, :2] = np.clip(rel[:, :2], 0, S - 1)
+    out[:, 2:] = np.clip(rel[:, 2:], out[:, :2] + 1, S)
+    ph, pw = win[:, 3] - win[:, 1], win[:, 2] - win[:, 0]
+    oh, ow = out[:, 3] - out[:, 1], out[:, 2] - out[:, 0]
+    step = (np.minimum(ph / oh, pw / ow) // 2).astype(np.int64)
+    step = np.where(step > 1, step, 1)
+    shrink = (-(-ph // step) > oh) | (-(-pw // step) > ow)  # subsampled patch larger than its window
+    return kept, win, out, step, shrink
+
+
+def crop_images(image: np.ndarray, bboxes_2d, crop_size: int = 32, *, keep_aspect: bool = True,
+                normalize: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Crop + resize every 2D box. Returns (crops [N,3,S,S] float32, kept indices [N] int64).
+    The crop geometry is computed for all boxes at once; the loop only cuts and resizes."""
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"image: expected shape [H, W, 3], got {image.shape}")
+    S = int(crop_size)
+    b = np.asarray(bboxes_2d, dtype=np.float64).reshape(-1, 4) if np.size(bboxes_2d) else np.zeros((0, 4))
+    H, W = image.shape[:2]
+    kept, win, dst, step, shrink = _crop_windows(b, W, H, S, keep_aspect)
     scale = _image_float_scale(image)
     fill = IMAGENET_MEAN / scale if normalize else np.zeros(3, np.float32)
     out = np.empty((len(kept), S, S, 3), dtype=np.float32)
     out[:] = fill
-    for n, k in enumerate(kept):  # loop over detections (one OpenCV resize each), not points
-        w, h = src[k, 2] - src[k, 0], src[k, 3] - src[k, 1]
-        ox0 = int(np.clip(round((ix0[k] - src[k, 0]) * S / w), 0, S - 1))
-        oy0 = int(np.clip(round((iy0[k] - src[k, 1]) * S / h), 0, S - 1))
-        ox1 = int(np.clip(round((ix1[k] - src[k, 0]) * S / w), ox0 + 1, S))
-        oy1 = int(np.clip(round((iy1[k] - src[k, 1]) * S / h), oy0 + 1, S))
-        patch = image[iy0[k]:iy1[k], ix0[k]:ix1[k]]
-        step = int(min(patch.shape[0] / (oy1 - oy0), patch.shape[1] / (ox1 - ox0)) // 2)
-        if step > 1:  # big box: subsample to ~2x the output size first, then area-average
-            patch = patch[::step, ::step]
-        shrink = patch.shape[0] > (oy1 - oy0) or patch.shape[1] > (ox1 - ox0)
-        patch = cv2.resize(patch, (ox1 - ox0, oy1 - oy0),
-                           interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
-        out[n, oy0:oy1, ox0:ox1] = patch.reshape(oy1 - oy0, ox1 - ox0, 3)
+    pixels = _pixel_view(image)
+    for n, (x0, y0, x1, y1), (u0, v0, u1, v1), st, sh in zip(range(len(kept)), win.tolist(), dst.tolist(),
+                                                            step.tolist(), shrink.tolist()):
+        patch = pixels[y0:y1:st, x0:x1:st]  # big box: subsample to ~2x the output size, then area-average
+        if st > 1:
+            patch = np.ascontiguousarray(patch)
+        patch = patch.view(image.dtype).reshape(patch.shape[0], patch.shape[1], 3)
+        patch = cv2.resize(patch, (u1 - u0, v1 - v0), interpolation=cv2.INTER_AREA if sh else cv2.INTER_LINEAR)
+        out[n, v0:v1, u0:u1] = patch.reshape(v1 - v0, u1 - u0, 3)
     out *= scale
     if normalize:
         out -= IMAGENET_MEAN
         out /= IMAGENET_STD
     return np.ascontiguousarray(out.transpose(0, 3, 1, 2)), kept
+
+
+def _pixel_view(image: np.ndarray) -> np.ndarray:
+    """[H,W] view of an [H,W,3] image with one opaque item per pixel (when its pixels are
+    contiguous): a strided pick of pixels then copies whole pixels, not single channels."""
+    if image.strides[2] != image.itemsize or image.strides[1] != 3 * image.itemsize:
+        return image
+    return image.view(np.dtype((np.void, 3 * image.itemsize)))[..., 0]
 
 
 def gather_box_points(points: np.ndarray, boxes7: np.ndarray, expansion: float = 1.25
@@ -164,9 +188,7 @@ def gather_box_points(points: np.ndarray, boxes7: np.ndarray, expansion: float =
     """
     b = np.asarray(boxes7, dtype=np.float64).reshape(-1, 7)
     xyz = np.asarray(points)[:, :3]
-    mask = points_in_boxes(xyz, b, expansion=expansion)
-    flat = np.flatnonzero(mask)  # row-major: grouped box by box (much faster than 2D nonzero)
-    mi, pi = flat // mask.shape[1], flat % mask.shape[1]
+    mi, pi = box_point_pairs(xyz, b, expansion=expansion)  # grouped box by box, points ascending
     counts = np.bincount(mi, minlength=len(b)).astype(np.int64)
     d = xyz[pi].astype(np.float64) - b[mi, :3]
     c, s = np.cos(b[mi, 6]), np.sin(b[mi, 6])
@@ -189,11 +211,19 @@ def resample_points(points: np.ndarray, counts: np.ndarray, n: int,
         raise ValueError(f"resample_points: every group needs >= 1 point, got counts {counts.tolist()}")
     starts = np.cumsum(counts) - counts
     seg = np.repeat(np.arange(M), counts)
-    order = np.lexsort((rng.random(len(seg)), seg))
+    order = _shuffle_within_groups(seg, rng.random(len(seg)))
     j = np.arange(n)[None, :]
     fill = np.minimum((rng.random((M, n)) * counts[:, None]).astype(np.int64), counts[:, None] - 1)
     src = np.where(j < counts[:, None], j, fill)
     return np.asarray(points, dtype=np.float32)[order[starts[:, None] + src]]
+
+
+def _shuffle_within_groups(seg: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``np.lexsort((r, seg))`` (r in [0, 1)), as one stable integer sort when the group ids fit:
+    r * 2^53 is an exact integer below 2^53, so the key seg * 2^53 + that orders the same."""
+    if len(seg) == 0 or seg[-1] >= 1 << 10:
+        return np.lexsort((r, seg))
+    return np.argsort((seg.astype(np.int64) << 53) + (r * 2.0 ** 53).astype(np.int64), kind="stable")
 
 
 def crop_points(point_cloud: np.ndarray, bboxes_3d, point_cloud_size: int = 1024, *,

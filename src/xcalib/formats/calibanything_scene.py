@@ -223,3 +223,14 @@ def calibanything_frames(root, camera: str | None = None, **kwargs) -> CalibAnyt
     """A CalibAnything/OpenCalib scene (or folder of scenes) as a lazy ``Sequence[Frame]``;
     ``camera`` keeps one camera folder of a multi-camera scene."""
     return CalibAnythingFrames(root, camera, **kwargs)
+
+
+def _register() -> None:
+    from ..io.sources import register_source
+
+    register_source("calibanything", is_calibanything_scene, calibanything_frames,
+                    description="CalibAnything / OpenCalib scene folder (camera= picks a camera folder)",
+                    priority=40)
+
+
+_register()

@@ -675,3 +675,30 @@ def is_kitti_root(path) -> bool:
         if any((p / n).is_file() for n in (f"{i}_calib.txt", f"{i}.txt", f"{i}.pkl")):
             return True
     return False
+
+
+def _kitti_camera(camera) -> int:
+    """``2`` / ``"2"`` / ``"image_2"`` / ``"P2"`` / ``"cam2"`` -> 2 (KITTI cameras 0-3)."""
+    text = str(camera).strip().lower()
+    for prefix in ("image_", "image", "cam_", "cam", "p"):
+        if text.startswith(prefix) and text[len(prefix):].isdigit():
+            text = text[len(prefix):]
+            break
+    if not text.isdigit() or int(text) not in (0, 1, 2, 3):
+        raise ValueError(f"KITTI camera {camera!r}: expected 0-3 (or image_0 ... image_3)")
+    return int(text)
+
+
+def open_kitti_source(path, *, camera=None, **kwargs) -> KittiFrames:
+    """A KITTI folder as a frame source (``camera``: 0-3 or ``image_2``; default 2)."""
+    return KittiFrames(path, kwargs.pop("ids", None), camera=2 if camera is None else _kitti_camera(camera), **kwargs)
+
+
+def _register() -> None:
+    from ..io.sources import register_source
+
+    register_source("kitti", is_kitti_root, open_kitti_source,
+                    description="KITTI object folder (calib/, image_2/, velodyne/, label_2/)", priority=30)
+
+
+_register()

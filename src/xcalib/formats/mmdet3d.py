@@ -241,3 +241,19 @@ def mmdet3d_frames(path, camera: str | None = None, **kwargs) -> Sequence[Frame]
         kwargs.pop("data_root", None)
         return kitti_frames(path.parent, ids=[path.stem], **kwargs)
     return Mmdet3dFrames(path, camera, **kwargs)
+
+
+def _is_info_pickle(path) -> bool:
+    p = Path(path)
+    return p.is_file() and p.suffix.lower() == ".pkl"
+
+
+def _register() -> None:
+    from ..io.sources import register_source
+
+    register_source("mmdet3d-info", _is_info_pickle, mmdet3d_frames,
+                    description="mmdetection3d info pickle (nuScenes, KITTI, ...; camera= e.g. CAM_FRONT)",
+                    priority=60)
+
+
+_register()

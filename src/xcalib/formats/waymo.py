@@ -18,7 +18,9 @@ T_front_cam_to_ref @ inv(T_front_cam_to_vehicle)`` (``T_front_cam_to_ref`` = ``R
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -26,6 +28,7 @@ from ..calib.result import CalibrationResult
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.transforms import as_transform, invert_transform, make_transform
+from ..types import Frame
 from ._checks import checked_rotation
 from ._protowire import as_double, as_doubles, as_int, as_messages, as_string, iter_tfrecords, parse_message
 from ._result import calibration_record
@@ -254,3 +257,45 @@ def waymo_T_cam_laser(record: WaymoFrameRecord, camera: str = "FRONT", laser: st
         raise KeyError(f"waymo frame: need camera {camera!r} and laser {laser!r}; have cameras "
                        f"{sorted(record.cameras)}, lasers {sorted(record.lasers)}")
     return record.cameras[camera].T_cam_lidar @ record.lasers[laser].T_vehicle_laser
+
+
+class WaymoFrames(Sequence):
+    """A Waymo segment ``.tfrecord`` as frames of one camera: labels and calibration only (the
+    reader skips pixels and range images): an empty image [0,0,3] and cloud [0,3], the camera's
+    projected 2D labels, the laser labels (box7, vehicle frame), their match matrix, intrinsics and
+    ``extrinsics`` = ``T_cam_lidar`` (vehicle -> camera)."""
+
+    def __init__(self, path, camera: str | None = None, *, max_frames: int | None = None):
+        self.path = Path(path)
+        self.records = read_waymo_tfrecord(self.path, max_frames=max_frames)
+        self.camera = camera or "FRONT"
+        self.camera_names = sorted(self.records[0].cameras)
+        if self.camera not in self.records[0].cameras:
+            raise FormatError(self.path, f"no camera {self.camera!r}; cameras: {self.camera_names}",
+                              "context.camera_calibrations")
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        rec = self.records[index]
+        cam = rec.cameras[self.camera]
+        b2 = rec.camera_boxes.get(self.camera, np.zeros((0, 4)))
+        return Frame(image=np.zeros((0, 0, 3), dtype=np.uint8), point_cloud=np.zeros((0, 3), dtype=np.float32),
+                     bboxes_2d=np.asarray(b2, dtype=np.float32).reshape(-1, 4),
+                     bboxes_3d=np.asarray(rec.boxes7, dtype=np.float32).reshape(-1, 7),
+                     camera_name=self.camera, frame_key=f"{rec.context_name}/{rec.timestamp_micros}",
+                     match_matrix=rec.match_matrix(self.camera), intrinsics=cam.intrinsics,
+                     extrinsics=cam.T_cam_lidar, meta={"source": "waymo", "classes_3d": list(rec.box_types)})
+
+
+def _register() -> None:
+    from ..io.sources import register_source
+
+    register_source("waymo", lambda p: p.is_file() and ".tfrecord" in p.name.lower(), WaymoFrames,
+                    description="Waymo segment .tfrecord (labels + calibration; no pixels)", priority=70)
+
+
+_register()

@@ -21,7 +21,7 @@ import numpy as np
 __all__ = [
     "CONVENTIONS", "detect_box3d_convention", "boxes3d_to_center_size", "boxes3d_to_extents",
     "center_size_to_extents", "extents_to_center_size", "as_box7", "box7_corners", "box7_to_extents", "expand_box7",
-    "points_in_boxes", "box2d_centers", "box2d_sizes", "box2d_areas", "iou_matrix", "clip_boxes2d",
+    "points_in_boxes", "box_point_pairs", "box2d_centers", "box2d_sizes", "box2d_areas", "iou_matrix", "clip_boxes2d",
     "valid_boxes2d", "xyxy_to_xywh", "xywh_to_xyxy", "xyxy_to_cxcywh", "cxcywh_to_xyxy",
     "boxes2d_from_points", "check_boxes2d", "check_boxes3d",
 ]
@@ -137,6 +137,116 @@ def expand_box7(boxes7, factor: float = 1.25) -> np.ndarray:
     return b
 
 
+def _box_affines(b: np.ndarray) -> np.ndarray:
+    """[M,3,4] float32 affine maps sending each box7's inside to the cube [-1, 1]^3."""
+    c, s = np.cos(b[:, 6]), np.sin(b[:, 6])
+    inv_half = 2.0 / np.maximum(b[:, 3:6], 1e-9)
+    A = np.zeros((len(b), 3, 4))
+    A[:, 0, 0], A[:, 0, 1] = c * inv_half[:, 0], s * inv_half[:, 0]
+    A[:, 1, 0], A[:, 1, 1] = -s * inv_half[:, 1], c * inv_half[:, 1]
+    A[:, 2, 2] = inv_half[:, 2]
+    A[:, :, 3] = -np.einsum("mij,mj->mi", A[:, :, :3], b[:, :3])
+    return A.astype(np.float32)
+
+
+_GRID = 128  # cells per axis of the x-y grid over the boxes' footprints (candidate search)
+
+
+def _box_footprints(b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned x-y footprint (lo [M,2], hi [M,2], metres, 1 mm margin) of each box7."""
+    c, s = np.abs(np.cos(b[:, 6])), np.abs(np.sin(b[:, 6]))
+    half = np.stack([c * b[:, 3] + s * b[:, 4], s * b[:, 3] + c * b[:, 4]], 1) / 2 + 1e-3
+    return b[:, :2] - half, b[:, :2] + half
+
+
+def _grid_cells(xy: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """``xy`` [P,>=2] float32 points. An x-y grid of G x G cells over the footprints (padded), framed by a border of cells
+    (index 0 and G+1) that takes every point outside: the cell id of every point [P] int32 and
+    each box's inclusive cell rectangle lo_c, hi_c [M,2] int64 (one cell of margin), inside
+    1..G. A point inside a box is in a cell of that box's rectangle whatever the float32 rounding."""
+    G = _GRID
+    pad = 2.0 * (hi.max(0) - lo.min(0)) / G + 0.1  # > one cell: rectangles stay off the border
+    org = lo.min(0) - pad
+    cell = (hi.max(0) + pad - org) / G
+    cells = np.empty((2, len(xy)), dtype=np.int32)
+    for a in range(2):  # x, then y: one strided read each, then contiguous float32 passes
+        f = xy[:, a] * np.float32(1.0 / cell[a])
+        f += np.float32(1.0 - org[a] / cell[a])
+        np.fmax(f, np.float32(0.0), out=f)  # fmax/fmin: a NaN coordinate lands on the border too
+        np.fmin(f, np.float32(G + 1.0), out=f)
+        cells[a] = f
+    cid = cells[1] * (G + 2) + cells[0]
+    lo_c = np.clip(np.floor((lo - org) / cell), 1, G).astype(np.int64)  # + 1 border - 1 margin
+    hi_c = np.clip(np.floor((hi - org) / cell) + 2, 1, G).astype(np.int64)
+    return cid, lo_c, hi_c
+
+
+def _occupied(cid: np.ndarray, lo_c: np.ndarray, hi_c: np.ndarray) -> np.ndarray:
+    """Indices of the points whose cell lies in some box's cell rectangle (2D prefix sum)."""
+    n = _GRID + 3
+    d = np.zeros((n, n), dtype=np.int32)
+    np.add.at(d, (lo_c[:, 1], lo_c[:, 0]), 1)
+    np.add.at(d, (lo_c[:, 1], hi_c[:, 0] + 1), -1)
+    np.add.at(d, (hi_c[:, 1] + 1, lo_c[:, 0]), -1)
+    np.add.at(d, (hi_c[:, 1] + 1, hi_c[:, 0] + 1), 1)
+    occ = d.cumsum(0).cumsum(1)[: n - 1, : n - 1] > 0
+    return np.flatnonzero(occ.ravel().take(cid))
+
+
+def box_point_pairs(points, boxes, *, expansion: float = 1.0, convention: str = "auto"
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Every (box, point) with the point inside the box: (box index [T], point index [T]) int64,
+    sorted by box, then point (the row-major order of :func:`points_in_boxes`' mask).
+
+    Candidates come from an x-y grid over the boxes' footprints (a box visits only the cells its
+    footprint covers); each candidate is then tested in the box's frame (float32). Cost: a few
+    vector passes over the points plus the points near boxes, never M x P.
+    """
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] < 3:
+        raise ValueError(f"points: expected shape [P, >=3], got {pts.shape}")
+    b = expand_box7(as_box7(boxes, convention), expansion) if len(np.asarray(boxes).reshape(-1)) else np.zeros((0, 7))
+    none = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    if len(b) == 0 or len(pts) == 0:
+        return none
+    finite = np.all(np.isfinite(b), axis=1)
+    if not finite.all():  # a non-finite box holds no point
+        idx = np.flatnonzero(finite)
+        mi, pi = box_point_pairs(pts, b[idx], convention=convention)
+        return idx[mi], pi
+    xyz = pts[:, :3] if pts.dtype == np.float32 else pts[:, :3].astype(np.float32)
+    lo, hi = _box_footprints(b)
+    cid, lo_c, hi_c = _grid_cells(xyz, lo, hi)
+    cand = _occupied(cid, lo_c, hi_c)
+    n = _GRID + 2
+    cc = cid[cand].astype(np.uint16)  # (G+2)^2 < 2^16 cells: numpy's radix sort
+    order = np.argsort(cc, kind="stable")
+    cc = cc[order]
+    nrows = hi_c[:, 1] - lo_c[:, 1] + 1
+    seg_box = np.repeat(np.arange(len(b)), nrows)
+    seg_row = lo_c[seg_box, 1] + np.arange(len(seg_box)) - np.repeat(np.cumsum(nrows) - nrows, nrows)
+    seg_start = np.searchsorted(cc, seg_row * n + lo_c[seg_box, 0], "left")
+    lens = np.searchsorted(cc, seg_row * n + hi_c[seg_box, 0], "right") - seg_start
+    total = int(lens.sum())
+    if total == 0:
+        return none
+    mi = np.repeat(seg_box, lens)
+    pi = cand[order[np.repeat(seg_start, lens) + np.arange(total) - np.repeat(np.cumsum(lens) - lens, lens)]]
+    inside = _inside(_box_affines(b), mi, np.ascontiguousarray(xyz[pi].T))
+    key = np.sort(mi[inside] * len(pts) + pi[inside])
+    return key // len(pts), key % len(pts)
+
+
+def _inside(Af: np.ndarray, mi: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """[T] bool: point p[:, t] (float32 [3,T]) inside box mi[t] (affines ``Af`` [M,3,4] float32)."""
+    px, py, pz = p
+    a = np.ascontiguousarray(Af.reshape(-1, 12).T)  # coefficient rows [12, M]: contiguous gathers
+    inside = np.abs(a[10][mi] * pz + a[11][mi]) <= 1.0
+    inside &= np.abs(a[0][mi] * px + a[1][mi] * py + a[3][mi]) <= 1.0
+    inside &= np.abs(a[4][mi] * px + a[5][mi] * py + a[7][mi]) <= 1.0
+    return inside
+
+
 def points_in_boxes(points, boxes, *, expansion: float = 1.0, convention: str = "auto") -> np.ndarray:
     """Which points lie in which boxes, for many boxes at once.
 
@@ -145,66 +255,13 @@ def points_in_boxes(points, boxes, *, expansion: float = 1.0, convention: str = 
         boxes: protocol [M,6] boxes or box7 [M,7] (yaw honoured).
         expansion: scale factor on the box dimensions (protocol ``bbox_expansion``).
     Returns:
-        bool mask [M, P].
+        bool mask [M, P] (the pairs of :func:`box_point_pairs`).
     """
     pts = np.asarray(points)
-    if pts.ndim != 2 or pts.shape[1] < 3:
-        raise ValueError(f"points: expected shape [P, >=3], got {pts.shape}")
-    b = expand_box7(as_box7(boxes, convention), expansion) if len(np.asarray(boxes).reshape(-1)) else np.zeros((0, 7))
-    M, P = len(b), len(pts)
-    if M == 0 or P == 0:
-        return np.zeros((M, P), dtype=bool)
-    # One affine map per box sends its inside to the cube [-1, 1]^3; all boxes in one matmul.
-    c, s = np.cos(b[:, 6]), np.sin(b[:, 6])
-    inv_half = 2.0 / np.maximum(b[:, 3:6], 1e-9)
-    A = np.zeros((M, 3, 4))
-    A[:, 0, 0], A[:, 0, 1] = c * inv_half[:, 0], s * inv_half[:, 0]
-    A[:, 1, 0], A[:, 1, 1] = -s * inv_half[:, 1], c * inv_half[:, 1]
-    A[:, 2, 2] = inv_half[:, 2]
-    A[:, :, 3] = -np.einsum("mij,mj->mi", A[:, :, :3], b[:, :3])
-    xyz = np.ascontiguousarray(pts[:, :3], dtype=np.float32)
-    Af = A.astype(np.float32)
-    # Candidate pairs without a dense [M,P] test: bucket the points on a G x G grid in x, y
-    # (radix sort on uint16 cell ids); each box visits only the cell rows its footprint covers.
-    G = 256
-    x, y = xyz[:, 0], xyz[:, 1]
-    lo = np.array([x.min(), y.min()], dtype=np.float64)
-    cell = np.maximum((np.array([x.max(), y.max()], dtype=np.float64) - lo) / G, 1e-6)
-    ix = ((x - np.float32(lo[0])) * np.float32(1.0 / cell[0])).astype(np.int32)
-    iy = ((y - np.float32(lo[1])) * np.float32(1.0 / cell[1])).astype(np.int32)
-    np.clip(ix, 0, G - 1, out=ix)
-    np.clip(iy, 0, G - 1, out=iy)
-    cid = (iy * G + ix).astype(np.uint16)
-    order = np.argsort(cid, kind="stable")
-    starts = np.zeros(G * G + 1, dtype=np.int64)
-    np.cumsum(np.bincount(cid, minlength=G * G), out=starts[1:])
-    half = np.stack([np.abs(c) * b[:, 3] + np.abs(s) * b[:, 4],
-                     np.abs(s) * b[:, 3] + np.abs(c) * b[:, 4]], 1) / 2 + 1e-3
-    lo_c = np.floor((b[:, :2] - half - lo) / cell) - 1
-    hi_c = np.floor((b[:, :2] + half - lo) / cell) + 1
-    valid = (hi_c[:, 0] >= 0) & (hi_c[:, 1] >= 0) & (lo_c[:, 0] <= G - 1) & (lo_c[:, 1] <= G - 1)
-    lo_c = np.clip(lo_c, 0, G - 1).astype(np.int64)
-    hi_c = np.clip(hi_c, 0, G - 1).astype(np.int64)
-    nrows = np.where(valid, hi_c[:, 1] - lo_c[:, 1] + 1, 0)
-    seg_box = np.repeat(np.arange(M), nrows)
-    seg_row = lo_c[seg_box, 1] + np.arange(len(seg_box)) - np.repeat(np.cumsum(nrows) - nrows, nrows)
-    seg_start = starts[seg_row * G + lo_c[seg_box, 0]]
-    lens = starts[seg_row * G + hi_c[seg_box, 0] + 1] - seg_start
-    mask = np.zeros((M, P), dtype=bool)
-    total = int(lens.sum())
-    if total == 0:
-        return mask
-    mi = np.repeat(seg_box, lens)
-    offs = np.arange(total) - np.repeat(np.cumsum(lens) - lens, lens)
-    pi = order[np.repeat(seg_start, lens) + offs]
-    px, py, pz = xyz[pi, 0], xyz[pi, 1], xyz[pi, 2]
-    lz = Af[mi, 2, 2] * pz + Af[mi, 2, 3]
-    inside = np.abs(lz) <= 1.0
-    lx = Af[mi, 0, 0] * px + Af[mi, 0, 1] * py + Af[mi, 0, 3]
-    inside &= np.abs(lx) <= 1.0
-    ly = Af[mi, 1, 0] * px + Af[mi, 1, 1] * py + Af[mi, 1, 3]
-    inside &= np.abs(ly) <= 1.0
-    mask[mi[inside], pi[inside]] = True
+    mi, pi = box_point_pairs(pts, boxes, expansion=expansion, convention=convention)
+    M = len(check_boxes3d(boxes))
+    mask = np.zeros((M, len(pts)), dtype=bool)
+    mask[mi, pi] = True
     return mask
 
 

@@ -31,9 +31,11 @@ from ..types import Frame
 from ._files import atomic_write
 from .images import read_image, write_image
 from .pointcloud import read_point_cloud, write_pcd
+from .sources import open_source, register_source
 
 __all__ = ["FRAME_FOLDER_FORMAT", "FrameFolder", "read_frames", "write_frame_folder",
-           "read_detections", "read_intrinsics_json", "is_frame_folder", "register_reader"]
+           "read_detections", "read_intrinsics_json", "is_frame_folder", "register_reader",
+           "open_frame_folder"]
 
 FRAME_FOLDER_FORMAT = "xcalib-demo-frames-v1"
 _REQUIRED_KEYS = ("image", "point_cloud", "bboxes_2d", "bboxes_3d")
@@ -219,81 +221,30 @@ def is_frame_folder(path) -> bool:
     return any((d / "detections.json").is_file() for d in p.iterdir() if d.is_dir())
 
 
-# Dispatch table for read_frames: (name, detect(path) -> bool, open(path, **kw) -> Sequence[Frame]).
-# Owners of other formats (HDF5 caches, KITTI, CalibAnything, ...) add an entry with
-# register_reader; the first whose detect() accepts the path wins.
-def _is_hdf5(p: Path) -> bool:
-    from .hdf5 import is_hdf5_cache  # the module; h5py itself only when a cache is opened
-
-    return is_hdf5_cache(p)
-
-
-def _open_hdf5(p: Path, **kwargs) -> Sequence[Frame]:
-    from .hdf5 import CacheReader  # h5py only when an HDF5 cache is opened
-
-    return CacheReader(p, **kwargs)
+def open_frame_folder(path, *, camera: str | None = None, **kwargs) -> FrameFolder:
+    """A frame folder as a source (one camera: ``camera``, when given, must be the folder's)."""
+    folder = FrameFolder(path, **kwargs)
+    if camera is not None and folder.camera and camera != folder.camera:
+        raise FormatError(folder.manifest_path or folder.root, f"no camera {camera!r}: this frame folder "
+                          f"holds camera {folder.camera!r} only", field="camera")
+    return folder
 
 
-def _is_kitti(p: Path) -> bool:
-    from ..formats.kitti import is_kitti_root  # xcalib.formats (issue 8) loads only when asked
-
-    return is_kitti_root(p)
-
-
-def _open_kitti(p: Path, **kwargs) -> Sequence[Frame]:
-    from ..formats.kitti import kitti_frames
-
-    return kitti_frames(p, **kwargs)
-
-
-def _is_calibanything(p: Path) -> bool:
-    from ..formats.calibanything_scene import is_calibanything_scene
-
-    return is_calibanything_scene(p)
-
-
-def _open_calibanything(p: Path, **kwargs) -> Sequence[Frame]:
-    from ..formats.calibanything_scene import calibanything_frames
-
-    return calibanything_frames(p, **kwargs)
-
-
-def _is_mmdet3d_info(p: Path) -> bool:
-    return p.is_file() and p.suffix.lower() == ".pkl"
-
-
-def _open_mmdet3d_info(p: Path, **kwargs) -> Sequence[Frame]:
-    from ..formats.mmdet3d import mmdet3d_frames
-
-    return mmdet3d_frames(p, **kwargs)
-
-
-_READERS: list[tuple[str, Callable[[Path], bool], Callable[..., Sequence[Frame]]]] = [
-    ("frame-folder", is_frame_folder, FrameFolder),
-    ("hdf5-cache", _is_hdf5, _open_hdf5),
-    ("kitti", _is_kitti, _open_kitti),
-    ("calibanything", _is_calibanything, _open_calibanything),
-    ("mmdet3d-info", _is_mmdet3d_info, _open_mmdet3d_info),
-]
+register_source("frame-folder", is_frame_folder, open_frame_folder,
+                description="xcalib frame folder (manifest.json + frame_*/detections.json)", priority=10)
 
 
 def register_reader(name: str, detect: Callable[[Path], bool], open_: Callable[..., Sequence[Frame]],
                     *, first: bool = True) -> None:
-    """Add a format to :func:`read_frames` (tried before the built-ins when ``first``)."""
-    entry = (name, detect, open_)
-    _READERS[:] = [r for r in _READERS if r[0] != name]
-    _READERS.insert(0 if first else len(_READERS), entry)
+    """Add a source to :func:`read_frames` (compatibility name of
+    :func:`xcalib.io.sources.register_source`; ``first``: tried before the built-ins)."""
+    register_source(name, detect, open_, priority=0 if first else 100)
 
 
-def read_frames(path, **kwargs) -> Sequence[Frame]:
-    """Open any supported frame source as a lazy ``Sequence[Frame]``."""
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"frame source not found: {p}")
-    for _, detect, open_ in _READERS:
-        if detect(p):
-            return open_(p, **kwargs)
-    raise FormatError(p, "not a recognised frame source; supported: " + ", ".join(r[0] for r in _READERS))
+def read_frames(path, *, camera: str | None = None, frames=None, **kwargs) -> Sequence[Frame]:
+    """Open any registered frame source as a lazy ``Sequence[Frame]`` (:func:`xcalib.io.sources.open_source`:
+    ``camera`` picks a camera, ``frames`` a subset such as ``"0:8"`` or ``"0,3,5"``)."""
+    return open_source(path, camera=camera, frames=frames, **kwargs)
 
 
 def _rows(a) -> list:

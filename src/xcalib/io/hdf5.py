@@ -910,3 +910,30 @@ def write_cache(path, frames: Iterable[Frame], *, camera_names: list[str] | None
             if progress is not None:
                 progress(w.num_frames)
     return w.path
+
+
+def open_hdf5_source(path, *, camera: str | None = None, **kwargs) -> Sequence[Frame]:
+    """An HDF5 cache as a frame source; ``camera`` (exact or suffix name) views one camera of a
+    multi-camera cache (its image, 2D boxes, intrinsics and extrinsics)."""
+    from .sources import CameraView
+
+    reader = CacheReader(path, **kwargs)
+    if camera is None:
+        return reader
+    cam = _match_camera(camera, reader.camera_names)
+    if cam is None:
+        reader.close()
+        raise FormatError(path, f"no camera {camera!r}; cameras: {reader.camera_names}", field="/images")
+    view = CameraView(reader, cam)
+    view.camera_names = list(reader.camera_names)
+    return view
+
+
+def _register() -> None:
+    from .sources import register_source
+
+    register_source("hdf5-cache", is_hdf5_cache, open_hdf5_source,
+                    description="xcalib HDF5 cache (.h5/.hdf5; multi-camera: camera=)", priority=20)
+
+
+_register()

@@ -1,0 +1,324 @@
+"""ROS messages <-> numpy: PointCloud2, Image, CompressedImage, CameraInfo, vision_msgs
+detections (ROS 1 and ROS 2 layouts), tf. Readers raise FormatError naming the bag, topic and
+field; writers build messages of a given rosbags typestore."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import FormatError
+from ...geometry.camera import CameraIntrinsics
+from ..images import decode_image, encode_image
+
+__all__ = ["cloud_from_msg", "make_pointcloud2", "image_from_msg", "make_image", "make_compressed",
+           "intrinsics_from_msg", "make_camera_info", "boxes2d_from_msg", "make_detection2d_array",
+           "boxes3d_from_msg", "make_detection3d_array", "transforms_from_msg", "make_tf_message",
+           "make_header", "stamp_ns"]
+
+# sensor_msgs/PointField datatypes
+_PF_DTYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+_PF_CODES = {v: k for k, v in _PF_DTYPES.items()}
+_DIST_MODELS = {"plumb_bob": (4, 5), "rational_polynomial": (8, 12, 14)}
+
+
+def _err(where, problem: str) -> FormatError:
+    """``where`` = (bag path, topic): the error names both."""
+    return FormatError(where[0], problem, field=where[1])
+
+
+def stamp_ns(header) -> int:
+    """A header's stamp in integer nanoseconds."""
+    st = header.stamp
+    return int(st.sec) * 1_000_000_000 + int(st.nanosec)
+
+
+def make_header(store, stamp: int, frame_id: str):
+    Time = store.types["builtin_interfaces/msg/Time"]
+    Header = store.types["std_msgs/msg/Header"]
+    t = Time(sec=int(stamp // 1_000_000_000), nanosec=int(stamp % 1_000_000_000))
+    if "seq" in Header.__dataclass_fields__:
+        return Header(seq=0, stamp=t, frame_id=frame_id)
+    return Header(stamp=t, frame_id=frame_id)
+
+
+# ----------------------------------------------------------------------------- PointCloud2
+def _cloud_dtype(msg, where) -> np.dtype:
+    names, formats, offsets = [], [], []
+    endian = ">" if msg.is_bigendian else "<"
+    for f in msg.fields:
+        code = _PF_DTYPES.get(int(f.datatype))
+        if code is None:
+            raise _err(where, f"field {f.name!r} has unknown PointField datatype {f.datatype}")
+        size = np.dtype(code).itemsize
+        count = max(1, int(f.count))
+        for c in range(count):
+            name = f.name if count == 1 else f"{f.name}_{c}"
+            if not name or name in names:
+                continue  # unnamed padding or a repeated name: skipped
+            names.append(name)
+            formats.append(endian + code)
+            offsets.append(int(f.offset) + c * size)
+            if offsets[-1] + size > int(msg.point_step):
+                raise _err(where, f"field {name!r} ends at byte {offsets[-1] + size}, past point_step "
+                                          f"{msg.point_step}")
+    missing = [a for a in "xyz" if a not in names]
+    if missing:
+        raise _err(where, f"PointCloud2 has no field(s) {missing}; fields: {names}")
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": int(msg.point_step)})
+
+
+def cloud_from_msg(msg, where) -> tuple[np.ndarray, tuple[str, ...], int]:
+    """PointCloud2 (any field layout and endianness, organised or not, point and row padding) ->
+    ``(points float32 [N, C] with x, y, z first, field names, number of non-finite points dropped)``."""
+    dt = _cloud_dtype(msg, where)
+    h, w, step, row = int(msg.height), int(msg.width), int(msg.point_step), int(msg.row_step)
+    data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
+    if row < w * step or data.size < h * row:
+        raise _err(where, f"PointCloud2 data has {data.size} bytes; height {h} x row_step {row} "
+                                  f"(width {w} x point_step {step}) does not fit")
+    rows = data[: h * row].reshape(h, row)[:, : w * step]
+    arr = np.ascontiguousarray(rows).reshape(-1).view(dt) if h * w else np.zeros(0, dt)
+    names = ["x", "y", "z"] + [n for n in dt.names if n not in ("x", "y", "z")]
+    pts = np.stack([arr[n].astype(np.float32) for n in names], axis=1) if len(arr) else np.zeros((0, len(names)), np.float32)
+    finite = np.isfinite(pts[:, :3]).all(axis=1)
+    return np.ascontiguousarray(pts[finite]), tuple(names), int((~finite).sum())
+
+
+def make_pointcloud2(store, points, fields, stamp: int, frame_id: str, *, datatypes=None, big_endian: bool = False,
+                     height: int = 1, point_padding: int = 0, row_padding: int = 0):
+    """A PointCloud2 of ``points`` [N, C] (fields named ``fields``; ``datatypes`` numpy codes per
+    field, default float32); ``height`` > 1 makes an organised cloud (N divisible by height)."""
+    pts = np.asarray(points)
+    codes = list(datatypes or ["f4"] * pts.shape[1])
+    endian = ">" if big_endian else "<"
+    offsets = np.cumsum([0] + [np.dtype(c).itemsize for c in codes])
+    step = int(offsets[-1]) + point_padding
+    dt = np.dtype({"names": list(fields), "formats": [endian + c for c in codes], "offsets": offsets[:-1].tolist(),
+                   "itemsize": step})
+    if len(pts) % height:
+        raise ValueError(f"{len(pts)} points do not fill {height} rows")
+    width = len(pts) // height
+    rec = np.zeros(len(pts), dtype=dt)
+    for i, name in enumerate(fields):
+        rec[name] = pts[:, i]
+    raw = rec.view(np.uint8).reshape(height, width * step)
+    raw = np.hstack([raw, np.zeros((height, row_padding), np.uint8)])
+    PF = store.types["sensor_msgs/msg/PointField"]
+    pf = [PF(name=n, offset=int(o), datatype=_PF_CODES[c], count=1) for n, o, c in zip(fields, offsets, codes)]
+    return store.types["sensor_msgs/msg/PointCloud2"](
+        header=make_header(store, stamp, frame_id), height=height, width=width, fields=pf, is_bigendian=big_endian,
+        point_step=step, row_step=width * step + row_padding, data=raw.reshape(-1), is_dense=True)
+
+
+# ----------------------------------------------------------------------------- images
+def _to_rgb8(a: np.ndarray, channels: int, order: str) -> np.ndarray:
+    if a.dtype != np.uint8:
+        a = ((a.astype(np.uint32) + 128) // 257).astype(np.uint8)
+    if channels == 1:
+        return np.repeat(a[:, :, None] if a.ndim == 2 else a, 3, axis=2)
+    a = a[:, :, :3]
+    return np.ascontiguousarray(a[:, :, ::-1] if order.startswith("bgr") else a)
+
+
+_ENCODINGS = {  # encoding -> (numpy sample type, channels)
+    "rgb8": ("u1", 3), "bgr8": ("u1", 3), "rgba8": ("u1", 4), "bgra8": ("u1", 4), "mono8": ("u1", 1),
+    "8UC1": ("u1", 1), "8UC3": ("u1", 3), "rgb16": ("u2", 3), "bgr16": ("u2", 3), "mono16": ("u2", 1),
+    "16UC1": ("u2", 1), "16UC3": ("u2", 3),
+}
+
+
+def image_from_msg(msg, where) -> np.ndarray:
+    """sensor_msgs/Image (rgb8, bgr8, rgba8, bgra8, mono8, rgb16, bgr16, mono16, 8UC1/3, 16UC1/3)
+    or CompressedImage (jpeg/png) -> [H, W, 3] uint8 RGB (16-bit scaled by 1/257)."""
+    if hasattr(msg, "format"):  # CompressedImage
+        try:
+            return decode_image(np.asarray(msg.data, dtype=np.uint8).tobytes(), source=f"{where[0]} [{where[1]}]")
+        except FormatError:
+            raise _err(where, f"CompressedImage ({msg.format!r}) does not decode as JPEG/PNG") from None
+    enc = str(msg.encoding)
+    if enc not in _ENCODINGS:
+        raise _err(where, f"unsupported image encoding {enc!r}; supported: {', '.join(_ENCODINGS)}")
+    code, ch = _ENCODINGS[enc]
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    size = np.dtype(code).itemsize
+    data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
+    if step < w * ch * size or data.size < h * step:
+        raise _err(where, f"image data has {data.size} bytes; {h} rows x step {step} for {w}x{h} {enc} "
+                                  "does not fit")
+    rows = np.ascontiguousarray(data[: h * step].reshape(h, step)[:, : w * ch * size])
+    a = rows.view((">" if msg.is_bigendian else "<") + code).reshape(h, w, ch)
+    return _to_rgb8(a, ch, enc)
+
+
+def make_image(store, rgb, stamp: int, frame_id: str):
+    a = np.ascontiguousarray(rgb, dtype=np.uint8)
+    return store.types["sensor_msgs/msg/Image"](
+        header=make_header(store, stamp, frame_id), height=a.shape[0], width=a.shape[1], encoding="rgb8",
+        is_bigendian=0, step=a.shape[1] * 3, data=a.reshape(-1))
+
+
+def make_compressed(store, rgb, stamp: int, frame_id: str, fmt: str = "png"):
+    data = encode_image(rgb, ".png" if fmt == "png" else ".jpg")
+    return store.types["sensor_msgs/msg/CompressedImage"](
+        header=make_header(store, stamp, frame_id), format=fmt, data=np.frombuffer(data, dtype=np.uint8))
+
+
+# ----------------------------------------------------------------------------- CameraInfo
+def _field(msg, *names):
+    for n in names:
+        if hasattr(msg, n):
+            return np.asarray(getattr(msg, n), dtype=np.float64).reshape(-1)
+    return np.zeros(0)
+
+
+def intrinsics_from_msg(msg, where) -> CameraIntrinsics:
+    """CameraInfo (plumb_bob, rational_polynomial) -> intrinsics with distortion and image size.
+    ``equidistant`` (fisheye) and other models are refused: xcalib's camera model is OpenCV's
+    pinhole + radial/tangential distortion."""
+    K = _field(msg, "k", "K")
+    D = _field(msg, "d", "D")
+    R = _field(msg, "r", "R")
+    model = str(msg.distortion_model or "plumb_bob")
+    if K.size != 9 or K[0] <= 0 or K[4] <= 0:
+        raise _err(where, f"CameraInfo K is not a calibrated 3x3 matrix ({K.tolist()}); pass --intrinsics")
+    if model == "equidistant":
+        raise _err(where, "distortion_model 'equidistant' (fisheye) is not supported by xcalib's pinhole "
+                                  "camera model; rectify the images (image_rect) or pass --intrinsics for rectified "
+                                  "images")
+    if model not in _DIST_MODELS:
+        raise _err(where, f"unsupported distortion_model {model!r}; supported: plumb_bob, "
+                                  "rational_polynomial")
+    if R.size == 9 and np.abs(R.reshape(3, 3) - np.eye(3)).max() > 1e-9 and np.any(R):
+        raise _err(where, "CameraInfo R (rectification) is not identity: a stereo-rectified camera_info is "
+                                  "not a plain camera calibration")
+    dist = D if D.size and np.any(D) else None
+    if dist is not None and dist.size not in _DIST_MODELS[model] and dist.size != 5:
+        raise _err(where, f"{model} with {dist.size} coefficients; expected {_DIST_MODELS[model]}")
+    w, h = int(msg.width), int(msg.height)
+    try:
+        return CameraIntrinsics(K[0], K[4], K[2], K[5], dist, w or None, h or None)
+    except ValueError as exc:
+        raise _err(where, str(exc)) from None
+
+
+def make_camera_info(store, intr: CameraIntrinsics, stamp: int, frame_id: str, width: int, height: int):
+    d = np.zeros(5) if intr.distortion is None else np.asarray(intr.distortion, dtype=np.float64)
+    if d.size == 4:
+        d = np.concatenate([d, [0.0]])
+    model = "plumb_bob" if d.size == 5 else "rational_polynomial"
+    CI = store.types["sensor_msgs/msg/CameraInfo"]
+    upper = "K" in CI.__dataclass_fields__
+    K = np.asarray(intr.K, dtype=np.float64).reshape(-1)
+    P = np.hstack([intr.K, np.zeros((3, 1))]).reshape(-1)
+    roi = store.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    mats = {"D": d, "K": K, "R": np.eye(3).reshape(-1), "P": P}
+    mats = mats if upper else {k.lower(): v for k, v in mats.items()}
+    return CI(header=make_header(store, stamp, frame_id), height=int(height), width=int(width),
+              distortion_model=model, binning_x=0, binning_y=0, roi=roi, **mats)
+
+
+# ----------------------------------------------------------------------------- detections
+def boxes2d_from_msg(msg) -> tuple[np.ndarray, list[str]]:
+    """Detection2DArray (ROS 1 or ROS 2 layout) -> ``(boxes [K, 4] x1 y1 x2 y2 float32, ids)``."""
+    rows, ids = [], []
+    for det in msg.detections:
+        c = det.bbox.center
+        cx, cy = (c.position.x, c.position.y) if hasattr(c, "position") else (c.x, c.y)
+        sx, sy = float(det.bbox.size_x), float(det.bbox.size_y)
+        rows.append([cx - sx / 2, cy - sy / 2, cx + sx / 2, cy + sy / 2])
+        ids.append(str(getattr(det, "id", "")))
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 4).astype(np.float32), ids
+
+
+def make_detection2d_array(store, boxes, stamp: int, frame_id: str, ids=None):
+    """Detection2DArray of ``boxes`` [K, 4] (pixels); ``ids`` (ROS 2 layout only) per box."""
+    T = store.types
+    hdr = make_header(store, stamp, frame_id)
+    ros2 = "id" in T["vision_msgs/msg/Detection2D"].__dataclass_fields__
+    dets = []
+    for i, (x1, y1, x2, y2) in enumerate(np.asarray(boxes, dtype=np.float64).reshape(-1, 4)):
+        cx, cy, sx, sy = (x1 + x2) / 2, (y1 + y2) / 2, x2 - x1, y2 - y1
+        if ros2:
+            center = T["vision_msgs/msg/Pose2D"](position=T["vision_msgs/msg/Point2D"](x=cx, y=cy), theta=0.0)
+            bbox = T["vision_msgs/msg/BoundingBox2D"](center=center, size_x=sx, size_y=sy)
+            dets.append(T["vision_msgs/msg/Detection2D"](header=hdr, results=[], bbox=bbox,
+                                                         id="" if ids is None else str(ids[i])))
+        else:
+            center = T["geometry_msgs/msg/Pose2D"](x=cx, y=cy, theta=0.0)
+            bbox = T["vision_msgs/msg/BoundingBox2D"](center=center, size_x=sx, size_y=sy)
+            img = make_image(store, np.zeros((0, 0, 3), np.uint8), stamp, frame_id)
+            dets.append(T["vision_msgs/msg/Detection2D"](header=hdr, results=[], bbox=bbox, source_img=img))
+    return T["vision_msgs/msg/Detection2DArray"](header=hdr, detections=dets)
+
+
+def boxes3d_from_msg(msg, where, max_tilt_deg: float = 1.0) -> tuple[np.ndarray, list[str]]:
+    """Detection3DArray -> ``(box7 [M, 7] float64 (cx, cy, cz, l, w, h, yaw), ids)``; boxes turned
+    about x or y by more than ``max_tilt_deg`` are refused (xcalib's boxes turn about z only)."""
+    rows, ids = [], []
+    for i, det in enumerate(msg.detections):
+        p, q, s = det.bbox.center.position, det.bbox.center.orientation, det.bbox.size
+        qv = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
+        n = np.linalg.norm(qv)
+        qv = qv / n if n > 0 else np.array([0.0, 0.0, 0.0, 1.0])
+        tilt = np.degrees(2 * np.arcsin(min(1.0, float(np.hypot(qv[0], qv[1])))))
+        if tilt > max_tilt_deg:
+            raise _err(where, f"detection {i}: the box is turned {tilt:.1f} deg about x/y; xcalib's 3D "
+                                      "boxes turn about z only")
+        yaw = 2.0 * np.arctan2(qv[2], qv[3])
+        yaw = (yaw + np.pi) % (2 * np.pi) - np.pi if abs(yaw) > np.pi else yaw
+        rows.append([p.x, p.y, p.z, s.x, s.y, s.z, yaw])
+        ids.append(str(getattr(det, "id", "")))
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 7), ids
+
+
+def make_detection3d_array(store, box7, stamp: int, frame_id: str, ids=None):
+    """Detection3DArray of box7 rows [M, 7] (LiDAR frame, metres, yaw about z)."""
+    T = store.types
+    hdr = make_header(store, stamp, frame_id)
+    ros2 = "id" in T["vision_msgs/msg/Detection3D"].__dataclass_fields__
+    dets = []
+    for i, (x, y, z, l, w, h, yaw) in enumerate(np.asarray(box7, dtype=np.float64).reshape(-1, 7)):
+        pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=x, y=y, z=z),
+                                           orientation=T["geometry_msgs/msg/Quaternion"](
+                                               x=0.0, y=0.0, z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2))))
+        bbox = T["vision_msgs/msg/BoundingBox3D"](center=pose, size=T["geometry_msgs/msg/Vector3"](x=l, y=w, z=h))
+        if ros2:
+            dets.append(T["vision_msgs/msg/Detection3D"](header=hdr, results=[], bbox=bbox,
+                                                         id="" if ids is None else str(ids[i])))
+        else:
+            cloud = make_pointcloud2(store, np.zeros((0, 3), np.float32), ("x", "y", "z"), stamp, frame_id)
+            dets.append(T["vision_msgs/msg/Detection3D"](header=hdr, results=[], bbox=bbox, source_cloud=cloud))
+    return T["vision_msgs/msg/Detection3DArray"](header=hdr, detections=dets)
+
+
+# ----------------------------------------------------------------------------- tf
+def transforms_from_msg(msg) -> list[tuple[str, str, np.ndarray, int]]:
+    """TFMessage -> ``[(parent, child, T_parent_child [4, 4], stamp_ns)]`` (the child's pose in the
+    parent: maps child-frame points into the parent frame)."""
+    from ...geometry.rotations import quaternion_to_matrix
+
+    out = []
+    for t in msg.transforms:
+        tr, r = t.transform.translation, t.transform.rotation
+        T = np.eye(4)
+        T[:3, :3] = quaternion_to_matrix(np.array([r.x, r.y, r.z, r.w], dtype=np.float64))
+        T[:3, 3] = [tr.x, tr.y, tr.z]
+        out.append((str(t.header.frame_id).lstrip("/"), str(t.child_frame_id).lstrip("/"), T, stamp_ns(t.header)))
+    return out
+
+
+def make_tf_message(store, transforms, stamp: int):
+    """TFMessage of ``[(parent, child, T_parent_child)]``."""
+    from ...geometry.rotations import matrix_to_quaternion
+
+    T = store.types
+    items = []
+    for parent, child, M in transforms:
+        M = np.asarray(M, dtype=np.float64)
+        q = matrix_to_quaternion(M[:3, :3])
+        tf = T["geometry_msgs/msg/Transform"](
+            translation=T["geometry_msgs/msg/Vector3"](x=float(M[0, 3]), y=float(M[1, 3]), z=float(M[2, 3])),
+            rotation=T["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
+        items.append(T["geometry_msgs/msg/TransformStamped"](header=make_header(store, stamp, parent),
+                                                            child_frame_id=child, transform=tf))
+    return T["tf2_msgs/msg/TFMessage"](transforms=items)

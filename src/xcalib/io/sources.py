@@ -1,0 +1,253 @@
+"""One registry of frame sources: each source registers ``(name, detect(path), open(path, **options))``.
+
+A source is a module that calls :func:`register_source` when it is imported: frame folders
+(:mod:`xcalib.io.frames`), HDF5 caches (:mod:`xcalib.io.hdf5`), bags (:mod:`xcalib.io.bags`),
+and the dataset formats of :mod:`xcalib.formats` (KITTI, CalibAnything/OpenCalib, mmdetection3d
+and nuScenes info pickles, Waymo). :func:`open_source` imports those modules on first use
+(``xcalib.io`` itself never imports ``xcalib.formats``), asks each source's ``detect`` in
+priority order and opens the first that accepts the path. Adding a source is one module that
+calls ``register_source`` plus its name in :data:`SOURCE_MODULES` (or an import of it by the
+caller).
+
+Every source takes ``camera=`` (a camera name; ``None``: the source's default camera) and
+:func:`open_source` applies ``frames=`` (``"0:8"``, ``"0,3,5"``, ``"2:"``, ``"::2"``, or a list
+of indices) to any source.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..errors import FormatError
+from ..types import Frame
+
+__all__ = ["FrameSource", "register_source", "unregister_source", "frame_sources", "find_source", "open_source",
+           "parse_frame_range", "FrameSubset", "CameraView", "camera_view", "merge_cameras", "SOURCE_MODULES"]
+
+# Modules that register sources on import (imported by the registry on first use).
+SOURCE_MODULES = ("xcalib.io.frames", "xcalib.io.hdf5", "xcalib.io.bags", "xcalib.formats")
+
+
+@dataclass(frozen=True)
+class FrameSource:
+    """A frame source: ``detect(path) -> bool`` (cheap: names and headers only) and
+    ``open(path, *, camera=None, **options) -> Sequence[Frame]``; lower ``priority`` is tried first."""
+
+    name: str
+    detect: Callable[[Path], bool]
+    open: Callable[..., Sequence[Frame]]
+    description: str = ""
+    priority: int = 50
+
+
+_REGISTRY: dict[str, FrameSource] = {}
+_LOADED: list[str] = []  # modules of SOURCE_MODULES already imported (the registry's own bookkeeping)
+
+
+def register_source(name: str, detect: Callable[[Path], bool], open: Callable[..., Sequence[Frame]],  # noqa: A002
+                    *, description: str = "", priority: int = 50) -> FrameSource:
+    """Register (or replace) a frame source under ``name``."""
+    src = FrameSource(name, detect, open, description, priority)
+    _REGISTRY[name] = src
+    return src
+
+
+def unregister_source(name: str) -> None:
+    """Remove a source (tests, plugins replacing a built-in)."""
+    _REGISTRY.pop(name, None)
+
+
+def _load_modules() -> None:
+    for mod in SOURCE_MODULES:
+        if mod not in _LOADED:
+            _LOADED.append(mod)
+            importlib.import_module(mod)
+
+
+def frame_sources() -> list[FrameSource]:
+    """Every registered source, in the order ``open_source`` tries them."""
+    _load_modules()
+    return sorted(_REGISTRY.values(), key=lambda s: (s.priority, s.name))
+
+
+def find_source(path) -> FrameSource:
+    """The first source whose ``detect`` accepts ``path`` (FormatError listing them otherwise)."""
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"frame source not found: {p}")
+    for src in frame_sources():
+        if src.detect(p):
+            return src
+    raise FormatError(p, "not a recognised frame source; supported: " + ", ".join(s.name for s in frame_sources()))
+
+
+def parse_frame_range(spec, count: int, *, where="frames") -> list[int]:
+    """``"0:8"`` / ``"0,3,5"`` / ``"2:"`` / ``"-4:"`` / ``"::2"`` / ``[0, 3]`` -> frame indices in
+    ``range(count)`` (ValueError naming the bad part; out-of-range indices are errors, not clipped)."""
+    if spec is None:
+        return list(range(count))
+    parts = [str(v) for v in spec] if isinstance(spec, (list, tuple)) else str(spec).split(",")
+    out: list[int] = []
+    for part in (p.strip() for p in parts):
+        if not part:
+            continue
+        try:
+            if ":" in part:
+                bits = [int(b) if b.strip() else None for b in part.split(":")]
+                if len(bits) > 3:
+                    raise ValueError
+                out.extend(range(count)[slice(*bits)])
+                continue
+            i = int(part)
+        except ValueError:
+            raise ValueError(f"{where}: {part!r} is not an index or a start:stop[:step] range") from None
+        if not -count <= i < count:
+            raise ValueError(f"{where}: index {i} is out of range (the source has {count} frames)")
+        out.append(i % count)
+    if not out:
+        raise ValueError(f"{where}: {spec!r} selects no frame (the source has {count} frames)")
+    return out
+
+
+class FrameSubset(Sequence):
+    """The frames ``indices`` of a lazy source, still lazy; forwards ``intrinsics`` / ``camera`` /
+    ``camera_names`` / ``source_name`` of the source."""
+
+    def __init__(self, base: Sequence[Frame], indices: list[int]):
+        self.base, self.indices = base, list(indices)
+        for attr in ("intrinsics", "camera", "camera_names", "source_name", "path", "report"):
+            if hasattr(base, attr):
+                setattr(self, attr, getattr(base, attr))
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        return self.base[self.indices[index]]
+
+    @property
+    def frame_keys(self) -> list[str]:
+        keys = getattr(self.base, "frame_keys", None)
+        return [keys[i] for i in self.indices] if keys is not None else [str(i) for i in self.indices]
+
+
+def camera_view(frame: Frame, name: str) -> Frame:
+    """One camera of a multi-camera frame (``Frame.images`` / ``camera_per_det``) as a plain
+    single-camera frame: that camera's image, 2D boxes, match-matrix rows, and its intrinsics and
+    extrinsics when the frame carries them per camera."""
+    image, points, b2, b3, mm = frame.for_camera(name)
+    keep = (np.ones(frame.num_2d, dtype=bool) if frame.camera_per_det is None
+            else np.array([c == name for c in frame.camera_per_det], dtype=bool))
+    intr = (frame.meta.get("intrinsics_by_camera") or {}).get(name, frame.intrinsics if name == frame.camera_name
+                                                             else None)
+    extr = (frame.meta.get("extrinsics_by_camera") or {}).get(name, frame.extrinsics if name == frame.camera_name
+                                                             else None)
+    meta = {k: v for k, v in frame.meta.items() if k not in ("intrinsics_by_camera", "extrinsics_by_camera")}
+    meta["kept_2d_indices"] = np.flatnonzero(keep)
+    return Frame(image=image, point_cloud=points, bboxes_2d=b2, bboxes_3d=b3, camera_name=name,
+                 frame_key=frame.frame_key, match_matrix=mm, intrinsics=intr, extrinsics=extr,
+                 point_fields=frame.point_fields, meta=meta)
+
+
+class CameraView(Sequence):
+    """A multi-camera source seen through one camera (:func:`camera_view` per frame)."""
+
+    def __init__(self, base: Sequence[Frame], camera: str):
+        self.base, self.camera = base, camera
+        self.intrinsics = None
+        for attr in ("source_name", "path"):
+            if hasattr(base, attr):
+                setattr(self, attr, getattr(base, attr))
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        return camera_view(self.base[index], self.camera)
+
+    @property
+    def frame_keys(self) -> list[str]:
+        return list(getattr(self.base, "frame_keys", [str(i) for i in range(len(self))]))
+
+
+def open_source(path, *, source: str | None = None, camera: str | None = None, frames=None,
+                **options) -> Sequence[Frame]:
+    """Open ``path`` with the named ``source`` (default: detected) as a lazy ``Sequence[Frame]``;
+    ``camera`` picks a camera, ``frames`` a subset (see :func:`parse_frame_range`); other options
+    go to the source's ``open``."""
+    p = Path(path)
+    if source is None:
+        src = find_source(p)
+    else:
+        _load_modules()
+        if source not in _REGISTRY:
+            raise ValueError(f"unknown frame source {source!r}; known: {', '.join(s.name for s in frame_sources())}")
+        src = _REGISTRY[source]
+        if not p.exists():
+            raise FileNotFoundError(f"frame source not found: {p}")
+    seq = src.open(p, camera=camera, **options) if camera is not None else src.open(p, **options)
+    if not hasattr(seq, "source_name"):
+        try:
+            seq.source_name = src.name
+        except AttributeError:
+            pass
+    if frames is not None:
+        seq = FrameSubset(seq, parse_frame_range(frames, len(seq)))
+    return seq
+
+
+def merge_cameras(views: dict[str, Sequence[Frame]]) -> list[Frame]:
+    """Per-camera views of the same recording (frame ``i`` of each = the same LiDAR sweep) -> one
+    multi-camera frame per sweep: ``images`` per camera, every camera's 2D boxes
+    (``camera_per_det``), the union of their 3D boxes (identical rows merged), the match matrix
+    against that union, per-camera intrinsics / extrinsics in ``meta``."""
+    names = list(views)
+    counts = {n: len(v) for n, v in views.items()}
+    if len(set(counts.values())) != 1:
+        raise ValueError(f"merge_cameras: cameras have different frame counts {counts}")
+    out = []
+    for i in range(counts[names[0]]):
+        frames = {n: views[n][i] for n in names}
+        rows: dict[bytes, int] = {}
+        boxes, b2, per_det, mm_parts = [], [], [], []
+        for n, f in frames.items():
+            b3 = np.asarray(f.bboxes_3d, dtype=np.float32)
+            cols = []
+            for r in b3:
+                key = r.tobytes()
+                if key not in rows:
+                    rows[key] = len(boxes)
+                    boxes.append(r)
+                cols.append(rows[key])
+            b2.append(np.asarray(f.bboxes_2d, dtype=np.float32).reshape(-1, 4))
+            per_det += [n] * f.num_2d
+            mm_parts.append((f.match_matrix, cols, f.num_2d))
+        width = frames[names[0]].bboxes_3d.shape[1] if boxes else 6
+        union = np.asarray(boxes, dtype=np.float32).reshape(-1, width)
+        mm = None
+        if all(m is not None for m, _, _ in mm_parts):
+            mm = np.zeros((len(per_det), len(union)), dtype=bool)
+            r0 = 0
+            for m, cols, k in mm_parts:
+                if k:
+                    mm[r0:r0 + k][:, cols] = np.asarray(m, dtype=bool)
+                r0 += k
+        first = frames[names[0]]
+        out.append(Frame(image=first.image, point_cloud=first.point_cloud, bboxes_2d=np.vstack(b2), bboxes_3d=union,
+                         camera_name=names[0], frame_key=first.frame_key, match_matrix=mm,
+                         intrinsics=first.intrinsics, extrinsics=first.extrinsics,
+                         images={n: f.image for n, f in frames.items()}, camera_per_det=per_det,
+                         point_fields=first.point_fields,
+                         meta={"intrinsics_by_camera": {n: f.intrinsics for n, f in frames.items()},
+                               "extrinsics_by_camera": {n: f.extrinsics for n, f in frames.items()}}))
+    return out
