@@ -120,7 +120,8 @@ def test_few_pairs_with_noisy_3d_boxes_are_refused_not_wrong():
     res = calibrate([frame], frame.intrinsics)
     assert not res.success and res.n_pairs == 5
     assert "too few matched pairs to verify the pose" in res.message and "at least 7 more matched pairs" in res.message
-    assert np.linalg.norm(T[:3, 3] - res.translation) > 0.5  # what was refused is wrong
+    assert res.translation is None  # a failed result has no pose; the refused one is kept for diagnostics
+    assert np.linalg.norm(T[:3, 3] - np.asarray(res.meta["refused_T_cam_lidar"])[:3, 3]) > 0.5  # and it is wrong
     jac, occl = res.meta["jacobian_std"], np.asarray(res.meta["occlusion_delta"])
     assert np.linalg.norm(np.hypot(jac["translation_m"], occl[3:])) < 0.25  # the Jacobian alone would accept it
     assert res.meta["halves_delta"] is None and np.linalg.norm(res.meta["jackknife_std"][3:]) > 0.5

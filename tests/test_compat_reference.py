@@ -183,6 +183,8 @@ def test_item10_calibration_result_names_failure_and_npz(tmp_path):
         failed.extrinsics
     back = CalibrationResult.load(failed.save(tmp_path / "f.npz"))
     assert not back.success and back.rotation is None
+    with pytest.raises(ValueError, match="needs a rotation"):  # a success without a pose is refused
+        CalibrationResult(success=True, intrinsics=INTR)
 
 
 # ------------------------------------------------------------------ item 7: load_dataset frames

@@ -145,7 +145,7 @@ def register(app: typer.Typer) -> None:
                                                help="Let the matcher's scores seed the calibration's hypotheses "
                                                     "(default: geometry alone)."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout."),
-        site: str = typer.Option("synthetic", "--site", help="Site whose weights the matcher loads."),
+        weights_site: str = typer.Option("synthetic", "--site", help="Site whose weights the matcher loads."),
         config: Optional[Path] = typer.Option(None, "--config", help="Model config YAML for the matcher."),
         device: str = typer.Option("cpu", "--device", help="Device of the matcher (cpu, cuda, auto)."),
         n_image: Optional[int] = typer.Option(None, "--n-image", min=1,
@@ -161,7 +161,7 @@ def register(app: typer.Typer) -> None:
         from . import _demo
 
         if n_image is not None or n_lidar is not None:  # the reference's one-frame demo
-            matcher, why = _demo.load_matcher(model, weights, site, config, device)
+            matcher, why = _demo.load_matcher(model, weights, weights_site, config, device)
             if matcher is None:
                 typer.echo(f"error: no matcher: {why}", err=True)
                 raise typer.Exit(1)
@@ -188,7 +188,7 @@ def register(app: typer.Typer) -> None:
                                     "mount": site.mount, "camera_height_m": round(float(site.values.get(
                                         "camera_height", float("nan"))), 2), "seconds": round(data.seconds, 2)}
             # 2. matching
-            matcher, why = _demo.load_matcher(model, weights, site, config, device)
+            matcher, why = _demo.load_matcher(model, weights, weights_site, config, device)
             if matcher is not None:
                 _, cb, _ = _step(progress, f"[2/{n_steps}] matching ({model})", n_frames)
                 mo = _demo.match_frames(matcher, data.frames, progress=cb)

@@ -9,6 +9,14 @@ A matcher may carry its site calibration (``set_calibration`` / ``calibration``;
 ``calibration.json`` beside site weights, written by ``save_pretrained``). ``match`` then fuses
 the model's scores with the IoU of each 3D box projected through the calibration against each
 2D box (``use_calibration="auto"``; see :mod:`xcalib.engine.fusion` for the formula).
+
+A ``Matcher`` matches, embeds, scores, loads and saves. ``calibrate``, ``oneshot``, ``train``,
+``build`` and ``from_onnx`` are thin delegations, kept for the reference package's API, to
+:mod:`xcalib.calib.single` / :mod:`xcalib.calib.api`, :mod:`xcalib.oneshot.session`,
+:func:`xcalib.engine.trainer.finetune`, :mod:`xcalib.deploy.build` and
+:mod:`xcalib.deploy.ort_runtime` (imported lazily, so nothing below ``engine`` reaches up).
+Other packages use its public interface only: ``validate_inputs``, ``warning_registry``,
+``update_config``, ``crop_config``, ``similarity``, ``prepare``.
 """
 
 from __future__ import annotations

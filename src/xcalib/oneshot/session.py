@@ -165,6 +165,7 @@ class OneShotSession:
         self.reference_options = {"max_center_dist_px": max_center_dist_px, "bank_capacity": bank_capacity,
                                   "calib_buffer": calib_buffer, "calib_reproj_px": calib_reproj_px}
         self.best_reproj_px = float("inf")  # lowest whole-buffer median residual of any solve (px)
+        self._bank_cache: tuple[Any, dict[int, int]] = (None, {})
         self.buffer = EvidenceBuffer(int(replay_frames) if replay_frames is not None else max_frames)
         self.pose = PoseGate(self.intrinsics, gate_iou=gate, min_gain=min_gain, calib_options=calib_options, seed=seed)
         self.next_calibration_at = self.min_frames
@@ -274,7 +275,7 @@ class OneShotSession:
                 mi = np.array(matches, dtype=np.int64).reshape(-1, 2)
                 agree = float(t.positive[mi[:, 0], mi[:, 1]].sum() / n_pseudo)
         if self.is_calibrated:
-            bank_size = sum(t.n_pairs for t in self.pseudo_labels())
+            bank_size = self._bank_size()
         return ObserveReport(frame_key=key, index=index, n_detections_2d=int(len(np.asarray(bboxes_2d).reshape(-1, 4))),
                              n_detections_3d=int(len(np.asarray(bboxes_3d))), n_kept_2d=obs.num_2d,
                              n_kept_3d=obs.num_3d, n_matches=len(matches), calibrated=self.is_calibrated,
@@ -336,6 +337,21 @@ class OneShotSession:
         self._note_best(update)
         self._sync_matcher()
         return update
+
+    def _bank_size(self) -> int:
+        """Pseudo-labelled pairs over the buffer through the current pose (counts cached per
+        observation while the pose object stays the same)."""
+        cal = self.calibration
+        if self._bank_cache[0] is not cal:
+            self._bank_cache = (cal, {})
+        counts = self._bank_cache[1]
+        total = 0
+        for o in self.buffer:
+            if o.index not in counts:
+                counts[o.index] = pseudo_targets(o, cal, gate=self.gate, neg_iou=self.neg_iou,
+                                                 min_confidence=self.accept_confidence).n_pairs
+            total += counts[o.index]
+        return total
 
     def _note_best(self, update: CalibrationUpdate) -> CalibrationUpdate:
         """Track :attr:`best_reproj_px` (the reference's running best full-buffer error)."""

@@ -149,9 +149,10 @@ def result_numbers(result, ground_truth=None) -> dict[str, Any]:
         "box-centre offset median (px)": float(meta.get("centre_offset_px_median") or np.nan),
         "rotation 1-sigma (deg)": np.asarray(result.rotation_std_deg, float),
         "translation 1-sigma (m)": np.asarray(result.translation_std_m, float),
-        "translation t (m)": np.asarray(result.translation, float),
-        "rotation xyz Euler (deg)": matrix_to_euler(np.asarray(result.rotation, float), "xyz", degrees=True),
     }
+    if result.rotation is not None and result.translation is not None:  # a failed result has no pose
+        nums["translation t (m)"] = np.asarray(result.translation, float)
+        nums["rotation xyz Euler (deg)"] = matrix_to_euler(np.asarray(result.rotation, float), "xyz", degrees=True)
     if "elapsed_s" in meta:
         nums["calibration time (s)"] = float(meta["elapsed_s"])
     if ground_truth is not None and result.success:
@@ -271,7 +272,7 @@ def _render_html(title: str, result, nums: dict[str, Any], figures: list[ReportF
     ok = bool(result.success)
     badge = ('<span class="ok">calibrated</span>' if ok else '<span class="bad">not calibrated</span>')
     rows = "\n".join(f"<tr><th>{e(str(k))}</th><td>{e(_fmt(v))}</td></tr>" for k, v in nums.items())
-    T = np.asarray(result.extrinsics, float)
+    T = np.asarray(result.extrinsics, float) if result.rotation is not None else np.full((4, 4), np.nan)
     mat = "\n".join("<tr>" + "".join(f"<td>{v:+.6f}</td>" for v in row) + "</tr>" for row in T)
     files = [p for p in ("calibration.json", "calibration.npz", "summary.txt", "summary.json") if (out / p).exists()]
     links = " · ".join(f'<a href="{e(p)}">{e(p)}</a>' for p in files) or "-"
