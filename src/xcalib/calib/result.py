@@ -13,6 +13,8 @@ from ..errors import CalibrationFailedError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.projection import project_points, projection_matrix
 from ..geometry.transforms import make_transform, pose_error as _pose_error
+from .config import CalibConfig
+from .diagnostics import CalibDiagnostics
 
 __all__ = ["CalibrationResult"]
 
@@ -29,6 +31,10 @@ class CalibrationResult:
     (``success=False``) has ``rotation`` / ``translation`` None (as the reference), and its pose
     views (``extrinsics``, ``projection``, ``pose_error``, ``project``) raise
     :class:`xcalib.errors.CalibrationFailedError` (a ``RuntimeError`` and a ``ValueError``).
+    ``config`` is the
+    ``CalibConfig`` that produced the result and ``diagnostics`` what the calibration computed
+    on the way (bring-up pose, uncertainty parts, misfit checks, per-frame residuals); both are
+    None for results read from other tools' files.
     """
 
     success: bool
@@ -52,6 +58,8 @@ class CalibrationResult:
     buffer_reproj_px: float = float("nan")
     method: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
+    config: CalibConfig | None = None
+    diagnostics: CalibDiagnostics | None = None
 
     def __post_init__(self) -> None:
         if self.success and (self.rotation is None or self.translation is None):
@@ -134,6 +142,8 @@ class CalibrationResult:
             "frame_keys": list(self.frame_keys),
             "pairs": [p.tolist() for p in self.pairs],
             "meta": self.meta,
+            "config": None if self.config is None else self.config.to_dict(),
+            "diagnostics": None if self.diagnostics is None else self.diagnostics.to_dict(),
         }
 
     @classmethod
@@ -161,61 +171,77 @@ class CalibrationResult:
             buffer_reproj_px=_unnum(d.get("buffer_reproj_px")),
             method=d.get("method", ""),
             meta=dict(d.get("meta", {})),
+            config=None if d.get("config") is None else CalibConfig.from_dict(d["config"]),
+            diagnostics=None if d.get("diagnostics") is None else CalibDiagnostics.from_dict(d["diagnostics"]),
         )
 
-    def save(self, path: str | Path) -> Path:
+    def save(self, path: str | Path, *, overwrite: bool = True) -> Path:
         """Write ``.json`` (everything, exact float repr) or ``.npz`` (the reference's arrays
         rotation, translation, projection, K, reproj_error_px, n_inliers, plus extrinsics,
         dist_coeffs, success, n_correspondences and a JSON blob; a failed result's pose arrays
-        are NaN)."""
+        are NaN), atomically (unique temp file beside ``path``, then rename).
+        ``overwrite=False`` refuses an existing file."""
+        import io
+
+        from ..io._files import atomic_write
+
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
         if path.suffix == ".npz":
-            with open(tmp, "wb") as fh:
-                posed = self.rotation is not None and self.translation is not None
-                np.savez(fh, rotation=self.rotation if posed else np.full((3, 3), np.nan),
-                         translation=self.translation if posed else np.full(3, np.nan),
-                         extrinsics=self.extrinsics if posed else np.full((4, 4), np.nan),
-                         K=self.K if self.intrinsics is not None else np.full((3, 3), np.nan),
-                         dist_coeffs=self.intrinsics.dist_coeffs if self.intrinsics is not None else np.zeros(5),
-                         projection=self.projection if self.intrinsics is not None and posed else np.full((3, 4), np.nan),
-                         reproj_error_px=np.float64(self.reproj_error_px), n_inliers=np.int64(self.n_inliers),
-                         n_correspondences=np.int64(self.n_correspondences), success=np.bool_(self.success),
-                         json=np.frombuffer(json.dumps(self.to_dict()).encode(), dtype=np.uint8))
+            buf = io.BytesIO()
+            posed = self.rotation is not None and self.translation is not None
+            np.savez(buf, rotation=self.rotation if posed else np.full((3, 3), np.nan),
+                     translation=self.translation if posed else np.full(3, np.nan),
+                     extrinsics=self.extrinsics if posed else np.full((4, 4), np.nan),
+                     K=self.K if self.intrinsics is not None else np.full((3, 3), np.nan),
+                     dist_coeffs=self.intrinsics.dist_coeffs if self.intrinsics is not None else np.zeros(5),
+                     projection=self.projection if self.intrinsics is not None and posed else np.full((3, 4), np.nan),
+                     reproj_error_px=np.float64(self.reproj_error_px), n_inliers=np.int64(self.n_inliers),
+                     n_correspondences=np.int64(self.n_correspondences), success=np.bool_(self.success),
+                     json=np.frombuffer(json.dumps(self.to_dict()).encode(), dtype=np.uint8))
+            data = buf.getvalue()
         else:
-            tmp.write_text(json.dumps(self.to_dict(), indent=2))
-        tmp.replace(path)
-        return path
+            data = json.dumps(self.to_dict(), indent=2).encode()
+        return atomic_write(path, [data], overwrite=overwrite)
 
     @classmethod
     def load(cls, path: str | Path) -> "CalibrationResult":
+        """Read a ``.json`` / ``.npz`` written by :meth:`save`, validated: the rotation must be
+        orthonormal (det +1), every number finite, the translation within ``MAX_TRANSLATION_M``, and
+        an npz's arrays must agree with its JSON. Anything else is a FormatError naming the field."""
         from ..errors import FormatError
+        from ..io._files import MAX_TEXT_BYTES, read_text
 
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"calibration file not found: {path}")
         try:
             if path.suffix == ".npz":
-                with np.load(path) as z:
-                    if "json" not in z:
-                        raise FormatError(path, "missing the 'json' array; not an xcalib calibration npz", "json")
-                    d = json.loads(bytes(z["json"]).decode())
-                    res = cls.from_dict(d)
-                    if res.rotation is not None:
-                        res.rotation, res.translation = z["rotation"], z["translation"]
-                    return res
-            d = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError, OSError, ValueError) as exc:
-            if isinstance(exc, FormatError):
-                raise
-            raise FormatError(path, f"not a readable xcalib calibration ({exc})") from None
+                d, arrays = _read_npz(path)
+            else:
+                d, arrays = json.loads(read_text(path, max_bytes=MAX_TEXT_BYTES, what="calibration file")), None
+        except FormatError:
+            raise
+        except (json.JSONDecodeError, OSError, ValueError, RecursionError, MemoryError, KeyError, EOFError) as exc:
+            raise FormatError(path, f"not a readable xcalib calibration ({type(exc).__name__}: {str(exc)[:200]})") from None
+        if not isinstance(d, dict):
+            raise FormatError(path, f"expected a JSON object, got {type(d).__name__}")
         for key in ("success", "rotation", "translation"):
             if key not in d:
                 raise FormatError(path, "missing key", key)
+        if not isinstance(d["success"], bool):
+            raise FormatError(path, f"expected true or false, got {d['success']!r:.40}", "success")
         if d["success"] and (d["rotation"] is None or d["translation"] is None):
             raise FormatError(path, "a successful calibration needs a rotation and a translation", "rotation")
-        return cls.from_dict(d)
+        try:
+            res = cls.from_dict(d)
+            _validate_pose(res, path)
+        except FormatError:
+            raise
+        except (TypeError, ValueError, KeyError, AttributeError, OverflowError, IndexError) as exc:
+            raise FormatError(path, f"malformed field ({type(exc).__name__}: {str(exc)[:200]})") from None
+        if arrays is not None:
+            _check_npz_agrees(res, arrays, path)
+        return res
 
     def summary(self) -> str:
         """A few human-readable lines."""
@@ -235,6 +261,90 @@ class CalibrationResult:
         if self.message:
             lines.append(f"  note: {self.message}")
         return "\n".join(lines)
+
+
+#: Largest |translation| (metres) a calibration file may hold (camera-LiDAR rigs are metres apart).
+MAX_TRANSLATION_M = 1000.0
+#: max |R R^T - I| / |det R - 1| accepted when loading a saved rotation.
+LOAD_ROTATION_TOL = 1e-6
+_NPZ_MAX_BYTES = 64 << 20
+
+
+def _read_npz(path: Path) -> tuple[dict, dict]:
+    """(JSON dict, {name: array}) of a calibration npz; member sizes are checked before inflating."""
+    from ..errors import FormatError
+    from ..io._files import open_regular
+
+    with open_regular(path, what="calibration npz") as fh:
+        with np.load(fh, allow_pickle=False) as z:
+            if not hasattr(z, "zip"):
+                raise FormatError(path, "not an npz archive")
+            total = sum(i.file_size for i in z.zip.infolist())
+            if total > _NPZ_MAX_BYTES:
+                raise FormatError(path, f"archive inflates to {total} bytes; a calibration is < {_NPZ_MAX_BYTES}",
+                                  "npz")
+            if "json" not in z.files:
+                raise FormatError(path, "missing the 'json' array; not an xcalib calibration npz", "json")
+            arrays = {k: z[k] for k in z.files}
+    blob = arrays.pop("json")
+    if blob.dtype != np.uint8:
+        raise FormatError(path, f"expected uint8 bytes, got {blob.dtype}", "json")
+    try:
+        d = json.loads(blob.tobytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise FormatError(path, f"not UTF-8 JSON ({exc.reason})", "json") from None
+    return d, arrays
+
+
+def _validate_pose(res: "CalibrationResult", path) -> None:
+    from ..errors import FormatError
+    from ..geometry.rotations import orthonormality_error
+
+    R, t = res.rotation, res.translation
+    if R is None or t is None:  # a failed result has no pose
+        if (R is None) != (t is None):
+            raise FormatError(path, "rotation and translation must both be null or both be given", "rotation")
+        R, t = np.eye(3), np.zeros(3)
+    if not np.all(np.isfinite(R)):
+        raise FormatError(path, "rotation has NaN/Inf entries", "rotation")
+    err = orthonormality_error(R)
+    if err > LOAD_ROTATION_TOL:
+        raise FormatError(path, f"not a rotation matrix: error {err:.2e} (max |R R^T - I|, |det - 1|) exceeds "
+                                f"{LOAD_ROTATION_TOL:.0e}", "rotation")
+    if not np.all(np.isfinite(t)):
+        raise FormatError(path, "translation has NaN/Inf entries", "translation")
+    if np.abs(t).max() > MAX_TRANSLATION_M:
+        raise FormatError(path, f"translation {t.tolist()} m exceeds {MAX_TRANSLATION_M:g} m: not a camera-LiDAR "
+                                "extrinsic", "translation")
+    for name in ("rotation_std_deg", "translation_std_m"):
+        v = getattr(res, name)
+        if np.any(np.isinf(v)) or np.any(v < 0):
+            raise FormatError(path, f"expected non-negative finite values or null, got {v.tolist()}", name)
+    for k, p in enumerate(res.pairs):
+        if len(p) and p.min() < 0:
+            raise FormatError(path, "pair indices must be >= 0", f"pairs[{k}]")
+    if res.intrinsics is not None and res.image_size is not None:
+        w, h = res.image_size
+        if not (0 < int(w) <= 100_000 and 0 < int(h) <= 100_000):
+            raise FormatError(path, f"image size {w}x{h} out of range", "image_size")
+
+
+def _check_npz_agrees(res: "CalibrationResult", arrays: dict, path) -> None:
+    from ..errors import FormatError
+
+    if res.rotation is None:  # a failed result: NaN pose arrays
+        want = {}
+    else:
+        want = {"rotation": res.rotation, "translation": res.translation, "extrinsics": res.extrinsics}
+    if res.intrinsics is not None:
+        want["K"] = res.intrinsics.K
+    for name, value in want.items():
+        if name not in arrays:
+            raise FormatError(path, "missing array", name)
+        a = arrays[name]
+        if a.shape != value.shape or a.dtype.kind != "f" or not np.allclose(a, value, rtol=1e-12, atol=1e-12):
+            raise FormatError(path, f"array {name} disagrees with the JSON blob (which one is right is ambiguous)",
+                              name)
 
 
 def _num(v):

@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 _EX = ("Example: xcalib convert cam03/lucid_calib.json --to calib_json --out calib.json\n\n"
-       "Formats: kitti, calib_json, lucid, calib_txt, opencalib, openlabel, ros, nuscenes, json, npz "
+       "Formats: kitti, calib_json, lucid, calib_txt, opencalib, openlabel, ros, urdf, tf_static, nuscenes, json, npz "
        "(waymo .tfrecord and mmdetection3d KITTI .pkl as input only). Every reader returns and every "
        "writer takes T_cam_lidar (LiDAR -> OpenCV camera); each format's own direction is documented "
        "in xcalib.formats.")
@@ -25,6 +25,7 @@ def register(app: typer.Typer) -> None:
         repair: bool = typer.Option(False, "--repair", help="Fix unambiguous problems: re-orthonormalise "
                                                             "rotations off by <= 1e-3, normalise quaternions."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
+        force: bool = typer.Option(False, "--force", help="Replace existing output file(s)."),
     ) -> None:
         from ..formats.export import FORMATS, default_filename, detect_format, export_calibration, read_calibration
 
@@ -39,7 +40,7 @@ def register(app: typer.Typer) -> None:
             out = base / default_filename(to)
         if out.exists() and src.exists() and out.resolve() == src.resolve():
             raise typer.BadParameter(f"output {out} would overwrite the input; give --out", param_hint="--out")
-        written = export_calibration(result, to, out)
+        written = export_calibration(result, to, out, overwrite=force)
         if as_json:
             typer.echo(json.dumps({"input": str(src), "from": fmt_in, "to": to, "written": [str(p) for p in written],
                                    "T_cam_lidar": result.extrinsics.tolist(),

@@ -123,7 +123,9 @@ figure {{ display: inline-block; margin: 8px; width: 45%; }} img {{ width: 100%;
 <p>Total time {summary.get('seconds', 0):.1f} s. Numbers: <a href="summary.json">summary.json</a>.</p>
 {''.join(thumbs)}</body></html>
 """
-    (out / "index.html").write_text(page)
+    from ..io._files import atomic_write
+
+    atomic_write(out / "index.html", [page.encode()])
     return out / "index.html"
 
 
@@ -238,7 +240,9 @@ def register(app: typer.Typer) -> None:
         summary["seconds"] = round(time.perf_counter() - t_start, 2)
         index = _write_index(out, summary)
         summary["index"] = str(index)
-        (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+        from ..io._files import atomic_write
+
+        atomic_write(out / "summary.json", [(json.dumps(summary, indent=1) + "\n").encode()])
 
         # ------------------------------------------------------------------ figures
         t = Table(title="Synthetic site vs ground truth", show_header=True, header_style="bold")
@@ -270,7 +274,7 @@ def register(app: typer.Typer) -> None:
             rt.add_column("value", justify="right")
             rr = real_out.result
             if rr is not None and rr.success:
-                off = (rr.meta or {}).get("centre_offset_px_median")
+                off = None if rr.diagnostics is None else rr.diagnostics.centre_offset_px_median
                 rt.add_row("calibration", "[green]success[/]")
                 rt.add_row("matched pairs", f"{rr.n_pairs} over {real_out.n_frames} frames")
                 rt.add_row("residual (median / mean)", f"{rr.residual_px_median:.2f} / {rr.reproj_error_px:.2f} px")

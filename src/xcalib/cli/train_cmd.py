@@ -40,7 +40,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         import torch.distributed as dist
 
-        from ..engine.checkpoint import read_config, site_dirs
+        from ..engine.checkpoint import read_config, site_dirs, write_checksum
+        from ..io._files import atomic_dir
         from ..engine.trainer import shutdown_distributed, train
 
         cfg = read_config(config) if config else None
@@ -56,11 +57,13 @@ def register(app: typer.Typer) -> None:
         installed = None
         if site:
             d = site_dirs(site)[0]
-            d.mkdir(parents=True, exist_ok=True)
-            installed = str(shutil.copyfile(best, d / f"{model}.pth"))
+            with atomic_dir(d, keep_existing=True) as tmp:  # other models' files of the site are kept
+                shutil.copyfile(best, tmp / f"{model}.pth")
+                write_checksum(tmp / f"{model}.pth")
+                shutil.copyfile(best.with_suffix(".yaml"), tmp / f"{model}.yaml")
             if (d / f"{model}.pt").is_file():  # one set of weights per model in a site folder
                 (d / f"{model}.pt").unlink()
-            shutil.copyfile(best.with_suffix(".yaml"), d / f"{model}.yaml")
+            installed = str(d / f"{model}.pth")
         hist = json.loads((Path(output_dir) / "history.json").read_text())
         bestrow = max(hist, key=lambda h: h["val_mrr"])
         summary = {"model": model, "best": str(best), "installed": installed, "epochs": len(hist),

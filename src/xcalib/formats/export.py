@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ..calib.result import CalibrationResult
 from ..errors import FormatError
+from ..io._files import MAX_TEXT_BYTES, load_json, read_bytes
 
 __all__ = ["CalibFormat", "FORMATS", "format_names", "export_calibration", "read_calibration",
            "detect_format", "default_filename"]
@@ -90,7 +91,8 @@ def _r_calib_txt(path, repair=False):
 def _w_opencalib(res, path):
     from .calibanything import write_opencalib
 
-    return [p for p in write_opencalib(res, Path(path).parent if Path(path).suffix else path) if p is not None]
+    p = Path(path)
+    return [q for q in write_opencalib(res, p.parent if p.suffix and not p.is_dir() else p) if q is not None]
 
 
 def _r_opencalib(path, repair=False):
@@ -127,6 +129,30 @@ def _r_ros(path, repair=False):
     from .ros import read_ros
 
     return read_ros(path)
+
+
+def _w_urdf(res, path):
+    from .ros import write_urdf
+
+    return [write_urdf(res, path)]
+
+
+def _r_urdf(path, repair=False):
+    from .ros import read_urdf
+
+    return read_urdf(path)
+
+
+def _w_tf_static(res, path):
+    from .ros import write_tf_static
+
+    return [write_tf_static(res, path)]
+
+
+def _r_tf_static(path, repair=False):
+    from .ros import read_tf_static
+
+    return read_tf_static(path)
 
 
 def _w_nuscenes(res, path):
@@ -177,6 +203,10 @@ FORMATS: dict[str, CalibFormat] = {f.name: f for f in [
                 "openlabel.json", _w_openlabel, _r_openlabel),
     CalibFormat("ros", "ROS camera_info YAML + <stem>_tf.yaml static transform (lidar -> camera_optical pose)",
                 "camera_info.yaml", _w_ros, _r_ros),
+    CalibFormat("urdf", "URDF fixed joints: lidar -> <camera>_link (body) -> <camera>_optical_frame (no intrinsics)",
+                "camera.urdf", _w_urdf, _r_urdf),
+    CalibFormat("tf_static", "tf2_msgs/TFMessage YAML: lidar -> <camera>_optical_frame pose (no intrinsics)",
+                "tf_static.yaml", _w_tf_static, _r_tf_static),
     CalibFormat("nuscenes", "nuScenes calibrated_sensor.json + sensor.json (sensor->ego, w,x,y,z)",
                 "calibrated_sensor.json", _w_nuscenes, _r_nuscenes),
     CalibFormat("json", "xcalib CalibrationResult JSON", "calibration.json", _w_json, _r_xcalib),
@@ -199,14 +229,38 @@ def _get(fmt: str) -> CalibFormat:
     return FORMATS[fmt]
 
 
-def export_calibration(result: CalibrationResult, fmt: str, path) -> list[Path]:
-    """Write ``result`` in format ``fmt`` to ``path``; returns every file written."""
+def export_calibration(result: CalibrationResult, fmt: str, path, *, overwrite: bool = True) -> list[Path]:
+    """Write ``result`` in format ``fmt`` to ``path``; returns every file written.
+
+    Every file of the format (ROS and nuScenes write two) is first written to a temporary folder
+    beside the target, then moved into place; with ``overwrite=False`` an existing file among them
+    is a FileExistsError and nothing is written."""
+    import os
+    import shutil
+    import tempfile
+
+    from ..io._files import _tmp_prefix, check_overwrite
+
     f = _get(fmt)
     if f.write is None:
         raise ValueError(f"format {fmt!r} is read-only; writable: {', '.join(format_names(True))}")
     if not result.success:
         raise ValueError(f"refusing to export a failed calibration ({result.message})")
-    return [Path(p) for p in f.write(result, path)]
+    path = Path(path)
+    is_dir = fmt == "opencalib" and not path.suffix
+    target = path if is_dir else path.parent
+    target.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=_tmp_prefix(path.name), suffix=".tmp", dir=target))
+    try:
+        staged = [Path(p) for p in f.write(result, stage if is_dir else stage / path.name)]
+        final = [target / p.relative_to(stage) for p in staged]
+        for p in final:
+            check_overwrite(p, overwrite)
+        for s, p in zip(staged, final):
+            os.replace(s, p)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    return final
 
 
 def detect_format(path) -> str:
@@ -223,17 +277,17 @@ def detect_format(path) -> str:
     name = p.name.lower()
     if name.endswith(".npz"):
         return "npz"
+    if name.endswith((".urdf", ".xacro")) or (name.endswith(".xml") and "<robot" in p.read_text(errors="replace")):
+        return "urdf"
     if name.endswith((".yaml", ".yml")):
-        return "ros"
+        head = p.read_text(errors="replace")
+        return "tf_static" if any(line.startswith("transforms:") for line in head.splitlines()) else "ros"
     if ".tfrecord" in name:
         return "waymo"
     if name.endswith(".pkl"):
         return "kitti"
     if name.endswith(".json"):
-        try:
-            d = json.loads(p.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise FormatError(p, f"not valid JSON ({exc})") from None
+        d = load_json(p, what="calibration file")
         if isinstance(d, list):
             return "nuscenes"
         if isinstance(d, dict):
@@ -249,7 +303,7 @@ def detect_format(path) -> str:
                 return "opencalib"
         raise FormatError(p, "unrecognised calibration JSON (expected xcalib, lucid_calib, calib.json, "
                              "OpenLABEL, OpenCalib or calibrated_sensor)")
-    text = p.read_text(errors="replace")
+    text = read_bytes(p, max_bytes=MAX_TEXT_BYTES, what="calibration file").decode("utf-8", errors="replace")
     keys = {line.split(":", 1)[0].strip() for line in text.splitlines() if ":" in line}
     if {"K", "T"} <= keys:
         return "calib_txt"

@@ -21,7 +21,10 @@ xcalib's additive extras (ignored by spec readers): ``/calibration/<cam>/distort
 int64 and ``camera_classes`` / ``lidar_classes`` bytes per detection (``meta["ids_2d"]``,
 ``["ids_3d"]``, ``["classes_2d"]``, ``["classes_3d"]``);
 extra point columns as ``/point_clouds/<lidar>/<key>/<field>`` [P] listed in the group's
-``fields`` attribute.
+``fields`` attribute; per-frame timing and tracks in the label group (``Frame`` fields of the
+same meaning): ``lidar_time_s`` / ``camera_time_s`` float64 scalars (seconds, one clock),
+``lidar_track_ids`` int64 [>=M] (``Frame.track_ids_3d``, -1 = none), ``lidar_velocities``
+float64 [>=M,3] (``Frame.velocities_3d``, m/s, LiDAR frame).
 
 Unlike the reference loader: any label sensor / LiDAR can be chosen (a warning when several exist
 and none was chosen), numeric keys can be ordered numerically, K==0 / M==0 frames are returned,
@@ -43,6 +46,9 @@ import numpy as np
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..types import DatasetFrame, Frame
+from ._files import _tmp_prefix, open_regular, sweep_stale
+from ._validate import check_boxes_2d, check_boxes_3d, check_count, check_rigid
+from .timing import checked_timing, timing_of
 
 __all__ = ["CacheReader", "CacheWriter", "write_cache", "load_dataset", "open_dataset", "Dataset", "cache_summary",
            "CorruptImageError", "is_hdf5_cache", "HDF5_SUFFIXES"]
@@ -50,6 +56,10 @@ __all__ = ["CacheReader", "CacheWriter", "write_cache", "load_dataset", "open_da
 log = logging.getLogger(__name__)
 
 HDF5_SUFFIXES = (".h5", ".hdf5")
+#: A dataset may declare at most this many bytes beyond 32x the file size (compression of float
+#: data stays far below 32:1); larger declarations are refused before anything is allocated.
+_DECLARED_SLACK = 64 << 20
+_DECLARED_RATIO = 32
 _KEY_ORDERS = ("lexicographic", "numeric")
 # Frame.meta key -> (dataset name, kind) of the additive per-detection extras.
 _META_DATASETS = {
@@ -63,6 +73,10 @@ _META_DATASETS = {
     "classes_2d": ("camera_classes", "s2d"),
     "classes_3d": ("lidar_classes", "s3d"),
 }
+
+# Frame timing/track field -> dataset of the label group (additive, optional).
+_TIMING_DATASETS = {"lidar_time_s": "lidar_time_s", "camera_time_s": "camera_time_s",
+                    "track_ids_3d": "lidar_track_ids", "velocities_3d": "lidar_velocities"}
 
 
 class CorruptImageError(FormatError):
@@ -135,9 +149,11 @@ class CacheReader(Sequence):
             raise FileNotFoundError(f"HDF5 cache not found: {self.path}")
         if key_order not in _KEY_ORDERS:
             raise ValueError(f"key_order must be one of {_KEY_ORDERS}, got {key_order!r}")
+        open_regular(self.path, max_bytes=1 << 46, what="HDF5 cache").close()  # FIFOs / devices refused
+        self._max_bytes = self.path.stat().st_size * _DECLARED_RATIO + _DECLARED_SLACK
         try:
             self._f = h5py.File(self.path, "r")
-        except OSError as exc:
+        except (OSError, ValueError) as exc:
             raise FormatError(self.path, f"not a readable HDF5 file ({exc})") from None
         self._finalizer = weakref.finalize(self, self._f.close)
         self.read_images = bool(read_images)
@@ -279,21 +295,31 @@ class CacheReader(Sequence):
             raise FormatError(self.path, f"frame {key!r}: missing {what} group", field=path) from None
 
     def read_frame(self, key: str) -> Frame:
-        """Read frame ``key`` (labels, points, images per the reader's options, calibration)."""
+        """Read frame ``key`` (labels, points, images per the reader's options, calibration).
+        Counts must be integral, boxes finite and not inverted, extrinsics rigid; any HDF5-level
+        failure (checksum, truncation, a declared size beyond what the file can hold) is a
+        FormatError naming the frame."""
         if self.closed:
             raise ValueError(f"{self.path}: the cache is closed")
+        try:
+            return self._read_frame(key)
+        except FormatError:
+            raise
+        except (OSError, ValueError, TypeError, KeyError, IndexError, OverflowError, MemoryError, RuntimeError,
+                UnicodeDecodeError) as exc:
+            raise FormatError(self.path, f"frame {key!r}: unreadable ({type(exc).__name__}: {str(exc)[:200]})",
+                              field=f"/labels/{self.label_sensor}/{key}") from None
+
+    def _read_frame(self, key: str) -> Frame:
         where = f"/labels/{self.label_sensor}/{key}"
         g = self._group(where, key, "labels")
-        try:
-            K = int(g.require("num_camera_detections", self, key))
-            M = int(g.require("num_lidar_detections", self, key))
-        except (TypeError, ValueError) as exc:
-            raise FormatError(self.path, f"frame {key!r}: detection counts are not integers ({exc})",
-                              field=where) from None
+        g.max_bytes = self._max_bytes
+        K = check_count(self.path, f"{where}/num_camera_detections", g.require("num_camera_detections", self, key))
+        M = check_count(self.path, f"{where}/num_lidar_detections", g.require("num_lidar_detections", self, key))
         b2_all = g.require("camera_bbox_2d", self, key)
         b3_all = g.require("lidar_bbox_3d", self, key)
-        b2 = self._rows(b2_all, "camera_bbox_2d", K, 4, key, where)
-        b3 = self._rows(b3_all, "lidar_bbox_3d", M, 6, key, where)
+        b2 = check_boxes_2d(self.path, f"{where}/camera_bbox_2d", self._rows(b2_all, "camera_bbox_2d", K, 4, key, where))
+        b3 = check_boxes_3d(self.path, f"{where}/lidar_bbox_3d", self._rows(b3_all, "lidar_bbox_3d", M, 6, key, where))
         mm = None
         if "match_matrix" in g:
             raw = g.read("match_matrix")
@@ -304,6 +330,9 @@ class CacheReader(Sequence):
             if not ok:
                 raise FormatError(self.path, f"frame {key!r}: match_matrix has shape {tuple(raw.shape)}, "
                                              f"expected (K, M) = ({K}, {M})", field=f"{where}/match_matrix")
+            if raw.size and not np.isin(raw[:K, :M], (0, 1)).all():
+                raise FormatError(self.path, f"frame {key!r}: match_matrix holds values other than 0/1",
+                                  field=f"{where}/match_matrix")
             mm = raw[:K, :M].astype(bool)
         cams_per_det = None
         if "camera_names" in g:
@@ -336,6 +365,7 @@ class CacheReader(Sequence):
                         meta[mkey] = [_as_str(s) for s in arr[:n]]
                     else:
                         meta[mkey] = arr[:n].astype(np.float64 if kind.startswith("v") else np.int64)
+        timing = self._timing(g, key, where, M)
         points, fields = self._points(key)
         # Images: every camera referenced by the frame (or the first camera).
         primary = cams_per_det[0] if cams_per_det else self.camera_names[0]
@@ -357,7 +387,18 @@ class CacheReader(Sequence):
         return Frame(image=image, point_cloud=points, bboxes_2d=b2, bboxes_3d=b3, camera_name=primary,
                      frame_key=key, match_matrix=mm, intrinsics=intr, extrinsics=extr, images=images,
                      camera_per_det=cams_per_det if cams_per_det is not None else [primary] * K,
-                     point_fields=fields, meta=meta)
+                     point_fields=fields, meta=meta, **timing)
+
+    def _timing(self, g: "_Group", key: str, where: str, M: int) -> dict:
+        """The optional timing / track datasets of a label group, validated."""
+        vals, names = {}, {}
+        for field, dname in _TIMING_DATASETS.items():
+            if dname in g:
+                v = g.read(dname)
+                if field in ("track_ids_3d", "velocities_3d") and v.ndim >= 1 and len(v) >= M:
+                    v = v[:M]
+                vals[field], names[field] = v, f"{where}/{dname}"
+        return checked_timing(self.path, M, fields=names, **vals) if vals else {}
 
     def _rows(self, arr: np.ndarray, name: str, n: int, width: int, key: str, where: str,
               dtype=np.float32) -> np.ndarray:
@@ -377,6 +418,7 @@ class CacheReader(Sequence):
     def _points(self, key: str) -> tuple[np.ndarray, tuple[str, ...]]:
         where = f"/point_clouds/{self.lidar_name}/{key}"
         pg = self._group(where, key, "point cloud")
+        pg.max_bytes = self._max_bytes
         xyz = pg.require("xyz", self, key)
         if xyz.ndim != 2 or xyz.shape[1] < 3:
             raise FormatError(self.path, f"frame {key!r}: xyz has shape {xyz.shape}, expected [P, 3]",
@@ -443,6 +485,8 @@ class CacheReader(Sequence):
                 if T is not None and T.shape != (4, 4):
                     raise FormatError(self.path, f"frame {key!r}: extrinsics have shape {T.shape}, "
                                                  "expected [4, 4]", field=f"{eg}/{key}")
+                if T is not None:
+                    check_rigid(self.path, f"{eg}/{key}", T)
             if T is not None:
                 extr_all[cam] = np.array(T, dtype=np.float64)
         return intr_all.get(primary), extr_all.get(primary), intr_all, extr_all
@@ -466,8 +510,14 @@ class CacheReader(Sequence):
             w, h = ds.attrs.get("width"), ds.attrs.get("height")
             if w is None and image is not None and image.size:
                 h, w = image.shape[:2]
-            intr = CameraIntrinsics.from_matrix(Km, dist, width=None if w is None else int(w),
-                                                height=None if h is None else int(h))
+            try:
+                intr = CameraIntrinsics.from_matrix(Km, dist, width=None if w is None else check_count(
+                    self.path, f"{where}/intrinsics@width", w), height=None if h is None else check_count(
+                    self.path, f"{where}/intrinsics@height", h))
+            except (TypeError, ValueError) as exc:
+                if isinstance(exc, FormatError):
+                    raise
+                raise FormatError(self.path, str(exc), field=f"{where}/intrinsics") from None
         T, per_frame = None, False
         if "extrinsics" in cg:
             e = cg["extrinsics"]
@@ -478,6 +528,7 @@ class CacheReader(Sequence):
                 if T.shape != (4, 4):
                     raise FormatError(self.path, f"extrinsics have shape {T.shape}, expected [4, 4]",
                                       field=f"{where}/extrinsics")
+                check_rigid(self.path, f"{where}/extrinsics", T)
         cache = {"intrinsics": intr, "extrinsics": T, "per_frame": per_frame}
         self._static[cam] = cache
         return cache
@@ -486,7 +537,7 @@ class CacheReader(Sequence):
 class _Group:
     """Low-level view of one HDF5 group: member names and whole-dataset reads (fast per-frame access)."""
 
-    __slots__ = ("gid", "names", "path")
+    __slots__ = ("gid", "names", "path", "max_bytes")
 
     def __init__(self, fid, path: str):
         import h5py
@@ -496,6 +547,7 @@ class _Group:
         except (KeyError, ValueError):
             raise KeyError(path) from None
         self.path = path
+        self.max_bytes = None
         self.names = {n.decode() for n in self.gid}
 
     def __contains__(self, name: str) -> bool:
@@ -505,6 +557,10 @@ class _Group:
         import h5py
 
         d = h5py.h5d.open(self.gid, name.encode())
+        nbytes = int(np.prod(d.shape, dtype=object)) * d.dtype.itemsize
+        if self.max_bytes is not None and nbytes > self.max_bytes:
+            raise FormatError(None, f"dataset {self.path}/{name} declares shape {d.shape} ({nbytes} bytes), more than "
+                                    f"the file can hold ({self.max_bytes} bytes allowed)", field=f"{self.path}/{name}")
         arr = np.empty(d.shape, dtype=d.dtype)
         if arr.size:
             d.read(h5py.h5s.ALL, h5py.h5s.ALL, arr)
@@ -672,7 +728,8 @@ class CacheWriter:
         if self.path.suffix.lower() not in HDF5_SUFFIXES:
             raise ValueError(f"CacheWriter: {self.path} should end in .h5 or .hdf5")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = self.path.with_name(f".{self.path.name}.{uuid.uuid4().hex[:8]}.tmp")
+        sweep_stale(self.path.parent, self.path.name)  # temps of writers that were killed
+        self._tmp = self.path.with_name(f"{_tmp_prefix(self.path.name)}{uuid.uuid4().hex[:8]}.tmp")
         self._f = h5py.File(self._tmp, "w", libver=("v110", "latest"))
         self._finalizer = weakref.finalize(self, _abandon, self._f, self._tmp)
         self.camera_names = list(camera_names) if camera_names else []
@@ -790,6 +847,11 @@ class CacheWriter:
             if len(arr) != n:
                 raise ValueError(f"CacheWriter: frame {key!r}: meta[{mkey!r}] has {len(arr)} rows, expected {n}")
             _small(lg, dname, arr)
+        for field, v in timing_of(frame).items():
+            arr = np.asarray(v, dtype=np.int64 if field == "track_ids_3d" else np.float64)
+            if field in ("track_ids_3d", "velocities_3d") and len(arr) != M:
+                raise ValueError(f"CacheWriter: frame {key!r}: {field} has {len(arr)} rows, expected M = {M}")
+            _small(lg, _TIMING_DATASETS[field], arr)
         # points
         pts = np.asarray(frame.point_cloud)
         if pts.ndim != 2 or (pts.size and pts.shape[1] < 3):

@@ -26,10 +26,11 @@ import math
 import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
+from ..calib.config import CalibConfig
 from ..calib.inputs import as_intrinsics
 from ..calib.result import CalibrationResult
 from ..engine.host import assign
@@ -127,7 +128,7 @@ class OneShotSession:
         min_gain: relative buffer-score gain a new pose needs to replace the current one.
         match_threshold: score a model match needs to count in reports (0.7, the reference's).
         mode: default adaptation mode ("heads" or "full").
-        calib_options: extra keyword arguments of ``xcalib.calib.api.calibrate``.
+        calib_config: the ``CalibConfig`` of the session's calibrations (None: the defaults).
         seed: seeds pose search and training; validate: protocol mode of :meth:`observe`.
         accept_confidence: pseudo-labels below this confidence are not trained on (None: all,
             xcalib's default; the reference's 0.5 is not imposed, see docs/compat.md).
@@ -141,7 +142,7 @@ class OneShotSession:
 
     def __init__(self, matcher, intrinsics, *, gate: float = 0.3, neg_iou: float = 0.05, min_frames: int = 3,
                  recalibrate_growth: float = 1.5, max_frames: int = 64, min_gain: float = 0.0,
-                 match_threshold: float = 0.7, mode: str = "heads", calib_options: dict[str, Any] | None = None,
+                 match_threshold: float = 0.7, mode: str = "heads", calib_config: CalibConfig | None = None,
                  seed: int = 0, validate: str = "warn", accept_confidence: float | None = None,
                  replay_frames: int | None = None, max_center_dist_px: float | None = None,
                  bank_capacity: int | None = None, calib_buffer: int | None = None,
@@ -167,7 +168,7 @@ class OneShotSession:
         self.best_reproj_px = float("inf")  # lowest whole-buffer median residual of any solve (px)
         self._bank_cache: tuple[Any, dict[int, int]] = (None, {})
         self.buffer = EvidenceBuffer(int(replay_frames) if replay_frames is not None else max_frames)
-        self.pose = PoseGate(self.intrinsics, gate_iou=gate, min_gain=min_gain, calib_options=calib_options, seed=seed)
+        self.pose = PoseGate(self.intrinsics, gate_iou=gate, min_gain=min_gain, config=calib_config, seed=seed)
         self.next_calibration_at = self.min_frames
         self.image_size: tuple[int, int] | None = None
         self.history: list[AdaptReport] = []
@@ -315,9 +316,9 @@ class OneShotSession:
         """
         frames = self.buffer.frames()
         warming = min_frames is not None and 0 < self.n_observed < int(min_frames)
-        saved = self.pose.calib_options
+        saved = self.pose.config
         if min_pairs is not None:
-            self.pose.calib_options = {**saved, "min_pairs": int(min_pairs)}
+            self.pose.config = saved.replace(min_pairs=int(min_pairs))
         try:
             if warming:
                 current, self.pose.current = self.pose.current, None
@@ -333,7 +334,7 @@ class OneShotSession:
             else:
                 update = self.pose.propose(frames, progress=progress, adopt_any=not disambiguate)
         finally:
-            self.pose.calib_options = saved
+            self.pose.config = saved
         self._note_best(update)
         self._sync_matcher()
         return update
@@ -440,14 +441,15 @@ class OneShotSession:
         stale = d / "calibration.json"
         if not self.is_calibrated and stale.is_file():
             stale.unlink()  # never leave another pose beside these weights
-        paths = self.matcher.save_pretrained(d)  # + calibration.json when calibrated
+        paths = self.matcher.save_pretrained(d, overwrite=True)  # + calibration.json when calibrated
         info = {"format": "xcalib-oneshot-v1", "model": self.matcher.model_name, "observed_frames": self.n_observed,
                 "buffer_frames": len(self.buffer), "image_size": self.image_size,
                 "intrinsics": self.intrinsics.to_dict(), "calibrated": self.is_calibrated,
                 "pose_locked": self.pose.locked, "adapt": [r.to_dict() for r in self.history],
                 "options": {"gate": self.gate, "neg_iou": self.neg_iou, "mode": self.mode, "seed": self.seed}}
-        p = d / "oneshot.json"
-        p.write_text(json.dumps(info, indent=1, default=_json_default))
+        from ..io._files import atomic_write
+
+        p = atomic_write(d / "oneshot.json", [json.dumps(info, indent=1, default=_json_default).encode()])
         paths["oneshot"] = p
         return paths
 

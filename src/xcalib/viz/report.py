@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..io._files import atomic_write
+from ..io._files import atomic_write, safe_name
 
 __all__ = ["ReportFigure", "CalibrationReport", "write_calibration_report", "frame_arrays"]
 
@@ -84,19 +84,16 @@ def _shrink(rgb: np.ndarray, max_width: int = _MAX_WIDTH) -> np.ndarray:
 
 
 def _initial_pose(result, before):
+    from ..calib.pose import Pose
+
     if before is not None:
-        if hasattr(before, "rotation"):
-            return np.asarray(before.rotation, float), np.asarray(before.translation, float)
-        if isinstance(before, (tuple, list)) and len(before) == 2:
-            return np.asarray(before[0], float).reshape(3, 3), np.asarray(before[1], float).reshape(3)
-        T = np.asarray(before, float)
-        if T.shape not in ((4, 4), (3, 4)):
-            raise ValueError(f"before: expected a CalibrationResult, (R, t) or a 4x4 T_cam_lidar, got shape {T.shape}")
-        return T[:3, :3], T[:3, 3]
+        p = Pose.parse(before, "before")
+        return p.R, p.T[:3, 3]
+    diag = getattr(result, "diagnostics", None)
+    if diag is not None and diag.bringup_T is not None:  # the calibrator's best bring-up pose, before refinement
+        p = Pose.parse(np.asarray(diag.bringup_T, dtype=np.float64))
+        return p.R, p.t
     meta = getattr(result, "meta", {}) or {}
-    if meta.get("bringup_T") is not None:  # the calibrator's best bring-up pose, before refinement
-        T = np.asarray(meta["bringup_T"], dtype=np.float64)
-        return T[:3, :3], T[:3, 3]
     if "initial_rotation" in meta and "initial_translation" in meta:
         return np.asarray(meta["initial_rotation"], float), np.asarray(meta["initial_translation"], float)
     return None
@@ -134,7 +131,8 @@ def result_numbers(result, ground_truth=None) -> dict[str, Any]:
     """The headline numbers of a ``CalibrationResult`` (pixels, IoU, degrees, metres)."""
     from ..geometry.rotations import matrix_to_euler
 
-    meta = getattr(result, "meta", {}) or {}
+    diag = getattr(result, "diagnostics", None)
+    co = None if diag is None else diag.centre_offset_px_median
     nums: dict[str, Any] = {
         "success": bool(result.success),
         "message": result.message or "-",
@@ -146,15 +144,15 @@ def result_numbers(result, ground_truth=None) -> dict[str, Any]:
         "residual mean (px)": float(result.reproj_error_px),
         "IoU median": float(result.iou_median),
         "IoU mean": float(result.iou_mean),
-        "box-centre offset median (px)": float(meta.get("centre_offset_px_median") or np.nan),
+        "box-centre offset median (px)": float(np.nan if co is None else co),
         "rotation 1-sigma (deg)": np.asarray(result.rotation_std_deg, float),
         "translation 1-sigma (m)": np.asarray(result.translation_std_m, float),
     }
     if result.rotation is not None and result.translation is not None:  # a failed result has no pose
         nums["translation t (m)"] = np.asarray(result.translation, float)
         nums["rotation xyz Euler (deg)"] = matrix_to_euler(np.asarray(result.rotation, float), "xyz", degrees=True)
-    if "elapsed_s" in meta:
-        nums["calibration time (s)"] = float(meta["elapsed_s"])
+    if diag is not None:
+        nums["calibration time (s)"] = float(diag.elapsed_s)
     if ground_truth is not None and result.success:
         rot_deg, trans_m = result.pose_error(ground_truth)
         nums["rotation error vs ground truth (deg)"] = float(rot_deg)
@@ -199,7 +197,7 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         existing.setdefault(key, []).append((p, before_fig))
     if existing:  # show the frames that were drawn
         keys = [frame_arrays(f, i)[4] for i, f in enumerate(frames)]
-        shown = [i for i, k in enumerate(keys) if k in existing]
+        shown = [i for i, k in enumerate(keys) if safe_name(k) in existing]  # overlay names are safe_name(key)
     else:
         shown = _pick(len(frames), max_frames)
     have_pose = result.intrinsics is not None and bool(result.success)
@@ -210,7 +208,7 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         given_yaw = np.asarray(b3).shape[-1] == 7
         b3 = calibrator_boxes(frames[idx], result.intrinsics, np.asarray(b3))
         if existing and have_pose:
-            for path, before_fig in sorted(existing.get(key, []), key=lambda e: not e[1]):  # before first
+            for path, before_fig in sorted(existing.get(safe_name(key), []), key=lambda e: not e[1]):  # before first
                 figures.append(ReportFigure(
                     Path(os.path.relpath(path, out)).as_posix(),
                     f"Frame {key}, " + ("bring-up pose, before refinement: LiDAR points coloured by camera "
