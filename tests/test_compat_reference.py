@@ -104,8 +104,8 @@ def test_item06_save_pretrained_pth_and_directories_load_pt_or_pth(tmp_path):
     (tmp_path / "a" / "fastmatch.yaml").rename(tmp_path / "b" / "fastmatch.yaml")
     again = Matcher.from_pretrained("fastmatch", weights=tmp_path / "b", device="cpu")
     assert all(torch.equal(a, b) for a, b in zip(m.model.state_dict().values(), again.model.state_dict().values()))
-    again.save_pretrained(tmp_path / "b")  # writes .pth, removes the stale .pt: one set of weights per folder
-    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == ["fastmatch.pth", "fastmatch.yaml"]
+    again.save_pretrained(tmp_path / "b", overwrite=True)  # .pth replaces the .pt: one set of weights per folder
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == ["fastmatch.pth", "fastmatch.sha256", "fastmatch.yaml"]
 
 
 # ------------------------------------------------------------------ item 3: Matcher.train(device=)
