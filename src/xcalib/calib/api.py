@@ -167,6 +167,17 @@ def _motion(frames_in, cframes, config: CalibConfig, diag: CalibDiagnostics) -> 
     return shift_frames(cframes, motion.velocity, config.time_offset), motion, ""
 
 
+def _selfcal_note(diag: CalibDiagnostics) -> str:
+    """What was estimated with the pose (appended to a refusal: it widens the pose's uncertainty)."""
+    sc, bits = diag.selfcal, []
+    if sc.focal_estimated:
+        bits.append(f"focal length x{sc.focal_scale:.4f} of the given (1-sigma {100 * (sc.focal_scale_std or 0):.1f} %)")
+    if sc.time_offset_source == "estimated":
+        bits.append(f"time offset {1e3 * sc.time_offset_s:+.1f} ms (1-sigma {1e3 * (sc.time_offset_std_s or 0):.1f} ms)")
+    return f" [estimated with the pose: {'; '.join(bits)}; with exact values given the pose may be determined]" \
+        if bits else ""
+
+
 def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Pose | None,
                progress: Progress | None) -> CalibrationResult:
     t0 = time.perf_counter()
@@ -238,6 +249,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
                                places=len(places), places_off_line=int(np.sum(off > POOLED_OFF_LINE_M)),
                                halves_available=unc.halves_available, best_score=ref.best_score,
                                runner_up_score=runner, rot_sd=unc.rot_sd, tr_sd=unc.tr_sd), config)
+    if refusal is not None and inflation is not None:
+        refusal = Refusal(refusal.code, refusal.message + _selfcal_note(diag))
     diag.refusal = "" if refusal is None else refusal.code
     diag.elapsed_s = time.perf_counter() - t0
     caller_pairs = [np.column_stack([f.idx2d[p[:, 0]], f.idx3d[p[:, 1]]]) if len(p) else np.zeros((0, 2), np.int64)

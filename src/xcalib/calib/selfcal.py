@@ -184,70 +184,85 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
     if motion is not None:
         diag.velocity_source, diag.ego_motion, diag.stamp_offset_s = motion.source, motion.ego_motion, motion.stamp_offset_s
     want_dt = config.time_offset in ("auto", "estimate")
-    estimate_dt = want_dt and motion is not None and not motion.problem
-    refusal = ""
-    if want_dt and not estimate_dt:
-        why = motion.problem if motion is not None else "no object velocities"
-        if config.time_offset == "estimate":
-            refusal = f"time offset asked for but not observable: {why}"
-        else:
-            _note(diag, f"time_offset='auto': {why}; no time offset applied")
+    est_dt = want_dt and motion is not None and not motion.problem
+    refusals: list[str] = []
+    if want_dt and not est_dt:
+        _drop_dt(diag, config, refusals, motion.problem if motion is not None else "no object velocities")
     cfg = config
-    fit = joint_refine(cframes, intr, pose, cfg, motion, estimate_dt, occlusion)
-    for _ in range(2):  # drop what the data does not constrain, then refit without it
+    fit = joint_refine(cframes, intr, pose, cfg, motion, est_dt, occlusion)
+    if fit is None and (cfg.refine_intrinsics in ("focal", "focal+center") or config.time_offset == "estimate"):
+        refusals.append("self-calibration asked for but too few matched pairs (< 6) to estimate it")
+    for _ in range(3):  # drop what the data does not constrain (or what agrees with the given), refit
         if fit is None:
             break
-        drop_f = cfg.refine_intrinsics != "none" and not (fit.focal_log_sd is not None
-                                                          and fit.focal_log_sd <= config.focal_max_std)
-        drop_c = cfg.refine_intrinsics == "focal+center" and not drop_f and not (
-            fit.principal_sd_px is not None and np.all(fit.principal_sd_px <= 0.01 * cframes[0].size[0]))
-        drop_t = estimate_dt and not (fit.n_moving_pairs >= MIN_MOVING_PAIRS and fit.dt_sd_s is not None
-                                      and fit.dt_sd_s <= config.time_offset_max_std_s)
-        if drop_f or drop_c:
-            diag.focal_scale_std = fit.focal_log_sd
-            what = "focal length" if drop_f else "principal point"
-            sd = _fmt_pct(fit.focal_log_sd) if drop_f else f"{np.max(fit.principal_sd_px):.1f} px"
-            msg = (f"the {what} is not constrained by these detections (1-sigma {sd}, limit "
-                   f"{_fmt_pct(config.focal_max_std) if drop_f else f'{0.01 * cframes[0].size[0]:.0f} px'}): "
-                   "objects at more depths and across the whole image are needed")
-            if config.refine_intrinsics == "auto":
-                _note(diag, f"refine_intrinsics='auto': {msg}; the given intrinsics are kept", warn=False)
-            elif not refusal:
-                refusal = f"{what} estimation asked for but {msg}; or give exact intrinsics (refine_intrinsics='none')"
-            cfg = cfg.replace(refine_intrinsics="none" if drop_f else "focal")
-        if drop_t:
-            why = (f"only {fit.n_moving_pairs} matched pairs of moving objects (need {MIN_MOVING_PAIRS})"
-                   if fit.n_moving_pairs < MIN_MOVING_PAIRS else
-                   f"1-sigma {1e3 * (fit.dt_sd_s or np.inf):.0f} ms > {1e3 * config.time_offset_max_std_s:.0f} ms")
+        cfg, changed = _judge_intrinsics(fit, cfg, config, diag, refusals, cframes[0].size[0])
+        if est_dt and not (fit.n_moving_pairs >= MIN_MOVING_PAIRS and fit.dt_sd_s is not None
+                           and fit.dt_sd_s <= config.time_offset_max_std_s):
             diag.time_offset_std_s = fit.dt_sd_s
-            if config.time_offset == "auto":
-                _note(diag, f"time_offset='auto': not observable ({why}); no time offset applied")
-            elif not refusal:
-                refusal = f"time offset asked for but not observable: {why}; objects moving in view are needed"
-            estimate_dt = False
-        if not (drop_f or drop_c or drop_t):
+            _drop_dt(diag, config, refusals, f"only {fit.n_moving_pairs} matched pairs of moving objects (need "
+                     f"{MIN_MOVING_PAIRS})" if fit.n_moving_pairs < MIN_MOVING_PAIRS else
+                     f"1-sigma {1e3 * (fit.dt_sd_s or np.inf):.0f} ms > {1e3 * config.time_offset_max_std_s:.0f} ms")
+            est_dt, changed = False, True
+        if not changed:
             break
-        fit = joint_refine(cframes, intr, pose, cfg, motion, estimate_dt, occlusion) \
-            if (cfg.refine_intrinsics != "none" or estimate_dt) else None
+        fit = joint_refine(cframes, intr, pose, cfg, motion, est_dt, occlusion) \
+            if (cfg.refine_intrinsics != "none" or est_dt) else None
     if fit is None:
-        if (config.refine_intrinsics in ("focal", "focal+center") or config.time_offset == "estimate") and not refusal:
-            refusal = "self-calibration asked for but too few matched pairs to estimate it"
         _fill_used(diag, intr)
-        return SelfCalChoice(intr, cframes, pose, None, refusal, diag)
+        return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag)
     if cfg.refine_intrinsics != "none":
         diag.focal_scale, diag.focal_scale_std, diag.focal_estimated = fit.focal_scale, fit.focal_log_sd, True
     if fit.principal_shift_px is not None:
         diag.principal_shift_px = [float(v) for v in fit.principal_shift_px]
         diag.principal_std_px = [float(v) for v in fit.principal_sd_px]
     frames = cframes
-    if estimate_dt:
+    if est_dt:
         diag.time_offset_s, diag.time_offset_std_s, diag.time_offset_source = fit.dt_s, fit.dt_sd_s, "estimated"
         diag.n_moving_pairs = fit.n_moving_pairs
         frames = shift_frames(cframes, motion.velocity, fit.dt_s)
-    elif want_dt:
-        diag.time_offset_source = "fallback"
     _fill_used(diag, fit.intr)
-    return SelfCalChoice(fit.intr, frames, fit.pose, fit.pose_inflation, refusal, diag)
+    return SelfCalChoice(fit.intr, frames, fit.pose, fit.pose_inflation, "; ".join(refusals), diag)
+
+
+def _drop_dt(diag: SelfCalDiagnostics, config: CalibConfig, refusals: list[str], why: str) -> None:
+    diag.time_offset_source = "fallback"
+    if config.time_offset == "auto":
+        _note(diag, f"time_offset='auto': not observable ({why}); no time offset applied")
+    else:
+        refusals.append(f"time offset asked for but not observable: {why}; objects moving in view are needed")
+
+
+def _judge_intrinsics(fit: SelfCalFit, cfg: CalibConfig, config: CalibConfig, diag: SelfCalDiagnostics,
+                      refusals: list[str], width: int) -> tuple[CalibConfig, bool]:
+    """(config for the next fit, whether it changed): drop a focal scale / principal point that the
+    data does not constrain ("auto": keep the given; asked for: refuse), and with "auto" one that
+    agrees with the given focal length within 2 sigma."""
+    if cfg.refine_intrinsics == "none":
+        return cfg, False
+    sd = fit.focal_log_sd
+    diag.focal_scale_std = sd
+    hint = "objects at more depths and across the whole image are needed"
+    if not (sd is not None and sd <= config.focal_max_std):
+        msg = (f"the focal length is not constrained by these detections (1-sigma {_fmt_pct(sd)}, limit "
+               f"{_fmt_pct(config.focal_max_std)}): {hint}")
+        if config.refine_intrinsics == "auto":
+            _note(diag, f"refine_intrinsics='auto': {msg}; the given intrinsics are kept", warn=False)
+        else:
+            refusals.append(f"focal length estimation asked for but {msg}; or give exact intrinsics "
+                            "(refine_intrinsics='none')")
+        return cfg.replace(refine_intrinsics="none"), True
+    if config.refine_intrinsics == "auto" and abs(np.log(fit.focal_scale)) <= 2 * sd:
+        _note(diag, f"refine_intrinsics='auto': the detections fit the focal length x{fit.focal_scale:.4f} "
+                    f"(1-sigma {_fmt_pct(sd)}), consistent with the given one; the given one is kept", warn=False)
+        return cfg.replace(refine_intrinsics="none"), True
+    limit = 0.01 * width
+    if cfg.refine_intrinsics == "focal+center" and not (fit.principal_sd_px is not None
+                                                         and np.all(fit.principal_sd_px <= limit)):
+        refusals.append(f"principal point estimation asked for but it is not constrained by these detections "
+                        f"(1-sigma {np.max(fit.principal_sd_px) if fit.principal_sd_px is not None else np.inf:.1f} px, "
+                        f"limit {limit:.0f} px): {hint}; or use refine_intrinsics='focal'")
+        return cfg.replace(refine_intrinsics="focal"), True
+    return cfg, False
 
 
 def _fill_used(diag: SelfCalDiagnostics, intr: CameraIntrinsics) -> None:
