@@ -72,3 +72,12 @@ def test_real_readers_fill_timing():
     assert f.velocities_3d.shape == (f.num_3d, 3) and np.all(np.isfinite(f.velocities_3d))
     w = open_source(shared_path("waymo", "mmdet3d_tests", "waymo_format", "validation", "val.tfrecord"))[0]
     assert w.lidar_time_s > 1.5e9 and len(set(w.track_ids_3d.tolist())) == w.num_3d
+
+
+def test_bag_frames_carry_header_stamps(frames, tmp_path):
+    from xcalib.io.bags import write_bag
+    from xcalib.io.frames import read_frames
+
+    path = write_bag(tmp_path / "s.mcap", frames, start_s=1000.0, camera_delay_s=0.02)
+    back = read_frames(path, camera="camera")
+    assert back[1].lidar_time_s == pytest.approx(1000.1) and back[1].camera_time_s == pytest.approx(1000.12)

@@ -97,6 +97,33 @@ class CalibrationResult:
         return projection_matrix(self.K, self.rotation, self.translation)
 
     @property
+    def time_offset_s(self) -> float | None:
+        """Camera time minus LiDAR time (s) the 3D boxes were moved by (estimated or fixed); None: none."""
+        return None if self.diagnostics is None else self.diagnostics.selfcal.time_offset_s
+
+    @property
+    def time_offset_std_s(self) -> float | None:
+        """1-sigma (s) of an estimated time offset."""
+        return None if self.diagnostics is None else self.diagnostics.selfcal.time_offset_std_s
+
+    @property
+    def intrinsics_given(self) -> CameraIntrinsics | None:
+        """The intrinsics passed in (``intrinsics`` are those used: estimated where refined)."""
+        if self.diagnostics is None or self.diagnostics.selfcal.intrinsics_given is None:
+            return self.intrinsics
+        return CameraIntrinsics.from_dict(self.diagnostics.selfcal.intrinsics_given)
+
+    @property
+    def focal_scale(self) -> float:
+        """Focal length used / given (1.0: the given one kept)."""
+        return 1.0 if self.diagnostics is None else float(self.diagnostics.selfcal.focal_scale)
+
+    @property
+    def focal_scale_std(self) -> float | None:
+        """1-sigma (relative) of the focal scale where it was measured."""
+        return None if self.diagnostics is None else self.diagnostics.selfcal.focal_scale_std
+
+    @property
     def n_pairs(self) -> int:
         return int(sum(len(p) for p in self.pairs))
 
@@ -258,6 +285,16 @@ class CalibrationResult:
             f"  1-sigma       = rot {np.array2string(self.rotation_std_deg, precision=3)} deg, "
             f"trans {np.array2string(self.translation_std_m, precision=3)} m",
         ]
+        sc = None if self.diagnostics is None else self.diagnostics.selfcal
+        if sc is not None and sc.focal_estimated:
+            lines.append(f"  focal length  = fx {sc.fx_used:.2f}, fy {sc.fy_used:.2f} px (x{sc.focal_scale:.4f} of the "
+                         f"given, 1-sigma {100 * (sc.focal_scale_std or 0):.2f} %)")
+        if sc is not None and sc.principal_shift_px is not None:
+            lines.append(f"  principal pt  = cx {sc.cx_used:.1f}, cy {sc.cy_used:.1f} px (moved "
+                         f"{sc.principal_shift_px[0]:+.1f}, {sc.principal_shift_px[1]:+.1f} px)")
+        if sc is not None and sc.time_offset_s is not None:
+            sd = "" if sc.time_offset_std_s is None else f", 1-sigma {1e3 * sc.time_offset_std_s:.1f} ms"
+            lines.append(f"  time offset   = {1e3 * sc.time_offset_s:+.1f} ms camera - LiDAR ({sc.time_offset_source}{sd})")
         if self.message:
             lines.append(f"  note: {self.message}")
         return "\n".join(lines)
