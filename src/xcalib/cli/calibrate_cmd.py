@@ -40,6 +40,14 @@ def register(app: typer.Typer) -> None:
         limit: int = typer.Option(0, "--limit", help="Use only the first N frames (0: all)."),
         tolerance: float = typer.Option(0.05, "--tolerance", help="Bags: largest LiDAR/image stamp difference (s)."),
         seed: int = typer.Option(0, "--seed", help="Random seed of the hypothesis sampling."),
+        refine_intrinsics: str = typer.Option("none", "--refine-intrinsics",
+                                              help="none | auto | focal | focal+center: estimate the focal length "
+                                                   "(and principal point) with the pose; auto: only where the "
+                                                   "detections constrain it."),
+        time_offset: str = typer.Option("none", "--time-offset",
+                                        help="none | auto | estimate | SECONDS: camera-minus-LiDAR time offset; "
+                                             "auto/estimate fit it from moving objects (auto falls back to none "
+                                             "when not observable, estimate refuses)."),
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
         force: bool = typer.Option(False, "--force", help="Replace an existing report folder."),
     ) -> None:
@@ -47,6 +55,7 @@ def register(app: typer.Typer) -> None:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         from ..calib.api import calibrate
+        from ..calib.config import CalibConfig
         from ..calib.result import CalibrationResult
         from ..io._files import atomic_dir
         from ..io.frames import read_intrinsics_json
@@ -68,6 +77,10 @@ def register(app: typer.Typer) -> None:
                 and views[name0][0].intrinsics is None:
             raise typer.BadParameter(f"{frames} has no intrinsics; pass --intrinsics K.json", param_hint="--intrinsics")
         prior_res = CalibrationResult.load(prior) if prior is not None else None
+        try:
+            selfcal = CalibConfig(refine_intrinsics=refine_intrinsics, time_offset=time_offset)
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc), param_hint="--refine-intrinsics / --time-offset") from None
         console = Console(stderr=True)
         with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                       console=console, disable=as_json, transient=False) as bar:
@@ -79,7 +92,7 @@ def register(app: typer.Typer) -> None:
                 bar.update(tasks[stage], completed=done, total=total)
 
             def run(items, k, stage):
-                return calibrate(items, k, prior=prior_res, box_model=box_model, seed=seed, progress=stage)
+                return calibrate(items, k, selfcal, prior=prior_res, box_model=box_model, seed=seed, progress=stage)
 
             site, loaded = calibrate_site(views, {name0: intr} if intr is not None else None, source=str(frames),
                                           calibrate=run, progress=progress)

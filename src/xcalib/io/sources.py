@@ -143,7 +143,7 @@ def camera_view(frame: Frame, name: str) -> Frame:
     """One camera of a multi-camera frame (``Frame.images`` / ``camera_per_det``) as a plain
     single-camera frame: that camera's image, 2D boxes, match-matrix rows, and its intrinsics and
     extrinsics when the frame carries them per camera."""
-    image, points, b2, b3, mm = frame.for_camera(name)
+    image, points, b2, b3, mm = frame.camera_view(name)
     keep = (np.ones(frame.num_2d, dtype=bool) if frame.camera_per_det is None
             else np.array([c == name for c in frame.camera_per_det], dtype=bool))
     intr = (frame.meta.get("intrinsics_by_camera") or {}).get(name, frame.intrinsics if name == frame.camera_name
