@@ -24,6 +24,7 @@ import numpy as np
 
 from ..geometry.boxes import box2d_centers
 from ..geometry.projection import project_points
+from ..geometry.transforms import make_transform
 from .bringup import distinct_best, matcher_similarities, pose_hypotheses
 from .config import CalibConfig
 from .cost import Occlusion
@@ -252,12 +253,15 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     if refusal is not None and inflation is not None:
         refusal = Refusal(refusal.code, refusal.message + _selfcal_note(diag))
     diag.refusal = "" if refusal is None else refusal.code
+    if refusal is not None:  # kept for diagnostics only: a failed result has no pose (as the reference)
+        diag.refused_T = make_transform(pose.R, pose.t).tolist()
     diag.elapsed_s = time.perf_counter() - t0
     caller_pairs = [np.column_stack([f.idx2d[p[:, 0]], f.idx3d[p[:, 1]]]) if len(p) else np.zeros((0, 2), np.int64)
                     for f, p in zip(cframes, pairs)]
     return _result(
         refusal is None, "" if refusal is None else refusal.message, intr, cframes, config, diag,
-        accepted=refusal is None, rotation=pose.R, translation=pose.t, n_correspondences=n_pairs,
+        accepted=refusal is None, rotation=pose.R if refusal is None else None,
+        translation=pose.t if refusal is None else None, n_correspondences=n_pairs,
         n_inliers=int(np.sum(ious >= 0.5)), reproj_error_px=float(np.mean(px)) if len(px) else float("inf"),
         residual_px_median=float(np.median(px)) if len(px) else float("nan"),
         iou_median=float(np.median(ious)) if len(ious) else float("nan"),

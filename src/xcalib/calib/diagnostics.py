@@ -144,6 +144,7 @@ class CalibDiagnostics:
     misfit: list[MisfitCheck] = field(default_factory=list)
     selfcal: SelfCalDiagnostics = field(default_factory=SelfCalDiagnostics)
     refusal: str = ""                      # short code of the refusal reason ("" on success)
+    refused_T: list | None = None          # [4,4] the refined pose that was refused (a failed result has none)
     frames: list[FrameSummary] = field(default_factory=list)
     elapsed_s: float = 0.0
 

@@ -122,7 +122,8 @@ def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, to
             seq = open_source(source, camera=c, frames=frame_range, **options)
             if len(seq) == 0:
                 raise typer.BadParameter(f"{source}: no frames found", param_hint="SOURCE")
-            name = c or getattr(seq, "camera", "") or seq[0].camera_name or "camera"
+            own = getattr(seq, "camera", None)  # a source's camera attribute (KITTI's is the camera number)
+            name = c or (own if isinstance(own, str) and own else "") or seq[0].camera_name or "camera"
             views[name] = seq
     except ValueError as exc:
         if type(exc).__name__ == "FormatError":
