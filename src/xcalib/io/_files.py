@@ -272,6 +272,8 @@ def inside(root, rel, *, source=None, field: str | None = None, allow_outside: b
     if not isinstance(rel, (str, os.PathLike)) or not str(rel) or "\x00" in str(rel):
         raise FormatError(source, f"expected a relative file path, got {rel!r:.80}", field)
     rel_s = os.fspath(rel)
+    if len(rel_s) > 4096 or any(len(os.fsencode(c)) > 255 for c in Path(rel_s).parts):
+        raise FormatError(source, f"path {rel_s[:60]!r}... is too long for a file name", field)
     joined = root / rel_s
     if allow_outside:
         return joined

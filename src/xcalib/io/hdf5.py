@@ -148,6 +148,16 @@ class CacheReader(Sequence):
         except (OSError, ValueError) as exc:
             raise FormatError(self.path, f"not a readable HDF5 file ({exc})") from None
         self._finalizer = weakref.finalize(self, self._f.close)
+        try:
+            self._open_layout(label_sensor, lidar_name, key_order, read_images, decode_images, read_extras)
+        except FormatError:
+            raise
+        except (OSError, KeyError, ValueError, TypeError, RuntimeError) as exc:  # h5py: checksums, truncation
+            self.close()
+            raise FormatError(self.path, f"corrupt HDF5 layout ({type(exc).__name__}: {str(exc)[:200]})") from None
+
+    def _open_layout(self, label_sensor, lidar_name, key_order, read_images, decode_images, read_extras) -> None:
+        h5py = _h5py()
         self.read_images = bool(read_images)
         self.decode_images = bool(decode_images)
         self.read_extras = bool(read_extras)
