@@ -299,7 +299,9 @@ class CacheReader(Sequence):
             raise ValueError(f"{self.path}: the cache is closed")
         try:
             return self._read_frame(key)
-        except FormatError:
+        except FormatError as exc:
+            if exc.path is None:  # raised below the reader (dataset size check): name the file
+                raise type(exc)(self.path, exc.problem, exc.field) from None
             raise
         except (OSError, ValueError, TypeError, KeyError, IndexError, OverflowError, MemoryError, RuntimeError,
                 UnicodeDecodeError) as exc:
