@@ -52,10 +52,15 @@ def register(app: typer.Typer) -> None:
             return
         installed = None
         if site:
+            from ..engine.checkpoint import write_checksum
+            from ..io._files import atomic_dir
+
             d = site_dirs(site)[0]
-            d.mkdir(parents=True, exist_ok=True)
-            installed = str(shutil.copyfile(best, d / f"{model}.pt"))
-            shutil.copyfile(best.with_suffix(".yaml"), d / f"{model}.yaml")
+            with atomic_dir(d, keep_existing=True) as tmp:  # weights, config and checksum swapped in together
+                shutil.copyfile(best, tmp / f"{model}.pt")
+                shutil.copyfile(best.with_suffix(".yaml"), tmp / f"{model}.yaml")
+                write_checksum(tmp / f"{model}.pt")
+            installed = str(d / f"{model}.pt")
         hist = json.loads((Path(output_dir) / "history.json").read_text())
         bestrow = max(hist, key=lambda h: h["val_mrr"])
         summary = {"model": model, "best": str(best), "installed": installed, "epochs": len(hist),
