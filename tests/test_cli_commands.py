@@ -62,7 +62,7 @@ def weights(tmp_path_factory) -> Path:
 
     torch.manual_seed(0)
     d = tmp_path_factory.mktemp("w")
-    Matcher("fastmatch", device="cpu").save_pretrained(d)
+    Matcher("fastmatch", device="cpu", allow_random=True).save_pretrained(d)
     return d
 
 
@@ -113,7 +113,7 @@ def test_train_then_match_with_the_best_weights(site, tmp_path, monkeypatch, cap
     out = json.loads(capsys.readouterr().out)
     best = Path(out["best"])
     assert best.is_file() and out["epochs"] == 1
-    assert (tmp_path / "home" / "sites" / "clisite" / "fastmatch.pt").is_file()
+    assert (tmp_path / "home" / "sites" / "clisite" / "fastmatch.pth").is_file()
     assert main(["match", str(site / "test.h5"), "--site", "clisite", "--validate", "off", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["model"] == "fastmatch"
 

@@ -74,7 +74,7 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
               assignment: str, images, camera_per_det, use_calibration, box7, score_range,
               fill_value: float | None, return_latency: bool = False) -> MatchResult:
     """One frame through matcher ``m`` (``Matcher`` or ``OnnxMatcher``: ``crop_config``,
-    ``_warnings``, ``prepare``, ``similarity`` -> numpy [K',M'], ``calibration``,
+    ``warning_registry``, ``prepare``, ``similarity`` -> numpy [K',M'], ``calibration``,
     ``fusion_weight``, ``fusion_eps``, ``model_name``, ``device``). ``latency_ms`` = crop + model
     (+ projection and fusion) wall time, validation excluded (``return_latency``: the model's
     ``similarity`` call alone); matches in the caller's numbering."""
@@ -82,7 +82,7 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
         raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {assignment!r}")
     fuse = resolve_use_calibration(use_calibration, m.calibration, is_multi_camera(images, camera_per_det))
     validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, validate,
-                          bbox_expansion=m.crop_config.bbox_expansion, registry=m._warnings)
+                          bbox_expansion=m.crop_config.bbox_expansion, registry=m.warning_registry)
     t0 = time.perf_counter()
     multi = {"images": images, "camera_per_det": camera_per_det} if images is not None else {}
     inputs = m.prepare(image, point_cloud, bboxes_2d, bboxes_3d, **multi)

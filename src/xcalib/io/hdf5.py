@@ -21,11 +21,14 @@ xcalib's additive extras (ignored by spec readers): ``/calibration/<cam>/distort
 int64 and ``camera_classes`` / ``lidar_classes`` bytes per detection (``meta["ids_2d"]``,
 ``["ids_3d"]``, ``["classes_2d"]``, ``["classes_3d"]``);
 extra point columns as ``/point_clouds/<lidar>/<key>/<field>`` [P] listed in the group's
-``fields`` attribute.
+``fields`` attribute; per-frame timing and tracks in the label group (``Frame`` fields of the
+same meaning): ``lidar_time_s`` / ``camera_time_s`` float64 scalars (seconds, one clock),
+``lidar_track_ids`` int64 [>=M] (``Frame.track_ids_3d``, -1 = none), ``lidar_velocities``
+float64 [>=M,3] (``Frame.velocities_3d``, m/s, LiDAR frame).
 
 Unlike the reference loader: any label sensor / LiDAR can be chosen (a warning when several exist
 and none was chosen), numeric keys can be ordered numerically, K==0 / M==0 frames are returned,
-``Frame.for_camera`` filters the match matrix, and the file closes itself when the reader is
+``Frame.camera_view`` filters the match matrix, and the file closes itself when the reader is
 garbage collected or closed.
 """
 
@@ -42,11 +45,12 @@ import numpy as np
 
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
-from ..types import Frame
+from ..types import DatasetFrame, Frame
 from ._files import _tmp_prefix, open_regular, sweep_stale
 from ._validate import check_boxes_2d, check_boxes_3d, check_count, check_rigid
+from .timing import checked_timing, timing_of
 
-__all__ = ["CacheReader", "CacheWriter", "write_cache", "load_dataset", "cache_summary",
+__all__ = ["CacheReader", "CacheWriter", "write_cache", "load_dataset", "open_dataset", "Dataset", "cache_summary",
            "CorruptImageError", "is_hdf5_cache", "HDF5_SUFFIXES"]
 
 log = logging.getLogger(__name__)
@@ -69,6 +73,10 @@ _META_DATASETS = {
     "classes_2d": ("camera_classes", "s2d"),
     "classes_3d": ("lidar_classes", "s3d"),
 }
+
+# Frame timing/track field -> dataset of the label group (additive, optional).
+_TIMING_DATASETS = {"lidar_time_s": "lidar_time_s", "camera_time_s": "camera_time_s",
+                    "track_ids_3d": "lidar_track_ids", "velocities_3d": "lidar_velocities"}
 
 
 class CorruptImageError(FormatError):
@@ -272,7 +280,7 @@ class CacheReader(Sequence):
             log.warning("%s: skipped %d frame(s) whose image did not decode: %s", self.path, len(bad),
                         ", ".join(bad[:20]) + (" ..." if len(bad) > 20 else ""))
 
-    def for_camera(self, name: str) -> Iterator[tuple]:
+    def camera_views(self, name: str) -> Iterator[tuple]:
         """Per frame ``(image, point_cloud, bboxes_2d, bboxes_3d, match_matrix)`` of camera ``name``
         (exact or suffix match); the match matrix keeps only that camera's rows."""
         cam = _match_camera(name, self.camera_names)
@@ -281,7 +289,13 @@ class CacheReader(Sequence):
         for frame in self:
             if frame.camera_per_det is not None and cam not in frame.camera_per_det and frame.camera_name != cam:
                 continue
-            yield frame.for_camera(cam)
+            yield frame.camera_view(cam)
+
+    def for_camera(self, name: str) -> Iterator[tuple]:
+        """Per frame the reference's 4 values ``(image, point_cloud, bboxes_2d, bboxes_3d)`` of
+        camera ``name`` (:meth:`camera_views` adds the match matrix)."""
+        for view in self.camera_views(name):
+            yield view[:4]
 
     # ----------------------------------------------------------------- one frame
     def _group(self, path: str, key: str, what: str) -> "_Group":
@@ -363,6 +377,7 @@ class CacheReader(Sequence):
                         meta[mkey] = [_as_str(s) for s in arr[:n]]
                     else:
                         meta[mkey] = arr[:n].astype(np.float64 if kind.startswith("v") else np.int64)
+        timing = self._timing(g, key, where, M)
         points, fields = self._points(key)
         # Images: every camera referenced by the frame (or the first camera).
         primary = cams_per_det[0] if cams_per_det else self.camera_names[0]
@@ -384,7 +399,18 @@ class CacheReader(Sequence):
         return Frame(image=image, point_cloud=points, bboxes_2d=b2, bboxes_3d=b3, camera_name=primary,
                      frame_key=key, match_matrix=mm, intrinsics=intr, extrinsics=extr, images=images,
                      camera_per_det=cams_per_det if cams_per_det is not None else [primary] * K,
-                     point_fields=fields, meta=meta)
+                     point_fields=fields, meta=meta, **timing)
+
+    def _timing(self, g: "_Group", key: str, where: str, M: int) -> dict:
+        """The optional timing / track datasets of a label group, validated."""
+        vals, names = {}, {}
+        for field, dname in _TIMING_DATASETS.items():
+            if dname in g:
+                v = g.read(dname)
+                if field in ("track_ids_3d", "velocities_3d") and v.ndim >= 1 and len(v) >= M:
+                    v = v[:M]
+                vals[field], names[field] = v, f"{where}/{dname}"
+        return checked_timing(self.path, M, fields=names, **vals) if vals else {}
 
     def _rows(self, arr: np.ndarray, name: str, n: int, width: int, key: str, where: str,
               dtype=np.float32) -> np.ndarray:
@@ -568,25 +594,72 @@ class _Group:
         return [_as_str(v) for v in arr.reshape(-1)]
 
 
-def load_dataset(site, split: str = "test", *, local=None, repo_id: str | None = None,
-                 revision: str | None = None, token: str | None = None, **reader_kwargs) -> CacheReader:
-    """Open a cache split; never downloads anything.
+class Dataset:
+    """What the reference's ``load_dataset`` returns: a sequence of :class:`xcalib.types.DatasetFrame`
+    (``intrinsics`` / ``extrinsics`` as ``{camera: matrix}`` dicts, ``for_camera`` -> 4 values)
+    over a :class:`CacheReader` (``reader``). Iteration skips frames whose image does not decode,
+    as the reader does. A context manager; ``close()`` closes the file."""
 
-    Resolution (reference-compatible, minus the Hub): ``local`` (must exist) -> ``site`` as an
-    .h5 file (``site`` is a site folder name or a path, as in the reference) -> a folder holding ``<split>.h5`` (as ``xcalib synth`` writes) or ``*_<split>.h5`` ->
-    the checkout-local ``datasets/<site>/hdf5_cache/*_<split>.h5`` under the working directory.
-    ``repo_id`` / ``revision`` / ``token`` are accepted for API compatibility and rejected.
-    """
+    def __init__(self, reader: CacheReader):
+        self.reader = reader
+
+    def __len__(self) -> int:
+        return len(self.reader)
+
+    def __getitem__(self, index):
+        got = self.reader[index]
+        return [DatasetFrame(f) for f in got] if isinstance(got, list) else DatasetFrame(got)
+
+    def __iter__(self) -> Iterator[DatasetFrame]:
+        return (DatasetFrame(f) for f in self.reader)
+
+    @property
+    def camera_names(self) -> list[str]:
+        return list(self.reader.camera_names)
+
+    @property
+    def path(self) -> Path:
+        return self.reader.path
+
+    def close(self) -> None:
+        self.reader.close()
+
+    def __enter__(self) -> "Dataset":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"Dataset({self.reader!r})"
+
+
+def load_dataset(site, split: str = "test", *, repo_id: str | None = None, revision: str | None = None,
+                 token: str | None = None, local=None, **reader_kwargs) -> Dataset:
+    """The reference's ``load_dataset``: :func:`open_dataset` wrapped as a :class:`Dataset` of
+    reference-shaped frames. Never downloads: ``repo_id`` / ``revision`` / ``token`` are
+    rejected with a ``ValueError`` naming the local alternatives."""
     if repo_id is not None or revision is not None or token is not None:
         raise ValueError("load_dataset: xcalib never downloads datasets (repo_id/revision/token given); "
-                         "pass a local .h5 file or folder")
+                         "pass a local .h5 file or folder (local=..., or ./datasets/<site>/hdf5_cache/), or make "
+                         "a site with `xcalib synth --out DIR`")
+    return Dataset(open_dataset(site, split, local=local, **reader_kwargs))
+
+
+def open_dataset(site, split: str = "test", *, local=None, **reader_kwargs) -> CacheReader:
+    """Open a cache split as a :class:`CacheReader` of xcalib :class:`Frame`s; never downloads.
+
+    Resolution (the reference's, minus the Hub): ``local`` (must exist) -> ``site`` as an
+    .h5 file (``site`` is a site folder name or a path, as in the reference) -> a folder holding ``<split>.h5`` (as ``xcalib synth`` writes) or ``*_<split>.h5`` ->
+    the checkout-local ``datasets/<site>/hdf5_cache/*_<split>.h5`` under the working directory.
+    """
     if split not in ("train", "val", "test") and not Path(str(site)).is_file():
         log.warning("load_dataset: unusual split name %r (expected train, val or test)", split)
     if local is not None:
         lp = Path(local)
         if not lp.exists():
             raise FileNotFoundError(f"load_dataset: local={str(lp)!r} does not exist")
-        return load_dataset(lp, split, **reader_kwargs)
+        return open_dataset(lp, split, **reader_kwargs)
     p = Path(site)
     if p.is_file():
         return CacheReader(p, **reader_kwargs)
@@ -786,6 +859,11 @@ class CacheWriter:
             if len(arr) != n:
                 raise ValueError(f"CacheWriter: frame {key!r}: meta[{mkey!r}] has {len(arr)} rows, expected {n}")
             _small(lg, dname, arr)
+        for field, v in timing_of(frame).items():
+            arr = np.asarray(v, dtype=np.int64 if field == "track_ids_3d" else np.float64)
+            if field in ("track_ids_3d", "velocities_3d") and len(arr) != M:
+                raise ValueError(f"CacheWriter: frame {key!r}: {field} has {len(arr)} rows, expected M = {M}")
+            _small(lg, _TIMING_DATASETS[field], arr)
         # points
         pts = np.asarray(frame.point_cloud)
         if pts.ndim != 2 or (pts.size and pts.shape[1] < 3):

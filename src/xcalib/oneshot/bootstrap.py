@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
 
+from ..calib.config import CalibConfig
 from ..calib.result import CalibrationResult
 from ..types import Frame
 from .adapt import AdaptReport
@@ -47,7 +48,7 @@ class BootstrapResult:
         return {"site": self.site, "model": self.model, "init": self.init, "frames": self.n_frames,
                 "calibrated": bool(c.success), "calibration_pairs": c.n_pairs,
                 "calibration_iou_median": c.iou_median, "calibration_residual_px_median": c.residual_px_median,
-                "T_cam_lidar": c.extrinsics.tolist(), "adapt": {k: v for k, v in self.adapt.to_dict().items()
+                "T_cam_lidar": c.extrinsics.tolist() if c.success else None, "adapt": {k: v for k, v in self.adapt.to_dict().items()
                                                                 if k != "losses"},
                 "paths": {k: str(v) for k, v in self.paths.items()}, "elapsed_s": self.elapsed_s}
 
@@ -80,7 +81,7 @@ def starting_matcher(model: str, init: str = "auto", *, device: str | None = "cp
 def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "fastmatch", init: str = "auto",
               steps: int = 600, mode: str | None = None, lr: float = 1e-3, holdout: float = 0.2,
               install: bool = True, out_dir: str | Path | None = None, device: str | None = "cpu", seed: int = 0,
-              session_options: dict | None = None,
+              calib_config: CalibConfig | None = None,
               on_frame: Callable[[int, object], None] | None = None,
               on_step: Callable[[int, int, float], None] | None = None) -> BootstrapResult:
     """Site weights from unlabelled frames (see the module docstring).
@@ -92,7 +93,7 @@ def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "f
 
     t0 = time.perf_counter()
     matcher, init_desc, default_mode = starting_matcher(model, init, device=device, seed=seed)
-    session = OneShotSession(matcher, intrinsics, mode=mode or default_mode, seed=seed, **(session_options or {}))
+    session = OneShotSession(matcher, intrinsics, mode=mode or default_mode, seed=seed, calib_config=calib_config)
     n = 0
     for n, frame in enumerate(frames, start=1):
         rep = session.observe_frame(frame, validate="off")

@@ -84,19 +84,16 @@ def _shrink(rgb: np.ndarray, max_width: int = _MAX_WIDTH) -> np.ndarray:
 
 
 def _initial_pose(result, before):
+    from ..calib.pose import Pose
+
     if before is not None:
-        if hasattr(before, "rotation"):
-            return np.asarray(before.rotation, float), np.asarray(before.translation, float)
-        if isinstance(before, (tuple, list)) and len(before) == 2:
-            return np.asarray(before[0], float).reshape(3, 3), np.asarray(before[1], float).reshape(3)
-        T = np.asarray(before, float)
-        if T.shape not in ((4, 4), (3, 4)):
-            raise ValueError(f"before: expected a CalibrationResult, (R, t) or a 4x4 T_cam_lidar, got shape {T.shape}")
-        return T[:3, :3], T[:3, 3]
+        p = Pose.parse(before, "before")
+        return p.R, p.T[:3, 3]
+    diag = getattr(result, "diagnostics", None)
+    if diag is not None and diag.bringup_T is not None:  # the calibrator's best bring-up pose, before refinement
+        p = Pose.parse(np.asarray(diag.bringup_T, dtype=np.float64))
+        return p.R, p.t
     meta = getattr(result, "meta", {}) or {}
-    if meta.get("bringup_T") is not None:  # the calibrator's best bring-up pose, before refinement
-        T = np.asarray(meta["bringup_T"], dtype=np.float64)
-        return T[:3, :3], T[:3, 3]
     if "initial_rotation" in meta and "initial_translation" in meta:
         return np.asarray(meta["initial_rotation"], float), np.asarray(meta["initial_translation"], float)
     return None
@@ -134,7 +131,8 @@ def result_numbers(result, ground_truth=None) -> dict[str, Any]:
     """The headline numbers of a ``CalibrationResult`` (pixels, IoU, degrees, metres)."""
     from ..geometry.rotations import matrix_to_euler
 
-    meta = getattr(result, "meta", {}) or {}
+    diag = getattr(result, "diagnostics", None)
+    co = None if diag is None else diag.centre_offset_px_median
     nums: dict[str, Any] = {
         "success": bool(result.success),
         "message": result.message or "-",
@@ -146,14 +144,15 @@ def result_numbers(result, ground_truth=None) -> dict[str, Any]:
         "residual mean (px)": float(result.reproj_error_px),
         "IoU median": float(result.iou_median),
         "IoU mean": float(result.iou_mean),
-        "box-centre offset median (px)": float(meta.get("centre_offset_px_median") or np.nan),
+        "box-centre offset median (px)": float(np.nan if co is None else co),
         "rotation 1-sigma (deg)": np.asarray(result.rotation_std_deg, float),
         "translation 1-sigma (m)": np.asarray(result.translation_std_m, float),
-        "translation t (m)": np.asarray(result.translation, float),
-        "rotation xyz Euler (deg)": matrix_to_euler(np.asarray(result.rotation, float), "xyz", degrees=True),
     }
-    if "elapsed_s" in meta:
-        nums["calibration time (s)"] = float(meta["elapsed_s"])
+    if result.rotation is not None and result.translation is not None:  # a failed result has no pose
+        nums["translation t (m)"] = np.asarray(result.translation, float)
+        nums["rotation xyz Euler (deg)"] = matrix_to_euler(np.asarray(result.rotation, float), "xyz", degrees=True)
+    if diag is not None:
+        nums["calibration time (s)"] = float(diag.elapsed_s)
     if ground_truth is not None and result.success:
         rot_deg, trans_m = result.pose_error(ground_truth)
         nums["rotation error vs ground truth (deg)"] = float(rot_deg)
@@ -183,8 +182,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         :class:`CalibrationReport` with the HTML path, figures and numbers.
     """
     from ..geometry.boxes import as_box7, box7_corners, boxes2d_from_points, iou_matrix
-    from .calibration import draw_calibration_overlay
-    from .matching import draw_matching_overlay
+    from .calibration import REPORT_MAX_POINTS, draw_calibration_overlay
+    from .matching import REPORT_HEIGHT, draw_matching_overlay
 
     out = Path(out_dir)
     (out / "img").mkdir(parents=True, exist_ok=True)
@@ -219,7 +218,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
                     "calibration_before" if before_fig else "calibration", key))
         elif have_pose:
             ov = draw_calibration_overlay(image, pc, calibration=result, bboxes_3d=b3, bboxes_2d=b2, pairs=pairs,
-                                          point_radius=point_radius, title=f"{key}: after calibration")
+                                          point_radius=point_radius, max_points=REPORT_MAX_POINTS,
+                                          title=f"{key}: after calibration")
             _write_png(out / "img" / f"{stem}_calibration.png", ov)
             figures.append(ReportFigure(f"img/{stem}_calibration.png",
                                         f"Frame {key}, estimated pose: LiDAR points coloured by camera depth "
@@ -228,7 +228,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         if initial is not None and result.intrinsics is not None and not existing:
             ov = draw_calibration_overlay(image, pc, intrinsics=result.intrinsics, rotation=initial[0],
                                           translation=initial[1], bboxes_3d=b3, bboxes_2d=b2,
-                                          point_radius=point_radius, title=f"{key}: before refinement")
+                                          point_radius=point_radius, max_points=REPORT_MAX_POINTS,
+                                          title=f"{key}: before refinement")
             _write_png(out / "img" / f"{stem}_before.png", ov)
             figures.append(ReportFigure(f"img/{stem}_before.png", f"Frame {key}, initial pose (before refinement)",
                                         "calibration_before", key))
@@ -242,7 +243,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
             iou = np.diag(iou_matrix(np.asarray(b2, float)[pairs[:, 0]], proj)) if len(pairs) else np.zeros(0)
             m, source = [(int(i), int(j), float(s)) for (i, j), s in zip(pairs, np.nan_to_num(iou))], "projected IoU"
         if m is not None:
-            mo = draw_matching_overlay(image, pc, b2, b3, m, match_matrix=truth, camera=result if have_pose else None,
+            mo = draw_matching_overlay(image, pc, b2, b3, m, output_height=REPORT_HEIGHT, match_matrix=truth,
+                                       camera=result if have_pose else None,
                                        title=f"{key}: matching ({source})")
             _write_png(out / "img" / f"{stem}_matching.png", mo, 1600)
             figures.append(ReportFigure(f"img/{stem}_matching.png",
@@ -268,7 +270,7 @@ def _render_html(title: str, result, nums: dict[str, Any], figures: list[ReportF
     ok = bool(result.success)
     badge = ('<span class="ok">calibrated</span>' if ok else '<span class="bad">not calibrated</span>')
     rows = "\n".join(f"<tr><th>{e(str(k))}</th><td>{e(_fmt(v))}</td></tr>" for k, v in nums.items())
-    T = np.asarray(result.extrinsics, float)
+    T = np.asarray(result.extrinsics, float) if result.rotation is not None else np.full((4, 4), np.nan)
     mat = "\n".join("<tr>" + "".join(f"<td>{v:+.6f}</td>" for v in row) + "</tr>" for row in T)
     files = [p for p in ("calibration.json", "calibration.npz", "summary.txt", "summary.json") if (out / p).exists()]
     links = " · ".join(f'<a href="{e(p)}">{e(p)}</a>' for p in files) or "-"
