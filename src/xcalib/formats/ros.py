@@ -168,8 +168,10 @@ def read_urdf(path, camera: str | None = None) -> CalibrationResult:
 
     path = Path(path)
     try:
-        root = ET.fromstring(path.read_text())
-    except (OSError, ET.ParseError) as exc:
+        root = ET.fromstring(read_text(path, max_bytes=MAX_TEXT_BYTES, what="URDF file"))
+    except (OSError, ET.ParseError, RecursionError, ValueError) as exc:
+        if isinstance(exc, FormatError):
+            raise
         raise FormatError(path, f"not readable URDF XML ({exc})") from None
     parent_of = {}
     for j in root.iter("joint"):
