@@ -181,3 +181,9 @@ def test_bootstrap_installs_site_weights(calib_site, tmp_path, monkeypatch, caps
     assert Path(out["paths"]["weights"]).parent == tmp_path / "home" / "sites" / "boot"
     # the installed weights load by site name
     assert main(["match", str(calib_site / "test.h5"), "--site", "boot", "--validate", "off", "--json"]) == 0
+
+
+@pytest.mark.parametrize("flag, value", [("--time-offset", "soon"), ("--refine-intrinsics", "everything")])
+def test_calibrate_selfcal_flags_reject_bad_values(calib_site, tmp_path, flag, value):
+    rc = main(["calibrate", str(calib_site / "test.h5"), "--out", str(tmp_path / "c"), flag, value])
+    assert rc == 2 and not (tmp_path / "c").exists()

@@ -142,3 +142,13 @@ def test_bad_timestamps_auto_falls_back_fixed_refuses(dt_case):
     with pytest.warns(UserWarning, match="non-monotonic"):
         res = xcalib.calibrate(frames, dt_case.intrinsics_given, CalibConfig(time_offset="auto"))
     assert res.time_offset_s is None and res.diagnostics.selfcal.time_offset_source == "fallback"
+
+
+def test_fixed_time_offset_is_applied_and_recorded(dt_case):
+    case = dt_case
+    res = xcalib.calibrate(list(case.frames), case.intrinsics_given,
+                           CalibConfig(time_offset=case.time_offset_s, refine_intrinsics="auto"))
+    assert res.success, res.message
+    assert res.time_offset_s == case.time_offset_s and res.diagnostics.selfcal.time_offset_source == "fixed"
+    rot, tr = pose_error(res.extrinsics, case.T_cam_lidar)
+    assert rot < 0.2 and tr < 0.2

@@ -207,7 +207,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     ref = _refine_candidates(cframes, intr, cand, occlusion, progress)
     inflation = None
     if wants_selfcal(config):
-        choice = decide_selfcal(cframes, intr, Pose(ref.best.R, ref.best.t), config, motion, occlusion)
+        choice = decide_selfcal(cframes, intr, Pose(ref.best.R, ref.best.t), config, motion, occlusion, diag.selfcal)
         diag.selfcal = choice.diag
         if choice.refusal:
             return _refused(Refusal("selfcal", choice.refusal), intr, cframes, config, diag)

@@ -177,10 +177,12 @@ def _fmt_pct(x: float | None) -> str:
 
 
 def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config: CalibConfig,
-           motion: BoxMotion | None, occlusion: Occlusion) -> SelfCalChoice:
-    """Fit what ``config`` asks for from ``pose`` and decide what is used (module docstring)."""
-    diag = SelfCalDiagnostics(intrinsics_mode=config.refine_intrinsics, intrinsics_given=intr.to_dict(),
-                              time_offset_mode="none" if config.time_offset is None else str(config.time_offset))
+           motion: BoxMotion | None, occlusion: Occlusion, diag: SelfCalDiagnostics | None = None) -> SelfCalChoice:
+    """Fit what ``config`` asks for from ``pose`` and decide what is used (module docstring).
+    ``diag``: the record so far (a fixed time offset already applied), completed here."""
+    diag = replace(diag, notes=list(diag.notes)) if diag is not None else SelfCalDiagnostics()
+    diag.intrinsics_mode, diag.intrinsics_given = config.refine_intrinsics, intr.to_dict()
+    diag.time_offset_mode = "none" if config.time_offset is None else str(config.time_offset)
     if motion is not None:
         diag.velocity_source, diag.ego_motion, diag.stamp_offset_s = motion.source, motion.ego_motion, motion.stamp_offset_s
     want_dt = config.time_offset in ("auto", "estimate")

@@ -62,6 +62,10 @@ def register(app: typer.Typer) -> None:
         from ..site import calibrate_site
         from ..viz.site_report import site_table, write_site_report
 
+        try:
+            selfcal = CalibConfig(refine_intrinsics=refine_intrinsics, time_offset=time_offset)
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc), param_hint="--refine-intrinsics / --time-offset") from None
         if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
             raise FileExistsError(f"{out} already exists; pass --force to replace it")
         cams = list(camera or [])
@@ -77,10 +81,6 @@ def register(app: typer.Typer) -> None:
                 and views[name0][0].intrinsics is None:
             raise typer.BadParameter(f"{frames} has no intrinsics; pass --intrinsics K.json", param_hint="--intrinsics")
         prior_res = CalibrationResult.load(prior) if prior is not None else None
-        try:
-            selfcal = CalibConfig(refine_intrinsics=refine_intrinsics, time_offset=time_offset)
-        except ValueError as exc:
-            raise typer.BadParameter(str(exc), param_hint="--refine-intrinsics / --time-offset") from None
         console = Console(stderr=True)
         with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                       console=console, disable=as_json, transient=False) as bar:
