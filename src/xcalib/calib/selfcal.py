@@ -27,7 +27,7 @@ from .diagnostics import SelfCalDiagnostics
 from .inputs import CalibFrame
 from .motion import MOVING_MPS, BoxMotion, shift_frames
 from .pose import Pose
-from .refine import F_SCALE, _stack, edge_term, estimate_noise, match_all
+from .refine import F_SCALE, edge_term, estimate_noise, match_all
 
 __all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "MIN_MOVING_PAIRS"]
 
