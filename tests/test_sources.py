@@ -118,3 +118,11 @@ def test_merge_cameras_unions_3d_boxes_and_keeps_matches(rng):
     assert m.meta["camera_time_s_by_camera"] == {"a": 9.95, "b": 9.97}
     with pytest.raises(ValueError, match="frame counts"):
         merge_cameras({"a": [a], "b": []})
+
+
+def test_layering_of_bags_and_site():
+    code = ("import sys, xcalib.io.bags, xcalib.io.sources; a = sorted(m for m in ('xcalib.formats', 'xcalib.calib', "
+            "'xcalib.site', 'torch') if m in sys.modules); import xcalib.site; "
+            "b = sorted(m for m in ('xcalib.viz', 'xcalib.cli', 'torch') if m in sys.modules); print(a, b)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[] []"

@@ -419,8 +419,8 @@ class BagFrames(Sequence):
         infos = msgs[tp["camera_info"]] if tp["camera_info"] else []
         meta = {}
         for _, m in msgs.get(META_TOPIC, []):
-            rec = json.loads(m.data)
-            meta[int(rec["lidar_stamp_ns"])] = rec
+            rec = self._record(m.data)
+            meta[rec["lidar_stamp_ns"]] = rec
         entries, used3, used2, max_dt = [], set(), set(), 0
         for i, j in pairs:
             (ls, lm), (is_, im) = lid[i], img[j]
@@ -445,6 +445,18 @@ class BagFrames(Sequence):
         if not entries:
             raise FormatError(self.path, "no frame could be paired: " + " / ".join(report.lines()), tp["image"])
         return entries, report
+
+    def _record(self, text: str) -> dict:
+        """One xcalib frame record (JSON), checked for the keys the frames read from it."""
+        try:
+            rec = json.loads(text)
+        except ValueError as exc:
+            raise FormatError(self.path, f"frame record is not valid JSON ({exc})", META_TOPIC) from None
+        if not isinstance(rec, dict) or not isinstance(rec.get("lidar_stamp_ns"), int) \
+                or not isinstance(rec.get("cameras", {}), dict):
+            raise FormatError(self.path, "frame record needs an integer lidar_stamp_ns and a cameras mapping",
+                              META_TOPIC)
+        return rec
 
     # ---------------------------------------------------------------- tf
     def _tf_edges(self, msgs) -> dict[str, tuple[str, np.ndarray]]:
@@ -483,13 +495,27 @@ class BagFrames(Sequence):
     def _intrinsics(self, info) -> CameraIntrinsics:
         return cv.intrinsics_from_msg(info[1], self._where(self.topics["camera_info"]))
 
+    def _fisheye(self, e: _Entry):
+        """The frame's equidistant camera model when its CameraInfo has one (and no --intrinsics)."""
+        if self._fixed_intrinsics is not None or e.info is None:
+            return None
+        m = cv.camera_model_from_msg(e.info[1], self._where(self.topics["camera_info"]))
+        return m if isinstance(m, cv.Fisheye) else None
+
     def __len__(self) -> int:
         return len(self._entries)
 
     def __getitem__(self, index):
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
-        return self._frame(self._entries[index])
+        e = self._entries[index]
+        try:
+            return self._frame(e)
+        except FormatError:
+            raise
+        except (ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:  # malformed message fields
+            raise FormatError(self.path, f"frame at LiDAR stamp {e.lidar[0] / 1e9:.6f} s: malformed message "
+                                         f"({type(exc).__name__}: {exc})", self.topics["lidar"]) from None
 
     @property
     def frame_keys(self) -> list[str]:
@@ -502,19 +528,38 @@ class BagFrames(Sequence):
         b2, ids2 = cv.boxes2d_from_msg(e.det2d[1])
         box7, ids3 = cv.boxes3d_from_msg(e.det3d[1], self._where(tp["detections_3d"]))
         intr = self._fixed_intrinsics or self._intrinsics(e.info)
+        fisheye = self._fisheye(e)
+        if fisheye is not None:  # equidistant: image and 2D boxes rectified to the pinhole ``intr``
+            if image.shape[1::-1] != fisheye.size:
+                raise FormatError(self.path, f"CameraInfo is for {fisheye.size[0]}x{fisheye.size[1]} but the image "
+                                             f"is {image.shape[1]}x{image.shape[0]}", tp["camera_info"])
+            image, b2 = fisheye.rectify_image(image), fisheye.rectify_boxes(b2)
         h, w = image.shape[:2]
         if intr.width is not None and (intr.width, intr.height) != (w, h):
             raise FormatError(self.path, f"CameraInfo is for {intr.width}x{intr.height} but the image is {w}x{h}",
                               tp["camera_info"] or tp["image"])
         intr = intr.with_image_size(w, h)
         rec = e.meta.get("cameras", {}).get(self.camera, {})
-        b3 = _boxes3d_as_written(box7, e.meta.get("box3d_rows"))
+        if not (np.all(np.isfinite(b2)) and np.all(np.isfinite(box7))):
+            raise FormatError(self.path, "detections hold non-finite box values",
+                              tp["detections_2d"] if not np.all(np.isfinite(b2)) else tp["detections_3d"])
+        with np.errstate(over="ignore"):
+            b3 = _boxes3d_as_written(box7, e.meta.get("box3d_rows"))
+        if not np.all(np.isfinite(b3)):
+            raise FormatError(self.path, "3D boxes out of float32 range", tp["detections_3d"])
         mm = rec.get("match_matrix")
         extr = rec.get("extrinsics")
+        if extr is not None:
+            extr = np.asarray(extr, dtype=np.float64)
+            if extr.shape != (4, 4) or not np.all(np.isfinite(extr)):
+                raise FormatError(self.path, f"frame record: extrinsics must be a finite 4x4, got {extr.shape}",
+                                  META_TOPIC)
         meta = {"source": "bag", "bag": str(self.path), "lidar_topic": tp["lidar"], "image_topic": tp["image"],
                 "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "detection_ids_2d": ids2}
         if n_bad:
             meta["points_dropped_nonfinite"] = n_bad
+        if fisheye is not None:
+            meta["rectified_from"] = "equidistant"
         tracks = e.meta.get("track_ids_3d")
         if tracks is None and ids3 and all(i.lstrip("-").isdigit() for i in ids3):
             tracks = [int(i) for i in ids3]
@@ -528,7 +573,7 @@ class BagFrames(Sequence):
                      camera_name=str(rec.get("camera_name", self.camera)),
                      frame_key=str(e.meta.get("frame_key", e.lidar[0])),
                      match_matrix=None if mm is None else np.asarray(mm, dtype=bool).reshape(len(b2), len(b3)),
-                     intrinsics=intr, extrinsics=None if extr is None else np.asarray(extr, dtype=np.float64),
+                     intrinsics=intr, extrinsics=extr,
                      point_fields=fields, meta=meta)
 
 
