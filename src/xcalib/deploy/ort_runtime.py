@@ -210,11 +210,11 @@ class OnnxMatcher:
     def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float = 0.0,
               validate: str = "warn", assignment: str = "argmax", *, images=None,
               camera_per_det=None, use_calibration: str | bool = "auto", box7=None,
-              return_latency: bool = False) -> MatchResult:
+              return_latency: bool = False, intrinsics=None, geometry: str = "auto") -> MatchResult:
         """Match one frame (see ``Matcher.match``). ``latency_ms`` = crop + graphs + host scoring."""
         return run_match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k=top_k, match_threshold=match_threshold,
                          validate=validate, assignment=assignment, images=images, camera_per_det=camera_per_det,
-                         return_latency=return_latency,
+                         return_latency=return_latency, intrinsics=intrinsics, geometry=geometry,
                          use_calibration=use_calibration, box7=box7, score_range=self.score_range,
                          fill_value=self.fill_value)
 

@@ -24,6 +24,7 @@ from ..data.crops import CropConfig, FrameInputs, prepare_frame
 from ..protocol import WarningRegistry
 from ..types import Frame, MatchResult
 from .host import assign, frame_match_args, run_match, validate_match_inputs  # torch-free, shared with ONNX Runtime
+from .domain import BOOTSTRAP_HINT
 from .fusion import FUSION_WEIGHT, GEO_EPS
 from .checkpoint import (WeightsNotFoundError, find_site_weights, load_state_strict, read_checkpoint,
                          read_config, save_weights, weights_in_dir, write_config)
@@ -99,11 +100,12 @@ class Matcher:
     @classmethod
     def from_pretrained(cls, model: str, weights: str | Path | None = None,
                         config: str | Path | Mapping[str, Any] | None = None,
-                        device: str | torch.device | None = None, *, site: str = "synthetic",
+                        device: str | torch.device | None = None, *, site: str | None = None,
                         repo_id: str | None = None, revision: str | None = None,
                         token: str | None = None) -> "Matcher":
         """Load ``model`` with weights from the site folders (``weights=None``), a directory
-        written by :meth:`save_pretrained`, or a weights file. The config is ``config`` (YAML path
+        written by :meth:`save_pretrained`, or a weights file (no ``site`` and no ``weights``: the
+        shipped ``synthetic`` weights, with a warning naming ``xcalib bootstrap``). The config is ``config`` (YAML path
         or dict, merged onto the model defaults) or else the YAML beside the weights, else the
         one stored in the weights file. A checkpoint that does not fit is an error. Site folders
         and weights directories with a ``calibration.json`` give the matcher that calibration.
@@ -118,6 +120,11 @@ class Matcher:
                              "directory or a weights file")
 
         model_class(model)  # unknown model -> UnknownModelError
+        if weights is None and site is None:
+            site = "synthetic"
+            log.warning("Matcher.from_pretrained(%r): no site given, loading the shipped 'synthetic' weights (trained on "
+                        "one synthetic site; they do not know yours: their scores on real sites are out of domain and "
+                        "match() falls back to geometric consensus). %s", model, BOOTSTRAP_HINT)
         if weights is None:
             path = find_site_weights(model, site)
         else:
@@ -200,15 +207,18 @@ class Matcher:
     def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float = 0.0,
               validate: str = "warn", assignment: str = "argmax", *, images=None,
               camera_per_det=None, use_calibration: str | bool = "auto", box7=None,
-              return_latency: bool = False) -> MatchResult:
+              return_latency: bool = False, intrinsics=None, geometry: str = "auto") -> MatchResult:
         """Match one frame. ``latency_ms`` = crop + model (+ projection and fusion) wall time
         (validation excluded), or the model's forward alone with ``return_latency=True``. ``use_calibration``: "auto" fuses the model's scores with the
         projection IoU through :attr:`calibration` when one is set (single-camera frames), True
         requires it, False gives the model's scores alone. ``box7`` [M,7]: optional yawed 3D boxes
-        for the projection when ``bboxes_3d`` are axis-aligned [M,6]."""
+        for the projection when ``bboxes_3d`` are axis-aligned [M,6]. ``geometry``: "auto" matches
+        by geometric consensus (``MatchResult.source == "geometry"``) when the shipped off-site
+        weights score the frame out of domain (:mod:`xcalib.engine.domain`), "on" always, "off"
+        never; ``intrinsics`` (``CameraIntrinsics`` or 3x3 K) help it, else they are searched."""
         return run_match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k=top_k, match_threshold=match_threshold,
                          validate=validate, assignment=assignment, images=images, camera_per_det=camera_per_det,
-                         return_latency=return_latency,
+                         return_latency=return_latency, intrinsics=intrinsics, geometry=geometry,
                          use_calibration=use_calibration, box7=box7,
                          score_range=getattr(self.model, "score_range", (-1.0, 1.0)),
                          fill_value=getattr(self.model, "fill_value", None))
