@@ -77,7 +77,7 @@ def make_caches(work: Path, train_seqs: int = 8, frames_per_seq: int = 150, val_
     for name, kw in SITES.items():
         d = work / f"site{name}"
         if not (d / "test.h5").exists():
-            write_site(d, 0, val_frames if name == "A" else 0, test_frames, **kw)
+            write_site(d, 0, val_frames if name == "A" else 0, test_frames, overwrite=True, **kw)
             print(f"site {name}: test caches in {d}", flush=True)
     a = work / "siteA"
     if not (a / "train.h5").exists() or (a / "train.h5").stat().st_size < 1e6:
@@ -128,7 +128,7 @@ def train_model(name: str, work: Path) -> Path:
     best = train(name, tr, va, config=cfg, output_dir=out, warmup_epochs=1, frames_per_batch=4, seed=0,
                  device="cpu", progress=False, **sched)
     m = Matcher.from_pretrained(name, weights=best, device="cpu")
-    paths = m.save_pretrained(WEIGHTS / SITE, dtype="float16")
+    paths = m.save_pretrained(WEIGHTS / SITE, dtype="float16", overwrite=True)
     hist = json.loads((out / "history.json").read_text())
     info = {"train_wall_s": time.perf_counter() - t0, "epochs": len(hist), "config_overrides": cfg,
             "schedule": SHIPPED[name][1], "train_frames": len(tr), "best_val_mrr": max(h["val_mrr"] for h in hist),
@@ -246,7 +246,7 @@ def generic_step(work: Path, n_sites: int = 240, epochs: int = 12) -> dict:
         best = train("fastmatch", tr, va, config={}, output_dir=best.parent, epochs=epochs, warmup_epochs=1,
                      frames_per_batch=4, seed=0, device="cpu", progress=False, **GENERIC_SCHEDULE)
         m = Matcher.from_pretrained("fastmatch", weights=best, device="cpu")
-        paths = m.save_pretrained(out, dtype="float16")
+        paths = m.save_pretrained(out, dtype="float16", overwrite=True)
         hist = json.loads((best.parent / "history.json").read_text())
         info = {"train_wall_s": time.perf_counter() - t0, "epochs": len(hist), "config_overrides": {},
                 "schedule": {"epochs": epochs, **GENERIC_SCHEDULE}, "train_frames": len(tr),
@@ -274,7 +274,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/xcalib_weights"))
     ap.add_argument("--models", nargs="*", default=list(SHIPPED))
-    ap.add_argument("--steps", nargs="*", default=["caches", "train", "eval"])
+    ap.add_argument("--steps", nargs="*", default=["caches", "train", "eval"],
+                    help="caches, train, eval, generic, checksums (sha256 sidecars of the shipped weights)")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--generic-sites", type=int, default=240, help="training sites of the generic step")
     ap.add_argument("--generic-epochs", type=int, default=12, help="training epochs of the generic step")
@@ -292,6 +293,17 @@ def main() -> None:
             evaluate_model(name, args.work)
     if "generic" in args.steps:
         generic_step(args.work, args.generic_sites, args.generic_epochs)
+    if "checksums" in args.steps:
+        write_checksums()
+
+
+def write_checksums() -> None:
+    """``<model>.sha256`` beside every shipped weights file (save_pretrained writes them for new
+    weights; this step covers files written before checksums existed). Checked on every load."""
+    from xcalib.engine.checkpoint import WEIGHT_SUFFIXES, write_checksum
+
+    for p in sorted(q for s in WEIGHT_SUFFIXES for q in WEIGHTS.glob(f"*/*{s}")):
+        print(f"{write_checksum(p)}: {p.with_suffix('.sha256').read_text().split()[0][:16]}...", flush=True)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,6 @@ from xcalib.types import Frame
 def _frame(rng, k: int, K: int = 3, M: int = 4, size=(24, 32)) -> Frame:
     img = rng.integers(0, 255, (*size, 3), dtype=np.uint8)
     b2 = np.sort(rng.uniform(0, 30, (K, 4)).astype(np.float32).reshape(K, 2, 2), axis=1).reshape(K, 4)
-    b2 = b2[:, [0, 2, 1, 3]]
     lo = rng.uniform(-5, 5, (M, 3))
     b3 = np.hstack([lo, lo + rng.uniform(0.5, 3, (M, 3))]).astype(np.float32)
     mm = np.zeros((K, M), bool)
@@ -53,7 +52,7 @@ def _raw_cache(path, keys, *, K=2, M=3, stored=(2, 3), mm_shape=None, cams=("cam
             g = f.create_group(f"labels/cam/{k}")
             g["num_camera_detections"] = K
             g["num_lidar_detections"] = M
-            g["camera_bbox_2d"] = rng.uniform(0, 5, (stored[0], 4)).astype(np.float32)
+            g["camera_bbox_2d"] = np.sort(rng.uniform(0, 5, (stored[0], 2, 2)), axis=1).reshape(-1, 4).astype(np.float32)
             g["lidar_bbox_3d"] = rng.uniform(0, 5, (stored[1], 6)).astype(np.float32)
             g["match_matrix"] = np.eye(*(mm_shape or (K, M)), dtype=np.uint8)
             if cam_names is not None:

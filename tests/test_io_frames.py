@@ -16,7 +16,7 @@ from xcalib.types import Frame
 
 
 def _frame(rng, i, k=3, m=4, with_gt=True):
-    b2 = np.sort(rng.uniform(0, 60, size=(k, 2, 2)), axis=1).reshape(k, 4)[:, [0, 2, 1, 3]] + [0, 0, 8, 8]
+    b2 = np.sort(rng.uniform(0, 60, size=(k, 2, 2)), axis=1).reshape(k, 4) + [0, 0, 8, 8]  # x1 y1 x2 y2
     lo = rng.uniform(-5, 5, size=(m, 3))
     b3 = np.hstack([lo, lo + rng.uniform(0.5, 2, size=(m, 3))])
     pts = rng.normal(0, 3, size=(100, 4)).astype(np.float32)

@@ -5,7 +5,7 @@ Layout written by :func:`write_report`::
     DIR/calibration.json        CalibrationResult.save (everything, incl. distortion)
     DIR/calibration.npz         arrays + the same JSON blob
     DIR/summary.txt             result summary + per-frame table
-    DIR/overlays/<key>.png      points coloured by depth, projected 3D boxes, 2D boxes, matches
+    DIR/overlays/<key>.png      (key made file-name safe: letters, digits, ``._+=-``) points coloured by depth, projected 3D boxes, 2D boxes, matches
     DIR/overlays/<key>_bringup.png   the same through the bring-up pose, before refinement
 """
 
@@ -17,6 +17,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..io._files import atomic_write, safe_name
+from ..io.images import encode_image
 from .inputs import prepare_frames
 from .refine import pair_metrics
 from .result import CalibrationResult
@@ -73,12 +75,18 @@ def _summary_text(result: CalibrationResult, rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _unique(name: str, used: set[str]) -> str:
+    out, k = name, 1
+    while out in used:
+        out, k = f"{name}_{k}", k + 1
+    used.add(out)
+    return out
+
+
 def write_report(result: CalibrationResult, frames: Sequence, out_dir, *, max_overlays: int = 8,
                  bringup_overlays: bool = True, progress: Callable[[str, int, int], None] | None = None) -> ReportPaths:
     """Write the calibration, overlays of up to ``max_overlays`` frames (spread over the sequence)
     and ``summary.txt`` into ``out_dir``. ``progress(stage, done, total)`` is called per overlay."""
-    import cv2
-
     from ..viz.calibration import draw_calibration_overlay
 
     out = Path(out_dir)
@@ -86,13 +94,14 @@ def write_report(result: CalibrationResult, frames: Sequence, out_dir, *, max_ov
     paths = ReportPaths(json=result.save(out / "calibration.json"), npz=result.save(out / "calibration.npz"),
                         summary=out / "summary.txt")
     rows = frame_table(result, frames)
-    paths.summary.write_text(_summary_text(result, rows))
+    atomic_write(paths.summary, [_summary_text(result, rows).encode()])
     if not result.success or max_overlays <= 0:
         return paths
     n = len(frames)
     pick = np.unique(np.linspace(0, n - 1, min(max_overlays, n)).round().astype(int))
     bring = result.meta.get("bringup_T")
     (out / "overlays").mkdir(exist_ok=True)
+    used: set[str] = set()
     for k, fi in enumerate(pick):
         f = frames[int(fi)]
         image = np.asarray(f.image)
@@ -108,16 +117,17 @@ def write_report(result: CalibrationResult, frames: Sequence, out_dir, *, max_ov
         img = draw_calibration_overlay(image, f.point_cloud, calibration=result, bboxes_3d=b3,
                                        bboxes_2d=f.bboxes_2d, pairs=p,
                                        title=f"{key}: refined, {0 if p is None else len(p)} pairs")
-        path = out / "overlays" / f"{key}.png"
-        cv2.imwrite(str(path), img[:, :, ::-1])
+        name = _unique(safe_name(key), used)  # frame keys are data: never a path
+        path = out / "overlays" / f"{name}.png"
+        atomic_write(path, [encode_image(img, ".png")])
         paths.overlays.append(path)
         if bringup_overlays and bring is not None and k == 0:
             T = np.asarray(bring)
             img = draw_calibration_overlay(image, f.point_cloud, intrinsics=result.intrinsics, rotation=T[:3, :3],
                                            translation=T[:3, 3], bboxes_3d=b3, bboxes_2d=f.bboxes_2d,
                                            title=f"{key}: bring-up pose (before refinement)")
-            bpath = out / "overlays" / f"{key}_bringup.png"
-            cv2.imwrite(str(bpath), img[:, :, ::-1])
+            bpath = out / "overlays" / f"{name}_bringup.png"
+            atomic_write(bpath, [encode_image(img, ".png")])
             paths.overlays.append(bpath)
         if progress:
             progress("overlays", k + 1, len(pick))

@@ -146,49 +146,64 @@ class CalibrationResult:
             meta=dict(d.get("meta", {})),
         )
 
-    def save(self, path: str | Path) -> Path:
-        """Write ``.json`` (everything, exact float repr) or ``.npz`` (arrays + JSON blob)."""
+    def save(self, path: str | Path, *, overwrite: bool = True) -> Path:
+        """Write ``.json`` (everything, exact float repr) or ``.npz`` (arrays + JSON blob), atomically
+        (unique temp file beside ``path``, then rename). ``overwrite=False`` refuses an existing file."""
+        import io
+
+        from ..io._files import atomic_write
+
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
         if path.suffix == ".npz":
-            with open(tmp, "wb") as fh:
-                np.savez(fh, rotation=self.rotation, translation=self.translation,
-                         extrinsics=self.extrinsics,
-                         K=self.K if self.intrinsics is not None else np.full((3, 3), np.nan),
-                         dist_coeffs=self.intrinsics.dist_coeffs if self.intrinsics is not None else np.zeros(5),
-                         projection=self.projection if self.intrinsics is not None else np.full((3, 4), np.nan),
-                         json=np.frombuffer(json.dumps(self.to_dict()).encode(), dtype=np.uint8))
+            buf = io.BytesIO()
+            np.savez(buf, rotation=self.rotation, translation=self.translation,
+                     extrinsics=self.extrinsics,
+                     K=self.K if self.intrinsics is not None else np.full((3, 3), np.nan),
+                     dist_coeffs=self.intrinsics.dist_coeffs if self.intrinsics is not None else np.zeros(5),
+                     projection=self.projection if self.intrinsics is not None else np.full((3, 4), np.nan),
+                     json=np.frombuffer(json.dumps(self.to_dict()).encode(), dtype=np.uint8))
+            data = buf.getvalue()
         else:
-            tmp.write_text(json.dumps(self.to_dict(), indent=2))
-        tmp.replace(path)
-        return path
+            data = json.dumps(self.to_dict(), indent=2).encode()
+        return atomic_write(path, [data], overwrite=overwrite)
 
     @classmethod
     def load(cls, path: str | Path) -> "CalibrationResult":
+        """Read a ``.json`` / ``.npz`` written by :meth:`save`, validated: the rotation must be
+        orthonormal (det +1), every number finite, the translation within ``MAX_TRANSLATION_M``, and
+        an npz's arrays must agree with its JSON. Anything else is a FormatError naming the field."""
         from ..errors import FormatError
+        from ..io._files import MAX_TEXT_BYTES, read_text
 
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"calibration file not found: {path}")
         try:
             if path.suffix == ".npz":
-                with np.load(path) as z:
-                    if "json" not in z:
-                        raise FormatError(path, "missing the 'json' array; not an xcalib calibration npz", "json")
-                    d = json.loads(bytes(z["json"]).decode())
-                    res = cls.from_dict(d)
-                    res.rotation, res.translation = z["rotation"], z["translation"]
-                    return res
-            d = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError, OSError, ValueError) as exc:
-            if isinstance(exc, FormatError):
-                raise
-            raise FormatError(path, f"not a readable xcalib calibration ({exc})") from None
+                d, arrays = _read_npz(path)
+            else:
+                d, arrays = json.loads(read_text(path, max_bytes=MAX_TEXT_BYTES, what="calibration file")), None
+        except FormatError:
+            raise
+        except (json.JSONDecodeError, OSError, ValueError, RecursionError, MemoryError, KeyError, EOFError) as exc:
+            raise FormatError(path, f"not a readable xcalib calibration ({type(exc).__name__}: {str(exc)[:200]})") from None
+        if not isinstance(d, dict):
+            raise FormatError(path, f"expected a JSON object, got {type(d).__name__}")
         for key in ("success", "rotation", "translation"):
             if key not in d:
                 raise FormatError(path, "missing key", key)
-        return cls.from_dict(d)
+        if not isinstance(d["success"], bool):
+            raise FormatError(path, f"expected true or false, got {d['success']!r:.40}", "success")
+        try:
+            res = cls.from_dict(d)
+            _validate_pose(res, path)
+        except FormatError:
+            raise
+        except (TypeError, ValueError, KeyError, AttributeError, OverflowError, IndexError) as exc:
+            raise FormatError(path, f"malformed field ({type(exc).__name__}: {str(exc)[:200]})") from None
+        if arrays is not None:
+            _check_npz_agrees(res, arrays, path)
+        return res
 
     def summary(self) -> str:
         """A few human-readable lines."""
@@ -208,6 +223,83 @@ class CalibrationResult:
         if self.message:
             lines.append(f"  note: {self.message}")
         return "\n".join(lines)
+
+
+#: Largest |translation| (metres) a calibration file may hold (camera-LiDAR rigs are metres apart).
+MAX_TRANSLATION_M = 1000.0
+#: max |R R^T - I| / |det R - 1| accepted when loading a saved rotation.
+LOAD_ROTATION_TOL = 1e-6
+_NPZ_MAX_BYTES = 64 << 20
+
+
+def _read_npz(path: Path) -> tuple[dict, dict]:
+    """(JSON dict, {name: array}) of a calibration npz; member sizes are checked before inflating."""
+    from ..errors import FormatError
+    from ..io._files import open_regular
+
+    with open_regular(path, what="calibration npz") as fh:
+        with np.load(fh, allow_pickle=False) as z:
+            if not hasattr(z, "zip"):
+                raise FormatError(path, "not an npz archive")
+            total = sum(i.file_size for i in z.zip.infolist())
+            if total > _NPZ_MAX_BYTES:
+                raise FormatError(path, f"archive inflates to {total} bytes; a calibration is < {_NPZ_MAX_BYTES}",
+                                  "npz")
+            if "json" not in z.files:
+                raise FormatError(path, "missing the 'json' array; not an xcalib calibration npz", "json")
+            arrays = {k: z[k] for k in z.files}
+    blob = arrays.pop("json")
+    if blob.dtype != np.uint8:
+        raise FormatError(path, f"expected uint8 bytes, got {blob.dtype}", "json")
+    try:
+        d = json.loads(blob.tobytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise FormatError(path, f"not UTF-8 JSON ({exc.reason})", "json") from None
+    return d, arrays
+
+
+def _validate_pose(res: "CalibrationResult", path) -> None:
+    from ..errors import FormatError
+    from ..geometry.rotations import orthonormality_error
+
+    R, t = res.rotation, res.translation
+    if not np.all(np.isfinite(R)):
+        raise FormatError(path, "rotation has NaN/Inf entries", "rotation")
+    err = orthonormality_error(R)
+    if err > LOAD_ROTATION_TOL:
+        raise FormatError(path, f"not a rotation matrix: error {err:.2e} (max |R R^T - I|, |det - 1|) exceeds "
+                                f"{LOAD_ROTATION_TOL:.0e}", "rotation")
+    if not np.all(np.isfinite(t)):
+        raise FormatError(path, "translation has NaN/Inf entries", "translation")
+    if np.abs(t).max() > MAX_TRANSLATION_M:
+        raise FormatError(path, f"translation {t.tolist()} m exceeds {MAX_TRANSLATION_M:g} m: not a camera-LiDAR "
+                                "extrinsic", "translation")
+    for name in ("rotation_std_deg", "translation_std_m"):
+        v = getattr(res, name)
+        if np.any(np.isinf(v)) or np.any(v < 0):
+            raise FormatError(path, f"expected non-negative finite values or null, got {v.tolist()}", name)
+    for k, p in enumerate(res.pairs):
+        if len(p) and p.min() < 0:
+            raise FormatError(path, "pair indices must be >= 0", f"pairs[{k}]")
+    if res.intrinsics is not None and res.image_size is not None:
+        w, h = res.image_size
+        if not (0 < int(w) <= 100_000 and 0 < int(h) <= 100_000):
+            raise FormatError(path, f"image size {w}x{h} out of range", "image_size")
+
+
+def _check_npz_agrees(res: "CalibrationResult", arrays: dict, path) -> None:
+    from ..errors import FormatError
+
+    want = {"rotation": res.rotation, "translation": res.translation, "extrinsics": res.extrinsics}
+    if res.intrinsics is not None:
+        want["K"] = res.intrinsics.K
+    for name, value in want.items():
+        if name not in arrays:
+            raise FormatError(path, "missing array", name)
+        a = arrays[name]
+        if a.shape != value.shape or a.dtype.kind != "f" or not np.allclose(a, value, rtol=1e-12, atol=1e-12):
+            raise FormatError(path, f"array {name} disagrees with the JSON blob (which one is right is ambiguous)",
+                              name)
 
 
 def _num(v):

@@ -23,9 +23,13 @@ def register(app: typer.Typer) -> None:
         lossless: bool = typer.Option(False, "--lossless", help="Store PNG instead of JPEG blobs (exact images)."),
         quality: int = typer.Option(92, "--quality", min=1, max=100, help="JPEG quality."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
+        force: bool = typer.Option(False, "--force", help="Replace an existing cache."),
     ) -> None:
         from rich.console import Console
         from rich.progress import Progress
+
+        if out.exists() and not force:
+            raise FileExistsError(f"{out} already exists; pass --force to replace it")
 
         from ..io.frames import read_frames
         from ..io.hdf5 import cache_summary, write_cache

@@ -32,6 +32,7 @@ def register(app: typer.Typer) -> None:
         limit: int = typer.Option(0, "--limit", help="Use only the first N frames (0: all)."),
         seed: int = typer.Option(0, "--seed", help="Random seed of the hypothesis sampling."),
         as_json: bool = typer.Option(False, "--json", help="Print the result dict as JSON."),
+        force: bool = typer.Option(False, "--force", help="Replace an existing report folder."),
     ) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -39,9 +40,11 @@ def register(app: typer.Typer) -> None:
         from ..calib.api import calibrate
         from ..calib.report import write_report
         from ..calib.result import CalibrationResult
-        from ..geometry.camera import CameraIntrinsics
-        from ..io.frames import read_frames
+        from ..io._files import atomic_dir
+        from ..io.frames import read_frames, read_intrinsics_json
 
+        if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
+            raise FileExistsError(f"{out} already exists; pass --force to replace it")
         console = Console(stderr=True)
         try:
             seq = read_frames(frames, camera=camera, frames=frame_range)
@@ -51,7 +54,7 @@ def register(app: typer.Typer) -> None:
         if n == 0:
             raise typer.BadParameter(f"{frames}: no frames found", param_hint="FRAMES")
         if intrinsics is not None:
-            intr = CameraIntrinsics.from_json(intrinsics)
+            intr = read_intrinsics_json(intrinsics)
         else:
             intr = getattr(seq, "intrinsics", None)
             if intr is None and n:  # HDF5 caches carry the intrinsics per frame (/calibration)
@@ -75,11 +78,17 @@ def register(app: typer.Typer) -> None:
                 bar.update(tasks[stage], completed=done, total=total)
 
             result = calibrate(items, intr, prior=prior_res, box_model=box_model, seed=seed, progress=progress)
-            paths = write_report(result, items, out, max_overlays=max_overlays, progress=progress)
             from ..viz.report import write_calibration_report  # HTML page: numbers + overlays
 
-            html = write_calibration_report(out, result, items, calibration_overlays=paths.overlays,
-                                            max_frames=max_overlays, title=f"xcalib calibrate: {frames}").html
+            with atomic_dir(out, overwrite=force) as tmp:  # the whole folder is swapped in at once
+                paths = write_report(result, items, tmp, max_overlays=max_overlays, progress=progress)
+                html = write_calibration_report(tmp, result, items, calibration_overlays=paths.overlays,
+                                                max_frames=max_overlays, title=f"xcalib calibrate: {frames}").html
+            moved = {p: out / Path(p).relative_to(tmp) for p in (paths.json, paths.npz, paths.summary, html,
+                                                                  *paths.overlays)}
+            paths.json, paths.npz, paths.summary, html = (moved[p] for p in (paths.json, paths.npz, paths.summary,
+                                                                            html))
+            paths.overlays = [moved[p] for p in paths.overlays]
         if as_json:
             typer.echo(json.dumps(result.to_dict(), indent=2))
         else:

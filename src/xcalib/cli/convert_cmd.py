@@ -25,6 +25,7 @@ def register(app: typer.Typer) -> None:
         repair: bool = typer.Option(False, "--repair", help="Fix unambiguous problems: re-orthonormalise "
                                                             "rotations off by <= 1e-3, normalise quaternions."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
+        force: bool = typer.Option(False, "--force", help="Replace existing output file(s)."),
     ) -> None:
         from ..formats.export import FORMATS, default_filename, detect_format, export_calibration, read_calibration
 
@@ -39,7 +40,7 @@ def register(app: typer.Typer) -> None:
             out = base / default_filename(to)
         if out.exists() and src.exists() and out.resolve() == src.resolve():
             raise typer.BadParameter(f"output {out} would overwrite the input; give --out", param_hint="--out")
-        written = export_calibration(result, to, out)
+        written = export_calibration(result, to, out, overwrite=force)
         if as_json:
             typer.echo(json.dumps({"input": str(src), "from": fmt_in, "to": to, "written": [str(p) for p in written],
                                    "T_cam_lidar": result.extrinsics.tolist(),

@@ -123,7 +123,9 @@ figure {{ display: inline-block; margin: 8px; width: 45%; }} img {{ width: 100%;
 <p>Total time {summary.get('seconds', 0):.1f} s. Numbers: <a href="summary.json">summary.json</a>.</p>
 {''.join(thumbs)}</body></html>
 """
-    (out / "index.html").write_text(page)
+    from ..io._files import atomic_write
+
+    atomic_write(out / "index.html", [page.encode()])
     return out / "index.html"
 
 
@@ -222,7 +224,9 @@ def register(app: typer.Typer) -> None:
         summary["seconds"] = round(time.perf_counter() - t_start, 2)
         index = _write_index(out, summary)
         summary["index"] = str(index)
-        (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+        from ..io._files import atomic_write
+
+        atomic_write(out / "summary.json", [(json.dumps(summary, indent=1) + "\n").encode()])
 
         # ------------------------------------------------------------------ figures
         t = Table(title="Synthetic site vs ground truth", show_header=True, header_style="bold")

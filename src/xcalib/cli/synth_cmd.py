@@ -44,6 +44,7 @@ def register(app: typer.Typer) -> None:
         lossless: bool = typer.Option(False, "--lossless", help="PNG instead of JPEG image blobs."),
         contact: Path = typer.Option(None, "--contact-sheet", help="Also write a PNG grid of test frames."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
+        force: bool = typer.Option(False, "--force", help="Replace an existing output."),
     ) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -59,6 +60,8 @@ def register(app: typer.Typer) -> None:
             n_val = n_test = max(1, round(0.15 * frames)) if frames >= 3 else 0
             n_train = max(frames - n_val - n_test, 0)
         n_train, n_val, n_test = n_train or 0, n_val or 0, n_test or 0
+        if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
+            raise FileExistsError(f"{out} already exists; pass --force to replace it")
         console = Console(stderr=True)
         totals = {"train": n_train, "val": n_val, "test": n_test}
         with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
@@ -67,7 +70,7 @@ def register(app: typer.Typer) -> None:
             write_site(out, n_train, n_val, n_test, seed=seed, preset=preset,
                        progress=lambda s, k, n: progress.update(tasks[s], completed=k),
                        render_images=not no_images, lidar=not no_lidar,
-                       image_format="png" if lossless else "jpeg", **overrides)
+                       image_format="png" if lossless else "jpeg", overwrite=force, **overrides)
         info = json.loads((out / "site.json").read_text())
         sheet = None
         if contact is not None:

@@ -60,8 +60,9 @@ def register(app: typer.Typer) -> None:
         report = {"_schema": REPORT_SCHEMA, "site": site, "hdf5": portable_path(hdf5), "device": dev,
                   "runtime": runtime, "results": results}
         if output is not None:
-            output.parent.mkdir(parents=True, exist_ok=True)
-            output.write_text(json.dumps(report, indent=2))
+            from ..io._files import atomic_write
+
+            atomic_write(output, [json.dumps(report, indent=2).encode()])
         if as_json:
             typer.echo(json.dumps(report))
             return

@@ -107,9 +107,9 @@ class Manifest:
 
 
 def write_manifest(folder: Path, manifest: Manifest) -> Path:
-    path = Path(folder) / MANIFEST
-    path.write_text(json.dumps(manifest.to_dict(), indent=2, default=str))
-    return path
+    from ..io._files import atomic_write
+
+    return atomic_write(Path(folder) / MANIFEST, [json.dumps(manifest.to_dict(), indent=2, default=str).encode()])
 
 
 def read_manifest(folder: Path, *, verify_files: bool = True) -> Manifest:
@@ -120,9 +120,12 @@ def read_manifest(folder: Path, *, verify_files: bool = True) -> Manifest:
     if not path.is_file():
         raise OnnxFolderError(path, "no manifest.json: not an ONNX folder written by Matcher.build('onnx') / "
                                     "`xcalib export --format onnx`")
+    from ..errors import FormatError
+    from ..io._files import load_json
+
     try:
-        d = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        d = load_json(path, what="manifest")
+    except (OSError, FormatError) as exc:
         raise OnnxFolderError(path, f"not readable JSON ({exc})") from None
     if not isinstance(d, dict):
         raise OnnxFolderError(path, f"expected a JSON object, got {type(d).__name__}")

@@ -9,13 +9,21 @@ Bit-exactness: loading restores every tensor exactly as stored (float16 values a
 the model's float32 exactly), so ``save -> load -> save`` writes identical tensors and a
 float32 save reloads bit-for-bit.
 
+Integrity: every weights file written by :func:`save_weights` gets a sidecar ``<stem>.sha256``
+(``sha256sum`` format: digest of the whole file) and the payload holds ``state_sha256`` (digest of
+the tensors); :func:`read_checkpoint` checks both when present and refuses non-finite weights,
+so a flipped bit or NaN weights are an error, not silent garbage. Files are read with
+``torch.load(weights_only=True)`` only (never a pickle that can run code).
+
 Site weights are looked up in ``$XCALIB_HOME/sites/<site>/`` (default
 ``~/.cache/xcalib/sites/<site>/``) first, then in the packaged ``xcalib/weights/<site>/``.
 """
 
 from __future__ import annotations
 
+import hashlib
 import io
+import json
 import os
 from importlib import resources
 from pathlib import Path
@@ -25,19 +33,29 @@ import torch
 import yaml
 
 from .._version import __version__
-from ..errors import XcalibError
-from ..io._files import atomic_write
+from ..errors import FormatError, XcalibError
+from ..io._files import MAX_TEXT_BYTES, atomic_write, open_regular, read_text
 
 __all__ = ["FORMAT", "WeightsMismatchError", "WeightsNotFoundError", "xcalib_home", "site_dirs",
            "find_site_weights", "save_weights", "read_checkpoint", "load_state_strict", "write_config",
-           "read_config", "list_sites"]
+           "read_config", "list_sites", "checksum_path", "write_checksum", "verify_checksum", "state_sha256",
+           "save_resume_state", "load_resume_state", "torch_load_safe"]
 
 FORMAT = "xcalib-weights-v1"
 WEIGHT_SUFFIXES = (".pt", ".pth")
 
 
-class WeightsMismatchError(XcalibError, ValueError):
-    """A checkpoint does not fit the model built from the config."""
+class WeightsMismatchError(FormatError):
+    """A checkpoint does not fit the model built from the config, or is not a readable, intact
+    weights file (a :class:`~xcalib.errors.FormatError`). Built from (path, problem, field) or
+    from one message."""
+
+    def __init__(self, path_or_message, problem: str | None = None, field: str | None = None):
+        if problem is None:
+            self.path, self.field, self.problem = None, None, str(path_or_message)
+            ValueError.__init__(self, str(path_or_message))
+        else:
+            super().__init__(path_or_message, problem, field)
 
 
 class WeightsNotFoundError(XcalibError, FileNotFoundError):
@@ -98,19 +116,88 @@ def write_config(path: Path, config: dict[str, Any]) -> Path:
 
 
 def read_config(path: Path) -> dict[str, Any]:
-    from ..errors import FormatError
-
+    """A YAML mapping (safe loader; size-capped; any parse problem is a FormatError)."""
     try:
-        cfg = yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise FormatError(path, f"not a readable YAML config ({exc})") from None
+        cfg = yaml.safe_load(read_text(path, max_bytes=MAX_TEXT_BYTES, what="YAML config"))
+    except FileNotFoundError:
+        raise
+    except FormatError:
+        raise
+    except (OSError, yaml.YAMLError, RecursionError, ValueError, TypeError, MemoryError) as exc:
+        raise FormatError(path, f"not a readable YAML config ({type(exc).__name__}: {str(exc)[:200]})") from None
     if not isinstance(cfg, dict):
         raise FormatError(path, f"expected a YAML mapping, got {type(cfg).__name__}")
     return cfg
 
 
+# ------------------------------------------------------------------------------ integrity
+def checksum_path(weights: Path) -> Path:
+    """The sidecar ``<stem>.sha256`` of a weights file (any suffix: ``.pt``, ``.pth``)."""
+    return Path(weights).with_suffix(".sha256")
+
+
+def _file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open_regular(path, what="weights file") as f:
+        for b in iter(lambda: f.read(1 << 20), b""):
+            h.update(b)
+    return h.hexdigest()
+
+
+def write_checksum(weights: Path) -> Path:
+    """Write ``<stem>.sha256`` (``sha256sum`` format) for ``weights``; returns the sidecar."""
+    weights = Path(weights)
+    return atomic_write(checksum_path(weights), [f"{_file_sha256(weights)}  {weights.name}\n".encode()])
+
+
+def verify_checksum(weights: Path, *, required: bool = False) -> bool:
+    """Compare ``weights`` with its ``<stem>.sha256``; a mismatch is a WeightsMismatchError. Returns
+    False when there is no sidecar (an error with ``required``)."""
+    weights = Path(weights)
+    side = checksum_path(weights)
+    if not side.is_file():
+        if required:
+            raise WeightsMismatchError(weights, f"no checksum file {side.name} beside the weights", "sha256")
+        return False
+    parts = read_text(side, max_bytes=4096, what="checksum file").split()
+    if not parts or len(parts[0]) != 64 or any(c not in "0123456789abcdef" for c in parts[0].lower()):
+        raise WeightsMismatchError(side, "expected '<64 hex digits>  <file name>'", "sha256")
+    got = _file_sha256(weights)
+    if got != parts[0].lower():
+        raise WeightsMismatchError(weights, f"sha256 {got[:16]}... does not match {side.name} "
+                                            f"({parts[0][:16]}...): the file is corrupt or was replaced", "sha256")
+    return True
+
+
+def state_sha256(state_dict: dict[str, torch.Tensor]) -> str:
+    """sha256 over the tensors (names, dtypes, shapes, bytes) in key order."""
+    h = hashlib.sha256()
+    for k in sorted(state_dict):
+        t = state_dict[k].detach().cpu().contiguous()
+        h.update(f"{k}|{t.dtype}|{tuple(t.shape)}|".encode())
+        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+    return h.hexdigest()
+
+
+def torch_load_safe(path: Path, what: str = "checkpoint") -> Any:
+    """``torch.load(weights_only=True)`` of a regular file; anything unreadable (including a pickle
+    that tries to build other objects) is a WeightsMismatchError naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise WeightsNotFoundError(f"{what} file not found: {path}")
+    try:
+        with open_regular(path, what=what) as fh:
+            return torch.load(fh, map_location="cpu", weights_only=True)
+    except FormatError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - torch raises many types for bad files
+        raise WeightsMismatchError(path, f"not a readable torch {what} (loaded with weights_only=True; "
+                                         f"{type(exc).__name__}: {str(exc)[:300]})") from None
+
+
 def save_weights(model: torch.nn.Module, path: Path, *, model_name: str, config: dict[str, Any],
                  dtype: str = "float32", extra: dict[str, Any] | None = None) -> Path:
+    """Write the weights payload atomically and its ``<stem>.sha256`` sidecar."""
     if dtype not in ("float32", "float16"):
         raise ValueError(f"dtype must be 'float32' or 'float16', got {dtype!r}")
     sd = {}
@@ -119,29 +206,93 @@ def save_weights(model: torch.nn.Module, path: Path, *, model_name: str, config:
         sd[k] = v.to(torch.float16) if dtype == "float16" and v.is_floating_point() else v.clone()
     payload = {"format": FORMAT, "model_name": model_name, "package_version": __version__,
                "config": {k: v for k, v in config.items() if k not in ("device", "weights_path")},
-               "dtype": dtype, "state_dict": sd, **(extra or {})}
+               "dtype": dtype, "state_dict": sd, "state_sha256": state_sha256(sd), **(extra or {})}
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    out = atomic_write(path, [buf.getbuffer()])
+    write_checksum(out)
+    return out
+
+
+def read_checkpoint(path: Path) -> dict[str, Any]:
+    """Payload dict; a bare state dict or a trainer checkpoint ({"model_state_dict": ...}) is
+    wrapped as ``{"state_dict": ...}``. The sidecar checksum and ``state_sha256`` are checked
+    when present; non-finite weights are refused."""
+    path = Path(path)
+    if not path.is_file():
+        raise WeightsNotFoundError(f"weights file not found: {path}")
+    verify_checksum(path)
+    obj = torch_load_safe(path, "weights")
+    if isinstance(obj, dict) and "state_dict" in obj:
+        out = obj
+    elif isinstance(obj, dict) and "model_state_dict" in obj:
+        out = {**obj, "state_dict": obj["model_state_dict"]}
+    elif isinstance(obj, dict) and obj and all(isinstance(v, torch.Tensor) for v in obj.values()):
+        out = {"state_dict": obj}
+    else:
+        raise WeightsMismatchError(path, "no state dict inside (keys "
+                                         f"{sorted(map(str, obj))[:8] if isinstance(obj, dict) else type(obj).__name__})",
+                                   "state_dict")
+    sd = out["state_dict"]
+    if not isinstance(sd, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in sd.items()):
+        raise WeightsMismatchError(path, "state_dict must map names to tensors", "state_dict")
+    want = out.get("state_sha256")
+    if isinstance(want, str) and state_sha256(sd) != want:
+        raise WeightsMismatchError(path, "tensor checksum does not match state_sha256: the weights are corrupt",
+                                   "state_sha256")
+    _check_finite(sd, path)
+    return out
+
+
+def _check_finite(sd: dict[str, torch.Tensor], source) -> None:
+    for k, t in sd.items():
+        if t.is_floating_point() and t.numel() and not bool(torch.isfinite(t).all()):
+            n = int((~torch.isfinite(t)).sum())
+            raise WeightsMismatchError(source, f"{n} non-finite value(s) (NaN/Inf) in tensor {k!r}", k)
+
+
+# --------------------------------------------------------------------------- resume state
+def save_resume_state(path: Path, *, state_dict: dict[str, torch.Tensor], optimizer: dict[str, Any], epoch: int,
+                      best_mrr: float, history: list[dict[str, Any]], model_name: str,
+                      config: dict[str, Any]) -> Path:
+    """The trainer's ``last.pt``: tensors and plain types only (loads with ``weights_only=True``);
+    history and config travel as JSON text. Written atomically."""
+    payload = {"format": "xcalib-resume-v2", "state_dict": {k: v.detach().cpu() for k, v in state_dict.items()},
+               "optimizer": optimizer, "epoch": int(epoch), "best_mrr": float(best_mrr),
+               "history_json": json.dumps(history, default=float), "model_name": str(model_name),
+               "config_json": json.dumps(config, default=str)}
     buf = io.BytesIO()
     torch.save(payload, buf)
     return atomic_write(path, [buf.getbuffer()])
 
 
-def read_checkpoint(path: Path) -> dict[str, Any]:
-    """Payload dict; a bare state dict or a trainer checkpoint ({"model_state_dict": ...}) is
-    wrapped as ``{"state_dict": ...}``."""
+def load_resume_state(path: Path) -> dict[str, Any]:
+    """Read a ``last.pt`` written by :func:`save_resume_state` with ``torch.load(weights_only=True)``
+    (a crafted pickle cannot run code: it is a FormatError). Returns state_dict, optimizer, epoch,
+    best_mrr, history, model_name, config."""
     path = Path(path)
-    if not path.is_file():
-        raise WeightsNotFoundError(f"weights file not found: {path}")
+    obj = torch_load_safe(path, "resume checkpoint")
+    if not isinstance(obj, dict):
+        raise WeightsMismatchError(path, f"expected a dict, got {type(obj).__name__}")
+    for key in ("state_dict", "optimizer", "epoch", "best_mrr"):
+        if key not in obj:
+            raise WeightsMismatchError(path, "missing key (not an xcalib resume checkpoint)", key)
+    if not isinstance(obj["epoch"], int) or obj["epoch"] < 0 or isinstance(obj["epoch"], bool):
+        raise WeightsMismatchError(path, f"expected a non-negative integer, got {obj['epoch']!r:.40}", "epoch")
     try:
-        obj = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - torch raises many types for bad files
-        raise WeightsMismatchError(f"{path}: not a readable torch checkpoint ({exc})") from None
-    if isinstance(obj, dict) and "state_dict" in obj:
-        return obj
-    if isinstance(obj, dict) and "model_state_dict" in obj:
-        return {**obj, "state_dict": obj["model_state_dict"]}
-    if isinstance(obj, dict) and all(isinstance(v, torch.Tensor) for v in obj.values()):
-        return {"state_dict": obj}
-    raise WeightsMismatchError(f"{path}: no state dict inside (keys {sorted(obj)[:8] if isinstance(obj, dict) else type(obj)})")
+        best = float(obj["best_mrr"])
+        history = json.loads(obj["history_json"]) if "history_json" in obj else list(obj.get("history", []))
+        config = json.loads(obj["config_json"]) if "config_json" in obj else obj.get("config")
+    except (TypeError, ValueError, RecursionError) as exc:
+        raise WeightsMismatchError(path, f"malformed resume fields ({exc})", "history_json") from None
+    if not isinstance(history, list) or not isinstance(obj["optimizer"], dict):
+        raise WeightsMismatchError(path, "history must be a list and optimizer a dict", "optimizer")
+    sd = obj["state_dict"]
+    if not isinstance(sd, dict) or not all(isinstance(v, torch.Tensor) for v in sd.values()):
+        raise WeightsMismatchError(path, "state_dict must map names to tensors", "state_dict")
+    _check_finite(sd, path)
+    return {"state_dict": sd, "optimizer": obj["optimizer"], "epoch": obj["epoch"], "best_mrr": best,
+            "history": history, "model_name": obj.get("model_name"), "config": config}
 
 
 def load_state_strict(model: torch.nn.Module, state_dict: dict[str, torch.Tensor], source: str) -> None:
@@ -151,6 +302,7 @@ def load_state_strict(model: torch.nn.Module, state_dict: dict[str, torch.Tensor
     unexpected = sorted(set(state_dict) - set(own))
     shapes = [f"{k}: checkpoint {tuple(state_dict[k].shape)} vs model {tuple(own[k].shape)}"
               for k in own if k in state_dict and tuple(state_dict[k].shape) != tuple(own[k].shape)]
+    _check_finite(state_dict, source)
     if missing or unexpected or shapes:
         parts = []
         if missing:

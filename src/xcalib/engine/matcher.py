@@ -157,17 +157,28 @@ class Matcher:
             out.set_calibration(load_calibration_beside(path.parent))
         return out
 
-    def save_pretrained(self, save_dir: str | Path, *, dtype: str = "float32") -> dict[str, Path]:
-        """Write ``<dir>/<model>.pt`` and ``<dir>/<model>.yaml`` (no device in either), and
-        ``<dir>/calibration.json`` when a calibration is set."""
+    def save_pretrained(self, save_dir: str | Path, *, dtype: str = "float32",
+                        overwrite: bool = False) -> dict[str, Path]:
+        """Write ``<dir>/<model>.pt``, its ``.sha256`` and ``<dir>/<model>.yaml`` (no device in
+        either), and ``<dir>/calibration.json`` when a calibration is set. The files are written
+        into a temporary folder and swapped in whole (other files of ``<dir>`` are kept), so a
+        killed save leaves the old set or the new one. Existing weights of this model in ``<dir>``
+        are replaced only with ``overwrite=True``."""
+        from ..io._files import atomic_dir
+
         d = Path(save_dir)
-        d.mkdir(parents=True, exist_ok=True)
-        w = save_weights(self.model, d / f"{self.model_name}.pt", model_name=self.model_name,
-                         config=self.config, dtype=dtype)
-        c = write_config(d / f"{self.model_name}.yaml", self.config)
-        out = {"weights": w, "config": c}
+        name = self.model_name
+        old = weights_in_dir(d, name) if d.is_dir() else None
+        if old is not None and not overwrite:
+            raise FileExistsError(f"{old} already exists; pass overwrite=True to replace it")
+        with atomic_dir(d, keep_existing=True) as tmp:
+            save_weights(self.model, tmp / f"{name}.pt", model_name=name, config=self.config, dtype=dtype)
+            write_config(tmp / f"{name}.yaml", self.config)
+            if self._calibration is not None:
+                self._calibration.save(tmp / CALIBRATION_FILE)
+        out = {"weights": d / f"{name}.pt", "config": d / f"{name}.yaml"}
         if self._calibration is not None:
-            out["calibration"] = self._calibration.save(d / CALIBRATION_FILE)
+            out["calibration"] = d / CALIBRATION_FILE
         return out
 
     # ------------------------------------------------------------------ stages

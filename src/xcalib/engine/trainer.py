@@ -37,7 +37,9 @@ import torch.distributed as dist
 
 from ..data.crops import CropConfig, FrameInputs, crop_images, crop_points, gather_box_points, resample_points
 from ..types import Frame
-from .checkpoint import load_state_strict, read_checkpoint, save_weights, write_config
+from ..io._files import atomic_write
+from .checkpoint import (WeightsMismatchError, load_resume_state, load_state_strict, read_checkpoint,
+                         save_resume_state, save_weights, write_config)
 from .metrics import MatchingMetrics, MetricsAccumulator
 
 __all__ = ["train", "shutdown_distributed", "TrainSample", "prepare_samples", "matching_loss", "evaluate", "load_frames"]
@@ -289,9 +291,12 @@ def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None 
     start_epoch, best_mrr, history = 0, -1.0, []
     if resume:
         rpath = out / "last.pt" if resume is True else Path(resume)
-        state = torch.load(rpath, map_location="cpu", weights_only=False)
+        state = load_resume_state(rpath)  # torch.load(weights_only=True): a crafted file cannot run code
         load_state_strict(net, state["state_dict"], str(rpath))
-        opt.load_state_dict(state["optimizer"])
+        try:
+            opt.load_state_dict(state["optimizer"])
+        except (KeyError, ValueError, TypeError, RuntimeError) as exc:
+            raise WeightsMismatchError(rpath, f"optimizer state does not fit ({exc})", "optimizer") from None
         start_epoch, best_mrr, history = state["epoch"] + 1, state["best_mrr"], state["history"]
     best_path = out / "best.pt"
 
@@ -348,10 +353,10 @@ def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None 
                     save_weights(net, best_path, model_name=name, config=net.config, dtype=weights_dtype,
                                  extra={"epoch": epoch + 1, "metrics": met.to_dict()})
                     write_config(out / "best.yaml", net.config)
-                torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(), "epoch": epoch,
-                            "best_mrr": best_mrr, "history": history, "model_name": name, "config": net.config},
-                           out / "last.pt")
-                (out / "history.json").write_text(json.dumps(history, indent=1))
+                save_resume_state(out / "last.pt", state_dict=net.state_dict(), optimizer=opt.state_dict(),
+                                  epoch=epoch, best_mrr=best_mrr, history=history, model_name=name,
+                                  config=net.config)
+                atomic_write(out / "history.json", [json.dumps(history, indent=1).encode()])
                 if bar is not None:
                     bar.update(task, info=f"epoch {epoch + 1}/{epochs} loss {mean_loss:.3f} "
                                           f"val top1 {met.top1:.3f} mrr {met.mrr:.3f}")

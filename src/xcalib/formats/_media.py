@@ -21,8 +21,10 @@ def load_rgb(path) -> np.ndarray:
 
 def image_size(path) -> tuple[int, int]:
     """(width, height) in pixels read from a PNG/JPEG header (full decode only as a fallback)."""
+    from ..io._files import open_regular
+
     p = Path(path)
-    with open(p, "rb") as fh:
+    with open_regular(p, what="image file") as fh:
         head = fh.read(1 << 16)
     if head[:8] == b"\x89PNG\r\n\x1a\n":
         return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")

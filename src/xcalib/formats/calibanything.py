@@ -39,7 +39,8 @@ from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.rotations import matrix_to_quaternion, rotation_angle
 from ..geometry.transforms import invert_transform, make_transform
-from ..io._files import atomic_write
+from ..io._files import atomic_write, read_text
+from ..io._files import load_json as _load_json_file
 from ._checks import as_float, as_matrix, checked_quaternion, checked_rotation, require
 from ._result import calibration_record, opencv_distortion, require_intrinsics, split_opencv_distortion
 
@@ -70,10 +71,7 @@ def load_json(path) -> Any:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"calibration file not found: {path}")
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise FormatError(path, f"not valid JSON ({exc})") from None
+    return _load_json_file(path, what="calibration file")
 
 
 def _write_json(path, obj) -> Path:
@@ -305,7 +303,7 @@ def read_calib_txt(path, *, repair: bool = False) -> CalibrationResult:
     if not path.is_file():
         raise FileNotFoundError(f"calibration file not found: {path}")
     vals: dict[str, list[str]] = {}
-    for line in path.read_text().splitlines():
+    for line in read_text(path, what="calib.txt").splitlines():
         if ":" in line:
             k, _, rest = line.partition(":")
             vals[k.strip()] = rest.split()
@@ -338,9 +336,7 @@ def write_calib_txt(result: CalibrationResult, path) -> Path:
              "D: " + " ".join(repr(float(v)) for v in d),
              "T: " + " ".join(repr(float(v)) for v in result.extrinsics[:3].ravel())]
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines) + "\n")
-    return path
+    return atomic_write(path, [("\n".join(lines) + "\n").encode()])
 
 
 # ------------------------------------------------------------------------------ OpenCalib

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ..calib.result import CalibrationResult
 from ..errors import FormatError
+from ..io._files import MAX_TEXT_BYTES, load_json, read_bytes
 
 __all__ = ["CalibFormat", "FORMATS", "format_names", "export_calibration", "read_calibration",
            "detect_format", "default_filename"]
@@ -90,7 +91,8 @@ def _r_calib_txt(path, repair=False):
 def _w_opencalib(res, path):
     from .calibanything import write_opencalib
 
-    return [p for p in write_opencalib(res, Path(path).parent if Path(path).suffix else path) if p is not None]
+    p = Path(path)
+    return [q for q in write_opencalib(res, p.parent if p.suffix and not p.is_dir() else p) if q is not None]
 
 
 def _r_opencalib(path, repair=False):
@@ -199,14 +201,38 @@ def _get(fmt: str) -> CalibFormat:
     return FORMATS[fmt]
 
 
-def export_calibration(result: CalibrationResult, fmt: str, path) -> list[Path]:
-    """Write ``result`` in format ``fmt`` to ``path``; returns every file written."""
+def export_calibration(result: CalibrationResult, fmt: str, path, *, overwrite: bool = True) -> list[Path]:
+    """Write ``result`` in format ``fmt`` to ``path``; returns every file written.
+
+    Every file of the format (ROS and nuScenes write two) is first written to a temporary folder
+    beside the target, then moved into place; with ``overwrite=False`` an existing file among them
+    is a FileExistsError and nothing is written."""
+    import os
+    import shutil
+    import tempfile
+
+    from ..io._files import _tmp_prefix, check_overwrite
+
     f = _get(fmt)
     if f.write is None:
         raise ValueError(f"format {fmt!r} is read-only; writable: {', '.join(format_names(True))}")
     if not result.success:
         raise ValueError(f"refusing to export a failed calibration ({result.message})")
-    return [Path(p) for p in f.write(result, path)]
+    path = Path(path)
+    is_dir = fmt == "opencalib" and not path.suffix
+    target = path if is_dir else path.parent
+    target.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=_tmp_prefix(path.name), suffix=".tmp", dir=target))
+    try:
+        staged = [Path(p) for p in f.write(result, stage if is_dir else stage / path.name)]
+        final = [target / p.relative_to(stage) for p in staged]
+        for p in final:
+            check_overwrite(p, overwrite)
+        for s, p in zip(staged, final):
+            os.replace(s, p)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    return final
 
 
 def detect_format(path) -> str:
@@ -230,10 +256,7 @@ def detect_format(path) -> str:
     if name.endswith(".pkl"):
         return "kitti"
     if name.endswith(".json"):
-        try:
-            d = json.loads(p.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise FormatError(p, f"not valid JSON ({exc})") from None
+        d = load_json(p, what="calibration file")
         if isinstance(d, list):
             return "nuscenes"
         if isinstance(d, dict):
@@ -249,7 +272,7 @@ def detect_format(path) -> str:
                 return "opencalib"
         raise FormatError(p, "unrecognised calibration JSON (expected xcalib, lucid_calib, calib.json, "
                              "OpenLABEL, OpenCalib or calibrated_sensor)")
-    text = p.read_text(errors="replace")
+    text = read_bytes(p, max_bytes=MAX_TEXT_BYTES, what="calibration file").decode("utf-8", errors="replace")
     keys = {line.split(":", 1)[0].strip() for line in text.splitlines() if ":" in line}
     if {"K", "T"} <= keys:
         return "calib_txt"

@@ -30,6 +30,7 @@ from ..geometry.camera import CameraIntrinsics
 from ..geometry.projection import project_points
 from ..geometry.transforms import invert_transform, make_transform
 from ..types import Frame
+from ..io._files import atomic_write, read_text
 from ._checks import as_matrix, checked_rotation
 from ._media import image_size, load_rgb
 
@@ -248,7 +249,7 @@ def load_kitti_calibration(path, *, repair: bool = False) -> KittiCalibration:
         raise FileNotFoundError(f"KITTI calib file not found: {path}")
     if path.suffix == ".pkl":
         return _calib_from_mmdet3d(path, repair)
-    return parse_kitti_calibration(path.read_text(), path, repair=repair)
+    return parse_kitti_calibration(read_text(path, what="KITTI calib file"), path, repair=repair)
 
 
 def _fmt(v: float) -> str:
@@ -271,10 +272,7 @@ def format_kitti_calibration(calib: KittiCalibration) -> str:
 
 def write_kitti_calibration(calib: KittiCalibration, path) -> Path:
     """Write ``calib`` as a KITTI calib txt file; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(format_kitti_calibration(calib))
-    return path
+    return atomic_write(path, [format_kitti_calibration(calib).encode()])
 
 
 # ----------------------------------------------------------------------------------- labels
@@ -345,6 +343,12 @@ def parse_kitti_labels(text: str, path=None) -> KittiLabels:
         raise FormatError(path, f"non-numeric label field ({exc})") from None
     if not np.all(np.isfinite(num[:, :14])):
         raise FormatError(path, "label has NaN/Inf fields")
+    widths = sorted({len(r) for r in rows})
+    if len(widths) > 1:
+        i = next(k for k, r in enumerate(rows) if len(r) != len(rows[0]))
+        raise FormatError(path, f"rows have {widths} fields (row 1: {len(rows[0])}, row {i + 1}: {len(rows[i])}); "
+                                "a missing or extra number shifts the columns", f"row {i + 1}")
+    _check_label_ranges(num, path)
     types = np.array([r[0] for r in rows])
     b2 = num[:, 3:7]
     bad = (b2[:, 2] < b2[:, 0]) | (b2[:, 3] < b2[:, 1])
@@ -361,6 +365,20 @@ def parse_kitti_labels(text: str, path=None) -> KittiLabels:
                        score=num[:, 14], path=None if path is None else str(path))
 
 
+def _check_label_ranges(num: np.ndarray, path) -> None:
+    """Columns that a shifted row breaks: truncated in [-1, 1], occluded an integer in -1..3,
+    alpha / rotation_y in [-2 pi, 2 pi] (alpha -10 = unknown)."""
+    checks = (("truncated", num[:, 0], (num[:, 0] >= -1) & (num[:, 0] <= 1)),
+              ("occluded", num[:, 1], (num[:, 1] == np.round(num[:, 1])) & (num[:, 1] >= -1) & (num[:, 1] <= 3)),
+              ("alpha", num[:, 2], (np.abs(num[:, 2]) <= 2 * np.pi + 1e-6) | (num[:, 2] == -10)),
+              ("rotation_y", num[:, 13], (np.abs(num[:, 13]) <= 2 * np.pi + 1e-6) | (num[:, 13] == -10)))
+    for name, col, ok in checks:
+        if not np.all(ok):
+            i = int(np.flatnonzero(~ok)[0])
+            raise FormatError(path, f"row {i + 1}: {name} = {col[i]!r} is out of range (a missing or extra number "
+                                    "shifts the columns)", name)
+
+
 def load_kitti_labels(path) -> KittiLabels:
     """Read a label_2 file (``FormatError`` naming the file and line on bad rows); a ``.pkl``
     is read as an mmdetection3d KITTI info file (its ``instances``)."""
@@ -369,7 +387,7 @@ def load_kitti_labels(path) -> KittiLabels:
         raise FileNotFoundError(f"KITTI label file not found: {path}")
     if path.suffix == ".pkl":
         return _labels_from_mmdet3d(path)
-    return parse_kitti_labels(path.read_text(), path)
+    return parse_kitti_labels(read_text(path, what="KITTI label file"), path)
 
 
 # mmdetection3d KITTI class ids (bbox_label); -1 = DontCare.

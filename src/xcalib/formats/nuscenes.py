@@ -24,6 +24,7 @@ from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.rotations import matrix_to_quaternion
 from ..geometry.transforms import as_transform, invert_transform, make_transform
+from ..io._files import atomic_write
 from ._checks import as_matrix, checked_quaternion, require
 from ._result import calibration_record, require_intrinsics
 from .calibanything import load_json
@@ -153,12 +154,10 @@ def write_calibrated_sensor_json(result: CalibrationResult, path, *, T_ego_lidar
     cam_rec = camera_record_from_T_cam_lidar(result.extrinsics, lidar_rec, intr, sensor_token="sensor-camera",
                                              token="calib-camera")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps([lidar_rec, cam_rec], indent=2) + "\n")
-    (path.parent / "sensor.json").write_text(json.dumps([
+    atomic_write(path.parent / "sensor.json", [(json.dumps([
         {"token": "sensor-lidar", "channel": lidar_channel, "modality": "lidar"},
-        {"token": "sensor-camera", "channel": cam_ch, "modality": "camera"}], indent=2) + "\n")
-    return path
+        {"token": "sensor-camera", "channel": cam_ch, "modality": "camera"}], indent=2) + "\n").encode()])
+    return atomic_write(path, [(json.dumps([lidar_rec, cam_rec], indent=2) + "\n").encode()])
 
 
 def read_calibrated_sensor_json(path) -> CalibrationResult:

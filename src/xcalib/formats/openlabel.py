@@ -25,6 +25,7 @@ from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.rotations import matrix_to_quaternion
 from ..geometry.transforms import invert_transform, make_transform
+from ..io._files import atomic_write
 from ._checks import as_matrix, checked_quaternion, checked_rotation, require
 from ._result import calibration_record, require_intrinsics
 from .calibanything import load_json
@@ -62,10 +63,7 @@ def openlabel_dict(result: CalibrationResult, *, camera: str | None = None, lida
 
 def write_openlabel(result: CalibrationResult, path, **kw) -> Path:
     """Write :func:`openlabel_dict` to ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(openlabel_dict(result, **kw), indent=2) + "\n")
-    return path
+    return atomic_write(path, [(json.dumps(openlabel_dict(result, **kw), indent=2) + "\n").encode()])
 
 
 def _pose(cs: dict, path, where: str, repair: bool) -> np.ndarray:

@@ -21,6 +21,7 @@ from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.rotations import matrix_to_quaternion
 from ..geometry.transforms import invert_transform, make_transform
+from ..io._files import MAX_TEXT_BYTES, atomic_write, read_text
 from ._checks import as_float, as_matrix, checked_quaternion, require
 from ._result import calibration_record, require_intrinsics
 
@@ -82,10 +83,11 @@ def write_ros(result: CalibrationResult, path, *, parent_frame: str = "lidar",
     child = child_frame or f"{name}_optical"
     yaml = _yaml()
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(yaml.safe_dump(camera_info_dict(intr, name), sort_keys=False))
     tf = tf_path_for(path)
-    tf.write_text(yaml.safe_dump(static_transform_dict(result.extrinsics, parent_frame, child), sort_keys=False))
+    info = yaml.safe_dump(camera_info_dict(intr, name), sort_keys=False).encode()
+    tfy = yaml.safe_dump(static_transform_dict(result.extrinsics, parent_frame, child), sort_keys=False).encode()
+    atomic_write(tf, [tfy])
+    atomic_write(path, [info])
     return path, tf
 
 
@@ -94,9 +96,11 @@ def _load_yaml(path: Path) -> dict:
         raise FileNotFoundError(f"ROS YAML file not found: {path}")
     yaml = _yaml()
     try:
-        d = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise FormatError(path, f"not valid YAML ({exc})") from None
+        d = yaml.safe_load(read_text(path, max_bytes=MAX_TEXT_BYTES, what="YAML file"))
+    except (yaml.YAMLError, RecursionError, ValueError, TypeError) as exc:
+        if isinstance(exc, FormatError):
+            raise
+        raise FormatError(path, f"not valid YAML ({type(exc).__name__}: {str(exc)[:200]})") from None
     if not isinstance(d, dict):
         raise FormatError(path, f"expected a YAML mapping, got {type(d).__name__}")
     return d

@@ -28,8 +28,9 @@ import numpy as np
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..types import Frame
-from ._files import atomic_write
+from ._files import atomic_dir, atomic_write, inside, load_json
 from .images import read_image, write_image
+from ._validate import check_boxes_2d, check_boxes_3d, check_rigid
 from .pointcloud import read_point_cloud, write_pcd
 from .sources import open_source, register_source
 
@@ -44,10 +45,7 @@ _REQUIRED_KEYS = ("image", "point_cloud", "bboxes_2d", "bboxes_3d")
 def _load_json(path: Path) -> dict:
     if not path.exists():
         raise FileNotFoundError(f"JSON file not found: {path}")
-    try:
-        obj = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FormatError(path, f"not valid JSON ({exc})") from None
+    obj = load_json(path)
     if not isinstance(obj, dict):
         raise FormatError(path, f"expected a JSON object at the top level, got {type(obj).__name__}")
     return obj
@@ -62,7 +60,7 @@ def _box_array(path: Path, key: str, value, widths: tuple[int, ...]) -> np.ndarr
         return np.zeros((0, widths[0]), dtype=np.float32)
     try:
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         lens = sorted({len(r) if isinstance(r, list) else -1 for r in value})
         raise FormatError(path, f"rows must be lists of {want} numbers; found rows of length(s) {lens} "
                                 "or non-numeric entries", field=key) from None
@@ -74,13 +72,25 @@ def _box_array(path: Path, key: str, value, widths: tuple[int, ...]) -> np.ndarr
 def read_intrinsics_json(path) -> CameraIntrinsics:
     """``{"fx", "fy", "cx", "cy", "distortion"?, "width"?, "height"?}`` (pixels) -> intrinsics
     (:meth:`CameraIntrinsics.from_json`)."""
-    return CameraIntrinsics.from_json(path)
+    d = load_json(path, what="intrinsics file")
+    if not isinstance(d, dict):
+        raise FormatError(path, f"expected a JSON object, got {type(d).__name__}")
+    missing = [k for k in ("fx", "fy", "cx", "cy") if k not in d]
+    if missing and "K" not in d:
+        raise FormatError(path, f"missing key; expected fx, fy, cx, cy (pixels) or K [3,3], found {sorted(d)}",
+                          field=missing[0])
+    try:
+        return CameraIntrinsics.from_dict(d, source="CameraIntrinsics")
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise FormatError(path, str(exc)) from None
 
 
 def read_detections(path, *, default_key: str = "", default_camera: str = "",
                     intrinsics: CameraIntrinsics | None = None,
-                    columns=None, drop_nonfinite: bool = False) -> Frame:
-    """Read one frame from its ``detections.json`` (image and point cloud relative to it)."""
+                    columns=None, drop_nonfinite: bool = False, allow_outside: bool = False) -> Frame:
+    """Read one frame from its ``detections.json`` (image and point cloud relative to it; a path
+    that leaves the folder, absolute or through ``..``, is a FormatError unless ``allow_outside``).
+    Boxes must be finite and not inverted, extrinsics rigid, the match matrix 0/1."""
     path = Path(path)
     det = _load_json(path)
     for key in _REQUIRED_KEYS:
@@ -89,35 +99,39 @@ def read_detections(path, *, default_key: str = "", default_camera: str = "",
     for key in ("image", "point_cloud"):
         if not isinstance(det[key], str) or not det[key]:
             raise FormatError(path, f"expected a relative file path string, got {det[key]!r}", field=key)
-    b2 = _box_array(path, "bboxes_2d", det["bboxes_2d"], (4,))
-    b3 = _box_array(path, "bboxes_3d", det["bboxes_3d"], (6, 7))
+    b2 = check_boxes_2d(path, "bboxes_2d", _box_array(path, "bboxes_2d", det["bboxes_2d"], (4,)))
+    b3 = check_boxes_3d(path, "bboxes_3d", _box_array(path, "bboxes_3d", det["bboxes_3d"], (6, 7)))
     mm = None
     if det.get("match_matrix") is not None:
         raw = det["match_matrix"]
         try:
             mm = np.asarray(raw, dtype=np.float64).reshape(len(raw), -1) if len(raw) else np.zeros((0, len(b3)))
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise FormatError(path, "expected a [K][M] list of 0/1 values", field="match_matrix") from None
         if mm.shape != (len(b2), len(b3)):
             raise FormatError(path, f"expected shape [K, M] = [{len(b2)}, {len(b3)}], got {list(mm.shape)}",
                               field="match_matrix")
+        if not np.isin(mm, (0.0, 1.0)).all():
+            raise FormatError(path, "expected only 0/1 values", field="match_matrix")
         mm = mm != 0
     ext = None
     if det.get("extrinsics") is not None:
         try:
             ext = np.asarray(det["extrinsics"], dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise FormatError(path, "expected a 4x4 numeric matrix (T_cam_lidar)", field="extrinsics") from None
         if ext.shape == (3, 4):
             ext = np.vstack([ext, [0.0, 0.0, 0.0, 1.0]])
         if ext.shape != (4, 4) or not np.all(np.isfinite(ext)):
             raise FormatError(path, f"expected a finite 4x4 matrix (T_cam_lidar), got shape {list(ext.shape)}",
                               field="extrinsics")
+        check_rigid(path, "extrinsics", ext)
     root = path.parent
-    image = read_image(root / det["image"])
-    pc = read_point_cloud(root / det["point_cloud"], columns=columns, drop_nonfinite=drop_nonfinite)
-    meta = {"detections": str(path), "image_path": str(root / det["image"]),
-            "point_cloud_path": str(root / det["point_cloud"])}
+    image_path = inside(root, det["image"], source=path, field="image", allow_outside=allow_outside)
+    cloud_path = inside(root, det["point_cloud"], source=path, field="point_cloud", allow_outside=allow_outside)
+    image = read_image(image_path)
+    pc = read_point_cloud(cloud_path, columns=columns, drop_nonfinite=drop_nonfinite)
+    meta = {"detections": str(path), "image_path": str(image_path), "point_cloud_path": str(cloud_path)}
     if pc.num_dropped:
         meta["points_dropped_nonfinite"] = pc.num_dropped
     return Frame(image=image, point_cloud=pc.points, bboxes_2d=b2, bboxes_3d=b3,
@@ -132,8 +146,9 @@ class FrameFolder(Sequence):
     access; slices give lists), iteration. ``camera`` / ``intrinsics`` / ``site`` / ``split``
     come from the manifest and ``intrinsics.json`` when present."""
 
-    def __init__(self, path, *, columns=None, drop_nonfinite: bool = False):
+    def __init__(self, path, *, columns=None, drop_nonfinite: bool = False, allow_outside: bool = False):
         p = Path(path)
+        self._allow_outside = bool(allow_outside)
         if not p.exists():
             raise FileNotFoundError(f"frame folder not found: {p}")
         if p.is_file():
@@ -182,7 +197,8 @@ class FrameFolder(Sequence):
         for i, fr in enumerate(man["frames"]):
             if not isinstance(fr, dict) or not isinstance(fr.get("detections"), str):
                 raise FormatError(path, "each entry needs a \"detections\" path string", field=f"frames[{i}].detections")
-            det = path.parent / fr["detections"]
+            det = inside(path.parent, fr["detections"], source=path, field=f"frames[{i}].detections",
+                         allow_outside=self._allow_outside)
             if not det.is_file():
                 raise FormatError(path, f"detections file {det} does not exist", field=f"frames[{i}].detections")
             entries.append((str(fr.get("frame_key", det.parent.name)), det))
@@ -203,7 +219,7 @@ class FrameFolder(Sequence):
             return [self[i] for i in range(*index.indices(len(self)))]
         key, det = self._entries[index]
         return read_detections(det, default_key=key, default_camera=self.camera, intrinsics=self.intrinsics,
-                               columns=self._columns, drop_nonfinite=self._drop)
+                               columns=self._columns, drop_nonfinite=self._drop, allow_outside=self._allow_outside)
 
     def __repr__(self) -> str:
         return f"FrameFolder({str(self.root)!r}, frames={len(self)}, camera={self.camera!r})"

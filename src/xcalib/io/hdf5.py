@@ -43,6 +43,8 @@ import numpy as np
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..types import Frame
+from ._files import _tmp_prefix, open_regular, sweep_stale
+from ._validate import check_boxes_2d, check_boxes_3d, check_count, check_rigid
 
 __all__ = ["CacheReader", "CacheWriter", "write_cache", "load_dataset", "cache_summary",
            "CorruptImageError", "is_hdf5_cache", "HDF5_SUFFIXES"]
@@ -50,6 +52,10 @@ __all__ = ["CacheReader", "CacheWriter", "write_cache", "load_dataset", "cache_s
 log = logging.getLogger(__name__)
 
 HDF5_SUFFIXES = (".h5", ".hdf5")
+#: A dataset may declare at most this many bytes beyond 32x the file size (compression of float
+#: data stays far below 32:1); larger declarations are refused before anything is allocated.
+_DECLARED_SLACK = 64 << 20
+_DECLARED_RATIO = 32
 _KEY_ORDERS = ("lexicographic", "numeric")
 # Frame.meta key -> (dataset name, kind) of the additive per-detection extras.
 _META_DATASETS = {
@@ -135,9 +141,11 @@ class CacheReader(Sequence):
             raise FileNotFoundError(f"HDF5 cache not found: {self.path}")
         if key_order not in _KEY_ORDERS:
             raise ValueError(f"key_order must be one of {_KEY_ORDERS}, got {key_order!r}")
+        open_regular(self.path, max_bytes=1 << 46, what="HDF5 cache").close()  # FIFOs / devices refused
+        self._max_bytes = self.path.stat().st_size * _DECLARED_RATIO + _DECLARED_SLACK
         try:
             self._f = h5py.File(self.path, "r")
-        except OSError as exc:
+        except (OSError, ValueError) as exc:
             raise FormatError(self.path, f"not a readable HDF5 file ({exc})") from None
         self._finalizer = weakref.finalize(self, self._f.close)
         self.read_images = bool(read_images)
@@ -273,21 +281,31 @@ class CacheReader(Sequence):
             raise FormatError(self.path, f"frame {key!r}: missing {what} group", field=path) from None
 
     def read_frame(self, key: str) -> Frame:
-        """Read frame ``key`` (labels, points, images per the reader's options, calibration)."""
+        """Read frame ``key`` (labels, points, images per the reader's options, calibration).
+        Counts must be integral, boxes finite and not inverted, extrinsics rigid; any HDF5-level
+        failure (checksum, truncation, a declared size beyond what the file can hold) is a
+        FormatError naming the frame."""
         if self.closed:
             raise ValueError(f"{self.path}: the cache is closed")
+        try:
+            return self._read_frame(key)
+        except FormatError:
+            raise
+        except (OSError, ValueError, TypeError, KeyError, IndexError, OverflowError, MemoryError, RuntimeError,
+                UnicodeDecodeError) as exc:
+            raise FormatError(self.path, f"frame {key!r}: unreadable ({type(exc).__name__}: {str(exc)[:200]})",
+                              field=f"/labels/{self.label_sensor}/{key}") from None
+
+    def _read_frame(self, key: str) -> Frame:
         where = f"/labels/{self.label_sensor}/{key}"
         g = self._group(where, key, "labels")
-        try:
-            K = int(g.require("num_camera_detections", self, key))
-            M = int(g.require("num_lidar_detections", self, key))
-        except (TypeError, ValueError) as exc:
-            raise FormatError(self.path, f"frame {key!r}: detection counts are not integers ({exc})",
-                              field=where) from None
+        g.max_bytes = self._max_bytes
+        K = check_count(self.path, f"{where}/num_camera_detections", g.require("num_camera_detections", self, key))
+        M = check_count(self.path, f"{where}/num_lidar_detections", g.require("num_lidar_detections", self, key))
         b2_all = g.require("camera_bbox_2d", self, key)
         b3_all = g.require("lidar_bbox_3d", self, key)
-        b2 = self._rows(b2_all, "camera_bbox_2d", K, 4, key, where)
-        b3 = self._rows(b3_all, "lidar_bbox_3d", M, 6, key, where)
+        b2 = check_boxes_2d(self.path, f"{where}/camera_bbox_2d", self._rows(b2_all, "camera_bbox_2d", K, 4, key, where))
+        b3 = check_boxes_3d(self.path, f"{where}/lidar_bbox_3d", self._rows(b3_all, "lidar_bbox_3d", M, 6, key, where))
         mm = None
         if "match_matrix" in g:
             raw = g.read("match_matrix")
@@ -298,6 +316,9 @@ class CacheReader(Sequence):
             if not ok:
                 raise FormatError(self.path, f"frame {key!r}: match_matrix has shape {tuple(raw.shape)}, "
                                              f"expected (K, M) = ({K}, {M})", field=f"{where}/match_matrix")
+            if raw.size and not np.isin(raw[:K, :M], (0, 1)).all():
+                raise FormatError(self.path, f"frame {key!r}: match_matrix holds values other than 0/1",
+                                  field=f"{where}/match_matrix")
             mm = raw[:K, :M].astype(bool)
         cams_per_det = None
         if "camera_names" in g:
@@ -371,6 +392,7 @@ class CacheReader(Sequence):
     def _points(self, key: str) -> tuple[np.ndarray, tuple[str, ...]]:
         where = f"/point_clouds/{self.lidar_name}/{key}"
         pg = self._group(where, key, "point cloud")
+        pg.max_bytes = self._max_bytes
         xyz = pg.require("xyz", self, key)
         if xyz.ndim != 2 or xyz.shape[1] < 3:
             raise FormatError(self.path, f"frame {key!r}: xyz has shape {xyz.shape}, expected [P, 3]",
@@ -437,6 +459,8 @@ class CacheReader(Sequence):
                 if T is not None and T.shape != (4, 4):
                     raise FormatError(self.path, f"frame {key!r}: extrinsics have shape {T.shape}, "
                                                  "expected [4, 4]", field=f"{eg}/{key}")
+                if T is not None:
+                    check_rigid(self.path, f"{eg}/{key}", T)
             if T is not None:
                 extr_all[cam] = np.array(T, dtype=np.float64)
         return intr_all.get(primary), extr_all.get(primary), intr_all, extr_all
@@ -460,8 +484,14 @@ class CacheReader(Sequence):
             w, h = ds.attrs.get("width"), ds.attrs.get("height")
             if w is None and image is not None and image.size:
                 h, w = image.shape[:2]
-            intr = CameraIntrinsics.from_matrix(Km, dist, width=None if w is None else int(w),
-                                                height=None if h is None else int(h))
+            try:
+                intr = CameraIntrinsics.from_matrix(Km, dist, width=None if w is None else check_count(
+                    self.path, f"{where}/intrinsics@width", w), height=None if h is None else check_count(
+                    self.path, f"{where}/intrinsics@height", h))
+            except (TypeError, ValueError) as exc:
+                if isinstance(exc, FormatError):
+                    raise
+                raise FormatError(self.path, str(exc), field=f"{where}/intrinsics") from None
         T, per_frame = None, False
         if "extrinsics" in cg:
             e = cg["extrinsics"]
@@ -472,6 +502,7 @@ class CacheReader(Sequence):
                 if T.shape != (4, 4):
                     raise FormatError(self.path, f"extrinsics have shape {T.shape}, expected [4, 4]",
                                       field=f"{where}/extrinsics")
+                check_rigid(self.path, f"{where}/extrinsics", T)
         cache = {"intrinsics": intr, "extrinsics": T, "per_frame": per_frame}
         self._static[cam] = cache
         return cache
@@ -480,7 +511,7 @@ class CacheReader(Sequence):
 class _Group:
     """Low-level view of one HDF5 group: member names and whole-dataset reads (fast per-frame access)."""
 
-    __slots__ = ("gid", "names", "path")
+    __slots__ = ("gid", "names", "path", "max_bytes")
 
     def __init__(self, fid, path: str):
         import h5py
@@ -490,6 +521,7 @@ class _Group:
         except (KeyError, ValueError):
             raise KeyError(path) from None
         self.path = path
+        self.max_bytes = None
         self.names = {n.decode() for n in self.gid}
 
     def __contains__(self, name: str) -> bool:
@@ -499,6 +531,10 @@ class _Group:
         import h5py
 
         d = h5py.h5d.open(self.gid, name.encode())
+        nbytes = int(np.prod(d.shape, dtype=object)) * d.dtype.itemsize
+        if self.max_bytes is not None and nbytes > self.max_bytes:
+            raise FormatError(None, f"dataset {self.path}/{name} declares shape {d.shape} ({nbytes} bytes), more than "
+                                    f"the file can hold ({self.max_bytes} bytes allowed)", field=f"{self.path}/{name}")
         arr = np.empty(d.shape, dtype=d.dtype)
         if arr.size:
             d.read(h5py.h5s.ALL, h5py.h5s.ALL, arr)
@@ -619,7 +655,8 @@ class CacheWriter:
         if self.path.suffix.lower() not in HDF5_SUFFIXES:
             raise ValueError(f"CacheWriter: {self.path} should end in .h5 or .hdf5")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = self.path.with_name(f".{self.path.name}.{uuid.uuid4().hex[:8]}.tmp")
+        sweep_stale(self.path.parent, self.path.name)  # temps of writers that were killed
+        self._tmp = self.path.with_name(f"{_tmp_prefix(self.path.name)}{uuid.uuid4().hex[:8]}.tmp")
         self._f = h5py.File(self._tmp, "w", libver=("v110", "latest"))
         self._finalizer = weakref.finalize(self, _abandon, self._f, self._tmp)
         self.camera_names = list(camera_names) if camera_names else []

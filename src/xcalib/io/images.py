@@ -12,9 +12,35 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError
-from ._files import atomic_write
+from ._files import atomic_write, read_bytes
 
-__all__ = ["read_image", "decode_image", "encode_image", "encode_jpeg", "write_image"]
+__all__ = ["read_image", "decode_image", "encode_image", "encode_jpeg", "write_image", "image_header_size",
+           "MAX_IMAGE_PIXELS"]
+
+#: Largest image (width x height) any reader decodes: 100 Mpx (a 20000x20000 PNG is refused
+#: from its header, before OpenCV allocates 1.2 GB).
+MAX_IMAGE_PIXELS = 100_000_000
+_SOF = (0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF)
+
+
+def image_header_size(buf: bytes) -> tuple[int, int] | None:
+    """(width, height) from a PNG IHDR or the first JPEG SOF marker; None for other data."""
+    if buf[:8] == b"\x89PNG\r\n\x1a\n" and len(buf) >= 24:
+        return int.from_bytes(buf[16:20], "big"), int.from_bytes(buf[20:24], "big")
+    if buf[:2] == b"\xff\xd8":
+        i = 2
+        while i + 9 < len(buf):
+            if buf[i] != 0xFF:
+                return None
+            marker = buf[i + 1]
+            if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7 or marker == 0xFF:
+                i += 1 if marker == 0xFF else 2
+                continue
+            seg = int.from_bytes(buf[i + 2:i + 4], "big")
+            if marker in _SOF:
+                return int.from_bytes(buf[i + 7:i + 9], "big"), int.from_bytes(buf[i + 5:i + 7], "big")
+            i += 2 + seg
+    return None
 
 
 def _to_rgb(img: np.ndarray, source) -> np.ndarray:
@@ -46,7 +72,17 @@ def decode_image(data: bytes | bytearray | memoryview | np.ndarray, *, source=No
     buf = np.frombuffer(data, dtype=np.uint8) if not isinstance(data, np.ndarray) else data.reshape(-1).view(np.uint8)
     if buf.size == 0:
         raise FormatError(source, "image data is empty (0 bytes)")
-    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    size = image_header_size(buf[:1 << 20].tobytes())
+    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
+        raise FormatError(source, f"image header declares {size[0]}x{size[1]} = {size[0] * size[1]} pixels; the limit "
+                                  f"is {MAX_IMAGE_PIXELS}", field="size")
+    try:
+        img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    except (cv2.error, MemoryError) as exc:
+        raise FormatError(source, f"could not decode {buf.size} bytes as an image ({type(exc).__name__})") from None
+    if img is not None and img.ndim >= 2 and img.shape[0] * img.shape[1] > MAX_IMAGE_PIXELS:
+        raise FormatError(source, f"image is {img.shape[1]}x{img.shape[0]} pixels; the limit is {MAX_IMAGE_PIXELS}",
+                          field="size")
     if img is None or img.size == 0:
         raise FormatError(source, f"could not decode {buf.size} bytes as an image (PNG/JPEG expected; "
                                   "truncated or corrupt?)")
@@ -58,9 +94,7 @@ def read_image(path) -> np.ndarray:
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"image file not found: {p}")
-    if p.is_dir():
-        raise FormatError(p, "expected an image file, found a directory")
-    return decode_image(p.read_bytes(), source=p)
+    return decode_image(read_bytes(p, max_bytes=512 << 20, what="image file"), source=p)
 
 
 def _check_rgb(rgb, name: str = "image") -> np.ndarray:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import io
 import logging
+import os
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +25,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import FormatError
-from ._files import atomic_write
+from ._files import MAX_FILE_BYTES, atomic_write, open_regular, read_bytes
 
 __all__ = ["PointCloud", "read_point_cloud", "load_points", "write_pcd", "write_points",
            "PCD_ENCODINGS", "default_field_names"]
@@ -37,6 +38,11 @@ _TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("F", 2): "<f2",
           ("U", 1): "u1", ("U", 2): "<u2", ("U", 4): "<u4", ("U", 8): "<u8",
           ("I", 1): "i1", ("I", 2): "<i2", ("I", 4): "<i4", ("I", 8): "<i8"}
 _MAX_HEADER_BYTES = 1 << 16
+#: Largest COUNT of one PCD field (PCL descriptors go to 308, e.g. VFH).
+MAX_PCD_COUNT = 1024
+#: Largest |x|, |y|, |z| (metres) of a plausible LiDAR point; beyond it the column layout is wrong.
+MAX_COORD_M = 1.0e5
+_LZF_MAX_RATIO = 300  # LZF cannot expand a payload by more than this (bomb guard)
 
 
 @dataclass
@@ -103,8 +109,7 @@ def read_point_cloud(path, *, columns=None, drop_nonfinite: bool = False) -> Poi
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"point cloud file not found: {p}")
-    if p.is_dir():
-        raise FormatError(p, "expected a point-cloud file, found a directory")
+    open_regular(p, what="point-cloud file").close()  # FIFOs, devices, directories, oversized: refused
     name = p.name.lower()
     if name.endswith(".pcd"):
         pc = _read_pcd(p)
@@ -114,7 +119,7 @@ def read_point_cloud(path, *, columns=None, drop_nonfinite: bool = False) -> Poi
     elif name.endswith(".npy"):
         pc = _read_npy(p)
     else:
-        with open(p, "rb") as f:
+        with open_regular(p, what="point-cloud file") as f:
             head = f.read(64).lstrip()
         if head.startswith(b"#") or head.upper().startswith(b"VERSION") or head.upper().startswith(b"FIELDS"):
             pc = _read_pcd(p)
@@ -206,8 +211,9 @@ def _parse_header(path: Path, raw: bytes) -> _Header:
     def ints(key: str, default=None) -> list[int]:
         if key not in values and default is not None:
             return default
+        raw = need(key)
         try:
-            out = [int(v) for v in need(key)]
+            out = [int(v) for v in raw]
         except ValueError:
             raise FormatError(path, f"header field {key} must hold integers, got {' '.join(values[key])!r}",
                               field=key) from None
@@ -228,11 +234,18 @@ def _parse_header(path: Path, raw: bytes) -> _Header:
         if (t, s) not in _TYPES:
             raise FormatError(path, f"field {f!r} has unsupported TYPE {t} with SIZE {s} "
                                     "(expected F 2/4/8, U or I 1/2/4/8)", field="TYPE")
-        if c < 1:
-            raise FormatError(path, f"field {f!r} has COUNT {c}; expected >= 1", field="COUNT")
+        if c < 1 or c > MAX_PCD_COUNT:
+            raise FormatError(path, f"field {f!r} has COUNT {c}; expected 1..{MAX_PCD_COUNT}", field="COUNT")
+    named = [f for f in fields if f != "_"]
+    dups = sorted({f for f in named if named.count(f) > 1})
+    if dups:
+        raise FormatError(path, f"FIELDS names {dups} more than once ({' '.join(fields)})", field="FIELDS")
     for axis in ("x", "y", "z"):
         if axis not in fields:
             raise FormatError(path, f"FIELDS must include x, y and z, got {' '.join(fields)}", field="FIELDS")
+        if counts[fields.index(axis)] != 1:
+            raise FormatError(path, f"field {axis} has COUNT {counts[fields.index(axis)]}; x, y and z must have "
+                                    "COUNT 1", field="COUNT")
     width = ints("WIDTH")[0]
     height = ints("HEIGHT", [1])[0]
     points = ints("POINTS", [width * height])[0]
@@ -277,17 +290,21 @@ def _assemble(path: Path, h: _Header, arrays: dict[tuple[int, int], np.ndarray])
 
 
 def _read_pcd(path: Path) -> PointCloud:
-    raw = path.read_bytes()
+    raw = read_bytes(path, max_bytes=MAX_FILE_BYTES, what="PCD file")
     h = _parse_header(path, raw)
     body = memoryview(raw)[h.data_offset:]
     if h.data == "ascii":
+        if h.points * sum(h.counts) > len(body):  # every value needs >= 1 byte: a bomb guard
+            raise FormatError(path, f"header declares {h.points} points x {sum(h.counts)} values but the ascii data "
+                                    f"holds {len(body)} bytes", field="POINTS")
         return _assemble(path, h, _parse_ascii(path, h, bytes(body)))
     itemsizes = [s * c for s, c in zip(h.sizes, h.counts)]
     point_size = sum(itemsizes)
     nbytes = h.points * point_size
     if h.data == "binary":
-        if len(body) < nbytes:
-            raise FormatError(path, f"binary data is truncated: {h.points} points x {point_size} bytes = "
+        if len(body) != nbytes:
+            what = "truncated" if len(body) < nbytes else "followed by trailing bytes"
+            raise FormatError(path, f"binary data is {what}: {h.points} points x {point_size} bytes = "
                                     f"{nbytes} bytes expected, {len(body)} found", field="DATA")
         dtype = np.dtype([(f"f{i}", _TYPES[(t, s)], (c,)) for i, (t, s, c)
                           in enumerate(zip(h.types, h.sizes, h.counts))])
@@ -306,6 +323,13 @@ def _read_pcd(path: Path) -> PointCloud:
     if len(body) - 8 < csize:
         raise FormatError(path, f"binary_compressed data is truncated: {csize} compressed bytes declared, "
                                 f"{len(body) - 8} found", field="DATA")
+    tail = body[8 + csize:]
+    if len(tail) and (len(tail) > 1 << 16 or any(bytes(tail))):  # PCL pads with zeros (page size), nothing else
+        raise FormatError(path, f"binary_compressed data is followed by {len(tail)} trailing non-padding bytes",
+                          field="DATA")
+    if usize > _LZF_MAX_RATIO * csize + 4096:
+        raise FormatError(path, f"binary_compressed declares {usize} bytes from {csize} compressed bytes: more "
+                                "than LZF can expand (corrupt header)", field="DATA")
     if nbytes == 0:
         buf = b""
     else:
@@ -341,7 +365,8 @@ def _parse_ascii(path: Path, h: _Header, body: bytes) -> dict[tuple[int, int], n
     except ValueError as exc:
         raise FormatError(path, f"ascii data could not be parsed as {ncol} numbers per line ({exc})",
                           field="DATA") from None
-    if table.shape[0] != h.points or (h.points and table.shape[1] != ncol):
+    extra = _extra_ascii_rows(body, h.points)
+    if table.shape[0] != h.points or (h.points and table.shape[1] != ncol) or extra:
         raise FormatError(path, f"ascii data holds {table.shape[0]} rows x {table.shape[1]} values; header "
                                 f"declares {h.points} points x {ncol} values (truncated or corrupt)", field="DATA")
     arrays = {}
@@ -351,6 +376,12 @@ def _parse_ascii(path: Path, h: _Header, body: bytes) -> dict[tuple[int, int], n
             arrays[(fi, k)] = table[:, start + k]
         start += c
     return arrays
+
+
+def _extra_ascii_rows(body: bytes, points: int) -> int:
+    """Non-blank, non-comment lines after the first ``points`` data lines (trailing data)."""
+    lines = [ln for ln in body.split(b"\n") if ln.strip() and not ln.lstrip().startswith(b"#")]
+    return max(len(lines) - points, 0)
 
 
 def _read_bin(path: Path, columns) -> PointCloud:
@@ -370,15 +401,33 @@ def _read_bin(path: Path, columns) -> PointCloud:
         hint = " (nuScenes .pcd.bin files hold 5: pass columns=5)" if n == 4 and size % 20 == 0 else ""
         raise FormatError(path, f"file size {size} bytes is not a multiple of {n} float32 columns "
                                 f"({4 * n} bytes per point){hint}", field="columns")
-    pts = np.fromfile(path, dtype="<f4").reshape(-1, n).astype(np.float32, copy=False)
+    raw = np.frombuffer(read_bytes(path, what=".bin point cloud"), dtype="<f4")
+    pts = raw.reshape(-1, n).astype(np.float32)
+    _check_bin_layout(path, raw, pts, n, columns is None)
     return PointCloud(pts, names, len(pts), 1, _DEFAULT_VIEWPOINT, 0, str(path))
 
 
+def _plausible(xyz: np.ndarray) -> bool:
+    with np.errstate(invalid="ignore"):
+        a = np.abs(xyz[np.isfinite(xyz).all(axis=1)])
+    return a.size == 0 or float(a.max()) <= MAX_COORD_M
+
+
+def _check_bin_layout(path: Path, raw: np.ndarray, pts: np.ndarray, n: int, defaulted: bool) -> None:
+    """Refuse a ``.bin`` read with the wrong column count: the coordinates come out as garbage
+    (e.g. Waymo's KITTI-format export holds 6 columns: x y z intensity elongation timestamp)."""
+    if _plausible(pts[:, :3]):
+        return
+    fits = [k for k in (4, 5, 6, 3, 7, 8) if k != n and raw.size % k == 0
+            and _plausible(raw.reshape(-1, k)[:, :3])]
+    hint = f"; the values fit {fits[0]} columns: pass columns={fits[0]}" if fits else ""
+    raise FormatError(path, f"read as {n} float32 columns{' (the default)' if defaulted else ''}, coordinates reach "
+                            f"{float(np.nanmax(np.abs(pts[:, :3]))):.3g} m (> {MAX_COORD_M:g} m): wrong column "
+                            f"count{hint}", field="columns")
+
+
 def _read_npy(path: Path) -> PointCloud:
-    try:
-        arr = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
-        raise FormatError(path, f"not a readable .npy array ({exc})") from None
+    arr = _load_npy(path)
     if arr.dtype.names:
         if not {"x", "y", "z"} <= set(arr.dtype.names):
             raise FormatError(path, f"structured array must have fields x, y, z, got {arr.dtype.names}",
@@ -392,8 +441,32 @@ def _read_npy(path: Path) -> PointCloud:
         if arr.dtype.kind not in "fiu":
             raise FormatError(path, f"expected a numeric array, got dtype {arr.dtype}", field="dtype")
         fields = default_field_names(arr.shape[1])
-    pts = np.ascontiguousarray(arr, dtype=np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):
+        pts = np.ascontiguousarray(arr, dtype=np.float32)
     return PointCloud(pts, fields, len(pts), 1, _DEFAULT_VIEWPOINT, 0, str(path))
+
+
+def _load_npy(path: Path) -> np.ndarray:
+    """``np.load`` (no pickles) after checking that the header's shape fits the file size."""
+    with open_regular(path, what=".npy file") as fh:
+        size = os.fstat(fh.fileno()).st_size
+        try:
+            version = np.lib.format.read_magic(fh)
+            shape, _, dtype = (np.lib.format.read_array_header_1_0(fh) if version == (1, 0)
+                               else np.lib.format.read_array_header_2_0(fh))
+        except (ValueError, OSError, EOFError, SyntaxError, TypeError) as exc:
+            raise FormatError(path, f"not a readable .npy array ({exc})") from None
+        if dtype.hasobject:
+            raise FormatError(path, "object arrays (pickles) are refused", field="dtype")
+        need = int(np.prod(shape, dtype=object)) * dtype.itemsize
+        if need > size:
+            raise FormatError(path, f"header declares shape {shape} ({need} bytes) but the file holds {size} bytes",
+                              field="shape")
+        fh.seek(0)
+        try:
+            return np.load(fh, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            raise FormatError(path, f"not a readable .npy array ({exc})") from None
 
 
 # ------------------------------------------------------------------------------ writing

@@ -323,14 +323,15 @@ class OneShotSession:
         stale = d / "calibration.json"
         if not self.is_calibrated and stale.is_file():
             stale.unlink()  # never leave another pose beside these weights
-        paths = self.matcher.save_pretrained(d)  # + calibration.json when calibrated
+        paths = self.matcher.save_pretrained(d, overwrite=True)  # + calibration.json when calibrated
         info = {"format": "xcalib-oneshot-v1", "model": self.matcher.model_name, "observed_frames": self.n_observed,
                 "buffer_frames": len(self.buffer), "image_size": self.image_size,
                 "intrinsics": self.intrinsics.to_dict(), "calibrated": self.is_calibrated,
                 "pose_locked": self.pose.locked, "adapt": [r.to_dict() for r in self.history],
                 "options": {"gate": self.gate, "neg_iou": self.neg_iou, "mode": self.mode, "seed": self.seed}}
-        p = d / "oneshot.json"
-        p.write_text(json.dumps(info, indent=1, default=_json_default))
+        from ..io._files import atomic_write
+
+        p = atomic_write(d / "oneshot.json", [json.dumps(info, indent=1, default=_json_default).encode()])
         paths["oneshot"] = p
         return paths
 

@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..io._files import atomic_write
+from ..io._files import atomic_write, safe_name
 
 __all__ = ["ReportFigure", "CalibrationReport", "write_calibration_report", "frame_arrays"]
 
@@ -198,7 +198,7 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         existing.setdefault(key, []).append((p, before_fig))
     if existing:  # show the frames that were drawn
         keys = [frame_arrays(f, i)[4] for i, f in enumerate(frames)]
-        shown = [i for i, k in enumerate(keys) if k in existing]
+        shown = [i for i, k in enumerate(keys) if safe_name(k) in existing]  # overlay names are safe_name(key)
     else:
         shown = _pick(len(frames), max_frames)
     have_pose = result.intrinsics is not None and bool(result.success)
@@ -209,7 +209,7 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         given_yaw = np.asarray(b3).shape[-1] == 7
         b3 = calibrator_boxes(frames[idx], result.intrinsics, np.asarray(b3))
         if existing and have_pose:
-            for path, before_fig in sorted(existing.get(key, []), key=lambda e: not e[1]):  # before first
+            for path, before_fig in sorted(existing.get(safe_name(key), []), key=lambda e: not e[1]):  # before first
                 figures.append(ReportFigure(
                     Path(os.path.relpath(path, out)).as_posix(),
                     f"Frame {key}, " + ("bring-up pose, before refinement: LiDAR points coloured by camera "

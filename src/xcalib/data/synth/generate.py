@@ -89,17 +89,27 @@ def generate_frames(site: Site, n_frames: int, seed: int = 0, *, render_images: 
 
 def write_site(out_dir, n_train: int, n_val: int, n_test: int, seed: int = 0, preset: str = "roadside", *,
                progress: Callable[[str, int, int], None] | None = None, render_images: bool = True,
-               lidar: bool = True, image_format: str = "jpeg", **overrides) -> Path:
+               lidar: bool = True, image_format: str = "jpeg", overwrite: bool = False, **overrides) -> Path:
     """Write ``train.h5``, ``val.h5``, ``test.h5`` (with /calibration) and ``site.json`` to ``out_dir``.
 
     Each split is its own traffic sequence (no temporal overlap). ``overrides`` go to
     :func:`sample_site`. ``progress(split, done, total)`` is called after every frame.
+    The site is written into a temporary folder and swapped in whole (the caches and ``site.json``
+    always belong to the same run); an existing non-empty ``out_dir`` needs ``overwrite=True``.
     """
-    from ...io.hdf5 import CacheWriter
+    from ...io._files import atomic_dir
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     site = sample_site(seed, preset, **overrides)
+    with atomic_dir(out, overwrite=overwrite) as tmp:
+        _write_site_files(tmp, site, n_train, n_val, n_test, seed, progress, render_images, lidar, image_format)
+    return out
+
+
+def _write_site_files(out: Path, site: Site, n_train: int, n_val: int, n_test: int, seed: int, progress,
+                      render_images: bool, lidar: bool, image_format: str) -> None:
+    from ...io.hdf5 import CacheWriter
+
     counts = {"train": int(n_train), "val": int(n_val), "test": int(n_test)}
     for split, n in counts.items():
         if n < 0:
@@ -116,4 +126,3 @@ def write_site(out_dir, n_train: int, n_val: int, n_test: int, seed: int = 0, pr
     info["splits"] = {s: {"file": f"{s}.h5", "frames": n, "sequence_seed": 1000 * int(seed) + _SPLIT_SEED[s]}
                       for s, n in counts.items()}
     atomic_write(out / "site.json", [json.dumps(info, indent=2).encode()])
-    return out
