@@ -73,7 +73,7 @@ def test_shipped_weights_out_of_domain_fall_back_to_geometry(site2_frames, caplo
     with caplog.at_level(logging.WARNING, logger="xcalib.matcher"):
         r = m.match_frame(f, validate="off")
     assert r.source == "geometry" and r.assignment == "hungarian"
-    assert "xcalib bootstrap" in caplog.text and "not trained for this site" in caplog.text
+    assert "xcalib bootstrap" in caplog.text and "out of domain" in caplog.text
     truth = _pairs(f.match_matrix)
     got = set(map(tuple, r.as_pairs().tolist()))
     assert len(got & truth) >= 0.9 * len(truth) and len(got - truth) <= 0.05 * len(got) + 1
@@ -84,10 +84,13 @@ def test_shipped_weights_out_of_domain_fall_back_to_geometry(site2_frames, caplo
 def test_in_domain_and_forced_paths():
     m = Matcher.from_pretrained("fastmatch", site="synthetic", device="cpu")
     f = generate_frames(sample_site(0), 1, seed=4)[0]  # the weights' own site: in domain
-    r = m.match_frame(f, validate="off")
+    r = m.match(*f.inputs(), validate="off")  # no intrinsics: the consensus would have to search them
     assert r.source == "model" and out_of_domain(r.similarity) == ""
-    g = m.match_frame(f, validate="off", geometry="on")
+    g = m.match_frame(f, validate="off")  # the frame's intrinsics: consensus (shipped weights, no calibration)
     assert g.source == "geometry" and np.array_equal(g.similarity, g.geometry_iou)
+    truth = _pairs(f.match_matrix)
+    assert len(set(map(tuple, g.as_pairs().tolist())) & truth) >= 0.9 * len(truth)
+    assert m.match_frame(f, validate="off", geometry="off").source == "model"
     with pytest.raises(ValueError, match="geometry must be"):
         m.match_frame(f, geometry="maybe")
 

@@ -10,11 +10,14 @@ matchers):
 * **collapse**: with ``COLLAPSE_MIN_ROWS``+ 2D boxes, ``COLLAPSE_SHARE`` or more of them pick the
   same 3D box (in-domain: at most 0.4; A9 with the ``generic`` weights: up to 0.85).
 
-``match(..., geometry="auto")`` (the default) then matches by geometric consensus
-(:mod:`xcalib.calib.consensus`, reached by a lazy delegation: calib sits above engine) when the
-matcher carries the shipped off-site weights (``site`` "synthetic" / "generic") and no site
-calibration, and warns once, naming ``xcalib bootstrap``. ``geometry="on"`` always matches by
-consensus, ``"off"`` never.
+``match(..., geometry="auto")`` (the default), for a matcher with the shipped weights (``site``
+"synthetic" / "generic", trained on synthetic sites) and no site calibration, matches by
+geometric consensus (:mod:`xcalib.calib.consensus`, reached by a lazy delegation: calib sits
+above engine) when the intrinsics are known (``match(..., intrinsics=)``, a frame's) or the
+scores look out of domain (then the intrinsics are searched), and warns once, naming ``xcalib
+bootstrap``: on every dataset of ``benchmarks/bench_matching_sites.py`` the consensus beats
+these weights (e.g. synthetic site B: generic weights Top-1 0.95 but matches precision 0.60;
+consensus 1.00 / 1.00). ``geometry="on"`` always matches by consensus, ``"off"`` never.
 """
 
 from __future__ import annotations

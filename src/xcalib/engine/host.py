@@ -110,15 +110,10 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
         sim = fuse_scores(sim, geo, score_range=score_range, weight=weight, eps=m.fusion_eps, fill_value=fill_value)
     elif geometry == "auto" and not multi_cam and getattr(m, "site", None) in SHIPPED_SITES:
         why = out_of_domain(sim, score_range, fill_value)
-        if why:
+        if why or intrinsics is not None:  # with intrinsics the consensus is fast and beats off-site weights
             res, none_why = geometry_match_result(m, *frame, intrinsics=intrinsics, match_threshold=match_threshold,
                                                   t0=t0)
-            if m._warnings.first_time("out-of-domain"):
-                log.warning("%s with the shipped %r weights: %s: these weights were not trained for this site. %s. %s",
-                            m.model_name, m.site, why,
-                            "Matched by geometric consensus instead (MatchResult.source='geometry')" if res is not None
-                            else f"No geometric consensus either ({none_why}): the model's scores are unreliable",
-                            BOOTSTRAP_HINT)
+            _warn_off_site(m, why, res is not None, none_why)
             if res is not None:
                 return res
     ms = forward_ms if return_latency else (time.perf_counter() - t0) * 1000.0
@@ -128,6 +123,18 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
                        kept_3d_indices=k3.astype(np.int64), latency_ms=ms, model=m.model_name,
                        device=str(m.device), assignment=assignment, geometry_iou=geo, fusion_weight=weight,
                        source="fused" if geo is not None else "model")
+
+
+def _warn_off_site(m, why: str, geometric: bool, none_why: str) -> None:
+    """Warn once per matcher that its shipped weights are off site (and what ``match`` did)."""
+    if not m._warnings.first_time("off-site"):
+        return
+    what = (f"their scores on this frame are out of domain ({why})" if why
+            else "they were trained on synthetic sites, not on this one")
+    did = ("matched by geometric consensus instead (MatchResult.source='geometry')" if geometric
+           else f"no geometric consensus either ({none_why}): the model's scores are unreliable")
+    log.warning("%s with the shipped %r weights and no site calibration: %s; %s. %s", m.model_name, m.site, what, did,
+                BOOTSTRAP_HINT)
 
 
 def frame_match_args(frame: Frame, kw: dict) -> tuple[tuple, dict]:

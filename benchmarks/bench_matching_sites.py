@@ -1,0 +1,235 @@
+#!/usr/bin/env python
+"""Matching at sites the shipped weights never saw: Top-1 and precision/recall of the default
+``matches``, per dataset, for the paths ``match`` has without site weights.
+
+Datasets (each with its own truth, no labels used by any method):
+
+* ``a9``: the 16 real A9 frames; truth = the matches of the all-frame calibration
+  (``calibrate`` over the 16 frames, then ``derive_matches`` per frame).
+* ``nuscenes``: the nuScenes sample, 6 cameras; truth = the info pickle's 2D-3D association.
+* ``pandaset``: PandaSet 002, front camera, every ``--pandaset-every``-th frame; 2D boxes made by
+  projecting the cuboids through each frame's ground-truth calibration (1 px noise, 10 % missed,
+  5 % false boxes; ``xcalib.data.boxes2d`` when present, else the small maker below); 3D boxes
+  = the cuboids holding LiDAR points.
+* ``sustech``: SUSTechPOINTS example, 3 frames x 3 cameras, 2D boxes made the same way (only
+  when ``xcalib.formats.sustech`` is installed).
+* ``synthetic B`` / ``synthetic C``: the unseen synthetic sites of the shipped weights' manifest
+  (``sample_site(3, "roadside", n_objects=20)``, ``sample_site(5, "vehicle")``), exact truth.
+
+Rows (all with no site weights, "first frame": each frame alone):
+
+* ``model generic`` / ``model synthetic``: the shipped weights' scores (``geometry="off"``);
+* ``default``: ``Matcher.from_pretrained("fastmatch", site="generic").match_frame(frame)`` as a
+  user gets it (out-of-domain scores -> geometric consensus; ``source`` counts in the JSON);
+* ``geometry, K given`` / ``geometry, K searched``: consensus with the frame's intrinsics / none.
+
+Top-1: share of 2D boxes with a true partner whose best-scored 3D box is it. Precision/recall:
+of the ``matches`` list at the default settings. Writes benchmarks/results/matching_sites.json.
+
+    OMP_NUM_THREADS=1 python benchmarks/bench_matching_sites.py [--datasets a9 nuscenes ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("XCALIB_SHARED_DATA", REPO.parent / "shared" / "data"))
+OUT = REPO / "benchmarks" / "results" / "matching_sites.json"
+
+
+# ----------------------------------------------------------------------------------- datasets
+def a9():
+    from xcalib.calib.api import calibrate
+    from xcalib.calib.matching import derive_matches
+    from xcalib.io.frames import read_frames
+
+    seq = read_frames(SHARED / "a9_sample")
+    frames = [dataclasses.replace(seq[i], intrinsics=seq.intrinsics) for i in range(len(seq))]
+    cal = calibrate(frames, seq.intrinsics)
+    if not cal.success:
+        raise RuntimeError(f"A9 all-frame calibration failed: {cal.message}")
+    return [(f, {int(a): int(b) for a, b in derive_matches(f, cal).pairs}) for f in frames]
+
+
+def _truth(mm) -> dict:
+    i, j = np.nonzero(np.asarray(mm))
+    return {int(a): int(b) for a, b in zip(i, j)}
+
+
+def nuscenes():
+    from xcalib.formats.mmdet3d import mmdet3d_frames
+
+    pkl = next((SHARED / "nuscenes" / "mmdet3d_demo").glob("*.pkl"))
+    return [(f, _truth(f.match_matrix)) for f in mmdet3d_frames(pkl)]
+
+
+def synthetic(seed: int, preset: str, n: int, **kw):
+    from xcalib.data.synth import generate_frames, sample_site
+
+    return [(f, _truth(f.match_matrix)) for f in generate_frames(sample_site(seed, preset, **kw), n, seed=900)]
+
+
+def make_2d_boxes(frame, seed: int, *, noise_px: float = 1.0, miss: float = 0.1, false: float = 0.05,
+                  min_points: int = 5):
+    """(frame with 2D boxes from projected cuboids, truth): cuboids with ``min_points``+ points are
+    the 3D boxes; the visible ones (centre in front, >= 50 % of the rectangle in the image,
+    >= 10 px) give 2D boxes with ``noise_px`` noise per edge, ``miss`` of them dropped and
+    ``false`` random boxes added (shuffled)."""
+    from xcalib.geometry.boxes import box7_corners, points_in_boxes
+    from xcalib.geometry.projection import project_points
+
+    rng = np.random.default_rng(seed)
+    b7 = np.asarray(frame.meta["box7"] if "box7" in (frame.meta or {}) else frame.bboxes_3d, dtype=np.float64)
+    keep = points_in_boxes(frame.point_cloud, b7).sum(1) >= min_points
+    b7 = b7[keep]
+    T, intr = frame.extrinsics, frame.intrinsics
+    W, H = frame.image_size
+    corners = box7_corners(b7)
+    uv, z = project_points(corners.reshape(-1, 3), intr, T[:3, :3], T[:3, 3])
+    uv, z = uv.reshape(-1, 8, 2), z.reshape(-1, 8)
+    rect = np.hstack([uv.min(1), uv.max(1)])
+    clip = np.clip(rect, 0, [W, H, W, H])
+    area = np.prod(np.clip(rect[:, 2:] - rect[:, :2], 1e-9, None), 1)
+    inside = np.prod(np.clip(clip[:, 2:] - clip[:, :2], 0, None), 1) / area
+    vis = np.all(z > 1.0, axis=1) & (inside >= 0.5) & np.all(clip[:, 2:] - clip[:, :2] >= 10, axis=1)
+    vis &= rng.random(len(vis)) >= miss
+    cols = np.flatnonzero(vis)
+    b2 = clip[cols] + rng.normal(0, noise_px, (len(cols), 4))
+    n_false = rng.binomial(max(len(cols), 1), false)
+    xy = rng.uniform([0, 0], [W - 60, H - 60], (n_false, 2))
+    b2 = np.vstack([b2, np.hstack([xy, xy + rng.uniform(15, 60, (n_false, 2))])])
+    order = rng.permutation(len(b2))
+    b2 = b2[order]
+    truth = {int(np.flatnonzero(order == k)[0]): int(c) for k, c in enumerate(cols)}
+    f = dataclasses.replace(frame, bboxes_2d=b2.astype(np.float32), bboxes_3d=b7.astype(np.float32),
+                            match_matrix=None, meta={**(frame.meta or {}), "box7": b7})
+    return f, truth
+
+
+def pandaset(every: int):
+    from xcalib.formats.pandaset import PandaSetFrames
+
+    seq = PandaSetFrames(SHARED / "pandaset_002")
+    return [make_2d_boxes(seq[i], seed=i) for i in range(0, len(seq), every)]
+
+
+def sustech():
+    from xcalib.formats.sustech import SustechFrames
+
+    out = []
+    for cam in ("front", "left", "right"):
+        seq = SustechFrames(SHARED / "sustech_example", camera=cam)
+        out += [make_2d_boxes(seq[i], seed=10 * i + len(out)) for i in range(len(seq)) if seq[i].image.size]
+    return out
+
+
+# ----------------------------------------------------------------------------------- scoring
+def score(result, frame, truth: dict) -> dict:
+    full = result.full_similarity(frame.num_2d, frame.num_3d, fill=-np.inf)
+    top1 = [bool(np.isfinite(full[i]).any() and full[i].max() > -np.inf and full[i].argmax() == j
+                 and (result.source != "geometry" or full[i].max() > 0)) for i, j in truth.items()]
+    pred = {(int(a), int(b)) for a, b in result.as_pairs()}
+    true = set(truth.items())
+    return {"top1_hits": int(sum(top1)), "rows": len(truth), "pred": len(pred), "correct": len(pred & true),
+            "source": result.source}
+
+
+def summarise(recs: list[dict]) -> dict:
+    rows = sum(r["rows"] for r in recs)
+    pred = sum(r["pred"] for r in recs)
+    correct = sum(r["correct"] for r in recs)
+    src: dict[str, int] = {}
+    for r in recs:
+        src[r["source"]] = src.get(r["source"], 0) + 1
+    return {"top1": sum(r["top1_hits"] for r in recs) / max(rows, 1), "precision": correct / pred if pred else None,
+            "recall": correct / max(rows, 1), "frames": len(recs), "rows_with_partner": rows, "matches": pred,
+            "sources": src, "seconds_per_frame": float(np.mean([r["s"] for r in recs])) if recs else None}
+
+
+def variants(generic, synthetic_m):
+    return {
+        "model generic": lambda f: generic.match_frame(f, validate="off", geometry="off"),
+        "model synthetic": lambda f: synthetic_m.match_frame(f, validate="off", geometry="off"),
+        "default (generic weights)": lambda f: generic.match_frame(f, validate="off"),
+        "geometry, K given": lambda f: generic.match_frame(f, validate="off", geometry="on"),
+        "geometry, K searched": lambda f: generic.match(*f.inputs(), validate="off", geometry="on",
+                                                        box7=(f.meta or {}).get("box7")),
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--datasets", nargs="+",
+                    default=["a9", "nuscenes", "pandaset", "sustech", "synthetic B", "synthetic C"])
+    ap.add_argument("--pandaset-every", type=int, default=3)
+    ap.add_argument("--synthetic-frames", type=int, default=6)
+    ap.add_argument("--out", type=Path, default=OUT)
+    args = ap.parse_args(argv)
+    import torch
+
+    torch.set_num_threads(1)
+    logging.getLogger("xcalib").setLevel(logging.ERROR)  # the out-of-domain warning, once per matcher
+    from xcalib.engine.matcher import Matcher
+
+    generic = Matcher.from_pretrained("fastmatch", site="generic", device="cpu")
+    synth_m = Matcher.from_pretrained("fastmatch", site="synthetic", device="cpu")
+    loaders = {"a9": a9, "nuscenes": nuscenes, "pandaset": lambda: pandaset(args.pandaset_every),
+               "sustech": sustech,
+               "synthetic B": lambda: synthetic(3, "roadside", args.synthetic_frames, n_objects=20),
+               "synthetic C": lambda: synthetic(5, "vehicle", args.synthetic_frames)}
+    table: dict[str, dict] = {}
+    for name in args.datasets:
+        try:
+            data = loaders[name]()
+        except (ImportError, FileNotFoundError, StopIteration, RuntimeError) as exc:
+            table[name] = {"skipped": f"{type(exc).__name__}: {exc}"}
+            print(f"{name}: skipped ({exc})", flush=True)
+            continue
+        table[name] = {}
+        for vname, fn in variants(generic, synth_m).items():
+            recs = []
+            for f, truth in data:
+                t0 = time.perf_counter()
+                r = fn(f)
+                recs.append({**score(r, f, truth), "s": time.perf_counter() - t0})
+            table[name][vname] = summarise(recs)
+            s = table[name][vname]
+            prec = "-" if s["precision"] is None else f"{s['precision']:.3f}"
+            print(f"{name:12s} {vname:28s} Top-1 {s['top1']:.3f}  P {prec}  R {s['recall']:.3f}  "
+                  f"({s['frames']} frames, {s['rows_with_partner']} boxes with a partner, {s['sources']}, "
+                  f"{s['seconds_per_frame']:.2f} s/frame)", flush=True)
+    names = list(variants(None, None))
+    print("\n| dataset | " + " | ".join(names) + " |\n|---|" + "---|" * len(names))
+    for d, rows in table.items():
+        if "skipped" in rows:
+            print(f"| {d} | skipped: {rows['skipped'][:60]} |")
+            continue
+        cells = []
+        for v in names:
+            s = rows[v]
+            p = "-" if s["precision"] is None else f"{s['precision']:.2f}"
+            cells.append(f"{s['top1']:.2f} / {p} / {s['recall']:.2f}")
+        print(f"| {d} | " + " | ".join(cells) + " |")
+    print("cells: Top-1 / precision / recall of the default matches")
+    report = {"benchmark": "matching_sites", "cells": "Top-1, precision and recall of the default matches",
+              "loadavg": list(os.getloadavg()), "results": table}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(report, indent=1))
+    tmp.replace(args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
