@@ -189,10 +189,10 @@ def _a9(repeat: int) -> dict | None:
     return {"frames": len(frames), "success": bool(res.success), "message": res.message,
             "read_s": t_read, "calibrate_s_median": statistics.median(times), "calibrate_s_min": min(times),
             "calibrate_s_all": times, "n_pairs": res.n_pairs, "n_inliers_iou50": res.n_inliers,
-            "n_2d": res.meta.get("n_2d"), "n_3d": res.meta.get("n_3d"),
+            "n_2d": res.diagnostics.n_2d, "n_3d": res.diagnostics.n_3d,
             "residual_px_median": res.residual_px_median, "residual_px_mean": res.reproj_error_px,
             "iou_median": res.iou_median, "iou_mean": res.iou_mean,
-            "centre_offset_px_median": res.meta.get("centre_offset_px_median"),
+            "centre_offset_px_median": res.diagnostics.centre_offset_px_median,
             "reference_centre_offset_px_median": 30.0,
             "rotation_std_deg": res.rotation_std_deg.tolist(), "translation_std_m": res.translation_std_m.tolist(),
             "T_cam_lidar": res.extrinsics.tolist()}

@@ -88,7 +88,7 @@ def run(seeds, n_frames: int, noisy_3d: bool, stride: int, log, max_shared: int 
         dt = time.perf_counter() - t0
         rec = {"seed": seed, "identifiable": ident, "objects": n_obj, "true_pairs": n_true, "most_per_frame": most,
                "success": bool(res.success), "time_s": dt, "message": res.message, "n_pairs": res.n_pairs,
-               "pooled": bool(res.meta.get("pooled_search", False))}
+               "pooled": bool(res.diagnostics.pooled_search)}
         if res.success:
             rec["rot_deg"], rec["trans_m"] = res.pose_error(site.T_cam_lidar)
             rec["wrong"] = bool(rec["rot_deg"] > 1.0 or rec["trans_m"] > 0.5)

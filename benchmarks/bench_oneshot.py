@@ -197,6 +197,7 @@ def a9(args, tmp: Path) -> dict:
     from xcalib.calib.matching import derive_matches
     from xcalib.io.frames import read_frames, read_intrinsics_json
     from xcalib.oneshot.bootstrap import bootstrap, starting_matcher
+    from xcalib.calib.config import CalibConfig
     from xcalib.oneshot.session import OneShotError
     from xcalib.types import Frame
     from xcalib.viz.matching import draw_matching_overlay
@@ -210,8 +211,8 @@ def a9(args, tmp: Path) -> dict:
     try:
         res = bootstrap(fit, K, "bench_a9", model=args.model, init=args.a9_init, steps=args.a9_steps, install=False,
                         out_dir=tmp / "a9_site",
-                        session_options={"calib_options": {"max_rot_std_deg": args.a9_max_rot_std,
-                                                           "max_trans_std_m": args.a9_max_trans_std}})
+                        calib_config=CalibConfig(max_rot_std_deg=args.a9_max_rot_std,
+                                                 max_trans_std_m=args.a9_max_trans_std))
     except OneShotError as exc:  # the calibrator refuses the pose: no site weights, no Top-1 figure
         return {"model": args.model, "fit_frames": [f.frame_key for f in fit],
                 "heldout_frames": [f.frame_key for f in held], "failed": str(exc),

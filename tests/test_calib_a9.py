@@ -20,12 +20,12 @@ def test_a9_calibration_explains_the_boxes():
     frames = [seq[i] for i in range(len(seq))]
     res = calibrate(frames, seq.intrinsics)
     assert res.success, res.message
-    assert res.n_pairs >= 0.6 * res.meta["n_2d"]
+    assert res.n_pairs >= 0.6 * res.diagnostics.n_2d
     assert res.residual_px_median < 15 and res.iou_median > 0.55
     # better than the reference's ~30 px median box-centre offset
-    assert res.meta["centre_offset_px_median"] < 25
+    assert res.diagnostics.centre_offset_px_median < 25
     assert np.all(res.rotation_std_deg < 0.5) and np.all(res.translation_std_m < 0.3)
     # the uncertainty covers the real 3D-detection noise: the fitted error model is wide
-    assert res.meta["noise_model"]["sigma_3d_m"] > 0.05 or res.meta["noise_model"]["sigma_size"] > 0.03
+    assert res.diagnostics.noise_model.sigma_3d_m > 0.05 or res.diagnostics.noise_model.sigma_size > 0.03
     # camera and LiDAR sit on the same gantry: the baseline is short
     assert np.linalg.norm(res.translation) < 3.0

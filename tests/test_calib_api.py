@@ -40,7 +40,7 @@ def test_prior_pose_is_refined(site):
     frames, T = site
     R0 = euler_to_matrix([0.02, -0.03, 0.02]) @ T[:3, :3]
     res = calibrate(frames, INTR, prior=make_transform(R0, T[:3, 3] + [0.3, -0.2, 0.4]))
-    assert res.success and res.pose_error(T)[0] < 0.15 and res.meta["seed"] == "prior"
+    assert res.success and res.pose_error(T)[0] < 0.15 and res.diagnostics.seed_source == "prior"
 
 
 class _LyingMatcher:
@@ -67,7 +67,7 @@ class _TruthMatcher:
 def test_matcher_similarities_are_only_a_prior(site):
     frames, T = site
     good = calibrate(frames, INTR, matcher=_TruthMatcher(frames))
-    assert good.success and good.pose_error(T)[0] < 0.15 and good.meta["seed"] == "matcher"
+    assert good.success and good.pose_error(T)[0] < 0.15 and good.diagnostics.seed_source == "matcher"
     bad = calibrate(frames, INTR, matcher=_LyingMatcher())
     # a wrong matcher may cost the bring-up, but never yields a silently wrong pose
     assert (not bad.success) or bad.pose_error(T)[0] < 0.15

@@ -9,7 +9,8 @@ from test_calib_support import INTR, sim_frames
 
 from xcalib.calib.api import calibrate
 from xcalib.calib.inputs import prepare_frames
-from xcalib.calib.refine import DEFAULT_NOISE, estimate_noise, match_all, pose_spread
+from xcalib.calib.refine import DEFAULT_NOISE, estimate_noise, match_all
+from xcalib.calib.uncertainty import pose_spread
 from xcalib.types import Frame
 
 
@@ -62,7 +63,7 @@ def test_noisy_3d_boxes_give_an_honest_uncertainty(site):
     assert rot <= 3 * np.linalg.norm(res.rotation_std_deg) + 0.01
     assert trans <= 3 * np.linalg.norm(res.translation_std_m) + 0.005
     assert np.linalg.norm(res.rotation_std_deg) > np.linalg.norm(exact.rotation_std_deg)
-    assert res.meta["halves_delta"] is not None and len(res.meta["occlusion_delta"]) == 6
+    assert res.diagnostics.uncertainty.halves is not None and len(res.diagnostics.uncertainty.occlusion) == 6
 
 
 @pytest.mark.parametrize("seed", [2, 3])

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 from test_calib_support import INTR, W, H, sim_frames, sim_rig
 
-from xcalib.calib.api import _matched_places, calibrate
+from xcalib.calib.api import calibrate
+from xcalib.calib.decision import matched_places
 from xcalib.calib.inputs import prepare_frames
 from xcalib.geometry import box7_corners, project_points
 from xcalib.types import Frame
@@ -24,7 +25,7 @@ def test_one_or_two_objects_per_frame_calibrate_together():
     assert res.success, res.message
     rot, trans = res.pose_error(T)
     assert rot < 0.2 and trans < 0.1
-    assert res.meta["max_pairs_per_frame"] <= 2 and res.meta["matched_places"] >= 10
+    assert res.diagnostics.max_pairs_per_frame <= 2 and res.diagnostics.matched_places >= 10
     # the pseudo-labels are the true pairs
     hits = [bool(f.match_matrix[i, j]) for f, p in zip(frames, res.pairs) for i, j in p]
     assert len(hits) >= 14 and np.mean(hits) >= 0.9
@@ -80,17 +81,17 @@ def test_one_object_on_one_path_fails_with_a_message():
     # the path is free, so it is refused
     seeded = calibrate(frames, INTR, prior=T)
     assert not seeded.success and "off one line" in seeded.message
-    assert seeded.meta["matched_places"] >= 15 and seeded.meta["matched_places_off_line"] < 2
+    assert seeded.diagnostics.matched_places >= 15 and seeded.diagnostics.matched_places_off_line < 2
 
 
 def test_matched_places_merge_repeats_but_not_a_slow_track():
     frames, _ = _path_frames(seed=4, n_frames=20)
     cf, _, _ = prepare_frames(frames, INTR)
     one = [np.array([[0, 0]])] * len(cf)  # the car, every frame: 24 m of road, 1.26 m per frame
-    places, off = _matched_places(cf, one)
+    places, off = matched_places(cf, one)
     assert len(places) == 20 and np.all(off < 0.3)
     parked = [np.array([[0, 0]])] + [np.zeros((0, 2), np.int64)] * (len(cf) - 1)
-    places, _ = _matched_places(cf + cf[:1], parked + [np.array([[0, 0]])])  # the same box twice
+    places, _ = matched_places(cf + cf[:1], parked + [np.array([[0, 0]])])  # the same box twice
     assert len(places) == 1
 
 
@@ -121,6 +122,7 @@ def test_few_pairs_with_noisy_3d_boxes_are_refused_not_wrong():
     assert not res.success and res.n_pairs == 5
     assert "too few matched pairs to verify the pose" in res.message and "at least 7 more matched pairs" in res.message
     assert np.linalg.norm(T[:3, 3] - res.translation) > 0.5  # what was refused is wrong
-    jac, occl = res.meta["jacobian_std"], np.asarray(res.meta["occlusion_delta"])
-    assert np.linalg.norm(np.hypot(jac["translation_m"], occl[3:])) < 0.25  # the Jacobian alone would accept it
-    assert res.meta["halves_delta"] is None and np.linalg.norm(res.meta["jackknife_std"][3:]) > 0.5
+    u = res.diagnostics.uncertainty
+    jac, occl = np.asarray(u.jacobian), np.asarray(u.occlusion)
+    assert np.linalg.norm(np.hypot(jac[3:], occl[3:])) < 0.25  # the Jacobian alone would accept it
+    assert u.halves is None and np.linalg.norm(u.jackknife[3:]) > 0.5

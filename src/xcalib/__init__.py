@@ -29,6 +29,7 @@ _LAZY = {
     "BuildResult": "xcalib.deploy.build",
     "OnnxMatcher": "xcalib.deploy.ort_runtime",
     "CalibrationResult": "xcalib.calib.result",
+    "CalibConfig": "xcalib.calib.config",
     "calibrate": "xcalib.calib.api",
     "load_dataset": "xcalib.io.hdf5",
     "read_frames": "xcalib.io.frames",
@@ -57,6 +58,7 @@ def __dir__():
 
 if TYPE_CHECKING:  # pragma: no cover
     from .calib.api import calibrate
+    from .calib.config import CalibConfig
     from .calib.result import CalibrationResult
     from .engine.matcher import Matcher
     from .engine.trainer import train

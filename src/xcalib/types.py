@@ -24,6 +24,12 @@ class Frame:
     match_matrix: optional [K,M] bool ground truth. intrinsics / extrinsics: optional camera
     intrinsics and ground-truth ``T_cam_lidar`` [4,4]. images / camera_per_det: multi-camera
     frames (each 2D box's source camera).
+
+    Timing and tracks (optional; readers fill them where the format has them):
+    lidar_time_s / camera_time_s: the LiDAR sweep time and the camera exposure time of this
+    frame, seconds on one clock (``camera_time_s - lidar_time_s`` is the sensors' time offset).
+    track_ids_3d: [M] int64 track id per 3D box (stable across frames; -1 = none).
+    velocities_3d: [M,3] float64 velocity per 3D box, LiDAR frame, m/s.
     """
 
     image: np.ndarray
@@ -39,6 +45,10 @@ class Frame:
     camera_per_det: list[str] | None = None
     point_fields: tuple[str, ...] = ("x", "y", "z")
     meta: dict[str, Any] = field(default_factory=dict)
+    lidar_time_s: float | None = None
+    camera_time_s: float | None = None
+    track_ids_3d: np.ndarray | None = None
+    velocities_3d: np.ndarray | None = None
 
     @property
     def num_2d(self) -> int:

@@ -48,6 +48,8 @@ class Hypotheses:
     def take(self, idx) -> "Hypotheses":
         return Hypotheses(self.R[idx], self.t[idx], self.score[idx], self.frame[idx])
 
+    n_searches: int = 1  # searches this set came from (more than 1: split by azimuth, see frame_hypotheses)
+
 
 def kabsch(A: np.ndarray, B: np.ndarray, w: np.ndarray | None = None):
     """Batched rigid fit B ~ R A + t for point sets A, B [T,N,3] (weights [T,N]) -> R [T,3,3], t [T,3]."""
@@ -151,12 +153,45 @@ def _candidate_pairs(fr: CalibFrame, intr: CameraIntrinsics, prior_sim, top_k: i
     return ii, jj, b[ii], lam, tol, w
 
 
+def _pair_distances(P: np.ndarray, block: int = 256) -> np.ndarray:
+    """Euclidean distances [n,n] between rows of P [n,3], in row blocks (never an [n,n,3] array)."""
+    out = np.empty((len(P), len(P)))
+    for s in range(0, len(P), block):
+        out[s:s + block] = np.linalg.norm(P[s:s + block, None] - P[None], axis=2)
+    return out
+
+
+def _azimuth_windows(X: np.ndarray, cap: int, rng: np.random.Generator, weight: np.ndarray | None,
+                     width_deg: float = 120.0, step_deg: float = 60.0) -> list[np.ndarray]:
+    """Candidate subsets of at most ``cap`` rows for crowded searches.
+
+    A camera sees a sector of a 360-degree LiDAR's surroundings, so the candidate pairs are split
+    by the LiDAR-frame azimuth of their 3D box into overlapping windows (``width_deg`` wide every
+    ``step_deg``); a window still above ``cap`` keeps its ``cap`` best-weighted (matcher prior)
+    or randomly drawn candidates. Returns index arrays into the candidates."""
+    if len(X) <= cap:
+        return [np.arange(len(X))]
+    az = np.degrees(np.arctan2(X[:, 1], X[:, 0]))
+    out = []
+    for c in np.arange(0.0, 360.0, step_deg):
+        idx = np.flatnonzero(np.abs((az - c + 180.0) % 360.0 - 180.0) <= width_deg / 2)
+        if len(idx) > cap:
+            idx = idx[np.argsort(-weight[idx], kind="stable")[:cap]] if weight is not None \
+                else rng.choice(idx, cap, replace=False)
+        if len(idx) >= 3:
+            out.append(np.sort(idx))
+    return out
+
+
 def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, fi: int, *,
                      prior_sims: list | None = None, max_triples: int = 3000,
                      rng: np.random.Generator | None = None, min_altitude_m: float = 0.8,
-                     keep: int = 25, max_baseline_m: float | None = None) -> Hypotheses:
+                     keep: int = 25, max_baseline_m: float | None = None, max_candidates: int = 1500) -> Hypotheses:
     """Pose hypotheses from box triples of one frame (or a group of frames of the same static rig,
-    whose pairs are rigidly consistent with each other too), scored on those frames; keep ``keep``."""
+    whose pairs are rigidly consistent with each other too), scored on those frames; keep ``keep``.
+
+    The search is quadratic in the candidate pairs; beyond ``max_candidates`` of them it runs on
+    azimuth windows of at most that many (see ``_azimuth_windows``), so memory stays bounded."""
     rng = np.random.default_rng(0) if rng is None else rng
     frs = [frs] if isinstance(frs, CalibFrame) else list(frs)
     prior_sims = [None] * len(frs) if prior_sims is None else list(prior_sims)
@@ -164,45 +199,95 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
              for k, (fr, ps) in enumerate(zip(frs, prior_sims)) if fr.n2 and fr.n3]
     if not parts:
         return Hypotheses.empty()
-    fk = np.concatenate([np.full(len(p[1]), p[0]) for p in parts])
-    ii = np.concatenate([p[1] for p in parts])
-    jj = np.concatenate([p[2] for p in parts])
-    ray = np.concatenate([p[3] for p in parts])
-    lam = np.concatenate([p[4] for p in parts])
-    dtol = np.concatenate([p[5] for p in parts])
-    pair_w = np.concatenate([p[6] for p in parts])
-    X = np.concatenate([frs[p[0]].boxes3d[p[2], :3] for p in parts])  # LiDAR centre of each pair
-    if len(ii) < 3:
-        return Hypotheses.empty()
+    cand = _Candidates(
+        fk=np.concatenate([np.full(len(p[1]), p[0]) for p in parts]),
+        ii=np.concatenate([p[1] for p in parts]), jj=np.concatenate([p[2] for p in parts]),
+        ray=np.concatenate([p[3] for p in parts]), lam=np.concatenate([p[4] for p in parts]),
+        dtol=np.concatenate([p[5] for p in parts]), w=np.concatenate([p[6] for p in parts]),
+        X=np.concatenate([frs[p[0]].boxes3d[p[2], :3] for p in parts]))  # LiDAR centre of each pair
     have_prior = any(ps is not None for ps in prior_sims)
+    windows = _azimuth_windows(cand.X, max_candidates, rng, cand.w if have_prior else None)
+    found = [_triple_poses(cand.take(idx), rng, max_triples, min_altitude_m, have_prior) for idx in windows]
+    found = [f for f in found if f is not None]
+    if not found:
+        return Hypotheses.empty()
+    R, t = np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])
+    # cheap pre-score (projected 3D centres inside 2D boxes), then IoU on the best few hundred
+    pre = sum(_centre_hits(fr, intr, R, t) for fr in frs)
+    top = np.argsort(-pre, kind="stable")[: max(8 * keep, 200)]
+    R, t = R[top], t[top]
+    sc = sum(score_poses(fr, intr, R, t) for fr in frs)
+    order = np.argsort(-sc, kind="stable")[:keep]
+    out = Hypotheses(R[order], t[order], sc[order], np.full(len(order), fi, dtype=np.int64))
+    out.n_searches = len(windows)
+    return out
+
+
+@dataclass
+class _Candidates:
+    """Candidate (2D, 3D) pairs of a search: frame, rows, cols, ray, depth guess (m), depth
+    tolerance (m), prior weight and the 3D box centre (LiDAR frame, m)."""
+
+    fk: np.ndarray
+    ii: np.ndarray
+    jj: np.ndarray
+    ray: np.ndarray
+    lam: np.ndarray
+    dtol: np.ndarray
+    w: np.ndarray
+    X: np.ndarray
+
+    def take(self, idx) -> "_Candidates":
+        return _Candidates(*(getattr(self, k)[idx] for k in ("fk", "ii", "jj", "ray", "lam", "dtol", "w", "X")))
+
+
+def _third_members(Cs: np.ndarray, pq: np.ndarray, rng: np.random.Generator, pair_w: np.ndarray | None,
+                   block: int = 1024) -> np.ndarray:
+    """Up to 2 third members per pair of pairs, drawn at random among the compatible ones
+    (higher prior weight first); rows in blocks. Returns triples [T,3]."""
+    out = []
+    for s in range(0, len(pq), block):
+        p = pq[s:s + block]
+        both = Cs[p[:, 0]] & Cs[p[:, 1]]
+        keys = np.where(both, rng.random(both.shape), -1.0)
+        if pair_w is not None:
+            keys = np.where(both, keys + pair_w[None, :], -np.inf)
+        k = min(2, keys.shape[1])
+        third = np.argpartition(-keys, k - 1, axis=1)[:, :k]
+        third = np.take_along_axis(third, np.argsort(-np.take_along_axis(keys, third, 1), axis=1, kind="stable"), 1)
+        okr = np.take_along_axis(both, third, 1)
+        out.append(np.column_stack([np.repeat(p, k, axis=0), third.ravel()])[okr.ravel()])
+    return np.concatenate(out) if out else np.zeros((0, 3), dtype=np.int64)
+
+
+def _triple_poses(c: _Candidates, rng: np.random.Generator, max_triples: int, min_altitude_m: float,
+                  have_prior: bool):
+    """Poses (R [T,3,3], t [T,3]) of the consistent, well-shaped triples of candidates c, or None."""
+    if len(c.ii) < 3:
+        return None
+    X, ray, lam = c.X, c.ray, c.lam
     Xc = lam[:, None] * ray
-    dc = np.linalg.norm(Xc[:, None] - Xc[None], axis=2)
-    dl = np.linalg.norm(X[:, None] - X[None], axis=2)
-    tol = np.maximum(dtol[:, None], dtol[None])
-    same = fk[:, None] == fk[None]
-    C = (np.abs(dc - dl) <= tol) & (~same | ((ii[:, None] != ii[None]) & (jj[:, None] != jj[None])))
+    dc = _pair_distances(Xc)
+    dl = _pair_distances(X)
+    tol = np.maximum(c.dtol[:, None], c.dtol[None])
+    same = c.fk[:, None] == c.fk[None]
+    C = (np.abs(dc - dl) <= tol) & (~same | ((c.ii[:, None] != c.ii[None]) & (c.jj[:, None] != c.jj[None])))
+    del dc, tol, same
     C &= dl > 0.5  # two pairs on (nearly) the same LiDAR point say nothing about rotation
+    del dl
     C = np.triu(C, 1)
     pq = np.argwhere(C)
     if len(pq) == 0:
-        return Hypotheses.empty()
+        return None
     max_pq = max(max_triples // 2, 1)
     if len(pq) > max_pq:  # keep the enumeration bounded on crowded frames
         if have_prior:
-            pq = pq[np.argsort(-(pair_w[pq[:, 0]] + pair_w[pq[:, 1]]), kind="stable")[:max_pq]]
+            pq = pq[np.argsort(-(c.w[pq[:, 0]] + c.w[pq[:, 1]]), kind="stable")[:max_pq]]
         else:
             pq = pq[rng.choice(len(pq), max_pq, replace=False)]
-    Cs = C | C.T
-    both = Cs[pq[:, 0]] & Cs[pq[:, 1]]
-    # up to 2 third members per pair of pairs, drawn at random among the compatible ones
-    keys = np.where(both, rng.random(both.shape), -1.0)
-    if have_prior:
-        keys = np.where(both, keys + pair_w[None, :], -np.inf)
-    third = np.argsort(-keys, axis=1)[:, :2]
-    okr = np.take_along_axis(both, third, 1)
-    tri = np.column_stack([np.repeat(pq, 2, axis=0), third.ravel()])[okr.ravel()]
+    tri = _third_members(C | C.T, pq, rng, c.w if have_prior else None)
     if len(tri) == 0:
-        return Hypotheses.empty()
+        return None
     # reject thin 3D triangles (collinear boxes leave the roll about their line free)
     P3 = X[tri]
     e1, e2, e3 = P3[:, 1] - P3[:, 0], P3[:, 2] - P3[:, 0], P3[:, 2] - P3[:, 1]
@@ -210,7 +295,7 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
     longest = np.maximum(np.maximum(np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)), np.linalg.norm(e3, axis=1))
     tri = tri[area2 / np.maximum(longest, 1e-9) >= min_altitude_m]
     if len(tri) == 0:
-        return Hypotheses.empty()
+        return None
     B = ray[tri]  # [T,3,3]
     A = X[tri]
     a_idx, b_idx = np.array([0, 0, 1]), np.array([1, 2, 2])
@@ -219,22 +304,19 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
     lam_t, rel = _p3p_newton(lam[tri].copy(), cosang, d2)
     good = (rel < 0.05) & np.all(lam_t > 1.0, axis=1)
     if not np.any(good):
-        return Hypotheses.empty()
-    Bc = lam_t[good, :, None] * B[good]
-    R, t = kabsch(A[good], Bc)
-    # cheap pre-score (projected 3D centres inside 2D boxes), then IoU on the best few hundred
-    pre = sum(_centre_hits(fr, intr, R, t) for fr in frs)
-    top = np.argsort(-pre, kind="stable")[: max(8 * keep, 200)]
-    R, t = R[top], t[top]
-    sc = sum(score_poses(fr, intr, R, t) for fr in frs)
-    order = np.argsort(-sc, kind="stable")[:keep]
-    return Hypotheses(R[order], t[order], sc[order], np.full(len(order), fi, dtype=np.int64))
+        return None
+    return kabsch(A[good], lam_t[good, :, None] * B[good])
 
 
-def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.ndarray, *,
+                 max_elems: int = 4_000_000) -> np.ndarray:
     """Per pose [H]: number of 2D boxes containing at least one projected 3D box centre (no distortion)."""
     if fr.n2 == 0 or fr.n3 == 0:
         return np.zeros(len(R))
+    chunk = max(1, max_elems // (fr.n2 * fr.n3))
+    if len(R) > chunk:
+        return np.concatenate([_centre_hits(fr, intr, R[s:s + chunk], t[s:s + chunk], max_elems=max_elems)
+                               for s in range(0, len(R), chunk)])
     Xc = np.einsum("hij,mj->hmi", R, fr.boxes3d[:, :3]) + t[:, None, :]
     z = Xc[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -247,11 +329,13 @@ def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nd
 
 
 def score_poses(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.ndarray, *,
-                chunk: int = 2000) -> np.ndarray:
-    """Sum over the frame's 2D boxes of the best IoU with any projected 3D box, per pose [H]."""
+                chunk: int = 2000, max_elems: int = 3_000_000) -> np.ndarray:
+    """Sum over the frame's 2D boxes of the best IoU with any projected 3D box, per pose [H]
+    (poses in chunks of at most ``max_elems`` IoU entries)."""
     out = np.zeros(len(R))
     if fr.n2 == 0 or fr.n3 == 0:
         return out
+    chunk = int(max(1, min(chunk, max_elems // (fr.n2 * fr.n3))))
     for s in range(0, len(R), chunk):
         shape = fr.corners if fr.box_corners is None else fr.box_corners
         rects, _ = project_rects(shape, R[s:s + chunk], t[s:s + chunk], intr, fr.size)

@@ -101,7 +101,8 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
     """Normalise ``frames`` -> (CalibFrames, intrinsics, problem message or None).
 
     The message is set (and the list may be partial) when frames come from different
-    cameras. ``box_model``: "corners" (the 8 box corners), "points" (hull of the LiDAR points in
+    cameras. ``reestimate_yaw``: "auto" (yaw-less [M,6] boxes get their yaw from the points),
+    "always" or "never" (True/False accepted). ``box_model``: "corners" (the 8 box corners), "points" (hull of the LiDAR points in
     each box; corners where too few) or "auto" (points for yaw-less [M,6] boxes when a cloud is
     given, corners otherwise). Raises ValueError for impossible intrinsics or malformed boxes.
     """
@@ -148,7 +149,10 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
                 raise ValueError(f"frames[{i}].point_cloud: expected shape [P, >=3], got {p.shape}")
             p = p[:, :3]
         had_yaw = b3.ndim == 2 and b3.shape[1] == 7
-        if (reestimate_yaw is True or (reestimate_yaw == "auto" and not had_yaw)) and p is not None and len(box7):
+        if reestimate_yaw not in ("auto", "always", "never", True, False):
+            raise ValueError(f"reestimate_yaw: expected 'auto', 'always' or 'never', got {reestimate_yaw!r}")
+        redo = reestimate_yaw in (True, "always") or (reestimate_yaw == "auto" and not had_yaw)
+        if redo and p is not None and len(box7):
             box7 = estimate_yaw_from_points(box7, p)
         if box_model not in ("auto", "corners", "points"):
             raise ValueError(f"box_model: expected 'auto', 'corners' or 'points', got {box_model!r}")

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .inputs import prepare_frames
+from .pose import Pose
 from .refine import match_frame
 
 __all__ = ["PseudoLabels", "derive_matches"]
@@ -36,23 +37,19 @@ def derive_matches(frame, calibration, *, gate: float = 0.3, intrinsics=None) ->
 
     ``frame`` is an ``xcalib.types.Frame`` or an (image, point_cloud, bboxes_2d, bboxes_3d) tuple;
     ``calibration`` a successful ``CalibrationResult`` (its intrinsics are used unless
-    ``intrinsics`` is given) or a [4,4] ``T_cam_lidar`` together with ``intrinsics``.
-    3D boxes without yaw get their yaw from the points, as in ``calibrate``.
+    ``intrinsics`` is given), an (R, t) pair or a [4,4] ``T_cam_lidar`` together with ``intrinsics``.
+    3D boxes are prepared as the calibration prepared them (its config), else as ``calibrate`` would.
     """
     if not (0.0 < gate <= 1.0):
         raise ValueError(f"derive_matches: gate must be an IoU in (0, 1], got {gate}")
-    if hasattr(calibration, "rotation"):
-        if not calibration.success:
-            raise ValueError(f"derive_matches: the calibration failed ({calibration.message})")
-        R, t = calibration.rotation, calibration.translation
-        intr = intrinsics if intrinsics is not None else calibration.intrinsics
-    else:
-        T = np.asarray(calibration, dtype=np.float64)
-        if T.shape not in ((4, 4), (3, 4)):
-            raise ValueError(f"derive_matches: calibration must be a CalibrationResult or a 4x4 T_cam_lidar, got {T.shape}")
-        R, t = T[:3, :3], T[:3, 3]
-        intr = intrinsics
-    frs, intr, _ = prepare_frames([frame], intr)
+    if hasattr(calibration, "success") and not calibration.success:
+        raise ValueError(f"derive_matches: the calibration failed ({calibration.message})")
+    pose = Pose.parse(calibration, "derive_matches: calibration")
+    R, t = pose.R, pose.t
+    intr = intrinsics if intrinsics is not None else getattr(calibration, "intrinsics", None)
+    cfg = getattr(calibration, "config", None)
+    kw = {} if cfg is None else {"reestimate_yaw": cfg.reestimate_yaw, "box_model": cfg.box_model}
+    frs, intr, _ = prepare_frames([frame], intr, **kw)
     fr = frs[0]
     K = len(np.asarray(frame.bboxes_2d if hasattr(frame, "bboxes_2d") else frame[2]).reshape(-1, 4))
     b3 = np.asarray(frame.bboxes_3d if hasattr(frame, "bboxes_3d") else frame[3])

@@ -1,10 +1,9 @@
-"""Pose refinement over all frames: match by projection, then robust least squares on box edges.
+"""Refinement over all frames: match by projection, then a robust fit of the cost model.
 
-The residual of a matched pair (2D box i, 3D box j) is the difference (pixels) between the four
-edges of the clipped enclosing rectangle of the projected 3D box corners and the 2D box's
-edges. ``refine_pose`` alternates one-to-one matching (Hungarian with a gate) and
-``scipy.optimize.least_squares`` (soft-L1) until the robust cost stops improving. The pose is
-``X_cam = R X_lidar + t``; updates are ``R <- exp([w]x) R``, ``t <- t + dt`` (camera frame).
+``refine_pose`` alternates one-to-one matching (Hungarian with a gate) and a soft-L1 fit of the
+box-edge term (``cost.BoxEdgeTerm``: projected 3D outline edges vs 2D box edges, px, divided by
+the per-pair sigma of the fitted ``NoiseModel``) until the robust cost stops improving. The pose
+is ``X_cam = R X_lidar + t``; updates are ``R <- exp([w]x) R``, ``t <- t + dt`` (camera frame).
 """
 
 from __future__ import annotations
@@ -12,16 +11,19 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares, linear_sum_assignment
+from scipy.optimize import linear_sum_assignment
 from scipy.spatial.transform import Rotation
 
 from ..geometry.boxes import box2d_centers
 from ..geometry.camera import CameraIntrinsics
 from .boxproj import iou_batched, project_rects
+from .cost import INWARD, BoxEdgeTerm, CostModel, Occlusion, _pair_features, edge_sigma
+from .diagnostics import NoiseModel
 from .inputs import CalibFrame
+from .pose import Pose
 
-__all__ = ["RefineResult", "match_frame", "match_all", "refine_pose", "pose_covariance", "pair_metrics",
-           "pose_spread", "pose_jackknife", "HALF_MIN_MATCHES"]
+__all__ = ["RefineResult", "match_frame", "match_all", "refine_pose", "pair_metrics", "estimate_noise", "lsq",
+           "edge_term", "DEFAULT_NOISE", "F_SCALE"]
 
 
 @dataclass
@@ -35,7 +37,7 @@ class RefineResult:
     n_iter: int
     residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
     history: list[float] = field(default_factory=list)
-    noise: tuple = (1.0, 0.03, 0.01)  # fitted (sigma_px, sigma_3d_m, sigma_size), see estimate_noise
+    noise: NoiseModel = NoiseModel()  # fitted per-edge error model, see estimate_noise
 
 
 def match_frame(fr: CalibFrame, intr: CameraIntrinsics, R, t, *, gate_iou: float = 0.3,
@@ -82,34 +84,16 @@ def _stack(frames: list[CalibFrame], pairs: list[np.ndarray]):
     return np.concatenate(corners), np.concatenate(obs)
 
 
-# Expected per-edge disagreement (1 sigma) of a matched pair, in pixels:
-#   sigma^2 = SIGMA_PX^2 + (f * SIGMA_3D_M / Z)^2 + (SIGMA_SIZE * s)^2
-# (2D box noise, 3D box position noise seen at depth Z, relative 3D size/shape error of a
-# box of size s px). Residuals are divided by sigma, which makes near and far boxes comparable.
-SIGMA_PX = 1.0
-SIGMA_3D_M = 0.03
-SIGMA_SIZE = 0.01
+DEFAULT_NOISE = NoiseModel()
 F_SCALE = 2.0
 
 
-NoiseModel = tuple  # (sigma_px, sigma_3d_m, sigma_size) of the per-edge disagreement, see above
-DEFAULT_NOISE: NoiseModel = (SIGMA_PX, SIGMA_3D_M, SIGMA_SIZE)
-
-
-def _pair_features(obs: np.ndarray, corners: np.ndarray, intr: CameraIntrinsics, R, t):
-    """Per pair: 2D box size s (px, sqrt of its area) and f/Z (px per metre at the box centre)."""
-    s = np.sqrt(np.clip((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]), 0, None))
-    ctr = corners.mean(1) @ np.asarray(R).T + np.asarray(t)
-    z = np.maximum(ctr[:, 2], 1.0)
-    return s, np.sqrt(intr.fx * intr.fy) / z
-
-
-def _weights(obs: np.ndarray, corners: np.ndarray, intr: CameraIntrinsics, R, t,
-             noise: NoiseModel | None = None) -> np.ndarray:
-    """Per-pair residual weight 1/sigma (1/px) at the pose (R, t); see SIGMA_* above."""
-    sp, s3, ss = DEFAULT_NOISE if noise is None else noise
-    s, fz = _pair_features(obs, corners, intr, R, t)
-    return 1.0 / np.sqrt(sp ** 2 + (fz * s3) ** 2 + (ss * s) ** 2)
+def edge_term(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
+              noise: NoiseModel | None = None, occlusion: Occlusion | None = Occlusion()) -> BoxEdgeTerm:
+    """The box-edge term of the matched ``pairs``, weighted by ``noise`` at ``pose``."""
+    outlines, obs = _stack(frames, pairs)
+    sigma = edge_sigma(obs, outlines, intr, pose, DEFAULT_NOISE if noise is None else noise)
+    return BoxEdgeTerm(outlines, obs, frames[0].size, sigma, occlusion)
 
 
 def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
@@ -126,13 +110,14 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
     corners, obs = _stack(frames, pairs)
     if len(obs) < 8:
         return DEFAULT_NOISE
-    rects, valid = project_rects(corners, R, t, intr, frames[0].size)
+    pose = Pose(R, t)
+    rects, valid = project_rects(corners, pose.R, pose.t, intr, frames[0].size)
     W, H = frames[0].size
     e = rects - obs
-    s, fz = _pair_features(obs, corners, intr, R, t)
+    s, fz = _pair_features(obs, corners, intr, pose)
     X = np.repeat(np.column_stack([np.ones(len(s)), fz ** 2, s ** 2]), 4, axis=0)
     border = np.column_stack([rects[:, 0] <= 0.5, rects[:, 1] <= 0.5, rects[:, 2] >= W - 0.5, rects[:, 3] >= H - 0.5])
-    out = valid[:, None] & ~border & np.isfinite(e) & (np.nan_to_num(e) * _INWARD < 0)
+    out = valid[:, None] & ~border & np.isfinite(e) & (np.nan_to_num(e) * INWARD < 0)
     y = 2.0 * np.nan_to_num(e).ravel() ** 2
     use = out.ravel()
     floor = np.array(DEFAULT_NOISE) ** 2
@@ -144,85 +129,23 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
         c, _ = nnls(X[use] / scale[:, None], y[use] / scale)
         coef = np.maximum(c, floor)
         use = out.ravel() & (y <= 8.0 * 2.0 * (X @ coef))
-    return tuple(float(v) for v in np.sqrt(coef))
+    return NoiseModel(*(float(v) for v in np.sqrt(coef)))
 
 
-# Occlusion (and a detector's truncation) only ever moves a 2D box edge *into* the projected
-# outline. Residuals in that direction beyond OCCL_TAU (weighted units, ~sigma) are compressed
-# by OCCL_SLOPE before the robust loss, so partly hidden objects pull the pose less.
-OCCL_TAU = 1.5
-OCCL_SLOPE = 0.2
-_INWARD = np.array([-1.0, -1.0, 1.0, 1.0])  # sign of (pred - obs) when the 2D box is inside
-
-
-def _residual_fn(corners, obs, intr, size, R0, t0, noise: NoiseModel | None = None):
-    w = _weights(obs, corners, intr, R0, t0, noise)[:, None]
-    fallback = np.sqrt((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]))[:, None]
-
-    def fun(x):
-        R = Rotation.from_rotvec(x[:3]).as_matrix() @ R0
-        t = t0 + x[3:]
-        rects, valid = project_rects(corners, R, t, intr, size)
-        r = np.where(valid[:, None], rects - obs, fallback) * w
-        s = r * _INWARD
-        s = np.where(s > OCCL_TAU, OCCL_TAU + OCCL_SLOPE * (s - OCCL_TAU), s)
-        return (s * _INWARD).ravel()
-
-    return fun
-
-
-def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel | None = None):
-    """1-sigma (rotation deg about camera x,y,z; translation m along camera x,y,z) from the
-    Jacobian at the optimum: the larger (per parameter) of the classic (J^T J)^-1 * sigma^2
-    (sigma from the inlier residuals) and the cluster-robust sandwich with one cluster per
-    matched pair (its 4 edges share the box-model error)."""
-    corners, obs = _stack(frames, pairs)
-    nan3 = np.full(3, np.nan)
-    if len(obs) < 2:
-        return nan3, nan3, np.full((6, 6), np.nan)
-    fun = _residual_fn(corners, obs, intr, frames[0].size, R, t, noise)
-    r0 = fun(np.zeros(6))
-    J = np.zeros((len(r0), 6))
-    for k in range(6):
-        dx = np.zeros(6)
-        dx[k] = eps
-        J[:, k] = (fun(dx) - fun(-dx)) / (2 * eps)
-    # edges clipped at the image border carry no information (zero derivative) -> drop them
-    informative = np.any(J != 0, axis=1)
-    sigma = 1.4826 * np.median(np.abs(r0[informative])) if np.any(informative) else np.nan
-    inl = informative & (np.abs(r0) <= 3 * max(sigma, 1e-9))
-    dof = max(int(inl.sum()) - 6, 1)
-    sigma2 = np.sum(r0[inl] ** 2) / dof
-    JtJ = J[inl].T @ J[inl]
-    try:
-        A = np.linalg.inv(JtJ)
-    except np.linalg.LinAlgError:
-        return nan3, nan3, np.full((6, 6), np.nan)
-    cov = A * sigma2
-    # sandwich: per-pair score vectors g_c = J_c^T r_c over the inlier edges of pair c
-    g = ((J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 6)).sum(1)  # [n_pairs, 6]
-    nc = int(np.sum(inl.reshape(-1, 4).any(1)))
-    meat = g.T @ g * (nc / max(nc - 6, 1))
-    cov_s = A @ meat @ A
-    if np.trace(cov_s) > np.trace(cov):
-        cov = cov_s
-    sd = np.sqrt(np.clip(np.maximum(np.diag(A * sigma2), np.diag(cov_s)), 0, None))
-    return np.degrees(sd[:3]), sd[3:], cov
-
-
-def _lsq(frames, pairs, intr, R, t, f_scale, max_nfev, noise: NoiseModel | None = None):
-    corners, obs = _stack(frames, pairs)
-    fun = _residual_fn(corners, obs, intr, frames[0].size, R, t, noise)
-    res = least_squares(fun, np.zeros(6), loss="soft_l1", f_scale=f_scale, method="trf",
-                        x_scale=np.array([1e-3, 1e-3, 1e-3, 0.05, 0.05, 0.05]), max_nfev=max_nfev)
-    R1 = Rotation.from_rotvec(res.x[:3]).as_matrix() @ R
-    return R1, t + res.x[3:], res.cost, res.fun
+def lsq(frames, pairs, intr, R, t, f_scale, max_nfev, noise: NoiseModel | None = None,
+        occlusion: Occlusion | None = Occlusion(), extra: tuple = ()):
+    """Robust (soft-L1) fit of the box-edge term (plus ``extra`` terms) from (R, t), matches fixed.
+    Returns (R, t, cost, residuals, CostFit)."""
+    pose = Pose(R, t)
+    model = CostModel([edge_term(frames, pairs, intr, pose, noise, occlusion), *extra], pose, intr)
+    fit = model.fit(f_scale=f_scale, max_nfev=max_nfev)
+    return fit.pose.R, fit.pose.t, fit.cost, fit.residuals, fit
 
 
 def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *,
                 gates: tuple = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0)),
                 min_pairs: int = 3, max_nfev: int = 60, tol: float = 1e-3, max_outer: int | None = None,
-                adapt_noise: bool = True) -> RefineResult:
+                adapt_noise: bool = True, occlusion: Occlusion | None = Occlusion()) -> RefineResult:
     """Alternate matching and robust least squares from the pose (R, t) until the cost settles.
 
     ``gates`` is the schedule of (IoU gate, centre-distance gate) per outer iteration; the last
@@ -249,7 +172,7 @@ def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *,
         R_old, t_old = R, t
         if adapt_noise and it >= 1:
             noise = estimate_noise(frames, pairs, intr, R, t)
-        R, t, cost, resid = _lsq(frames, pairs, intr, R, t, f_scale, max_nfev, noise)
+        R, t, cost, resid, _ = lsq(frames, pairs, intr, R, t, f_scale, max_nfev, noise, occlusion)
         per = cost / max(n, 1)
         history.append(per)
         moved = np.linalg.norm(Rotation.from_matrix(R @ R_old.T).as_rotvec()) + np.linalg.norm(t - t_old) / 100.0
@@ -274,72 +197,3 @@ def pair_metrics(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, pairs: 
     if not px:
         return np.zeros(0), np.zeros(0)
     return np.concatenate(px), np.concatenate(ious)
-
-
-def _delta(Ra, ta, Rb, tb) -> np.ndarray:
-    """6-vector (rotation vector of Ra Rb^T in degrees, camera axes; ta - tb in metres)."""
-    return np.concatenate([np.degrees(Rotation.from_matrix(Ra @ Rb.T).as_rotvec()), ta - tb])
-
-
-HALF_MIN_MATCHES = 6  # matches each half of the frames (or pairs) needs for the frame-halves check
-
-
-def pose_spread(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f_scale: float = F_SCALE,
-                max_nfev: int = 40):
-    """Two checks of the pose beyond the Jacobian, both with the matches held fixed.
-
-    * ``halves``: refit on the even and on the odd frames separately (or on alternate pairs when
-      there is one frame); returns their difference (6-vector, deg / m). For independent frame
-      errors the full-data pose has about a quarter of its variance per component.
-    * ``occlusion``: refit without the inward (occlusion) compression; the shift of the pose is
-      how much it depends on the occlusion model (a systematic error the Jacobian cannot see).
-    Returns (halves_delta [6] or None, occlusion_delta [6]).
-    """
-    global OCCL_TAU
-    R, t = np.asarray(R, float), np.asarray(t, float)
-    halves = None
-    nz = [k for k, p in enumerate(pairs) if len(p)]
-    if len(nz) >= 4:
-        ev = [p if (i in nz[0::2]) else p[:0] for i, p in enumerate(pairs)]
-        od = [p if (i in nz[1::2]) else p[:0] for i, p in enumerate(pairs)]
-    else:
-        ev = [p[0::2] for p in pairs]
-        od = [p[1::2] for p in pairs]
-    if sum(len(p) for p in ev) >= HALF_MIN_MATCHES and sum(len(p) for p in od) >= HALF_MIN_MATCHES:
-        Re, te, _, _ = _lsq(frames, ev, intr, R, t, f_scale, max_nfev, noise)
-        Ro, to, _, _ = _lsq(frames, od, intr, R, t, f_scale, max_nfev, noise)
-        halves = _delta(Re, te, Ro, to)
-    tau = OCCL_TAU
-    try:
-        OCCL_TAU = 1e9
-        Rs, ts, _, _ = _lsq(frames, pairs, intr, R, t, f_scale, max_nfev, noise)
-    finally:
-        OCCL_TAU = tau
-    return halves, _delta(Rs, ts, R, t)
-
-
-def pose_jackknife(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f_scale: float = F_SCALE,
-                   max_nfev: int = 40, max_groups: int = 24) -> np.ndarray | None:
-    """Leave-one-pair-out (jackknife) 1-sigma of the pose, 6-vector (deg about camera x,y,z; m).
-
-    For recordings with too few matches for the frame-halves check: the pose is refitted (matches
-    held fixed) without each matched pair in turn, and the spread of those G poses gives
-    ``sqrt((G-1)/G * sum (p_i - p_mean)^2)``: the cluster-robust variance with one cluster per
-    pair (its four edges share the 3D-box error), which, unlike the Jacobian sandwich and the
-    error model fitted to the residuals, stays honest with a handful of pairs. Beyond
-    ``max_groups`` pairs, groups of pairs are left out instead. None with fewer than 4 pairs.
-    """
-    R, t = np.asarray(R, float), np.asarray(t, float)
-    where = np.array([(k, i) for k, p in enumerate(pairs) for i in range(len(p))], dtype=np.int64).reshape(-1, 2)
-    if len(where) < 4:
-        return None
-    groups = np.array_split(np.arange(len(where)), min(len(where), max_groups))
-    d = []
-    for g in groups:
-        drop = where[g]
-        sub = [np.delete(p, drop[drop[:, 0] == j, 1], axis=0) for j, p in enumerate(pairs)]
-        Rj, tj, _, _ = _lsq(frames, sub, intr, R, t, f_scale, max_nfev, noise)
-        d.append(_delta(Rj, tj, R, t))
-    d = np.asarray(d)
-    G = len(d)
-    return np.sqrt((G - 1) / G * np.sum((d - d.mean(0)) ** 2, axis=0))

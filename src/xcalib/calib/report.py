@@ -36,9 +36,22 @@ class ReportPaths:
     overlays: list[Path] = field(default_factory=list)
 
 
+def _prepare(result: CalibrationResult, frames: Sequence):
+    """The frames as the calibration prepared them (its config: yaw re-estimation, box model)."""
+    cfg = result.config
+    kw = {} if cfg is None else {"reestimate_yaw": cfg.reestimate_yaw, "box_model": cfg.box_model}
+    return prepare_frames(list(frames), result.intrinsics, **kw)
+
+
 def frame_table(result: CalibrationResult, frames: Sequence) -> list[dict]:
-    """Per frame: key, 2D/3D counts, matched pairs, median edge residual (px) and IoU."""
-    cframes, intr, _ = prepare_frames(list(frames), result.intrinsics)
+    """Per frame: key, 2D/3D counts, matched pairs, median edge residual (px) and IoU -- as the
+    calibration computed them (``result.diagnostics.frames``), else recomputed at its pose."""
+    diag = result.diagnostics
+    if diag is not None and len(diag.frames) == len(frames):
+        return [{"frame": r.key, "n_2d": int(len(np.asarray(f.bboxes_2d))), "n_3d": int(len(np.asarray(f.bboxes_3d))),
+                 "pairs": r.pairs, "px_median": r.px_median if result.success else None,
+                 "iou_median": r.iou_median if result.success else None} for r, f in zip(diag.frames, frames)]
+    cframes, intr, _ = _prepare(result, frames)
     rows = []
     for k, (fr, f) in enumerate(zip(cframes, frames)):
         p = result.pairs[k] if k < len(result.pairs) else np.zeros((0, 2), np.int64)
@@ -57,16 +70,19 @@ def frame_table(result: CalibrationResult, frames: Sequence) -> list[dict]:
 
 def _summary_text(result: CalibrationResult, rows: list[dict]) -> str:
     lines = [result.summary(), ""]
-    m = result.meta
+    d = result.diagnostics
     if result.success:
-        co = m.get("centre_offset_px_median")
+        co = None if d is None else d.centre_offset_px_median
         lines += [f"  pairs with IoU >= 0.5: {result.n_inliers} of {result.n_pairs}",
                   f"  mean edge residual: {result.reproj_error_px:.2f} px",
                   f"  box-centre offset (2D centre vs projected 3D centre): "
-                  f"{'n/a' if co is None else f'{co:.1f} px median'}",
-                  f"  bring-up: {m.get('n_hypotheses', 0)} hypotheses ({m.get('seed', '?')}); score "
-                  f"{m.get('score', float('nan')):.2f}, runner-up {m.get('runner_up_score', float('nan')):.2f}",
-                  ""]
+                  f"{'n/a' if co is None else f'{co:.1f} px median'}"]
+        if d is not None:
+            lines.append(f"  bring-up: {d.n_hypotheses} hypotheses ({d.seed_source}); score {d.score:.2f}, "
+                         f"runner-up {d.runner_up_score:.2f}")
+            lines += [f"  misfit check {c.name}: {c.statistic:.3g} (limit {c.limit:.3g}){' FLAGGED' if c.flagged else ''}"
+                      f"{'; ' + c.detail if c.detail else ''}" for c in d.misfit]
+        lines.append("")
     lines.append(f"{'frame':>12} {'2D':>4} {'3D':>4} {'pairs':>5} {'px med':>7} {'IoU med':>7}")
     for r in rows:
         px = "-" if r["px_median"] is None else f"{r['px_median']:.2f}"
@@ -99,7 +115,7 @@ def write_report(result: CalibrationResult, frames: Sequence, out_dir, *, max_ov
         return paths
     n = len(frames)
     pick = np.unique(np.linspace(0, n - 1, min(max_overlays, n)).round().astype(int))
-    bring = result.meta.get("bringup_T")
+    bring = None if result.diagnostics is None else result.diagnostics.bringup_T
     (out / "overlays").mkdir(exist_ok=True)
     used: set[str] = set()
     for k, fi in enumerate(pick):
@@ -108,7 +124,7 @@ def write_report(result: CalibrationResult, frames: Sequence, out_dir, *, max_ov
         if image.ndim != 3 or image.shape[0] < 2:
             w, h = result.image_size or (int(2 * result.intrinsics.cx), int(2 * result.intrinsics.cy))
             image = np.full((h, w, 3), 40, np.uint8)
-        cf, _, _ = prepare_frames([f], result.intrinsics)
+        cf, _, _ = _prepare(result, [f])
         key = cf[0].key
         p = result.pairs[int(fi)] if int(fi) < len(result.pairs) else None
         # draw the yaw-corrected boxes the calibration used, indexed like the caller's boxes

@@ -12,6 +12,8 @@ import numpy as np
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.projection import project_points, projection_matrix
 from ..geometry.transforms import make_transform, pose_error as _pose_error
+from .config import CalibConfig
+from .diagnostics import CalibDiagnostics
 
 __all__ = ["CalibrationResult"]
 
@@ -24,7 +26,10 @@ class CalibrationResult:
     one-to-one matches per frame as int arrays [n,2] of (2D index, 3D index) in each frame's
     own numbering. Residuals are in pixels (box-edge disagreement) and IoU of projected 3D
     boxes vs their matched 2D boxes. ``rotation_std_deg`` / ``translation_std_m`` are 1-sigma
-    uncertainty estimates ([3] each: about/along the camera x, y, z axes).
+    uncertainty estimates ([3] each: about/along the camera x, y, z axes). ``config`` is the
+    ``CalibConfig`` that produced the result and ``diagnostics`` what the calibration computed
+    on the way (bring-up pose, uncertainty parts, misfit checks, per-frame residuals); both are
+    None for results read from other tools' files.
     """
 
     success: bool
@@ -48,6 +53,8 @@ class CalibrationResult:
     buffer_reproj_px: float = float("nan")
     method: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
+    config: CalibConfig | None = None
+    diagnostics: CalibDiagnostics | None = None
 
     def __post_init__(self) -> None:
         self.rotation = np.asarray(self.rotation, dtype=np.float64).reshape(3, 3)
@@ -117,6 +124,8 @@ class CalibrationResult:
             "frame_keys": list(self.frame_keys),
             "pairs": [p.tolist() for p in self.pairs],
             "meta": self.meta,
+            "config": None if self.config is None else self.config.to_dict(),
+            "diagnostics": None if self.diagnostics is None else self.diagnostics.to_dict(),
         }
 
     @classmethod
@@ -144,6 +153,8 @@ class CalibrationResult:
             buffer_reproj_px=_unnum(d.get("buffer_reproj_px")),
             method=d.get("method", ""),
             meta=dict(d.get("meta", {})),
+            config=None if d.get("config") is None else CalibConfig.from_dict(d["config"]),
+            diagnostics=None if d.get("diagnostics") is None else CalibDiagnostics.from_dict(d["diagnostics"]),
         )
 
     def save(self, path: str | Path, *, overwrite: bool = True) -> Path:

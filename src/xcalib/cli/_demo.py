@@ -81,7 +81,7 @@ class CalibrationOutcome:
         if r is not None:
             d.update(success=bool(r.success), pairs=int(r.n_pairs), residual_px_median=_j(r.residual_px_median),
                      residual_px_mean=_j(r.reproj_error_px), iou_median=_j(r.iou_median),
-                     centre_offset_px_median=_j((r.meta or {}).get("centre_offset_px_median")),
+                     centre_offset_px_median=_j(None if r.diagnostics is None else r.diagnostics.centre_offset_px_median),
                      rotation_std_deg=[_j(v) for v in r.rotation_std_deg],
                      translation_std_m=[_j(v) for v in r.translation_std_m],
                      extrinsics_T_cam_lidar=np.asarray(r.extrinsics).tolist())

@@ -44,6 +44,7 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+        from ..calib.config import CalibConfig
         from ..io.frames import read_frames, read_intrinsics_json
         from ..oneshot.bootstrap import bootstrap
 
@@ -75,8 +76,7 @@ def register(app: typer.Typer) -> None:
                 bar.update(t_fit, completed=k, total=total, info=f"loss {loss:.3f}")
 
             res = bootstrap(it, K, site, model=model, init=init, steps=steps, mode=mode, install=not no_install,
-                            session_options={"calib_options": {"max_rot_std_deg": max_rot_std,
-                                                              "max_trans_std_m": max_trans_std}},
+                            calib_config=CalibConfig(max_rot_std_deg=max_rot_std, max_trans_std_m=max_trans_std),
                             out_dir=out_dir, device=device, seed=seed, on_frame=on_frame, on_step=on_step)
         summary = res.summary()
         if as_json:

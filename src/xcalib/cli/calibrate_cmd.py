@@ -1,4 +1,4 @@
-"""``xcalib calibrate``: targetless camera<-LiDAR calibration of a frame folder, with a report."""
+"""``xcalib calibrate``: targetless camera<-LiDAR calibration of one or several cameras, with a report."""
 
 from __future__ import annotations
 
@@ -9,67 +9,68 @@ import typer
 
 _HELP = """Estimate T_cam_lidar from the frames' 2D and 3D detections (no target, no labels, no guess).
 
-Writes DIR/calibration.json + .npz, DIR/summary.txt and overlay PNGs (DIR/overlays/).
-Exit code 1 when the frames do not determine the pose (the reason is printed and saved).
+SOURCE is any frame source: frame folder, HDF5 cache, KITTI folder, nuScenes/mmdet3d pickle,
+CalibAnything scene, ROS 1 .bag / ROS 2 .db3 / .mcap. --camera (repeatable) picks cameras of a
+multi-camera source; each is calibrated against the LiDAR and the run writes one site
+calibration (DIR/site_calibration.json: every transform with its uncertainty and verdict), the
+ROS files (DIR/ros/: tf_static YAML, static_transform_publisher lines, URDF, CameraInfo YAML), a
+Foxglove review file (DIR/review.mcap) and the report (DIR/report.html; with several cameras one
+sub-folder per camera). One camera: DIR/calibration.json + .npz, DIR/summary.txt, DIR/overlays/.
+Exit code 1 when a camera's frames do not determine its pose (the reason is printed and saved).
 
-Example: xcalib calibrate ../shared/data/a9_sample --intrinsics ../shared/data/a9_sample/intrinsics.json --out runs/a9_calib
+Example: xcalib calibrate ../shared/data/a9_sample --out runs/a9_calib
+Example: xcalib calibrate nus.mcap --camera CAM_FRONT --camera CAM_BACK --out runs/nus
 """
 
 
 def register(app: typer.Typer) -> None:
     @app.command("calibrate", help=_HELP)
     def calibrate_command(
-        frames: Path = typer.Argument(..., help="Frame source: frame folder, HDF5 cache, KITTI, nuScenes/mmdet3d "
-                                                "pickle, bag/MCAP, ... (xcalib.io.sources)."),
-        camera: str = typer.Option(None, "--camera", "-c", help="Camera of a multi-camera source."),
+        frames: Path = typer.Argument(..., metavar="SOURCE", help="Frame source (xcalib.io.sources)."),
+        camera: list[str] = typer.Option(None, "--camera", "-c", help="Camera to calibrate (repeat for several)."),
         frame_range: str = typer.Option(None, "--frames", help="Frames to use: 0:8, 0,3,5, 8: (indices)."),
         intrinsics: Path = typer.Option(None, "--intrinsics", "-k",
-                                        help="Intrinsics JSON {fx, fy, cx, cy, distortion}; default: the folder's."),
+                                        help="Intrinsics JSON {fx, fy, cx, cy, distortion} (one camera); "
+                                             "default: the source's."),
         out: Path = typer.Option(Path("calibration_report"), "--out", "-o", help="Report folder."),
-        prior: Path = typer.Option(None, "--prior", help="Initial guess: a calibration .json/.npz (skips bring-up)."),
+        prior: Path = typer.Option(None, "--prior", help="Initial guess: a calibration .json/.npz (skips bring-up; "
+                                                         "one camera)."),
         box_model: str = typer.Option("auto", "--box-model", help="auto | corners | points (3D box outline)."),
-        max_overlays: int = typer.Option(8, "--max-overlays", help="Overlay PNGs to draw (0: none)."),
+        max_overlays: int = typer.Option(8, "--max-overlays", help="Overlay PNGs to draw per camera (0: none)."),
         limit: int = typer.Option(0, "--limit", help="Use only the first N frames (0: all)."),
+        tolerance: float = typer.Option(0.05, "--tolerance", help="Bags: largest LiDAR/image stamp difference (s)."),
         seed: int = typer.Option(0, "--seed", help="Random seed of the hypothesis sampling."),
-        as_json: bool = typer.Option(False, "--json", help="Print the result dict as JSON."),
+        as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
         force: bool = typer.Option(False, "--force", help="Replace an existing report folder."),
     ) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         from ..calib.api import calibrate
-        from ..calib.report import write_report
         from ..calib.result import CalibrationResult
         from ..io._files import atomic_dir
-        from ..io.frames import read_frames, read_intrinsics_json
+        from ..io.frames import read_intrinsics_json
+        from ..site import calibrate_site
+        from ..viz.site_report import site_table, write_site_report
 
         if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
             raise FileExistsError(f"{out} already exists; pass --force to replace it")
-        console = Console(stderr=True)
-        try:
-            seq = read_frames(frames, camera=camera, frames=frame_range)
-        except ValueError as exc:
-            raise typer.BadParameter(str(exc), param_hint="--frames") from None
-        n = len(seq) if limit <= 0 else min(limit, len(seq))
-        if n == 0:
-            raise typer.BadParameter(f"{frames}: no frames found", param_hint="FRAMES")
-        if intrinsics is not None:
-            intr = read_intrinsics_json(intrinsics)
-        else:
-            intr = getattr(seq, "intrinsics", None)
-            if intr is None and n:  # HDF5 caches carry the intrinsics per frame (/calibration)
-                intr = getattr(seq[0], "intrinsics", None)
-            if intr is None:
-                raise typer.BadParameter(f"{frames} has no intrinsics.json; pass --intrinsics K.json",
-                                         param_hint="--intrinsics")
+        cams = list(camera or [])
+        if intrinsics is not None and len(cams) > 1:
+            raise typer.BadParameter("--intrinsics applies to one camera; give one --camera",
+                                     param_hint="--intrinsics")
+        if prior is not None and len(cams) > 1:
+            raise typer.BadParameter("--prior applies to one camera; give one --camera", param_hint="--prior")
+        intr = read_intrinsics_json(intrinsics) if intrinsics is not None else None
+        views = _open_views(frames, cams, frame_range, limit, intr, tolerance)
+        name0 = next(iter(views))
+        if len(views) == 1 and intr is None and getattr(views[name0], "intrinsics", None) is None and len(views[name0]) \
+                and views[name0][0].intrinsics is None:
+            raise typer.BadParameter(f"{frames} has no intrinsics; pass --intrinsics K.json", param_hint="--intrinsics")
         prior_res = CalibrationResult.load(prior) if prior is not None else None
+        console = Console(stderr=True)
         with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                       console=console, disable=as_json, transient=False) as bar:
-            task = bar.add_task("reading frames", total=n)
-            items = []
-            for i in range(n):
-                items.append(seq[i])
-                bar.advance(task)
             tasks: dict[str, int] = {}
 
             def progress(stage: str, done: int, total: int) -> None:
@@ -77,23 +78,61 @@ def register(app: typer.Typer) -> None:
                     tasks[stage] = bar.add_task(stage, total=total)
                 bar.update(tasks[stage], completed=done, total=total)
 
-            result = calibrate(items, intr, prior=prior_res, box_model=box_model, seed=seed, progress=progress)
-            from ..viz.report import write_calibration_report  # HTML page: numbers + overlays
+            def run(items, k, stage):
+                return calibrate(items, k, prior=prior_res, box_model=box_model, seed=seed, progress=stage)
 
+            site, loaded = calibrate_site(views, {name0: intr} if intr is not None else None, source=str(frames),
+                                          calibrate=run, progress=progress)
             with atomic_dir(out, overwrite=force) as tmp:  # the whole folder is swapped in at once
-                paths = write_report(result, items, tmp, max_overlays=max_overlays, progress=progress)
-                html = write_calibration_report(tmp, result, items, calibration_overlays=paths.overlays,
-                                                max_frames=max_overlays, title=f"xcalib calibrate: {frames}").html
-            moved = {p: out / Path(p).relative_to(tmp) for p in (paths.json, paths.npz, paths.summary, html,
-                                                                  *paths.overlays)}
-            paths.json, paths.npz, paths.summary, html = (moved[p] for p in (paths.json, paths.npz, paths.summary,
-                                                                            html))
-            paths.overlays = [moved[p] for p in paths.overlays]
+                paths = write_site_report(tmp, site, loaded, max_overlays=max_overlays, progress=progress,
+                                          title=f"xcalib calibrate: {frames}")
+            paths = paths.relocated(tmp, out)
+        _print(site, paths, as_json, site_table)
+        if not all(c.result.success for c in site.cameras):
+            raise typer.Exit(1)
+
+
+def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, tolerance: float) -> dict:
+    """camera name -> its frames (lazy), for each ``--camera`` (or the source's default camera)."""
+    from ..io.sources import find_source, open_source
+
+    if frame_range is None and limit > 0:
+        frame_range = f"0:{limit}"
+    options = {}
+    if find_source(source).name == "bag":
+        options["tolerance_s"] = tolerance
+        if intr is not None:
+            options["intrinsics"] = intr
+    views = {}
+    try:
+        for c in cams or [None]:
+            seq = open_source(source, camera=c, frames=frame_range, **options)
+            if len(seq) == 0:
+                raise typer.BadParameter(f"{source}: no frames found", param_hint="SOURCE")
+            name = c or getattr(seq, "camera", "") or seq[0].camera_name or "camera"
+            views[name] = seq
+    except ValueError as exc:
+        if type(exc).__name__ == "FormatError":
+            raise
+        raise typer.BadParameter(str(exc), param_hint="--frames") from None
+    return views
+
+
+def _print(site, paths, as_json: bool, site_table) -> None:
+    if len(site.cameras) == 1:
+        result = site.cameras[0].result
         if as_json:
             typer.echo(json.dumps(result.to_dict(), indent=2))
-        else:
-            typer.echo(paths.summary.read_text())
-            typer.echo(f"wrote {paths.json}, {paths.npz}, {paths.summary} and {len(paths.overlays)} overlay(s)")
-            typer.echo(f"report: {html}")
-        if not result.success:
-            raise typer.Exit(1)
+            return
+        summary = next(iter(paths.cameras.values()))
+        typer.echo(summary.read_text())
+        typer.echo(f"wrote {summary.parent / 'calibration.json'}, {paths.site_json}, {paths.review_mcap} "
+                   f"and {len(paths.ros)} ROS file(s) under {paths.site_json.parent / 'ros'}")
+        typer.echo(f"report: {paths.html}")
+        return
+    if as_json:
+        typer.echo(json.dumps(json.loads(paths.site_json.read_text()), indent=1))
+        return
+    typer.echo("\n".join(site_table(site)))
+    typer.echo(f"wrote {paths.site_json}, {paths.review_mcap}, ros/ ({len(paths.ros)} files) and one folder per camera")
+    typer.echo(f"report: {paths.html}")

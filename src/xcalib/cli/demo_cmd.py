@@ -258,7 +258,7 @@ def register(app: typer.Typer) -> None:
             rt.add_column("value", justify="right")
             rr = real_out.result
             if rr is not None and rr.success:
-                off = (rr.meta or {}).get("centre_offset_px_median")
+                off = None if rr.diagnostics is None else rr.diagnostics.centre_offset_px_median
                 rt.add_row("calibration", "[green]success[/]")
                 rt.add_row("matched pairs", f"{rr.n_pairs} over {real_out.n_frames} frames")
                 rt.add_row("residual (median / mean)", f"{rr.residual_px_median:.2f} / {rr.reproj_error_px:.2f} px")

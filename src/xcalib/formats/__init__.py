@@ -10,6 +10,7 @@ out is xcalib's ``T_cam_lidar`` (LiDAR -> OpenCV camera, :mod:`xcalib.geometry`)
   OpenCalib JSON; ``calibanything_frames``.
 * :mod:`.waymo` — FLU <-> optical, vehicle -> camera, Waymo -> KITTI, ``.tfrecord`` calibrations.
 * :mod:`.nuscenes` — ``calibrated_sensor`` records; :mod:`.mmdet3d` — info pickles as frames.
+* :mod:`.pandaset` — PandaSet sequences (cuboids, ego poses, timestamps) as frames.
 * :mod:`.openlabel`, :mod:`.ros` — export targets; :mod:`.export` — the format registry
   (``export_calibration``, ``read_calibration``, ``FORMATS``).
 """
@@ -42,5 +43,7 @@ from .kitti import (  # noqa: F401
     write_kitti_calibration,
 )
 from .mmdet3d import mmdet3d_frames, read_mmdet3d_infos  # noqa: F401
+from .pandaset import PandaSetFrames, is_pandaset_root, pandaset_frames  # noqa: F401
+from .sustech import SustechFrames, is_sustech_root  # noqa: F401
 from .nuscenes import calibrated_sensor_to_T, nuscenes_T_cam_lidar, T_to_calibrated_sensor  # noqa: F401
 from .waymo import read_waymo_tfrecord, waymo_extrinsic_to_T_cam_lidar, waymo_to_kitti_calibration  # noqa: F401

@@ -131,6 +131,30 @@ def _r_ros(path, repair=False):
     return read_ros(path)
 
 
+def _w_urdf(res, path):
+    from .ros import write_urdf
+
+    return [write_urdf(res, path)]
+
+
+def _r_urdf(path, repair=False):
+    from .ros import read_urdf
+
+    return read_urdf(path)
+
+
+def _w_tf_static(res, path):
+    from .ros import write_tf_static
+
+    return [write_tf_static(res, path)]
+
+
+def _r_tf_static(path, repair=False):
+    from .ros import read_tf_static
+
+    return read_tf_static(path)
+
+
 def _w_nuscenes(res, path):
     from .nuscenes import write_calibrated_sensor_json
 
@@ -179,6 +203,10 @@ FORMATS: dict[str, CalibFormat] = {f.name: f for f in [
                 "openlabel.json", _w_openlabel, _r_openlabel),
     CalibFormat("ros", "ROS camera_info YAML + <stem>_tf.yaml static transform (lidar -> camera_optical pose)",
                 "camera_info.yaml", _w_ros, _r_ros),
+    CalibFormat("urdf", "URDF fixed joints: lidar -> <camera>_link (body) -> <camera>_optical_frame (no intrinsics)",
+                "camera.urdf", _w_urdf, _r_urdf),
+    CalibFormat("tf_static", "tf2_msgs/TFMessage YAML: lidar -> <camera>_optical_frame pose (no intrinsics)",
+                "tf_static.yaml", _w_tf_static, _r_tf_static),
     CalibFormat("nuscenes", "nuScenes calibrated_sensor.json + sensor.json (sensor->ego, w,x,y,z)",
                 "calibrated_sensor.json", _w_nuscenes, _r_nuscenes),
     CalibFormat("json", "xcalib CalibrationResult JSON", "calibration.json", _w_json, _r_xcalib),
@@ -249,8 +277,11 @@ def detect_format(path) -> str:
     name = p.name.lower()
     if name.endswith(".npz"):
         return "npz"
+    if name.endswith((".urdf", ".xacro")) or (name.endswith(".xml") and "<robot" in p.read_text(errors="replace")):
+        return "urdf"
     if name.endswith((".yaml", ".yml")):
-        return "ros"
+        head = p.read_text(errors="replace")
+        return "tf_static" if any(line.startswith("transforms:") for line in head.splitlines()) else "ros"
     if ".tfrecord" in name:
         return "waymo"
     if name.endswith(".pkl"):

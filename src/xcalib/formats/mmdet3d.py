@@ -27,7 +27,8 @@ from ..geometry.camera import CameraIntrinsics
 from ..geometry.projection import project_points
 from ..geometry.transforms import make_transform
 from ..types import Frame
-from ._checks import as_matrix, checked_rotation
+from ..io.timing import checked_timing
+from ._checks import as_float, as_matrix, checked_rotation
 from ._media import IMAGE_EXTS, image_size, load_cloud, load_rgb
 from ._pickle import load_pickle_restricted
 
@@ -162,7 +163,28 @@ def read_mmdet3d_infos(path, data_root=None) -> list[InfoSample]:
         out.append(InfoSample(key, dataset, lidar, nfeat, b, labels, cams,
                               {"source": str(path), "ego2global": info.get("ego2global"),
                                "lidar2ego": (lp.get("lidar2ego")),
-                               "classes": [names.get(int(v), str(int(v))) for v in labels]}))
+                               "classes": [names.get(int(v), str(int(v))) for v in labels],
+                               **_timing(info, insts, path, where)}))
+    return out
+
+
+def _timing(info: dict, insts: list, path: Path, where: str) -> dict:
+    """Sample meta: ``lidar_time_s`` (the info's ``timestamp``), ``camera_times`` {camera: s}
+    and ``velocities`` [M,3] (instances' ``velocity`` vx, vy in the LiDAR frame, vz = 0; rows the
+    file leaves NaN are 0 and False in ``velocity_known``) where the info has them."""
+    out: dict = {}
+    if info.get("timestamp") is not None:
+        out["lidar_time_s"] = as_float(info["timestamp"], path, where + ".timestamp")
+    cams = {n: c.get("timestamp") for n, c in (info.get("images", {}) or {}).items() if isinstance(c, dict)}
+    out["camera_times"] = {n: as_float(t, path, f"{where}.images.{n}.timestamp") for n, t in cams.items() if t is not None}
+    if insts and all("velocity" in i for i in insts):
+        try:
+            v = np.array([[float(x) for x in i["velocity"]][:2] for i in insts], dtype=np.float64).reshape(-1, 2)
+        except (TypeError, ValueError):
+            raise FormatError(path, "instances' velocity must be 2 numbers (vx, vy)", where + ".instances") from None
+        known = np.all(np.isfinite(v), axis=1)
+        out["velocities"] = np.column_stack([np.where(known[:, None], v, 0.0), np.zeros(len(v))])
+        out["velocity_known"] = known
     return out
 
 
@@ -226,7 +248,11 @@ class Mmdet3dFrames(Sequence):
                      meta={"source": f"mmdet3d:{s.dataset}", "labels_3d": s.labels[keep].tolist(),
                            "classes_2d": list(cam.classes_2d), "box7": s.boxes7[keep].copy(),
                            "classes_3d": [s.meta["classes"][j] for j in keep],
-                           "box_indices": keep, "image_path": cam.image_path, "lidar_path": s.lidar_path})
+                           "box_indices": keep, "image_path": cam.image_path, "lidar_path": s.lidar_path,
+                           **({"velocity_known": s.meta["velocity_known"][keep]} if "velocity_known" in s.meta else {})},
+                     **checked_timing(self.path, len(keep), lidar_time_s=s.meta.get("lidar_time_s"),
+                                      camera_time_s=s.meta.get("camera_times", {}).get(cam.name),
+                                      velocities_3d=s.meta["velocities"][keep] if "velocities" in s.meta else None))
 
 
 def mmdet3d_frames(path, camera: str | None = None, **kwargs) -> Sequence[Frame]:

@@ -5,8 +5,13 @@ Directions: the static transform follows tf2 — ``parent_frame`` (``header.fram
 LiDAR frame, ``child_frame`` the camera's **optical** frame (REP 103 ``*_optical_frame``: x right,
 y down, z forward), and translation + rotation (x, y, z, w) are the child's pose in the parent,
 i.e. ``T_lidar_cam = inv(T_cam_lidar)`` mapping camera points into the LiDAR frame (what
-``static_transform_publisher --frame-id lidar --child-frame-id camera_optical`` expects).
+``static_transform_publisher --frame-id lidar --child-frame-id camera_optical_frame`` expects).
 ``write_ros`` writes ``<path>`` (camera_info) and ``<stem>_tf.yaml`` next to it.
+
+Also: ``static_transform_command`` (a runnable ROS 2 line, plain numbers), ``write_tf_static`` /
+``read_tf_static`` (a ``tf2_msgs/TFMessage`` YAML), ``write_urdf`` / ``read_urdf`` (the body
+frame ``<camera>_link``, x forward / y left / z up, joined to the LiDAR, and the fixed
+``<camera>_link -> <camera>_optical_frame`` rotation; ``T_cam_lidar`` is always the optical frame's).
 """
 
 from __future__ import annotations
@@ -26,7 +31,9 @@ from ._checks import as_float, as_matrix, checked_quaternion, require
 from ._result import calibration_record, require_intrinsics
 
 __all__ = ["camera_info_dict", "static_transform_dict", "write_ros", "read_ros", "read_camera_info",
-           "read_static_transform", "tf_path_for"]
+           "read_static_transform", "tf_path_for", "static_transform_args", "static_transform_command",
+           "urdf_joints", "write_urdf", "read_urdf", "tf_static_dict", "write_tf_static", "read_tf_static",
+           "R_BODY_OPTICAL"]
 
 
 def _yaml():
@@ -55,18 +62,173 @@ def camera_info_dict(intr: CameraIntrinsics, camera_name: str = "camera") -> dic
     return out
 
 
-def static_transform_dict(T_cam_lidar, parent_frame: str = "lidar", child_frame: str = "camera_optical") -> dict:
+def static_transform_dict(T_cam_lidar, parent_frame: str = "lidar", child_frame: str = "camera_optical_frame") -> dict:
     """Static transform YAML content: the pose of ``child_frame`` (camera, optical) in
     ``parent_frame`` (LiDAR), ``T_lidar_cam = inv(T_cam_lidar)``, plus the equivalent command."""
     T = invert_transform(T_cam_lidar)
     t, q = T[:3, 3], matrix_to_quaternion(T[:3, :3])
-    args = (f"--x {t[0]!r} --y {t[1]!r} --z {t[2]!r} --qx {q[0]!r} --qy {q[1]!r} --qz {q[2]!r} --qw {q[3]!r} "
-            f"--frame-id {parent_frame} --child-frame-id {child_frame}")
     return {"header": {"frame_id": parent_frame}, "child_frame_id": child_frame,
             "transform": {"translation": {"x": float(t[0]), "y": float(t[1]), "z": float(t[2])},
                           "rotation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}},
             "comment": f"pose of {child_frame} in {parent_frame}: maps {child_frame} points into {parent_frame}",
-            "command": f"ros2 run tf2_ros static_transform_publisher {args}"}
+            "command": static_transform_command(T, parent_frame, child_frame)}
+
+
+def _num(v) -> str:
+    """A plain decimal literal that round-trips (``repr(float)``: no ``np.float64(...)``)."""
+    return repr(float(v))
+
+
+def static_transform_args(T_parent_child, parent_frame: str, child_frame: str) -> list[str]:
+    """ROS 2 ``static_transform_publisher`` arguments (named form, humble and later) publishing
+    ``child_frame``'s pose in ``parent_frame``: ``--x --y --z --qx --qy --qz --qw --frame-id
+    --child-frame-id``, numbers as plain decimals."""
+    T = np.asarray(T_parent_child, dtype=np.float64)
+    t, q = T[:3, 3], matrix_to_quaternion(T[:3, :3])
+    out = []
+    for k, v in zip(("x", "y", "z", "qx", "qy", "qz", "qw"), [*t, *q]):
+        out += [f"--{k}", _num(v)]
+    return out + ["--frame-id", parent_frame, "--child-frame-id", child_frame]
+
+
+def static_transform_command(T_parent_child, parent_frame: str, child_frame: str) -> str:
+    """A runnable ``ros2 run tf2_ros static_transform_publisher ...`` line (shell-quoted)."""
+    import shlex
+
+    args = static_transform_args(T_parent_child, parent_frame, child_frame)
+    return "ros2 run tf2_ros static_transform_publisher " + " ".join(shlex.quote(a) for a in args)
+
+
+# REP 103: a camera's body frame (x forward, y left, z up) -> its optical frame (x right, y down,
+# z forward). Columns = the optical axes in body coordinates.
+R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def _origin(T) -> str:
+    from scipy.spatial.transform import Rotation
+
+    T = np.asarray(T, dtype=np.float64)
+    rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz")  # URDF: fixed-axis roll, pitch, yaw
+    return (f'<origin xyz="{" ".join(_num(v) for v in T[:3, 3])}" '
+            f'rpy="{" ".join(_num(v) for v in rpy)}"/>')
+
+
+def urdf_joints(T_cam_lidar, lidar_link: str, camera: str) -> str:
+    """URDF snippet: ``lidar_link -> <camera>_link`` (body frame, REP 103) and the fixed
+    ``<camera>_link -> <camera>_optical_frame`` rotation; the optical frame is xcalib's camera
+    frame (``T_cam_lidar`` maps LiDAR points into it)."""
+    T_lidar_optical = invert_transform(T_cam_lidar)
+    T_body_optical = make_transform(R_BODY_OPTICAL, np.zeros(3))
+    T_lidar_body = T_lidar_optical @ invert_transform(T_body_optical)
+    body, optical = f"{camera}_link", f"{camera}_optical_frame"
+    return "\n".join([
+        f'  <link name="{body}"/>',
+        f'  <link name="{optical}"/>',
+        f'  <joint name="{lidar_link}_to_{body}" type="fixed">',
+        f'    <parent link="{lidar_link}"/>', f'    <child link="{body}"/>', f"    {_origin(T_lidar_body)}",
+        "  </joint>",
+        f'  <joint name="{body}_to_{optical}" type="fixed">',
+        f'    <parent link="{body}"/>', f'    <child link="{optical}"/>', f"    {_origin(T_body_optical)}",
+        "  </joint>"])
+
+
+def write_urdf(result: CalibrationResult, path, *, lidar_link: str = "lidar") -> Path:
+    """A URDF file (``<robot>`` with the LiDAR link and the camera's body and optical joints)."""
+    from ..io._files import atomic_write
+
+    name = result.camera_name or "camera"
+    text = (f'<?xml version="1.0"?>\n<robot name="xcalib_{name}">\n  <link name="{lidar_link}"/>\n'
+            f"{urdf_joints(result.extrinsics, lidar_link, name)}\n</robot>\n")
+    return atomic_write(Path(path), [text.encode()])
+
+
+def _urdf_origin(joint, path: Path) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    o = joint.find("origin")
+    xyz = [0.0, 0.0, 0.0] if o is None else o.get("xyz", "0 0 0").split()
+    rpy = [0.0, 0.0, 0.0] if o is None else o.get("rpy", "0 0 0").split()
+    try:
+        t, a = np.array(xyz, dtype=np.float64), np.array(rpy, dtype=np.float64)
+    except ValueError:
+        raise FormatError(path, f"joint {joint.get('name')!r}: origin is not numeric", "origin") from None
+    if t.shape != (3,) or a.shape != (3,) or not (np.all(np.isfinite(t)) and np.all(np.isfinite(a))):
+        raise FormatError(path, f"joint {joint.get('name')!r}: origin needs 3 finite xyz and 3 rpy", "origin")
+    return make_transform(Rotation.from_euler("xyz", a).as_matrix(), t)
+
+
+def read_urdf(path, camera: str | None = None) -> CalibrationResult:
+    """A URDF's fixed joints -> ``T_cam_lidar`` of the ``*_optical_frame`` link (``camera`` picks
+    one when there are several) relative to the tree's root link (the LiDAR)."""
+    import xml.etree.ElementTree as ET
+
+    path = Path(path)
+    try:
+        root = ET.fromstring(path.read_text())
+    except (OSError, ET.ParseError) as exc:
+        raise FormatError(path, f"not readable URDF XML ({exc})") from None
+    parent_of = {}
+    for j in root.iter("joint"):
+        p, c = j.find("parent"), j.find("child")
+        if p is None or c is None:
+            raise FormatError(path, f"joint {j.get('name')!r} needs <parent> and <child>", "joint")
+        parent_of[c.get("link")] = (p.get("link"), _urdf_origin(j, path))
+    opticals = sorted(k for k in parent_of if k.endswith("_optical_frame"))
+    want = [o for o in opticals if camera is None or o == f"{camera}_optical_frame"]
+    if len(want) != 1:
+        raise FormatError(path, f"expected one *_optical_frame link{'' if camera is None else ' of ' + camera}; "
+                                f"found {opticals}", "link")
+    link, T, seen = want[0], np.eye(4), set()
+    while link in parent_of and link not in seen:
+        seen.add(link)
+        parent, T_pc = parent_of[link]
+        T, link = T_pc @ T, parent
+    name = want[0][: -len("_optical_frame")]
+    return calibration_record(None, invert_transform(T), method="urdf", camera_name=name,
+                              meta={"format": "urdf", "parent_frame": link})
+
+
+def tf_static_dict(edges) -> dict:
+    """``tf2_msgs/TFMessage`` YAML content (what ``ros2 topic echo /tf_static`` prints) of
+    ``[(parent, child, T_parent_child)]``."""
+    items = []
+    for parent, child, T in edges:
+        T = np.asarray(T, dtype=np.float64)
+        q = matrix_to_quaternion(T[:3, :3])
+        items.append({"header": {"frame_id": parent}, "child_frame_id": child,
+                      "transform": {"translation": {k: float(v) for k, v in zip("xyz", T[:3, 3])},
+                                    "rotation": {k: float(v) for k, v in zip("xyzw", q)}}})
+    return {"transforms": items}
+
+
+def write_tf_static(result: CalibrationResult, path, *, parent_frame: str = "lidar") -> Path:
+    """One-transform tf_static YAML: LiDAR -> ``<camera>_optical_frame``."""
+    from ..io._files import atomic_write
+
+    child = f"{result.camera_name or 'camera'}_optical_frame"
+    d = tf_static_dict([(parent_frame, child, invert_transform(result.extrinsics))])
+    return atomic_write(Path(path), [_yaml().safe_dump(d, sort_keys=False).encode()])
+
+
+def read_tf_static(path, child: str | None = None) -> CalibrationResult:
+    """tf_static YAML (``transforms: [...]``) -> the ``*_optical_frame`` (or ``child``) transform."""
+    path = Path(path)
+    d = _load_yaml(path)
+    items = d.get("transforms")
+    if not isinstance(items, list) or not items:
+        raise FormatError(path, "expected a non-empty list", "transforms")
+    for i, it in enumerate(items):
+        if not isinstance(it, dict):
+            raise FormatError(path, "expected a mapping", f"transforms[{i}]")
+    pick = [it for it in items if (child is None and str(it.get("child_frame_id", "")).endswith("optical_frame"))
+            or it.get("child_frame_id") == child] or (items if len(items) == 1 else [])
+    if len(pick) != 1:
+        raise FormatError(path, f"expected one camera transform; children: "
+                                f"{[it.get('child_frame_id') for it in items]}", "transforms")
+    T, parent, ch = _transform_of(pick[0], path)
+    name = ch[: -len("_optical_frame")] if ch.endswith("_optical_frame") else ch
+    return calibration_record(None, invert_transform(T), method="tf_static", camera_name=name,
+                              meta={"format": "tf_static", "parent_frame": parent, "child_frame": ch})
 
 
 def tf_path_for(path) -> Path:
@@ -80,7 +242,7 @@ def write_ros(result: CalibrationResult, path, *, parent_frame: str = "lidar",
     """Write ``camera_info`` YAML to ``path`` and the static transform to ``<stem>_tf.yaml``."""
     intr = require_intrinsics(result, "ros camera_info")
     name = result.camera_name or "camera"
-    child = child_frame or f"{name}_optical"
+    child = child_frame or f"{name}_optical_frame"
     yaml = _yaml()
     path = Path(path)
     tf = tf_path_for(path)
@@ -136,10 +298,7 @@ def read_camera_info(path) -> CameraIntrinsics:
         raise FormatError(path, str(exc), "camera_matrix") from None
 
 
-def read_static_transform(path) -> tuple[np.ndarray, str, str]:
-    """``(T_parent_child [4,4], parent_frame, child_frame)`` from a static transform YAML."""
-    path = Path(path)
-    d = _load_yaml(path)
+def _transform_of(d: dict, path: Path) -> tuple[np.ndarray, str, str]:
     tr = require(d, "transform", path)
     t = require(tr, "translation", path, "transform.")
     r = require(tr, "rotation", path, "transform.")
@@ -154,6 +313,12 @@ def read_static_transform(path) -> tuple[np.ndarray, str, str]:
         raise FormatError(path, f"expected a mapping, got {type(header).__name__}", "header")
     parent = str(header.get("frame_id", ""))
     return make_transform(R, tv), parent, str(d.get("child_frame_id", ""))
+
+
+def read_static_transform(path) -> tuple[np.ndarray, str, str]:
+    """``(T_parent_child [4,4], parent_frame, child_frame)`` from a static transform YAML."""
+    path = Path(path)
+    return _transform_of(_load_yaml(path), path)
 
 
 def read_ros(path, tf_path=None) -> CalibrationResult:

@@ -270,6 +270,7 @@ class WaymoFrames(Sequence):
         self.records = read_waymo_tfrecord(self.path, max_frames=max_frames)
         self.camera = camera or "FRONT"
         self.camera_names = sorted(self.records[0].cameras)
+        self._track_int = {u: i for i, u in enumerate(sorted({u for r in self.records for u in r.box_ids}))}
         if self.camera not in self.records[0].cameras:
             raise FormatError(self.path, f"no camera {self.camera!r}; cameras: {self.camera_names}",
                               "context.camera_calibrations")
@@ -288,7 +289,10 @@ class WaymoFrames(Sequence):
                      bboxes_3d=np.asarray(rec.boxes7, dtype=np.float32).reshape(-1, 7),
                      camera_name=self.camera, frame_key=f"{rec.context_name}/{rec.timestamp_micros}",
                      match_matrix=rec.match_matrix(self.camera), intrinsics=cam.intrinsics,
-                     extrinsics=cam.T_cam_lidar, meta={"source": "waymo", "classes_3d": list(rec.box_types)})
+                     extrinsics=cam.T_cam_lidar, meta={"source": "waymo", "classes_3d": list(rec.box_types)},
+                     lidar_time_s=None if rec.timestamp_micros is None else rec.timestamp_micros * 1e-6,
+                     track_ids_3d=np.array([self._track_int[u] for u in rec.box_ids], dtype=np.int64)
+                     if len(rec.box_ids) == len(rec.boxes7) else None)
 
 
 def _register() -> None:

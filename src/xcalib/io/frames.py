@@ -9,7 +9,9 @@ Layout (``format: xcalib-demo-frames-v1``)::
         {"frame_key", "camera_name", "image": "image.png", "point_cloud": "point_cloud.pcd",
          "bboxes_2d": [[x1, y1, x2, y2], ...] (pixels), "bboxes_3d": [[6 or 7 numbers], ...]
          (LiDAR frame, metres), optional "match_matrix" [K][M] (0/1), optional "extrinsics"
-         4x4 T_cam_lidar}
+         4x4 T_cam_lidar, optional "lidar_time_s" / "camera_time_s" (seconds, one clock),
+         optional "track_ids_3d" [M] ints (-1 = none), optional "velocities_3d" [M][3] (m/s,
+         LiDAR frame)}
 
 A bare folder of sub-folders that each hold a ``detections.json`` (no manifest) is read the
 same way. Frames load lazily: :class:`FrameFolder` is a ``Sequence[Frame]`` that reads one
@@ -33,6 +35,7 @@ from .images import read_image, write_image
 from ._validate import check_boxes_2d, check_boxes_3d, check_rigid
 from .pointcloud import read_point_cloud, write_pcd
 from .sources import open_source, register_source
+from .timing import TIMING_FIELDS, checked_timing, timing_of
 
 __all__ = ["FRAME_FOLDER_FORMAT", "FrameFolder", "read_frames", "write_frame_folder",
            "read_detections", "read_intrinsics_json", "is_frame_folder", "register_reader",
@@ -126,6 +129,7 @@ def read_detections(path, *, default_key: str = "", default_camera: str = "",
             raise FormatError(path, f"expected a finite 4x4 matrix (T_cam_lidar), got shape {list(ext.shape)}",
                               field="extrinsics")
         check_rigid(path, "extrinsics", ext)
+    timing = checked_timing(path, len(b3), **{k: det.get(k) for k in TIMING_FIELDS})
     root = path.parent
     image_path = inside(root, det["image"], source=path, field="image", allow_outside=allow_outside)
     cloud_path = inside(root, det["point_cloud"], source=path, field="point_cloud", allow_outside=allow_outside)
@@ -138,7 +142,7 @@ def read_detections(path, *, default_key: str = "", default_camera: str = "",
                  camera_name=str(det.get("camera_name") or default_camera),
                  frame_key=str(det.get("frame_key") or default_key),
                  match_matrix=mm, intrinsics=intrinsics, extrinsics=ext,
-                 point_fields=pc.fields, meta=meta)
+                 point_fields=pc.fields, meta=meta, **timing)
 
 
 class FrameFolder(Sequence):
@@ -295,6 +299,8 @@ def write_frame_folder(out_dir, frames: Iterable[Frame], *, camera: str | None =
             det["match_matrix"] = np.asarray(fr.match_matrix).astype(int).tolist()
         if fr.extrinsics is not None:
             det["extrinsics"] = _rows(fr.extrinsics)
+        for k, v in timing_of(fr).items():
+            det[k] = np.asarray(v).tolist()
         atomic_write(sub / "detections.json", [json.dumps(det, indent=1).encode()])
         entries.append({"frame_key": key, "detections": f"{sub.name}/detections.json"})
         if intrinsics is None and fr.intrinsics is not None:

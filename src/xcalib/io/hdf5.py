@@ -21,7 +21,10 @@ xcalib's additive extras (ignored by spec readers): ``/calibration/<cam>/distort
 int64 and ``camera_classes`` / ``lidar_classes`` bytes per detection (``meta["ids_2d"]``,
 ``["ids_3d"]``, ``["classes_2d"]``, ``["classes_3d"]``);
 extra point columns as ``/point_clouds/<lidar>/<key>/<field>`` [P] listed in the group's
-``fields`` attribute.
+``fields`` attribute; per-frame timing and tracks in the label group (``Frame`` fields of the
+same meaning): ``lidar_time_s`` / ``camera_time_s`` float64 scalars (seconds, one clock),
+``lidar_track_ids`` int64 [>=M] (``Frame.track_ids_3d``, -1 = none), ``lidar_velocities``
+float64 [>=M,3] (``Frame.velocities_3d``, m/s, LiDAR frame).
 
 Unlike the reference loader: any label sensor / LiDAR can be chosen (a warning when several exist
 and none was chosen), numeric keys can be ordered numerically, K==0 / M==0 frames are returned,
@@ -45,6 +48,7 @@ from ..geometry.camera import CameraIntrinsics
 from ..types import Frame
 from ._files import _tmp_prefix, open_regular, sweep_stale
 from ._validate import check_boxes_2d, check_boxes_3d, check_count, check_rigid
+from .timing import checked_timing, timing_of
 
 __all__ = ["CacheReader", "CacheWriter", "write_cache", "load_dataset", "cache_summary",
            "CorruptImageError", "is_hdf5_cache", "HDF5_SUFFIXES"]
@@ -69,6 +73,10 @@ _META_DATASETS = {
     "classes_2d": ("camera_classes", "s2d"),
     "classes_3d": ("lidar_classes", "s3d"),
 }
+
+# Frame timing/track field -> dataset of the label group (additive, optional).
+_TIMING_DATASETS = {"lidar_time_s": "lidar_time_s", "camera_time_s": "camera_time_s",
+                    "track_ids_3d": "lidar_track_ids", "velocities_3d": "lidar_velocities"}
 
 
 class CorruptImageError(FormatError):
@@ -351,6 +359,7 @@ class CacheReader(Sequence):
                         meta[mkey] = [_as_str(s) for s in arr[:n]]
                     else:
                         meta[mkey] = arr[:n].astype(np.float64 if kind.startswith("v") else np.int64)
+        timing = self._timing(g, key, where, M)
         points, fields = self._points(key)
         # Images: every camera referenced by the frame (or the first camera).
         primary = cams_per_det[0] if cams_per_det else self.camera_names[0]
@@ -372,7 +381,18 @@ class CacheReader(Sequence):
         return Frame(image=image, point_cloud=points, bboxes_2d=b2, bboxes_3d=b3, camera_name=primary,
                      frame_key=key, match_matrix=mm, intrinsics=intr, extrinsics=extr, images=images,
                      camera_per_det=cams_per_det if cams_per_det is not None else [primary] * K,
-                     point_fields=fields, meta=meta)
+                     point_fields=fields, meta=meta, **timing)
+
+    def _timing(self, g: "_Group", key: str, where: str, M: int) -> dict:
+        """The optional timing / track datasets of a label group, validated."""
+        vals, names = {}, {}
+        for field, dname in _TIMING_DATASETS.items():
+            if dname in g:
+                v = g.read(dname)
+                if field in ("track_ids_3d", "velocities_3d") and v.ndim >= 1 and len(v) >= M:
+                    v = v[:M]
+                vals[field], names[field] = v, f"{where}/{dname}"
+        return checked_timing(self.path, M, fields=names, **vals) if vals else {}
 
     def _rows(self, arr: np.ndarray, name: str, n: int, width: int, key: str, where: str,
               dtype=np.float32) -> np.ndarray:
@@ -774,6 +794,11 @@ class CacheWriter:
             if len(arr) != n:
                 raise ValueError(f"CacheWriter: frame {key!r}: meta[{mkey!r}] has {len(arr)} rows, expected {n}")
             _small(lg, dname, arr)
+        for field, v in timing_of(frame).items():
+            arr = np.asarray(v, dtype=np.int64 if field == "track_ids_3d" else np.float64)
+            if field in ("track_ids_3d", "velocities_3d") and len(arr) != M:
+                raise ValueError(f"CacheWriter: frame {key!r}: {field} has {len(arr)} rows, expected M = {M}")
+            _small(lg, _TIMING_DATASETS[field], arr)
         # points
         pts = np.asarray(frame.point_cloud)
         if pts.ndim != 2 or (pts.size and pts.shape[1] < 3):

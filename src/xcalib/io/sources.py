@@ -154,7 +154,9 @@ def camera_view(frame: Frame, name: str) -> Frame:
     meta["kept_2d_indices"] = np.flatnonzero(keep)
     return Frame(image=image, point_cloud=points, bboxes_2d=b2, bboxes_3d=b3, camera_name=name,
                  frame_key=frame.frame_key, match_matrix=mm, intrinsics=intr, extrinsics=extr,
-                 point_fields=frame.point_fields, meta=meta)
+                 point_fields=frame.point_fields, meta=meta, lidar_time_s=frame.lidar_time_s,
+                 camera_time_s=frame.camera_time_s, track_ids_3d=frame.track_ids_3d,
+                 velocities_3d=frame.velocities_3d)
 
 
 class CameraView(Sequence):

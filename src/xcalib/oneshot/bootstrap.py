@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
 
+from ..calib.config import CalibConfig
 from ..calib.result import CalibrationResult
 from ..types import Frame
 from .adapt import AdaptReport
@@ -80,7 +81,7 @@ def starting_matcher(model: str, init: str = "auto", *, device: str | None = "cp
 def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "fastmatch", init: str = "auto",
               steps: int = 600, mode: str | None = None, lr: float = 1e-3, holdout: float = 0.2,
               install: bool = True, out_dir: str | Path | None = None, device: str | None = "cpu", seed: int = 0,
-              session_options: dict | None = None,
+              calib_config: CalibConfig | None = None,
               on_frame: Callable[[int, object], None] | None = None,
               on_step: Callable[[int, int, float], None] | None = None) -> BootstrapResult:
     """Site weights from unlabelled frames (see the module docstring).
@@ -92,7 +93,7 @@ def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "f
 
     t0 = time.perf_counter()
     matcher, init_desc, default_mode = starting_matcher(model, init, device=device, seed=seed)
-    session = OneShotSession(matcher, intrinsics, mode=mode or default_mode, seed=seed, **(session_options or {}))
+    session = OneShotSession(matcher, intrinsics, mode=mode or default_mode, seed=seed, calib_config=calib_config)
     n = 0
     for n, frame in enumerate(frames, start=1):
         rep = session.observe_frame(frame, validate="off")

@@ -14,10 +14,11 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
+from ..calib.config import CalibConfig
 from ..calib.inputs import CalibFrame, prepare_frames
 from ..calib.refine import match_all, pair_metrics
 from ..calib.result import CalibrationResult
@@ -57,7 +58,7 @@ class PoseGate:
     """Holds the current pose of a static rig and decides whether a new one replaces it."""
 
     def __init__(self, intrinsics: CameraIntrinsics, *, gate_iou: float = 0.3, min_gain: float = 0.0,
-                 calib_options: dict[str, Any] | None = None, seed: int = 0):
+                 config: CalibConfig | None = None, seed: int = 0):
         if not (0.0 < gate_iou <= 1.0):
             raise ValueError(f"gate_iou must be an IoU in (0, 1], got {gate_iou}")
         if min_gain < 0:
@@ -65,8 +66,8 @@ class PoseGate:
         self.intrinsics = intrinsics
         self.gate_iou = float(gate_iou)
         self.min_gain = float(min_gain)
-        self.calib_options = dict(calib_options or {})
         self.seed = int(seed)
+        self.config = (config or CalibConfig()).replace(seed=self.seed)
         self.current: CalibrationResult | None = None
         self.locked = False
         self._prepared: dict[str, CalibFrame] = {}
@@ -77,7 +78,8 @@ class PoseGate:
         keys = [f.frame_key for f in frames]
         todo = [f for f in frames if f.frame_key not in self._prepared]
         if todo:
-            cf, _, _ = prepare_frames(todo, self.intrinsics)
+            cf, _, _ = prepare_frames(todo, self.intrinsics, reestimate_yaw=self.config.reestimate_yaw,
+                                      box_model=self.config.box_model)
             for f, c in zip(todo, cf):
                 self._prepared[f.frame_key] = c
         live = set(keys)
@@ -118,12 +120,10 @@ class PoseGate:
             return CalibrationUpdate(False, False, "no frames observed yet", 0)
         frames = list(frames)
         cands: list[CalibrationResult] = []
-        fresh = calibrate(frames, self.intrinsics, matcher=None, seed=self.seed, progress=progress,
-                          **self.calib_options)
+        fresh = calibrate(frames, self.intrinsics, self.config, matcher=None, progress=progress)
         cands.append(fresh)
         if self.current is not None:
-            cands.append(calibrate(frames, self.intrinsics, matcher=None, prior=self.current, seed=self.seed,
-                                   **self.calib_options))
+            cands.append(calibrate(frames, self.intrinsics, self.config, matcher=None, prior=self.current))
         ok = [c for c in cands if c.success]
         if not ok:
             return CalibrationUpdate(True, False, f"no pose: {fresh.message}", n, elapsed_s=time.perf_counter() - t0)

@@ -26,10 +26,11 @@ import math
 import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
+from ..calib.config import CalibConfig
 from ..calib.inputs import as_intrinsics
 from ..calib.result import CalibrationResult
 from ..engine.host import assign
@@ -114,13 +115,13 @@ class OneShotSession:
         min_gain: relative buffer-score gain a new pose needs to replace the current one.
         match_threshold: score a model match needs to count in reports.
         mode: default adaptation mode ("heads" or "full").
-        calib_options: extra keyword arguments of ``xcalib.calib.api.calibrate``.
+        calib_config: the ``CalibConfig`` of the session's calibrations (None: the defaults).
         seed: seeds pose search and training; validate: protocol mode of :meth:`observe`.
     """
 
     def __init__(self, matcher, intrinsics, *, gate: float = 0.3, neg_iou: float = 0.05, min_frames: int = 3,
                  recalibrate_growth: float = 1.5, max_frames: int = 64, min_gain: float = 0.0,
-                 match_threshold: float = 0.5, mode: str = "heads", calib_options: dict[str, Any] | None = None,
+                 match_threshold: float = 0.5, mode: str = "heads", calib_config: CalibConfig | None = None,
                  seed: int = 0, validate: str = "warn"):
         if mode not in ADAPT_MODES:
             raise ValueError(f"mode must be one of {ADAPT_MODES}, got {mode!r}")
@@ -138,7 +139,7 @@ class OneShotSession:
         self.seed = int(seed)
         self.validate = validate
         self.buffer = EvidenceBuffer(max_frames)
-        self.pose = PoseGate(self.intrinsics, gate_iou=gate, min_gain=min_gain, calib_options=calib_options, seed=seed)
+        self.pose = PoseGate(self.intrinsics, gate_iou=gate, min_gain=min_gain, config=calib_config, seed=seed)
         self.next_calibration_at = self.min_frames
         self.image_size: tuple[int, int] | None = None
         self.history: list[AdaptReport] = []

@@ -84,19 +84,16 @@ def _shrink(rgb: np.ndarray, max_width: int = _MAX_WIDTH) -> np.ndarray:
 
 
 def _initial_pose(result, before):
+    from ..calib.pose import Pose
+
     if before is not None:
-        if hasattr(before, "rotation"):
-            return np.asarray(before.rotation, float), np.asarray(before.translation, float)
-        if isinstance(before, (tuple, list)) and len(before) == 2:
-            return np.asarray(before[0], float).reshape(3, 3), np.asarray(before[1], float).reshape(3)
-        T = np.asarray(before, float)
-        if T.shape not in ((4, 4), (3, 4)):
-            raise ValueError(f"before: expected a CalibrationResult, (R, t) or a 4x4 T_cam_lidar, got shape {T.shape}")
-        return T[:3, :3], T[:3, 3]
+        p = Pose.parse(before, "before")
+        return p.R, p.T[:3, 3]
+    diag = getattr(result, "diagnostics", None)
+    if diag is not None and diag.bringup_T is not None:  # the calibrator's best bring-up pose, before refinement
+        p = Pose.parse(np.asarray(diag.bringup_T, dtype=np.float64))
+        return p.R, p.t
     meta = getattr(result, "meta", {}) or {}
-    if meta.get("bringup_T") is not None:  # the calibrator's best bring-up pose, before refinement
-        T = np.asarray(meta["bringup_T"], dtype=np.float64)
-        return T[:3, :3], T[:3, 3]
     if "initial_rotation" in meta and "initial_translation" in meta:
         return np.asarray(meta["initial_rotation"], float), np.asarray(meta["initial_translation"], float)
     return None
@@ -134,7 +131,8 @@ def result_numbers(result, ground_truth=None) -> dict[str, Any]:
     """The headline numbers of a ``CalibrationResult`` (pixels, IoU, degrees, metres)."""
     from ..geometry.rotations import matrix_to_euler
 
-    meta = getattr(result, "meta", {}) or {}
+    diag = getattr(result, "diagnostics", None)
+    co = None if diag is None else diag.centre_offset_px_median
     nums: dict[str, Any] = {
         "success": bool(result.success),
         "message": result.message or "-",
@@ -146,14 +144,14 @@ def result_numbers(result, ground_truth=None) -> dict[str, Any]:
         "residual mean (px)": float(result.reproj_error_px),
         "IoU median": float(result.iou_median),
         "IoU mean": float(result.iou_mean),
-        "box-centre offset median (px)": float(meta.get("centre_offset_px_median") or np.nan),
+        "box-centre offset median (px)": float(np.nan if co is None else co),
         "rotation 1-sigma (deg)": np.asarray(result.rotation_std_deg, float),
         "translation 1-sigma (m)": np.asarray(result.translation_std_m, float),
         "translation t (m)": np.asarray(result.translation, float),
         "rotation xyz Euler (deg)": matrix_to_euler(np.asarray(result.rotation, float), "xyz", degrees=True),
     }
-    if "elapsed_s" in meta:
-        nums["calibration time (s)"] = float(meta["elapsed_s"])
+    if diag is not None:
+        nums["calibration time (s)"] = float(diag.elapsed_s)
     if ground_truth is not None and result.success:
         rot_deg, trans_m = result.pose_error(ground_truth)
         nums["rotation error vs ground truth (deg)"] = float(rot_deg)

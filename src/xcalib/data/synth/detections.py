@@ -18,7 +18,8 @@ from ...geometry.projection import project_points, undistort_pixels
 from .scene import CLASSES, SceneObjects, sample_sizes
 from .site import Site
 
-__all__ = ["Detections", "CameraView", "camera_view", "detect", "world_to_lidar_box7", "box7_to_protocol"]
+__all__ = ["Detections", "CameraView", "camera_view", "detect", "world_to_lidar_box7", "box7_to_protocol",
+           "mirror_boxes"]
 
 _NEAR = 0.3  # metres: objects with a corner closer to the camera plane are not imaged
 _SHIFT = 4   # sub-pixel bits for OpenCV polygon fills
@@ -42,7 +43,7 @@ class CameraView:
 class Detections:
     """One frame's labels. 2D: boxes [K,4] px, ids [K] (track id, -1 = false positive), classes,
     clean [K,4] (noise-free), visibility [K], truncation [K]. 3D (LiDAR frame): box7 [M,7],
-    box7_gt [M,7] (noise-free), ids [M], classes, protocol [M,6]. match [K,M] bool."""
+    box7_gt [M,7] (noise-free), ids [M], classes, protocol [M,6], velocity [M,3] m/s. match [K,M] bool."""
 
     boxes_2d: np.ndarray
     ids_2d: np.ndarray
@@ -57,6 +58,7 @@ class Detections:
     boxes_3d: np.ndarray
     match: np.ndarray
     view: CameraView | None = field(default=None, repr=False)
+    velocity_3d: np.ndarray | None = None    # [M,3] LiDAR frame, m/s (0 for false positives)
 
 
 def _project(site: Site, pts_world: np.ndarray):
@@ -211,9 +213,19 @@ def _false_2d(site: Site, rng: np.random.Generator, n: int) -> np.ndarray:
     return np.asarray(out[:n], dtype=np.float64)
 
 
+def mirror_boxes(boxes: np.ndarray, width: int) -> np.ndarray:
+    """2D boxes [K,4] of an image mirrored left-right (u -> W - u)."""
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    return np.column_stack([width - b[:, 2], b[:, 1], width - b[:, 0], b[:, 3]])
+
+
 def detect(site: Site, objs: SceneObjects, rng: np.random.Generator, *, view: CameraView | None = None,
-           noise: dict | None = None) -> Detections:
-    """Camera and LiDAR detections of ``objs`` with the site's (or ``noise``-overridden) noise levels."""
+           noise: dict | None = None, objs_3d: SceneObjects | None = None) -> Detections:
+    """Camera and LiDAR detections with the site's (or ``noise``-overridden) noise levels.
+
+    ``objs``: the scene at the camera time (2D boxes); ``objs_3d``: the scene at the LiDAR time
+    (3D boxes; default ``objs``, i.e. synchronised sensors). Track ids tie the two together.
+    """
     c = site.config
     nz = {k: getattr(c, k) for k in ("box_noise_px", "miss_rate_2d", "miss_rate_3d", "false_positive_rate_2d",
                                      "false_positive_rate_3d", "center_noise_m", "size_noise_frac",
@@ -247,21 +259,25 @@ def detect(site: Site, objs: SceneObjects, rng: np.random.Generator, *, view: Ca
     tr2 = np.concatenate([trunc[idx2], np.zeros(len(fp2))])
     cls2 = [str(objs.classes[i]) for i in idx2] + ["false_positive"] * len(fp2)
     # ---------------------------------------------------------------- 3D
-    b7l = world_to_lidar_box7(site, objs.box7) if N else np.zeros((0, 7))
+    o3 = objs if objs_3d is None else objs_3d
+    N3 = len(o3)
+    b7l = world_to_lidar_box7(site, o3.box7) if N3 else np.zeros((0, 7))
     rng3 = np.hypot(b7l[:, 0], b7l[:, 1])
     vmin, vmax = np.radians(c.lidar_vfov_deg)
     tilt = math.asin(float(np.clip(-site.R_lidar_sensor[2, 0], -1, 1)))  # forward-axis pitch down
     with np.errstate(invalid="ignore", divide="ignore"):
         elev = np.arctan2(b7l[:, 2], rng3)
     in_fov = (elev >= vmin - abs(tilt) - math.radians(5)) & (elev <= vmax + abs(tilt) + math.radians(5))
-    ok3 = (rng3 <= c.detection_range_3d) & in_fov & (rng3 > 1.0)
-    u_miss3 = rng.uniform(size=N)
+    ok3 = (rng3 <= c.detection_range_3d) & in_fov & (rng3 > max(1.0, float(c.lidar_blind_radius_m)))
+    u_miss3 = rng.uniform(size=N3)
     idx3 = np.flatnonzero(ok3 & (u_miss3 >= nz["miss_rate_3d"]))
     gt3 = b7l[idx3]
     det3 = gt3.copy()
     det3[:, :3] += rng.normal(0, 1, (len(idx3), 3)) * nz["center_noise_m"]
     det3[:, 3:6] *= np.clip(1 + rng.normal(0, 1, (len(idx3), 3)) * nz["size_noise_frac"], 0.5, 1.5)
     det3[:, 6] += rng.normal(0, 1, len(idx3)) * math.radians(nz["yaw_noise_deg"])
+    if c.box3d_yaw == "dropped":  # exported without yaw (A9): length along LiDAR x
+        det3[:, 6] = 0.0
     n_fp3 = int(rng.poisson(nz["false_positive_rate_3d"] * max(len(idx3), 1))) if nz["false_positive_rate_3d"] > 0 else 0
     if n_fp3:
         r = rng.uniform(5, c.detection_range_3d, n_fp3)
@@ -274,15 +290,16 @@ def detect(site: Site, objs: SceneObjects, rng: np.random.Generator, *, view: Ca
         det3, gt3 = np.vstack([det3, fp3]), np.vstack([gt3, fp3])
     det3[:, 6] = (det3[:, 6] + np.pi) % (2 * np.pi) - np.pi
     ids3 = np.concatenate([idx3, -np.ones(n_fp3, dtype=np.int64)])
-    cls3 = [str(objs.classes[i]) for i in idx3] + ["false_positive"] * n_fp3
+    cls3 = [str(o3.classes[i]) for i in idx3] + ["false_positive"] * n_fp3
     # ------------------------------------------------------ shuffle + GT matches
     p2, p3 = rng.permutation(len(ids2)), rng.permutation(len(ids3))
-    tid = objs.ids
-    t2 = np.where(ids2[p2] >= 0, tid[np.maximum(ids2[p2], 0)] if N else -1, -1)
-    t3 = np.where(ids3[p3] >= 0, tid[np.maximum(ids3[p3], 0)] if N else -1, -1)
+    t2 = np.where(ids2[p2] >= 0, objs.ids[np.maximum(ids2[p2], 0)] if N else -1, -1)
+    t3 = np.where(ids3[p3] >= 0, o3.ids[np.maximum(ids3[p3], 0)] if N3 else -1, -1)
     match = (t2[:, None] == t3[None, :]) & (t2[:, None] >= 0)
+    vel_w = o3.velocity[idx3] if o3.velocity is not None else np.zeros((len(idx3), 3))
+    vel3 = np.vstack([vel_w @ site.T_lidar_world[:3, :3].T, np.zeros((n_fp3, 3))])
     return Detections(
         boxes_2d=b2[p2], ids_2d=t2.astype(np.int64), classes_2d=[cls2[i] for i in p2], clean_2d=clean2[p2],
         visibility_2d=vis2[p2], truncation_2d=tr2[p2], box7_3d=det3[p3], box7_gt_3d=gt3[p3],
         ids_3d=t3.astype(np.int64), classes_3d=[cls3[i] for i in p3],
-        boxes_3d=box7_to_protocol(det3[p3], c.box_convention), match=match, view=view)
+        boxes_3d=box7_to_protocol(det3[p3], c.box_convention), match=match, view=view, velocity_3d=vel3[p3])

@@ -10,7 +10,7 @@ import numpy as np
 
 from ...io._files import atomic_write
 from ...types import Frame
-from .detections import camera_view, detect
+from .detections import camera_view, detect, mirror_boxes
 from .presets import NOISE_FIELDS
 from .scene import simulate_traffic
 from .site import Site, sample_site
@@ -38,47 +38,73 @@ def iter_frames(site: Site, n_frames: int, seed: int = 0, *, render_images: bool
 
     Each frame: image [H,W,3] RGB (``render_images=False``: a shared blank image), point_cloud
     [P,3] float32 levelled LiDAR frame (``lidar=False``: [0,3]), bboxes_2d [K,4] px, bboxes_3d
-    protocol [M,6] (site's ``box_convention``), match_matrix [K,M], intrinsics, extrinsics = GT
-    ``T_cam_lidar``; meta: ``box7`` [M,7] (detected, yaw), ``box7_gt``, ``ids_2d`` / ``ids_3d``
-    (track ids, -1 = false positive), ``classes_2d`` / ``classes_3d``, ``boxes_2d_clean``,
-    ``visibility_2d``, ``truncation_2d``, ``n_points_3d`` (with LiDAR), ``timestamp`` (s).
+    protocol [M,6] (site's ``box_convention``), match_matrix [K,M], intrinsics (the *given* ones,
+    :attr:`Site.intrinsics_given`), extrinsics = GT ``T_cam_lidar``; lidar_time_s = k * frame_dt,
+    camera_time_s = lidar_time_s + ``camera_time_offset_s``; track_ids_3d [M] (-1 = false
+    positive), velocities_3d [M,3] (LiDAR frame, m/s); meta: ``box7`` [M,7] (detected, yaw; absent
+    when ``box3d_yaw="dropped"``), ``box7_gt``, ``ids_2d`` / ``ids_3d`` (track ids, -1 = false
+    positive), ``classes_2d`` / ``classes_3d``, ``boxes_2d_clean``, ``visibility_2d``,
+    ``truncation_2d``, ``n_points_3d`` (with LiDAR), ``timestamp`` (s, = lidar_time_s),
+    ``intrinsics_true`` (only when the given intrinsics differ).
+
+    The 2D boxes see the scene at the camera time, the 3D boxes and points at the LiDAR time;
+    ``image_mirrored`` flips the image and the 2D boxes (u -> W - u).
     """
     unknown = sorted(set(noise) - set(NOISE_FIELDS))
     if unknown:
         raise TypeError(f"iter_frames: unknown noise parameter(s) {unknown}; expected some of {NOISE_FIELDS}")
     if n_frames < 0:
         raise ValueError(f"n_frames must be >= 0, got {n_frames}")
+    c = site.config
     tracks = simulate_traffic(site, start + n_frames, np.random.default_rng([site.seed, int(seed), 11]))
     T = site.T_cam_lidar
+    intr = site.intrinsics_given
     for k in range(start, start + n_frames):
-        objs = tracks.at(k)
+        t_lidar = k * c.frame_dt
+        t_cam = t_lidar + float(c.camera_time_offset_s)
+        objs3 = tracks.at(k)
+        objs = objs3 if t_cam == t_lidar else tracks.at_time(t_cam)
         view = camera_view(site, objs)
-        det = detect(site, objs, np.random.default_rng([site.seed, int(seed), k, 22]), view=view, noise=noise)
+        det = detect(site, objs, np.random.default_rng([site.seed, int(seed), k, 22]), view=view, noise=noise,
+                     objs_3d=objs3)
+        b2, clean2 = det.boxes_2d, det.clean_2d
+        if c.image_mirrored:
+            b2, clean2 = mirror_boxes(b2, site.width), mirror_boxes(clean2, site.width)
         meta = {"box7": det.box7_3d, "box7_gt": det.box7_gt_3d, "ids_2d": det.ids_2d, "ids_3d": det.ids_3d,
-                "classes_2d": det.classes_2d, "classes_3d": det.classes_3d, "boxes_2d_clean": det.clean_2d,
+                "classes_2d": det.classes_2d, "classes_3d": det.classes_3d, "boxes_2d_clean": clean2,
                 "visibility_2d": det.visibility_2d, "truncation_2d": det.truncation_2d,
-                "timestamp": k * site.config.frame_dt, "sequence_seed": int(seed), "site_seed": site.seed}
-        if render_images:
-            from .render import render_frame
-
-            image = render_frame(site, objs, view)
-        else:
-            image = blank_image(site)
+                "timestamp": t_lidar, "sequence_seed": int(seed), "site_seed": site.seed}
+        if c.box3d_yaw == "dropped":
+            del meta["box7"]
+        if intr is not site.intrinsics:
+            meta["intrinsics_true"] = site.intrinsics
+        image = _image(site, objs, view, render_images)
         if lidar:
             from .lidar import scan
 
-            scan_out = scan(site, objs, np.random.default_rng([site.seed, int(seed), k, 33]), noise=noise)
+            scan_out = scan(site, objs3, np.random.default_rng([site.seed, int(seed), k, 33]), noise=noise)
             points = scan_out.points
-            obj_of_id = {int(t): j for j, t in enumerate(objs.ids)}
-            counts = np.bincount(scan_out.labels[scan_out.labels >= 0], minlength=len(objs))
+            obj_of_id = {int(t): j for j, t in enumerate(objs3.ids)}
+            counts = np.bincount(scan_out.labels[scan_out.labels >= 0], minlength=len(objs3))
             meta["n_points_3d"] = np.array([counts[obj_of_id[int(t)]] if t >= 0 else 0 for t in det.ids_3d],
                                            dtype=np.int64)
         else:
             points = np.zeros((0, 3), dtype=np.float32)
-        yield Frame(image=image, point_cloud=points, bboxes_2d=det.boxes_2d.astype(np.float32),
+        yield Frame(image=image, point_cloud=points, bboxes_2d=b2.astype(np.float32),
                     bboxes_3d=det.boxes_3d.astype(np.float32), camera_name=site.camera_name,
-                    frame_key=f"{k:06d}", match_matrix=det.match, intrinsics=site.intrinsics,
-                    extrinsics=T.copy(), meta=meta)
+                    frame_key=f"{k:06d}", match_matrix=det.match, intrinsics=intr,
+                    extrinsics=T.copy(), meta=meta, lidar_time_s=float(t_lidar), camera_time_s=float(t_cam),
+                    track_ids_3d=det.ids_3d.copy(), velocities_3d=det.velocity_3d)
+
+
+def _image(site: Site, objs, view, render: bool) -> np.ndarray:
+    """The rendered (or blank) image, mirrored left-right when the site's camera mirrors."""
+    if not render:
+        return blank_image(site)
+    from .render import render_frame
+
+    image = render_frame(site, objs, view)
+    return np.ascontiguousarray(image[:, ::-1]) if site.config.image_mirrored else image
 
 
 def generate_frames(site: Site, n_frames: int, seed: int = 0, *, render_images: bool = True,

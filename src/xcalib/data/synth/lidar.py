@@ -106,6 +106,9 @@ def scan(site: Site, objs: SceneObjects, rng: np.random.Generator, *, noise: dic
         win = tn <= t[ri]
         labels[ri[win]] = bi[win]
     keep = np.isfinite(t) & (t >= c.lidar_min_range) & (t <= c.lidar_max_range)
+    if c.lidar_blind_radius_m > 0:
+        with np.errstate(invalid="ignore"):
+            keep &= np.hypot(d[:, 0], d[:, 1]) * t >= c.lidar_blind_radius_m
     if nz["lidar_dropout"] > 0:
         keep &= rng.uniform(size=len(t)) >= nz["lidar_dropout"]
     idx = np.flatnonzero(keep)

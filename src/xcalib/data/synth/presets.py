@@ -87,6 +87,15 @@ class SiteConfig:
     pedestrian_speed: Range = (0.9, 1.7)
     min_gap_m: float = 3.0
     frame_dt: float = 0.1                    # seconds between frames (10 Hz)
+    moving_share: float = 1.0                # scales the density of moving road users (0: none)
+    queue_share: float = 0.25                # expected queued vehicles per target object
+    queue_max: int = 6                       # longest queue per stopped lane
+    # ---- sensor timing and the calibration handed to the user (realism; defaults = ideal)
+    camera_time_offset_s: float = 0.0        # camera exposure time minus LiDAR sweep time (s):
+                                             # 2D boxes see the scene at the camera time
+    given_focal_scale: float = 1.0           # Frame.intrinsics fx, fy = true ones x this
+    given_principal_offset_px: tuple[float, float] = (0.0, 0.0)  # added to the true cx, cy
+    image_mirrored: bool = False             # the camera delivers u -> W - u (image and 2D boxes)
     # ---- detection noise and visibility
     box_noise_px: float = 2.0                # std of each 2D box coordinate
     miss_rate_2d: float = 0.05               # probability a visible object has no 2D box
@@ -100,6 +109,9 @@ class SiteConfig:
     max_truncation: float = 0.6              # share of the box outside the image -> no 2D box
     min_box_px: float = 8.0                  # smaller 2D boxes are not detected
     detection_range_3d: float = 90.0         # horizontal distance from the LiDAR
+    lidar_blind_radius_m: float = 0.0        # no returns and no 3D boxes nearer (horizontal range)
+    box3d_yaw: str = "kept"                  # "dropped": exported boxes lose their yaw (A9): length
+                                             # along LiDAR x, protocol [M,6] only, no meta box7
     box_convention: str = "extents"          # protocol [M,6] layout: "extents" or "center"
     # ---- rendering
     jpeg_quality: int = 90

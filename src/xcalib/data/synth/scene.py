@@ -30,13 +30,15 @@ _CLOTHES = np.array([
 
 @dataclass
 class SceneObjects:
-    """The objects present in one frame: ids [N] int64 (stable per track), classes [N] str,
-    box7 [N,7] world (cx, cy, cz, l, w, h, yaw), colours [N,3] uint8 RGB."""
+    """The objects present at one instant: ids [N] int64 (stable per track), classes [N] str,
+    box7 [N,7] world (cx, cy, cz, l, w, h, yaw), colours [N,3] uint8 RGB, velocity [N,3] world
+    m/s (None: unknown)."""
 
     ids: np.ndarray
     classes: np.ndarray
     box7: np.ndarray
     colours: np.ndarray
+    velocity: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(len(self.ids))
@@ -58,15 +60,21 @@ class Tracks:
     dt: float
 
     def at(self, k: int) -> SceneObjects:
-        s = self.s0 + self.speed * (k * self.dt)
+        """The objects of frame ``k`` (time ``k * dt``)."""
+        return self.at_time(k * self.dt)
+
+    def at_time(self, t_s: float) -> SceneObjects:
+        """The objects present at time ``t_s`` (seconds from the sequence start)."""
+        s = self.s0 + self.speed * t_s
         present = np.abs(s) <= self.half_length
         idx = np.flatnonzero(present)
         xy = self.origin[idx] + s[idx, None] * self.heading[idx]
         yaw = np.arctan2(self.heading[idx, 1], self.heading[idx, 0]) + self.yaw_offset[idx]
         sz = self.size[idx]
         box7 = np.column_stack([xy, sz[:, 2] / 2.0, sz, yaw])
+        vel = np.column_stack([self.speed[idx, None] * self.heading[idx], np.zeros(len(idx))])
         return SceneObjects(ids=idx.astype(np.int64), classes=self.classes[idx], box7=box7,
-                            colours=self.colours[idx])
+                            colours=self.colours[idx], velocity=vel)
 
 
 def sample_sizes(rng: np.random.Generator, classes) -> np.ndarray:
@@ -136,9 +144,12 @@ def simulate_traffic(site: Site, n_frames: int, rng: np.random.Generator) -> Tra
             off = nM * c.lane_width + c.bike_lane_width + c.sidewalk_width / 2 + 0.6 * sign
             lanes.append((_right(e) * side * off, h, "pedestrian"))
     n_veh = sum(1 for ln in lanes if ln[2] == "vehicle")
-    share = {"vehicle": 0.6 * target / n_veh, "cyclist": 0.05 * target, "pedestrian": 0.03 * target}
+    m = float(c.moving_share)
+    share = {"vehicle": 0.6 * m * target / n_veh, "cyclist": 0.05 * m * target, "pedestrian": 0.03 * m * target}
     lane_seeds = rng.integers(0, 2**62, size=len(lanes))
     for (origin, h, kind), ls in zip(lanes, lane_seeds):
+        if share[kind] <= 0:
+            continue
         r = np.random.default_rng(int(ls))
         rng_speed = {"vehicle": c.vehicle_speed, "cyclist": c.cyclist_speed, "pedestrian": c.pedestrian_speed}[kind]
         fill_lane(r, origin, h, kind, share[kind], _draw(r, rng_speed))
@@ -149,9 +160,9 @@ def simulate_traffic(site: Site, n_frames: int, rng: np.random.Generator) -> Tra
     if site.preset == "vehicle":  # the ego car waits in road B lane 0 heading +y
         q_lanes = [q for q in q_lanes if not (q[0][1] > 0 and q[1] == 0)]
     for h, i in q_lanes:
-        n_q = int(rng.poisson(0.25 * target / max(len(q_lanes), 1)))
+        n_q = int(rng.poisson(float(c.queue_share) * target / max(len(q_lanes), 1)))
         s = s_stop - rng.uniform(0.2, 2.0)
-        for _ in range(min(n_q, 6)):
+        for _ in range(min(n_q, int(c.queue_max))):
             cls = str(rng.choice(vcls, p=vp))
             size = sample_sizes(rng, [cls])[0]
             ln = new_row(rng, cls, _right(h) * (i + 0.5) * c.lane_width, h, s - size[0] / 2, 0.0, size=size)[0]

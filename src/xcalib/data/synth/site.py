@@ -78,6 +78,16 @@ class Site:
         return invert_transform(self.T_world_cam) @ self.T_world_lidar
 
     @property
+    def intrinsics_given(self) -> CameraIntrinsics:
+        """The intrinsics handed to the user (``Frame.intrinsics``): the true ones with fx, fy x
+        ``given_focal_scale`` and cx, cy + ``given_principal_offset_px`` (= ``intrinsics`` by default)."""
+        c, k = self.config, self.intrinsics
+        s, (dx, dy) = float(c.given_focal_scale), c.given_principal_offset_px
+        if s == 1.0 and dx == 0.0 and dy == 0.0:
+            return k
+        return CameraIntrinsics(k.fx * s, k.fy * s, k.cx + float(dx), k.cy + float(dy), k.distortion, k.width, k.height)
+
+    @property
     def T_cam_world(self) -> np.ndarray:
         return invert_transform(self.T_world_cam)
 
@@ -138,6 +148,10 @@ def sample_site(seed: int, preset: str = "roadside", **overrides) -> Site:
     W, H = int(cfg.width), int(cfg.height)
     if W < 16 or H < 16:
         raise ValueError(f"SiteConfig: image size {W}x{H} px is too small (>= 16x16 expected)")
+    if cfg.box3d_yaw not in ("kept", "dropped"):
+        raise ValueError(f"SiteConfig: box3d_yaw must be 'kept' or 'dropped', got {cfg.box3d_yaw!r}")
+    if not cfg.given_focal_scale > 0:
+        raise ValueError(f"SiteConfig: given_focal_scale must be > 0, got {cfg.given_focal_scale}")
     # lens
     fx = v["focal_px"] = _draw(rng, cfg.focal_px)
     cx = W / 2.0 + rng.uniform(-1, 1) * cfg.principal_jitter_px

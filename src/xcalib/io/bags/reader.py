@@ -521,7 +521,7 @@ class BagFrames(Sequence):
                      frame_key=str(e.meta.get("frame_key", e.lidar[0])),
                      match_matrix=None if mm is None else np.asarray(mm, dtype=bool).reshape(len(b2), len(b3)),
                      intrinsics=intr, extrinsics=None if extr is None else np.asarray(extr, dtype=np.float64),
-                     point_fields=fields, meta=meta)
+                     point_fields=fields, meta=meta, lidar_time_s=e.lidar[0] / 1e9, camera_time_s=e.image[0] / 1e9)
 
 
 def _boxes3d_as_written(box7: np.ndarray, rows) -> np.ndarray:

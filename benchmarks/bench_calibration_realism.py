@@ -1,0 +1,171 @@
+"""Realism benchmark (issue 12 item 2, issue 13 item 4): the calibrator on synthetic sites bent the
+way real sites are (``xcalib.data.synth.realism``; every condition's exact meaning is its
+``description`` and the module docstring).
+
+For each condition, the same ``--sites`` identifiable roadside sites (the first site seeds whose
+*clean* 20 frames show >= 3 objects to both sensors and >= 20 true 2D-3D detections) are
+calibrated with the public call ``xcalib.calibrate(case.frames, case.intrinsics_given)`` (no
+initial guess, default options) and compared with the truth.
+
+Columns: n (sites), success (share with ``success=True``), wrong (successes with a rotation error
+> 1 deg or a translation error > 0.5 m against the true ``T_cam_lidar``), median rotation /
+translation error of the successes, 2-sigma coverage (share of the successes whose rotation error
+<= 2 * norm(rotation_std_deg) AND translation error <= 2 * norm(translation_std_m), the norms of the
+reported per-axis 1-sigma; rotation and translation coverage separately in the JSON), median
+wall time of ``calibrate``. When the result carries estimated intrinsics / a time offset (issue
+13), the JSON also records the focal ratio to the truth and the offset error per site.
+
+Each run is stored under ``--label`` in ``benchmarks/results/calibration_realism.json`` (other
+labels in the file are kept, so a BEFORE and an AFTER table live side by side).
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration_realism.py \
+        [--sites 20] [--conditions clean,mirrored] [--jobs 1] [--label before]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "benchmarks" / "results" / "calibration_realism.json"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_calibration import machine_info  # noqa: E402
+
+WRONG_ROT_DEG, WRONG_TRANS_M = 1.0, 0.5
+
+
+def run_case(task: tuple[str, int, int]) -> dict:
+    """Calibrate one (condition, site seed, frames) case; a JSON-ready record."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    import xcalib
+    from xcalib.data.synth.realism import make_realism_case
+
+    name, seed, n_frames = task
+    case = make_realism_case(name, seed, n_frames)
+    t0 = time.perf_counter()
+    try:
+        res = xcalib.calibrate(list(case.frames), case.intrinsics_given)
+    except Exception as exc:  # an exception is a finding too (bad input must not raise)
+        return {"condition": name, "seed": seed, "success": False, "exception": repr(exc),
+                "message": f"exception: {exc!r}", "time_s": time.perf_counter() - t0}
+    rec = {"condition": name, "seed": seed, "success": bool(res.success), "message": res.message,
+           "time_s": time.perf_counter() - t0, "n_pairs": res.n_pairs, "objects_seen": case.objects_seen,
+           "true_pairs": case.true_pairs, "identifiable": case.identifiable}
+    if res.success:
+        rot, tr = res.pose_error(case.T_cam_lidar)
+        rs, ts = float(np.linalg.norm(res.rotation_std_deg)), float(np.linalg.norm(res.translation_std_m))
+        rec.update(rot_deg=rot, trans_m=tr, rot_sigma_deg=rs, trans_sigma_m=ts,
+                   wrong=bool(rot > WRONG_ROT_DEG or tr > WRONG_TRANS_M),
+                   rot_within_2sigma=bool(rot <= 2 * rs), trans_within_2sigma=bool(tr <= 2 * ts))
+        rec["within_2sigma"] = rec["rot_within_2sigma"] and rec["trans_within_2sigma"]
+    intr = getattr(res, "intrinsics", None)
+    if intr is not None and res.success:
+        rec["focal_ratio_est_to_true"] = float(intr.fx / case.intrinsics_true.fx)
+    dt = getattr(res, "time_offset_s", None)
+    if dt is not None and res.success and np.isfinite(dt):
+        rec["time_offset_error_s"] = float(dt - case.time_offset_s)
+    return rec
+
+
+def _median(v):
+    return float(np.median(v)) if len(v) else None
+
+
+def summarise(name: str, recs: list[dict]) -> dict:
+    """One table row from the per-site records of a condition."""
+    from xcalib.data.synth.realism import REALISM_CONDITIONS
+
+    ok = [r for r in recs if r["success"]]
+    wrong = [r for r in ok if r["wrong"]]
+    return {
+        "condition": name, "description": REALISM_CONDITIONS[name].description, "n": len(recs),
+        "success": len(ok), "success_rate": len(ok) / max(len(recs), 1), "wrong_successes": len(wrong),
+        "rot_deg_median": _median([r["rot_deg"] for r in ok]), "trans_m_median": _median([r["trans_m"] for r in ok]),
+        "coverage_2sigma": float(np.mean([r["within_2sigma"] for r in ok])) if ok else None,
+        "coverage_2sigma_rot": float(np.mean([r["rot_within_2sigma"] for r in ok])) if ok else None,
+        "coverage_2sigma_trans": float(np.mean([r["trans_within_2sigma"] for r in ok])) if ok else None,
+        "wrong_rot_deg_median": _median([r["rot_deg"] for r in wrong]),
+        "wrong_trans_m_median": _median([r["trans_m"] for r in wrong]),
+        "wrong_rot_sigma_deg_median": _median([r["rot_sigma_deg"] for r in wrong]),
+        "wrong_trans_sigma_m_median": _median([r["trans_sigma_m"] for r in wrong]),
+        "exceptions": sum(1 for r in recs if "exception" in r),
+        # sites still identifiable under this condition (>= 3 objects, >= 20 true pairs seen by both)
+        "n_identifiable": sum(1 for r in recs if r.get("identifiable", True)),
+        "time_s_median": _median([r["time_s"] for r in recs]),
+        "per_site": recs,
+    }
+
+
+def print_table(rows: list[dict]) -> None:
+    f = (lambda v, d=3: "-" if v is None else f"{v:.{d}f}")
+    print(f"\n{'condition':>26} {'n':>3} {'success':>8} {'wrong':>5} {'rot med':>8} {'trans med':>9} "
+          f"{'2sig cov':>8} {'wrong: rot/trans med':>21} {'time med':>8}")
+    for r in rows:
+        wr = "-" if not r["wrong_successes"] else f"{r['wrong_rot_deg_median']:.2f}/{r['wrong_trans_m_median']:.2f}"
+        print(f"{r['condition']:>26} {r['n']:>3} {r['success']:>3} ({r['success_rate'] * 100:>3.0f}%) "
+              f"{r['wrong_successes']:>4} {f(r['rot_deg_median']):>8} {f(r['trans_m_median']):>9} "
+              f"{f(r['coverage_2sigma'], 2):>8} {wr:>21} {f(r['time_s_median'], 2):>7}s")
+
+
+def _git_head() -> str | None:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
+                              text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+
+
+def main(argv=None) -> int:
+    from xcalib.data.synth.realism import REALISM_CONDITIONS, identifiable_site_seeds
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sites", type=int, default=20)
+    ap.add_argument("--frames", type=int, default=20)
+    ap.add_argument("--conditions", default="all", help="comma-separated names (default: all registered)")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes")
+    ap.add_argument("--label", default="current", help="name of this run in the JSON (e.g. before, after)")
+    ap.add_argument("--out", type=Path, default=OUT)
+    args = ap.parse_args(argv)
+    names = list(REALISM_CONDITIONS) if args.conditions == "all" else [c.strip() for c in args.conditions.split(",")]
+    unknown = [n for n in names if n not in REALISM_CONDITIONS]
+    if unknown:
+        ap.error(f"unknown condition(s) {unknown}; registered: {', '.join(REALISM_CONDITIONS)}")
+    seeds = identifiable_site_seeds(args.sites, args.frames)
+    tasks = [(n, s, args.frames) for n in names for s in seeds]
+    t0 = time.perf_counter()
+    if args.jobs > 1:
+        with ProcessPoolExecutor(args.jobs) as ex:
+            recs = list(ex.map(run_case, tasks, chunksize=1))
+    else:
+        recs = [run_case(t) for t in tasks]
+    rows = [summarise(n, [r for r in recs if r["condition"] == n]) for n in names]
+    print(f"Realism suite: {len(seeds)} identifiable roadside sites x {args.frames} frames per condition; "
+          f"xcalib.calibrate(frames, given intrinsics), no initial guess.\nwrong = success off by > 1 deg or "
+          f"> 0.5 m; 2sig cov = share of successes with rot err <= 2|rot sigma| and trans err <= 2|trans sigma|")
+    print_table(rows)
+    run = {"label": args.label, "git_head": _git_head(), "machine": machine_info(), "jobs": args.jobs,
+           "frames": args.frames, "site_seeds": seeds, "wall_s": time.perf_counter() - t0,
+           "command": "benchmarks/bench_calibration_realism.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+           "conditions": rows}
+    old = json.loads(args.out.read_text()) if args.out.exists() else {}
+    runs = old.get("runs", {}) if isinstance(old, dict) else {}
+    runs[args.label] = run
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_name(f".{args.out.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps({"runs": runs}, indent=1, default=float))
+    os.replace(tmp, args.out)
+    print(f"\nwrote {args.out} (run {args.label!r})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,157 @@
+"""Bring-up: pose hypotheses with no initial guess, from the detections alone.
+
+:func:`pose_hypotheses` is the public entry point (also used by geometric matching for
+unknown sites): box triples per frame (``hypotheses.frame_hypotheses``), pooled over frames and
+re-scored on all frames by how well every projected 3D box explains the 2D boxes; with too few
+rich frames, triples also mix frames spread over the recording (``pooled_groups``: one static
+rig, so pairs of different frames are rigidly consistent too). :func:`distinct_best` keeps the
+best distinct ones for refinement.
+"""
+
+from __future__ import annotations
+
+import inspect
+import logging
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..geometry.camera import CameraIntrinsics
+from .config import CalibConfig
+from .hypotheses import Hypotheses, frame_hypotheses, score_poses
+from .inputs import CalibFrame
+from .pose import Pose
+
+__all__ = ["BringUp", "pose_hypotheses", "distinct_best", "pooled_groups", "matcher_similarities"]
+
+log = logging.getLogger("xcalib.calib")
+
+SPARSE_SCENE_MAX_2D = 80  # with at most this many 2D boxes in all, search (nearly) exhaustively
+
+
+@dataclass
+class BringUp:
+    """Pose hypotheses scored on all frames, and how the search went."""
+
+    hyps: Hypotheses
+    sparse_search: bool = False
+    pooled_search: bool = False
+    split_searches: int = 0
+
+
+def matcher_similarities(matcher, frames_in, cframes: list[CalibFrame]) -> list[np.ndarray | None]:
+    """Per-frame similarity [K,M] (rows/cols of the CalibFrame) from ``matcher.match``; None if unavailable."""
+    out: list[np.ndarray | None] = []
+    for item, fr in zip(frames_in, cframes):
+        try:
+            args = item.inputs() if hasattr(item, "inputs") else tuple(item)
+            kw = {"geometry": "off"} if "geometry" in inspect.signature(matcher.match).parameters else {}  # model priors
+            mr = matcher.match_frame(item, **kw) if hasattr(item, "inputs") and hasattr(matcher, "match_frame") \
+                else matcher.match(*args, **kw)
+            full = mr.full_similarity(len(np.asarray(args[2]).reshape(-1, 4)), len(np.asarray(args[3]).reshape(len(args[3]), -1)))
+            out.append(np.asarray(full, dtype=np.float64)[np.ix_(fr.idx2d, fr.idx3d)])
+        except Exception as exc:  # noqa: BLE001 - a matcher failure must not stop geometry
+            log.warning("matcher.match failed on frame %s (%s); using geometry only", fr.key, exc)
+            out.append(None)
+    return out
+
+
+def pooled_groups(frames: Sequence[CalibFrame], n_groups: int = 3, per_group: int = 24,
+                  every_max: int = 80) -> list[list[int]]:
+    """Frame groups for hypotheses pooled across a sparse recording (1-2 objects per frame).
+
+    One static rig: the LiDAR -> camera transform is the same in every frame, so a box pair of
+    one frame and a box pair of another keep their distance (rigid) exactly like two pairs of
+    one frame, and triples may mix frames. ``n_groups`` groups of about ``per_group`` 2D boxes
+    each take every n-th frame, so that each spans the whole recording (objects far apart
+    give well-conditioned triangles); with ``every_max`` > 0, one more group of frames spread
+    over the recording holds up to that many 2D boxes. Returns lists of frame indices.
+    """
+    have = np.array([i for i, f in enumerate(frames) if f.n2 and f.n3], dtype=np.int64)
+    if len(have) < 2:
+        return []
+    n2 = np.array([frames[i].n2 for i in have])
+    per = max(2, int(per_group // max(1, np.median(n2))))
+    G = int(min(n_groups, max(1, len(have) // per)))
+    pick = have[np.unique(np.linspace(0, len(have) - 1, min(len(have), G * per)).round().astype(np.int64))]
+    groups = [pick[g::G].tolist() for g in range(G)]
+    if every_max > 0 and n2.sum() > every_max:
+        m = max(2, int(len(have) * every_max / n2.sum()))
+        groups.append(have[np.unique(np.linspace(0, len(have) - 1, m).round().astype(np.int64))].tolist())
+    return [g for g in groups if len(g) >= 2]
+
+
+def _search_groups(cframes: Sequence[CalibFrame], max_hyp_frames: int) -> tuple[list[list[int]], int, bool]:
+    """(frame groups to search, how many of them are per-frame/sparse groups, sparse scene?)."""
+    usable = [i for i, f in enumerate(cframes) if f.n2 >= 3 and f.n3 >= 3]
+    if len(usable) > max_hyp_frames:
+        richness = np.array([min(cframes[i].n2, cframes[i].n3) for i in usable])
+        pick = np.sort(np.argsort(-richness, kind="stable")[:max_hyp_frames])
+        usable = [usable[k] for k in pick]
+    groups = [[i] for i in usable]
+    # sparse scenes: a static rig makes pairs from different frames rigidly consistent too,
+    # so pool frames (a few detections each) into groups of about 12 detections
+    sparse = [i for i, f in enumerate(cframes) if f.n2 and f.n3 and i not in usable]
+    if sparse:
+        per = max(1, 12 // max(1, int(np.median([cframes[i].n2 for i in sparse]))))
+        step = max(1, len(sparse) // max(1, (max_hyp_frames - len(groups))) // per) if len(sparse) > per else 1
+        pool = sparse[::step] if len(sparse) > per * max_hyp_frames else sparse
+        groups += [pool[k:k + per] for k in range(0, len(pool), per) if len(pool[k:k + per]) > 0]
+        groups = groups[: max(max_hyp_frames, 1)]
+    # few detections in all: search exhaustively-ish (cheap here) so that a second pose that
+    # explains the boxes as well is found, and reported as an ambiguity, not silently dropped
+    sparse_scene = sum(f.n2 for f in cframes) <= SPARSE_SCENE_MAX_2D
+    if sparse_scene:
+        groups.append([i for i, f in enumerate(cframes) if f.n2 and f.n3])
+    n_before = len(groups)
+    # too few rich frames (4+ detections of each kind): extra groups pooled across the whole
+    # recording; their hypotheses only add to the per-frame ones
+    if sum(min(f.n2, f.n3) >= 4 for f in cframes) < max_hyp_frames:
+        groups += pooled_groups(cframes, every_max=0 if sparse_scene else 80)
+    return groups, n_before, sparse_scene
+
+
+def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, config: CalibConfig = CalibConfig(), *,
+                    similarities: list | None = None, max_baseline_m: float | None = None,
+                    rng: np.random.Generator | None = None,
+                    progress: Callable[[str, int, int], None] | None = None) -> BringUp:
+    """Pose hypotheses (LiDAR -> camera) from the detections of ``cframes``, scored on every frame.
+
+    ``similarities``: optional per-frame [K,M] matcher scores (rows/cols of the CalibFrames) that
+    rank candidate pairs; ``max_baseline_m`` overrides ``config.max_baseline_m`` (None in the
+    config means never assume a co-located rig). Memory is bounded by ``config.max_candidates``.
+    """
+    rng = np.random.default_rng(config.seed) if rng is None else rng
+    sims = [None] * len(cframes) if similarities is None else list(similarities)
+    groups, n_before, sparse_scene = _search_groups(cframes, config.max_hyp_frames)
+    parts, splits = [], 0
+    for k, g in enumerate(groups):
+        gs = [sims[i] for i in g]
+        big = (sparse_scene or k >= n_before) and len(g) > 1
+        kw = dict(rng=rng, max_baseline_m=max_baseline_m, max_candidates=config.max_candidates)
+        h = frame_hypotheses([cframes[i] for i in g], intr, g[0], prior_sims=gs,
+                             max_triples=20000 if big else 3000, keep=60 if big else 25, **kw)
+        if any(x is not None for x in gs) and len(h) == 0:
+            h = frame_hypotheses([cframes[i] for i in g], intr, g[0], **kw)
+        splits += int(getattr(h, "n_searches", 1) > 1)
+        parts.append(h)
+        if progress:
+            progress("hypotheses", k + 1, len(groups))
+    hyps = Hypotheses.concat(parts)
+    if len(hyps):  # re-score the pooled hypotheses on every frame (static rig: one pose explains all)
+        hyps.score = sum(score_poses(fr, intr, hyps.R, hyps.t) for fr in cframes)
+    return BringUp(hyps, sparse_search=bool(sparse_scene), pooled_search=len(groups) > n_before, split_searches=splits)
+
+
+def distinct_best(h: Hypotheses, n: int, rot_deg: float = 3.0, trans_m: float = 1.0) -> Hypotheses:
+    """The ``n`` best hypotheses that are pairwise more than ``rot_deg`` / ``trans_m`` apart."""
+    order = np.argsort(-h.score, kind="stable")
+    keep: list[int] = []
+    for i in order:
+        p = Pose(h.R[i], h.t[i])
+        if all(p.distinct(Pose(h.R[k], h.t[k]), rot_deg, trans_m) for k in keep):
+            keep.append(int(i))
+        if len(keep) >= n:
+            break
+    return h.take(np.array(keep, dtype=np.int64))

@@ -1,0 +1,153 @@
+"""The verdict: is the refined pose determined by the inputs, and does the model fit them?
+
+:func:`precheck` refuses inputs that cannot determine a pose (too few detections, everything
+on one line). :func:`verdict` judges the refined pose: the best pose must match 3+ objects in
+some frame (or, with 1-2 per frame, match boxes at 4+ places over the recording, 2+ of them
+off one line, and 12+ matches so that each half of the frames is checked on its own), explain
+enough of the 2D boxes, be clearly better than any admissible runner-up beyond 2 sigma and be
+well constrained (norm of the 1-sigma vector within the config's limits). Each refusal returns
+a ``Refusal`` with a short code and a message that says why and what to do.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from ..geometry.boxes import box2d_centers
+from .config import CalibConfig
+from .inputs import CalibFrame
+from .uncertainty import HALF_MIN_MATCHES, HALVES_MIN_MATCHES
+
+__all__ = ["Refusal", "precheck", "verdict", "matched_places", "POOLED_MIN_PLACES", "POOLED_SEP_M",
+           "POOLED_OFF_LINE_M"]
+
+# pooled identifiability (frames with only 1-2 matched objects each): the matched 3D boxes over
+# all frames must sit at POOLED_MIN_PLACES+ places at least POOLED_SEP_M apart, two of which lie
+# more than POOLED_OFF_LINE_M off the line through all of them (else the roll about it is free)
+POOLED_MIN_PLACES = 4
+POOLED_SEP_M = 1.0
+POOLED_OFF_LINE_M = 1.0
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """Why a pose is not reported: a short ``code`` and a ``message`` for the user."""
+
+    code: str
+    message: str
+
+
+def _collinear(P: np.ndarray, tol: float) -> bool:
+    if len(P) < 3:
+        return True
+    s = np.linalg.svd(P - P.mean(0), compute_uv=False)
+    return s[1] / np.sqrt(len(P)) < tol
+
+
+def precheck(cframes: Sequence[CalibFrame]) -> Refusal | None:
+    """Refuse inputs that cannot determine a pose whatever the search finds."""
+    n2, n3 = sum(f.n2 for f in cframes), sum(f.n3 for f in cframes)
+    if n2 < 3 or n3 < 3:
+        return Refusal("too_few_detections",
+                       f"too few detections: {n2} valid 2D and {n3} 3D boxes over {len(cframes)} frame(s); "
+                       "need at least 3 of each (better 6+ spread over several frames)")
+    all3 = np.concatenate([f.boxes3d[:, :3] for f in cframes if f.n3])
+    all2 = np.concatenate([box2d_centers(f.boxes2d) for f in cframes if f.n2])
+    if _collinear(all3, 0.3):
+        return Refusal("collinear_3d", "not identifiable: all 3D boxes lie on one line (the roll about that line is free)")
+    if _collinear(all2, 3.0):
+        return Refusal("collinear_2d", "not identifiable: all 2D boxes lie on one image line")
+    return None
+
+
+def matched_places(frames: Sequence[CalibFrame], pairs: list[np.ndarray],
+                   max_centres: int = 1000) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct places [D,3] (LiDAR frame, m) of the matched 3D boxes over all frames and their
+    distances [D] (m) from the principal line through them. Places are a maximal set of box
+    centres at least ``POOLED_SEP_M`` apart (every matched centre lies within that of one);
+    beyond ``max_centres`` matches an even subsample is used (fewer places, never more)."""
+    X = [f.boxes3d[p[:, 1], :3] for f, p in zip(frames, pairs) if len(p)]
+    if not X:
+        return np.zeros((0, 3)), np.zeros(0)
+    X = np.concatenate(X)
+    if len(X) > max_centres:
+        X = X[np.linspace(0, len(X) - 1, max_centres).round().astype(np.int64)]
+    # random priorities (fixed seed): a slow track is a chain of near centres, which in time order
+    # would take one round per link; random order takes a few rounds (Luby's independent set)
+    X = X[np.random.default_rng(0).permutation(len(X))]
+    near = np.linalg.norm(X[:, None] - X[None], axis=2) < POOLED_SEP_M
+    kept = np.zeros(len(X), dtype=bool)
+    open_ = np.ones(len(X), dtype=bool)
+    while np.any(open_):  # each round keeps every open centre with no lower-index open neighbour
+        first = open_ & ~np.any(np.tril(near & open_[None, :], -1), axis=1)
+        kept |= first
+        open_ &= ~np.any(near[first], axis=0)
+    P = X[kept]
+    if len(P) < 2:
+        return P, np.zeros(len(P))
+    c = P - P.mean(0)
+    axis = np.linalg.svd(c, full_matrices=False)[2][0]
+    return P, np.linalg.norm(c - np.outer(c @ axis, axis), axis=1)
+
+
+@dataclass
+class Evidence:
+    """What the verdict looks at (all from the refined pose, its matches and its uncertainty)."""
+
+    n_pairs: int
+    n_2d: int
+    most_per_frame: int
+    places: int
+    places_off_line: int
+    halves_available: bool
+    best_score: float
+    runner_up_score: float
+    rot_sd: np.ndarray
+    tr_sd: np.ndarray
+
+
+def _few_pairs_message(n_pairs: int, rot_sd, tr_sd, max_rot: float, max_tr: float) -> str:
+    """Refusal text when there are too few matched pairs to verify the pose (no frame-halves check)."""
+    r, t = float(np.linalg.norm(rot_sd)), float(np.linalg.norm(tr_sd))
+    spread = (f"; leaving one pair out moves the pose by 1-sigma {r:.2f} deg / {t:.2f} m (limit {max_rot:g} deg / "
+              f"{max_tr:g} m)") if np.isfinite(r) and np.isfinite(t) else ""
+    return (f"not identifiable: too few matched pairs to verify the pose ({n_pairs} matched pairs; the frame-halves "
+            f"check needs {HALVES_MIN_MATCHES}+, {HALF_MIN_MATCHES}+ per half){spread}; add frames or objects seen by both "
+            f"sensors: at least {max(HALVES_MIN_MATCHES - n_pairs, 1)} more matched pairs, at other places")
+
+
+def verdict(ev: Evidence, config: CalibConfig) -> Refusal | None:
+    """None when the pose is determined and well constrained; else the first reason it is not."""
+    most, n_pairs = ev.most_per_frame, ev.n_pairs
+    if most < 3 and (ev.places < POOLED_MIN_PLACES or ev.places_off_line < 2):
+        # a static rig: objects at other places in other frames constrain the one pose together,
+        # but only when the matched objects cover enough places that are not on one line
+        return Refusal("few_places", f"not identifiable: no frame has 3 or more objects matched between the sensors "
+                       f"(at most {most}) and over all frames the matched objects are at {ev.places} distinct place(s), "
+                       f"{ev.places_off_line} of them off one line (need {POOLED_MIN_PLACES}+, 2+ off the line by > "
+                       f"{POOLED_OFF_LINE_M:g} m); one or two objects on one path leave the pose ambiguous")
+    if most < 3 and not ev.halves_available:
+        # with 1-2 objects per frame each half of the frames must determine the pose on its own
+        return Refusal("few_matches_per_half", f"not identifiable: no frame has 3 or more objects matched between the "
+                       f"sensors (at most {most}) and the {n_pairs} matches over all frames are too few to check the "
+                       f"pose on each half of the frames (need {HALF_MIN_MATCHES}+ per half); add frames")
+    need = max(config.min_pairs, 3)
+    if n_pairs < need or n_pairs < config.min_explained * ev.n_2d:
+        return Refusal("few_explained", f"the best pose explains only {n_pairs} of {ev.n_2d} 2D boxes (need "
+                       f"{max(need, int(np.ceil(config.min_explained * ev.n_2d)))}); too few objects seen by both "
+                       "sensors, or no pose explains the detections")
+    if ev.runner_up_score >= config.ambiguity_ratio * ev.best_score:
+        return Refusal("ambiguous", f"ambiguous: two different poses explain the boxes about equally well (scores "
+                       f"{ev.best_score:.2f} vs {ev.runner_up_score:.2f}); add frames with objects spread over the image")
+    r, t = float(np.linalg.norm(ev.rot_sd)), float(np.linalg.norm(ev.tr_sd))
+    if not (np.isfinite(r) and np.isfinite(t)) or r > config.max_rot_std_deg or t > config.max_trans_std_m:
+        if not ev.halves_available:  # few matches: the leave-one-pair-out spread judged the pose
+            return Refusal("few_matches", _few_pairs_message(n_pairs, ev.rot_sd, ev.tr_sd, config.max_rot_std_deg,
+                                                             config.max_trans_std_m))
+        return Refusal("poorly_constrained", f"not identifiable: the pose is poorly constrained (1-sigma rotation "
+                       f"{r:.2f} deg, translation {t:.2f} m, over all axes; the frame halves and the occlusion model "
+                       "included); add frames or objects at other places/depths")
+    return None

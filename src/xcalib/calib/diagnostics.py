@@ -1,0 +1,140 @@
+"""``CalibDiagnostics``: what ``calibrate`` computed on the way to its verdict (typed, saved with the result).
+
+Reports draw from it (bring-up pose, per-frame residuals, uncertainty parts, misfit checks)
+instead of re-computing with defaults. Pure records: numpy only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, NamedTuple
+
+import numpy as np
+
+__all__ = ["NoiseModel", "CandidateSummary", "FrameSummary", "MisfitCheck", "UncertaintyParts", "CalibDiagnostics"]
+
+
+class NoiseModel(NamedTuple):
+    """Per-edge disagreement model of a matched pair: ``sigma^2 = sigma_px^2 + (f sigma_3d_m / Z)^2
+    + (sigma_size s)^2`` (2D box noise px; 3D centre error m seen at depth Z; relative 3D size error
+    of a box s px large)."""
+
+    sigma_px: float = 1.0
+    sigma_3d_m: float = 0.03
+    sigma_size: float = 0.01
+
+
+@dataclass
+class CandidateSummary:
+    """A refined candidate pose: score (sum of matched IoU) and its distance from the best."""
+
+    score: float
+    rot_deg_from_best: float
+    trans_m_from_best: float
+    baseline_m: float
+
+
+@dataclass
+class FrameSummary:
+    """Per frame at the final pose: detections, matched pairs, median edge residual (px) and IoU."""
+
+    key: str
+    n_2d: int
+    n_3d: int
+    pairs: int
+    px_median: float | None
+    iou_median: float | None
+
+
+@dataclass
+class MisfitCheck:
+    """One model-misfit test: its statistic, the limit and whether it flagged the fit."""
+
+    name: str
+    statistic: float
+    limit: float
+    flagged: bool
+    detail: str = ""
+
+
+@dataclass
+class UncertaintyParts:
+    """The pieces of the reported 1-sigma (6-vectors: deg about camera x,y,z; m along x,y,z).
+
+    jacobian: linearised (sandwich) sigma; halves: difference of the two frame-half poses;
+    jackknife: leave-one-pair-out sigma (few matches); objects: sigma from resampling objects
+    (tracks repeated across frames count once); occlusion: pose shift without the occlusion
+    model; floor: the model-misfit floor; n_objects: distinct objects resampled."""
+
+    jacobian: list[float] | None = None
+    halves: list[float] | None = None
+    jackknife: list[float] | None = None
+    objects: list[float] | None = None
+    occlusion: list[float] | None = None
+    floor: list[float] | None = None
+    n_objects: int = 0
+
+
+@dataclass
+class CalibDiagnostics:
+    """Everything ``calibrate`` measured besides the headline numbers of ``CalibrationResult``."""
+
+    seed_source: str = "geometry"          # "geometry" | "matcher" | "prior"
+    n_hypotheses: int = 0
+    sparse_search: bool = False
+    pooled_search: bool = False
+    split_searches: int = 0                # hypothesis searches split by LiDAR azimuth (crowded frames)
+    bringup_T: list | None = None          # [4,4] best bring-up pose, before refinement
+    bringup_error_vs_final: list[float] | None = None
+    score: float = float("nan")
+    runner_up_score: float = 0.0
+    ambiguity_runner_up_score: float = 0.0
+    refine_history: list[float] = field(default_factory=list)
+    candidates: list[CandidateSummary] = field(default_factory=list)
+    noise_model: NoiseModel = NoiseModel()
+    uncertainty: UncertaintyParts = field(default_factory=UncertaintyParts)
+    centre_offset_px_median: float | None = None
+    n_2d: int = 0
+    n_3d: int = 0
+    max_pairs_per_frame: int = 0
+    matched_places: int | None = None
+    matched_places_off_line: int | None = None
+    max_baseline_m: float | None = None
+    misfit: list[MisfitCheck] = field(default_factory=list)
+    refusal: str = ""                      # short code of the refusal reason ("" on success)
+    frames: list[FrameSummary] = field(default_factory=list)
+    elapsed_s: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["noise_model"] = dict(self.noise_model._asdict())
+        return _jsonable(d)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "CalibDiagnostics":
+        names = {f.name for f in fields(cls)}
+        d = {k: v for k, v in dict(d).items() if k in names}
+        d["noise_model"] = NoiseModel(**d.get("noise_model", {}))
+        d["uncertainty"] = UncertaintyParts(**d.get("uncertainty", {}))
+        d["candidates"] = [CandidateSummary(**c) for c in d.get("candidates", [])]
+        d["misfit"] = [MisfitCheck(**c) for c in d.get("misfit", [])]
+        d["frames"] = [FrameSummary(**c) for c in d.get("frames", [])]
+        if d.get("score") is None:
+            d["score"] = float("nan")
+        return cls(**d)
+
+
+def _jsonable(v):
+    if isinstance(v, dict):
+        return {k: _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _jsonable(v.tolist())
+    if isinstance(v, (np.floating, float)):
+        return float(v) if np.isfinite(v) else None
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
