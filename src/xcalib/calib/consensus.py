@@ -50,6 +50,7 @@ class ConsensusConfig:
     max_baseline_m: float | None = 8.0
     n_refine: int = 6
     keep: int = 40
+    max_triples: int = 20000  # box triples tried (crowded frames, e.g. 70+ 3D boxes around a car, need many)
     fov_deg: tuple[float, ...] = (30.0, 45.0, 60.0, 80.0, 100.0)
     seed: int = 0
 
@@ -104,9 +105,10 @@ def _distinct(Ra, ta, Rb, tb, rot_deg: float, trans_m: float) -> bool:
 
 def _hypotheses(fr: CalibFrame, intr: CameraIntrinsics, cfg: ConsensusConfig):
     rng = np.random.default_rng(cfg.seed)
-    h = frame_hypotheses(fr, intr, 0, rng=rng, max_baseline_m=cfg.max_baseline_m, keep=cfg.keep)
+    h = frame_hypotheses(fr, intr, 0, rng=rng, max_baseline_m=cfg.max_baseline_m, keep=cfg.keep,
+                         max_triples=cfg.max_triples)
     if len(h) == 0 and cfg.max_baseline_m is not None:
-        h = frame_hypotheses(fr, intr, 0, rng=np.random.default_rng(cfg.seed), keep=cfg.keep)
+        h = frame_hypotheses(fr, intr, 0, rng=np.random.default_rng(cfg.seed), keep=cfg.keep, max_triples=cfg.max_triples)
     return h
 
 

@@ -207,7 +207,7 @@ class OnnxMatcher:
         """Numpy model inputs of one frame (same crops as the torch ``Matcher.prepare``)."""
         return prepare_frame(image, point_cloud, bboxes_2d, bboxes_3d, self.crop_config, rng, **multi_camera)
 
-    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float = 0.0,
+    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float | None = None,
               validate: str = "warn", assignment: str = "argmax", *, images=None,
               camera_per_det=None, use_calibration: str | bool = "auto", box7=None,
               return_latency: bool = False, intrinsics=None, geometry: str = "auto") -> MatchResult:

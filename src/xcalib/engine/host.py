@@ -73,7 +73,7 @@ def assign(similarity: np.ndarray, *, top_k: int = 1, threshold: float = 0.0, me
     return top, pairs
 
 
-def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_threshold: float, validate: str,
+def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_threshold: float | None, validate: str,
               assignment: str, images, camera_per_det, use_calibration, box7, score_range,
               fill_value: float | None, return_latency: bool = False, intrinsics=None,
               geometry: str = "auto") -> MatchResult:
@@ -82,10 +82,13 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
     ``fusion_weight``, ``fusion_eps``, ``model_name``, ``device``). ``latency_ms`` = crop + model
     (+ projection and fusion) wall time, validation excluded (``return_latency``: the model's
     ``similarity`` call alone); matches in the caller's numbering. ``geometry`` / ``intrinsics``:
-    geometric consensus instead of the model (:mod:`xcalib.engine.domain`)."""
+    geometric consensus instead of the model (:mod:`xcalib.engine.domain`). ``match_threshold``
+    None: the site threshold in the model config (``xcalib.oneshot.threshold``), else 0."""
     if assignment not in ASSIGNMENTS:
         raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {assignment!r}")
     check_geometry_mode(geometry)
+    if match_threshold is None:  # the site's threshold (chosen by bootstrap, in the model config), else 0
+        match_threshold = float(m.config.get("match_threshold", 0.0))
     multi_cam = is_multi_camera(images, camera_per_det)
     fuse = resolve_use_calibration(use_calibration, m.calibration, multi_cam)
     validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, validate,

@@ -215,7 +215,7 @@ class Matcher:
         validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, mode,
                               bbox_expansion=self.crop_config.bbox_expansion, registry=self._warnings)
 
-    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float = 0.0,
+    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float | None = None,
               validate: str = "warn", assignment: str = "argmax", *, images=None,
               camera_per_det=None, use_calibration: str | bool = "auto", box7=None,
               return_latency: bool = False, intrinsics=None, geometry: str = "auto") -> MatchResult:
@@ -226,7 +226,9 @@ class Matcher:
         for the projection when ``bboxes_3d`` are axis-aligned [M,6]. ``geometry``: "auto" matches
         by geometric consensus (``MatchResult.source == "geometry"``) when the shipped off-site
         weights score the frame out of domain (:mod:`xcalib.engine.domain`), "on" always, "off"
-        never; ``intrinsics`` (``CameraIntrinsics`` or 3x3 K) help it, else they are searched."""
+        never; ``intrinsics`` (``CameraIntrinsics`` or 3x3 K) help it, else they are searched.
+        ``match_threshold`` None: the site's threshold (chosen label-free by ``xcalib bootstrap``,
+        saved in the model config as ``match_threshold``), else 0."""
         return run_match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k=top_k, match_threshold=match_threshold,
                          validate=validate, assignment=assignment, images=images, camera_per_det=camera_per_det,
                          return_latency=return_latency, intrinsics=intrinsics, geometry=geometry,
