@@ -15,11 +15,15 @@ reported per-axis 1-sigma; rotation and translation coverage separately in the J
 wall time of ``calibrate``. When the result carries estimated intrinsics / a time offset (issue
 13), the JSON also records the focal ratio to the truth and the offset error per site.
 
+With ``--selfcal`` every condition gains a row "<condition> +selfcal" calibrated with
+``CalibConfig(refine_intrinsics=--refine-intrinsics, time_offset=--time-offset)`` (default "auto" /
+"auto": the focal length and the time offset estimated where the data constrain them).
+
 Each run is stored under ``--label`` in ``benchmarks/results/calibration_realism.json`` (other
 labels in the file are kept, so a BEFORE and an AFTER table live side by side).
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration_realism.py \
-        [--sites 20] [--conditions clean,mirrored] [--jobs 1] [--label before]
+        [--sites 20] [--conditions clean,mirrored] [--jobs 1] [--label before] [--selfcal]
 """
 
 from __future__ import annotations
@@ -43,17 +47,30 @@ from bench_calibration import machine_info  # noqa: E402
 WRONG_ROT_DEG, WRONG_TRANS_M = 1.0, 0.5
 
 
-def run_case(task: tuple[str, int, int]) -> dict:
-    """Calibrate one (condition, site seed, frames) case; a JSON-ready record."""
+SELFCAL_SUFFIX = " +selfcal"
+
+
+def run_case(task: tuple) -> dict:
+    """Calibrate one (condition, site seed, frames[, selfcal options]) case; a JSON-ready record.
+    With options (refine_intrinsics, time_offset) the row is "<condition> +selfcal"."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    import warnings
+
     import xcalib
+    from xcalib.calib.config import CalibConfig
     from xcalib.data.synth.realism import make_realism_case
 
-    name, seed, n_frames = task
+    name, seed, n_frames = task[:3]
+    opts = task[3] if len(task) > 3 else None
     case = make_realism_case(name, seed, n_frames)
+    config = None if opts is None else CalibConfig(refine_intrinsics=opts[0], time_offset=opts[1])
+    if opts is not None:
+        name = name + SELFCAL_SUFFIX
     t0 = time.perf_counter()
     try:
-        res = xcalib.calibrate(list(case.frames), case.intrinsics_given)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # fallbacks are recorded in the result's diagnostics
+            res = xcalib.calibrate(list(case.frames), case.intrinsics_given, config)
     except Exception as exc:  # an exception is a finding too (bad input must not raise)
         return {"condition": name, "seed": seed, "success": False, "exception": repr(exc),
                 "message": f"exception: {exc!r}", "time_s": time.perf_counter() - t0}
@@ -68,6 +85,10 @@ def run_case(task: tuple[str, int, int]) -> dict:
                    rot_within_2sigma=bool(rot <= 2 * rs), trans_within_2sigma=bool(tr <= 2 * ts))
         rec["within_2sigma"] = rec["rot_within_2sigma"] and rec["trans_within_2sigma"]
     intr = getattr(res, "intrinsics", None)
+    if opts is not None:
+        sc = res.diagnostics.selfcal
+        rec.update(focal_estimated=sc.focal_estimated, focal_scale_std=sc.focal_scale_std,
+                   time_offset_source=sc.time_offset_source, time_offset_std_s=sc.time_offset_std_s)
     if intr is not None and res.success:
         rec["focal_ratio_est_to_true"] = float(intr.fx / case.intrinsics_true.fx)
     dt = getattr(res, "time_offset_s", None)
@@ -87,7 +108,8 @@ def summarise(name: str, recs: list[dict]) -> dict:
     ok = [r for r in recs if r["success"]]
     wrong = [r for r in ok if r["wrong"]]
     return {
-        "condition": name, "description": REALISM_CONDITIONS[name].description, "n": len(recs),
+        "condition": name, "description": REALISM_CONDITIONS[name.removesuffix(SELFCAL_SUFFIX)].description
+        + (" [refine_intrinsics / time_offset estimated]" if name.endswith(SELFCAL_SUFFIX) else ""), "n": len(recs),
         "success": len(ok), "success_rate": len(ok) / max(len(recs), 1), "wrong_successes": len(wrong),
         "rot_deg_median": _median([r["rot_deg"] for r in ok]), "trans_m_median": _median([r["trans_m"] for r in ok]),
         "coverage_2sigma": float(np.mean([r["within_2sigma"] for r in ok])) if ok else None,
@@ -101,17 +123,21 @@ def summarise(name: str, recs: list[dict]) -> dict:
         # sites still identifiable under this condition (>= 3 objects, >= 20 true pairs seen by both)
         "n_identifiable": sum(1 for r in recs if r.get("identifiable", True)),
         "time_s_median": _median([r["time_s"] for r in recs]),
+        "focal_rel_err_median": _median([abs(r["focal_ratio_est_to_true"] - 1) for r in ok
+                                         if "focal_ratio_est_to_true" in r]),
+        "time_offset_abs_err_median_s": _median([abs(r["time_offset_error_s"]) for r in ok
+                                                 if "time_offset_error_s" in r]),
         "per_site": recs,
     }
 
 
 def print_table(rows: list[dict]) -> None:
     f = (lambda v, d=3: "-" if v is None else f"{v:.{d}f}")
-    print(f"\n{'condition':>26} {'n':>3} {'success':>8} {'wrong':>5} {'rot med':>8} {'trans med':>9} "
+    print(f"\n{'condition':>34} {'n':>3} {'success':>8} {'wrong':>5} {'rot med':>8} {'trans med':>9} "
           f"{'2sig cov':>8} {'wrong: rot/trans med':>21} {'time med':>8}")
     for r in rows:
         wr = "-" if not r["wrong_successes"] else f"{r['wrong_rot_deg_median']:.2f}/{r['wrong_trans_m_median']:.2f}"
-        print(f"{r['condition']:>26} {r['n']:>3} {r['success']:>3} ({r['success_rate'] * 100:>3.0f}%) "
+        print(f"{r['condition']:>34} {r['n']:>3} {r['success']:>3} ({r['success_rate'] * 100:>3.0f}%) "
               f"{r['wrong_successes']:>4} {f(r['rot_deg_median']):>8} {f(r['trans_m_median']):>9} "
               f"{f(r['coverage_2sigma'], 2):>8} {wr:>21} {f(r['time_s_median'], 2):>7}s")
 
@@ -134,6 +160,9 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1, help="worker processes")
     ap.add_argument("--label", default="current", help="name of this run in the JSON (e.g. before, after)")
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--selfcal", action="store_true", help="add a '+selfcal' row per condition (issue 13)")
+    ap.add_argument("--refine-intrinsics", default="auto", help="CalibConfig.refine_intrinsics of the +selfcal rows")
+    ap.add_argument("--time-offset", default="auto", help="CalibConfig.time_offset of the +selfcal rows")
     args = ap.parse_args(argv)
     names = list(REALISM_CONDITIONS) if args.conditions == "all" else [c.strip() for c in args.conditions.split(",")]
     unknown = [n for n in names if n not in REALISM_CONDITIONS]
@@ -141,6 +170,9 @@ def main(argv=None) -> int:
         ap.error(f"unknown condition(s) {unknown}; registered: {', '.join(REALISM_CONDITIONS)}")
     seeds = identifiable_site_seeds(args.sites, args.frames)
     tasks = [(n, s, args.frames) for n in names for s in seeds]
+    if args.selfcal:
+        tasks += [(n, s, args.frames, (args.refine_intrinsics, args.time_offset)) for n in names for s in seeds]
+        names = [x for n in names for x in (n, n + SELFCAL_SUFFIX)]
     t0 = time.perf_counter()
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as ex:

@@ -81,7 +81,7 @@ def _base_matcher(model: str, site_a, args, tmp: Path):
     from xcalib.data.synth import generate_frames
     from xcalib.engine.checkpoint import WeightsNotFoundError
     from xcalib.engine.matcher import Matcher
-    from xcalib.engine.trainer import train
+    from xcalib.engine.trainer import XCALIB_RECIPE, train
 
     if not args.train_base:
         try:
@@ -90,8 +90,8 @@ def _base_matcher(model: str, site_a, args, tmp: Path):
             pass
     tr = generate_frames(site_a, args.a_frames, seed=101)
     va = generate_frames(site_a, 10, seed=102)
-    best = train(model, tr, va, epochs=args.a_epochs, output_dir=tmp / "site_a", device="cpu", progress=False,
-                 warmup_epochs=1, seed=0)
+    best = train(model, tr, va, output_dir=tmp / "site_a", device="cpu", progress=False, seed=0,
+                 **XCALIB_RECIPE.kwargs(epochs=args.a_epochs, warmup_epochs=1))
     return (Matcher.from_pretrained(model, weights=best, device="cpu"),
             f"trained here on {args.a_frames} frames of site A, {args.a_epochs} epochs")
 
@@ -235,7 +235,8 @@ def a9(args, tmp: Path) -> dict:
     # one overlay: the adapted matcher's one-to-one matches (fused, as deployed) on the first held-out frame
     f = labelled[0]
     mr = adapted.match(*f.inputs(), assignment="hungarian", match_threshold=0.5, validate="off")
-    img = draw_matching_overlay(f.image, f.point_cloud, f.bboxes_2d, f.bboxes_3d, mr, match_matrix=f.match_matrix,
+    img = draw_matching_overlay(f.image, f.point_cloud, f.bboxes_2d, f.bboxes_3d, mr, output_height=540,
+                                match_matrix=f.match_matrix,
                                 camera=res.calibration,
                                 title=f"A9 {f.frame_key}: bootstrapped {args.model} vs calibration-implied matches")
     Path(args.overlay).parent.mkdir(parents=True, exist_ok=True)

@@ -117,7 +117,7 @@ def train_model(name: str, work: Path) -> Path:
     import torch
 
     from xcalib.engine.matcher import Matcher
-    from xcalib.engine.trainer import train
+    from xcalib.engine.trainer import XCALIB_RECIPE, train
 
     cfg, sched = SHIPPED[name]
     sched = dict(sched)
@@ -125,8 +125,8 @@ def train_model(name: str, work: Path) -> Path:
     tr, va = _samples(name, cfg, work)
     tr = tr[::sched.pop("stride", 1)]
     t0 = time.perf_counter()
-    best = train(name, tr, va, config=cfg, output_dir=out, warmup_epochs=1, frames_per_batch=4, seed=0,
-                 device="cpu", progress=False, **sched)
+    best = train(name, tr, va, config=cfg, output_dir=out, frames_per_batch=4, seed=0,
+                 device="cpu", progress=False, **{**XCALIB_RECIPE.kwargs(warmup_epochs=1), **sched})
     m = Matcher.from_pretrained(name, weights=best, device="cpu")
     paths = m.save_pretrained(WEIGHTS / SITE, dtype="float16", overwrite=True)
     hist = json.loads((out / "history.json").read_text())
@@ -224,7 +224,7 @@ def generic_step(work: Path, n_sites: int = 240, epochs: int = 12) -> dict:
     """Caches, training and evaluation of the ``generic`` fastmatch (see the module docstring)."""
     from xcalib.data.crops import CropConfig
     from xcalib.engine.matcher import Matcher
-    from xcalib.engine.trainer import prepare_samples, train
+    from xcalib.engine.trainer import XCALIB_RECIPE, prepare_samples, train
     from xcalib.models import default_config
 
     g = work / "generic"
@@ -235,16 +235,16 @@ def generic_step(work: Path, n_sites: int = 240, epochs: int = 12) -> dict:
             _generic_cache(g / split / f"site{seed}.h5", seed)
             if (i + 1) % 20 == 0 or i + 1 == len(ss):
                 print(f"generic {split}: {i + 1}/{len(ss)} sites ({time.perf_counter() - t0:.0f}s)", flush=True)
-    best = g / "runs" / "fastmatch" / "best.pt"
+    best = g / "runs" / "fastmatch" / "best.pth"
     out = WEIGHTS / GENERIC
-    if not (out / "fastmatch.pt").exists():
+    if not any((out / f"fastmatch{s}").exists() for s in (".pt", ".pth")):
         cc = CropConfig.from_config(default_config("fastmatch"))
         tr, va = ([s for seed in ss for s in prepare_samples(g / split / f"site{seed}.h5", cc)[0]]
                   for split, ss in seeds.items())
         print(f"generic: cropped {len(tr)} train / {len(va)} val frames", flush=True)
         t0 = time.perf_counter()
-        best = train("fastmatch", tr, va, config={}, output_dir=best.parent, epochs=epochs, warmup_epochs=1,
-                     frames_per_batch=4, seed=0, device="cpu", progress=False, **GENERIC_SCHEDULE)
+        best = train("fastmatch", tr, va, config={}, output_dir=best.parent, frames_per_batch=4, seed=0, device="cpu",
+                     progress=False, **{**XCALIB_RECIPE.kwargs(epochs=epochs, warmup_epochs=1), **GENERIC_SCHEDULE})
         m = Matcher.from_pretrained("fastmatch", weights=best, device="cpu")
         paths = m.save_pretrained(out, dtype="float16", overwrite=True)
         hist = json.loads((best.parent / "history.json").read_text())

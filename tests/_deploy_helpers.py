@@ -14,7 +14,7 @@ def loaded_matcher(model: str, tmp: Path, seed: int = 0, **config):
     from xcalib.engine.matcher import Matcher
 
     torch.manual_seed(seed)
-    m = Matcher(model, config or None, device="cpu")
+    m = Matcher(model, config or None, device="cpu", allow_random=True)
     m.save_pretrained(tmp)
     return Matcher.from_pretrained(model, weights=tmp, device="cpu")
 

@@ -21,8 +21,13 @@ def site_frames():
 
     site = sample_site(3, width=160, height=100, focal_px=150)
     frames = generate_frames(site, 3, seed=0)
-    for f in frames:
+    rng = np.random.default_rng(5)
+    for i, f in enumerate(frames):
         f.point_cloud = np.ascontiguousarray(f.point_cloud[::40])
+        f.lidar_time_s = 1_650_000_000.123456789 + 0.1 * i   # not a whole number of ns
+        f.camera_time_s = f.lidar_time_s - 0.0123
+        f.track_ids_3d = np.arange(f.num_3d, dtype=np.int64) * 7 + i
+        f.velocities_3d = rng.normal(size=(f.num_3d, 3))
     return frames
 
 
@@ -32,6 +37,14 @@ def assert_frames_equal(a, b):
         assert (x is None) == (y is None), k
         if x is not None:
             assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y), k
+    for k in ("track_ids_3d", "velocities_3d"):
+        x, y = getattr(a, k), getattr(b, k)
+        assert (x is None) == (y is None), k
+        if x is not None:
+            assert x.dtype == y.dtype and np.array_equal(x, y), k
+    for k in ("lidar_time_s", "camera_time_s"):
+        if getattr(a, k) is not None:
+            assert getattr(b, k) == getattr(a, k), k
     assert a.intrinsics == b.intrinsics
     assert (a.frame_key, a.camera_name, tuple(a.point_fields)) == (b.frame_key, b.camera_name, tuple(b.point_fields))
 
@@ -224,12 +237,18 @@ def test_bad_input(tmp_path, site_frames):
     with pytest.raises(FormatError, match="--intrinsics"):
         BagFrames(write_bag(tmp_path / "noinfo.bag", [_no_intrinsics(f) for f in site_frames]))
     with pytest.raises(FormatError, match="clocks do not overlap"):
-        BagFrames(write_bag(tmp_path / "late.db3", site_frames, camera_delay_s=30.0))
+        BagFrames(write_bag(tmp_path / "late.db3", [_untimed(f) for f in site_frames], camera_delay_s=30.0))
     with pytest.raises(FormatError, match="no frame could be paired.*no image within 5 ms"):
         BagFrames(good, tolerance_s=0.005)
     back = BagFrames(good, tolerance_s=0.015)
     assert len(back) == 3
     assert not (tmp_path / "late.db3.tmp").exists() and len(list(tmp_path.glob(".*"))) == 0
+
+
+def _untimed(f):
+    import dataclasses
+
+    return dataclasses.replace(f, lidar_time_s=None, camera_time_s=None)
 
 
 def _no_intrinsics(f):

@@ -121,7 +121,8 @@ def test_few_pairs_with_noisy_3d_boxes_are_refused_not_wrong():
     res = calibrate([frame], frame.intrinsics)
     assert not res.success and res.n_pairs == 5
     assert "too few matched pairs to verify the pose" in res.message and "at least 7 more matched pairs" in res.message
-    assert np.linalg.norm(T[:3, 3] - res.translation) > 0.5  # what was refused is wrong
+    assert res.translation is None  # a failed result has no pose; the refused one is kept for diagnostics
+    assert np.linalg.norm(T[:3, 3] - np.asarray(res.diagnostics.refused_T)[:3, 3]) > 0.5  # and it is wrong
     u = res.diagnostics.uncertainty
     jac, occl = np.asarray(u.jacobian), np.asarray(u.occlusion)
     assert np.linalg.norm(np.hypot(jac[3:], occl[3:])) < 0.25  # the Jacobian alone would accept it

@@ -62,7 +62,7 @@ def weights(tmp_path_factory) -> Path:
 
     torch.manual_seed(0)
     d = tmp_path_factory.mktemp("w")
-    Matcher("fastmatch", device="cpu").save_pretrained(d)
+    Matcher("fastmatch", device="cpu", allow_random=True).save_pretrained(d)
     return d
 
 
@@ -113,7 +113,7 @@ def test_train_then_match_with_the_best_weights(site, tmp_path, monkeypatch, cap
     out = json.loads(capsys.readouterr().out)
     best = Path(out["best"])
     assert best.is_file() and out["epochs"] == 1
-    assert (tmp_path / "home" / "sites" / "clisite" / "fastmatch.pt").is_file()
+    assert (tmp_path / "home" / "sites" / "clisite" / "fastmatch.pth").is_file()
     assert main(["match", str(site / "test.h5"), "--site", "clisite", "--validate", "off", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["model"] == "fastmatch"
 
@@ -187,3 +187,9 @@ def test_bootstrap_installs_site_weights(calib_site, tmp_path, monkeypatch, caps
     assert site_m.config["match_threshold"] == thr["threshold"]
     # the installed weights load by site name
     assert main(["match", str(calib_site / "test.h5"), "--site", "boot", "--validate", "off", "--json"]) == 0
+
+
+@pytest.mark.parametrize("flag, value", [("--time-offset", "soon"), ("--refine-intrinsics", "everything")])
+def test_calibrate_selfcal_flags_reject_bad_values(calib_site, tmp_path, flag, value):
+    rc = main(["calibrate", str(calib_site / "test.h5"), "--out", str(tmp_path / "c"), flag, value])
+    assert rc == 2 and not (tmp_path / "c").exists()

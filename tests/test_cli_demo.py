@@ -33,7 +33,7 @@ def untrained_weights(tmp_path_factory):
 
     torch.manual_seed(0)
     d = tmp_path_factory.mktemp("weights")
-    Matcher("fastmatch", device="cpu").save_pretrained(d)
+    Matcher("fastmatch", device="cpu", allow_random=True).save_pretrained(d)
     return d
 
 

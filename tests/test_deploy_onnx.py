@@ -31,7 +31,7 @@ def exports(tmp_path_factory):
     out = {}
     for name in MODELS:
         m = loaded_matcher(name, root / f"w_{name}", point_cloud_size=128)  # small crops: quick tests
-        out[name] = (m, m.build("onnx", root / "onnx", site="siteA"))
+        out[name] = (m, m.build("onnx", root / "onnx", site="siteA", site_folder=True))
     return out
 
 
@@ -157,12 +157,12 @@ def test_envelope_guard_refuses_oversized_calls(exports, monkeypatch):
 
 def test_two_sites_do_not_overwrite(tmp_path):
     m = loaded_matcher("fastmatch", tmp_path / "w")
-    ra = m.build("onnx", tmp_path / "o", site="a", verify=False)
-    rb = m.build("onnx", tmp_path / "o", site="b", verify=False)
+    ra = m.build("onnx", tmp_path / "o", site="a", verify=False, site_folder=True)
+    rb = m.build("onnx", tmp_path / "o", site="b", verify=False, site_folder=True)
     assert ra.output_dir != rb.output_dir
     assert (ra.output_dir / "manifest.json").is_file() and (rb.output_dir / "manifest.json").is_file()
     # without a site the folder name carries the weights hash
-    rc = m.build("onnx", tmp_path / "o", verify=False)
+    rc = m.build("onnx", tmp_path / "o", verify=False, site_folder=True)
     assert rc.output_dir.name == f"fastmatch_local-{state_hash(m.model)[:8]}"
     # parity not checked -> not OK (never vacuously True)
     assert not ra.parity_checked and ra.parity_ok is False and ra.notes
@@ -181,17 +181,17 @@ def test_parity_ok_is_never_vacuous():
 
 def test_random_weights_refused(tmp_path):
     torch.manual_seed(0)
-    m = Matcher("fastmatch", device="cpu")
+    m = Matcher("fastmatch", device="cpu", allow_random=True)
     with pytest.raises(RandomWeightsError, match="never loaded"):
-        m.build("onnx", tmp_path)
-    r = m.build("onnx", tmp_path, allow_random=True, verify=False)
+        m.build("onnx", tmp_path, site_folder=True)
+    r = m.build("onnx", tmp_path, allow_random=True, verify=False, site_folder=True)
     assert r.site == "random" and (tmp_path / "fastmatch_random" / "manifest.json").is_file()
 
 
 def test_exp4_dense_graph_export(tmp_path):
     """exp4's sparse per-frame kNN GNN is exported in dense form and checked against the model."""
     m = loaded_matcher("crlite_vit_exp4", tmp_path / "w", point_cloud_size=64)
-    res = m.build("onnx", tmp_path / "o", site="s")
+    res = m.build("onnx", tmp_path / "o", site="s", site_folder=True)
     assert res.parity_ok, res.parity
     om = OnnxMatcher(res.output_dir)
     assert om.host["joint_embedding"] is True
@@ -216,7 +216,7 @@ def test_fastpath_flag_restored(tmp_path):
     m = loaded_matcher("fastmatch", tmp_path / "w")
     for flag in (True, False):
         torch.backends.mha.set_fastpath_enabled(flag)
-        m.build("onnx", tmp_path / "o", site="x", verify=False)
+        m.build("onnx", tmp_path / "o", site="x", verify=False, site_folder=True)
         assert torch.backends.mha.get_fastpath_enabled() is flag
     torch.backends.mha.set_fastpath_enabled(True)
     assert m.model.training is False and str(m.device) == "cpu"

@@ -51,7 +51,7 @@ def test_not_found_names_where_it_looked(tmp_path, monkeypatch, matcher):
     with pytest.raises(TrtexecNotFoundError, match="given path"):
         trt.find_trtexec(tmp_path / "missing" / "trtexec")
     with pytest.raises(TrtexecNotFoundError):  # checked before any export: no folder is written
-        matcher.build("trt", tmp_path / "engines")
+        matcher.build("trt", tmp_path / "engines", site_folder=True)
     assert not (tmp_path / "engines").exists()
 
 
@@ -85,7 +85,7 @@ def test_build_with_fake_trtexec(tmp_path, monkeypatch, matcher):
     fake = _fake_trtexec(tmp_path / "bin")
     monkeypatch.setenv("PATH", f"{fake.parent}{os.pathsep}{os.environ['PATH']}")
     res = matcher.build("trt", tmp_path / "engines", site="s1", precision="fp16", extra_trt_args=["--verbose"],
-                        verify=False)
+                        verify=False, site_folder=True)
     assert res.target == "trt" and res.precision == "fp16" and res.output_dir.name == "fastmatch_s1"
     engines = sorted(p.name for p in res.artifacts if p.suffix == ".engine")
     assert engines == ["image_embed.fp16.engine", "lidar_embed.fp16.engine", "pair_score.fp16.engine"]
@@ -100,32 +100,32 @@ def test_build_with_fake_trtexec(tmp_path, monkeypatch, matcher):
     assert ":1024x" in pair and ":96x" in pair  # pairwise envelope (calibrefine / fastmatch)
     assert len(res.logs) == 3 and all(p.is_file() for p in res.logs)
     # a second build reuses the current ONNX graphs (same weights hash)
-    res2 = matcher.build("trt", tmp_path / "engines", site="s1", precision="fp32", verify=False)
+    res2 = matcher.build("trt", tmp_path / "engines", site="s1", precision="fp32", verify=False, site_folder=True)
     assert any("reused current ONNX" in n for n in res2.notes)
     assert "--fp16" not in (fake.parent / "calls.txt").read_text().splitlines()[-1]
     # weights changed -> the stale graphs are re-exported, never reused
     with torch.no_grad():
         next(matcher.model.parameters()).add_(0.5)
-    res3 = matcher.build("trt", tmp_path / "engines", site="s1", verify=False)
+    res3 = matcher.build("trt", tmp_path / "engines", site="s1", verify=False, site_folder=True)
     assert any("re-exported" in n and "other weights" in n for n in res3.notes)
 
 
 def test_stale_or_foreign_onnx_dir_is_an_error(tmp_path, monkeypatch, matcher):
     fake = _fake_trtexec(tmp_path / "bin")
-    onnx_res = matcher.build("onnx", tmp_path / "onnx", site="s1", verify=False)
+    onnx_res = matcher.build("onnx", tmp_path / "onnx", site="s1", verify=False, site_folder=True)
     with pytest.raises(OnnxFolderError, match=r"manifest\.json.*site 's1', not 's2'"):
-        matcher.build("trt", tmp_path / "e", site="s2", onnx_dir=onnx_res.output_dir, trtexec=fake)
+        matcher.build("trt", tmp_path / "e", site="s2", onnx_dir=onnx_res.output_dir, trtexec=fake, site_folder=True)
     other = loaded_matcher("fastmatch", tmp_path / "w2", seed=1)
     with pytest.raises(StaleOnnxError, match=r"manifest\.json.*other weights"):
-        other.build("trt", tmp_path / "e", site="s1", onnx_dir=tmp_path / "onnx", trtexec=fake)
+        other.build("trt", tmp_path / "e", site="s1", onnx_dir=tmp_path / "onnx", trtexec=fake, site_folder=True)
     crl = loaded_matcher("crlite", tmp_path / "w3", point_cloud_size=64)
     with pytest.raises(OnnxFolderError, match=r"model 'fastmatch', not 'crlite'"):
-        crl.build("trt", tmp_path / "e", site="s1", onnx_dir=onnx_res.output_dir, trtexec=fake)
-    ok = matcher.build("trt", tmp_path / "e", site="s1", onnx_dir=tmp_path / "onnx", trtexec=fake, precision="int8")
+        crl.build("trt", tmp_path / "e", site="s1", onnx_dir=onnx_res.output_dir, trtexec=fake, site_folder=True)
+    ok = matcher.build("trt", tmp_path / "e", site="s1", onnx_dir=tmp_path / "onnx", trtexec=fake, precision="int8", site_folder=True)
     assert any("int8" in n for n in ok.notes) and len([a for a in ok.artifacts if a.suffix == ".engine"]) == 3
 
 
 def test_trtexec_failure_names_the_log(tmp_path, matcher):
     fake = _fake_trtexec(tmp_path / "bin", rc=3)
     with pytest.raises(TrtBuildError, match=r"code 3.*log: .*image_embed\.fp16\.log"):
-        matcher.build("trt", tmp_path / "e", site="s1", trtexec=fake, verify=False)
+        matcher.build("trt", tmp_path / "e", site="s1", trtexec=fake, verify=False, site_folder=True)

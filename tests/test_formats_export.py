@@ -59,7 +59,8 @@ def test_refuses_failed_and_intrinsics_free(tmp_path):
     with pytest.raises(ValueError, match="failed"):
         export_calibration(CalibrationResult(success=False, message="no pairs"), "kitti", tmp_path / "c.txt")
     with pytest.raises(ValueError, match="intrinsics"):
-        export_calibration(CalibrationResult(success=True), "lucid", tmp_path / "l.json")
+        export_calibration(CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3)), "lucid",
+                           tmp_path / "l.json")
     with pytest.raises(ValueError, match="unknown calibration format"):
         export_calibration(_result(0, None), "pdf", tmp_path / "x")
     with pytest.raises(ValueError, match="read-only"):

@@ -80,4 +80,6 @@ def test_bag_frames_carry_header_stamps(frames, tmp_path):
 
     path = write_bag(tmp_path / "s.mcap", frames, start_s=1000.0, camera_delay_s=0.02)
     back = read_frames(path, camera="camera")
-    assert back[1].lidar_time_s == pytest.approx(1000.1) and back[1].camera_time_s == pytest.approx(1000.12)
+    # the frames' own (relative) times come back exactly; the header stamps are start_s + time
+    assert back[1].lidar_time_s == frames[1].lidar_time_s and back[1].camera_time_s == frames[1].camera_time_s
+    assert back[1].meta["lidar_stamp_ns"] == round((1000.0 + frames[1].lidar_time_s) * 1e9)

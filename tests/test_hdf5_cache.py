@@ -175,7 +175,7 @@ def test_non_numeric_keys_use_sorted_position(tmp_path):
             CacheReader(p, key_order="numeric")
 
 
-def test_multi_camera_and_for_camera_filters_match_matrix(tmp_path):
+def test_multi_camera_and_camera_view_filters_match_matrix(tmp_path):
     p = _raw_cache(tmp_path / "c.h5", ["00000"], K=3, M=3, stored=(3, 3), cams=("south1", "south2"),
                    cam_names=["south2", "south1", "south2"])
     with CacheReader(p) as r:
@@ -183,11 +183,12 @@ def test_multi_camera_and_for_camera_filters_match_matrix(tmp_path):
         assert f.camera_name == "south2" and set(f.images) == {"south1", "south2"}
         assert f.camera_per_det == ["south2", "south1", "south2"]
         assert int(f.images["south1"][0, 0, 0]) == 0 and int(f.images["south2"][0, 0, 0]) == 1
-        img, pts, b2, b3, mm = f.for_camera("south1")
+        img, pts, b2, b3, mm = f.camera_view("south1")  # for_camera: the reference's 4 values
         assert b2.shape == (1, 4) and mm.shape == (1, 3) and np.array_equal(mm, f.match_matrix[[1]])
         assert b3.shape == (3, 6) and img is f.images["south1"]
-        per_cam = list(r.for_camera("south2"))
+        per_cam = list(r.camera_views("south2"))
         assert len(per_cam) == 1 and per_cam[0][4].shape == (2, 3)
+        assert [len(v) for v in r.for_camera("south2")] == [4] and len(f.for_camera("south1")) == 4
 
 
 def test_calibration_optional_and_canonicalised(tmp_path):

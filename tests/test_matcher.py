@@ -98,10 +98,10 @@ def test_save_pretrained_reloads_bit_exactly_without_device(tmp_path, name):
 def test_fp16_storage_round_trips_exactly(tmp_path):
     m = _matcher()
     m.save_pretrained(tmp_path / "a", dtype="float16")
-    m2 = Matcher.from_pretrained("fastmatch", weights=tmp_path / "a" / "fastmatch.pt")
+    m2 = Matcher.from_pretrained("fastmatch", weights=tmp_path / "a" / "fastmatch.pth")
     m2.save_pretrained(tmp_path / "b", dtype="float16")
-    a = torch.load(tmp_path / "a" / "fastmatch.pt", weights_only=True)["state_dict"]
-    b = torch.load(tmp_path / "b" / "fastmatch.pt", weights_only=True)["state_dict"]
+    a = torch.load(tmp_path / "a" / "fastmatch.pth", weights_only=True)["state_dict"]
+    b = torch.load(tmp_path / "b" / "fastmatch.pth", weights_only=True)["state_dict"]
     assert all(torch.equal(a[k], b[k]) and a[k].dtype == b[k].dtype for k in a)
     w = m2.model.state_dict()
     assert all(torch.equal(w[k], a[k].to(w[k].dtype)) for k in a)
@@ -112,7 +112,7 @@ def test_config_weights_mismatch_is_an_error(tmp_path):
     with pytest.raises(WeightsMismatchError, match="shape mismatch"):
         Matcher.from_pretrained("fastmatch", weights=tmp_path, config={**TINY["fastmatch"], "embed_dim": 24})
     with pytest.raises(ValueError, match="fastmatch"):
-        Matcher.from_pretrained("crlite", weights=tmp_path / "fastmatch.pt")
+        Matcher.from_pretrained("crlite", weights=tmp_path / "fastmatch.pth")
 
 
 def test_site_lookup_user_home_first_and_helpful_error(tmp_path, monkeypatch):
@@ -124,7 +124,7 @@ def test_site_lookup_user_home_first_and_helpful_error(tmp_path, monkeypatch):
     m = _matcher()
     m.save_pretrained(tmp_path / "sites" / "mysite")
     m2 = Matcher.from_pretrained("fastmatch", site="mysite")
-    assert m2.weights_path == tmp_path / "sites" / "mysite" / "fastmatch.pt" and m2.site == "mysite"
+    assert m2.weights_path == tmp_path / "sites" / "mysite" / "fastmatch.pth" and m2.site == "mysite"
 
 
 def test_embed_score_split_matches_match():

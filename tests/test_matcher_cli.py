@@ -66,5 +66,5 @@ def test_train_cli_installs_site_weights(tiny_site, tmp_path, capsys):
                  "--config", str(cfg), "--epochs", "1", "--warmup-epochs", "0", "--output-dir",
                  str(tmp_path / "run"), "--site", "newsite", "--json"]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert out["installed"].endswith("sites/newsite/fastmatch.pt")
+    assert out["installed"].endswith("sites/newsite/fastmatch.pth")
     assert Matcher.from_pretrained("fastmatch", site="newsite").model_name == "fastmatch"

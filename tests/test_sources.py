@@ -78,3 +78,15 @@ def test_dataset_sources_take_camera():
     nus = open_source(pkl, camera="CAM_BACK", load_points=False)
     assert len(nus) == 1 and nus[0].camera_name == "CAM_BACK"
     assert len(open_source(pkl, load_points=False, load_image=False)) == 6
+
+
+def test_sustech_scene_three_cameras():
+    root = shared_path("sustech_example")
+    assert find_source(root).name == "sustech"
+    for cam in ("front", "left", "right"):
+        seq = open_source(root, camera=cam, frames="0")
+        f = seq[0]
+        assert len(seq) == 1 and f.frame_key.endswith("000965") and f.bboxes_3d.shape == (21, 7)
+        assert f.extrinsics is not None and f.intrinsics is not None
+    with pytest.raises(FormatError, match="rear"):
+        open_source(root, camera="rear")

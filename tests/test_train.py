@@ -16,7 +16,7 @@ import torch
 from _matching_frames import TINY, make_frame, make_frames
 from xcalib.engine.matcher import Matcher
 from xcalib.engine.metrics import MetricsAccumulator, latency_stats, row_ranks
-from xcalib.engine.trainer import matching_loss, train
+from xcalib.engine.trainer import XCALIB_RECIPE, matching_loss, train
 
 TESTS = Path(__file__).resolve().parent
 
@@ -61,14 +61,14 @@ def test_loss_uses_every_positive_and_masks_other_frames():
 def test_fastmatch_learns_and_resumes(tmp_path):
     torch.manual_seed(0)
     tr, va = make_frames(16, 1), make_frames(6, 2)
-    before = Matcher("fastmatch", TINY["fastmatch"], device="cpu")
+    before = Matcher("fastmatch", TINY["fastmatch"], device="cpu", allow_random=True)
     acc0 = MetricsAccumulator()
     for f in va:
         acc0.add(before.match_frame(f).full_similarity(f.num_2d, f.num_3d, -9), f.match_matrix)
-    best = train("fastmatch", tr, va, config=TINY["fastmatch"], epochs=6, warmup_epochs=1, lr=3e-3,
+    best = train("fastmatch", tr, va, config=TINY["fastmatch"], **XCALIB_RECIPE.kwargs(epochs=6, warmup_epochs=1, lr=3e-3),
                  output_dir=tmp_path / "run", progress=False, seed=0)
     hist = json.loads((tmp_path / "run" / "history.json").read_text())
-    assert len(hist) == 6 and best.name == "best.pt" and (tmp_path / "run" / "best.yaml").exists()
+    assert len(hist) == 6 and best.name == "best.pth" and (tmp_path / "run" / "best.yaml").exists()
     m = Matcher.from_pretrained("fastmatch", weights=best, device="cpu")
     acc = MetricsAccumulator()
     for f in va:
@@ -76,7 +76,7 @@ def test_fastmatch_learns_and_resumes(tmp_path):
     assert acc.result().mrr > acc0.result().mrr + 0.1
     assert acc.result().mrr == pytest.approx(max(h["val_mrr"] for h in hist), abs=1e-6)
     # resume continues from last.pt to more epochs
-    train("fastmatch", tr, va, config=TINY["fastmatch"], epochs=7, warmup_epochs=1, lr=3e-3,
+    train("fastmatch", tr, va, config=TINY["fastmatch"], **XCALIB_RECIPE.kwargs(epochs=7, warmup_epochs=1, lr=3e-3),
           output_dir=tmp_path / "run", progress=False, seed=0, resume=True)
     hist2 = json.loads((tmp_path / "run" / "history.json").read_text())
     assert [h["epoch"] for h in hist2] == list(range(1, 8)) and hist2[:6] == hist
@@ -86,7 +86,7 @@ def test_single_detection_frames_train_crlite_and_matcher_train(tmp_path):
     tr = [make_frame(i, n_obj=1) for i in range(3)]
     for f in tr:  # one 2D box and one 3D box per frame
         f.bboxes_3d, f.match_matrix = f.bboxes_3d[f.match_matrix[0]], np.ones((1, 1), bool)
-    m = Matcher("crlite", TINY["crlite"], device="cpu")
+    m = Matcher("crlite", TINY["crlite"], device="cpu", allow_random=True)
     best = m.train(tr, tr[:1], output_dir=tmp_path, epochs=2, warmup_epochs=0, frames_per_batch=1,
                    progress=False)
     assert best.exists() and not m.model.training
@@ -129,7 +129,7 @@ def test_torchrun_two_cpu_processes(tmp_path):
         assert json.loads((tmp_path / f"rank{r}.json").read_text())[0] == 2
     hist = json.loads((tmp_path / "run" / "history.json").read_text())
     assert len(hist) == 2 and np.isfinite(hist[-1]["train_loss_mean"])
-    Matcher.from_pretrained("crlite", weights=tmp_path / "run" / "best.pt", device="cpu")
+    Matcher.from_pretrained("crlite", weights=tmp_path / "run" / "best.pth", device="cpu")
 
 
 def test_negative_sampling_keeps_every_matched_3d_box():

@@ -83,7 +83,7 @@ def test_weights_checksum_and_nan_refused(tmp_path):
     from xcalib.engine.checkpoint import WeightsMismatchError, read_checkpoint
     from xcalib.engine.matcher import Matcher
 
-    paths = Matcher("fastmatch", device="cpu").save_pretrained(tmp_path / "w")
+    paths = Matcher("fastmatch", device="cpu", allow_random=True).save_pretrained(tmp_path / "w")
     w = paths["weights"]
     assert w.with_suffix(".sha256").is_file()
     read_checkpoint(w)  # intact: loads
@@ -104,10 +104,10 @@ def test_save_pretrained_no_silent_overwrite_and_keeps_other_files(tmp_path):
     d = tmp_path / "site"
     d.mkdir()
     (d / "other.txt").write_text("keep me")
-    Matcher("fastmatch", device="cpu").save_pretrained(d)
+    Matcher("fastmatch", device="cpu", allow_random=True).save_pretrained(d)
     with pytest.raises(FileExistsError):
-        Matcher("fastmatch", device="cpu").save_pretrained(d)
-    Matcher("fastmatch", device="cpu").save_pretrained(d, overwrite=True)
+        Matcher("fastmatch", device="cpu", allow_random=True).save_pretrained(d)
+    Matcher("fastmatch", device="cpu", allow_random=True).save_pretrained(d, overwrite=True)
     assert (d / "other.txt").read_text() == "keep me"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["site"]  # no temp folder left
     Matcher.from_pretrained("fastmatch", weights=d, device="cpu")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["XcalibError", "FormatError"]
+__all__ = ["XcalibError", "FormatError", "CalibrationFailedError"]
 
 
 class XcalibError(Exception):
@@ -30,3 +30,8 @@ class FormatError(XcalibError, ValueError):
         if field:
             where += f" [{field}]"
         super().__init__(f"{where}: {problem}")
+
+
+class CalibrationFailedError(XcalibError, RuntimeError, ValueError):
+    """A pose was asked of a failed ``CalibrationResult`` (``success=False``: there is none).
+    A ``RuntimeError`` as in the reference, and a ``ValueError`` as xcalib raised before."""

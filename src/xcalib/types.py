@@ -9,7 +9,7 @@ import numpy as np
 
 from .geometry.camera import CameraIntrinsics
 
-__all__ = ["Frame", "MatchResult", "MatchSource"]
+__all__ = ["Frame", "MatchResult", "MatchSource", "DatasetFrame", "as_frame"]
 
 MatchSource = Literal["model", "fused", "geometry"]
 
@@ -68,7 +68,13 @@ class Frame:
         return self.image, self.point_cloud, self.bboxes_2d, self.bboxes_3d
 
     def for_camera(self, name: str):
-        """(image, point_cloud, bboxes_2d, bboxes_3d, match_matrix) of one camera's detections."""
+        """The reference's 4 values: (image, point_cloud, bboxes_2d, bboxes_3d) of camera ``name``'s
+        detections (all 3D boxes). :meth:`camera_view` adds the filtered match matrix."""
+        return self.camera_view(name)[:4]
+
+    def camera_view(self, name: str):
+        """(image, point_cloud, bboxes_2d, bboxes_3d, match_matrix) of one camera's detections
+        (the match matrix keeps that camera's rows; None without ground truth)."""
         if self.images is not None and name not in self.images and name != self.camera_name:
             raise KeyError(f"frame {self.frame_key!r} has no camera {name!r}; cameras: {sorted(self.images)}")
         image = self.images[name] if self.images and name in self.images else self.image
@@ -105,7 +111,7 @@ class MatchResult:
     kept_3d_indices: np.ndarray
     latency_ms: float = 0.0
     model: str = ""
-    device: str = "cpu"
+    device: str = ""
     assignment: str = "argmax"
     geometry_iou: np.ndarray | None = None
     fusion_weight: float = 0.0
@@ -123,3 +129,49 @@ class MatchResult:
         if self.similarity.size:
             out[np.ix_(self.kept_2d_indices, self.kept_3d_indices)] = self.similarity
         return out
+
+
+@dataclass
+class DatasetFrame:
+    """A frame as the reference's ``load_dataset`` yields it: ``intrinsics`` / ``extrinsics`` are
+    ``{camera: 3x3 K}`` / ``{camera: 4x4 T_cam_lidar}`` dicts over the frame's cameras, and
+    :meth:`for_camera` returns 4 values. ``frame`` is the same data as an xcalib :class:`Frame`
+    (typed intrinsics with distortion and image size, extras); ``Matcher.match_frame``,
+    ``Matcher.calibrate`` and ``xcalib.train`` accept either (:func:`as_frame`)."""
+
+    frame: Frame
+
+    def __getattr__(self, name: str):  # frame_key, image, point_cloud, boxes, images, ...
+        if name == "frame":
+            raise AttributeError(name)
+        return getattr(self.frame, name)
+
+    def _per_camera(self, key: str, value):
+        got = dict(self.frame.meta.get(key) or {})
+        if not got and value is not None:
+            got = {self.frame.camera_name: value}
+        return got
+
+    @property
+    def intrinsics(self) -> dict[str, np.ndarray]:
+        """{camera: [3,3] K} of the frame's cameras with intrinsics."""
+        return {c: np.asarray(k.K if isinstance(k, CameraIntrinsics) else k, dtype=np.float64)
+                for c, k in self._per_camera("intrinsics_by_camera", self.frame.intrinsics).items()}
+
+    @property
+    def extrinsics(self) -> dict[str, np.ndarray]:
+        """{camera: [4,4] LiDAR -> camera ground truth} of the frame's cameras with one."""
+        return {c: np.asarray(t, dtype=np.float64)
+                for c, t in self._per_camera("extrinsics_by_camera", self.frame.extrinsics).items()}
+
+    def for_camera(self, name: str):
+        """(image, point_cloud, bboxes_2d, bboxes_3d) of camera ``name``: its image, its 2D boxes,
+        all 3D boxes (``KeyError`` for an unknown camera)."""
+        if name != self.frame.camera_name and name not in (self.frame.images or {}):
+            raise KeyError(f"frame {self.frame.frame_key!r} has no camera {name!r}")
+        return self.frame.for_camera(name)
+
+
+def as_frame(item):
+    """An xcalib :class:`Frame` from a ``Frame`` or a :class:`DatasetFrame` (others pass through)."""
+    return item.frame if isinstance(item, DatasetFrame) else item

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..geometry.boxes import box2d_centers
 from ..geometry.projection import project_points
+from ..geometry.transforms import make_transform
 from .bringup import distinct_best, matcher_similarities, pose_hypotheses
 from .config import CalibConfig
 from .cost import Occlusion
@@ -31,9 +32,11 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, matched_places, prec
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, prepare_frames
+from .motion import BoxMotion, box_motion, shift_frames
 from .pose import Pose
 from .refine import RefineResult, match_all, pair_metrics, refine_pose
 from .result import CalibrationResult
+from .selfcal import decide as decide_selfcal, wants_selfcal
 from .uncertainty import estimate as estimate_uncertainty
 
 __all__ = ["calibrate", "calibrate_single", "METHOD"]
@@ -148,6 +151,34 @@ def _search(cframes, frames_in, intr, config: CalibConfig, matcher, prior: Pose 
     return bu.hyps
 
 
+def _motion(frames_in, cframes, config: CalibConfig, diag: CalibDiagnostics) -> tuple[list, BoxMotion | None, str]:
+    """Object motion when a time offset is asked for; a fixed offset moves the 3D boxes now.
+    Returns (frames, motion or None, refusal message or "")."""
+    if config.time_offset is None:
+        return cframes, None, ""
+    motion = box_motion(frames_in, cframes)
+    sc = diag.selfcal
+    sc.time_offset_mode, sc.stamp_offset_s = str(config.time_offset), motion.stamp_offset_s
+    sc.velocity_source, sc.ego_motion = motion.source, motion.ego_motion
+    if not isinstance(config.time_offset, float):
+        return cframes, motion, ""
+    if motion.problem:
+        return cframes, motion, f"time_offset={config.time_offset:g} s cannot be applied: {motion.problem}"
+    sc.time_offset_s, sc.time_offset_source = config.time_offset, "fixed"
+    return shift_frames(cframes, motion.velocity, config.time_offset), motion, ""
+
+
+def _selfcal_note(diag: CalibDiagnostics) -> str:
+    """What was estimated with the pose (appended to a refusal: it widens the pose's uncertainty)."""
+    sc, bits = diag.selfcal, []
+    if sc.focal_estimated:
+        bits.append(f"focal length x{sc.focal_scale:.4f} of the given (1-sigma {100 * (sc.focal_scale_std or 0):.1f} %)")
+    if sc.time_offset_source == "estimated":
+        bits.append(f"time offset {1e3 * sc.time_offset_s:+.1f} ms (1-sigma {1e3 * (sc.time_offset_std_s or 0):.1f} ms)")
+    return f" [estimated with the pose: {'; '.join(bits)}; with exact values given the pose may be determined]" \
+        if bits else ""
+
+
 def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Pose | None,
                progress: Progress | None) -> CalibrationResult:
     t0 = time.perf_counter()
@@ -155,8 +186,12 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
                                             box_model=config.box_model)
     diag = CalibDiagnostics(n_2d=sum(f.n2 for f in cframes), n_3d=sum(f.n3 for f in cframes),
                             max_baseline_m=config.max_baseline_m)
+    diag.selfcal.intrinsics_mode, diag.selfcal.intrinsics_given = config.refine_intrinsics, intr.to_dict()
     if problem:
         return _refused(Refusal("mixed_cameras", problem), intr, cframes, config, diag)
+    cframes, motion, why = _motion(frames_in, cframes, config, diag)
+    if why:
+        return _refused(Refusal("time_offset", why), intr, cframes, config, diag)
     pre = precheck(cframes)
     if pre is not None:
         return _refused(pre, intr, cframes, config, diag)
@@ -170,6 +205,17 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     diag.bringup_T = Pose(cand.R[0], cand.t[0]).T.tolist()
     occlusion = Occlusion(config.occlusion_tau, config.occlusion_slope)
     ref = _refine_candidates(cframes, intr, cand, occlusion, progress)
+    inflation = None
+    if wants_selfcal(config):
+        choice = decide_selfcal(cframes, intr, Pose(ref.best.R, ref.best.t), config, motion, occlusion, diag.selfcal)
+        diag.selfcal = choice.diag
+        if choice.refusal:
+            return _refused(Refusal("selfcal", choice.refusal), intr, cframes, config, diag)
+        if choice.intr is not intr or choice.frames is not cframes:
+            # every candidate again with the estimated intrinsics / moved 3D boxes (a fair runner-up)
+            cframes, intr, inflation = choice.frames, choice.intr, choice.inflation
+            joint = Hypotheses(choice.pose.R[None], choice.pose.t[None], np.zeros(1), np.zeros(1, dtype=np.int64))
+            ref = _refine_candidates(cframes, intr, Hypotheses.concat([joint, cand]), occlusion, progress)
     best, pose = ref.best, Pose(ref.best.R, ref.best.t)
     diag.score, diag.runner_up_score = ref.best_score, _runner_up(ref, config.max_baseline_m)
     diag.refine_history, diag.noise_model = list(best.history), best.noise
@@ -181,8 +227,11 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     f_scale = max(0.5, 1.5 * float(np.median(np.abs(best.residuals)))) if len(best.residuals) else 2.0
     unc = estimate_uncertainty(cframes, pairs, intr, pose, best.noise, f_scale, occlusion=occlusion,
-                               mode=config.uncertainty, track_ids=_track_ids(frames_in, cframes), seed=config.seed)
+                               mode=config.uncertainty, track_ids=_track_ids(frames_in, cframes), seed=config.seed,
+                               floor=inflation)
     diag.uncertainty = unc.parts
+    if inflation is not None:  # the floor here is the pose spread the estimated intrinsics / offset add
+        diag.uncertainty.floor, diag.uncertainty.selfcal = None, [float(v) for v in inflation]
     # a runner-up within 2 sigma of the best is the same solution (the decision then bounds the
     # error by 2 sigma); only one beyond that is a competing explanation
     runner = _runner_up(ref, config.max_baseline_m, 2 * float(np.linalg.norm(unc.rot_sd)),
@@ -201,13 +250,18 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
                                places=len(places), places_off_line=int(np.sum(off > POOLED_OFF_LINE_M)),
                                halves_available=unc.halves_available, best_score=ref.best_score,
                                runner_up_score=runner, rot_sd=unc.rot_sd, tr_sd=unc.tr_sd), config)
+    if refusal is not None and inflation is not None:
+        refusal = Refusal(refusal.code, refusal.message + _selfcal_note(diag))
     diag.refusal = "" if refusal is None else refusal.code
+    if refusal is not None:  # kept for diagnostics only: a failed result has no pose (as the reference)
+        diag.refused_T = make_transform(pose.R, pose.t).tolist()
     diag.elapsed_s = time.perf_counter() - t0
     caller_pairs = [np.column_stack([f.idx2d[p[:, 0]], f.idx3d[p[:, 1]]]) if len(p) else np.zeros((0, 2), np.int64)
                     for f, p in zip(cframes, pairs)]
     return _result(
         refusal is None, "" if refusal is None else refusal.message, intr, cframes, config, diag,
-        accepted=refusal is None, rotation=pose.R, translation=pose.t, n_correspondences=n_pairs,
+        accepted=refusal is None, rotation=pose.R if refusal is None else None,
+        translation=pose.t if refusal is None else None, n_correspondences=n_pairs,
         n_inliers=int(np.sum(ious >= 0.5)), reproj_error_px=float(np.mean(px)) if len(px) else float("inf"),
         residual_px_median=float(np.median(px)) if len(px) else float("nan"),
         iou_median=float(np.median(ious)) if len(ious) else float("nan"),
@@ -252,7 +306,7 @@ def calibrate(frames, intrinsics=None, config: CalibConfig | None = None, *args,
     if not res.success and config.max_baseline_m is not None and prior_pose is None \
             and res.diagnostics.refusal not in ("mixed_cameras", "too_few_detections", "collinear_3d", "collinear_2d"):
         # the co-located-rig assumption may be wrong (e.g. boxes in a global frame): search again
-        retry = _calibrate(frames_in, res.intrinsics, config.replace(max_baseline_m=None), matcher, None, progress)
+        retry = _calibrate(frames_in, intrinsics, config.replace(max_baseline_m=None), matcher, None, progress)
         if retry.success or res.diagnostics.refusal == "no_hypothesis":
             return retry
     return res

@@ -11,11 +11,37 @@ import dataclasses
 from dataclasses import dataclass, fields
 from typing import Any, Literal, get_args
 
-__all__ = ["CalibConfig", "YawMode", "BoxModel", "UncertaintyMode"]
+__all__ = ["CalibConfig", "YawMode", "BoxModel", "UncertaintyMode", "IntrinsicsMode", "TimeOffsetMode",
+           "parse_time_offset"]
 
 YawMode = Literal["auto", "always", "never"]
 BoxModel = Literal["auto", "corners", "points"]
 UncertaintyMode = Literal["objects", "frames"]
+IntrinsicsMode = Literal["auto", "none", "focal", "focal+center"]
+TimeOffsetMode = Literal["auto", "estimate"]
+
+
+def parse_time_offset(value: "str | float | None") -> "str | float | None":
+    """``time_offset`` from a config value or the command line: "auto", "estimate", "none"/"" (None)
+    or a number of seconds (camera time minus LiDAR time). Raises ValueError otherwise."""
+    if value is None or isinstance(value, bool):
+        if isinstance(value, bool):
+            raise ValueError(f"CalibConfig.time_offset: expected 'auto', 'estimate', seconds or None, got {value!r}")
+        return None
+    if isinstance(value, (int, float)):
+        v = float(value)
+        if not (abs(v) < 10.0):  # also refuses NaN
+            raise ValueError(f"CalibConfig.time_offset: a fixed offset must be finite and within 10 s, got {value!r}")
+        return v
+    text = str(value).strip().lower()
+    if text in ("auto", "estimate"):
+        return text
+    if text in ("none", "", "off"):
+        return None
+    try:
+        return parse_time_offset(float(text))
+    except ValueError:
+        raise ValueError(f"CalibConfig.time_offset: expected 'auto', 'estimate', seconds or None, got {value!r}") from None
 
 # older keyword names -> config fields
 _ALIASES = {"gate": "gate_iou"}
@@ -47,6 +73,18 @@ class CalibConfig:
         max_refine: distinct hypotheses refined.
         max_candidates: candidate (2D, 3D) pairs per hypothesis search (bounds memory: the search
             is quadratic in them; crowded frames are split by LiDAR azimuth, then subsampled).
+    Self-calibration (see ``selfcal``):
+        refine_intrinsics: "none" keeps the given intrinsics; "focal" estimates a common scale of
+            fx, fy (ratio kept) with the pose and refuses when the data cannot constrain it;
+            "focal+center" also the principal point; "auto" estimates the focal length only where
+            the data constrains it (1-sigma of the scale below ``focal_max_std``) and otherwise
+            keeps the given one (the misfit check then applies).
+        focal_max_std: largest 1-sigma (relative) of an estimated focal scale that is used.
+        time_offset: camera time minus LiDAR time (s). None: no offset; a number: that fixed
+            offset; "auto": estimated from moving objects when observable, else none (with a
+            warning); "estimate": estimated, refused when not observable. 3D boxes are moved by
+            their velocity (given, or from tracks over the frames' LiDAR times) times dt.
+        time_offset_max_std_s: largest 1-sigma (s) of an estimated offset that "auto" uses.
     Cost:
         occlusion_tau / occlusion_slope: inward edge residuals beyond tau (sigma units) are
             compressed by slope (occlusion only ever shrinks a 2D box).
@@ -67,17 +105,24 @@ class CalibConfig:
     max_hyp_frames: int = 10
     max_refine: int = 6
     max_candidates: int = 1500
+    refine_intrinsics: IntrinsicsMode = "none"
+    focal_max_std: float = 0.01
+    time_offset: TimeOffsetMode | float | None = None
+    time_offset_max_std_s: float = 0.02
     occlusion_tau: float = 1.5
     occlusion_slope: float = 0.2
     seed: int = 0
 
     def __post_init__(self) -> None:
-        for name, allowed in (("reestimate_yaw", YawMode), ("box_model", BoxModel), ("uncertainty", UncertaintyMode)):
+        object.__setattr__(self, "time_offset", parse_time_offset(self.time_offset))
+        for name, allowed in (("reestimate_yaw", YawMode), ("box_model", BoxModel), ("uncertainty", UncertaintyMode),
+                              ("refine_intrinsics", IntrinsicsMode)):
             if getattr(self, name) not in get_args(allowed):
                 raise ValueError(f"CalibConfig.{name}: expected one of {get_args(allowed)}, got {getattr(self, name)!r}")
         if not (0.0 < self.gate_iou <= 1.0):
             raise ValueError(f"CalibConfig.gate_iou: expected an IoU in (0, 1], got {self.gate_iou}")
-        for name in ("max_rot_std_deg", "max_trans_std_m", "occlusion_tau", "occlusion_slope"):
+        for name in ("max_rot_std_deg", "max_trans_std_m", "occlusion_tau", "occlusion_slope", "focal_max_std",
+                     "time_offset_max_std_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"CalibConfig.{name}: expected > 0, got {getattr(self, name)}")
         for name in ("min_pairs", "max_hyp_frames", "max_refine", "max_candidates"):

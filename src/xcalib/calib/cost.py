@@ -14,7 +14,11 @@ Terms here:
   noise, 3D centre error seen at depth Z, 3D size error), with the ``Occlusion`` shaping
   (inward edges -- an occluded or truncated 2D box -- pull less).
 * ``PosePriorTerm``: a known pose with its 1-sigma.
-* ``FocalScaleTerm``: one log scale of fx and fy (optional prior); used by the misfit check.
+* ``FocalScaleTerm``: one log scale of fx and fy (optional prior); used by the misfit check and
+  by the intrinsics refinement (``selfcal``).
+* ``PrincipalPointTerm``: a shift of (cx, cy) in pixels (optional prior).
+* ``TimeOffsetTerm``: the camera-minus-LiDAR time offset dt (s); every matched 3D outline is moved
+  by its velocity times dt before projection (``PoseState.shift_m``).
 """
 
 from __future__ import annotations
@@ -29,8 +33,8 @@ from .boxproj import project_rects
 from .diagnostics import NoiseModel
 from .pose import Pose
 
-__all__ = ["PoseState", "CostTerm", "Occlusion", "BoxEdgeTerm", "PosePriorTerm", "FocalScaleTerm", "CostModel",
-           "CostFit", "edge_sigma", "INWARD", "POSE_X_SCALE"]
+__all__ = ["PoseState", "CostTerm", "Occlusion", "BoxEdgeTerm", "PosePriorTerm", "FocalScaleTerm",
+           "PrincipalPointTerm", "TimeOffsetTerm", "CostModel", "CostFit", "edge_sigma", "INWARD", "POSE_X_SCALE"]
 
 INWARD = np.array([-1.0, -1.0, 1.0, 1.0])  # sign of (pred - obs) per edge when the 2D box lies inside
 POSE_X_SCALE = (1e-3, 1e-3, 1e-3, 0.05, 0.05, 0.05)  # typical step: rad, rad, rad, m, m, m
@@ -39,11 +43,13 @@ POSE_X_SCALE = (1e-3, 1e-3, 1e-3, 0.05, 0.05, 0.05)  # typical step: rad, rad, r
 @dataclass
 class PoseState:
     """What the terms see for one parameter vector: the pose, the intrinsics (possibly rescaled
-    by a term) and every term's own parameters by term name."""
+    by a term), every term's own parameters by term name, and ``shift_m``: a translation [n,3]
+    (LiDAR frame, m) of each matched 3D outline before projection (a time-offset term sets it)."""
 
     pose: Pose
     intr: CameraIntrinsics
     params: dict[str, np.ndarray] = field(default_factory=dict)
+    shift_m: np.ndarray | None = None
 
 
 class CostTerm:
@@ -112,7 +118,8 @@ class BoxEdgeTerm(CostTerm):
 
     def edges(self, state: PoseState) -> np.ndarray:
         """Unweighted, unshaped residuals [n,4] (px): projected rectangle - 2D box."""
-        rects, valid = project_rects(self.outlines, state.pose.R, state.pose.t, state.intr, self.size)
+        outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
+        rects, valid = project_rects(outlines, state.pose.R, state.pose.t, state.intr, self.size)
         return np.where(valid[:, None], rects - self.obs, self.fallback)
 
     def residuals(self, state: PoseState) -> np.ndarray:
@@ -158,6 +165,50 @@ class FocalScaleTerm(CostTerm):
         if self.sigma_log is None:
             return np.zeros(0)
         return np.asarray(state.params[self.name], dtype=np.float64) / self.sigma_log
+
+
+class PrincipalPointTerm(CostTerm):
+    """Two parameters: the shift (px) of the principal point (cx, cy); with ``sigma_px`` a Gaussian
+    prior on it."""
+
+    name = "principal_point"
+    n_params = 2
+    x_scale = (1.0, 1.0)
+
+    def __init__(self, sigma_px: float | None = None):
+        self.sigma_px = sigma_px
+
+    def apply(self, state: PoseState, x: np.ndarray) -> PoseState:
+        state.params[self.name] = x
+        state.intr = replace(state.intr, cx=state.intr.cx + float(x[0]), cy=state.intr.cy + float(x[1]))
+        return state
+
+    def residuals(self, state: PoseState) -> np.ndarray:
+        if self.sigma_px is None:
+            return np.zeros(0)
+        return np.asarray(state.params[self.name], dtype=np.float64) / self.sigma_px
+
+
+class TimeOffsetTerm(CostTerm):
+    """One parameter: dt = camera time - LiDAR time (s). Each matched 3D outline moves by
+    ``velocity_mps`` [n,3] (LiDAR frame, relative to the rig) times dt: where the object was when
+    the camera exposed. ``dt0`` is a fixed offset the parameter is added to."""
+
+    name = "time_offset"
+    n_params = 1
+    x_scale = (1e-2,)
+
+    def __init__(self, velocity_mps: np.ndarray, dt0: float = 0.0):
+        self.v, self.dt0 = np.asarray(velocity_mps, dtype=np.float64).reshape(-1, 3), float(dt0)
+
+    def apply(self, state: PoseState, x: np.ndarray) -> PoseState:
+        state.params[self.name] = x
+        shift = self.v * (self.dt0 + float(x[0]))
+        state.shift_m = shift if state.shift_m is None else state.shift_m + shift
+        return state
+
+    def residuals(self, state: PoseState) -> np.ndarray:
+        return np.zeros(0)
 
 
 @dataclass

@@ -11,7 +11,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-__all__ = ["NoiseModel", "CandidateSummary", "FrameSummary", "MisfitCheck", "UncertaintyParts", "CalibDiagnostics"]
+__all__ = ["NoiseModel", "CandidateSummary", "FrameSummary", "MisfitCheck", "UncertaintyParts", "SelfCalDiagnostics",
+           "CalibDiagnostics"]
 
 
 class NoiseModel(NamedTuple):
@@ -64,7 +65,8 @@ class UncertaintyParts:
     jacobian: linearised (sandwich) sigma; halves: difference of the two frame-half poses;
     jackknife: leave-one-pair-out sigma (few matches); objects: sigma from resampling objects
     (tracks repeated across frames count once); occlusion: pose shift without the occlusion
-    model; floor: the model-misfit floor; n_objects: distinct objects resampled."""
+    model; floor: the model-misfit floor; selfcal: the pose spread that estimating the intrinsics /
+    time offset adds (marginal minus conditional sigma, ``selfcal``); n_objects: distinct objects resampled."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -72,7 +74,46 @@ class UncertaintyParts:
     objects: list[float] | None = None
     occlusion: list[float] | None = None
     floor: list[float] | None = None
+    selfcal: list[float] | None = None
     n_objects: int = 0
+
+
+@dataclass
+class SelfCalDiagnostics:
+    """Intrinsics and time offset estimated with the pose (``selfcal``), and why / why not.
+
+    intrinsics_mode / time_offset_mode: what was asked (``CalibConfig``). intrinsics_given: the
+    intrinsics passed in (dict); fx_used, fy_used, cx_used, cy_used: those the pose was computed
+    with (px). focal_scale: used / given focal (1 = kept); focal_scale_std: its 1-sigma (relative),
+    also when it was measured but not used; focal_estimated: whether the estimate was used.
+    principal_shift_px [2] / principal_std_px [2]: estimated (cx, cy) shift and 1-sigma.
+    time_offset_s: camera time minus LiDAR time applied to the 3D boxes (None: none);
+    time_offset_std_s: 1-sigma of an estimated one; time_offset_source: "none" | "fixed" |
+    "estimated" | "fallback". velocity_source: "given" | "tracks" | "nearest" | "" (how the 3D box
+    velocities were obtained); n_moving_pairs: matched pairs of moving objects (> 0.5 m/s);
+    ego_motion: ego motion compensated (known ego poses). stamp_offset_s: median camera - LiDAR
+    stamp difference of the frames (for comparison; never used). notes: warnings and reasons."""
+
+    intrinsics_mode: str = "none"
+    intrinsics_given: dict | None = None
+    fx_used: float | None = None
+    fy_used: float | None = None
+    cx_used: float | None = None
+    cy_used: float | None = None
+    focal_scale: float = 1.0
+    focal_scale_std: float | None = None
+    focal_estimated: bool = False
+    principal_shift_px: list[float] | None = None
+    principal_std_px: list[float] | None = None
+    time_offset_mode: str = "none"
+    time_offset_s: float | None = None
+    time_offset_std_s: float | None = None
+    time_offset_source: str = "none"
+    velocity_source: str = ""
+    n_moving_pairs: int = 0
+    ego_motion: bool = False
+    stamp_offset_s: float | None = None
+    notes: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -101,7 +142,9 @@ class CalibDiagnostics:
     matched_places_off_line: int | None = None
     max_baseline_m: float | None = None
     misfit: list[MisfitCheck] = field(default_factory=list)
+    selfcal: SelfCalDiagnostics = field(default_factory=SelfCalDiagnostics)
     refusal: str = ""                      # short code of the refusal reason ("" on success)
+    refused_T: list | None = None          # [4,4] the refined pose that was refused (a failed result has none)
     frames: list[FrameSummary] = field(default_factory=list)
     elapsed_s: float = 0.0
 
@@ -118,6 +161,8 @@ class CalibDiagnostics:
         d["uncertainty"] = UncertaintyParts(**d.get("uncertainty", {}))
         d["candidates"] = [CandidateSummary(**c) for c in d.get("candidates", [])]
         d["misfit"] = [MisfitCheck(**c) for c in d.get("misfit", [])]
+        sc = {k: v for k, v in dict(d.get("selfcal") or {}).items() if k in {f.name for f in fields(SelfCalDiagnostics)}}
+        d["selfcal"] = SelfCalDiagnostics(**sc)
         d["frames"] = [FrameSummary(**c) for c in d.get("frames", [])]
         if d.get("score") is None:
             d["score"] = float("nan")

@@ -103,7 +103,7 @@ def write_report(result: CalibrationResult, frames: Sequence, out_dir, *, max_ov
                  bringup_overlays: bool = True, progress: Callable[[str, int, int], None] | None = None) -> ReportPaths:
     """Write the calibration, overlays of up to ``max_overlays`` frames (spread over the sequence)
     and ``summary.txt`` into ``out_dir``. ``progress(stage, done, total)`` is called per overlay."""
-    from ..viz.calibration import draw_calibration_overlay
+    from ..viz.calibration import REPORT_MAX_POINTS, draw_calibration_overlay
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -131,7 +131,7 @@ def write_report(result: CalibrationResult, frames: Sequence, out_dir, *, max_ov
         b3 = np.zeros((len(np.asarray(f.bboxes_3d)), 7))
         b3[cf[0].idx3d] = cf[0].boxes3d
         img = draw_calibration_overlay(image, f.point_cloud, calibration=result, bboxes_3d=b3,
-                                       bboxes_2d=f.bboxes_2d, pairs=p,
+                                       bboxes_2d=f.bboxes_2d, pairs=p, max_points=REPORT_MAX_POINTS,
                                        title=f"{key}: refined, {0 if p is None else len(p)} pairs")
         name = _unique(safe_name(key), used)  # frame keys are data: never a path
         path = out / "overlays" / f"{name}.png"
@@ -141,7 +141,7 @@ def write_report(result: CalibrationResult, frames: Sequence, out_dir, *, max_ov
             T = np.asarray(bring)
             img = draw_calibration_overlay(image, f.point_cloud, intrinsics=result.intrinsics, rotation=T[:3, :3],
                                            translation=T[:3, 3], bboxes_3d=b3, bboxes_2d=f.bboxes_2d,
-                                           title=f"{key}: bring-up pose (before refinement)")
+                                           max_points=REPORT_MAX_POINTS, title=f"{key}: bring-up pose (before refinement)")
             bpath = out / "overlays" / f"{name}_bringup.png"
             atomic_write(bpath, [encode_image(img, ".png")])
             paths.overlays.append(bpath)

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import CalibrationFailedError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.projection import project_points, projection_matrix
 from ..geometry.transforms import make_transform, pose_error as _pose_error
@@ -26,7 +27,11 @@ class CalibrationResult:
     one-to-one matches per frame as int arrays [n,2] of (2D index, 3D index) in each frame's
     own numbering. Residuals are in pixels (box-edge disagreement) and IoU of projected 3D
     boxes vs their matched 2D boxes. ``rotation_std_deg`` / ``translation_std_m`` are 1-sigma
-    uncertainty estimates ([3] each: about/along the camera x, y, z axes). ``config`` is the
+    uncertainty estimates ([3] each: about/along the camera x, y, z axes). A failed result
+    (``success=False``) has ``rotation`` / ``translation`` None (as the reference), and its pose
+    views (``extrinsics``, ``projection``, ``pose_error``, ``project``) raise
+    :class:`xcalib.errors.CalibrationFailedError` (a ``RuntimeError`` and a ``ValueError``).
+    ``config`` is the
     ``CalibConfig`` that produced the result and ``diagnostics`` what the calibration computed
     on the way (bring-up pose, uncertainty parts, misfit checks, per-frame residuals); both are
     None for results read from other tools' files.
@@ -34,8 +39,8 @@ class CalibrationResult:
 
     success: bool
     intrinsics: CameraIntrinsics | None = None
-    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
-    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rotation: np.ndarray | None = None
+    translation: np.ndarray | None = None
     message: str = ""
     n_correspondences: int = 0
     n_inliers: int = 0
@@ -57,16 +62,26 @@ class CalibrationResult:
     diagnostics: CalibDiagnostics | None = None
 
     def __post_init__(self) -> None:
-        self.rotation = np.asarray(self.rotation, dtype=np.float64).reshape(3, 3)
-        self.translation = np.asarray(self.translation, dtype=np.float64).reshape(3)
+        if self.success and (self.rotation is None or self.translation is None):
+            raise ValueError("CalibrationResult: a successful result needs a rotation and a translation")
+        if self.rotation is not None:
+            self.rotation = np.asarray(self.rotation, dtype=np.float64).reshape(3, 3)
+        if self.translation is not None:
+            self.translation = np.asarray(self.translation, dtype=np.float64).reshape(3)
         self.rotation_std_deg = np.asarray(self.rotation_std_deg, dtype=np.float64).reshape(3)
         self.translation_std_m = np.asarray(self.translation_std_m, dtype=np.float64).reshape(3)
         self.pairs = [np.asarray(p, dtype=np.int64).reshape(-1, 2) for p in self.pairs]
 
     # ----------------------------------------------------------------- views
+    def _require_pose(self, what: str) -> None:
+        if self.rotation is None or self.translation is None:
+            raise CalibrationFailedError(f"{what}: the calibration failed ({self.message or 'no pose'}); "
+                                         "there is no pose")
+
     @property
     def extrinsics(self) -> np.ndarray:
         """[4,4] ``T_cam_lidar``."""
+        self._require_pose("extrinsics")
         return make_transform(self.rotation, self.translation)
 
     @property
@@ -78,23 +93,53 @@ class CalibrationResult:
     @property
     def projection(self) -> np.ndarray:
         """[3,4] ``P = K [R|t]`` (LiDAR-frame points -> pixels, distortion excluded)."""
+        self._require_pose("projection")
         return projection_matrix(self.K, self.rotation, self.translation)
+
+    @property
+    def time_offset_s(self) -> float | None:
+        """Camera time minus LiDAR time (s) the 3D boxes were moved by (estimated or fixed); None: none."""
+        return None if self.diagnostics is None else self.diagnostics.selfcal.time_offset_s
+
+    @property
+    def time_offset_std_s(self) -> float | None:
+        """1-sigma (s) of an estimated time offset."""
+        return None if self.diagnostics is None else self.diagnostics.selfcal.time_offset_std_s
+
+    @property
+    def intrinsics_given(self) -> CameraIntrinsics | None:
+        """The intrinsics passed in (``intrinsics`` are those used: estimated where refined)."""
+        if self.diagnostics is None or self.diagnostics.selfcal.intrinsics_given is None:
+            return self.intrinsics
+        return CameraIntrinsics.from_dict(self.diagnostics.selfcal.intrinsics_given)
+
+    @property
+    def focal_scale(self) -> float:
+        """Focal length used / given (1.0: the given one kept)."""
+        return 1.0 if self.diagnostics is None else float(self.diagnostics.selfcal.focal_scale)
+
+    @property
+    def focal_scale_std(self) -> float | None:
+        """1-sigma (relative) of the focal scale where it was measured."""
+        return None if self.diagnostics is None else self.diagnostics.selfcal.focal_scale_std
 
     @property
     def n_pairs(self) -> int:
         return int(sum(len(p) for p in self.pairs))
 
-    def pose_error(self, gt) -> tuple[float, float]:
-        """(rotation error in degrees, translation error in metres) against a [4,4]/[3,4] truth."""
+    def pose_error(self, gt_extrinsics) -> tuple[float, float]:
+        """(rotation error in degrees, translation error in metres) against a [4,4]/[3,4] truth;
+        :class:`CalibrationFailedError` (a RuntimeError) for a failed result."""
         if not self.success:
-            raise ValueError(f"calibration failed ({self.message}); there is no pose to compare")
-        return _pose_error(self.extrinsics, gt)
+            raise CalibrationFailedError(f"calibration failed ({self.message}); there is no pose to compare")
+        return _pose_error(self.extrinsics, gt_extrinsics)
 
-    def project(self, points):
+    def project(self, points_3d):
         """LiDAR-frame points [N,>=3] -> (uv [N,2] pixels with distortion, depth [N] metres)."""
+        self._require_pose("project")
         if self.intrinsics is None:
             raise ValueError("CalibrationResult has no intrinsics")
-        return project_points(points, self.intrinsics, self.rotation, self.translation)
+        return project_points(points_3d, self.intrinsics, self.rotation, self.translation)
 
     # ------------------------------------------------------------------ I/O
     def to_dict(self) -> dict[str, Any]:
@@ -107,10 +152,10 @@ class CalibrationResult:
             "camera_name": self.camera_name,
             "image_size": None if self.image_size is None else list(self.image_size),
             "intrinsics": None if self.intrinsics is None else self.intrinsics.to_dict(),
-            "rotation": self.rotation.tolist(),
-            "translation": self.translation.tolist(),
-            "extrinsics_T_cam_lidar": self.extrinsics.tolist(),
-            "projection": None if self.intrinsics is None else self.projection.tolist(),
+            "rotation": None if self.rotation is None else self.rotation.tolist(),
+            "translation": None if self.translation is None else self.translation.tolist(),
+            "extrinsics_T_cam_lidar": None if self.rotation is None else self.extrinsics.tolist(),
+            "projection": None if self.intrinsics is None or self.rotation is None else self.projection.tolist(),
             "n_correspondences": int(self.n_correspondences),
             "n_inliers": int(self.n_inliers),
             "reproj_error_px": _num(self.reproj_error_px),
@@ -134,8 +179,8 @@ class CalibrationResult:
         return cls(
             success=bool(d["success"]),
             intrinsics=None if intr is None else CameraIntrinsics.from_dict(intr),
-            rotation=np.asarray(d["rotation"], dtype=np.float64),
-            translation=np.asarray(d["translation"], dtype=np.float64),
+            rotation=None if d.get("rotation") is None else np.asarray(d["rotation"], dtype=np.float64),
+            translation=None if d.get("translation") is None else np.asarray(d["translation"], dtype=np.float64),
             message=d.get("message", ""),
             n_correspondences=int(d.get("n_correspondences", 0)),
             n_inliers=int(d.get("n_inliers", 0)),
@@ -158,8 +203,11 @@ class CalibrationResult:
         )
 
     def save(self, path: str | Path, *, overwrite: bool = True) -> Path:
-        """Write ``.json`` (everything, exact float repr) or ``.npz`` (arrays + JSON blob), atomically
-        (unique temp file beside ``path``, then rename). ``overwrite=False`` refuses an existing file."""
+        """Write ``.json`` (everything, exact float repr) or ``.npz`` (the reference's arrays
+        rotation, translation, projection, K, reproj_error_px, n_inliers, plus extrinsics,
+        dist_coeffs, success, n_correspondences and a JSON blob; a failed result's pose arrays
+        are NaN), atomically (unique temp file beside ``path``, then rename).
+        ``overwrite=False`` refuses an existing file."""
         import io
 
         from ..io._files import atomic_write
@@ -167,11 +215,15 @@ class CalibrationResult:
         path = Path(path)
         if path.suffix == ".npz":
             buf = io.BytesIO()
-            np.savez(buf, rotation=self.rotation, translation=self.translation,
-                     extrinsics=self.extrinsics,
+            posed = self.rotation is not None and self.translation is not None
+            np.savez(buf, rotation=self.rotation if posed else np.full((3, 3), np.nan),
+                     translation=self.translation if posed else np.full(3, np.nan),
+                     extrinsics=self.extrinsics if posed else np.full((4, 4), np.nan),
                      K=self.K if self.intrinsics is not None else np.full((3, 3), np.nan),
                      dist_coeffs=self.intrinsics.dist_coeffs if self.intrinsics is not None else np.zeros(5),
-                     projection=self.projection if self.intrinsics is not None else np.full((3, 4), np.nan),
+                     projection=self.projection if self.intrinsics is not None and posed else np.full((3, 4), np.nan),
+                     reproj_error_px=np.float64(self.reproj_error_px), n_inliers=np.int64(self.n_inliers),
+                     n_correspondences=np.int64(self.n_correspondences), success=np.bool_(self.success),
                      json=np.frombuffer(json.dumps(self.to_dict()).encode(), dtype=np.uint8))
             data = buf.getvalue()
         else:
@@ -205,6 +257,8 @@ class CalibrationResult:
                 raise FormatError(path, "missing key", key)
         if not isinstance(d["success"], bool):
             raise FormatError(path, f"expected true or false, got {d['success']!r:.40}", "success")
+        if d["success"] and (d["rotation"] is None or d["translation"] is None):
+            raise FormatError(path, "a successful calibration needs a rotation and a translation", "rotation")
         try:
             res = cls.from_dict(d)
             _validate_pose(res, path)
@@ -231,6 +285,16 @@ class CalibrationResult:
             f"  1-sigma       = rot {np.array2string(self.rotation_std_deg, precision=3)} deg, "
             f"trans {np.array2string(self.translation_std_m, precision=3)} m",
         ]
+        sc = None if self.diagnostics is None else self.diagnostics.selfcal
+        if sc is not None and sc.focal_estimated:
+            lines.append(f"  focal length  = fx {sc.fx_used:.2f}, fy {sc.fy_used:.2f} px (x{sc.focal_scale:.4f} of the "
+                         f"given, 1-sigma {100 * (sc.focal_scale_std or 0):.2f} %)")
+        if sc is not None and sc.principal_shift_px is not None:
+            lines.append(f"  principal pt  = cx {sc.cx_used:.1f}, cy {sc.cy_used:.1f} px (moved "
+                         f"{sc.principal_shift_px[0]:+.1f}, {sc.principal_shift_px[1]:+.1f} px)")
+        if sc is not None and sc.time_offset_s is not None:
+            sd = "" if sc.time_offset_std_s is None else f", 1-sigma {1e3 * sc.time_offset_std_s:.1f} ms"
+            lines.append(f"  time offset   = {1e3 * sc.time_offset_s:+.1f} ms camera - LiDAR ({sc.time_offset_source}{sd})")
         if self.message:
             lines.append(f"  note: {self.message}")
         return "\n".join(lines)
@@ -274,6 +338,10 @@ def _validate_pose(res: "CalibrationResult", path) -> None:
     from ..geometry.rotations import orthonormality_error
 
     R, t = res.rotation, res.translation
+    if R is None or t is None:  # a failed result has no pose
+        if (R is None) != (t is None):
+            raise FormatError(path, "rotation and translation must both be null or both be given", "rotation")
+        R, t = np.eye(3), np.zeros(3)
     if not np.all(np.isfinite(R)):
         raise FormatError(path, "rotation has NaN/Inf entries", "rotation")
     err = orthonormality_error(R)
@@ -301,7 +369,10 @@ def _validate_pose(res: "CalibrationResult", path) -> None:
 def _check_npz_agrees(res: "CalibrationResult", arrays: dict, path) -> None:
     from ..errors import FormatError
 
-    want = {"rotation": res.rotation, "translation": res.translation, "extrinsics": res.extrinsics}
+    if res.rotation is None:  # a failed result: NaN pose arrays
+        want = {}
+    else:
+        want = {"rotation": res.rotation, "translation": res.translation, "extrinsics": res.extrinsics}
     if res.intrinsics is not None:
         want["K"] = res.intrinsics.K
     for name, value in want.items():

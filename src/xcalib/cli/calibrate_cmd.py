@@ -40,6 +40,14 @@ def register(app: typer.Typer) -> None:
         limit: int = typer.Option(0, "--limit", help="Use only the first N frames (0: all)."),
         tolerance: float = typer.Option(0.05, "--tolerance", help="Bags: largest LiDAR/image stamp difference (s)."),
         seed: int = typer.Option(0, "--seed", help="Random seed of the hypothesis sampling."),
+        refine_intrinsics: str = typer.Option("none", "--refine-intrinsics",
+                                              help="none | auto | focal | focal+center: estimate the focal length "
+                                                   "(and principal point) with the pose; auto: only where the "
+                                                   "detections constrain it."),
+        time_offset: str = typer.Option("none", "--time-offset",
+                                        help="none | auto | estimate | SECONDS: camera-minus-LiDAR time offset; "
+                                             "auto/estimate fit it from moving objects (auto falls back to none "
+                                             "when not observable, estimate refuses)."),
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
         force: bool = typer.Option(False, "--force", help="Replace an existing report folder."),
     ) -> None:
@@ -47,12 +55,17 @@ def register(app: typer.Typer) -> None:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         from ..calib.api import calibrate
+        from ..calib.config import CalibConfig
         from ..calib.result import CalibrationResult
         from ..io._files import atomic_dir
         from ..io.frames import read_intrinsics_json
         from ..site import calibrate_site
         from ..viz.site_report import site_table, write_site_report
 
+        try:
+            selfcal = CalibConfig(refine_intrinsics=refine_intrinsics, time_offset=time_offset)
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc), param_hint="--refine-intrinsics / --time-offset") from None
         if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
             raise FileExistsError(f"{out} already exists; pass --force to replace it")
         cams = list(camera or [])
@@ -79,7 +92,7 @@ def register(app: typer.Typer) -> None:
                 bar.update(tasks[stage], completed=done, total=total)
 
             def run(items, k, stage):
-                return calibrate(items, k, prior=prior_res, box_model=box_model, seed=seed, progress=stage)
+                return calibrate(items, k, selfcal, prior=prior_res, box_model=box_model, seed=seed, progress=stage)
 
             site, loaded = calibrate_site(views, {name0: intr} if intr is not None else None, source=str(frames),
                                           calibrate=run, progress=progress)
@@ -109,7 +122,8 @@ def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, to
             seq = open_source(source, camera=c, frames=frame_range, **options)
             if len(seq) == 0:
                 raise typer.BadParameter(f"{source}: no frames found", param_hint="SOURCE")
-            name = c or getattr(seq, "camera", "") or seq[0].camera_name or "camera"
+            own = getattr(seq, "camera", None)  # a source's camera attribute (KITTI's is the camera number)
+            name = c or (own if isinstance(own, str) and own else "") or seq[0].camera_name or "camera"
             views[name] = seq
     except ValueError as exc:
         if type(exc).__name__ == "FormatError":

@@ -147,6 +147,14 @@ def register(app: typer.Typer) -> None:
                                                help="Let the matcher's scores seed the calibration's hypotheses "
                                                     "(default: geometry alone)."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout."),
+        weights_site: str = typer.Option("synthetic", "--site", help="Site whose weights the matcher loads."),
+        config: Optional[Path] = typer.Option(None, "--config", help="Model config YAML for the matcher."),
+        device: str = typer.Option("cpu", "--device", help="Device of the matcher (cpu, cuda, auto)."),
+        n_image: Optional[int] = typer.Option(None, "--n-image", min=1,
+                                              help="The reference's quick demo: one synthetic frame with this many "
+                                                   "camera boxes (default 3 when --n-lidar is given) -> match and print."),
+        n_lidar: Optional[int] = typer.Option(None, "--n-lidar", min=1,
+                                              help="The reference's quick demo: this many LiDAR boxes (default 5)."),
     ) -> None:
         from rich.console import Console
         from rich.panel import Panel
@@ -154,6 +162,14 @@ def register(app: typer.Typer) -> None:
 
         from . import _demo
 
+        if n_image is not None or n_lidar is not None:  # the reference's one-frame demo
+            matcher, why = _demo.load_matcher(model, weights, weights_site, config, device)
+            if matcher is None:
+                typer.echo(f"error: no matcher: {why}", err=True)
+                raise typer.Exit(1)
+            for line in _demo.quick_match_demo(matcher, n_image or 3, n_lidar or 5, seed):
+                typer.echo(line)
+            return
         # far objects hold few LiDAR points by nature; the per-kind protocol warnings would only clutter the demo
         logging.getLogger("xcalib.protocol").setLevel(logging.ERROR)
         console = Console(stderr=as_json, highlight=False)
@@ -174,7 +190,7 @@ def register(app: typer.Typer) -> None:
                                     "mount": site.mount, "camera_height_m": round(float(site.values.get(
                                         "camera_height", float("nan"))), 2), "seconds": round(data.seconds, 2)}
             # 2. matching
-            matcher, why = _demo.load_matcher(model, weights)
+            matcher, why = _demo.load_matcher(model, weights, weights_site, config, device)
             if matcher is not None:
                 _, cb, _ = _step(progress, f"[2/{n_steps}] matching ({model})", n_frames)
                 mo = _demo.match_frames(matcher, data.frames, progress=cb)

@@ -45,11 +45,12 @@ def register(app: typer.Typer) -> None:
                 try:
                     m = Matcher.from_pretrained(model, config=config, device="cpu", site=site)
                 except WeightsNotFoundError:
-                    m = Matcher(model, device="cpu")
+                    m = Matcher(model, device="cpu", allow_random=True)
             else:
                 m = Matcher.from_pretrained(model, weights=weights, config=config, device="cpu", site=site)
         with console.status(f"exporting {model} to {fmt} (parity check included)"):
             res = m.build(fmt, out, site=site if m.weights_path is not None else None, allow_random=allow_random,
+                          site_folder=True,
                           verify=not no_verify, precision=precision, trtexec=trtexec, extra_trt_args=trt_arg,
                           onnx_dir=onnx_dir)
         d = res.to_dict()

@@ -9,6 +9,8 @@ from typing import Optional
 
 import typer
 
+from ..engine.recipes import XCALIB_RECIPE
+
 _EXAMPLE = ("Example: xcalib train --model fastmatch --train-data site/train.h5 --val-data site/val.h5 "
             "--epochs 30 --site mysite")
 
@@ -21,9 +23,9 @@ def register(app: typer.Typer) -> None:
         train_data: Path = typer.Option(..., "--train-data", help="Training cache (.h5) or site folder."),
         val_data: Optional[Path] = typer.Option(None, "--val-data", help="Validation cache (.h5)."),
         config: Optional[Path] = typer.Option(None, "--config", help="YAML merged over the model defaults."),
-        epochs: int = typer.Option(100, "--epochs"),
-        lr: float = typer.Option(1e-3, "--lr"),
-        warmup_epochs: float = typer.Option(5, "--warmup-epochs"),
+        epochs: int = typer.Option(XCALIB_RECIPE.epochs, "--epochs"),
+        lr: float = typer.Option(XCALIB_RECIPE.lr, "--lr"),
+        warmup_epochs: float = typer.Option(XCALIB_RECIPE.warmup_epochs, "--warmup-epochs"),
         frames_per_batch: int = typer.Option(4, "--frames-per-batch"),
         weights: Optional[Path] = typer.Option(None, "--weights", help="Warm start from these weights (strict)."),
         resume: bool = typer.Option(False, "--resume", help="Continue from OUTPUT_DIR/last.pt."),
@@ -38,11 +40,13 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         import torch.distributed as dist
 
-        from ..engine.checkpoint import read_config, site_dirs
+        from ..engine.checkpoint import read_config, site_dirs, write_checksum
+        from ..io._files import atomic_dir
         from ..engine.trainer import shutdown_distributed, train
 
         cfg = read_config(config) if config else None
-        best = train(model, train_data, val_data, config=cfg, epochs=epochs, lr=lr, warmup_epochs=warmup_epochs,
+        recipe = XCALIB_RECIPE.kwargs(epochs=epochs, lr=lr, warmup_epochs=warmup_epochs)
+        best = train(model, train_data, val_data, config=cfg, **recipe,
                      frames_per_batch=frames_per_batch, weights=weights, resume=resume or None,
                      output_dir=output_dir, device=device, seed=seed, limit_train_frames=limit_train_frames,
                      limit_val_frames=limit_val_frames, progress=not as_json)
@@ -53,9 +57,13 @@ def register(app: typer.Typer) -> None:
         installed = None
         if site:
             d = site_dirs(site)[0]
-            d.mkdir(parents=True, exist_ok=True)
-            installed = str(shutil.copyfile(best, d / f"{model}.pt"))
-            shutil.copyfile(best.with_suffix(".yaml"), d / f"{model}.yaml")
+            with atomic_dir(d, keep_existing=True) as tmp:  # other models' files of the site are kept
+                shutil.copyfile(best, tmp / f"{model}.pth")
+                write_checksum(tmp / f"{model}.pth")
+                shutil.copyfile(best.with_suffix(".yaml"), tmp / f"{model}.yaml")
+            if (d / f"{model}.pt").is_file():  # one set of weights per model in a site folder
+                (d / f"{model}.pt").unlink()
+            installed = str(d / f"{model}.pth")
         hist = json.loads((Path(output_dir) / "history.json").read_text())
         bestrow = max(hist, key=lambda h: h["val_mrr"])
         summary = {"model": model, "best": str(best), "installed": installed, "epochs": len(hist),

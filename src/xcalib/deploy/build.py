@@ -1,7 +1,9 @@
 """``Matcher.build``: ONNX export with parity checks, TensorRT engines via ``trtexec``.
 
-``build(matcher, "onnx", output_dir)`` writes ``<output_dir>/<model>_<site>/`` (graphs +
-``manifest.json``; the folder name keeps the weights of two sites apart) and checks every graph
+``build(matcher, "onnx", output_dir)`` writes the graphs + ``manifest.json`` into ``output_dir``
+itself (default ``./onnx/<model>/``, as the reference); with ``site_folder=True`` (what ``xcalib
+export`` uses) into ``<output_dir>/<model>_<site>/``, a folder name that keeps the weights of two
+sites apart. It checks every graph
 output and the end-to-end similarity against torch on two frames: random crops with distinct
 box centres, and real-shaped crops of a synthetic roadside frame. Pass: max |torch - onnx| <=
 ``parity_tolerance`` (1e-4). ``BuildResult.parity_ok`` is False when parity was not checked.
@@ -47,11 +49,11 @@ class BuildResult:
 
     target: str
     model: str
-    site: str
     output_dir: Path
     artifacts: list[Path] = field(default_factory=list)
     parity: dict[str, float] = field(default_factory=dict)
     logs: list[Path] = field(default_factory=list)
+    site: str = ""
     parity_checked: bool = False
     tolerance: float = PARITY_TOLERANCE
     notes: list[str] = field(default_factory=list)
@@ -172,7 +174,7 @@ def export_onnx(matcher, folder: Path, *, site: str, weights_sha: str, opset: in
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir()
-    res = BuildResult("onnx", matcher.model_name, site, folder, tolerance=parity_tolerance)
+    res = BuildResult("onnx", matcher.model_name, folder, site=site, tolerance=parity_tolerance)
     try:
         model = cpu_copy(matcher.model)
         cfg = matcher.crop_config
@@ -227,10 +229,13 @@ def build(matcher, target: str = "onnx", output_dir: str | Path | None = None, *
           allow_random: bool = False, verify: bool = True, opset: int = OPSET,
           parity_tolerance: float = PARITY_TOLERANCE, precision: str = "fp16", onnx_dir: str | Path | None = None,
           trtexec: str | Path | None = None, extra_trt_args: Sequence[str] = (), envelope=None,
-          timeout_s: float | None = None, device: str | None = None) -> BuildResult:
+          timeout_s: float | None = None, device: str | None = None, site_folder: bool = False) -> BuildResult:
     """Export ``matcher`` (see module docstring). ``target``: "onnx" or "trt" ("tensorrt",
-    "engine"). ``output_dir`` default ``./onnx`` (ONNX) / ``./engines`` (TRT); the files go to
-    ``<output_dir>/<model>_<site>/``. ``site`` defaults to the matcher's site, else
+    "engine"). The files go to ``output_dir`` (default ``./onnx/<model>/`` for ONNX,
+    ``./engines/<model>/`` for TRT, as the reference), or with ``site_folder`` to
+    ``<output_dir>/<model>_<site>/`` (roots ``./onnx`` / ``./engines``). ``device``: accepted
+    for the reference; the graphs are always traced from a CPU copy (the matcher is untouched).
+    ``site`` defaults to the matcher's site, else
     ``local-<weights hash>``. A matcher whose weights were never loaded is refused unless
     ``allow_random``. TRT: ``onnx_dir`` = an existing export folder to build from (it must match
     model, site and weights); otherwise the graphs are exported (or reused when current) into
@@ -245,16 +250,21 @@ def build(matcher, target: str = "onnx", output_dir: str | Path | None = None, *
     weights_sha = state_hash(matcher.model)
     site = resolve_site(matcher, site, weights_sha, allow_random)
     name = folder_name(matcher.model_name, site)
+
+    def place(default_root: str) -> Path:
+        if site_folder:
+            return (Path(output_dir) if output_dir is not None else Path(default_root)) / name
+        return Path(output_dir) if output_dir is not None else Path(default_root) / matcher.model_name
+
     if t == "onnx":
-        root = Path(output_dir) if output_dir is not None else Path("onnx")
-        return export_onnx(matcher, root / name, site=site, weights_sha=weights_sha, opset=opset, verify=verify,
+        return export_onnx(matcher, place("onnx"), site=site, weights_sha=weights_sha, opset=opset, verify=verify,
                            parity_tolerance=parity_tolerance)
 
     from . import trt
 
     exe = trt.find_trtexec(trtexec)  # fail before any export
     precision = trt.check_precision(precision)
-    engine_dir = (Path(output_dir) if output_dir is not None else Path("engines")) / name
+    engine_dir = place("engines")
     notes: list[str] = []
     parity: dict[str, float] = {}
     checked = False

@@ -101,7 +101,7 @@ class OnnxMatcher:
         self.host: dict[str, Any] = dict(man.host)
         self.fill_value = self.host.get("fill_value")
         self.model = OnnxModelInfo(man.model, man.family, self.fill_value, dict(man.config))
-        self._warnings = WarningRegistry()
+        self.warning_registry = WarningRegistry()
         so = ort.SessionOptions()
         so.intra_op_num_threads = int(threads)
         so.inter_op_num_threads = 1
@@ -208,9 +208,9 @@ class OnnxMatcher:
         return prepare_frame(image, point_cloud, bboxes_2d, bboxes_3d, self.crop_config, rng, **multi_camera)
 
     def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float | None = None,
-              validate: str = "warn", assignment: str = "argmax", *, images=None,
-              camera_per_det=None, use_calibration: str | bool = "auto", box7=None,
-              return_latency: bool = False, intrinsics=None, geometry: str = "auto") -> MatchResult:
+              return_latency: bool = False, validate: str = "warn", *, assignment: str = "argmax", images=None,
+              camera_per_det=None, use_calibration: str | bool = "auto", box7=None, intrinsics=None,
+              geometry: str = "auto") -> MatchResult:
         """Match one frame (see ``Matcher.match``). ``latency_ms`` = crop + graphs + host scoring."""
         return run_match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k=top_k, match_threshold=match_threshold,
                          validate=validate, assignment=assignment, images=images, camera_per_det=camera_per_det,

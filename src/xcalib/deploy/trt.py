@@ -86,7 +86,7 @@ def build_engines(onnx_folder: Path, engine_dir: Path, manifest: Manifest, trtex
 
     onnx_folder, engine_dir = Path(onnx_folder), Path(engine_dir)
     engine_dir.mkdir(parents=True, exist_ok=True)
-    res = BuildResult("trt", manifest.model, manifest.site, engine_dir, precision=precision)
+    res = BuildResult("trt", manifest.model, engine_dir, site=manifest.site, precision=precision)
     record = {"precision": precision, "trtexec": str(trtexec), "onnx_folder": str(onnx_folder),
               "weights_sha256": manifest.weights_sha256, "engines": {}}
     if precision == "int8":

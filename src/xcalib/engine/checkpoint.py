@@ -3,7 +3,8 @@ site lookup.
 
 Payload (``torch.save`` dict): ``format`` "xcalib-weights-v1", ``model_name``,
 ``package_version``, ``config`` (the full model config, no device), ``dtype`` ("float32" or
-"float16": storage dtype of floating tensors) and ``state_dict``.
+"float16": storage dtype of floating tensors) and ``state_dict``, also under the reference's
+key ``model_state_dict`` (the same tensors: stored once).
 
 Bit-exactness: loading restores every tensor exactly as stored (float16 values are upcast to
 the model's float32 exactly), so ``save -> load -> save`` writes identical tensors and a
@@ -42,7 +43,7 @@ __all__ = ["FORMAT", "WeightsMismatchError", "WeightsNotFoundError", "xcalib_hom
            "save_resume_state", "load_resume_state", "torch_load_safe"]
 
 FORMAT = "xcalib-weights-v1"
-WEIGHT_SUFFIXES = (".pt", ".pth")
+WEIGHT_SUFFIXES = (".pth", ".pt")  # save_pretrained writes .pth (as the reference); .pt still loads
 
 
 class WeightsMismatchError(FormatError):
@@ -206,7 +207,8 @@ def save_weights(model: torch.nn.Module, path: Path, *, model_name: str, config:
         sd[k] = v.to(torch.float16) if dtype == "float16" and v.is_floating_point() else v.clone()
     payload = {"format": FORMAT, "model_name": model_name, "package_version": __version__,
                "config": {k: v for k, v in config.items() if k not in ("device", "weights_path")},
-               "dtype": dtype, "state_dict": sd, "state_sha256": state_sha256(sd), **(extra or {})}
+               "dtype": dtype, "state_dict": sd, "model_state_dict": sd, "state_sha256": state_sha256(sd),
+               **(extra or {})}
     buf = io.BytesIO()
     torch.save(payload, buf)
     out = atomic_write(path, [buf.getbuffer()])

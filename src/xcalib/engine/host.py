@@ -78,7 +78,7 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
               fill_value: float | None, return_latency: bool = False, intrinsics=None,
               geometry: str = "auto") -> MatchResult:
     """One frame through matcher ``m`` (``Matcher`` or ``OnnxMatcher``: ``crop_config``,
-    ``_warnings``, ``prepare``, ``similarity`` -> numpy [K',M'], ``calibration``,
+    ``warning_registry``, ``prepare``, ``similarity`` -> numpy [K',M'], ``calibration``,
     ``fusion_weight``, ``fusion_eps``, ``model_name``, ``device``). ``latency_ms`` = crop + model
     (+ projection and fusion) wall time, validation excluded (``return_latency``: the model's
     ``similarity`` call alone); matches in the caller's numbering. ``geometry`` / ``intrinsics``:
@@ -92,7 +92,7 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
     multi_cam = is_multi_camera(images, camera_per_det)
     fuse = resolve_use_calibration(use_calibration, m.calibration, multi_cam)
     validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, validate,
-                          bbox_expansion=m.crop_config.bbox_expansion, registry=m._warnings)
+                          bbox_expansion=m.crop_config.bbox_expansion, registry=m.warning_registry)
     t0 = time.perf_counter()
     frame = (image, point_cloud, bboxes_2d, bboxes_3d if box7 is None else box7)
     if geometry == "on" and not multi_cam:
@@ -130,7 +130,7 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
 
 def _warn_off_site(m, why: str, geometric: bool, none_why: str) -> None:
     """Warn once per matcher that its shipped weights are off site (and what ``match`` did)."""
-    if not m._warnings.first_time("off-site"):
+    if not m.warning_registry.first_time("off-site"):
         return
     what = (f"their scores on this frame are out of domain ({why})" if why
             else "they were trained on synthetic sites, not on this one")

@@ -9,11 +9,20 @@ A matcher may carry its site calibration (``set_calibration`` / ``calibration``;
 ``calibration.json`` beside site weights, written by ``save_pretrained``). ``match`` then fuses
 the model's scores with the IoU of each 3D box projected through the calibration against each
 2D box (``use_calibration="auto"``; see :mod:`xcalib.engine.fusion` for the formula).
+
+A ``Matcher`` matches, embeds, scores, loads and saves. ``calibrate``, ``oneshot``, ``train``,
+``build`` and ``from_onnx`` are thin delegations, kept for the reference package's API, to
+:mod:`xcalib.calib.single` / :mod:`xcalib.calib.api`, :mod:`xcalib.oneshot.session`,
+:func:`xcalib.engine.trainer.finetune`, :mod:`xcalib.deploy.build` and
+:mod:`xcalib.deploy.ort_runtime` (imported lazily, so nothing below ``engine`` reaches up).
+Other packages use its public interface only: ``validate_inputs``, ``warning_registry``,
+``update_config``, ``crop_config``, ``similarity``, ``prepare``.
 """
 
 from __future__ import annotations
 
 import logging
+import time
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -22,7 +31,7 @@ import torch
 
 from ..data.crops import CropConfig, FrameInputs, prepare_frame
 from ..protocol import WarningRegistry
-from ..types import Frame, MatchResult
+from ..types import DatasetFrame, Frame, MatchResult, as_frame
 from .host import assign, frame_match_args, run_match, validate_match_inputs  # torch-free, shared with ONNX Runtime
 from .domain import BOOTSTRAP_HINT
 from .fusion import FUSION_WEIGHT, GEO_EPS
@@ -46,6 +55,19 @@ def load_calibration_beside(weights_dir: Path):
     return CalibrationResult.load(p)
 
 
+def _build_model(name: str, config: dict, weights_path, allow_random: bool):
+    from ..models import create_model
+
+    if weights_path is None and not allow_random:
+        raise ValueError(f"Matcher({name!r}, ...): no weights_path given (argument or config['weights_path']); "
+                         f"use Matcher.from_pretrained({name!r}, ...) for site or saved weights, or pass "
+                         "allow_random=True for a randomly initialised model (testing only)")
+    model = create_model(name, config or None)
+    if weights_path is not None:
+        load_state_strict(model, read_checkpoint(Path(weights_path))["state_dict"], str(weights_path))
+    return model
+
+
 def resolve_device(device: str | torch.device | None) -> torch.device:
     """None/"auto" -> cuda when available, else cpu."""
     if device is None or str(device) == "auto":
@@ -58,13 +80,24 @@ class Matcher:
     or ``Matcher(model, config)``. ``fusion_weight`` / ``fusion_eps``: weight of the geometric
     score and its IoU clip when a calibration is set (:mod:`xcalib.engine.fusion`)."""
 
-    def __init__(self, model: "torch.nn.Module | str", config: Mapping[str, Any] | None = None, *,
-                 device: str | torch.device | None = None, weights_path: str | Path | None = None,
-                 site: str | None = None):
-        from ..models import create_model
+    def __init__(self, model_name: "str | torch.nn.Module", config: Mapping[str, Any] | None = None,
+                 weights_path: str | Path | None = None, device: str | torch.device | None = None, *,
+                 site: str | None = None, allow_random: bool = False):
+        """The reference's constructor: ``Matcher(model_name, config, weights_path=None, device=None)``.
 
-        if isinstance(model, str):
-            model = create_model(model, config)
+        ``model_name``: a registered name (unknown -> ``KeyError``) or an already built
+        ``MatchingModel`` (used as is; ``weights_path`` then only records where its weights came
+        from). With a name, the weights come from ``weights_path`` or ``config["weights_path"]``
+        and are loaded strictly; none given -> ``ValueError`` unless ``allow_random=True``
+        (testing). ``device``: argument, else ``config["device"]``, else "auto" (cuda when
+        available)."""
+        if isinstance(model_name, str):
+            cfg = dict(config or {})
+            weights_path = weights_path if weights_path is not None else cfg.pop("weights_path", None)
+            device = device if device is not None else cfg.get("device")
+            model = _build_model(model_name, cfg, weights_path, allow_random)
+        else:
+            model = model_name
         self.model = model
         self.model_name = model.model_name
         self.config = dict(model.config)
@@ -73,10 +106,21 @@ class Matcher:
         self.crop_config = CropConfig.from_config(self.config)
         self.weights_path = None if weights_path is None else Path(weights_path)
         self.site = site
-        self._warnings = WarningRegistry()
+        self.warning_registry = WarningRegistry()
         self._calibration = None
         self.fusion_weight = FUSION_WEIGHT
         self.fusion_eps = GEO_EPS
+
+    @property
+    def prepare_cfg(self) -> CropConfig:
+        """The reference's name of :attr:`crop_config` (crop_size, point_cloud_size, bbox_expansion)."""
+        return self.crop_config
+
+    def update_config(self, **values: Any) -> None:
+        """Set config keys of this matcher (written beside saved weights), e.g. a model's
+        ``box_gain`` after adaptation; crop settings are re-read."""
+        self.config.update(values)
+        self.crop_config = CropConfig.from_config(self.config)
 
     # ------------------------------------------------------------------ calibration
     @property
@@ -159,8 +203,10 @@ class Matcher:
 
     def save_pretrained(self, save_dir: str | Path, *, dtype: str = "float32",
                         overwrite: bool = False) -> dict[str, Path]:
-        """Write ``<dir>/<model>.pt``, its ``.sha256`` and ``<dir>/<model>.yaml`` (no device in
-        either), and ``<dir>/calibration.json`` when a calibration is set. The files are written
+        """Write ``<dir>/<model>.pth`` (as the reference; directories load ``.pth`` or ``.pt``), its
+        ``.sha256`` and ``<dir>/<model>.yaml`` (no device in either), and ``<dir>/calibration.json``
+        when a calibration is set; an older ``<dir>/<model>.pt`` is removed (one set of weights
+        per model in a folder). The files are written
         into a temporary folder and swapped in whole (other files of ``<dir>`` are kept), so a
         killed save leaves the old set or the new one. Existing weights of this model in ``<dir>``
         are replaced only with ``overwrite=True``."""
@@ -172,11 +218,13 @@ class Matcher:
         if old is not None and not overwrite:
             raise FileExistsError(f"{old} already exists; pass overwrite=True to replace it")
         with atomic_dir(d, keep_existing=True) as tmp:
-            save_weights(self.model, tmp / f"{name}.pt", model_name=name, config=self.config, dtype=dtype)
+            save_weights(self.model, tmp / f"{name}.pth", model_name=name, config=self.config, dtype=dtype)
             write_config(tmp / f"{name}.yaml", self.config)
             if self._calibration is not None:
                 self._calibration.save(tmp / CALIBRATION_FILE)
-        out = {"weights": d / f"{name}.pt", "config": d / f"{name}.yaml"}
+        if (d / f"{name}.pt").is_file():  # an older save (.pt): the .pth and its sidecar replace it
+            (d / f"{name}.pt").unlink()
+        out = {"weights": d / f"{name}.pth", "config": d / f"{name}.yaml"}
         if self._calibration is not None:
             out["calibration"] = d / CALIBRATION_FILE
         return out
@@ -211,16 +259,19 @@ class Matcher:
         return self.model.score(self.model.embed(b), b).float().cpu().numpy().astype(np.float32)
 
     # ------------------------------------------------------------------ matching
-    def _validate(self, image, point_cloud, bboxes_2d, bboxes_3d, mode: str) -> None:
+    def validate_inputs(self, image, point_cloud, bboxes_2d, bboxes_3d, mode: str = "warn") -> None:
+        """Protocol v1.0 checks of one frame (``mode`` "off" | "warn" | "strict"): errors raise
+        ``ProtocolError``; warnings are logged once per code by this matcher."""
         validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, mode,
-                              bbox_expansion=self.crop_config.bbox_expansion, registry=self._warnings)
+                              bbox_expansion=self.crop_config.bbox_expansion, registry=self.warning_registry)
 
     def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float | None = None,
-              validate: str = "warn", assignment: str = "argmax", *, images=None,
-              camera_per_det=None, use_calibration: str | bool = "auto", box7=None,
-              return_latency: bool = False, intrinsics=None, geometry: str = "auto") -> MatchResult:
-        """Match one frame. ``latency_ms`` = crop + model (+ projection and fusion) wall time
-        (validation excluded), or the model's forward alone with ``return_latency=True``. ``use_calibration``: "auto" fuses the model's scores with the
+              return_latency: bool = False, validate: str = "warn", *, assignment: str = "argmax", images=None,
+              camera_per_det=None, use_calibration: str | bool = "auto", box7=None, intrinsics=None,
+              geometry: str = "auto") -> MatchResult:
+        """Match one frame (the reference's positional order). ``latency_ms`` = crop + model (+
+        projection and fusion) wall time (validation excluded), or the model's forward alone with
+        ``return_latency=True``. ``use_calibration``: "auto" fuses the model's scores with the
         projection IoU through :attr:`calibration` when one is set (single-camera frames), True
         requires it, False gives the model's scores alone. ``box7`` [M,7]: optional yawed 3D boxes
         for the projection when ``bboxes_3d`` are axis-aligned [M,6]. ``geometry``: "auto" matches
@@ -238,22 +289,34 @@ class Matcher:
 
     pair = match
 
-    def match_frame(self, frame: Frame, **kw) -> MatchResult:
-        """:meth:`match` on a :class:`xcalib.types.Frame` (multi-camera frames crop each 2D box
-        from its own camera's image)."""
-        args, kw = frame_match_args(frame, kw)
+    def match_frame(self, frame, **kw):
+        """A :class:`xcalib.types.Frame` -> :meth:`match` (multi-camera frames crop each 2D box from
+        its own camera's image) -> ``MatchResult``. Prepared inputs (``FrameInputs``, the
+        reference's ``FrameData``) -> ``(scores [N,M] ndarray, forward ms)``, as the reference:
+        no validation, no index mapping."""
+        if isinstance(frame, FrameInputs):
+            t0 = time.perf_counter()
+            scores = self.similarity(frame)
+            return scores, (time.perf_counter() - t0) * 1000.0
+        args, kw = frame_match_args(as_frame(frame), kw)
         return self.match(*args, **kw)
 
-    # ------------------------------------------------------------------ other tasks
+    # ------------------------------------------------------------------ other tasks (thin delegations)
     def calibrate(self, *args, **kw):
-        """``xcalib.calib.api.calibrate(frames, intrinsics, matcher=self, **kw)``; the reference's
-        one-frame form ``calibrate(image, point_cloud, bboxes_2d, bboxes_3d, intrinsics)`` works too."""
+        """The reference's one-frame form ``calibrate(image, point_cloud, bboxes_2d, bboxes_3d,
+        intrinsics, *, match_threshold=0.5, ransac_reproj_px=8.0, validate="warn")``
+        (:func:`xcalib.calib.single.calibrate_frame`), or ``calibrate(frames, intrinsics, **kw)``
+        = :func:`xcalib.calib.api.calibrate` with this matcher's scores seeding the hypotheses."""
+        if args and isinstance(args[0], np.ndarray) and args[0].ndim == 3:
+            from ..calib.single import calibrate_frame
+
+            return calibrate_frame(self, *args, **kw)
         from ..calib import api
 
-        if args and isinstance(args[0], np.ndarray) and args[0].ndim == 3:
-            return api.calibrate_single(*args, matcher=self, **kw)
-        if args and isinstance(args[0], Frame):
+        if args and isinstance(args[0], (Frame, DatasetFrame)):
             args = ([args[0]], *args[1:])
+        if args and isinstance(args[0], (list, tuple)):
+            args = ([as_frame(f) for f in args[0]], *args[1:])
         return api.calibrate(*args, matcher=self, **kw)
 
     def oneshot(self, intrinsics, **options):
@@ -264,14 +327,12 @@ class Matcher:
         return OneShotSession(self, intrinsics, **options)
 
     def train(self, train_data, val_data, *, output_dir: str | Path = "runs/finetune", **kwargs) -> Path:
-        """Fine-tune this matcher's model in place (best checkpoint by validation MRR is loaded
-        back, strictly); returns the path of ``best.pt``."""
-        from .trainer import train
+        """Fine-tune this matcher's model in place (:func:`xcalib.engine.trainer.finetune`; the
+        best checkpoint by validation MRR is loaded back, strictly); returns the path of
+        ``best.pth``. ``device`` defaults to the matcher's."""
+        from .trainer import finetune
 
-        best = train(self.model, train_data, val_data, output_dir=output_dir, device=str(self.device), **kwargs)
-        payload = read_checkpoint(best)
-        load_state_strict(self.model, payload["state_dict"], str(best))
-        self.model.to(self.device).eval()
+        best = finetune(self, train_data, val_data, output_dir=output_dir, **kwargs)
         self.weights_path = Path(best)
         return Path(best)
 

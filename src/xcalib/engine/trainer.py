@@ -1,7 +1,9 @@
 """``train``: supervised training of a matching model on frames with a ``match_matrix``.
 
-Default recipe (the paper's): Adam, linear warm-up then cosine decay to ``min_lr`` (per
-step), best checkpoint by validation MRR. Frames are batched (``frames_per_batch``); scores
+Defaults: the reference package's (:data:`REFERENCE_RECIPE`: AdamW, constant lr 1e-4, 10
+epochs); the paper's recipe (:data:`XCALIB_RECIPE`: Adam, linear warm-up then cosine decay to
+``min_lr`` per step, 100 epochs) is what ``xcalib train`` uses. Best checkpoint by validation
+MRR. The optimisation loop is :func:`xcalib.engine.fit.fit`. Frames are batched (``frames_per_batch``); scores
 between detections of different frames are masked. Loss per model output: multi-positive
 cross-entropy over rows and columns (every positive of a row is a target) on logits; outputs
 of kind "logit" add a class-balanced binary cross-entropy so their sigmoid is a probability.
@@ -14,8 +16,8 @@ validation counts are all-reduced; rank 0 writes the files. Call ``shutdown_dist
 training is over (the ``xcalib train`` command does): every rank waits for the others, then
 the process group is destroyed before the interpreter shuts down.
 
-Outputs in ``output_dir``: ``best.pt`` + ``best.yaml`` (loadable by
-``Matcher.from_pretrained(model, weights=".../best.pt")``), ``last.pt`` (resume state, one
+Outputs in ``output_dir``: ``best.pth`` + ``best.yaml`` (loadable by
+``Matcher.from_pretrained(model, weights=".../best.pth")``), ``last.pt`` (resume state, one
 file overwritten each epoch) and ``history.json``.
 """
 
@@ -36,13 +38,15 @@ import torch
 import torch.distributed as dist
 
 from ..data.crops import CropConfig, FrameInputs, crop_images, crop_points, gather_box_points, resample_points
-from ..types import Frame
+from ..types import Frame, as_frame
 from ..io._files import atomic_write
 from .checkpoint import (WeightsMismatchError, load_resume_state, load_state_strict, read_checkpoint,
                          save_resume_state, save_weights, write_config)
+from .fit import Schedule, fit, make_optimizer
+from .recipes import REFERENCE_RECIPE, XCALIB_RECIPE, Recipe  # noqa: F401 - re-exported
 from .metrics import MatchingMetrics, MetricsAccumulator
 
-__all__ = ["train", "shutdown_distributed", "TrainSample", "prepare_samples", "matching_loss", "evaluate", "load_frames"]
+__all__ = ["train", "finetune", "Recipe", "REFERENCE_RECIPE", "XCALIB_RECIPE", "shutdown_distributed", "TrainSample", "prepare_samples", "matching_loss", "evaluate", "load_frames"]
 
 log = logging.getLogger("xcalib.train")
 
@@ -93,29 +97,30 @@ class TrainSample:
         return fi, gt
 
 
-def load_frames(data, limit: int | None = None) -> Iterable[Frame]:
+def load_frames(data, limit: int | None = None, split: str = "train") -> Iterable[Frame]:
     """Frames from a sequence of ``Frame``s, an .h5 cache path or a folder/site accepted by
-    ``xcalib.io.hdf5.load_dataset``."""
+    ``xcalib.io.hdf5.open_dataset`` (its ``split``)."""
     if isinstance(data, (str, Path)):
-        from ..io.hdf5 import load_dataset  # an .h5 file opens as a CacheReader
+        from ..io.hdf5 import open_dataset  # an .h5 file opens as a CacheReader
 
-        frames: Iterable[Frame] = load_dataset(Path(data))
+        frames: Iterable[Frame] = open_dataset(data, split)
     else:
         frames = data
     for i, f in enumerate(frames):
         if limit is not None and i >= limit:
             break
-        yield f
+        yield as_frame(f)
 
 
-def prepare_samples(data, cfg: CropConfig, limit: int | None = None) -> tuple[list[TrainSample], int]:
+def prepare_samples(data, cfg: CropConfig, limit: int | None = None,
+                    split: str = "train") -> tuple[list[TrainSample], int]:
     """Crop every usable frame once. Returns (samples, number of frames skipped: no ground
     truth, or no positive among the kept detections). A list of ``TrainSample`` passes through
     (prepare once, train several models with the same crop settings)."""
     if isinstance(data, (list, tuple)) and data and all(isinstance(x, TrainSample) for x in data):
         return list(data[:limit] if limit is not None else data), 0
     out, skipped = [], 0
-    for f in load_frames(data, limit):
+    for f in load_frames(data, limit, split):
         if f.match_matrix is None:
             skipped += 1
             continue
@@ -140,18 +145,26 @@ def prepare_samples(data, cfg: CropConfig, limit: int | None = None) -> tuple[li
     return out, skipped
 
 
-def matching_loss(outputs, batch, gt: torch.Tensor) -> torch.Tensor:
-    """Sum over model outputs of weight * (row/column multi-positive CE [+ balanced BCE])."""
+def matching_loss(outputs, batch, gt: torch.Tensor, label_smoothing: float = 0.0) -> torch.Tensor:
+    """Sum over model outputs of weight * (row/column multi-positive CE [+ balanced BCE]).
+    ``label_smoothing`` eps: each row's target puts 1 - eps on its positives and eps spread
+    uniformly over the row's candidates (same frame)."""
     same = batch.same_frame()
     total = gt.new_zeros((), dtype=torch.float32)
     for out in outputs:
         L = out.logits.float().masked_fill(~same, float("-inf"))
         ce = L.new_zeros(())
-        for S, G in ((L, gt), (L.T, gt.T)):
+        for S, G, V in ((L, gt, same), (L.T, gt.T, same.T)):
             rows = G.any(dim=1)
             if rows.any():
+                lse = torch.logsumexp(S[rows], 1)
                 pos = S[rows].masked_fill(~G[rows], float("-inf"))
-                ce = ce + (torch.logsumexp(S[rows], 1) - torch.logsumexp(pos, 1)).mean() / 2
+                term = lse - torch.logsumexp(pos, 1)
+                if label_smoothing:
+                    v = V[rows]
+                    mean_logit = S[rows].masked_fill(~v, 0.0).sum(1) / v.sum(1).clamp(min=1)
+                    term = (1 - label_smoothing) * term + label_smoothing * (lse - mean_logit)
+                ce = ce + term.mean() / 2
         if out.kind == "logit":
             bce = torch.nn.functional.binary_cross_entropy_with_logits(
                 out.logits.float(), gt.float(), reduction="none")
@@ -192,17 +205,6 @@ def evaluate(model, samples: Sequence[TrainSample], n_points: int, device, seed:
     return acc
 
 
-def _lr_at(step: int, total: int, warmup: int, base: float, min_lr: float, scheduler: str) -> float:
-    if warmup > 0 and step < warmup:
-        return base * (step + 1) / warmup
-    if scheduler == "cosine":
-        t = (step - warmup) / max(total - warmup, 1)
-        return min_lr + 0.5 * (base - min_lr) * (1 + math.cos(math.pi * min(t, 1.0)))
-    if scheduler == "none":
-        return base
-    raise ValueError(f"scheduler must be 'cosine' or 'none', got {scheduler!r}")
-
-
 def _dist_setup(device: str) -> tuple[int, int, torch.device]:
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world > 1 and not dist.is_initialized():
@@ -235,60 +237,110 @@ def _allreduce(x: np.ndarray) -> np.ndarray:
     return t.numpy()
 
 
-def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None = None, epochs: int = 100,
-          lr: float = 1e-3, weight_decay: float = 0.0, optimizer: str = "adam", warmup_epochs: float = 5,
-          scheduler: str = "cosine", min_lr: float = 1e-6, frames_per_batch: int = 4, grad_clip: float = 5.0,
-          weights: str | Path | None = None, resume: str | Path | bool | None = None,
-          output_dir: str | Path = "runs/train", device: str = "auto", seed: int = 42,
-          limit_train_frames: int | None = None, limit_val_frames: int | None = None,
-          progress: bool = True, weights_dtype: str = "float32", box_jitter: float = 0.02,
-          max_3d: int | None = None) -> Path:
-    """Train ``model`` (a registered name or a ``MatchingModel``); returns the path of best.pt.
+_R = REFERENCE_RECIPE
 
-    train_data / val_data: ``Frame`` sequences with ``match_matrix``, or .h5 caches / site
-    folders. max_3d: per training frame, keep the matched 3D boxes plus random unmatched ones up
-    to this many (negative sampling; validation always uses all). box_jitter: training-time box perturbation (fraction of box size; 0 = off).
-    weights: warm start (strict). resume: ``last.pt`` path (or True for
-    ``output_dir/last.pt``) to continue an interrupted run.
+
+def _site_config(model: str, site: str | None) -> dict[str, Any] | None:
+    """The config of ``model``'s weights at ``site`` (its YAML), or None when there are none."""
+    if site is None:
+        return None
+    from .checkpoint import WeightsNotFoundError, find_site_weights, read_config
+
+    try:
+        w = find_site_weights(model, site)
+    except WeightsNotFoundError:
+        return None
+    y = w.with_suffix(".yaml")
+    return read_config(y) if y.is_file() else read_checkpoint(w).get("config")
+
+
+def _describe_data(data) -> str:
+    return str(data) if isinstance(data, (str, Path)) else f"<{type(data).__name__}>"
+
+
+def train(model, train_data, val_data=None, *, model_name: str | None = None,
+          config: Mapping[str, Any] | None = None, site: str | None = None, epochs: int = _R.epochs,
+          lr: float = _R.lr, weight_decay: float = _R.weight_decay, optimizer: str = _R.optimizer,
+          warmup_epochs: float = _R.warmup_epochs, scheduler: str = _R.scheduler, min_lr: float = _R.min_lr,
+          temperature: float | None = None, label_smoothing: float = _R.label_smoothing,
+          stage1_weight: float | None = None, stage2_weight: float | None = None,
+          weights: str | Path | None = None, output_dir: str | Path = "runs/train", device: str = "auto",
+          seed: int = 42, limit_train_frames: int | None = None, limit_val_frames: int | None = None,
+          pairwise_batch_size: int = 64, frames_per_batch: int = 4, grad_clip: float = 5.0,
+          resume: str | Path | bool | None = None, progress: bool = True, weights_dtype: str = "float32",
+          box_jitter: float = 0.02, max_3d: int | None = None) -> Path:
+    """Train ``model`` (a registered name or a ``MatchingModel``); returns the path of ``best.pth``.
+
+    The reference's signature and defaults (:data:`REFERENCE_RECIPE`; xcalib's CLI uses
+    :data:`XCALIB_RECIPE`). train_data / val_data: ``Frame`` sequences with ``match_matrix``,
+    .h5 caches, or site folders / names (``load_dataset(data, "train"/"val")``).
+    model_name: must agree with ``model``'s name when given. site: without ``config``, the
+    config of that site's weights of this model (when there are some) is used.
+    temperature / stage1_weight / stage2_weight: None = the model config's values (0.07 / 1 / 1
+    in every packaged config, the reference's defaults); given, they replace them.
+    label_smoothing: of the row/column cross-entropy. pairwise_batch_size: accepted for the
+    reference's API; xcalib scores all N x M pairs of a batch at once, so it has no effect.
+    xcalib's additions: frames_per_batch (scores across frames are masked), grad_clip, resume
+    (``last.pt`` path or True for ``output_dir/last.pt``), box_jitter (training-time box
+    perturbation, fraction of box size), max_3d (negative sampling per frame), weights_dtype.
+    Writes ``best.pth`` (``model_state_dict``, ``epoch``, ``metrics``, ``train_args``; loadable
+    by ``Matcher.from_pretrained(model, weights=...)``) + ``best.yaml``, ``last.pt``, ``history.json``.
     """
     from ..models import MatchingModel, create_model
     from ..models.inputs import ModelBatch
 
+    if isinstance(model, str) and model_name is not None and model_name != model:
+        raise ValueError(f"train: model={model!r} but model_name={model_name!r}")
     rank, world, dev = _dist_setup(device)
     torch.manual_seed(seed)
-    net: MatchingModel = create_model(model, config) if isinstance(model, str) else model
+    if isinstance(model, str):
+        over = {k: v for k, v in (("temperature", temperature), ("stage1_weight", stage1_weight),
+                                  ("stage2_weight", stage2_weight)) if v is not None}
+        base = config if config is not None else _site_config(model, site)
+        net: MatchingModel = create_model(model, base, **over)
+    else:
+        net = model
+        for k, v in (("temperature", temperature), ("stage1_weight", stage1_weight), ("stage2_weight", stage2_weight)):
+            if v is not None and hasattr(net, k):
+                setattr(net, k, float(v))
+                net.config[k] = float(v)
     name = net.model_name
+    if model_name is not None and model_name != name:
+        raise ValueError(f"train: model_name={model_name!r} but the model is {name!r}")
     if weights is not None:
         load_state_strict(net, read_checkpoint(Path(weights))["state_dict"], str(weights))
     net.to(dev)
     cfg = CropConfig.from_config(net.config)
     P = cfg.point_cloud_size
     t0 = time.perf_counter()
-    train_s, skip_t = prepare_samples(train_data, cfg, limit_train_frames)
-    val_s, skip_v = prepare_samples(val_data, cfg, limit_val_frames) if val_data is not None else ([], 0)
+    train_s, skip_t = prepare_samples(train_data, cfg, limit_train_frames, split="train")
+    val_s, skip_v = prepare_samples(val_data, cfg, limit_val_frames, split="val") if val_data is not None else ([], 0)
     if not train_s:
         raise ValueError("train: no usable training frame (each needs a match_matrix with a positive among "
                          f"the kept detections; {skip_t} skipped)")
     if rank == 0:
         log.info("train %s: %d train frames (%d skipped), %d val frames (%d skipped), cropped in %.1fs",
                  name, len(train_s), skip_t, len(val_s), skip_v, time.perf_counter() - t0)
+    train_args = {"model": name, "site": site, "epochs": epochs, "lr": lr, "weight_decay": weight_decay,
+                  "optimizer": optimizer, "warmup_epochs": warmup_epochs, "scheduler": scheduler, "min_lr": min_lr,
+                  "temperature": float(getattr(net, "temperature", float("nan"))), "label_smoothing": label_smoothing,
+                  "stage1_weight": getattr(net, "stage1_weight", None), "stage2_weight": getattr(net, "stage2_weight", None),
+                  "seed": seed, "frames_per_batch": frames_per_batch, "grad_clip": grad_clip,
+                  "pairwise_batch_size": pairwise_batch_size, "box_jitter": box_jitter, "max_3d": max_3d,
+                  "train_data": _describe_data(train_data), "val_data": _describe_data(val_data)}
     out = Path(output_dir)
     if rank == 0:
         out.mkdir(parents=True, exist_ok=True)
 
     ddp = torch.nn.parallel.DistributedDataParallel(net, find_unused_parameters=True) if world > 1 else net
     params = [p for p in net.parameters() if p.requires_grad]
-    if optimizer == "adam":
-        opt = torch.optim.Adam(params, lr=lr, weight_decay=weight_decay)
-    elif optimizer == "adamw":
-        opt = torch.optim.AdamW(params, lr=lr, weight_decay=weight_decay)
-    else:
-        raise ValueError(f"optimizer must be 'adam' or 'adamw', got {optimizer!r}")
+    opt = make_optimizer(params, optimizer, lr, weight_decay)
 
     per_rank = math.ceil(len(train_s) / world)
     steps_per_epoch = math.ceil(per_rank / max(1, frames_per_batch))
-    total_steps, warm_steps = epochs * steps_per_epoch, int(round(warmup_epochs * steps_per_epoch))
-    start_epoch, best_mrr, history = 0, -1.0, []
+    schedule = Schedule(lr, epochs * steps_per_epoch, int(round(warmup_epochs * steps_per_epoch)),
+                        min_lr / lr if lr else 0.0, scheduler)
+    start_epoch, best_mrr, history = 0, -math.inf, []  # without val data "MRR" is -loss, which may be < -1
     if resume:
         rpath = out / "last.pt" if resume is True else Path(resume)
         state = load_resume_state(rpath)  # torch.load(weights_only=True): a crafted file cannot run code
@@ -298,7 +350,7 @@ def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None 
         except (KeyError, ValueError, TypeError, RuntimeError) as exc:
             raise WeightsMismatchError(rpath, f"optimizer state does not fit ({exc})", "optimizer") from None
         start_epoch, best_mrr, history = state["epoch"] + 1, state["best_mrr"], state["history"]
-    best_path = out / "best.pt"
+    best_path = out / "best.pth"
 
     bar = None
     if progress and rank == 0:
@@ -315,28 +367,26 @@ def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None 
             order = np.random.default_rng([seed, epoch]).permutation(len(train_s))
             order = np.resize(order, per_rank * world)[rank::world]  # same number of steps on every rank
             rng = np.random.default_rng([seed, epoch, rank, 1])
-            losses = []
-            for step in range(steps_per_epoch):
+
+            def loss_at(g: int, epoch=epoch, order=order, rng=rng) -> torch.Tensor:
+                step = g - epoch * steps_per_epoch
                 idx = order[step * frames_per_batch:(step + 1) * frames_per_batch]
                 if len(idx) == 0:
                     idx = order[:1]
                 drawn = [train_s[i].draw(P, rng, box_jitter, max_3d) for i in idx]
                 batch = ModelBatch.from_frames([d[0] for d in drawn], dev)
                 gt = _block_gt([d[1] for d in drawn], dev)
-                g = epoch * steps_per_epoch + step
-                for pg in opt.param_groups:
-                    pg["lr"] = _lr_at(g, total_steps, warm_steps, lr, min_lr, scheduler)
-                loss = matching_loss(ddp(batch, train=True), batch, gt)
-                if not torch.isfinite(loss):  # keep every rank stepping together
-                    loss = loss.nan_to_num(0.0, 0.0, 0.0) * 0.0
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                if grad_clip:
-                    torch.nn.utils.clip_grad_norm_(params, grad_clip)
-                opt.step()
-                losses.append(float(loss.detach()))
+                return matching_loss(ddp(batch, train=True), batch, gt, label_smoothing)
+
+            def on_step(g: int, value: float, epoch=epoch, seen=[]) -> None:  # noqa: B006 - per-epoch list
+                seen.append(value)
                 if bar is not None:
-                    bar.update(task, advance=1, info=f"epoch {epoch + 1}/{epochs} loss {np.mean(losses):.3f}")
+                    bar.update(task, advance=1, info=f"epoch {epoch + 1}/{epochs} loss {np.mean(seen):.3f}")
+
+            first = epoch * steps_per_epoch
+            # non-finite losses become zero steps: keeps every rank stepping together
+            losses = fit(opt, params, schedule, loss_at, range(first, first + steps_per_epoch), grad_clip=grad_clip,
+                         zero_nonfinite=True, on_step=on_step)
             tot = _allreduce(np.array([float(np.sum(losses)), float(len(losses))]))
             mean_loss = float(tot[0] / max(tot[1], 1.0))
             if val_s:
@@ -351,7 +401,7 @@ def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None 
                 if met.mrr > best_mrr:
                     best_mrr = met.mrr
                     save_weights(net, best_path, model_name=name, config=net.config, dtype=weights_dtype,
-                                 extra={"epoch": epoch + 1, "metrics": met.to_dict()})
+                                 extra={"epoch": epoch + 1, "metrics": met.to_dict(), "train_args": train_args})
                     write_config(out / "best.yaml", net.config)
                 save_resume_state(out / "last.pt", state_dict=net.state_dict(), optimizer=opt.state_dict(),
                                   epoch=epoch, best_mrr=best_mrr, history=history, model_name=name,
@@ -376,3 +426,15 @@ def train(model, train_data, val_data=None, *, config: Mapping[str, Any] | None 
     if not best_path.exists() and rank == 0:
         raise RuntimeError(f"train: no best checkpoint was written in {out}")
     return best_path
+
+
+def finetune(matcher, train_data, val_data=None, *, output_dir: str | Path = "runs/finetune",
+             device: str | None = None, **kwargs) -> Path:
+    """``Matcher.train``: :func:`train` the matcher's model in place (on ``device``, default the
+    matcher's), load the best checkpoint back strictly and return the model to the matcher's
+    device in eval mode. Returns the path of ``best.pth``."""
+    best = train(matcher.model, train_data, val_data, output_dir=output_dir,
+                 device=str(device if device is not None else matcher.device), **kwargs)
+    load_state_strict(matcher.model, read_checkpoint(best)["state_dict"], str(best))
+    matcher.model.to(matcher.device).eval()
+    return Path(best)

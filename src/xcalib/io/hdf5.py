@@ -28,7 +28,7 @@ float64 [>=M,3] (``Frame.velocities_3d``, m/s, LiDAR frame).
 
 Unlike the reference loader: any label sensor / LiDAR can be chosen (a warning when several exist
 and none was chosen), numeric keys can be ordered numerically, K==0 / M==0 frames are returned,
-``Frame.for_camera`` filters the match matrix, and the file closes itself when the reader is
+``Frame.camera_view`` filters the match matrix, and the file closes itself when the reader is
 garbage collected or closed.
 """
 
@@ -45,12 +45,12 @@ import numpy as np
 
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
-from ..types import Frame
+from ..types import DatasetFrame, Frame
 from ._files import _tmp_prefix, open_regular, sweep_stale
 from ._validate import check_boxes_2d, check_boxes_3d, check_count, check_rigid
 from .timing import checked_timing, timing_of
 
-__all__ = ["CacheReader", "CacheWriter", "write_cache", "load_dataset", "cache_summary",
+__all__ = ["CacheReader", "CacheWriter", "write_cache", "load_dataset", "open_dataset", "Dataset", "cache_summary",
            "CorruptImageError", "is_hdf5_cache", "HDF5_SUFFIXES"]
 
 log = logging.getLogger(__name__)
@@ -270,7 +270,7 @@ class CacheReader(Sequence):
             log.warning("%s: skipped %d frame(s) whose image did not decode: %s", self.path, len(bad),
                         ", ".join(bad[:20]) + (" ..." if len(bad) > 20 else ""))
 
-    def for_camera(self, name: str) -> Iterator[tuple]:
+    def camera_views(self, name: str) -> Iterator[tuple]:
         """Per frame ``(image, point_cloud, bboxes_2d, bboxes_3d, match_matrix)`` of camera ``name``
         (exact or suffix match); the match matrix keeps only that camera's rows."""
         cam = _match_camera(name, self.camera_names)
@@ -279,7 +279,13 @@ class CacheReader(Sequence):
         for frame in self:
             if frame.camera_per_det is not None and cam not in frame.camera_per_det and frame.camera_name != cam:
                 continue
-            yield frame.for_camera(cam)
+            yield frame.camera_view(cam)
+
+    def for_camera(self, name: str) -> Iterator[tuple]:
+        """Per frame the reference's 4 values ``(image, point_cloud, bboxes_2d, bboxes_3d)`` of
+        camera ``name`` (:meth:`camera_views` adds the match matrix)."""
+        for view in self.camera_views(name):
+            yield view[:4]
 
     # ----------------------------------------------------------------- one frame
     def _group(self, path: str, key: str, what: str) -> "_Group":
@@ -576,25 +582,72 @@ class _Group:
         return [_as_str(v) for v in arr.reshape(-1)]
 
 
-def load_dataset(site, split: str = "test", *, local=None, repo_id: str | None = None,
-                 revision: str | None = None, token: str | None = None, **reader_kwargs) -> CacheReader:
-    """Open a cache split; never downloads anything.
+class Dataset:
+    """What the reference's ``load_dataset`` returns: a sequence of :class:`xcalib.types.DatasetFrame`
+    (``intrinsics`` / ``extrinsics`` as ``{camera: matrix}`` dicts, ``for_camera`` -> 4 values)
+    over a :class:`CacheReader` (``reader``). Iteration skips frames whose image does not decode,
+    as the reader does. A context manager; ``close()`` closes the file."""
 
-    Resolution (reference-compatible, minus the Hub): ``local`` (must exist) -> ``site`` as an
-    .h5 file (``site`` is a site folder name or a path, as in the reference) -> a folder holding ``<split>.h5`` (as ``xcalib synth`` writes) or ``*_<split>.h5`` ->
-    the checkout-local ``datasets/<site>/hdf5_cache/*_<split>.h5`` under the working directory.
-    ``repo_id`` / ``revision`` / ``token`` are accepted for API compatibility and rejected.
-    """
+    def __init__(self, reader: CacheReader):
+        self.reader = reader
+
+    def __len__(self) -> int:
+        return len(self.reader)
+
+    def __getitem__(self, index):
+        got = self.reader[index]
+        return [DatasetFrame(f) for f in got] if isinstance(got, list) else DatasetFrame(got)
+
+    def __iter__(self) -> Iterator[DatasetFrame]:
+        return (DatasetFrame(f) for f in self.reader)
+
+    @property
+    def camera_names(self) -> list[str]:
+        return list(self.reader.camera_names)
+
+    @property
+    def path(self) -> Path:
+        return self.reader.path
+
+    def close(self) -> None:
+        self.reader.close()
+
+    def __enter__(self) -> "Dataset":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"Dataset({self.reader!r})"
+
+
+def load_dataset(site, split: str = "test", *, repo_id: str | None = None, revision: str | None = None,
+                 token: str | None = None, local=None, **reader_kwargs) -> Dataset:
+    """The reference's ``load_dataset``: :func:`open_dataset` wrapped as a :class:`Dataset` of
+    reference-shaped frames. Never downloads: ``repo_id`` / ``revision`` / ``token`` are
+    rejected with a ``ValueError`` naming the local alternatives."""
     if repo_id is not None or revision is not None or token is not None:
         raise ValueError("load_dataset: xcalib never downloads datasets (repo_id/revision/token given); "
-                         "pass a local .h5 file or folder")
+                         "pass a local .h5 file or folder (local=..., or ./datasets/<site>/hdf5_cache/), or make "
+                         "a site with `xcalib synth --out DIR`")
+    return Dataset(open_dataset(site, split, local=local, **reader_kwargs))
+
+
+def open_dataset(site, split: str = "test", *, local=None, **reader_kwargs) -> CacheReader:
+    """Open a cache split as a :class:`CacheReader` of xcalib :class:`Frame`s; never downloads.
+
+    Resolution (the reference's, minus the Hub): ``local`` (must exist) -> ``site`` as an
+    .h5 file (``site`` is a site folder name or a path, as in the reference) -> a folder holding ``<split>.h5`` (as ``xcalib synth`` writes) or ``*_<split>.h5`` ->
+    the checkout-local ``datasets/<site>/hdf5_cache/*_<split>.h5`` under the working directory.
+    """
     if split not in ("train", "val", "test") and not Path(str(site)).is_file():
         log.warning("load_dataset: unusual split name %r (expected train, val or test)", split)
     if local is not None:
         lp = Path(local)
         if not lp.exists():
             raise FileNotFoundError(f"load_dataset: local={str(lp)!r} does not exist")
-        return load_dataset(lp, split, **reader_kwargs)
+        return open_dataset(lp, split, **reader_kwargs)
     p = Path(site)
     if p.is_file():
         return CacheReader(p, **reader_kwargs)

@@ -143,7 +143,7 @@ def camera_view(frame: Frame, name: str) -> Frame:
     """One camera of a multi-camera frame (``Frame.images`` / ``camera_per_det``) as a plain
     single-camera frame: that camera's image, 2D boxes, match-matrix rows, and its intrinsics and
     extrinsics when the frame carries them per camera."""
-    image, points, b2, b3, mm = frame.for_camera(name)
+    image, points, b2, b3, mm = frame.camera_view(name)
     keep = (np.ones(frame.num_2d, dtype=bool) if frame.camera_per_det is None
             else np.array([c == name for c in frame.camera_per_det], dtype=bool))
     intr = (frame.meta.get("intrinsics_by_camera") or {}).get(name, frame.intrinsics if name == frame.camera_name
@@ -212,7 +212,7 @@ def merge_cameras(views: dict[str, Sequence[Frame]]) -> list[Frame]:
     """Per-camera views of the same recording (frame ``i`` of each = the same LiDAR sweep) -> one
     multi-camera frame per sweep: ``images`` per camera, every camera's 2D boxes
     (``camera_per_det``), the union of their 3D boxes (identical rows merged), the match matrix
-    against that union, per-camera intrinsics / extrinsics in ``meta``."""
+    against that union, per-camera intrinsics / extrinsics / camera times in ``meta``."""
     names = list(views)
     counts = {n: len(v) for n, v in views.items()}
     if len(set(counts.values())) != 1:
@@ -221,15 +221,17 @@ def merge_cameras(views: dict[str, Sequence[Frame]]) -> list[Frame]:
     for i in range(counts[names[0]]):
         frames = {n: views[n][i] for n in names}
         rows: dict[bytes, int] = {}
-        boxes, b2, per_det, mm_parts = [], [], [], []
+        boxes, b2, per_det, mm_parts, tracks, vels = [], [], [], [], [], []
         for n, f in frames.items():
             b3 = np.asarray(f.bboxes_3d, dtype=np.float32)
             cols = []
-            for r in b3:
+            for k, r in enumerate(b3):
                 key = r.tobytes()
                 if key not in rows:
                     rows[key] = len(boxes)
                     boxes.append(r)
+                    tracks.append(None if f.track_ids_3d is None else int(f.track_ids_3d[k]))
+                    vels.append(None if f.velocities_3d is None else np.asarray(f.velocities_3d[k], np.float64))
                 cols.append(rows[key])
             b2.append(np.asarray(f.bboxes_2d, dtype=np.float32).reshape(-1, 4))
             per_det += [n] * f.num_2d
@@ -251,5 +253,9 @@ def merge_cameras(views: dict[str, Sequence[Frame]]) -> list[Frame]:
                          images={n: f.image for n, f in frames.items()}, camera_per_det=per_det,
                          point_fields=first.point_fields,
                          meta={"intrinsics_by_camera": {n: f.intrinsics for n, f in frames.items()},
-                               "extrinsics_by_camera": {n: f.extrinsics for n, f in frames.items()}}))
+                               "extrinsics_by_camera": {n: f.extrinsics for n, f in frames.items()},
+                               "camera_time_s_by_camera": {n: f.camera_time_s for n, f in frames.items()}},
+                         lidar_time_s=first.lidar_time_s,
+                         track_ids_3d=None if any(t is None for t in tracks) else np.asarray(tracks, np.int64),
+                         velocities_3d=None if any(v is None for v in vels) else np.asarray(vels).reshape(-1, 3)))
     return out

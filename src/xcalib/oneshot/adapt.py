@@ -33,6 +33,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
+from ..engine.fit import Schedule, fit, make_optimizer
 from ..engine.trainer import evaluate
 from .evidence import Observation
 from .loss import weighted_matching_loss
@@ -83,6 +84,11 @@ class AdaptReport:
     box_gain: float = float("nan")
     gain_trials: list[GainTrial] = field(default_factory=list)
     losses: list[float] = field(default_factory=list)
+
+    @property
+    def n_bank_pairs(self) -> int:
+        """The reference's name of :attr:`n_pairs` (pseudo-labelled pairs trained on)."""
+        return self.n_pairs
 
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
@@ -350,8 +356,9 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
 
 def _train(model, named, observations, targets, *, steps, n_points, device, lr, frames_per_batch, anchor,
            grad_clip, seed, augment, p_augment, box_weight, progress) -> list[float]:
-    """``steps`` Adam steps on ``named`` parameters (the rest frozen, model in eval mode); the
-    batches and augmentations depend on ``seed`` only. Returns the per-step losses."""
+    """``steps`` Adam steps (:func:`xcalib.engine.fit.fit`, cosine decay to 5% of ``lr``) on
+    ``named`` parameters (the rest frozen, model in eval mode); the batches and augmentations
+    depend on ``seed`` only. Returns the per-step losses."""
     from ..models.inputs import ModelBatch
 
     anchors = [p.detach().clone() for _, p in named]
@@ -360,47 +367,41 @@ def _train(model, named, observations, targets, *, steps, n_points, device, lr, 
     for n, p in model.named_parameters():
         p.requires_grad_(n in train_names)
     params = [p for _, p in named]
-    opt = torch.optim.Adam(params, lr=lr)
+    opt = make_optimizer(params, "adam", lr)
+    schedule = Schedule(lr, steps, min_lr_ratio=0.05, kind="cosine")  # cosine decay to 5% of lr
     rng = np.random.default_rng([seed, 17])
     torch.manual_seed(seed)
     was_training = model.training
     model.eval()
     order = np.zeros(0, np.int64)
-    losses: list[float] = []
+
+    def loss_at(step: int) -> torch.Tensor:
+        nonlocal order
+        if len(order) < frames_per_batch:
+            order = np.concatenate([order, rng.permutation(len(observations))])
+        pick, order = order[:frames_per_batch], order[frames_per_batch:]
+        fis, tg = [], []
+        for i in pick:
+            fi, t = observations[i].inputs(n_points, rng), targets[i]
+            if augment is not None and rng.random() < p_augment:
+                fi, t = augment.apply(fi, t, rng)
+            fis.append(fi)
+            tg.append(t)
+        batch = ModelBatch.from_frames(fis, device)
+        pos, w, neg = _block(tg, device)
+        emb = model.embed(batch)
+        loss = weighted_matching_loss(model.train_logits(emb, batch), batch, pos, w, neg)
+        if box_weight > 0 and augment is not None and "box_lid" in emb.extra:
+            loss = loss + box_weight * _box_loss(model, emb.extra["box_lid"], fis, tg, augment, device)
+        if anchor > 0:
+            loss = loss + anchor * sum(((p - a) ** 2).sum() for p, a in zip(params, anchors))
+        return loss
+
     try:
-        for step in range(steps):
-            if len(order) < frames_per_batch:
-                order = np.concatenate([order, rng.permutation(len(observations))])
-            pick, order = order[:frames_per_batch], order[frames_per_batch:]
-            fis, tg = [], []
-            for i in pick:
-                fi, t = observations[i].inputs(n_points, rng), targets[i]
-                if augment is not None and rng.random() < p_augment:
-                    fi, t = augment.apply(fi, t, rng)
-                fis.append(fi)
-                tg.append(t)
-            batch = ModelBatch.from_frames(fis, device)
-            pos, w, neg = _block(tg, device)
-            for g in opt.param_groups:  # cosine decay to 5% of lr
-                g["lr"] = lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * step / max(steps, 1))))
-            emb = model.embed(batch)
-            loss = weighted_matching_loss(model.train_logits(emb, batch), batch, pos, w, neg)
-            if box_weight > 0 and augment is not None and "box_lid" in emb.extra:
-                loss = loss + box_weight * _box_loss(model, emb.extra["box_lid"], fis, tg, augment, device)
-            if anchor > 0:
-                loss = loss + anchor * sum(((p - a) ** 2).sum() for p, a in zip(params, anchors))
-            opt.zero_grad(set_to_none=True)
-            if loss.requires_grad:
-                loss.backward()
-                if grad_clip:
-                    torch.nn.utils.clip_grad_norm_(params, grad_clip)
-                opt.step()
-            losses.append(float(loss.detach()))
-            if progress is not None:
-                progress(step + 1, steps, losses[-1])
+        return fit(opt, params, schedule, loss_at, range(steps), grad_clip=grad_clip,
+                   on_step=None if progress is None else (lambda step, v: progress(step + 1, steps, v)))
     finally:
         for n, p in model.named_parameters():
             p.requires_grad_(flags[n])
         model.train(was_training)
         model.eval()
-    return losses

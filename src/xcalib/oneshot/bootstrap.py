@@ -55,7 +55,7 @@ class BootstrapResult:
         return {"site": self.site, "model": self.model, "init": self.init, "frames": self.n_frames,
                 "calibrated": bool(c.success), "calibration_pairs": c.n_pairs,
                 "calibration_iou_median": c.iou_median, "calibration_residual_px_median": c.residual_px_median,
-                "T_cam_lidar": c.extrinsics.tolist(), "adapt": {k: v for k, v in self.adapt.to_dict().items()
+                "T_cam_lidar": c.extrinsics.tolist() if c.success else None, "adapt": {k: v for k, v in self.adapt.to_dict().items()
                                                                 if k != "losses"},
                 "paths": {k: str(v) for k, v in self.paths.items()}, "elapsed_s": self.elapsed_s,
                 "match_threshold": None if self.threshold is None else dataclasses.asdict(self.threshold)}

@@ -52,6 +52,31 @@ class CalibrationUpdate:
     candidate_score: float = float("nan")
     current_score: float = float("nan")
     elapsed_s: float = 0.0
+    result: CalibrationResult | None = None  # the solve this attempt judged (None when none was run)
+
+    # the reference's return fields (its session.calibrate returns the solve itself)
+    @property
+    def success(self) -> bool:
+        """The solve succeeded (whether or not the gate adopted it: see ``accepted``)."""
+        return self.result is not None and bool(self.result.success)
+
+    @property
+    def n_inliers(self) -> int:
+        return 0 if self.result is None else int(self.result.n_inliers)
+
+    @property
+    def n_correspondences(self) -> int:
+        return 0 if self.result is None else int(self.result.n_correspondences)
+
+    @property
+    def buffer_reproj_px(self) -> float:
+        """Median box-edge residual (px) of the judged pose over the whole buffer (NaN without)."""
+        return float("nan") if self.result is None else float(self.result.buffer_reproj_px)
+
+    @property
+    def projection(self) -> np.ndarray | None:
+        """[3,4] K[R|t] of the judged pose (None when the solve failed)."""
+        return self.result.projection if self.success else None
 
 
 class PoseGate:
@@ -107,9 +132,10 @@ class PoseGate:
         cal.buffer_reproj_px = s.residual_px_median
         cal.meta = {**cal.meta, "buffer_score": s.score, "buffer_pairs": s.n_pairs, "buffer_frames": s.n_frames}
 
-    def propose(self, frames: Sequence[Frame],
-                progress: Callable[[str, int, int], None] | None = None) -> CalibrationUpdate:
-        """Calibrate on ``frames`` and adopt the result only if it beats the current pose there."""
+    def propose(self, frames: Sequence[Frame], progress: Callable[[str, int, int], None] | None = None, *,
+                adopt_any: bool = False) -> CalibrationUpdate:
+        """Calibrate on ``frames`` and adopt the result only if it beats the current pose there
+        (``adopt_any``: adopt any successful solve, the reference's ``disambiguate=False``)."""
         from ..calib.api import calibrate
 
         t0 = time.perf_counter()
@@ -126,19 +152,22 @@ class PoseGate:
             cands.append(calibrate(frames, self.intrinsics, self.config, matcher=None, prior=self.current))
         ok = [c for c in cands if c.success]
         if not ok:
-            return CalibrationUpdate(True, False, f"no pose: {fresh.message}", n, elapsed_s=time.perf_counter() - t0)
+            return CalibrationUpdate(True, False, f"no pose: {fresh.message}", n, elapsed_s=time.perf_counter() - t0,
+                                     result=fresh)
         scored = [(self.score(frames, c), c) for c in ok]
         best_s, best = max(scored, key=lambda x: x[0].score)
         cur = self.score(frames, self.current) if self.current is not None else None
         cur_score = cur.score if cur is not None else float("nan")
-        if cur is not None and not best_s.score > cur.score * (1.0 + self.min_gain):
+        if cur is not None and not adopt_any and not best_s.score > cur.score * (1.0 + self.min_gain):
             self._note(self.current, cur)
+            self._note(best, best_s)
+            best.accepted = False
             return CalibrationUpdate(True, False, f"kept the current pose: it explains the {n}-frame buffer as well "
                                                    f"(score {cur.score:.2f} vs candidate {best_s.score:.2f})",
-                                     n, best_s.score, cur_score, time.perf_counter() - t0)
+                                     n, best_s.score, cur_score, time.perf_counter() - t0, best)
         best.accepted = True
         self._note(best, best_s)
         self.current = best
         reason = "first pose" if cur is None else f"better on the {n}-frame buffer ({best_s.score:.2f} > {cur_score:.2f})"
         log.info("one-shot calibration accepted: %s", reason)
-        return CalibrationUpdate(True, True, reason, n, best_s.score, cur_score, time.perf_counter() - t0)
+        return CalibrationUpdate(True, True, reason, n, best_s.score, cur_score, time.perf_counter() - t0, best)

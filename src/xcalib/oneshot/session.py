@@ -45,6 +45,9 @@ __all__ = ["OneShotSession", "ObserveReport", "OneShotError", "ImageSizeChangedE
 log = logging.getLogger("xcalib.oneshot")
 
 
+_MODE_ALIASES = {"adapter": "heads", "head": "heads"}  # the reference's adaptation modes -> xcalib's
+
+
 class OneShotError(RuntimeError):
     """A one-shot session cannot do what was asked in its current state."""
 
@@ -65,7 +68,10 @@ class ObserveReport:
     matches of the current model with score >= ``match_threshold``; n_pseudo_pairs: matches
     implied by the current pose in this frame (0 when uncalibrated); agreement: share of those
     the model's matches reproduce (NaN without pseudo pairs); calibration: the attempt made on
-    this frame, if any; next_calibration_at: observed-frame count of the next scheduled attempt.
+    this frame, if any; next_calibration_at: observed-frame count of the next scheduled attempt;
+    n_banked: pseudo-labelled pairs of this frame that training will use (confidence >=
+    ``accept_confidence``); bank_size: such pairs over the whole buffer (the reference's
+    feature-bank size). ``frame_id`` (property) = ``index``.
     """
 
     frame_key: str
@@ -81,6 +87,13 @@ class ObserveReport:
     buffer_frames: int
     calibration: CalibrationUpdate | None
     next_calibration_at: int
+    n_banked: int = 0
+    bank_size: int = 0
+
+    @property
+    def frame_id(self) -> int:
+        """The reference's name of :attr:`index` (observation number in this session)."""
+        return self.index
 
 
 def _as_calibration(cal, intrinsics) -> CalibrationResult:
@@ -113,16 +126,27 @@ class OneShotSession:
             ceil(growth x count at the last attempt) (>= 1 more frame).
         max_frames: evidence buffer capacity (FIFO).
         min_gain: relative buffer-score gain a new pose needs to replace the current one.
-        match_threshold: score a model match needs to count in reports.
+        match_threshold: score a model match needs to count in reports (0.7, the reference's).
         mode: default adaptation mode ("heads" or "full").
         calib_config: the ``CalibConfig`` of the session's calibrations (None: the defaults).
         seed: seeds pose search and training; validate: protocol mode of :meth:`observe`.
+        accept_confidence: pseudo-labels below this confidence are not trained on (None: all,
+            xcalib's default; the reference's 0.5 is not imposed, see docs/compat.md).
+        replay_frames: the reference's name of ``max_frames`` (observations kept for training).
+        max_center_dist_px, bank_capacity, calib_buffer, calib_reproj_px: the reference's
+            options of its centre-distance pseudo-labels, feature bank and RANSAC buffer; xcalib
+            has none of those (IoU-gated pseudo-labels on a frame buffer, a correspondence-free
+            calibrator), so they are accepted, recorded in ``reference_options`` and have no
+            effect (docs/compat.md).
     """
 
     def __init__(self, matcher, intrinsics, *, gate: float = 0.3, neg_iou: float = 0.05, min_frames: int = 3,
                  recalibrate_growth: float = 1.5, max_frames: int = 64, min_gain: float = 0.0,
-                 match_threshold: float = 0.5, mode: str = "heads", calib_config: CalibConfig | None = None,
-                 seed: int = 0, validate: str = "warn"):
+                 match_threshold: float = 0.7, mode: str = "heads", calib_config: CalibConfig | None = None,
+                 seed: int = 0, validate: str = "warn", accept_confidence: float | None = None,
+                 replay_frames: int | None = None, max_center_dist_px: float | None = None,
+                 bank_capacity: int | None = None, calib_buffer: int | None = None,
+                 calib_reproj_px: float | None = None):
         if mode not in ADAPT_MODES:
             raise ValueError(f"mode must be one of {ADAPT_MODES}, got {mode!r}")
         if int(min_frames) < 1:
@@ -138,7 +162,12 @@ class OneShotSession:
         self.mode = mode
         self.seed = int(seed)
         self.validate = validate
-        self.buffer = EvidenceBuffer(max_frames)
+        self.accept_confidence = 0.0 if accept_confidence is None else float(accept_confidence)
+        self.reference_options = {"max_center_dist_px": max_center_dist_px, "bank_capacity": bank_capacity,
+                                  "calib_buffer": calib_buffer, "calib_reproj_px": calib_reproj_px}
+        self.best_reproj_px = float("inf")  # lowest whole-buffer median residual of any solve (px)
+        self._bank_cache: tuple[Any, dict[int, int]] = (None, {})
+        self.buffer = EvidenceBuffer(int(replay_frames) if replay_frames is not None else max_frames)
         self.pose = PoseGate(self.intrinsics, gate_iou=gate, min_gain=min_gain, config=calib_config, seed=seed)
         self.next_calibration_at = self.min_frames
         self.image_size: tuple[int, int] | None = None
@@ -169,6 +198,16 @@ class OneShotSession:
     def n_observed(self) -> int:
         return self.buffer.total_seen
 
+    @property
+    def bank(self) -> EvidenceBuffer:
+        """The reference's name of :attr:`buffer` (the observations adaptation trains on)."""
+        return self.buffer
+
+    @property
+    def calib_session(self) -> PoseGate:
+        """The reference's name of :attr:`pose` (holds the pose and decides on new solves)."""
+        return self.pose
+
     def set_calibration(self, calibration, *, lock: bool = True) -> CalibrationResult:
         """Use a known (surveyed) pose: a successful ``CalibrationResult`` or a 4x4 ``T_cam_lidar``.
         With ``lock`` the automatic calibration never replaces it."""
@@ -188,7 +227,7 @@ class OneShotSession:
     def _sync_box_gain(self) -> None:
         """The matcher's config (written beside saved weights) carries the model's ``box_gain``."""
         if "box_gain" in self.model.config:
-            self.matcher.config["box_gain"] = self.model.config["box_gain"]
+            self.matcher.update_config(box_gain=self.model.config["box_gain"])
 
     # ------------------------------------------------------------------ observing
     def _check_size(self, image: np.ndarray, key: str) -> None:
@@ -214,7 +253,7 @@ class OneShotSession:
         index = self.buffer.total_seen
         key = str(frame_key) if frame_key is not None else f"{index:06d}"
         self._check_size(image, key)
-        self.matcher._validate(image, point_cloud, bboxes_2d, bboxes_3d, validate or self.validate)
+        self.matcher.validate_inputs(image, point_cloud, bboxes_2d, bboxes_3d, validate or self.validate)
         obs = observe_frame_inputs(image, point_cloud, bboxes_2d, bboxes_3d, self.matcher.crop_config,
                                    key=key, index=index, meta=meta)
         obs.frame.frame_key = f"{index:06d}"  # unique within the buffer
@@ -224,22 +263,26 @@ class OneShotSession:
         matches = self._match(obs)
         update = None
         if self.n_observed >= self.next_calibration_at and not self.pose.locked:
-            update = self.pose.propose(self.buffer.frames(), progress=progress)
+            update = self._note_best(self.pose.propose(self.buffer.frames(), progress=progress))
             self.next_calibration_at = max(self.n_observed + 1,
                                            int(math.ceil(self.n_observed * self.recalibrate_growth)))
             self._sync_matcher()
-        n_pseudo, agree = 0, float("nan")
+        n_pseudo, agree, n_banked, bank_size = 0, float("nan"), 0, 0
         if self.is_calibrated and not obs.empty:
             t = pseudo_targets(obs, self.calibration, gate=self.gate, neg_iou=self.neg_iou)
             n_pseudo = t.n_pairs
+            n_banked = int(np.sum(t.weight[t.positive] >= self.accept_confidence))
             if n_pseudo:
                 mi = np.array(matches, dtype=np.int64).reshape(-1, 2)
                 agree = float(t.positive[mi[:, 0], mi[:, 1]].sum() / n_pseudo)
+        if self.is_calibrated:
+            bank_size = self._bank_size()
         return ObserveReport(frame_key=key, index=index, n_detections_2d=int(len(np.asarray(bboxes_2d).reshape(-1, 4))),
                              n_detections_3d=int(len(np.asarray(bboxes_3d))), n_kept_2d=obs.num_2d,
                              n_kept_3d=obs.num_3d, n_matches=len(matches), calibrated=self.is_calibrated,
                              n_pseudo_pairs=n_pseudo, agreement=agree, buffer_frames=len(self.buffer),
-                             calibration=update, next_calibration_at=self.next_calibration_at)
+                             calibration=update, next_calibration_at=self.next_calibration_at,
+                             n_banked=n_banked, bank_size=bank_size)
 
     def observe_frame(self, frame: Frame, **kw) -> ObserveReport:
         """:meth:`observe` on an ``xcalib.types.Frame`` (its ``meta['box7']`` reaches the calibrator)."""
@@ -257,10 +300,64 @@ class OneShotSession:
                           fill_value=getattr(self.model, "fill_value", None))
         return [(i, j) for i, j, _ in pairs]
 
-    def calibrate(self, progress: Callable[[str, int, int], None] | None = None) -> CalibrationUpdate:
-        """Attempt a calibration on the whole buffer now (the gate still decides)."""
-        update = self.pose.propose(self.buffer.frames(), progress=progress)
+    def calibrate(self, min_pairs: int | None = None, disambiguate: bool = True, gate_factor: float | None = None,
+                  min_frames: int | None = None, *,
+                  progress: Callable[[str, int, int], None] | None = None) -> CalibrationUpdate:
+        """Attempt a calibration on the whole buffer now; the gate decides (``accepted``).
+
+        The reference's options: ``min_pairs`` = matched pairs the solve needs (None: the
+        calibrator's own minimum); ``disambiguate=False`` adopts any successful solve without the
+        whole-buffer comparison; ``min_frames``: with 0 < observed frames < min_frames the
+        solve is not adopted (warming up; None: no such check). ``gate_factor`` (the reference's
+        factor over its best full-buffer error) is accepted and has no effect: xcalib's gate
+        compares the candidate's whole-buffer IoU score with the current pose's (``min_gain``).
+        Returns a :class:`CalibrationUpdate` with the reference's fields (``success``,
+        ``n_inliers``, ``n_correspondences``, ``buffer_reproj_px``, ``projection``).
+        """
+        frames = self.buffer.frames()
+        warming = min_frames is not None and 0 < self.n_observed < int(min_frames)
+        saved = self.pose.config
+        if min_pairs is not None:
+            self.pose.config = saved.replace(min_pairs=int(min_pairs))
+        try:
+            if warming:
+                current, self.pose.current = self.pose.current, None
+                locked, self.pose.locked = self.pose.locked, False
+                try:  # solve and report, adopt nothing
+                    update = self.pose.propose(frames, progress=progress, adopt_any=True)
+                finally:
+                    self.pose.current, self.pose.locked = current, locked
+                if update.result is not None:
+                    update.result.accepted = False
+                update.accepted = False
+                update.reason = f"warming up: {self.n_observed} of min_frames={min_frames} frames observed; not adopted"
+            else:
+                update = self.pose.propose(frames, progress=progress, adopt_any=not disambiguate)
+        finally:
+            self.pose.config = saved
+        self._note_best(update)
         self._sync_matcher()
+        return update
+
+    def _bank_size(self) -> int:
+        """Pseudo-labelled pairs over the buffer through the current pose (counts cached per
+        observation while the pose object stays the same)."""
+        cal = self.calibration
+        if self._bank_cache[0] is not cal:
+            self._bank_cache = (cal, {})
+        counts = self._bank_cache[1]
+        total = 0
+        for o in self.buffer:
+            if o.index not in counts:
+                counts[o.index] = pseudo_targets(o, cal, gate=self.gate, neg_iou=self.neg_iou,
+                                                 min_confidence=self.accept_confidence).n_pairs
+            total += counts[o.index]
+        return total
+
+    def _note_best(self, update: CalibrationUpdate) -> CalibrationUpdate:
+        """Track :attr:`best_reproj_px` (the reference's running best full-buffer error)."""
+        if update.success and np.isfinite(update.buffer_reproj_px):
+            self.best_reproj_px = min(self.best_reproj_px, float(update.buffer_reproj_px))
         return update
 
     # ------------------------------------------------------------------ adapting
@@ -271,14 +368,25 @@ class OneShotSession:
                 f"no calibration yet after {self.n_observed} observed frame(s) (next attempt at "
                 f"{self.next_calibration_at}): observe more frames with objects seen by both sensors, or give a "
                 "known pose with set_calibration(...)")
-        return [pseudo_targets(o, self.calibration, gate=self.gate, neg_iou=self.neg_iou) for o in self.buffer]
+        return [pseudo_targets(o, self.calibration, gate=self.gate, neg_iou=self.neg_iou,
+                               min_confidence=self.accept_confidence) for o in self.buffer]
 
-    def adapt(self, steps: int = 600, *, lr: float = 1e-3, mode: str | None = None, frames_per_batch: int = 4,
+    def adapt(self, steps: int = 50, *, lr: float = 1e-3, batch_size: int | None = None,
+              temperature: float | None = None, mode: str | None = None, replay_weight: float | None = None,
+              min_bank: int | None = None, frames_per_batch: int = 4,
               anchor: float = 1e-2, holdout: float = 0.2, min_pairs: int = 8, keep_if_worse: bool = False,
               augment: bool = True, p_augment: float = 1.0, augment_options: dict | None = None,
               box_weight: float = 10.0, box_gain: float | str | tuple | None = "auto",
               progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
         """Fine-tune the matcher on the pseudo-labels of the buffer (see :mod:`xcalib.oneshot.adapt`).
+
+        ``steps`` defaults to the reference's 50 (``benchmarks/bench_oneshot.py`` and ``xcalib
+        bootstrap`` pass 600). The reference's options: ``temperature`` replaces the model's
+        cosine temperature during this adaptation (kept after it, as trained); ``min_bank`` is
+        the reference's name of ``min_pairs``; ``mode`` "adapter" / "head" map to "heads";
+        ``batch_size`` (pairs per step) and ``replay_weight`` are accepted with no effect:
+        xcalib batches whole frames (``frames_per_batch``) and keeps the model near its start with
+        ``anchor`` instead of a replay loss (docs/compat.md).
 
         ``augment``: move objects through the pose (:mod:`xcalib.oneshot.augment`; fields of
         ``GeometricAugment`` in ``augment_options``) in a share ``p_augment`` of the training
@@ -293,6 +401,15 @@ class OneShotSession:
         Raises :class:`NotCalibratedError` before any calibration. With fewer than ``min_pairs``
         pseudo-matches it warns and returns a report with ``trained=False`` (weights untouched).
         """
+        mode = _MODE_ALIASES.get(mode, mode) if mode is not None else None
+        if min_bank is not None:
+            min_pairs = int(min_bank)
+        if temperature is not None:
+            if not temperature > 0:
+                raise ValueError(f"temperature must be > 0, got {temperature}")
+            self.model.temperature = float(temperature)
+            self.model.config["temperature"] = float(temperature)
+            self.matcher.update_config(temperature=float(temperature))
         targets = self.pseudo_labels()
         obs = list(self.buffer)
         dev = self.matcher.device

@@ -53,9 +53,12 @@ def _colormap(values: np.ndarray) -> np.ndarray:
     return cv2.applyColorMap(v, cv2.COLORMAP_TURBO).reshape(-1, 3)[:, ::-1]
 
 
+REPORT_MAX_POINTS = 60000  # LiDAR points xcalib's own reports draw (the function default is the reference's 6000)
+
+
 def draw_calibration_overlay(image, point_cloud=None, *, calibration=None, projection=None, intrinsics=None,
                              rotation=None, translation=None, bboxes_3d=None, bboxes_2d=None, pairs=None,
-                             max_points: int = 60000, max_depth: float | None = None, point_radius: int = 2,
+                             max_points: int = 6000, max_depth: float | None = None, point_radius: int = 2,
                              title: str | None = None) -> np.ndarray:
     """Draw points coloured by camera depth (near = blue, far = red), projected 3D boxes (orange
     wireframes), 2D boxes (green) and matches (a line from each 2D box centre to its projected

@@ -175,7 +175,10 @@ def _draw_camera(pane, view: BevView, camera, width: int, height: int) -> None:
         _text(pane, "camera", (c[0] + 7, c[1] + 14), col, 0.4)
 
 
-def draw_matching_overlay(image, point_cloud, bboxes_2d, bboxes_3d, matches=None, *, output_height: int = 540,
+REPORT_HEIGHT = 540  # px: the height xcalib's own reports draw at (the function default is the reference's 420)
+
+
+def draw_matching_overlay(image, point_cloud, bboxes_2d, bboxes_3d, matches=None, *, output_height: int = 420,
                           match_threshold: float | None = None, match_matrix=None,
                           score_range: tuple[float, float] | None = None,
                           bev_range: tuple[float, float, float, float] | None = None, max_points: int = 30000,

@@ -147,9 +147,10 @@ def result_numbers(result, ground_truth=None) -> dict[str, Any]:
         "box-centre offset median (px)": float(np.nan if co is None else co),
         "rotation 1-sigma (deg)": np.asarray(result.rotation_std_deg, float),
         "translation 1-sigma (m)": np.asarray(result.translation_std_m, float),
-        "translation t (m)": np.asarray(result.translation, float),
-        "rotation xyz Euler (deg)": matrix_to_euler(np.asarray(result.rotation, float), "xyz", degrees=True),
     }
+    if result.rotation is not None and result.translation is not None:  # a failed result has no pose
+        nums["translation t (m)"] = np.asarray(result.translation, float)
+        nums["rotation xyz Euler (deg)"] = matrix_to_euler(np.asarray(result.rotation, float), "xyz", degrees=True)
     if diag is not None:
         nums["calibration time (s)"] = float(diag.elapsed_s)
     if ground_truth is not None and result.success:
@@ -181,8 +182,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         :class:`CalibrationReport` with the HTML path, figures and numbers.
     """
     from ..geometry.boxes import as_box7, box7_corners, boxes2d_from_points, iou_matrix
-    from .calibration import draw_calibration_overlay
-    from .matching import draw_matching_overlay
+    from .calibration import REPORT_MAX_POINTS, draw_calibration_overlay
+    from .matching import REPORT_HEIGHT, draw_matching_overlay
 
     out = Path(out_dir)
     (out / "img").mkdir(parents=True, exist_ok=True)
@@ -217,7 +218,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
                     "calibration_before" if before_fig else "calibration", key))
         elif have_pose:
             ov = draw_calibration_overlay(image, pc, calibration=result, bboxes_3d=b3, bboxes_2d=b2, pairs=pairs,
-                                          point_radius=point_radius, title=f"{key}: after calibration")
+                                          point_radius=point_radius, max_points=REPORT_MAX_POINTS,
+                                          title=f"{key}: after calibration")
             _write_png(out / "img" / f"{stem}_calibration.png", ov)
             figures.append(ReportFigure(f"img/{stem}_calibration.png",
                                         f"Frame {key}, estimated pose: LiDAR points coloured by camera depth "
@@ -226,7 +228,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         if initial is not None and result.intrinsics is not None and not existing:
             ov = draw_calibration_overlay(image, pc, intrinsics=result.intrinsics, rotation=initial[0],
                                           translation=initial[1], bboxes_3d=b3, bboxes_2d=b2,
-                                          point_radius=point_radius, title=f"{key}: before refinement")
+                                          point_radius=point_radius, max_points=REPORT_MAX_POINTS,
+                                          title=f"{key}: before refinement")
             _write_png(out / "img" / f"{stem}_before.png", ov)
             figures.append(ReportFigure(f"img/{stem}_before.png", f"Frame {key}, initial pose (before refinement)",
                                         "calibration_before", key))
@@ -240,7 +243,8 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
             iou = np.diag(iou_matrix(np.asarray(b2, float)[pairs[:, 0]], proj)) if len(pairs) else np.zeros(0)
             m, source = [(int(i), int(j), float(s)) for (i, j), s in zip(pairs, np.nan_to_num(iou))], "projected IoU"
         if m is not None:
-            mo = draw_matching_overlay(image, pc, b2, b3, m, match_matrix=truth, camera=result if have_pose else None,
+            mo = draw_matching_overlay(image, pc, b2, b3, m, output_height=REPORT_HEIGHT, match_matrix=truth,
+                                       camera=result if have_pose else None,
                                        title=f"{key}: matching ({source})")
             _write_png(out / "img" / f"{stem}_matching.png", mo, 1600)
             figures.append(ReportFigure(f"img/{stem}_matching.png",
@@ -266,7 +270,7 @@ def _render_html(title: str, result, nums: dict[str, Any], figures: list[ReportF
     ok = bool(result.success)
     badge = ('<span class="ok">calibrated</span>' if ok else '<span class="bad">not calibrated</span>')
     rows = "\n".join(f"<tr><th>{e(str(k))}</th><td>{e(_fmt(v))}</td></tr>" for k, v in nums.items())
-    T = np.asarray(result.extrinsics, float)
+    T = np.asarray(result.extrinsics, float) if result.rotation is not None else np.full((4, 4), np.nan)
     mat = "\n".join("<tr>" + "".join(f"<td>{v:+.6f}</td>" for v in row) + "</tr>" for row in T)
     files = [p for p in ("calibration.json", "calibration.npz", "summary.txt", "summary.json") if (out / p).exists()]
     links = " · ".join(f'<a href="{e(p)}">{e(p)}</a>' for p in files) or "-"

@@ -29,6 +29,7 @@ from ...geometry.camera import CameraIntrinsics
 from ...geometry.rotations import euler_to_matrix
 from ...types import Frame
 from .generate import generate_frames
+from .presets import preset_config
 from .site import Site, sample_site
 
 __all__ = ["RealismCondition", "RealismCase", "REALISM_CONDITIONS", "register_condition", "make_realism_case",
@@ -229,8 +230,7 @@ def _mix_second_camera(cond: RealismCondition, site: Site, frames: list[Frame], 
 def make_realism_case(condition: RealismCondition | str, site_seed: int, n_frames: int = 20) -> RealismCase:
     """Site ``sample_site(site_seed, "roadside")`` bent by ``condition``, ``n_frames`` at 10 Hz."""
     cond = REALISM_CONDITIONS[condition] if isinstance(condition, str) else condition
-    base = sample_site(site_seed, "roadside")
-    site = sample_site(site_seed, "roadside", **cond.site_overrides(base.width))
+    site = sample_site(site_seed, "roadside", **cond.site_overrides(int(preset_config("roadside").width)))
     noise = cond.noise()
     frames = generate_frames(site, n_frames, seed=site_seed, render_images=False, lidar=cond.lidar_points, **noise)
     n_obj, n_true = _truth_counts(frames)

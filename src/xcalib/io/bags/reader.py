@@ -512,16 +512,24 @@ class BagFrames(Sequence):
         mm = rec.get("match_matrix")
         extr = rec.get("extrinsics")
         meta = {"source": "bag", "bag": str(self.path), "lidar_topic": tp["lidar"], "image_topic": tp["image"],
-                "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "ids_2d": ids2, "ids_3d": ids3,
-                "box7": box7}
+                "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "detection_ids_2d": ids2}
         if n_bad:
             meta["points_dropped_nonfinite"] = n_bad
+        tracks = e.meta.get("track_ids_3d")
+        if tracks is None and ids3 and all(i.lstrip("-").isdigit() for i in ids3):
+            tracks = [int(i) for i in ids3]
+        vel = e.meta.get("velocities_3d")
+        lt, ct = e.meta.get("lidar_time_s"), rec.get("camera_time_s")
         return Frame(image=image, point_cloud=points, bboxes_2d=b2, bboxes_3d=b3,
+                     lidar_time_s=e.lidar[0] / 1e9 if lt is None else float(lt),
+                     camera_time_s=e.image[0] / 1e9 if ct is None else float(ct),
+                     track_ids_3d=None if tracks is None else np.asarray(tracks, dtype=np.int64),
+                     velocities_3d=None if vel is None else np.asarray(vel, dtype=np.float64).reshape(-1, 3),
                      camera_name=str(rec.get("camera_name", self.camera)),
                      frame_key=str(e.meta.get("frame_key", e.lidar[0])),
                      match_matrix=None if mm is None else np.asarray(mm, dtype=bool).reshape(len(b2), len(b3)),
                      intrinsics=intr, extrinsics=None if extr is None else np.asarray(extr, dtype=np.float64),
-                     point_fields=fields, meta=meta, lidar_time_s=e.lidar[0] / 1e9, camera_time_s=e.image[0] / 1e9)
+                     point_fields=fields, meta=meta)
 
 
 def _boxes3d_as_written(box7: np.ndarray, rows) -> np.ndarray:

@@ -7,8 +7,10 @@ Topics (``<cam>`` = camera name with characters other than ``[A-Za-z0-9_]`` as `
 (Detection2DArray), ``/tf_static`` (ground-truth LiDAR -> ``<cam>_optical_frame`` when frames
 carry ``extrinsics``) and ``/xcalib/frames`` (std_msgs/String JSON per frame: frame key, per-camera
 match matrix and ground truth, the 3D box layout), so frames read back equal the frames written.
-Frame ``i`` is stamped ``start_s + i * period_s`` (LiDAR); camera ``c`` (0, 1, ...)
-``camera_delay_s`` + ``c`` ms later.
+Frame ``i`` is stamped ``lidar_time_s`` / ``camera_time_s`` when the frame has them (a relative
+clock, below 1e8 s, shifted by ``start_s``; the exact times travel in the record), else
+``start_s + i * period_s`` (LiDAR) and camera ``c`` (0, 1, ...) ``camera_delay_s`` + ``c`` ms
+later; track ids go into ``Detection3D.id`` (ROS 2 layout) and the record.
 """
 
 from __future__ import annotations
@@ -65,6 +67,17 @@ def _box7_and_rows(b3) -> tuple[np.ndarray, list[str] | None]:
     for k, kind in enumerate(rows):
         cs[k] = np.concatenate([(b[k, :3] + b[k, 3:]) / 2, b[k, 3:] - b[k, :3]]) if kind == "extents" else b[k]
     return np.hstack([cs, np.zeros((len(b), 1))]), rows
+
+
+ABSOLUTE_CLOCK_S = 1e8  # frame times from this on (1973+) are a Unix clock and stamped as they are
+
+
+def _stamp(t: float, start_s: float) -> int:
+    """Header stamp (ns) of a frame time: an absolute clock as is, a relative one (simulation
+    seconds, may be negative) shifted by ``start_s``."""
+    if t >= ABSOLUTE_CLOCK_S:
+        return int(round(t * 1e9))
+    return int(round(start_s * 1e9)) + int(round(t * 1e9))  # in ns: 1.7e9 s + t in float64 loses ~200 ns
 
 
 class _Sink:
@@ -128,17 +141,25 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
     static: dict[str, np.ndarray] = {}
     t0 = int(round(start_s * 1e9))
     for i, frame in enumerate(frames):
-        ls = t0 + int(round(i * period_s * 1e9))
+        ls = t0 + int(round(i * period_s * 1e9)) if frame.lidar_time_s is None else _stamp(frame.lidar_time_s, start_s)
         pts = np.asarray(frame.point_cloud, dtype=np.float32)
         fields = tuple(frame.point_fields) if len(frame.point_fields) == pts.shape[1] else \
             ("x", "y", "z") + tuple(f"f{k}" for k in range(3, pts.shape[1]))
         sink.add("/lidar/points", POINTCLOUD2, ls, cv.make_pointcloud2(store, pts, fields, ls, lidar_frame))
         box7, rows = _box7_and_rows(frame.bboxes_3d)
-        sink.add("/lidar/detections", DET3D, ls, cv.make_detection3d_array(store, box7, ls, lidar_frame))
-        record = {"lidar_stamp_ns": ls, "frame_key": frame.frame_key, "box3d_rows": rows, "cameras": {}}
+        tracks = None if frame.track_ids_3d is None else np.asarray(frame.track_ids_3d, dtype=np.int64).tolist()
+        sink.add("/lidar/detections", DET3D, ls, cv.make_detection3d_array(store, box7, ls, lidar_frame, ids=tracks))
+        record = {"lidar_stamp_ns": ls, "frame_key": frame.frame_key, "box3d_rows": rows, "cameras": {},
+                  "lidar_time_s": frame.lidar_time_s, "track_ids_3d": tracks,
+                  "velocities_3d": None if frame.velocities_3d is None else
+                  np.asarray(frame.velocities_3d, dtype=np.float64).tolist()}
         for c, cam in enumerate(_cameras(frame)):
             seg = topic_name(cam)
             cs = ls + int(round(camera_delay_s * 1e9)) + c * 1_000_000  # camera c: 1 ms after camera c-1
+            cam_time = (frame.meta.get("camera_time_s_by_camera") or {}).get(cam) if frame.images \
+                else frame.camera_time_s
+            if cam_time is not None:
+                cs = _stamp(cam_time, start_s)
             image, b2, mm, intr, extr = _view(frame, cam)
             optical = f"{seg}_optical_frame"
             if image_format == "raw":
@@ -150,7 +171,7 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
                 sink.add(f"/{seg}/camera_info", CAMERA_INFO, cs,
                          cv.make_camera_info(store, intr, cs, optical, image.shape[1], image.shape[0]))
             sink.add(f"/{seg}/detections", DET2D, cs, cv.make_detection2d_array(store, b2, cs, optical))
-            rec = {"camera_name": cam}
+            rec = {"camera_name": cam, "camera_time_s": cam_time}
             if mm is not None:
                 rec["match_matrix"] = np.asarray(mm).astype(int).tolist()
             if extr is not None:

@@ -1,0 +1,272 @@
+"""Self-calibration: the focal length (and principal point) and the camera-LiDAR time offset, fitted with the pose.
+
+:func:`joint_refine` alternates one-to-one matching and a robust fit of the box-edge term plus
+``FocalScaleTerm`` / ``PrincipalPointTerm`` / ``TimeOffsetTerm`` (``cost``), each outer step
+re-linearised at the current estimate (intrinsics rescaled, 3D boxes moved by v x dt). Its
+covariance (the larger of the classic and the cluster-robust sandwich, one cluster per matched
+pair, as ``uncertainty.pose_covariance``) gives the 1-sigma of each extra parameter and how much
+freeing them widens the pose's (``pose_inflation``: added to the pose uncertainty).
+
+:func:`decide` turns the fit into what is used: "auto" keeps the given focal length unless its
+scale is measured within ``CalibConfig.focal_max_std``; "focal" / "focal+center" refuse when it is
+not; the time offset is used when moving objects constrain it (``time_offset_max_std_s``),
+"auto" falls back to none (with a warning) otherwise and "estimate" refuses.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..geometry.camera import CameraIntrinsics
+from .config import CalibConfig
+from .cost import CostModel, FocalScaleTerm, Occlusion, PrincipalPointTerm, TimeOffsetTerm
+from .diagnostics import SelfCalDiagnostics
+from .inputs import CalibFrame
+from .motion import MOVING_MPS, BoxMotion, shift_frames
+from .pose import Pose
+from .refine import F_SCALE, _stack, edge_term, estimate_noise, match_all
+
+__all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "MIN_MOVING_PAIRS"]
+
+MIN_MOVING_PAIRS = 3
+GATES = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0))
+
+
+def wants_selfcal(config: CalibConfig) -> bool:
+    return config.refine_intrinsics != "none" or config.time_offset in ("auto", "estimate")
+
+
+@dataclass
+class SelfCalFit:
+    """The joint fit: pose, intrinsics, time offset (s, total), 1-sigmas, the pose-sigma inflation
+    (6-vector deg / m) the extra parameters cause, and the moving matched pairs."""
+
+    pose: Pose
+    intr: CameraIntrinsics
+    dt_s: float
+    focal_scale: float
+    focal_log_sd: float | None
+    principal_shift_px: np.ndarray | None
+    principal_sd_px: np.ndarray | None
+    dt_sd_s: float | None
+    pose_inflation: np.ndarray
+    n_moving_pairs: int
+    n_pairs: int
+
+
+@dataclass
+class SelfCalChoice:
+    """What the calibration goes on with: intrinsics, frames (3D boxes moved by the time offset),
+    the pose to start from, an extra pose 1-sigma (deg / m) or None, a refusal message or "",
+    and the diagnostics record."""
+
+    intr: CameraIntrinsics
+    frames: list[CalibFrame]
+    pose: Pose
+    inflation: np.ndarray | None
+    refusal: str
+    diag: SelfCalDiagnostics = field(default_factory=SelfCalDiagnostics)
+
+
+def _terms(config: CalibConfig, motion: BoxMotion | None, frames, pairs, estimate_dt: bool):
+    extra, names = [], []
+    if config.refine_intrinsics != "none":
+        extra.append(FocalScaleTerm())
+        names.append("focal")
+    if config.refine_intrinsics == "focal+center":
+        extra.append(PrincipalPointTerm())
+        names += ["cx", "cy"]
+    if estimate_dt:
+        v = np.concatenate([motion.velocity[k][p[:, 1]] for k, p in enumerate(pairs) if len(p)]) \
+            if any(len(p) for p in pairs) else np.zeros((0, 3))
+        extra.append(TimeOffsetTerm(v))
+        names.append("dt")
+    return extra, names
+
+
+def _covariance(model: CostModel) -> np.ndarray | None:
+    """Covariance of all parameters at x = 0: the larger (trace) of classic and per-pair sandwich."""
+    r0, J = model.jacobian()
+    n_edges = len(model.terms[0].obs) * 4
+    r0, J = r0[:n_edges], J[:n_edges]
+    informative = np.any(J != 0, axis=1)
+    if informative.sum() <= J.shape[1]:
+        return None
+    sigma = 1.4826 * np.median(np.abs(r0[informative]))
+    inl = informative & (np.abs(r0) <= 3 * max(sigma, 1e-9))
+    dof = max(int(inl.sum()) - J.shape[1], 1)
+    try:
+        A = np.linalg.inv(J[inl].T @ J[inl])
+    except np.linalg.LinAlgError:
+        return None
+    cov = A * (np.sum(r0[inl] ** 2) / dof)
+    g = (J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, J.shape[1]).sum(1)
+    nc = int(np.sum(inl.reshape(-1, 4).any(1)))
+    cov_s = A @ (g.T @ g * (nc / max(nc - J.shape[1], 1))) @ A
+    return cov_s if np.sum(np.diag(cov_s) / np.maximum(np.diag(cov), 1e-300)) > J.shape[1] else cov
+
+
+def _inflation(cov: np.ndarray) -> np.ndarray:
+    """Extra pose 1-sigma (deg, m) from freeing the extra parameters: marginal minus conditional variance."""
+    P = np.linalg.inv(cov)
+    cond = np.diag(np.linalg.inv(P[:6, :6]))
+    extra = np.sqrt(np.clip(np.diag(cov)[:6] - cond, 0, None))
+    return np.concatenate([np.degrees(extra[:3]), extra[3:]])
+
+
+def joint_refine(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config: CalibConfig,
+                 motion: BoxMotion | None, estimate_dt: bool, occlusion: Occlusion, *,
+                 max_outer: int = 8, max_nfev: int = 60) -> SelfCalFit | None:
+    """Pose + requested extra parameters from ``pose`` (see the module docstring); None without matches."""
+    dt, scale, pp = 0.0, 1.0, np.zeros(2)
+    cur_intr, cur_pose, noise, f_scale = intr, pose, None, F_SCALE
+    cov, names, pairs = None, [], []
+    for it in range(max_outer):
+        frames = shift_frames(cframes, motion.velocity, dt) if estimate_dt else cframes
+        gi, gd = GATES[min(it, len(GATES) - 1)]
+        pairs = match_all(frames, cur_intr, cur_pose.R, cur_pose.t, gate_iou=gi, gate_dist=gd)
+        if sum(len(p) for p in pairs) < 6:
+            return None
+        if it >= 1:
+            noise = estimate_noise(frames, pairs, cur_intr, cur_pose.R, cur_pose.t)
+        extra, names = _terms(config, motion, frames, pairs, estimate_dt)
+        model = CostModel([edge_term(frames, pairs, cur_intr, cur_pose, noise, occlusion), *extra], cur_pose, cur_intr)
+        fit = model.fit(f_scale=f_scale, max_nfev=max_nfev)
+        f_scale = max(0.5, 1.5 * float(np.median(np.abs(fit.residuals)))) if len(fit.residuals) else F_SCALE
+        x = dict(zip(names, fit.x[6:]))
+        step = abs(x.get("focal", 0.0)) + abs(x.get("dt", 0.0)) + 1e-3 * (abs(x.get("cx", 0.0)) + abs(x.get("cy", 0.0)))
+        moved = cur_pose.delta(fit.pose)
+        scale *= float(np.exp(x.get("focal", 0.0)))
+        pp = pp + np.array([x.get("cx", 0.0), x.get("cy", 0.0)])
+        dt += float(x.get("dt", 0.0))
+        cur_pose = fit.pose
+        cur_intr = replace(intr, fx=intr.fx * scale, fy=intr.fy * scale, cx=intr.cx + pp[0], cy=intr.cy + pp[1])
+        if it >= 3 and step < 2e-4 and np.linalg.norm(moved[:3]) < 2e-3 and np.linalg.norm(moved[3:]) < 2e-3:
+            break
+    frames = shift_frames(cframes, motion.velocity, dt) if estimate_dt else cframes
+    pairs = match_all(frames, cur_intr, cur_pose.R, cur_pose.t, gate_iou=0.3)
+    if sum(len(p) for p in pairs) < 6:
+        return None
+    extra, names = _terms(config, motion, frames, pairs, estimate_dt)
+    model = CostModel([edge_term(frames, pairs, cur_intr, cur_pose, noise, occlusion), *extra], cur_pose, cur_intr)
+    cov = _covariance(model)
+    sd = {n: float(np.sqrt(cov[6 + k, 6 + k])) if cov is not None else float("inf") for k, n in enumerate(names)}
+    n_moving = 0
+    if estimate_dt:
+        v = np.concatenate([motion.velocity[k][p[:, 1]] for k, p in enumerate(pairs) if len(p)])
+        n_moving = int(np.sum(np.linalg.norm(v, axis=1) > MOVING_MPS))
+    return SelfCalFit(
+        pose=cur_pose, intr=cur_intr, dt_s=dt, focal_scale=scale, focal_log_sd=sd.get("focal"),
+        principal_shift_px=pp if "cx" in names else None,
+        principal_sd_px=np.array([sd["cx"], sd["cy"]]) if "cx" in names else None,
+        dt_sd_s=sd.get("dt"), pose_inflation=_inflation(cov) if cov is not None else np.full(6, np.inf),
+        n_moving_pairs=n_moving, n_pairs=int(sum(len(p) for p in pairs)))
+
+
+def _note(diag: SelfCalDiagnostics, text: str, warn: bool = True) -> None:
+    diag.notes.append(text)
+    if warn:
+        warnings.warn(f"xcalib.calibrate: {text}", UserWarning, stacklevel=4)
+
+
+def _fmt_pct(x: float | None) -> str:
+    return "unknown" if x is None or not np.isfinite(x) else f"{100 * x:.1f} %"
+
+
+def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config: CalibConfig,
+           motion: BoxMotion | None, occlusion: Occlusion, diag: SelfCalDiagnostics | None = None) -> SelfCalChoice:
+    """Fit what ``config`` asks for from ``pose`` and decide what is used (module docstring).
+    ``diag``: the record so far (a fixed time offset already applied), completed here."""
+    diag = replace(diag, notes=list(diag.notes)) if diag is not None else SelfCalDiagnostics()
+    diag.intrinsics_mode, diag.intrinsics_given = config.refine_intrinsics, intr.to_dict()
+    diag.time_offset_mode = "none" if config.time_offset is None else str(config.time_offset)
+    if motion is not None:
+        diag.velocity_source, diag.ego_motion, diag.stamp_offset_s = motion.source, motion.ego_motion, motion.stamp_offset_s
+    want_dt = config.time_offset in ("auto", "estimate")
+    est_dt = want_dt and motion is not None and not motion.problem
+    refusals: list[str] = []
+    if want_dt and not est_dt:
+        _drop_dt(diag, config, refusals, motion.problem if motion is not None else "no object velocities")
+    cfg = config
+    fit = joint_refine(cframes, intr, pose, cfg, motion, est_dt, occlusion)
+    if fit is None and (cfg.refine_intrinsics in ("focal", "focal+center") or config.time_offset == "estimate"):
+        refusals.append("self-calibration asked for but too few matched pairs (< 6) to estimate it")
+    for _ in range(3):  # drop what the data does not constrain (or what agrees with the given), refit
+        if fit is None:
+            break
+        cfg, changed = _judge_intrinsics(fit, cfg, config, diag, refusals, cframes[0].size[0])
+        if est_dt and not (fit.n_moving_pairs >= MIN_MOVING_PAIRS and fit.dt_sd_s is not None
+                           and fit.dt_sd_s <= config.time_offset_max_std_s):
+            diag.time_offset_std_s = fit.dt_sd_s
+            _drop_dt(diag, config, refusals, f"only {fit.n_moving_pairs} matched pairs of moving objects (need "
+                     f"{MIN_MOVING_PAIRS})" if fit.n_moving_pairs < MIN_MOVING_PAIRS else
+                     f"1-sigma {1e3 * (fit.dt_sd_s or np.inf):.0f} ms > {1e3 * config.time_offset_max_std_s:.0f} ms")
+            est_dt, changed = False, True
+        if not changed:
+            break
+        fit = joint_refine(cframes, intr, pose, cfg, motion, est_dt, occlusion) \
+            if (cfg.refine_intrinsics != "none" or est_dt) else None
+    if fit is None:
+        _fill_used(diag, intr)
+        return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag)
+    if cfg.refine_intrinsics != "none":
+        diag.focal_scale, diag.focal_scale_std, diag.focal_estimated = fit.focal_scale, fit.focal_log_sd, True
+    if fit.principal_shift_px is not None:
+        diag.principal_shift_px = [float(v) for v in fit.principal_shift_px]
+        diag.principal_std_px = [float(v) for v in fit.principal_sd_px]
+    frames = cframes
+    if est_dt:
+        diag.time_offset_s, diag.time_offset_std_s, diag.time_offset_source = fit.dt_s, fit.dt_sd_s, "estimated"
+        diag.n_moving_pairs = fit.n_moving_pairs
+        frames = shift_frames(cframes, motion.velocity, fit.dt_s)
+    _fill_used(diag, fit.intr)
+    return SelfCalChoice(fit.intr, frames, fit.pose, fit.pose_inflation, "; ".join(refusals), diag)
+
+
+def _drop_dt(diag: SelfCalDiagnostics, config: CalibConfig, refusals: list[str], why: str) -> None:
+    diag.time_offset_source = "fallback"
+    if config.time_offset == "auto":
+        _note(diag, f"time_offset='auto': not observable ({why}); no time offset applied")
+    else:
+        refusals.append(f"time offset asked for but not observable: {why}; objects moving in view are needed")
+
+
+def _judge_intrinsics(fit: SelfCalFit, cfg: CalibConfig, config: CalibConfig, diag: SelfCalDiagnostics,
+                      refusals: list[str], width: int) -> tuple[CalibConfig, bool]:
+    """(config for the next fit, whether it changed): drop a focal scale / principal point that the
+    data does not constrain ("auto": keep the given; asked for: refuse), and with "auto" one that
+    agrees with the given focal length within 2 sigma."""
+    if cfg.refine_intrinsics == "none":
+        return cfg, False
+    sd = fit.focal_log_sd
+    diag.focal_scale_std = sd
+    hint = "objects at more depths and across the whole image are needed"
+    if not (sd is not None and sd <= config.focal_max_std):
+        msg = (f"the focal length is not constrained by these detections (1-sigma {_fmt_pct(sd)}, limit "
+               f"{_fmt_pct(config.focal_max_std)}): {hint}")
+        if config.refine_intrinsics == "auto":
+            _note(diag, f"refine_intrinsics='auto': {msg}; the given intrinsics are kept", warn=False)
+        else:
+            refusals.append(f"focal length estimation asked for but {msg}; or give exact intrinsics "
+                            "(refine_intrinsics='none')")
+        return cfg.replace(refine_intrinsics="none"), True
+    if config.refine_intrinsics == "auto" and abs(np.log(fit.focal_scale)) <= 2 * sd:
+        _note(diag, f"refine_intrinsics='auto': the detections fit the focal length x{fit.focal_scale:.4f} "
+                    f"(1-sigma {_fmt_pct(sd)}), consistent with the given one; the given one is kept", warn=False)
+        return cfg.replace(refine_intrinsics="none"), True
+    limit = 0.01 * width
+    if cfg.refine_intrinsics == "focal+center" and not (fit.principal_sd_px is not None
+                                                         and np.all(fit.principal_sd_px <= limit)):
+        refusals.append(f"principal point estimation asked for but it is not constrained by these detections "
+                        f"(1-sigma {np.max(fit.principal_sd_px) if fit.principal_sd_px is not None else np.inf:.1f} px, "
+                        f"limit {limit:.0f} px): {hint}; or use refine_intrinsics='focal'")
+        return cfg.replace(refine_intrinsics="focal"), True
+    return cfg, False
+
+
+def _fill_used(diag: SelfCalDiagnostics, intr: CameraIntrinsics) -> None:
+    diag.fx_used, diag.fy_used, diag.cx_used, diag.cy_used = (float(intr.fx), float(intr.fy), float(intr.cx),
+                                                              float(intr.cy))
