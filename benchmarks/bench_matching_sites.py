@@ -199,7 +199,7 @@ def main(argv=None) -> int:
                     default=["a9", "nuscenes", "pandaset", "sustech", "synthetic B", "synthetic C"])
     ap.add_argument("--pandaset-every", type=int, default=3)
     ap.add_argument("--synthetic-frames", type=int, default=6)
-    ap.add_argument("--bootstrap-fit", type=int, default=10, help="A9: bootstrap on the first N frames")
+    ap.add_argument("--bootstrap-fit", type=int, default=12, help="A9: bootstrap on the first N frames")
     ap.add_argument("--bootstrap-steps", type=int, default=600, help="0: no bootstrap rows")
     ap.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args(argv)
@@ -237,7 +237,11 @@ def main(argv=None) -> int:
                   f"({s['frames']} frames, {s['rows_with_partner']} boxes with a partner, {s['sources']}, "
                   f"{s['seconds_per_frame']:.2f} s/frame)", flush=True)
     if "a9" in args.datasets and args.bootstrap_steps > 0 and "skipped" not in table.get("a9", {}):
-        table["a9"]["after bootstrap"] = after_bootstrap(a9(), args.bootstrap_fit, args.bootstrap_steps)
+        try:
+            table["a9"]["after bootstrap"] = after_bootstrap(a9(), args.bootstrap_fit, args.bootstrap_steps)
+        except Exception as exc:  # noqa: BLE001 - a refused bootstrap is a result, not a crash
+            table["a9"]["after bootstrap"] = {"failed": f"{type(exc).__name__}: {exc}"}
+            print(f"a9 after bootstrap: failed ({exc})", flush=True)
     names = list(variants(None, None))
     print("\n| dataset | " + " | ".join(names) + " |\n|---|" + "---|" * len(names))
     for d, rows in table.items():

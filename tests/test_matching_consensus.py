@@ -95,7 +95,7 @@ def test_in_domain_and_forced_paths():
         m.match_frame(f, geometry="maybe")
 
 
-def test_from_pretrained_without_site_warns(caplog):
+def test_from_pretrained_synthetic_site_warns(caplog):
     with caplog.at_level(logging.WARNING, logger="xcalib.matcher"):
         m = Matcher.from_pretrained("fastmatch", device="cpu")
     assert m.site == "synthetic" and "xcalib bootstrap" in caplog.text

@@ -144,12 +144,12 @@ class Matcher:
     @classmethod
     def from_pretrained(cls, model: str, weights: str | Path | None = None,
                         config: str | Path | Mapping[str, Any] | None = None,
-                        device: str | torch.device | None = None, *, site: str | None = None,
+                        device: str | torch.device | None = None, *, site: str = "synthetic",
                         repo_id: str | None = None, revision: str | None = None,
                         token: str | None = None) -> "Matcher":
         """Load ``model`` with weights from the site folders (``weights=None``), a directory
-        written by :meth:`save_pretrained`, or a weights file (no ``site`` and no ``weights``: the
-        shipped ``synthetic`` weights, with a warning naming ``xcalib bootstrap``). The config is ``config`` (YAML path
+        written by :meth:`save_pretrained`, or a weights file (the shipped ``synthetic`` site, also the
+        default, loads with a warning naming ``xcalib bootstrap``). The config is ``config`` (YAML path
         or dict, merged onto the model defaults) or else the YAML beside the weights, else the
         one stored in the weights file. A checkpoint that does not fit is an error. Site folders
         and weights directories with a ``calibration.json`` give the matcher that calibration.
@@ -164,11 +164,10 @@ class Matcher:
                              "directory or a weights file")
 
         model_class(model)  # unknown model -> UnknownModelError
-        if weights is None and site is None:
-            site = "synthetic"
-            log.warning("Matcher.from_pretrained(%r): no site given, loading the shipped 'synthetic' weights (trained on "
-                        "one synthetic site; they do not know yours: their scores on real sites are out of domain and "
-                        "match() falls back to geometric consensus). %s", model, BOOTSTRAP_HINT)
+        if weights is None and site == "synthetic":  # also the default: say what these weights are
+            log.warning("Matcher.from_pretrained(%r): loading the shipped 'synthetic' weights (trained on one synthetic "
+                        "site; they do not know yours: without a site calibration match() uses geometric consensus "
+                        "when the intrinsics are known or their scores are out of domain). %s", model, BOOTSTRAP_HINT)
         if weights is None:
             path = find_site_weights(model, site)
         else:
