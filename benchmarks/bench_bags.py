@@ -7,6 +7,8 @@
   3D boxes; 2D boxes from :func:`xcalib.data.boxes2d.synthetic_2d_boxes` (projected with the
   ground truth, 1 px noise, 10 % missed, 5 % false, occlusion; seed 0) since neither has 2D
   detections. SUSTech's ground truth is hand-tuned (approximate).
+* KITTI ``openpcdet_pr653`` (frames from two calibration days), directly from the folder, one
+  day at a time with ``frames=`` (``0`` and ``1:6``).
 * Timings: bag indexing (open, deserialise, index by stamp: ``BagFrames``) and frame pairing
   (``pair_by_time``) per 1000 messages, on a synthetic 600-frame MCAP with small messages, and
   the real MCAPs' indexing.
@@ -205,6 +207,14 @@ def main() -> None:
             stats.append(info["stats"])
             if name == "nuscenes":
                 agreements = [a.to_dict() for a in info["site"].agreements]
+        kitti = DATA / "kitti" / "openpcdet_pr653"
+        if kitti.is_dir():  # two calibration days in one folder: frame 000000 vs 000001-000005
+            from xcalib.site import calibrate_site
+
+            for name, rng_ in (("kitti 0", "0"), ("kitti 1:6", "1:6")):
+                t = time.perf_counter()
+                site, _ = calibrate_site(_views(kitti, ["image_2"], frames=rng_), source=str(kitti))
+                rows += _site_rows(name, site, time.perf_counter() - t)
         timings = _timings(tmp, log)
     _print_table(rows)
     ok = [r for r in rows if r["verdict"] == "calibrated"]

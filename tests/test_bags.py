@@ -183,11 +183,37 @@ def test_camera_info_models(ros):
         got = cv.intrinsics_from_msg(msg, where)
         assert got == intr and np.array_equal(got.distortion, intr.distortion)
     msg.distortion_model = "equidistant"
-    with pytest.raises(FormatError, match="equidistant"):
+    with pytest.raises(FormatError, match="equidistant needs 4"):
         cv.intrinsics_from_msg(msg, where)
     msg.distortion_model = "double_sphere"
     with pytest.raises(FormatError, match="unsupported distortion_model 'double_sphere'"):
         cv.intrinsics_from_msg(msg, where)
+
+
+def test_equidistant_camera_info_is_rectified_to_pinhole():
+    import cv2
+
+    from xcalib.geometry.camera import CameraIntrinsics
+
+    store = typestore(2)
+    msg = cv.make_camera_info(store, CameraIntrinsics(300.0, 300.0, 320.0, 240.0, None, 640, 480), 1, "cam", 640, 480)
+    msg.distortion_model, msg.d = "equidistant", np.array([0.08, -0.02, 0.004, -0.001])
+    fe = cv.camera_model_from_msg(msg, ("x.bag", "/cam/camera_info"))
+    assert isinstance(fe, cv.Fisheye)
+    intr = cv.intrinsics_from_msg(msg, ("x.bag", "/cam/camera_info"))
+    assert intr.distortion is None and (intr.width, intr.height) == (640, 480)
+    X = np.array([[1.5, -0.8, 3.0], [-2.0, 1.0, 2.5]])
+    uv_d, _ = cv2.fisheye.projectPoints(X.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), fe.K, fe.D)
+    uv_d = uv_d.reshape(-1, 2)
+    uv_p = (fe.K_new @ (X / X[:, 2:]).T).T[:, :2]  # the same points through the rectified pinhole camera
+    boxes = np.hstack([uv_d - 0.25, uv_d + 0.25])
+    got = fe.rectify_boxes(boxes)
+    np.testing.assert_allclose((got[:, :2] + got[:, 2:]) / 2, uv_p, atol=0.05)
+    img = np.zeros((480, 640, 3), np.uint8)
+    u, v = np.round(uv_d[0]).astype(int)
+    img[v - 2:v + 3, u - 2:u + 3] = 255
+    ys, xs = np.nonzero(fe.rectify_image(img)[:, :, 0] > 100)
+    assert abs(xs.mean() - uv_p[0, 0]) < 1.0 and abs(ys.mean() - uv_p[0, 1]) < 1.0
 
 
 @pytest.mark.parametrize("suffix,layout", [(".db3", "ros1"), (".bag", "ros2")])

@@ -90,3 +90,39 @@ def test_sustech_scene_three_cameras():
         assert f.extrinsics is not None and f.intrinsics is not None
     with pytest.raises(FormatError, match="rear"):
         open_source(root, camera="rear")
+
+
+def test_merge_cameras_unions_3d_boxes_and_keeps_matches(rng):
+    from xcalib.io.sources import camera_view, merge_cameras
+
+    shared = np.array([[0, 0, 0, 1, 1, 1], [2, 2, 2, 3, 3, 3], [5, 5, 5, 6, 6, 6]], np.float32)
+    intr = CameraIntrinsics(100.0, 100.0, 16.0, 12.0, width=32, height=24)
+
+    def view(name, rows, b2, pairs, t):
+        mm = np.zeros((len(b2), len(rows)), bool)
+        for i, j in pairs:
+            mm[i, j] = True
+        return Frame(image=rng.integers(0, 255, (24, 32, 3), dtype=np.uint8), point_cloud=np.zeros((4, 3), np.float32),
+                     bboxes_2d=np.asarray(b2, np.float32), bboxes_3d=shared[rows], camera_name=name, match_matrix=mm,
+                     intrinsics=intr, extrinsics=np.eye(4), camera_time_s=t, lidar_time_s=10.0,
+                     track_ids_3d=np.asarray(rows, np.int64) + 100)
+
+    a = view("a", [0, 1], [[1, 1, 4, 4], [5, 5, 9, 9]], [(0, 1), (1, 0)], 9.95)
+    b = view("b", [1, 2], [[2, 2, 6, 6]], [(0, 1)], 9.97)
+    (m,) = merge_cameras({"a": [a], "b": [b]})
+    assert np.array_equal(m.bboxes_3d, shared) and m.camera_per_det == ["a", "a", "b"]
+    assert m.match_matrix.tolist() == [[False, True, False], [True, False, False], [False, False, True]]
+    assert m.track_ids_3d.tolist() == [100, 101, 102]
+    vb = camera_view(m, "b")
+    assert np.array_equal(vb.bboxes_2d, b.bboxes_2d) and vb.match_matrix.tolist() == [[False, False, True]]
+    assert m.meta["camera_time_s_by_camera"] == {"a": 9.95, "b": 9.97}
+    with pytest.raises(ValueError, match="frame counts"):
+        merge_cameras({"a": [a], "b": []})
+
+
+def test_layering_of_bags_and_site():
+    code = ("import sys, xcalib.io.bags, xcalib.io.sources; a = sorted(m for m in ('xcalib.formats', 'xcalib.calib', "
+            "'xcalib.site', 'torch') if m in sys.modules); import xcalib.site; "
+            "b = sorted(m for m in ('xcalib.viz', 'xcalib.cli', 'torch') if m in sys.modules); print(a, b)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[] []"

@@ -38,6 +38,8 @@ def test_registry_and_given_intrinsics():
         assert want in names
     with pytest.raises(ValueError):
         register_condition(REALISM_CONDITIONS["clean"])
+    with pytest.raises(ValueError, match="second_camera"):
+        RealismCondition("bad", "", second_camera="some")
     clean = make_realism_case("clean", SEED, 2)
     for name, scale in (("focal+20%", 1.2), ("focal-10%", 0.9)):
         c = make_realism_case(name, SEED, 2)

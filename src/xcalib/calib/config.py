@@ -105,7 +105,7 @@ class CalibConfig:
     max_hyp_frames: int = 10
     max_refine: int = 6
     max_candidates: int = 1500
-    refine_intrinsics: IntrinsicsMode = "none"
+    refine_intrinsics: IntrinsicsMode = "auto"
     focal_max_std: float = 0.01
     time_offset: TimeOffsetMode | float | None = None
     time_offset_max_std_s: float = 0.02

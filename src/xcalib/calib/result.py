@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -248,7 +249,8 @@ class CalibrationResult:
                 d, arrays = json.loads(read_text(path, max_bytes=MAX_TEXT_BYTES, what="calibration file")), None
         except FormatError:
             raise
-        except (json.JSONDecodeError, OSError, ValueError, RecursionError, MemoryError, KeyError, EOFError) as exc:
+        except (json.JSONDecodeError, OSError, ValueError, RecursionError, MemoryError, KeyError, EOFError,
+                zipfile.BadZipFile, NotImplementedError) as exc:
             raise FormatError(path, f"not a readable xcalib calibration ({type(exc).__name__}: {str(exc)[:200]})") from None
         if not isinstance(d, dict):
             raise FormatError(path, f"expected a JSON object, got {type(d).__name__}")
@@ -331,6 +333,12 @@ def _read_npz(path: Path) -> tuple[dict, dict]:
     except UnicodeDecodeError as exc:
         raise FormatError(path, f"not UTF-8 JSON ({exc.reason})", "json") from None
     return d, arrays
+
+
+def validate_loaded(res: "CalibrationResult", path) -> None:
+    """FormatError naming ``path`` unless ``res`` holds a rotation (orthonormal, det +1), finite
+    numbers and a translation within ``MAX_TRANSLATION_M`` (what every reader must return)."""
+    _validate_pose(res, path)
 
 
 def _validate_pose(res: "CalibrationResult", path) -> None:

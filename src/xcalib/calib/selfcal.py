@@ -87,9 +87,9 @@ def _terms(config: CalibConfig, motion: BoxMotion | None, frames, pairs, estimat
     return extra, names
 
 
-def _covariance(model: CostModel) -> np.ndarray | None:
-    """Covariance of all parameters at x = 0: the larger (trace) of classic and per-pair sandwich."""
-    r0, J = model.jacobian()
+def _covariance(model: CostModel, r0_J: tuple | None = None) -> np.ndarray | None:
+    """Covariance of all parameters at x = 0: the classic or the per-pair sandwich, whichever is larger."""
+    r0, J = model.jacobian() if r0_J is None else r0_J
     n_edges = len(model.terms[0].obs) * 4
     r0, J = r0[:n_edges], J[:n_edges]
     informative = np.any(J != 0, axis=1)
@@ -173,7 +173,7 @@ def _note(diag: SelfCalDiagnostics, text: str, warn: bool = True) -> None:
 
 
 def _fmt_pct(x: float | None) -> str:
-    return "unknown" if x is None or not np.isfinite(x) else f"{100 * x:.1f} %"
+    return "unknown" if x is None or not np.isfinite(x) else f"{100 * x:.2f} %"
 
 
 def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config: CalibConfig,
@@ -191,6 +191,11 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
     if want_dt and not est_dt:
         _drop_dt(diag, config, refusals, motion.problem if motion is not None else "no object velocities")
     cfg = config
+    if config.refine_intrinsics == "auto" and _focal_agrees(cframes, intr, pose, config, diag, occlusion):
+        cfg = cfg.replace(refine_intrinsics="none")  # the given focal length fits: no joint fit needed for it
+        if not est_dt:
+            _fill_used(diag, intr)
+            return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag)
     fit = joint_refine(cframes, intr, pose, cfg, motion, est_dt, occlusion)
     if fit is None and (cfg.refine_intrinsics in ("focal", "focal+center") or config.time_offset == "estimate"):
         refusals.append("self-calibration asked for but too few matched pairs (< 6) to estimate it")
@@ -224,6 +229,40 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
         frames = shift_frames(cframes, motion.velocity, fit.dt_s)
     _fill_used(diag, fit.intr)
     return SelfCalChoice(fit.intr, frames, fit.pose, fit.pose_inflation, "; ".join(refusals), diag)
+
+
+def _focal_agrees(cframes, intr, pose: Pose, config: CalibConfig, diag: SelfCalDiagnostics,
+                  occlusion: Occlusion) -> bool:
+    """The cheap test of "auto": one linearised (Gauss-Newton) step of pose + focal scale at the
+    refined pose. True (keep the given focal) when the scale is measured (1-sigma within
+    ``focal_max_std``) and the step is within 1 sigma of the given one, or when it is not measured
+    at all; False when the joint fit is needed."""
+    pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=0.3)
+    if sum(len(p) for p in pairs) < 6:
+        return True
+    noise = estimate_noise(cframes, pairs, intr, pose.R, pose.t)
+    model = CostModel([edge_term(cframes, pairs, intr, pose, noise, occlusion), FocalScaleTerm()], pose, intr)
+    r0, J = model.jacobian()
+    cov = _covariance(model, (r0, J))
+    if cov is None:
+        return False
+    sd = float(np.sqrt(cov[6, 6]))
+    n = len(model.terms[0].obs) * 4
+    ok = np.any(J[:n] != 0, axis=1)
+    step = float(np.linalg.lstsq(J[:n][ok], -r0[:n][ok], rcond=None)[0][6])
+    diag.focal_scale_std = sd
+    if sd > 2 * config.focal_max_std:
+        _note(diag, f"refine_intrinsics='auto': the focal length is not constrained by these detections (1-sigma "
+                    f"{_fmt_pct(sd)}, linearised); the given intrinsics are kept", warn=False)
+        return True
+    if sd > config.focal_max_std:
+        return False  # borderline: the joint fit decides
+    if abs(step) <= sd:
+        _note(diag, f"refine_intrinsics='auto': the detections fit the focal length x{np.exp(step):.4f} "
+                    f"(1-sigma {_fmt_pct(sd)}, linearised), consistent with the given one; the given one is kept",
+              warn=False)
+        return True
+    return False
 
 
 def _drop_dt(diag: SelfCalDiagnostics, config: CalibConfig, refusals: list[str], why: str) -> None:

@@ -40,10 +40,10 @@ def register(app: typer.Typer) -> None:
         limit: int = typer.Option(0, "--limit", help="Use only the first N frames (0: all)."),
         tolerance: float = typer.Option(0.05, "--tolerance", help="Bags: largest LiDAR/image stamp difference (s)."),
         seed: int = typer.Option(0, "--seed", help="Random seed of the hypothesis sampling."),
-        refine_intrinsics: str = typer.Option("none", "--refine-intrinsics",
-                                              help="none | auto | focal | focal+center: estimate the focal length "
+        refine_intrinsics: str = typer.Option("auto", "--refine-intrinsics",
+                                              help="auto | none | focal | focal+center: estimate the focal length "
                                                    "(and principal point) with the pose; auto: only where the "
-                                                   "detections constrain it."),
+                                                   "detections constrain it and disagree with the given one."),
         time_offset: str = typer.Option("none", "--time-offset",
                                         help="none | auto | estimate | SECONDS: camera-minus-LiDAR time offset; "
                                              "auto/estimate fit it from moving objects (auto falls back to none "

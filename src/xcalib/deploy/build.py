@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import os
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -157,25 +155,18 @@ def check_parity(plan, folder: Path, matcher, cases: dict[str, FrameInputs]) -> 
 
 
 # ---------------------------------------------------------------------------------- build
-def _replace_dir(tmp: Path, final: Path) -> None:
-    if final.exists():
-        if not (final / MANIFEST).is_file() and any(final.iterdir()):
-            raise OnnxFolderError(final, "exists, is not empty and holds no manifest.json: refusing to overwrite it")
-        shutil.rmtree(final)
-    tmp.replace(final)
-
-
 def export_onnx(matcher, folder: Path, *, site: str, weights_sha: str, opset: int = OPSET, verify: bool = True,
                 parity_tolerance: float = PARITY_TOLERANCE, parity_seed: int = 0) -> BuildResult:
-    """Export ``matcher`` into ``folder`` (replaced atomically) and check parity."""
+    """Export ``matcher`` into ``folder`` and check parity. The graphs and manifest are written
+    into a temporary folder beside it and swapped in whole (``atomic_dir``): a killed export
+    leaves the previous folder intact, never a mix of old graphs and a new manifest."""
+    from ..io._files import atomic_dir
+
     folder = Path(folder)
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = folder.with_name(f".{folder.name}.tmp-{os.getpid()}")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
+    if folder.is_dir() and any(folder.iterdir()) and not (folder / MANIFEST).is_file():
+        raise OnnxFolderError(folder, "exists, is not empty and holds no manifest.json: refusing to overwrite it")
     res = BuildResult("onnx", matcher.model_name, folder, site=site, tolerance=parity_tolerance)
-    try:
+    with atomic_dir(folder, overwrite=True) as tmp:  # replaces an earlier export of the same model + site
         model = cpu_copy(matcher.model)
         cfg = matcher.crop_config
         trace = random_inputs(cfg, 3, 4, seed=parity_seed + 101)
@@ -201,10 +192,6 @@ def export_onnx(matcher, folder: Path, *, site: str, weights_sha: str, opset: in
         write_manifest(tmp, man)
         if getattr(matcher, "calibration", None) is not None:  # OnnxMatcher fuses it into match, as Matcher
             matcher.calibration.save(tmp / "calibration.json")
-        _replace_dir(tmp, folder)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
     res.artifacts = [folder / g.file for g in graphs.values()] + [folder / MANIFEST]
     level = logging.INFO if res.parity_ok else logging.WARNING
     log.log(level, "%s: ONNX export to %s, parity %s (max |diff| %.3g, tolerance %.0e)", matcher.model_name, folder,

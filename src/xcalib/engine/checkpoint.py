@@ -297,9 +297,8 @@ def load_resume_state(path: Path) -> dict[str, Any]:
             "history": history, "model_name": obj.get("model_name"), "config": config}
 
 
-def load_state_strict(model: torch.nn.Module, state_dict: dict[str, torch.Tensor], source: str) -> None:
-    """Load every tensor exactly; any missing, unexpected or mis-shaped key is an error."""
-    own = model.state_dict()
+def check_state_fits(own: dict[str, torch.Tensor], state_dict: dict[str, torch.Tensor], source) -> None:
+    """WeightsMismatchError unless ``state_dict`` has exactly the keys and shapes of ``own``."""
     missing = sorted(set(own) - set(state_dict))
     unexpected = sorted(set(state_dict) - set(own))
     shapes = [f"{k}: checkpoint {tuple(state_dict[k].shape)} vs model {tuple(own[k].shape)}"
@@ -314,6 +313,34 @@ def load_state_strict(model: torch.nn.Module, state_dict: dict[str, torch.Tensor
         if shapes:
             parts.append(f"{len(shapes)} shape mismatch(es) {shapes[:3]}")
         raise WeightsMismatchError(f"{source}: checkpoint does not fit the model config: " + "; ".join(parts))
+
+
+def probe_model(model: str, config: dict[str, Any], state_dict: dict[str, torch.Tensor], config_source,
+                weights_source) -> None:
+    """Build ``model`` from ``config`` on the meta device (no memory) and check that the checkpoint
+    fits it, before the real model is allocated: a config read from a file that does not build the
+    model (bad types, huge sizes) is a FormatError naming that file."""
+    from ..models import create_model
+
+    try:
+        with torch.device("meta"):
+            probe = create_model(model, config)
+    except Exception as exc:  # noqa: BLE001 - any constructor failure means the config file is bad
+        raise FormatError(config_source, f"config does not build model {model!r} "
+                                         f"({type(exc).__name__}: {str(exc)[:200]})") from None
+    try:
+        check_state_fits(probe.state_dict(), state_dict, weights_source)
+    except WeightsMismatchError as exc:
+        if Path(config_source) == Path(weights_source):
+            raise
+        raise WeightsMismatchError(config_source, f"the weights {Path(weights_source).name} do not fit this config: "
+                                                  f"{exc.problem}", "config") from None
+
+
+def load_state_strict(model: torch.nn.Module, state_dict: dict[str, torch.Tensor], source: str) -> None:
+    """Load every tensor exactly; any missing, unexpected or mis-shaped key is an error."""
+    own = model.state_dict()
+    check_state_fits(own, state_dict, source)
     with torch.no_grad():
         for k, t in own.items():
             t.copy_(state_dict[k].to(t.dtype))

@@ -35,7 +35,8 @@ from ..types import DatasetFrame, Frame, MatchResult, as_frame
 from .host import assign, frame_match_args, run_match, validate_match_inputs  # torch-free, shared with ONNX Runtime
 from .domain import BOOTSTRAP_HINT
 from .fusion import FUSION_WEIGHT, GEO_EPS
-from .checkpoint import (WeightsNotFoundError, find_site_weights, load_state_strict, read_checkpoint,
+from ..errors import FormatError
+from .checkpoint import (WeightsNotFoundError, find_site_weights, load_state_strict, probe_model, read_checkpoint,
                          read_config, save_weights, weights_in_dir, write_config)
 
 __all__ = ["Matcher", "resolve_device", "assign"]
@@ -184,18 +185,29 @@ class Matcher:
         payload = read_checkpoint(path)
         if payload.get("model_name", model) != model:
             raise ValueError(f"{path}: weights are for model {payload['model_name']!r}, not {model!r}")
+        cfg_source = path
         if config is None:
             yaml_path = path.with_suffix(".yaml")
+            cfg_source = yaml_path if yaml_path.is_file() else path
             cfg = read_config(yaml_path) if yaml_path.is_file() else payload.get("config") or default_config(model)
         elif isinstance(config, (str, Path)):
-            cfg = read_config(Path(config))
+            cfg_source = Path(config)
+            cfg = read_config(cfg_source)
         else:
             cfg = merge_config(default_config(model), config)
+        if not isinstance(cfg, dict):
+            raise FormatError(cfg_source, f"expected a config mapping, got {type(cfg).__name__}", "config")
         if cfg.get("model", model) != model:
-            raise ValueError(f"config names model {cfg.get('model')!r}, but {model!r} was requested")
+            raise FormatError(cfg_source, f"config names model {cfg.get('model')!r}, but {model!r} was requested",
+                              "model")
+        probe_model(model, cfg, payload["state_dict"], cfg_source, path)  # meta device: nothing allocated
         net = create_model(model, cfg)
         load_state_strict(net, payload["state_dict"], str(path))
-        out = cls(net, device=device, weights_path=path, site=site if weights is None else None)
+        try:
+            out = cls(net, device=device, weights_path=path, site=site if weights is None else None)
+        except (ValueError, TypeError, KeyError) as exc:  # crop / matching settings of the config
+            raise FormatError(cfg_source, f"config settings are invalid ({type(exc).__name__}: {str(exc)[:200]})",
+                              "config") from None
         if weights is None or Path(weights).is_dir():  # a site / saved folder: its calibration.json
             out.set_calibration(load_calibration_beside(path.parent))
         return out
@@ -216,7 +228,7 @@ class Matcher:
         old = weights_in_dir(d, name) if d.is_dir() else None
         if old is not None and not overwrite:
             raise FileExistsError(f"{old} already exists; pass overwrite=True to replace it")
-        with atomic_dir(d, keep_existing=True) as tmp:
+        with atomic_dir(d, keep_existing=True, drop=[f"{name}.pt"]) as tmp:
             save_weights(self.model, tmp / f"{name}.pth", model_name=name, config=self.config, dtype=dtype)
             write_config(tmp / f"{name}.yaml", self.config)
             if self._calibration is not None:

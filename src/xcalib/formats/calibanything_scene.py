@@ -30,6 +30,7 @@ import numpy as np
 
 from ..calib.result import CalibrationResult
 from ..errors import FormatError
+from ..io._files import inside
 from ..types import Frame
 from ._media import IMAGE_EXTS, image_size, load_cloud, load_rgb
 from .calibanything import read_calib_json, read_calib_txt, read_lucid_calib, read_opencalib
@@ -139,13 +140,22 @@ def find_scene_items(root, camera: str | None = None, *, repair: bool = False) -
         calib = read_calib_json(root / "calib.json", repair=repair)
         m = calib.meta
         gt = None if m.get("T_cam_lidar_gt") is None else np.asarray(m["T_cam_lidar_gt"])
-        names = list(m.get("file_name") or [])
-        img_dir, pc_dir = root / m.get("img_folder", "images"), root / m.get("pc_folder", "pc")
+        cj = root / "calib.json"
+        names = m.get("file_name") or []
+        fields = {k: m.get(k, d) for k, d in (("img_folder", "images"), ("pc_folder", "pc"),
+                                              ("img_format", ".png"), ("pc_format", ".pcd"))}
+        if not isinstance(names, list) or not all(isinstance(n, (str, int)) for n in names):
+            raise FormatError(cj, "expected a list of file-name stems", "file_name")
+        for k, v in fields.items():
+            if not isinstance(v, str):
+                raise FormatError(cj, f"expected a string, got {v!r:.40}", k)
+        img_dir = inside(root, fields["img_folder"], source=cj, field="img_folder")
+        pc_dir = inside(root, fields["pc_folder"], source=cj, field="pc_folder")
         if not names and pc_dir.is_dir():
             names = [c.stem for c in _clouds(pc_dir)]
         for n in names:
-            c = pc_dir / f"{n}{m.get('pc_format', '.pcd')}"
-            im = img_dir / f"{n}{m.get('img_format', '.png')}"
+            c = inside(root, f"{fields['pc_folder']}/{n}{fields['pc_format']}", source=cj, field="file_name")
+            im = inside(root, f"{fields['img_folder']}/{n}{fields['img_format']}", source=cj, field="file_name")
             for p, what in ((c, "point cloud"), (im, "image")):
                 if not p.is_file():
                     raise FormatError(root / "calib.json", f"{what} {p} listed by file_name is missing", "file_name")

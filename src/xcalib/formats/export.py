@@ -239,7 +239,7 @@ def export_calibration(result: CalibrationResult, fmt: str, path, *, overwrite: 
     import shutil
     import tempfile
 
-    from ..io._files import _tmp_prefix, check_overwrite
+    from ..io._files import _tmp_prefix, check_overwrite, sweep_stale
 
     f = _get(fmt)
     if f.write is None:
@@ -250,6 +250,7 @@ def export_calibration(result: CalibrationResult, fmt: str, path, *, overwrite: 
     is_dir = fmt == "opencalib" and not path.suffix
     target = path if is_dir else path.parent
     target.mkdir(parents=True, exist_ok=True)
+    sweep_stale(target, path.name)
     stage = Path(tempfile.mkdtemp(prefix=_tmp_prefix(path.name), suffix=".tmp", dir=target))
     try:
         staged = [Path(p) for p in f.write(result, stage if is_dir else stage / path.name)]
@@ -312,5 +313,17 @@ def detect_format(path) -> str:
 
 def read_calibration(path, fmt: str | None = None, *, repair: bool = False) -> CalibrationResult:
     """Read any supported calibration file (format detected when ``fmt`` is None)."""
+    from ..calib.result import validate_loaded
+
     fmt = fmt or detect_format(path)
-    return _get(fmt).read(path, repair=repair)
+    reader = _get(fmt).read
+    try:
+        result = reader(path, repair=repair)
+    except FormatError as exc:
+        if exc.path is None:  # a helper that did not know the file
+            raise FormatError(path, exc.problem, exc.field) from None
+        raise
+    except (ValueError, TypeError, OverflowError, RecursionError, IndexError, AttributeError) as exc:
+        raise FormatError(path, f"not a readable {fmt} calibration ({type(exc).__name__}: {str(exc)[:200]})") from None
+    validate_loaded(result, path)
+    return result

@@ -16,6 +16,8 @@ frame ``<camera>_link``, x forward / y left / z up, joined to the LiDAR, and the
 
 from __future__ import annotations
 
+import logging
+import secrets
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +36,8 @@ __all__ = ["camera_info_dict", "static_transform_dict", "write_ros", "read_ros",
            "read_static_transform", "tf_path_for", "static_transform_args", "static_transform_command",
            "urdf_joints", "write_urdf", "read_urdf", "tf_static_dict", "write_tf_static", "read_tf_static",
            "R_BODY_OPTICAL"]
+
+log = logging.getLogger("xcalib.formats.ros")
 
 
 def _yaml():
@@ -164,8 +168,10 @@ def read_urdf(path, camera: str | None = None) -> CalibrationResult:
 
     path = Path(path)
     try:
-        root = ET.fromstring(path.read_text())
-    except (OSError, ET.ParseError) as exc:
+        root = ET.fromstring(read_text(path, max_bytes=MAX_TEXT_BYTES, what="URDF file"))
+    except (OSError, ET.ParseError, RecursionError, ValueError) as exc:
+        if isinstance(exc, FormatError):
+            raise
         raise FormatError(path, f"not readable URDF XML ({exc})") from None
     parent_of = {}
     for j in root.iter("joint"):
@@ -246,11 +252,21 @@ def write_ros(result: CalibrationResult, path, *, parent_frame: str = "lidar",
     yaml = _yaml()
     path = Path(path)
     tf = tf_path_for(path)
-    info = yaml.safe_dump(camera_info_dict(intr, name), sort_keys=False).encode()
-    tfy = yaml.safe_dump(static_transform_dict(result.extrinsics, parent_frame, child), sort_keys=False).encode()
-    atomic_write(tf, [tfy])
+    tf_dict = static_transform_dict(result.extrinsics, parent_frame, child)
+    # Both files carry one pair id and camera_info also embeds the transform (extra keys ROS
+    # parsers ignore). camera_info is renamed first: a write killed before the tf file's rename
+    # leaves a tf file of another pair id, and read_ros then takes the embedded transform.
+    pair = secrets.token_hex(8)
+    info = yaml.safe_dump({**camera_info_dict(intr, name), PAIR_KEY: pair, EMBEDDED_TF: tf_dict},
+                          sort_keys=False).encode()
+    tfy = yaml.safe_dump({**tf_dict, PAIR_KEY: pair}, sort_keys=False).encode()
     atomic_write(path, [info])
+    atomic_write(tf, [tfy])
     return path, tf
+
+
+EMBEDDED_TF = "xcalib_static_transform"
+PAIR_KEY = "xcalib_pair"
 
 
 def _load_yaml(path: Path) -> dict:
@@ -326,10 +342,19 @@ def read_ros(path, tf_path=None) -> CalibrationResult:
     inv(pose of the camera optical frame in the LiDAR frame))."""
     path = Path(path)
     intr = read_camera_info(path)
+    info = _load_yaml(path)
     tf = Path(tf_path) if tf_path is not None else tf_path_for(path)
-    if not tf.is_file():
+    embedded = info.get(EMBEDDED_TF) if tf_path is None else None
+    tf_d = _load_yaml(tf) if tf.is_file() else None
+    if isinstance(embedded, dict) and (tf_d is None or tf_d.get(PAIR_KEY) != info.get(PAIR_KEY)):
+        if tf_d is not None:  # the tf file belongs to another (interrupted) write: the pair is in camera_info
+            log.warning("%s: %s is from another write (pair id); using the transform saved with camera_info",
+                        path, tf.name)
+        T_parent_child, parent, child = _transform_of(embedded, path)
+    elif tf_d is None:
         raise FormatError(path, f"no static transform file {tf.name} next to the camera_info YAML")
-    T_parent_child, parent, child = read_static_transform(tf)
-    name = str(_load_yaml(path).get("camera_name", ""))
+    else:
+        T_parent_child, parent, child = _transform_of(tf_d, tf)
+    name = str(info.get("camera_name", ""))
     return calibration_record(intr, invert_transform(T_parent_child), method="ros", camera_name=name,
                               meta={"format": "ros", "parent_frame": parent, "child_frame": child})

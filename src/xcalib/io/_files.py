@@ -140,7 +140,8 @@ def _exchange(a: str, b: str) -> bool:
 
 
 @contextlib.contextmanager
-def atomic_dir(path, *, overwrite: bool = False, keep_existing: bool = False) -> Iterator[Path]:
+def atomic_dir(path, *, overwrite: bool = False, keep_existing: bool = False,
+               drop: Iterable[str] = ()) -> Iterator[Path]:
     """Build a multi-file output in a temporary folder beside ``path`` and swap it in whole.
 
     Yields the temporary folder; write every file of the output into it. On a clean exit the
@@ -148,7 +149,8 @@ def atomic_dir(path, *, overwrite: bool = False, keep_existing: bool = False) ->
     readers see the old output or the new one, never a mix. On an exception the temp folder is
     removed and ``path`` is untouched. An existing ``path`` is refused unless ``overwrite``;
     ``keep_existing`` carries over (hard link or copy) the files of the old folder that the new
-    output does not write (e.g. other models' weights in a site folder).
+    output does not write (e.g. other models' weights in a site folder), except the relative
+    paths in ``drop`` (files the new output supersedes).
     """
     path = Path(path)
     if path.exists() and not path.is_dir():
@@ -162,7 +164,7 @@ def atomic_dir(path, *, overwrite: bool = False, keep_existing: bool = False) ->
         os.chmod(tmp, 0o777 & ~_umask())
         yield tmp
         if keep_existing and path.is_dir():
-            _carry_over(path, tmp)
+            _carry_over(path, tmp, set(drop))
         _fsync_tree(tmp)
         if path.is_dir():
             if not _exchange(str(tmp), str(path)):
@@ -179,10 +181,11 @@ def atomic_dir(path, *, overwrite: bool = False, keep_existing: bool = False) ->
         raise
 
 
-def _carry_over(old: Path, new: Path) -> None:
+def _carry_over(old: Path, new: Path, drop: set[str]) -> None:
     for src in old.rglob("*"):
-        dst = new / src.relative_to(old)
-        if dst.exists() or dst.is_symlink():
+        rel = src.relative_to(old)
+        dst = new / rel
+        if rel.as_posix() in drop or dst.exists() or dst.is_symlink():
             continue
         if src.is_dir() and not src.is_symlink():
             dst.mkdir(parents=True, exist_ok=True)
@@ -272,6 +275,8 @@ def inside(root, rel, *, source=None, field: str | None = None, allow_outside: b
     if not isinstance(rel, (str, os.PathLike)) or not str(rel) or "\x00" in str(rel):
         raise FormatError(source, f"expected a relative file path, got {rel!r:.80}", field)
     rel_s = os.fspath(rel)
+    if len(rel_s) > 4096 or any(len(os.fsencode(c)) > 255 for c in Path(rel_s).parts):
+        raise FormatError(source, f"path {rel_s[:60]!r}... is too long for a file name", field)
     joined = root / rel_s
     if allow_outside:
         return joined

@@ -156,6 +156,16 @@ class CacheReader(Sequence):
         except (OSError, ValueError) as exc:
             raise FormatError(self.path, f"not a readable HDF5 file ({exc})") from None
         self._finalizer = weakref.finalize(self, self._f.close)
+        try:
+            self._open_layout(label_sensor, lidar_name, key_order, read_images, decode_images, read_extras)
+        except FormatError:
+            raise
+        except (OSError, KeyError, ValueError, TypeError, RuntimeError) as exc:  # h5py: checksums, truncation
+            self.close()
+            raise FormatError(self.path, f"corrupt HDF5 layout ({type(exc).__name__}: {str(exc)[:200]})") from None
+
+    def _open_layout(self, label_sensor, lidar_name, key_order, read_images, decode_images, read_extras) -> None:
+        h5py = _h5py()
         self.read_images = bool(read_images)
         self.decode_images = bool(decode_images)
         self.read_extras = bool(read_extras)
@@ -303,7 +313,9 @@ class CacheReader(Sequence):
             raise ValueError(f"{self.path}: the cache is closed")
         try:
             return self._read_frame(key)
-        except FormatError:
+        except FormatError as exc:
+            if exc.path is None:  # raised below the reader (dataset size check): name the file
+                raise type(exc)(self.path, exc.problem, exc.field) from None
             raise
         except (OSError, ValueError, TypeError, KeyError, IndexError, OverflowError, MemoryError, RuntimeError,
                 UnicodeDecodeError) as exc:

@@ -152,9 +152,15 @@ def _finite(pc: PointCloud, drop: bool) -> PointCloud:
     if pc.points.shape[1] < 3 or pc.fields[:3] != ("x", "y", "z"):
         return pc
     # a float64 sum of float32 values cannot overflow, so it is finite iff every value is
-    if np.isfinite(pc.points[:, :3].sum(dtype=np.float64)):
+    xyz = pc.points[:, :3]
+    if np.isfinite(xyz.sum(dtype=np.float64)):
+        if xyz.size and np.abs(xyz).max() > MAX_COORD_M:
+            i = int(np.argmax(np.abs(xyz).max(axis=1)))
+            raise FormatError(pc.path, f"point {i} has a coordinate of {float(np.abs(xyz[i]).max()):.3g} m, beyond "
+                                       f"{MAX_COORD_M:g} m: corrupt data or wrong layout (LiDAR frames are metres)",
+                              field="x,y,z")
         return pc
-    bad = ~np.isfinite(pc.points[:, :3]).all(axis=1)
+    bad = ~np.isfinite(xyz).all(axis=1)
     n = int(bad.sum())
     if not drop:
         first = int(np.argmax(bad))
@@ -454,8 +460,8 @@ def _load_npy(path: Path) -> np.ndarray:
             version = np.lib.format.read_magic(fh)
             shape, _, dtype = (np.lib.format.read_array_header_1_0(fh) if version == (1, 0)
                                else np.lib.format.read_array_header_2_0(fh))
-        except (ValueError, OSError, EOFError, SyntaxError, TypeError) as exc:
-            raise FormatError(path, f"not a readable .npy array ({exc})") from None
+        except Exception as exc:  # noqa: BLE001 - numpy's header parser raises many types (TokenError, ...)
+            raise FormatError(path, f"not a readable .npy header ({type(exc).__name__}: {str(exc)[:120]})") from None
         if dtype.hasobject:
             raise FormatError(path, "object arrays (pickles) are refused", field="dtype")
         need = int(np.prod(shape, dtype=object)) * dtype.itemsize

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -82,6 +82,14 @@ class RealismCondition:
     size_noise_frac: float = 0.0
     yaw_noise_deg: float = 0.0
     lidar_points: bool = False
+
+    def __post_init__(self) -> None:
+        for name, allowed in (("second_camera", get_args(SecondCamera)), ("box3d_yaw", ("kept", "dropped"))):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"RealismCondition.{name}: expected one of {allowed}, got {getattr(self, name)!r}")
+        if not self.focal_scale > 0 or not 0.0 <= self.second_camera_share < 1.0:
+            raise ValueError(f"RealismCondition {self.name!r}: focal_scale must be > 0 and second_camera_share "
+                             f"in [0, 1), got {self.focal_scale}, {self.second_camera_share}")
 
     def site_overrides(self, width: int) -> dict:
         """``sample_site`` keyword overrides of this condition (image ``width`` in pixels)."""

@@ -4,6 +4,8 @@ field; writers build messages of a given rosbags typestore."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ...errors import FormatError
@@ -11,7 +13,7 @@ from ...geometry.camera import CameraIntrinsics
 from ..images import decode_image, encode_image
 
 __all__ = ["cloud_from_msg", "make_pointcloud2", "image_from_msg", "make_image", "make_compressed",
-           "intrinsics_from_msg", "make_camera_info", "boxes2d_from_msg", "make_detection2d_array",
+           "intrinsics_from_msg", "camera_model_from_msg", "Fisheye", "make_camera_info", "boxes2d_from_msg", "make_detection2d_array",
            "boxes3d_from_msg", "make_detection3d_array", "transforms_from_msg", "make_tf_message",
            "make_header", "stamp_ns"]
 
@@ -171,34 +173,96 @@ def _field(msg, *names):
     return np.zeros(0)
 
 
-def intrinsics_from_msg(msg, where) -> CameraIntrinsics:
-    """CameraInfo (plumb_bob, rational_polynomial) -> intrinsics with distortion and image size.
-    ``equidistant`` (fisheye) and other models are refused: xcalib's camera model is OpenCV's
-    pinhole + radial/tangential distortion."""
+@dataclass(frozen=True)
+class Fisheye:
+    """An ``equidistant`` CameraInfo (OpenCV fisheye: K, k1-k4, image size) and the pinhole
+    camera ``K_new`` (no distortion, same size) its images and 2D boxes are rectified to."""
+
+    K: np.ndarray
+    D: np.ndarray
+    size: tuple[int, int]
+    K_new: np.ndarray
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        k = self.K_new
+        return CameraIntrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], None, *self.size)
+
+    def rectify_image(self, rgb: np.ndarray) -> np.ndarray:
+        import cv2
+
+        m1, m2 = cv2.fisheye.initUndistortRectifyMap(self.K, self.D, np.eye(3), self.K_new, self.size, cv2.CV_32FC1)
+        return cv2.remap(rgb, m1, m2, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+    def rectify_boxes(self, boxes: np.ndarray, per_edge: int = 16) -> np.ndarray:
+        """2D boxes of the fisheye image -> the rectified image: the box around ``per_edge``
+        points along each edge, undistorted (a box's straight edges are curves after
+        rectification), clipped to the image."""
+        import cv2
+
+        b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+        if len(b) == 0:
+            return np.zeros((0, 4), np.float32)
+        s = np.linspace(0.0, 1.0, per_edge)
+        out = []
+        for x1, y1, x2, y2 in b:
+            xs, ys = x1 + s * (x2 - x1), y1 + s * (y2 - y1)
+            pts = np.concatenate([np.stack([xs, np.full_like(xs, y1)], 1), np.stack([xs, np.full_like(xs, y2)], 1),
+                                  np.stack([np.full_like(ys, x1), ys], 1), np.stack([np.full_like(ys, x2), ys], 1)])
+            und = cv2.fisheye.undistortPoints(pts.reshape(-1, 1, 2), self.K, self.D, R=np.eye(3), P=self.K_new)
+            u = und.reshape(-1, 2)
+            out.append([u[:, 0].min(), u[:, 1].min(), u[:, 0].max(), u[:, 1].max()])
+        r = np.asarray(out)
+        r[:, [0, 2]] = np.clip(r[:, [0, 2]], 0, self.size[0])
+        r[:, [1, 3]] = np.clip(r[:, [1, 3]], 0, self.size[1])
+        return r.astype(np.float32)
+
+
+def camera_model_from_msg(msg, where) -> CameraIntrinsics | Fisheye:
+    """CameraInfo -> intrinsics with distortion and image size (plumb_bob, rational_polynomial),
+    or a :class:`Fisheye` (``equidistant``: xcalib's camera model is OpenCV's pinhole with
+    radial/tangential distortion, so fisheye images are rectified to a pinhole camera). Other
+    models are refused."""
     K = _field(msg, "k", "K")
     D = _field(msg, "d", "D")
     R = _field(msg, "r", "R")
     model = str(msg.distortion_model or "plumb_bob")
     if K.size != 9 or K[0] <= 0 or K[4] <= 0:
         raise _err(where, f"CameraInfo K is not a calibrated 3x3 matrix ({K.tolist()}); pass --intrinsics")
-    if model == "equidistant":
-        raise _err(where, "distortion_model 'equidistant' (fisheye) is not supported by xcalib's pinhole "
-                                  "camera model; rectify the images (image_rect) or pass --intrinsics for rectified "
-                                  "images")
-    if model not in _DIST_MODELS:
-        raise _err(where, f"unsupported distortion_model {model!r}; supported: plumb_bob, "
-                                  "rational_polynomial")
+    if model not in _DIST_MODELS and model != "equidistant":
+        raise _err(where, f"unsupported distortion_model {model!r}; supported: plumb_bob, rational_polynomial, "
+                          "equidistant")
     if R.size == 9 and np.abs(R.reshape(3, 3) - np.eye(3)).max() > 1e-9 and np.any(R):
         raise _err(where, "CameraInfo R (rectification) is not identity: a stereo-rectified camera_info is "
-                                  "not a plain camera calibration")
+                          "not a plain camera calibration")
+    w, h = int(msg.width), int(msg.height)
+    if model == "equidistant":
+        return _fisheye(K, D, w, h, where)
     dist = D if D.size and np.any(D) else None
     if dist is not None and dist.size not in _DIST_MODELS[model] and dist.size != 5:
         raise _err(where, f"{model} with {dist.size} coefficients; expected {_DIST_MODELS[model]}")
-    w, h = int(msg.width), int(msg.height)
     try:
         return CameraIntrinsics(K[0], K[4], K[2], K[5], dist, w or None, h or None)
     except ValueError as exc:
         raise _err(where, str(exc)) from None
+
+
+def _fisheye(K, D, w: int, h: int, where) -> Fisheye:
+    import cv2
+
+    if D.size != 4 or not np.all(np.isfinite(D)):
+        raise _err(where, f"equidistant needs 4 finite coefficients k1-k4, got {D.tolist()}")
+    if w <= 0 or h <= 0:
+        raise _err(where, "equidistant CameraInfo needs width and height (the images are rectified)")
+    Km = K.reshape(3, 3)
+    K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(Km, D, (w, h), np.eye(3), balance=0.0)
+    return Fisheye(Km, D.astype(np.float64), (w, h), np.asarray(K_new, dtype=np.float64))
+
+
+def intrinsics_from_msg(msg, where) -> CameraIntrinsics:
+    """The pinhole intrinsics of a CameraInfo (an equidistant one: those of its rectified images)."""
+    m = camera_model_from_msg(msg, where)
+    return m.intrinsics if isinstance(m, Fisheye) else m
 
 
 def make_camera_info(store, intr: CameraIntrinsics, stamp: int, frame_id: str, width: int, height: int):

@@ -483,6 +483,13 @@ class BagFrames(Sequence):
     def _intrinsics(self, info) -> CameraIntrinsics:
         return cv.intrinsics_from_msg(info[1], self._where(self.topics["camera_info"]))
 
+    def _fisheye(self, e: _Entry):
+        """The frame's equidistant camera model when its CameraInfo has one (and no --intrinsics)."""
+        if self._fixed_intrinsics is not None or e.info is None:
+            return None
+        m = cv.camera_model_from_msg(e.info[1], self._where(self.topics["camera_info"]))
+        return m if isinstance(m, cv.Fisheye) else None
+
     def __len__(self) -> int:
         return len(self._entries)
 
@@ -502,6 +509,12 @@ class BagFrames(Sequence):
         b2, ids2 = cv.boxes2d_from_msg(e.det2d[1])
         box7, ids3 = cv.boxes3d_from_msg(e.det3d[1], self._where(tp["detections_3d"]))
         intr = self._fixed_intrinsics or self._intrinsics(e.info)
+        fisheye = self._fisheye(e)
+        if fisheye is not None:  # equidistant: image and 2D boxes rectified to the pinhole ``intr``
+            if image.shape[1::-1] != fisheye.size:
+                raise FormatError(self.path, f"CameraInfo is for {fisheye.size[0]}x{fisheye.size[1]} but the image "
+                                             f"is {image.shape[1]}x{image.shape[0]}", tp["camera_info"])
+            image, b2 = fisheye.rectify_image(image), fisheye.rectify_boxes(b2)
         h, w = image.shape[:2]
         if intr.width is not None and (intr.width, intr.height) != (w, h):
             raise FormatError(self.path, f"CameraInfo is for {intr.width}x{intr.height} but the image is {w}x{h}",
@@ -515,6 +528,8 @@ class BagFrames(Sequence):
                 "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "detection_ids_2d": ids2}
         if n_bad:
             meta["points_dropped_nonfinite"] = n_bad
+        if fisheye is not None:
+            meta["rectified_from"] = "equidistant"
         tracks = e.meta.get("track_ids_3d")
         if tracks is None and ids3 and all(i.lstrip("-").isdigit() for i in ids3):
             tracks = [int(i) for i in ids3]

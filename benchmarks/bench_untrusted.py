@@ -1,0 +1,404 @@
+"""Untrusted files and interrupted runs (issue 16): a seeded fuzz campaign over every reader, code-
+execution probes, kill -9 during every multi-file writer, and peak memory of "bomb" inputs.
+
+    PYTHONPATH=src python benchmarks/bench_untrusted.py [--cases 200] [--kills 8]
+
+Every reader case runs in a worker process (restarted after a case that hangs for more than
+``--timeout`` s, counted as unclear). Prints one table per part and writes
+``benchmarks/results/untrusted.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import pickle
+import platform
+import random
+import subprocess
+import sys
+import tempfile
+import time
+import zipfile
+import zlib
+from collections import Counter
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))
+RESULTS = REPO / "benchmarks" / "results" / "untrusted.json"
+PY = sys.executable
+ENV = dict(os.environ, PYTHONPATH=str(REPO / "src"), OMP_NUM_THREADS="1")
+
+
+# ----------------------------------------------------------------------------- fuzz worker
+def _worker(root: str, tasks, results) -> None:
+    import logging
+    import warnings
+
+    logging.disable(logging.CRITICAL)
+    warnings.simplefilter("ignore")
+    os.dup2(os.open(os.devnull, os.O_WRONLY), 2)  # libpng / libjpeg chatter
+    from _untrusted_cases import Samples, run_case
+
+    samples = Samples(root)
+    while True:
+        t = tasks.get()
+        if t is None:
+            return
+        results.put(run_case(samples, *t))
+
+
+class Pool:
+    """One worker; a case that does not answer within ``timeout`` s kills and restarts it."""
+
+    def __init__(self, root: str, timeout: float):
+        self.root, self.timeout = root, timeout
+        self._start()
+
+    def _start(self) -> None:
+        ctx = mp.get_context("spawn")
+        self.tasks, self.results = ctx.Queue(), ctx.Queue()
+        self.proc = ctx.Process(target=_worker, args=(self.root, self.tasks, self.results), daemon=True)
+        self.proc.start()
+
+    def run(self, task) -> tuple[str, str]:
+        self.tasks.put(task)
+        try:
+            return self.results.get(timeout=self.timeout)
+        except Exception:  # noqa: BLE001 - queue.Empty: a hang (or a crash)
+            self.proc.kill()
+            self.proc.join()
+            self._start()
+            return "unclear", f"no answer within {self.timeout:.0f} s (hang or crash)"
+
+    def close(self) -> None:
+        self.tasks.put(None)
+        self.proc.join(timeout=10)
+
+
+def fuzz(cases: int, timeout: float) -> dict:
+    from _untrusted_cases import KINDS, READERS
+
+    out = {}
+    with tempfile.TemporaryDirectory() as root:
+        pool = Pool(root, timeout)
+        for name in READERS:
+            rnd = random.Random(f"bench-{name}")
+            c: Counter = Counter()
+            examples: list[str] = []
+            t0 = time.perf_counter()
+            for i in range(cases):
+                kind = KINDS[i % len(KINDS)]
+                outcome, detail = pool.run((name, kind, rnd.randrange(1 << 30), rnd.randrange(1 << 30)))
+                c[outcome] += 1
+                if outcome in ("unclear", "garbage") and len(examples) < 3:
+                    examples.append(f"{kind}: {detail}")
+            out[name] = {"tried": cases, "ok": c["ok"], "clear": c["clear"], "unclear": c["unclear"],
+                         "garbage": c["garbage"], "seconds": round(time.perf_counter() - t0, 2), "examples": examples}
+            print(f"  {name:22s} {dict(c)}", flush=True)
+        pool.close()
+    return out
+
+
+# ---------------------------------------------------------------------------- special files
+_SPECIAL = r'''
+import os, sys, signal
+sys.path.insert(0, "tests")
+from _untrusted_cases import READERS, classify
+from pathlib import Path
+name, path = sys.argv[1], Path(sys.argv[2])
+print(classify(READERS[name], path)[0])
+'''
+
+
+def special_files(timeout: float) -> dict:
+    """A FIFO and a symlink to /dev/zero in the place of each reader's file."""
+    from _untrusted_cases import READERS, Samples
+
+    rows = {}
+    with tempfile.TemporaryDirectory() as root:
+        s = Samples(root)
+        for name in READERS:
+            try:
+                d, f = s.base(name)
+            except FileNotFoundError:
+                continue
+            res = {}
+            for kind in ("fifo", "dev_zero"):
+                case = Path(root) / f"special_{name}_{kind}"
+                import shutil
+
+                shutil.copytree(d, case, symlinks=True)
+                target = case / f.relative_to(d)
+                target.unlink()
+                os.mkfifo(target) if kind == "fifo" else target.symlink_to("/dev/zero")
+                try:
+                    r = subprocess.run([PY, "-c", _SPECIAL, name, str(target)], capture_output=True, text=True,
+                                       timeout=timeout, env=ENV, cwd=REPO)
+                    res[kind] = (r.stdout.strip().splitlines() or ["crash"])[-1]
+                except subprocess.TimeoutExpired:
+                    res[kind] = "hang"
+            rows[name] = res
+    return rows
+
+
+# ------------------------------------------------------------------------- code execution
+_EXEC = r'''
+import os, sys, pickle, io
+sys.path.insert(0, "tests")
+marker, kind, path = sys.argv[1], sys.argv[2], sys.argv[3]
+from xcalib.errors import FormatError
+try:
+    if kind == "resume":
+        from xcalib.engine.checkpoint import load_resume_state; load_resume_state(path)
+    elif kind == "weights":
+        from xcalib.engine.checkpoint import read_checkpoint; read_checkpoint(path)
+    elif kind == "mmdet3d_pkl":
+        from xcalib.formats.mmdet3d import read_mmdet3d_infos; read_mmdet3d_infos(path)
+    elif kind == "npy":
+        from xcalib.io import read_point_cloud; read_point_cloud(path)
+    elif kind == "npz":
+        from xcalib.calib.result import CalibrationResult; CalibrationResult.load(path)
+    elif kind == "train_resume":
+        from pathlib import Path
+        from xcalib.data.synth import iter_frames, sample_site
+        from xcalib.engine.trainer import train
+        train("fastmatch", list(iter_frames(sample_site(0), 2, seed=1, render_images=False)), epochs=1,
+              output_dir=Path(path).parent, resume=True, progress=False, device="cpu")
+    print("loaded")
+except FormatError:
+    print("refused")
+except Exception as e:
+    print("error", type(e).__name__)
+'''
+
+
+class _Boom:
+    def __init__(self, marker: str):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (os.system, (f"touch {self.marker}",))
+
+
+def code_execution(timeout: float) -> dict:
+    import numpy as np
+
+    rows = {}
+    with tempfile.TemporaryDirectory() as root:
+        root = Path(root)
+        for kind in ("resume", "train_resume", "weights", "mmdet3d_pkl", "npy", "npz"):
+            marker = root / f"PWNED_{kind}"
+            boom = _Boom(str(marker))
+            d = root / kind
+            d.mkdir()
+            if kind in ("resume", "train_resume", "weights"):
+                import torch
+
+                p = d / ("last.pt" if "resume" in kind else "fastmatch.pt")
+                torch.save({"state_dict": {}, "optimizer": boom, "epoch": 0, "best_mrr": 0.0}, p)
+            elif kind == "mmdet3d_pkl":
+                p = d / "infos.pkl"
+                p.write_bytes(pickle.dumps({"data_list": [boom], "metainfo": {}}))
+            elif kind == "npy":
+                p = d / "cloud.npy"
+                np.save(p, np.array([boom, 1], dtype=object), allow_pickle=True)
+            else:
+                p = d / "calibration.npz"
+                np.savez(p, json=np.array([boom], dtype=object), rotation=np.eye(3))
+            try:
+                r = subprocess.run([PY, "-c", _EXEC, str(marker), kind, str(p)], capture_output=True, text=True,
+                                   timeout=timeout * 6, env=ENV, cwd=REPO)
+                got = (r.stdout.strip().splitlines() or ["crash"])[-1]
+            except subprocess.TimeoutExpired:
+                got = "hang"
+            rows[kind] = {"outcome": got, "code_ran": marker.exists()}
+    return rows
+
+
+# --------------------------------------------------------------------------------- kill -9
+def kills(n: int) -> dict:
+    from _kill_writers import KINDS, check, kill_during_write, leftovers, sweep
+
+    rows = {}
+    for kind in KINDS:
+        rnd = random.Random(f"kill-{kind}")
+        mixed = left = 0
+        details = []
+        for _ in range(n):
+            with tempfile.TemporaryDirectory() as t:
+                out = Path(t) / "out"
+                kill_during_write(kind, out, rnd.uniform(0.02, 0.5))
+                whole, detail = check(kind, out)
+                before = len(leftovers(out))
+                sweep(out)
+                after = leftovers(out)
+                mixed += not whole
+                left += len(after)
+                if not whole:
+                    details.append(detail)
+        rows[kind] = {"kills": n, "half_written_or_mixed": mixed, "leftover_temp_after_sweep": left,
+                      "temp_before_sweep_last": before, "details": details[:3]}
+        print(f"  {kind:18s} kills {n}: mixed {mixed}, leftover temps {left}", flush=True)
+    return rows
+
+
+# ----------------------------------------------------------------------------------- bombs
+_BOMB = r'''
+import sys
+sys.path.insert(0, "tests")
+from _untrusted_cases import READERS, classify
+from pathlib import Path
+import xcalib.io, xcalib.io.hdf5, xcalib.calib.result, cv2  # baseline imports
+
+
+def hwm_kb():  # peak RSS of this process image (ru_maxrss would include the parent's before exec)
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1])
+
+
+base = hwm_kb()
+name, path = sys.argv[1], Path(sys.argv[2])
+out = classify(READERS[name], path) if name != "baseline" else ("ok", "")
+print(out[0], base, hwm_kb(), out[1][:150].replace(chr(10), " "))
+'''
+
+
+def _png_bomb(p: Path, side: int = 20000) -> None:
+    def chunk(t: bytes, d: bytes) -> bytes:
+        return len(d).to_bytes(4, "big") + t + d + zlib.crc32(t + d).to_bytes(4, "big")
+
+    comp = zlib.compressobj(9)
+    row = b"\x00" * (1 + 3 * side)
+    idat = b"".join(comp.compress(row) for _ in range(side)) + comp.flush()
+    p.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", side.to_bytes(4, "big") * 2 + b"\x08\x02\x00\x00\x00")
+                  + chunk(b"IDAT", idat) + chunk(b"IEND", b""))
+
+
+def _npz_bomb(p: Path, gb: float = 2.0) -> None:
+    import numpy as np
+
+    n = int(gb * (1 << 30))
+    with zipfile.ZipFile(p, "w", zipfile.ZIP_DEFLATED) as z:
+        with z.open("rotation.npy", "w", force_zip64=True) as f:
+            hdr = np.lib.format.header_data_from_array_1_0(np.zeros(1))
+            hdr["shape"] = (n // 8,)
+            np.lib.format.write_array_header_1_0(f, hdr)
+            block = b"\x00" * (1 << 24)
+            for _ in range(n // len(block)):
+                f.write(block)
+        z.writestr("json.npy", b"")
+
+
+def _h5_bomb(p: Path) -> None:
+    import h5py
+    import numpy as np
+
+    with h5py.File(p, "w") as f:
+        f.create_dataset("images/cam/data", shape=(1,), dtype=h5py.vlen_dtype(np.uint8))
+        g = f.create_group("labels/cam/000000")
+        g["num_camera_detections"], g["num_lidar_detections"] = 0, 0
+        g["camera_bbox_2d"], g["lidar_bbox_3d"] = np.zeros((0, 4), np.float32), np.zeros((0, 6), np.float32)
+        f.create_dataset("point_clouds/lidar/000000/xyz", shape=(100_000_000, 3), dtype=np.float32,
+                         chunks=(1_000_000, 3), compression="gzip")
+
+
+def bombs() -> dict:
+    specs = {
+        "baseline (imports only)": ("baseline", None),
+        "HDF5 declaring 1e8 points": ("hdf5_cache", _h5_bomb),
+        "PCD COUNT 1000000000": ("pcd_binary", lambda p: p.write_bytes(
+            b"VERSION 0.7\nFIELDS x y z i\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1000000000\nWIDTH 1\nHEIGHT 1\n"
+            b"POINTS 1\nDATA binary\n" + b"\x00" * 64)),
+        "PCD POINTS 1e9 (ascii)": ("pcd_ascii", lambda p: p.write_bytes(
+            b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1000000000\nHEIGHT 1\n"
+            b"POINTS 1000000000\nDATA ascii\n1 2 3\n")),
+        "npz inflating to 2 GB": ("calibration_npz", _npz_bomb),
+        "PNG 20000x20000": ("png", _png_bomb),
+        "JSON nested 1e6 deep": ("calibration_json", lambda p: p.write_bytes(b"[" * 1_000_000)),
+        ".npy declaring 1e10 floats": ("npy", lambda p: p.write_bytes(
+            b"\x93NUMPY\x01\x00v\x00{'descr': '<f4', 'fortran_order': False, 'shape': (10000000000, 4), }"
+            + b" " * 43 + b"\n")),
+    }
+    names = {"hdf5_cache": "cache.h5", "pcd_binary": "cloud.pcd", "pcd_ascii": "cloud.pcd",
+             "calibration_npz": "calibration.npz", "png": "img.png", "calibration_json": "calibration.json",
+             "npy": "cloud.npy", "baseline": "x"}
+    rows = {}
+    with tempfile.TemporaryDirectory() as t:
+        for label, (reader, make) in specs.items():
+            p = Path(t) / label.replace(" ", "_") / names[reader]
+            p.parent.mkdir()
+            if make is not None:
+                make(p)
+            r = subprocess.run([PY, "-c", _BOMB, reader, str(p)], capture_output=True, text=True, timeout=300,
+                               env=ENV, cwd=REPO)
+            parts = (r.stdout.strip().splitlines() or ["crash 0 0"])[-1].split(" ", 3)
+            size = p.stat().st_size if p.exists() else 0
+            rows[label] = {"file_bytes": size, "outcome": parts[0], "baseline_rss_mb": round(int(parts[1]) / 1024, 1),
+                           "peak_rss_mb": round(int(parts[2]) / 1024, 1),
+                           "detail": parts[3] if len(parts) > 3 else r.stderr[-200:]}
+            print(f"  {label:28s} {rows[label]['outcome']:8s} peak {rows[label]['peak_rss_mb']:7.1f} MB", flush=True)
+    return rows
+
+
+# ------------------------------------------------------------------------------------ main
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cases", type=int, default=200, help="mutated inputs per reader")
+    ap.add_argument("--kills", type=int, default=8, help="kill -9 runs per multi-file output")
+    ap.add_argument("--timeout", type=float, default=20.0, help="seconds before a case counts as a hang")
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    print("fuzz campaign", flush=True)
+    fz = fuzz(args.cases, args.timeout)
+    print("special files (FIFO, symlink to /dev/zero)", flush=True)
+    sp = special_files(args.timeout)
+    print("code execution probes", flush=True)
+    ce = code_execution(args.timeout)
+    print("kill -9 during writes", flush=True)
+    kl = kills(args.kills)
+    print("bomb inputs", flush=True)
+    bm = bombs()
+
+    print(f"\n{'reader':22s} {'tried':>6s} {'ok':>5s} {'clear':>6s} {'unclear':>8s} {'garbage':>8s}  FIFO / ->/dev/zero")
+    tot = Counter()
+    for name, r in fz.items():
+        s = sp.get(name, {})
+        print(f"{name:22s} {r['tried']:6d} {r['ok']:5d} {r['clear']:6d} {r['unclear']:8d} {r['garbage']:8d}  "
+              f"{s.get('fifo', '-')} / {s.get('dev_zero', '-')}")
+        tot.update({k: r[k] for k in ("tried", "ok", "clear", "unclear", "garbage")})
+    print(f"{'TOTAL':22s} {tot['tried']:6d} {tot['ok']:5d} {tot['clear']:6d} {tot['unclear']:8d} {tot['garbage']:8d}")
+    print(f"\ncode execution: {sum(r['code_ran'] for r in ce.values())} of {len(ce)} probes ran code; "
+          + ", ".join(f"{k}: {v['outcome']}" for k, v in ce.items()))
+    print(f"\n{'multi-file output':20s} {'kills':>5s} {'mixed':>6s} {'leftover temps':>15s}")
+    for k, r in kl.items():
+        print(f"{k:20s} {r['kills']:5d} {r['half_written_or_mixed']:6d} {r['leftover_temp_after_sweep']:15d}")
+    print(f"\n{'bomb input':30s} {'file':>10s} {'outcome':>8s} {'peak RSS MB':>12s}")
+    for k, r in bm.items():
+        print(f"{k:30s} {r['file_bytes']:10d} {r['outcome']:>8s} {r['peak_rss_mb']:12.1f}")
+    special_bad = sum(v not in ("clear", "ok") for r in sp.values() for v in r.values())  # ok: not read at all
+    summary = {"inputs_tried": tot["tried"], "clear_errors": tot["clear"], "ok_valid": tot["ok"],
+               "unclear_errors": tot["unclear"], "silent_garbage": tot["garbage"],
+               "special_file_cases": sum(len(r) for r in sp.values()), "special_file_not_clear": special_bad,
+               "code_execution": sum(r["code_ran"] for r in ce.values()),
+               "half_written_or_mixed_after_kill9": sum(r["half_written_or_mixed"] for r in kl.values()),
+               "kills": sum(r["kills"] for r in kl.values()),
+               "leftover_temp_files": sum(r["leftover_temp_after_sweep"] for r in kl.values()),
+               "bomb_peak_rss_mb_max": max(r["peak_rss_mb"] for k, r in bm.items() if not k.startswith("baseline"))}
+    print("\nsummary: " + json.dumps(summary))
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps({
+        "benchmark": "untrusted", "command": "PYTHONPATH=src python benchmarks/bench_untrusted.py "
+                                             f"--cases {args.cases} --kills {args.kills}",
+        "machine": {"python": platform.python_version(), "platform": platform.platform(), "cpus": os.cpu_count()},
+        "wall_s": round(time.perf_counter() - t0, 1), "summary": summary, "fuzz": fz, "special_files": sp,
+        "code_execution": ce, "kill9": kl, "bombs": bm}, indent=1) + "\n")
+    print(f"wrote {RESULTS.relative_to(REPO)}")
+
+
+if __name__ == "__main__":
+    main()
