@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing as mp
 import os
 import pickle
 import platform
@@ -34,49 +33,57 @@ ENV = dict(os.environ, PYTHONPATH=str(REPO / "src"), OMP_NUM_THREADS="1")
 
 
 # ----------------------------------------------------------------------------- fuzz worker
-def _worker(root: str, tasks, results) -> None:
-    import logging
-    import warnings
-
-    logging.disable(logging.CRITICAL)
-    warnings.simplefilter("ignore")
-    os.dup2(os.open(os.devnull, os.O_WRONLY), 2)  # libpng / libjpeg chatter
-    from _untrusted_cases import Samples, run_case
-
-    samples = Samples(root)
-    while True:
-        t = tasks.get()
-        if t is None:
-            return
-        results.put(run_case(samples, *t))
+_WORKER = r'''
+import logging, os, sys, warnings
+sys.path.insert(0, "tests")
+logging.disable(logging.CRITICAL)
+warnings.simplefilter("ignore")
+out = os.fdopen(os.dup(1), "w")
+os.dup2(os.open(os.devnull, os.O_WRONLY), 1)  # libpng / libjpeg / h5py chatter
+os.dup2(os.open(os.devnull, os.O_WRONLY), 2)
+from _untrusted_cases import Samples, run_case
+samples = Samples(sys.argv[1])
+for line in sys.stdin:
+    name, kind, a, b = line.split()
+    outcome, detail = run_case(samples, name, kind, int(a), int(b))
+    out.write(outcome + "\t" + detail.replace("\n", " ").replace("\t", " ") + "\n")
+    out.flush()
+'''
 
 
 class Pool:
-    """One worker; a case that does not answer within ``timeout`` s kills and restarts it."""
+    """One worker process fed over stdin; a case that does not answer within ``timeout`` s (a hang
+    or a crash) kills and restarts it and counts as unclear."""
 
     def __init__(self, root: str, timeout: float):
         self.root, self.timeout = root, timeout
         self._start()
 
     def _start(self) -> None:
-        ctx = mp.get_context("spawn")
-        self.tasks, self.results = ctx.Queue(), ctx.Queue()
-        self.proc = ctx.Process(target=_worker, args=(self.root, self.tasks, self.results), daemon=True)
-        self.proc.start()
+        self.proc = subprocess.Popen([PY, "-c", _WORKER, self.root], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=subprocess.DEVNULL, text=True, env=ENV, cwd=REPO, bufsize=1)
 
     def run(self, task) -> tuple[str, str]:
-        self.tasks.put(task)
+        import select
+
         try:
-            return self.results.get(timeout=self.timeout)
-        except Exception:  # noqa: BLE001 - queue.Empty: a hang (or a crash)
-            self.proc.kill()
-            self.proc.join()
-            self._start()
-            return "unclear", f"no answer within {self.timeout:.0f} s (hang or crash)"
+            self.proc.stdin.write(" ".join(map(str, task)) + "\n")
+            self.proc.stdin.flush()
+            ready, _, _ = select.select([self.proc.stdout], [], [], self.timeout)
+            line = self.proc.stdout.readline() if ready else ""
+        except (BrokenPipeError, OSError):
+            line = ""
+        if line:
+            outcome, _, detail = line.rstrip("\n").partition("\t")
+            return outcome, detail
+        self.proc.kill()
+        self.proc.wait()
+        self._start()
+        return "unclear", f"no answer within {self.timeout:.0f} s (hang or crash)"
 
     def close(self) -> None:
-        self.tasks.put(None)
-        self.proc.join(timeout=10)
+        self.proc.stdin.close()
+        self.proc.wait(timeout=30)
 
 
 def fuzz(cases: int, timeout: float) -> dict:

@@ -271,6 +271,28 @@ def test_bad_input(tmp_path, site_frames):
     assert not (tmp_path / "late.db3.tmp").exists() and len(list(tmp_path.glob(".*"))) == 0
 
 
+@pytest.mark.parametrize("suffix", CONTAINERS)
+def test_corrupted_bytes_give_format_errors_only(tmp_path, site_frames, suffix):
+    """Random byte flips: every outcome is a frame list or a FormatError, never another exception."""
+    raw = bytearray(write_bag(tmp_path / f"g{suffix}", site_frames[:2]).read_bytes())
+    rng = np.random.default_rng(7)
+    outcomes = set()
+    for trial in range(6):
+        b = bytearray(raw)
+        for _ in range(3):
+            b[int(rng.integers(0, len(b)))] = int(rng.integers(0, 256))
+        q = tmp_path / f"f{trial}{suffix}"
+        q.write_bytes(bytes(b))
+        try:
+            seq = BagFrames(q, tolerance_s=1.0)
+            [seq[i] for i in range(len(seq))]
+            outcomes.add("ok")
+        except FormatError as exc:
+            assert q.name in str(exc)
+            outcomes.add("error")
+    assert outcomes  # ran; any exception other than FormatError fails the test
+
+
 def _untimed(f):
     import dataclasses
 

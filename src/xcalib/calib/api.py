@@ -32,6 +32,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, matched_places, prec
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, prepare_frames
+from .misfit import flipped_frames, focal_scale_check, mirror_check, time_offset_check, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .pose import Pose
 from .refine import RefineResult, match_all, pair_metrics, refine_pose
@@ -151,6 +152,48 @@ def _search(cframes, frames_in, intr, config: CalibConfig, matcher, prior: Pose 
     return bu.hyps
 
 
+_MISFIT_CAN_EXPLAIN = ("poorly_constrained", "ambiguous", "few_explained")
+
+
+def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion) -> float:
+    """Best score of the search (a few frames, few candidates) on the left-right flipped 2D boxes."""
+    flipped = flipped_frames(cframes)
+    small = config.replace(max_hyp_frames=min(config.max_hyp_frames, 4), max_refine=min(config.max_refine, 3))
+    bu = pose_hypotheses(flipped, intr, small, max_baseline_m=config.max_baseline_m,
+                         rng=np.random.default_rng(config.seed))
+    if len(bu.hyps) == 0:
+        return 0.0
+    return _refine_candidates(flipped, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None).best_score
+
+
+def _frame_times(frames_in) -> tuple[np.ndarray, str]:
+    """LiDAR time of each frame (s) when every frame has one, else the frame index ("frames")."""
+    t = [getattr(f, "lidar_time_s", None) for f in frames_in]
+    if all(v is not None for v in t) and len(set(t)) == len(t):
+        return np.asarray(t, dtype=np.float64), "s"
+    return np.arange(len(frames_in), dtype=np.float64), "frames"
+
+
+def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_score: float, config: CalibConfig,
+            diag: CalibDiagnostics, frames_in) -> Refusal | None:
+    """Run the model-misfit checks (``misfit``); the first that flags becomes the refusal."""
+    found = []
+    chk, msg = unexplained_frames_check(cframes, pairs)
+    found.append((chk, msg, "misfit_mixed_cameras"))
+    if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
+        chk, msg = focal_scale_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed)
+        found.append((chk, msg, "misfit_focal_length"))
+    chk, msg = mirror_check(best_score, _mirror_score(cframes, intr, config, occlusion), pose)
+    found.append((chk, msg, "misfit_mirrored"))
+    if config.time_offset is None:  # a fixed or estimated offset is already in the model
+        times, unit = _frame_times(frames_in)
+        chk, msg = time_offset_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, times, unit,
+                                     seed=config.seed)
+        found.append((chk, msg, "misfit_time_offset"))
+    diag.misfit = [c for c, _, _ in found]
+    return next((Refusal(code, m) for _, m, code in found if m), None)
+
+
 def _motion(frames_in, cframes, config: CalibConfig, diag: CalibDiagnostics) -> tuple[list, BoxMotion | None, str]:
     """Object motion when a time offset is asked for; a fixed offset moves the 3D boxes now.
     Returns (frames, motion or None, refusal message or "")."""
@@ -250,6 +293,10 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
                                places=len(places), places_off_line=int(np.sum(off > POOLED_OFF_LINE_M)),
                                halves_available=unc.halves_available, best_score=ref.best_score,
                                runner_up_score=runner, rot_sd=unc.rot_sd, tr_sd=unc.tr_sd), config)
+    if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):
+        # a refusal that a model misfit explains is replaced by the misfit's message (it names the cause)
+        refusal = _misfit(cframes, pairs, intr, pose, best.noise, f_scale, occlusion, ref.best_score, config, diag,
+                          frames_in) or refusal
     if refusal is not None and inflation is not None:
         refusal = Refusal(refusal.code, refusal.message + _selfcal_note(diag))
     diag.refusal = "" if refusal is None else refusal.code
@@ -304,7 +351,8 @@ def calibrate(frames, intrinsics=None, config: CalibConfig | None = None, *args,
     prior_pose = None if prior is None else Pose.parse(prior, "prior")
     res = _calibrate(frames_in, intrinsics, config, matcher, prior_pose, progress)
     if not res.success and config.max_baseline_m is not None and prior_pose is None \
-            and res.diagnostics.refusal not in ("mixed_cameras", "too_few_detections", "collinear_3d", "collinear_2d"):
+            and res.diagnostics.refusal not in ("mixed_cameras", "too_few_detections", "collinear_3d", "collinear_2d") \
+            and not res.diagnostics.refusal.startswith("misfit"):
         # the co-located-rig assumption may be wrong (e.g. boxes in a global frame): search again
         retry = _calibrate(frames_in, intrinsics, config.replace(max_baseline_m=None), matcher, None, progress)
         if retry.success or res.diagnostics.refusal == "no_hypothesis":

@@ -153,12 +153,11 @@ def _candidate_pairs(fr: CalibFrame, intr: CameraIntrinsics, prior_sim, top_k: i
     return ii, jj, b[ii], lam, tol, w
 
 
-def _pair_distances(P: np.ndarray, block: int = 256) -> np.ndarray:
-    """Euclidean distances [n,n] between rows of P [n,3], in row blocks (never an [n,n,3] array)."""
-    out = np.empty((len(P), len(P)))
-    for s in range(0, len(P), block):
-        out[s:s + block] = np.linalg.norm(P[s:s + block, None] - P[None], axis=2)
-    return out
+def _pair_distances(P: np.ndarray) -> np.ndarray:
+    """Euclidean distances [n,n] between rows of P [n,3] (Gram form: never an [n,n,3] array)."""
+    sq = np.einsum("ij,ij->i", P, P)
+    d2 = sq[:, None] + sq[None, :] - 2.0 * (P @ P.T)
+    return np.sqrt(np.maximum(d2, 0.0))
 
 
 def _azimuth_windows(X: np.ndarray, cap: int, rng: np.random.Generator, weight: np.ndarray | None,
@@ -207,20 +206,35 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
         X=np.concatenate([frs[p[0]].boxes3d[p[2], :3] for p in parts]))  # LiDAR centre of each pair
     have_prior = any(ps is not None for ps in prior_sims)
     windows = _azimuth_windows(cand.X, max_candidates, rng, cand.w if have_prior else None)
-    found = [_triple_poses(cand.take(idx), rng, max_triples, min_altitude_m, have_prior) for idx in windows]
-    found = [f for f in found if f is not None]
-    if not found:
+    Rs, ts = [], []
+    for idx in windows:
+        f = _triple_poses(cand.take(idx), rng, max_triples, min_altitude_m, have_prior)
+        if f is None:
+            continue
+        # cheap pre-score (projected 3D centres inside 2D boxes; split searches: only the 3D boxes
+        # of the window, as a camera looking there sees no others), then IoU on the best few hundred
+        sub = frs if len(windows) == 1 else [_only_3d(fr, np.unique(cand.jj[idx][cand.fk[idx] == k]))
+                                             for k, fr in enumerate(frs)]
+        pre = sum(_centre_hits(fr, intr, f[0], f[1]) for fr in sub)
+        top = np.argsort(-pre, kind="stable")[: max(8 * keep, 200)]
+        Rs.append(f[0][top])
+        ts.append(f[1][top])
+    if not Rs:
         return Hypotheses.empty()
-    R, t = np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])
-    # cheap pre-score (projected 3D centres inside 2D boxes), then IoU on the best few hundred
-    pre = sum(_centre_hits(fr, intr, R, t) for fr in frs)
-    top = np.argsort(-pre, kind="stable")[: max(8 * keep, 200)]
-    R, t = R[top], t[top]
+    R, t = np.concatenate(Rs), np.concatenate(ts)
     sc = sum(score_poses(fr, intr, R, t) for fr in frs)
     order = np.argsort(-sc, kind="stable")[:keep]
     out = Hypotheses(R[order], t[order], sc[order], np.full(len(order), fi, dtype=np.int64))
     out.n_searches = len(windows)
     return out
+
+
+def _only_3d(fr: CalibFrame, cols: np.ndarray) -> CalibFrame:
+    """A view of ``fr`` with only the 3D boxes ``cols`` (for pre-scoring a window's poses)."""
+    from dataclasses import replace
+
+    return replace(fr, boxes3d=fr.boxes3d[cols], corners=fr.corners[cols], idx3d=fr.idx3d[cols],
+                   box_corners=None if fr.box_corners is None else fr.box_corners[cols])
 
 
 @dataclass

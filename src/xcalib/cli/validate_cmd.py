@@ -24,6 +24,7 @@ def register(app: typer.Typer) -> None:
         device: Optional[str] = typer.Option("cpu", "--device", help="cpu, cuda or auto."),
         limit_frames: Optional[int] = typer.Option(None, "--limit-frames", help="Evaluate the first N frames."),
         as_json: bool = typer.Option(False, "--json", help="Print the report JSON."),
+        force: bool = typer.Option(False, "--force", help="Replace an existing --output file."),
         runtime: str = typer.Option("torch", "--runtime", help="torch, or onnx: torch-free ONNX Runtime over the "
                                                                "graphs of `xcalib export` (needs --onnx-dir)."),
         onnx_dir: Optional[Path] = typer.Option(None, "--onnx-dir", help="--runtime onnx: export root (OUT of "
@@ -39,6 +40,8 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter(f"--runtime must be torch or onnx, got {runtime!r}", param_hint="--runtime")
         if runtime == "onnx" and onnx_dir is None:
             raise typer.BadParameter("--runtime onnx needs --onnx-dir", param_hint="--onnx-dir")
+        if output is not None and output.exists() and not force:
+            raise FileExistsError(f"{output} already exists; pass --force to replace it")
         if (weights or config) and len(model) > 1:
             raise typer.BadParameter("--weights/--config need exactly one --model", param_hint="--weights")
         results, dev = {}, None

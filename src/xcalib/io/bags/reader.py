@@ -419,8 +419,8 @@ class BagFrames(Sequence):
         infos = msgs[tp["camera_info"]] if tp["camera_info"] else []
         meta = {}
         for _, m in msgs.get(META_TOPIC, []):
-            rec = json.loads(m.data)
-            meta[int(rec["lidar_stamp_ns"])] = rec
+            rec = self._record(m.data)
+            meta[rec["lidar_stamp_ns"]] = rec
         entries, used3, used2, max_dt = [], set(), set(), 0
         for i, j in pairs:
             (ls, lm), (is_, im) = lid[i], img[j]
@@ -445,6 +445,18 @@ class BagFrames(Sequence):
         if not entries:
             raise FormatError(self.path, "no frame could be paired: " + " / ".join(report.lines()), tp["image"])
         return entries, report
+
+    def _record(self, text: str) -> dict:
+        """One xcalib frame record (JSON), checked for the keys the frames read from it."""
+        try:
+            rec = json.loads(text)
+        except ValueError as exc:
+            raise FormatError(self.path, f"frame record is not valid JSON ({exc})", META_TOPIC) from None
+        if not isinstance(rec, dict) or not isinstance(rec.get("lidar_stamp_ns"), int) \
+                or not isinstance(rec.get("cameras", {}), dict):
+            raise FormatError(self.path, "frame record needs an integer lidar_stamp_ns and a cameras mapping",
+                              META_TOPIC)
+        return rec
 
     # ---------------------------------------------------------------- tf
     def _tf_edges(self, msgs) -> dict[str, tuple[str, np.ndarray]]:
@@ -496,7 +508,14 @@ class BagFrames(Sequence):
     def __getitem__(self, index):
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
-        return self._frame(self._entries[index])
+        e = self._entries[index]
+        try:
+            return self._frame(e)
+        except FormatError:
+            raise
+        except (ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:  # malformed message fields
+            raise FormatError(self.path, f"frame at LiDAR stamp {e.lidar[0] / 1e9:.6f} s: malformed message "
+                                         f"({type(exc).__name__}: {exc})", self.topics["lidar"]) from None
 
     @property
     def frame_keys(self) -> list[str]:
@@ -521,9 +540,20 @@ class BagFrames(Sequence):
                               tp["camera_info"] or tp["image"])
         intr = intr.with_image_size(w, h)
         rec = e.meta.get("cameras", {}).get(self.camera, {})
-        b3 = _boxes3d_as_written(box7, e.meta.get("box3d_rows"))
+        if not (np.all(np.isfinite(b2)) and np.all(np.isfinite(box7))):
+            raise FormatError(self.path, "detections hold non-finite box values",
+                              tp["detections_2d"] if not np.all(np.isfinite(b2)) else tp["detections_3d"])
+        with np.errstate(over="ignore"):
+            b3 = _boxes3d_as_written(box7, e.meta.get("box3d_rows"))
+        if not np.all(np.isfinite(b3)):
+            raise FormatError(self.path, "3D boxes out of float32 range", tp["detections_3d"])
         mm = rec.get("match_matrix")
         extr = rec.get("extrinsics")
+        if extr is not None:
+            extr = np.asarray(extr, dtype=np.float64)
+            if extr.shape != (4, 4) or not np.all(np.isfinite(extr)):
+                raise FormatError(self.path, f"frame record: extrinsics must be a finite 4x4, got {extr.shape}",
+                                  META_TOPIC)
         meta = {"source": "bag", "bag": str(self.path), "lidar_topic": tp["lidar"], "image_topic": tp["image"],
                 "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "detection_ids_2d": ids2}
         if n_bad:
@@ -543,7 +573,7 @@ class BagFrames(Sequence):
                      camera_name=str(rec.get("camera_name", self.camera)),
                      frame_key=str(e.meta.get("frame_key", e.lidar[0])),
                      match_matrix=None if mm is None else np.asarray(mm, dtype=bool).reshape(len(b2), len(b3)),
-                     intrinsics=intr, extrinsics=None if extr is None else np.asarray(extr, dtype=np.float64),
+                     intrinsics=intr, extrinsics=extr,
                      point_fields=fields, meta=meta)
 
 

@@ -1,0 +1,166 @@
+"""Calibration benchmark, memory and time on crowded inputs (issue 12, item 6).
+
+Synthetic roadside sites (``xcalib.data.synth``, 1 px 2D noise, exact 3D boxes), no initial
+guess, each case calibrated in a fresh process whose peak RSS (``ru_maxrss``) is reported:
+
+* ``32x270``: 20 frames, 32 2D boxes per frame (true ones, padded with false boxes) and 270 3D
+  boxes per frame -- a 360-degree LiDAR: the generator's 3D boxes plus LiDAR-only boxes all
+  around the sensor outside the camera's view (5-70 m, car-sized);
+* ``100x100``: 10 frames, 100 2D and 100 3D boxes per frame (the old code: MemoryError at 4.9 GB);
+* ``200x200``: 10 frames, 200 2D and 200 3D boxes per frame (a success or an honest refusal);
+* ``dense``: the dense benchmark's 20-frame site (``bench_calibration.py``) for reference.
+
+A child process is limited to ``--limit-gb`` of address space (the machine is shared), so a
+quadratic blow-up shows as a MemoryError instead of swapping. Targets: within 2 GB, and the
+32x270 case within 60 s. Prints a table and writes ``benchmarks/results/calibration_memory.json``.
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration_memory.py [--seeds 0 1 2] [--cases 32x270 200x200]
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_calibration import NOISE_3D_OFF, machine_info, write_result  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "benchmarks" / "results" / "calibration_memory.json"
+CASES = {"32x270": (20, 32, 270), "100x100": (10, 100, 100), "200x200": (10, 200, 200), "dense": (20, 0, 0)}
+
+
+def _outside_view_boxes(n: int, T: np.ndarray, intr, size, z0: float, rng) -> np.ndarray:
+    """``n`` car-sized box7 [n,7] (LiDAR frame) at 5-70 m all around, whose centre the camera
+    (pose T) does not see."""
+    from xcalib.geometry import project_points
+
+    out = []
+    while sum(len(o) for o in out) < n:
+        r, a = rng.uniform(5, 70, 4 * n), rng.uniform(-np.pi, np.pi, 4 * n)
+        c = np.column_stack([r * np.cos(a), r * np.sin(a), np.full(4 * n, z0)])
+        uv, z = project_points(c, intr, T[:3, :3], T[:3, 3])
+        seen = (z > 0) & (uv[:, 0] > -50) & (uv[:, 0] < size[0] + 50) & (uv[:, 1] > -50) & (uv[:, 1] < size[1] + 50)
+        c = c[~seen]
+        out.append(np.column_stack([c, np.tile([4.5, 1.9, 1.6], (len(c), 1)), rng.uniform(-np.pi, np.pi, len(c))]))
+    return np.concatenate(out)[:n]
+
+
+def crowded_frames(seed: int, n_frames: int, n2: int, n3: int):
+    """(frames, truth [4,4]): synthetic frames with exactly ``n2`` 2D and ``n3`` 3D boxes each."""
+    from xcalib.data.synth import generate_frames, sample_site
+    from xcalib.types import Frame
+
+    site = sample_site(seed, preset="roadside", n_objects=(60, 80) if n2 else (3, 30))
+    frames = generate_frames(site, n_frames, seed=seed, render_images=False, lidar=False, miss_rate_2d=0.1,
+                             false_positive_rate_2d=0.05, box_noise_px=1.0, **NOISE_3D_OFF)
+    if not n2:
+        return frames, site.T_cam_lidar
+    rng = np.random.default_rng([seed, 17])
+    W, H = site.intrinsics.width, site.intrinsics.height
+    out = []
+    for f in frames:
+        b7 = np.asarray(f.meta["box7"], dtype=np.float64)
+        z0 = float(np.median(b7[:, 2])) if len(b7) else -5.0
+        # the 2D boxes of objects the LiDAR sees too first (a detector finds most of them)
+        seen3 = np.asarray(f.match_matrix, bool).any(1)
+        order = np.r_[rng.permutation(np.flatnonzero(seen3)), rng.permutation(np.flatnonzero(~seen3))]
+        b2 = f.bboxes_2d[np.sort(order[:n2])]
+        if len(b2) < n2:  # pad with false 2D boxes
+            k = n2 - len(b2)
+            x, y = rng.uniform(0, W - 120, k), rng.uniform(0.3 * H, H - 80, k)
+            b2 = np.vstack([b2, np.column_stack([x, y, x + rng.uniform(20, 120, k), y + rng.uniform(20, 80, k)])])
+        b3 = b7[:n3]
+        if len(b3) < n3:
+            b3 = np.vstack([b3, _outside_view_boxes(n3 - len(b3), site.T_cam_lidar, site.intrinsics, (W, H), z0, rng)])
+        out.append(Frame(image=f.image, point_cloud=f.point_cloud, bboxes_2d=b2, bboxes_3d=b3,
+                         camera_name=f.camera_name, frame_key=f.frame_key, intrinsics=f.intrinsics,
+                         extrinsics=f.extrinsics, meta={"image_size": (W, H)}))
+    return out, site.T_cam_lidar
+
+
+def _child(case: str, seed: int, limit_gb: float, q) -> None:
+    import resource
+
+    if limit_gb > 0:
+        lim = int(limit_gb * 2 ** 30)
+        resource.setrlimit(resource.RLIMIT_AS, (lim, lim))
+    from xcalib.calib.api import calibrate
+
+    n_frames, n2, n3 = CASES[case]
+    frames, T = crowded_frames(seed, n_frames, n2, n3)
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 10
+    rec = {"case": case, "seed": seed, "frames": n_frames, "n_2d": int(sum(len(f.bboxes_2d) for f in frames)),
+           "n_3d": int(sum(len(f.bboxes_3d) for f in frames)), "rss_before_mb": rss0}
+    t0 = time.perf_counter()
+    try:
+        res = calibrate(frames, frames[0].intrinsics)
+        rec.update(success=bool(res.success), message=res.message, n_pairs=res.n_pairs)
+        if res.success:
+            rec["rot_deg"], rec["trans_m"] = res.pose_error(T)
+            rec["wrong"] = bool(rec["rot_deg"] > 1.0 or rec["trans_m"] > 0.5)
+    except MemoryError as exc:
+        rec.update(success=False, message=f"MemoryError: {exc}", error="MemoryError")
+    rec["time_s"] = time.perf_counter() - t0
+    rec["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 10
+    q.put(rec)
+
+
+def run_case(case: str, seed: int, limit_gb: float) -> dict:
+    ctx = mp.get_context("spawn")
+    q = ctx.Queue()
+    p = ctx.Process(target=_child, args=(case, seed, limit_gb, q))
+    p.start()
+    try:
+        rec = q.get(timeout=1800)
+    except Exception:  # noqa: BLE001 - a child killed by the OS
+        rec = {"case": case, "seed": seed, "success": False, "message": f"child died (exit {p.exitcode})",
+               "error": "died"}
+    p.join()
+    return rec
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cases", nargs="+", default=["dense", "32x270", "100x100", "200x200"], choices=list(CASES))
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--limit-gb", type=float, default=6.0, help="address-space limit of each child (0: none)")
+    ap.add_argument("--out", type=Path, default=OUT)
+    args = ap.parse_args(argv)
+    recs = []
+    for case in args.cases:
+        for seed in args.seeds:
+            rec = run_case(case, seed, args.limit_gb)
+            recs.append(rec)
+            print(f"  {case:>8} seed {seed}: {'ok ' if rec.get('success') else 'FAIL'} "
+                  f"{rec.get('time_s', float('nan')):6.1f} s, peak RSS {rec.get('peak_rss_mb', float('nan')):7.0f} MB"
+                  + (f", {rec['rot_deg']:.3f} deg {rec['trans_m']:.3f} m" if rec.get("success") else
+                     f", {rec.get('message', '')[:80]}"), flush=True)
+    print("\nCrowded inputs (no initial guess; peak RSS of a fresh process incl. ~150 MB of imports; "
+          "'wrong' = success off by > 1 deg or > 0.5 m)")
+    print(f"{'case':>8} {'frames':>6} {'2D/fr':>6} {'3D/fr':>6} {'runs':>4} {'success':>7} {'wrong':>5} {'refused':>7} "
+          f"{'errors':>6} {'time max':>8} {'RSS max MB':>10}")
+    rows = []
+    for case in args.cases:
+        rs = [r for r in recs if r["case"] == case]
+        nf, n2, n3 = CASES[case]
+        row = {"case": case, "frames": nf, "runs": len(rs), "success": sum(bool(r.get("success")) for r in rs),
+               "wrong": sum(bool(r.get("wrong")) for r in rs),
+               "refused": sum(not r.get("success") and "error" not in r for r in rs),
+               "errors": sum("error" in r for r in rs),
+               "time_s_max": max((r.get("time_s", np.nan) for r in rs), default=np.nan),
+               "peak_rss_mb_max": max((r.get("peak_rss_mb", np.nan) for r in rs), default=np.nan)}
+        rows.append(row)
+        print(f"{case:>8} {nf:>6} {n2 or '~':>6} {n3 or '~':>6} {row['runs']:>4} {row['success']:>7} {row['wrong']:>5} "
+              f"{row['refused']:>7} {row['errors']:>6} {row['time_s_max']:>7.1f}s {row['peak_rss_mb_max']:>10.0f}")
+    write_result(args.out, {"machine": machine_info(), "limit_gb": args.limit_gb, "rows": rows, "runs": recs})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,207 @@
+"""Model-misfit checks: does the camera model the pose was fitted with explain the detections?
+
+A pose can be well constrained and still wrong when the model is wrong: the given focal length
+is off, the image is mirrored, or the 2D boxes come from two cameras. Each check refits an
+alternative model and compares it with the one used; it flags a misfit only when the
+alternative is clearly better, by margins measured on real frames (A9 sample: the fitted focal
+scale of good intrinsics stays within 2 % over subsets of 4-16 frames, while fx x1.05 gives 0.952
+and x1.1 gives 0.910).
+
+* ``focal_scale``: refit with one extra parameter, a common scale of fx and fy
+  (``cost.FocalScaleTerm``); flagged when it differs from 1 by more than ``FOCAL_TOL`` and by 4
+  bootstrap sigmas (frames resampled).
+* ``mirrored``: the whole search (bring-up + refinement, on a few frames) run on the 2D boxes
+  flipped left-right; flagged when the flipped boxes are explained clearly better.
+* ``unexplained_frames``: frames with several 2D boxes that the pose leaves (nearly) unexplained
+  while it explains the others well -- frames of another camera mixed in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..geometry.camera import CameraIntrinsics
+from .cost import FocalScaleTerm, Occlusion, TimeOffsetTerm
+from .diagnostics import MisfitCheck, NoiseModel
+from .inputs import CalibFrame
+from .pose import Pose
+from .refine import lsq
+
+__all__ = ["MisfitVerdict", "focal_scale_check", "time_offset_check", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL"]
+
+FOCAL_TOL = 0.03          # |fitted focal scale - 1| beyond this (and 4 sigma) is a misfit
+FOCAL_SIGMAS = 4.0
+MIRROR_GAIN = 1.25        # the flipped boxes' score must exceed the best score by this factor
+UNEXPLAINED_SHARE = 0.25  # share of the frames with 4+ 2D boxes left unexplained
+
+
+@dataclass
+class MisfitVerdict:
+    """The checks run and, when one flagged, the refusal message."""
+
+    checks: list[MisfitCheck]
+    message: str | None = None
+    code: str = ""
+
+
+def _focal_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion) -> float:
+    *_, fit = lsq(frames, pairs, intr, pose.R, pose.t, f_scale, 40, noise, occlusion, extra=(FocalScaleTerm(),))
+    return float(np.exp(fit.params[FocalScaleTerm.name][0]))
+
+
+def focal_scale_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
+                      noise: NoiseModel, f_scale: float, occlusion: Occlusion, *, draws: int = 6,
+                      seed: int = 0) -> tuple[MisfitCheck, str | None]:
+    """Fitted focal scale (pose refitted too, matches fixed) and its bootstrap spread over frames."""
+    n = sum(len(p) for p in pairs)
+    if n < 12:
+        return MisfitCheck("focal_scale", 1.0, FOCAL_TOL, False, "too few matches to fit the focal length"), None
+    s = _focal_fit(frames, pairs, intr, pose, noise, f_scale, occlusion)
+    rng = np.random.default_rng(seed)
+    nz = [k for k, p in enumerate(pairs) if len(p)]
+    boot = []
+    for _ in range(draws):
+        if len(nz) >= 4:  # frames resampled
+            w = np.bincount(rng.integers(0, len(nz), len(nz)), minlength=len(nz))
+            sub = [p[:0] for p in pairs]
+            for k, c in zip(nz, w):
+                sub[k] = np.repeat(pairs[k], c, axis=0)
+        else:  # pairs resampled
+            sub = [p[rng.integers(0, len(p), len(p))] if len(p) else p for p in pairs]
+        boot.append(_focal_fit(frames, sub, intr, pose, noise, f_scale, occlusion))
+    sd = float(np.std(np.log(boot), ddof=1)) if len(boot) > 1 else float("inf")
+    dev = abs(np.log(s))
+    flagged = bool(dev > np.log1p(FOCAL_TOL) and dev > FOCAL_SIGMAS * sd)
+    detail = f"fitted focal scale {s:.3f} (bootstrap sigma {sd:.3f})"
+    msg = None
+    if flagged:
+        msg = (f"model misfit: the boxes fit best with a focal length about {s:.2f}x the given one (fx ~{intr.fx * s:.0f} "
+               f"px instead of {intr.fx:.0f}, fy ~{intr.fy * s:.0f} instead of {intr.fy:.0f}); the pose found with the "
+               "given intrinsics is biased. Check the intrinsics (and the image size they belong to), or let xcalib "
+               "estimate the focal length")
+    return MisfitCheck("focal_scale", s, FOCAL_TOL, flagged, detail), msg
+
+
+def unexplained_frames_check(frames: list[CalibFrame], pairs: list[np.ndarray]) -> tuple[MisfitCheck, str | None]:
+    """Frames with 4+ 2D boxes of which the pose matches at most 1 in 5, while it matches half or
+    more in the other frames: frames from another camera (or another sensor pairing) mixed in."""
+    rich = [(fr.key, len(p) / fr.n2) for fr, p in zip(frames, pairs) if fr.n2 >= 4]
+    if len(rich) < 4:
+        return MisfitCheck("unexplained_frames", 0.0, UNEXPLAINED_SHARE, False, "too few frames with 4+ 2D boxes"), None
+    frac = np.array([f for _, f in rich])
+    bad = frac <= 0.2
+    share = float(bad.mean())
+    good = frac[~bad]
+    flagged = bool(share >= UNEXPLAINED_SHARE and len(good) and np.median(good) >= 0.5)
+    detail = f"{int(bad.sum())} of {len(rich)} frames with 4+ 2D boxes have at most 1 in 5 of them matched"
+    msg = None
+    if flagged:
+        keys = ", ".join(k for (k, _), b in zip(rich, bad) if b)
+        msg = (f"model misfit: the pose explains most 2D boxes in some frames and almost none in {int(bad.sum())} others "
+               f"({keys[:120]}); frames from a second camera (or with another camera's boxes) seem to be mixed in. "
+               "Calibrate one camera at a time")
+    return MisfitCheck("unexplained_frames", share, UNEXPLAINED_SHARE, flagged, detail), msg
+
+
+def flipped_frames(frames: list[CalibFrame]) -> list[CalibFrame]:
+    """The frames with every 2D box mirrored left-right (u -> W - u)."""
+    out = []
+    for fr in frames:
+        W = fr.size[0]
+        b = fr.boxes2d
+        out.append(replace(fr, boxes2d=np.column_stack([W - b[:, 2], b[:, 1], W - b[:, 0], b[:, 3]])))
+    return out
+
+
+def mirror_check(best_score: float, flipped_score: float, pose: Pose) -> tuple[MisfitCheck, str | None]:
+    """Flag when the left-right flipped boxes are explained clearly better than the boxes as given
+    (by ``MIRROR_GAIN``), or better at all while the pose for the boxes as given is upside down
+    (the LiDAR's up axis, z, pointing down the image: a mirrored image is fitted best by a camera
+    rolled 180 deg)."""
+    ratio = flipped_score / max(best_score, 1e-9)
+    upside_down = bool(pose.R[1, 2] > 0.5)
+    flagged = bool(ratio > MIRROR_GAIN or (ratio > 1.0 and upside_down))
+    detail = (f"score of the flipped boxes {flipped_score:.1f} vs {best_score:.1f} as given"
+              f"{'; the pose for the boxes as given is upside down' if upside_down else ''}")
+    msg = None
+    if flagged:
+        msg = (f"model misfit: the 2D boxes fit a left-right mirrored image much better ({detail}); the image (or the "
+               "2D detections) seems to be flipped horizontally. Un-mirror the image or the boxes (u -> width - u)")
+    return MisfitCheck("mirrored", ratio, MIRROR_GAIN, flagged, detail), msg
+
+
+TIME_SIGMAS = 4.0
+TIME_MIN_SHIFT_M = 0.3    # the offset must move the matched objects by this much (median over moving ones)
+
+
+def pair_velocities(frames: list[CalibFrame], pairs: list[np.ndarray], times: np.ndarray,
+                    max_speed: float = 30.0) -> np.ndarray:
+    """Velocity [n,3] (LiDAR frame, m per time unit) of each matched 3D box, from the nearest 3D
+    box of the previous and the next frame (central difference; one side at the ends); zero
+    where no neighbour lies within ``max_speed`` x the time step."""
+    out = []
+    for k, (fr, p) in enumerate(zip(frames, pairs)):
+        v = np.zeros((len(p), 3))
+        X = fr.boxes3d[p[:, 1], :3] if len(p) else np.zeros((0, 3))
+        ends = []
+        for j in (k - 1, k + 1):
+            if 0 <= j < len(frames) and frames[j].n3 and len(X):
+                dt = float(times[j] - times[k])
+                Y = frames[j].boxes3d[:, :3]
+                d = np.linalg.norm(X[:, None] - Y[None], axis=2)
+                near = d.argmin(1)
+                ok = d[np.arange(len(X)), near] <= max_speed * abs(dt)
+                ends.append((np.where(ok[:, None], Y[near], X), ok, dt))
+        if len(ends) == 2:
+            (a, oka, dta), (b, okb, dtb) = ends
+            both = oka & okb
+            v[both] = (b[both] - a[both]) / (dtb - dta)
+            v[oka & ~okb] = (X[oka & ~okb] - a[oka & ~okb]) / (-dta)
+            v[okb & ~oka] = (b[okb & ~oka] - X[okb & ~oka]) / dtb
+        elif len(ends) == 1:
+            (a, oka, dta), = ends
+            v[oka] = (a[oka] - X[oka]) / dta
+        out.append(v)
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def _time_fit(frames, pairs, intr, pose: Pose, vel, noise, f_scale, occlusion) -> tuple[float, Pose]:
+    *_, fit = lsq(frames, pairs, intr, pose.R, pose.t, f_scale, 40, noise, occlusion, extra=(TimeOffsetTerm(vel),))
+    return float(fit.params[TimeOffsetTerm.name][0]), fit.pose
+
+
+def time_offset_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
+                      noise: NoiseModel, f_scale: float, occlusion: Occlusion, times: np.ndarray, unit: str, *,
+                      draws: int = 6, seed: int = 0) -> tuple[MisfitCheck, str | None]:
+    """Fitted camera-LiDAR time offset (objects moved along their velocity from adjacent frames)."""
+    vel = pair_velocities(frames, pairs, times)
+    speed = np.linalg.norm(vel, axis=1)
+    moving = speed > 0.5 * (1.0 if unit == "s" else 0.1)
+    if moving.sum() < 6:
+        return MisfitCheck("time_offset", 0.0, TIME_SIGMAS, False, "too few moving matched objects"), None
+    dt, _ = _time_fit(frames, pairs, intr, pose, vel, noise, f_scale, occlusion)
+    rng = np.random.default_rng(seed)
+    offs = np.cumsum([0] + [len(p) for p in pairs])
+    nz = [k for k, p in enumerate(pairs) if len(p)]
+    boot = []
+    for _ in range(draws):
+        w = np.bincount(rng.integers(0, len(nz), len(nz)), minlength=len(nz))
+        sub, vs = [p[:0] for p in pairs], []
+        for k, c in zip(nz, w):
+            sub[k] = np.repeat(pairs[k], c, axis=0)
+        vs = np.concatenate([np.repeat(vel[offs[k]:offs[k + 1]], c if k in nz else 0, axis=0)
+                             for k, c in zip(range(len(pairs)), [dict(zip(nz, w)).get(k, 0) for k in range(len(pairs))])])
+        boot.append(_time_fit(frames, sub, intr, pose, vs, noise, f_scale, occlusion)[0])
+    sd = float(np.std(boot, ddof=1))
+    shift = float(np.median(speed[moving]) * abs(dt))
+    z = abs(dt) / max(sd, 1e-9)
+    flagged = bool(z > TIME_SIGMAS and shift > TIME_MIN_SHIFT_M)
+    detail = f"fitted time offset {dt:+.3f} {unit} (bootstrap sigma {sd:.3f}; moves the moving objects {shift:.2f} m)"
+    msg = None
+    if flagged:
+        msg = (f"model misfit: the sensors seem out of time -- the boxes fit best with the 3D boxes moved {dt:+.2f} {unit} "
+               f"along their motion (about {shift:.1f} m); the pose from unsynchronised frames is biased. Check the "
+               "camera/LiDAR timestamps, or use frames without moving objects")
+    return MisfitCheck("time_offset", z, TIME_SIGMAS, flagged, detail), msg
