@@ -50,8 +50,9 @@ def _run(frames, intr, ref, ref_sigma) -> dict:
     res = calibrate(frames, intr)
     rec = {"frames": [f.frame_key for f in frames], "success": bool(res.success), "message": res.message,
            "time_s": time.perf_counter() - t0, "n_pairs": res.n_pairs}
-    if res.rotation is not None:
-        rec["gap_deg"], rec["gap_m"] = Pose(res.rotation, res.translation).error(ref)
+    T = res.extrinsics if res.rotation is not None else getattr(res.diagnostics, "refused_T", None)
+    if T is not None:  # a refused result keeps its pose in the diagnostics only
+        rec["gap_deg"], rec["gap_m"] = Pose.parse(np.asarray(T)).error(ref)
         rec["sigma_deg"], rec["sigma_m"] = _sigma(res)
         rec["covered"] = bool(rec["gap_deg"] <= 2 * np.hypot(rec["sigma_deg"], ref_sigma[0])
                               and rec["gap_m"] <= 2 * np.hypot(rec["sigma_m"], ref_sigma[1]))

@@ -28,3 +28,23 @@ def test_clean_site_passes_every_misfit_check():
     assert abs(res.diagnostics.misfit[1].statistic - 1.0) < 0.01  # the fitted focal scale
     rot, trans = res.pose_error(T)
     assert rot < 0.2 and trans < 0.1
+
+
+def test_crowded_frames_are_refused_without_a_guess():
+    import numpy as np
+
+    from xcalib.calib import CalibConfig
+    from xcalib.calib.decision import crowded_check
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.types import Frame
+
+    frames, K, _ = bent_case("clean", seed=1, n_frames=3)
+    cf, _, _ = prepare_frames(frames, K)
+    assert crowded_check(cf, CalibConfig()) is None
+    rng = np.random.default_rng(0)
+    b3 = np.column_stack([rng.uniform(-60, 60, (270, 2)), np.zeros(270), np.tile([4.5, 1.9, 1.6], (270, 1)),
+                          np.zeros(270)])
+    busy = [Frame(**{**f.__dict__, "bboxes_2d": np.tile(f.bboxes_2d, (4, 1))[:32], "bboxes_3d": b3}) for f in frames]
+    cf, _, _ = prepare_frames(busy, K)
+    why = crowded_check(cf, CalibConfig())
+    assert why is not None and why.code == "crowded" and "prior" in why.message

@@ -28,7 +28,7 @@ from ..geometry.transforms import make_transform
 from .bringup import distinct_best, matcher_similarities, pose_hypotheses
 from .config import CalibConfig
 from .cost import Occlusion
-from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, matched_places, precheck, verdict
+from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, matched_places, precheck, verdict
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, prepare_frames
@@ -293,6 +293,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
                                places=len(places), places_off_line=int(np.sum(off > POOLED_OFF_LINE_M)),
                                halves_available=unc.halves_available, best_score=ref.best_score,
                                runner_up_score=runner, rot_sd=unc.rot_sd, tr_sd=unc.tr_sd), config)
+    if refusal is None and prior is None:
+        refusal = crowded_check(cframes, config)
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):
         # a refusal that a model misfit explains is replaced by the misfit's message (it names the cause)
         refusal = _misfit(cframes, pairs, intr, pose, best.noise, f_scale, occlusion, ref.best_score, config, diag,
@@ -352,7 +354,7 @@ def calibrate(frames, intrinsics=None, config: CalibConfig | None = None, *args,
     res = _calibrate(frames_in, intrinsics, config, matcher, prior_pose, progress)
     if not res.success and config.max_baseline_m is not None and prior_pose is None \
             and res.diagnostics.refusal not in ("mixed_cameras", "too_few_detections", "collinear_3d", "collinear_2d") \
-            and not res.diagnostics.refusal.startswith("misfit"):
+            and not res.diagnostics.refusal.startswith("misfit") and res.diagnostics.refusal != "crowded":
         # the co-located-rig assumption may be wrong (e.g. boxes in a global frame): search again
         retry = _calibrate(frames_in, intrinsics, config.replace(max_baseline_m=None), matcher, None, progress)
         if retry.success or res.diagnostics.refusal == "no_hypothesis":

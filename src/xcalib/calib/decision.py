@@ -21,7 +21,7 @@ from .config import CalibConfig
 from .inputs import CalibFrame
 from .uncertainty import HALF_MIN_MATCHES, HALVES_MIN_MATCHES
 
-__all__ = ["Refusal", "precheck", "verdict", "matched_places", "POOLED_MIN_PLACES", "POOLED_SEP_M",
+__all__ = ["Refusal", "precheck", "verdict", "crowded_check", "matched_places", "POOLED_MIN_PLACES", "POOLED_SEP_M",
            "POOLED_OFF_LINE_M"]
 
 # pooled identifiability (frames with only 1-2 matched objects each): the matched 3D boxes over
@@ -151,3 +151,19 @@ def verdict(ev: Evidence, config: CalibConfig) -> Refusal | None:
                        f"{r:.2f} deg, translation {t:.2f} m, over all axes; the frame halves and the occlusion model "
                        "included); add frames or objects at other places/depths")
     return None
+
+
+def crowded_check(cframes: Sequence[CalibFrame], config: CalibConfig) -> Refusal | None:
+    """Refuse a pose found without a guess in crowded frames: when most frames offer more (2D, 3D)
+    candidate pairs than twice ``config.max_candidates`` (e.g. 32 2D boxes against 270 3D boxes
+    of a 360-degree LiDAR), the bring-up searches only azimuth windows and samples of them, and
+    a pose aligning many boxes by chance (1-2 deg / 1-2 m off on synthetic 32x270 frames) can
+    pass every other check. A ``prior`` pose skips the bring-up and this check."""
+    have = [f for f in cframes if f.n2 and f.n3]
+    crowded = [f for f in have if f.n2 * f.n3 > 2 * config.max_candidates]
+    if not have or len(crowded) * 2 <= len(have):
+        return None
+    return Refusal("crowded", f"not verifiable: {len(crowded)} of {len(have)} frames are crowded (up to "
+                   f"{max(f.n2 for f in crowded)} 2D x {max(f.n3 for f in crowded)} 3D boxes); without a guess the "
+                   "search cannot rule out a pose that aligns many boxes by chance. Give an approximate pose "
+                   "(prior=...), or only the 3D boxes in the camera's field of view")
