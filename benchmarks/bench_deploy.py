@@ -107,8 +107,10 @@ def main(argv=None) -> int:
             lat = {
                 "K8_M12": {"torch": _p50(lambda: m.similarity(inp), args.repeat, args.budget_s),
                            "onnx": _p50(lambda: om.similarity(inp), args.repeat, args.budget_s)},
-                "a9": {"torch": _p50(lambda: m.match_frame(frame, validate="off"), args.repeat, args.budget_s),
-                       "onnx": _p50(lambda: om.match_frame(frame, validate="off"), args.repeat, args.budget_s)},
+                "a9": {"torch": _p50(lambda: m.match_frame(frame, validate="off", geometry="off"), args.repeat,
+                                     args.budget_s),  # the model path (not the off-site geometric consensus)
+                       "onnx": _p50(lambda: om.match_frame(frame, validate="off", geometry="off"), args.repeat,
+                                    args.budget_s)},
             }
             cfg = {k: m.config.get(k) for k in ("crop_size", "point_cloud_size", "embed_dim")}
             entry = {"weights": weights, "config": cfg, "parity": res.parity, "parity_ok": res.parity_ok,

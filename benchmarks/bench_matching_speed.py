@@ -8,7 +8,9 @@ Noise: the machine is shared, so every variant is timed in the same interleaved 
 call of each per round, order rotating), and before/after are reported as ratios of those
 paired medians; the load average is recorded at the start and the end. Outputs: every A9 frame
 is matched by both preprocessings and both runtimes, and the similarities / matches must be
-bit-identical (``outputs_identical``). Weights: the shipped ``synthetic`` fastmatch (latency
+bit-identical (``outputs_identical``). ``geometry="off"``: the model path (with the shipped
+weights and the frame's intrinsics, ``match`` would otherwise match A9 by geometric consensus,
+see ``xcalib.engine.domain``). Weights: the shipped ``synthetic`` fastmatch (latency
 does not depend on the values); crlite: the reference-size config, seeded random weights.
 
     python benchmarks/bench_matching_speed.py [--rounds 400] [--crlite-runs 12]
@@ -94,7 +96,8 @@ def outputs_identical(pairs, frames) -> dict:
     for name, (new, old) in pairs.items():
         ok = True
         for f in frames:
-            a, b = new.match(*f.inputs(), validate="off"), old.match(*f.inputs(), validate="off")
+            a = new.match(*f.inputs(), validate="off", geometry="off")
+            b = old.match(*f.inputs(), validate="off", geometry="off")
             ok &= (np.array_equal(a.similarity, b.similarity) and np.array_equal(a.top_indices, b.top_indices)
                    and a.matches == b.matches and np.array_equal(a.kept_3d_indices, b.kept_3d_indices))
         same[name] = bool(ok)
@@ -129,20 +132,22 @@ def main(argv=None) -> int:
     old = legacy_prepare(tm.crop_config)
     tm_old, om_old = with_prepare(tm, old), with_prepare(om, old)
     same = outputs_identical({"torch": (tm, tm_old), "onnx": (om, om_old)}, frames)
-    same["torch_vs_onnx_pairs"] = all(np.array_equal(tm.match(*f.inputs(), validate="off").as_pairs(),
-                                                      om.match(*f.inputs(), validate="off").as_pairs()) for f in frames)
+    off = {"validate": "off", "geometry": "off"}
+    same["torch_vs_onnx_pairs"] = all(np.array_equal(tm.match(*f.inputs(), **off).as_pairs(),
+                                                     om.match(*f.inputs(), **off).as_pairs()) for f in frames)
     inp = tm.prepare(*f0.inputs())
     a = f0.inputs()
-    fns = {"torch_match": lambda: tm.match(*a, validate="off"), "onnx_match": lambda: om.match(*a, validate="off"),
-           "torch_match_before": lambda: tm_old.match(*a, validate="off"),
-           "onnx_match_before": lambda: om_old.match(*a, validate="off"),
+    fns = {"torch_match": lambda: tm.match(*a, validate="off", geometry="off"),
+           "onnx_match": lambda: om.match(*a, validate="off", geometry="off"),
+           "torch_match_before": lambda: tm_old.match(*a, validate="off", geometry="off"),
+           "onnx_match_before": lambda: om_old.match(*a, validate="off", geometry="off"),
            "prepare": lambda: tm.prepare(*a), "prepare_before": lambda: old(*a),
            "torch_forward": lambda: tm.similarity(inp), "onnx_forward": lambda: om.similarity(inp)}
     t = interleaved(fns, args.rounds)
     torch.manual_seed(0)
     crl = Matcher(create_model("crlite"), device="cpu")  # the reference-size config
-    crl_ts = interleaved({"crlite": lambda: crl.match(*a, validate="off"),
-                          "torch_match": lambda: tm.match(*a, validate="off")}, args.crlite_runs)
+    crl_ts = interleaved({"crlite": lambda: crl.match(*a, validate="off", geometry="off"),
+                          "torch_match": lambda: tm.match(*a, validate="off", geometry="off")}, args.crlite_runs)
     res = {k: stats(v) for k, v in t.items()}
     ratio = {k: float(np.median(t[k][:, 1] / t[f"{k}_before"][:, 1])) for k in ("torch_match", "onnx_match", "prepare")}
     crl_s = stats(crl_ts["crlite"])

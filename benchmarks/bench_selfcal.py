@@ -9,9 +9,9 @@ Tables:
 2. synthetic time offset: realism cases ``time_offset_0.05/0.1/0.2s`` (10 Hz, vehicles at 5-15 m/s,
    camera before the LiDAR) with ``CalibConfig(time_offset="auto")``: success, wrong, median
    |dt_est - dt_true|, median pose error; and the clean case as the reference.
-3. A9 sample (16 real frames) with fx, fy given x0.90 / 0.95 / (1.00) / 1.05 / 1.10, default,
-   ``refine_intrinsics="focal"`` and ``"auto"``: estimated fx / nominal fx (also when refused), gap
-   of the pose to the default run at the nominal intrinsics, and whether that gap lies within 2
+3. A9 sample (16 real frames) with fx, fy given x0.90 / 0.95 / (1.00) / 1.05 / 1.10, "given"
+   (``refine_intrinsics="none"``), ``"focal"`` and ``"auto"``: estimated fx / nominal fx (also when
+   refused), gap of the pose to the "given" run at the nominal intrinsics, and whether that gap lies within 2
    sigma (norms of the per-axis sigmas; of this run, and combined with the reference's).
 4. PandaSet 002 (30 real frames, front camera) with **synthetic 2D boxes** (the cuboids projected
    with each frame's ground-truth calibration at the camera time, 1 px noise, 10 % missed, 5 %
@@ -20,7 +20,8 @@ Tables:
 
 Options the calibrator does not have yet (``CalibConfig``, ``refine_intrinsics``,
 ``time_offset``, a ``config=`` argument of ``calibrate``) are detected; their rows say "not
-implemented" and only the reference runs (default options) are made.
+implemented". Rows "[given]" use ``CalibConfig(refine_intrinsics="none")`` and no time term: the
+calibrator before issue 13 (its default is now ``refine_intrinsics="auto"``).
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_selfcal.py [--sites 20] [--tables 1,2,3,4]
 """
@@ -122,11 +123,12 @@ def _synthetic(kind: str, n_sites: int) -> list[dict]:
                     ("auto", selfcal_config(refine_intrinsics="auto"))]
     else:
         conds, ref = [f"time_offset_{d:g}s" for d in (0.05, 0.1, 0.2)], "clean"
-        variants = [("time auto", selfcal_config(time_offset="auto"))]
+        variants = [("time auto", selfcal_config(time_offset="auto", refine_intrinsics="none"))]
     rows = []
+    given = selfcal_config(refine_intrinsics="none")  # the given intrinsics, no time term (the 0.3 behaviour)
     for name in [ref, *conds]:
-        for label, (config, why) in (("default", (None, "")), *variants):
-            if label != "default" and config is None:
+        for label, (config, why) in (("given", given), *variants):
+            if config is None:
                 rows.append(_not_impl(f"{name} [{label}]", why))
                 continue
             recs = []
@@ -155,16 +157,17 @@ def _a9() -> list[dict]:
     seq = read_frames(root)
     frames = [seq[i] for i in range(len(seq))]
     K0 = seq.intrinsics
-    ref = run(frames, K0)  # the run at the given (nominal) intrinsics, default options
-    rows = [{"row": "A9 x1.00 [default] (reference)", **{k: v for k, v in ref.items() if k != "T"}}]
-    for label, opts in (("default", None), ("focal", {"refine_intrinsics": "focal"}),
+    given, _ = selfcal_config(refine_intrinsics="none")
+    ref = run(frames, K0, given)  # the run at the given (nominal) intrinsics, not refined
+    rows = [{"row": "A9 x1.00 [given] (reference)", **{k: v for k, v in ref.items() if k != "T"}}]
+    for label, opts in (("given", {"refine_intrinsics": "none"}), ("focal", {"refine_intrinsics": "focal"}),
                         ("auto", {"refine_intrinsics": "auto"})):
-        config, why = (None, "") if opts is None else selfcal_config(**opts)
-        if opts is not None and config is None:
+        config, why = selfcal_config(**opts)
+        if config is None:
             rows.append(_not_impl(f"A9 x0.90-1.10 [{label}]", why))
             continue
         for s in (0.90, 0.95, 1.00, 1.05, 1.10):
-            if opts is None and s == 1.0:
+            if label == "given" and s == 1.0:
                 continue
             Ks = dataclasses.replace(K0, fx=K0.fx * s, fy=K0.fy * s)
             r = run(frames, Ks, config)
@@ -197,11 +200,12 @@ def _pandaset() -> list[dict]:
     gts = [f.extrinsics for f in frames]
     seen = [dataclasses.replace(f, extrinsics=None) for f in frames]
     true_dt = float(np.median([f.camera_time_s - f.lidar_time_s for f in frames]))
-    cfg, why = selfcal_config(time_offset="auto")
     rows = []
-    for label, config in (("no time term", None), ("time offset estimated", cfg)):
+    for label, (config, why) in (("no time term", selfcal_config(refine_intrinsics="none")),
+                                 ("time offset estimated", selfcal_config(time_offset="auto", refine_intrinsics="none")),
+                                 ("time offset + focal auto", selfcal_config(time_offset="auto"))):
         name = f"PandaSet 30 frames, synthetic 2D boxes [{label}]"
-        if config is None and label != "no time term":
+        if config is None:
             rows.append(_not_impl(name, why))
             continue
         r = run(seen, seq.intrinsics, config)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-KINDS = ("save_pretrained", "synth_site", "calibrate_report", "export_ros", "cache")
+KINDS = ("save_pretrained", "synth_site", "calibrate_report", "export_ros", "export_opencalib", "cache")
 HERE = Path(__file__).resolve().parent
 
 
@@ -66,6 +66,10 @@ def write(kind: str, out: Path, v: int) -> None:
         from xcalib.formats.export import export_calibration
 
         export_calibration(_result(v), "ros", out / "camera_info.yaml")
+    elif kind == "export_opencalib":
+        from xcalib.formats.export import export_calibration
+
+        export_calibration(_result(v), "opencalib", out)
     elif kind == "cache":
         from xcalib.io.hdf5 import write_cache
 
@@ -111,6 +115,15 @@ def check(kind: str, out: Path) -> tuple[bool, str]:
             v = round(r.intrinsics.fx - 500.0)
             if not np.allclose(r.translation[0], 0.01 * v, atol=1e-9):
                 return False, "camera_info.yaml and its _tf.yaml from different writes"
+        elif kind == "export_opencalib":
+            from xcalib.formats.export import read_calibration
+
+            if not any(out.glob("*-extrinsic.json")):
+                return True, "absent"
+            r = read_calibration(out, "opencalib")
+            v = round(r.intrinsics.fx - 500.0)
+            if not np.allclose(r.translation[0], 0.01 * v, atol=1e-9):
+                return False, "extrinsic and intrinsic json from different writes"
         elif kind == "cache":
             from xcalib.io.hdf5 import CacheReader
 
@@ -168,7 +181,7 @@ def kill_during_write(kind: str, out: Path, delay_s: float, timeout_s: float = 6
 
 if __name__ == "__main__":
     kind, out = sys.argv[1], Path(sys.argv[2])
-    if kind in ("export_ros", "cache"):
+    if kind in ("export_ros", "export_opencalib", "cache"):
         out.mkdir(parents=True, exist_ok=True)
     v = 0
     while True:

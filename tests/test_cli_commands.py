@@ -179,6 +179,12 @@ def test_bootstrap_installs_site_weights(calib_site, tmp_path, monkeypatch, caps
     assert out["calibrated"] and out["adapt"]["trained"] and out["adapt"]["steps"] == 3
     assert Path(out["paths"]["weights"]).is_file()
     assert Path(out["paths"]["weights"]).parent == tmp_path / "home" / "sites" / "boot"
+    # the site threshold, chosen without labels, travels with the weights and is match()'s default
+    thr = out["match_threshold"]
+    assert thr is not None and 0.0 < thr["threshold"] < 1.0 and thr["n_pseudo"] > 0
+    from xcalib.engine.matcher import Matcher
+    site_m = Matcher.from_pretrained("fastmatch", site="boot", device="cpu")
+    assert site_m.config["match_threshold"] == thr["threshold"]
     # the installed weights load by site name
     assert main(["match", str(calib_site / "test.h5"), "--site", "boot", "--validate", "off", "--json"]) == 0
 

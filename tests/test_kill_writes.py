@@ -8,7 +8,7 @@ import pytest
 
 from _kill_writers import KINDS, check, kill_during_write, leftovers, sweep
 
-DELAYS = {"save_pretrained": 0.3, "synth_site": 0.2, "calibrate_report": 0.15, "export_ros": 0.05, "cache": 0.1}
+DELAYS = {"save_pretrained": 0.3, "synth_site": 0.2, "calibrate_report": 0.15, "export_ros": 0.05, "export_opencalib": 0.05, "cache": 0.1}
 
 
 @pytest.mark.parametrize("kind", KINDS)

@@ -32,7 +32,7 @@ def test_shipped_fastmatch_matches_its_site(monkeypatch, tmp_path):
     m = Matcher.from_pretrained("fastmatch", site="synthetic", device="cpu")
     acc = MetricsAccumulator()
     for f in iter_frames(sample_site(0, "roadside"), 4, seed=3, start=20):  # the held-out test sequence
-        r = m.match_frame(f, validate="off")
+        r = m.match_frame(f, validate="off", geometry="off")  # the weights themselves
         acc.add(r.full_similarity(f.num_2d, f.num_3d, -np.inf), f.match_matrix)
     res = acc.result()
     assert res.n_cameras_with_match >= 10 and res.top1 >= 0.7
@@ -53,7 +53,7 @@ def test_generic_fastmatch_transfers_to_an_unseen_site(monkeypatch, tmp_path):
     site = sample_site(7950, "roadside", width=960, height=600, focal_px=(500.0, 1000.0))
     acc, chance = MetricsAccumulator(), []
     for f in iter_frames(site, 4, seed=1, start=10):
-        r = m.match_frame(f, validate="off")
+        r = m.match_frame(f, validate="off", geometry="off")  # the weights themselves
         acc.add(r.full_similarity(f.num_2d, f.num_3d, -np.inf), f.match_matrix)
         chance += [1.0 / len(r.kept_3d_indices)] * int(np.asarray(f.match_matrix).any(1).sum())
     res = acc.result()

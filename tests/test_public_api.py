@@ -62,7 +62,8 @@ def test_match_signature(method):
     fn = getattr(xcalib.Matcher, method)
     assert _positional(fn)[:6] == ["image", "point_cloud", "bboxes_2d", "bboxes_3d", "top_k", "match_threshold"]
     p = _params(fn)
-    assert p["top_k"].default == 1 and p["match_threshold"].default == 0.0
+    # None = the site's threshold chosen by bootstrap, else 0.0 (the reference's default value)
+    assert p["top_k"].default == 1 and p["match_threshold"].default is None
     assert p["validate"].default == "warn" and p["return_latency"].default is False
     assert xcalib.Matcher.pair is xcalib.Matcher.match
 

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from .geometry.camera import CameraIntrinsics
 
-__all__ = ["Frame", "MatchResult", "DatasetFrame", "as_frame"]
+__all__ = ["Frame", "MatchResult", "MatchSource", "DatasetFrame", "as_frame"]
+
+MatchSource = Literal["model", "fused", "geometry"]
 
 
 @dataclass
@@ -97,6 +99,9 @@ class MatchResult:
     geometry (0 = model scores alone). Fused scores keep the model's range and meaning
     ("match probability", mapped to [-1, 1] for cosine models): sigmoid((1-w) logit(p_model) +
     w logit(clip(IoU, eps, 1-eps))) (see ``xcalib.engine.fusion``).
+    source: which path produced the matches: "model" (the model's scores), "fused" (model and
+    the site calibration's projection) or "geometry" (geometric consensus over the frame's
+    boxes, :mod:`xcalib.calib.consensus`: similarity = projection IoU, matches one-to-one).
     """
 
     similarity: np.ndarray
@@ -110,6 +115,7 @@ class MatchResult:
     assignment: str = "argmax"
     geometry_iou: np.ndarray | None = None
     fusion_weight: float = 0.0
+    source: MatchSource = "model"
 
     def as_pairs(self) -> np.ndarray:
         """Matches as an int64 array [n, 2] of (2D index, 3D index)."""

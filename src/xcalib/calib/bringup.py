@@ -10,6 +10,7 @@ best distinct ones for refinement.
 
 from __future__ import annotations
 
+import inspect
 import logging
 from dataclasses import dataclass
 from typing import Callable, Sequence
@@ -45,8 +46,9 @@ def matcher_similarities(matcher, frames_in, cframes: list[CalibFrame]) -> list[
     for item, fr in zip(frames_in, cframes):
         try:
             args = item.inputs() if hasattr(item, "inputs") else tuple(item)
-            mr = matcher.match_frame(item) if hasattr(item, "inputs") and hasattr(matcher, "match_frame") \
-                else matcher.match(*args)
+            kw = {"geometry": "off"} if "geometry" in inspect.signature(matcher.match).parameters else {}  # model priors
+            mr = matcher.match_frame(item, **kw) if hasattr(item, "inputs") and hasattr(matcher, "match_frame") \
+                else matcher.match(*args, **kw)
             full = mr.full_similarity(len(np.asarray(args[2]).reshape(-1, 4)), len(np.asarray(args[3]).reshape(len(args[3]), -1)))
             out.append(np.asarray(full, dtype=np.float64)[np.ix_(fr.idx2d, fr.idx3d)])
         except Exception as exc:  # noqa: BLE001 - a matcher failure must not stop geometry

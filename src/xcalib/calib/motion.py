@@ -144,10 +144,11 @@ def box_motion(frames_in, cframes: list[CalibFrame]) -> BoxMotion:
         if len(cframes) < 2:
             return BoxMotion([None] * len(cframes), problem="one frame: no tracks to derive object velocities from",
                              stamp_offset_s=gap)
-        Rw = [np.eye(3) if ego is None else e[0] for e in ego] if ego is not None else [np.eye(3)] * len(cframes)
-        Tw = [(getattr(f, "meta", None) or {}).get("T_world_lidar") for f in frames_in] if ego is not None else None
-        centres_w = [c.boxes3d[:, :3] if Tw is None else c.boxes3d[:, :3] @ np.asarray(Tw[k])[:3, :3].T
-                     + np.asarray(Tw[k])[:3, 3] for k, c in enumerate(cframes)]
+        # centres in the world frame (the LiDAR frame itself for a static rig)
+        Tw = [np.eye(4)] * len(cframes) if ego is None else \
+            [np.asarray(f.meta["T_world_lidar"], dtype=np.float64) for f in frames_in]
+        Rw = [T[:3, :3] for T in Tw]
+        centres_w = [c.boxes3d[:, :3] @ T[:3, :3].T + T[:3, 3] for c, T in zip(cframes, Tw)]
         tid = [getattr(f, "track_ids_3d", None) for f in frames_in]
         if all(t is not None and len(np.asarray(t)) > (c.idx3d.max() if len(c.idx3d) else -1)
                for t, c in zip(tid, cframes)):

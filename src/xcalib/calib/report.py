@@ -83,6 +83,8 @@ def _summary_text(result: CalibrationResult, rows: list[dict]) -> str:
             lines += [f"  misfit check {c.name}: {c.statistic:.3g} (limit {c.limit:.3g}){' FLAGGED' if c.flagged else ''}"
                       f"{'; ' + c.detail if c.detail else ''}" for c in d.misfit]
         lines.append("")
+    if d is not None and d.selfcal.notes:
+        lines += [f"  self-calibration: {n}" for n in d.selfcal.notes] + [""]
     lines.append(f"{'frame':>12} {'2D':>4} {'3D':>4} {'pairs':>5} {'px med':>7} {'IoU med':>7}")
     for r in rows:
         px = "-" if r["px_median"] is None else f"{r['px_median']:.2f}"

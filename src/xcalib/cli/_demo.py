@@ -138,7 +138,8 @@ def match_frames(matcher, frames: list, progress: Progress = None) -> MatchingOu
     results = []
     for k, fr in enumerate(frames):
         # one-to-one pairs; a pair probability below 0.5 is "no partner" (e.g. a box the other sensor missed)
-        r = matcher.match_frame(fr, assignment="hungarian", match_threshold=0.5, validate="off")
+        r = matcher.match_frame(fr, assignment="hungarian", match_threshold=0.5, validate="off",
+                                 geometry="off")  # the model itself
         results.append(r)
         if fr.match_matrix is not None:
             acc.add(r.full_similarity(fr.num_2d, fr.num_3d, fill=-np.inf), fr.match_matrix, r.latency_ms)
@@ -209,7 +210,7 @@ def matcher_agreement(matcher, frames: list, result) -> tuple[float, int]:
     for fr, p in zip(frames, result.pairs):
         if not len(p):
             continue
-        r = matcher.match_frame(fr, assignment="hungarian", validate="off")
+        r = matcher.match_frame(fr, assignment="hungarian", validate="off", geometry="off")  # the model itself
         mine = {int(i): int(j) for i, j, _ in r.matches}
         hit += sum(mine.get(int(i)) == int(j) for i, j in p)
         total += len(p)

@@ -91,6 +91,11 @@ def register(app: typer.Typer) -> None:
             typer.echo("box-geometry gain kept on the held-out frames: " + ", ".join(
                 f"{g.box_gain:.3g} (Top-1 {g.top1:.3f}, loss {g.loss:.3f}{', kept' if g.chosen else ''})"
                 for g in a.gain_trials))
+        if res.threshold is not None:
+            t = res.threshold
+            typer.echo(f"site match threshold {t.threshold:.2f} (chosen without labels: the default matches agree "
+                       f"with the pseudo-labels of {t.n_frames} frames at precision {t.precision:.2f}, recall "
+                       f"{t.recall:.2f}); match() uses it when no match_threshold is given")
         where = res.paths.get("weights") or res.paths.get("out_weights")
         typer.echo(f"weights: {where}" + (f"  (load with Matcher.from_pretrained({model!r}, site={site!r}))"
                                           if not no_install else ""))

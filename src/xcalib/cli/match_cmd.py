@@ -57,7 +57,7 @@ def register(app: typer.Typer) -> None:
             typer.echo(json.dumps({
                 "frame_key": frame.frame_key, "model": r.model, "device": r.device, "latency_ms": r.latency_ms,
                 "assignment": r.assignment, "num_2d": frame.num_2d, "num_3d": frame.num_3d,
-                "fusion_weight": r.fusion_weight,
+                "fusion_weight": r.fusion_weight, "source": r.source,
                 "kept_2d_indices": r.kept_2d_indices.tolist(), "kept_3d_indices": r.kept_3d_indices.tolist(),
                 "matches": [{"index_2d": i, "index_3d": j, "score": s} for i, j, s in r.matches],
                 "similarity": r.similarity.tolist()}))

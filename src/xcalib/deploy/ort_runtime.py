@@ -207,13 +207,14 @@ class OnnxMatcher:
         """Numpy model inputs of one frame (same crops as the torch ``Matcher.prepare``)."""
         return prepare_frame(image, point_cloud, bboxes_2d, bboxes_3d, self.crop_config, rng, **multi_camera)
 
-    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float = 0.0,
+    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float | None = None,
               return_latency: bool = False, validate: str = "warn", *, assignment: str = "argmax", images=None,
-              camera_per_det=None, use_calibration: str | bool = "auto", box7=None) -> MatchResult:
+              camera_per_det=None, use_calibration: str | bool = "auto", box7=None, intrinsics=None,
+              geometry: str = "auto") -> MatchResult:
         """Match one frame (see ``Matcher.match``). ``latency_ms`` = crop + graphs + host scoring."""
         return run_match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k=top_k, match_threshold=match_threshold,
                          validate=validate, assignment=assignment, images=images, camera_per_det=camera_per_det,
-                         return_latency=return_latency,
+                         return_latency=return_latency, intrinsics=intrinsics, geometry=geometry,
                          use_calibration=use_calibration, box7=box7, score_range=self.score_range,
                          fill_value=self.fill_value)
 

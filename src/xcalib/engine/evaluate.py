@@ -29,7 +29,7 @@ def evaluate_matcher(matcher, frames: Iterable, *, limit: int | None = None, val
             break
         if f.match_matrix is None:
             continue
-        r = matcher.match_frame(f, validate=validate)
+        r = matcher.match_frame(f, validate=validate, geometry="off")  # the model's own scores
         full = r.full_similarity(f.num_2d, f.num_3d, fill=-np.inf)
         fill = getattr(getattr(matcher, "model", None), "fill_value", getattr(matcher, "fill_value", None))
         if fill is not None:

@@ -4,6 +4,7 @@ the ``match`` / ``match_frame`` bodies themselves (:func:`run_match`, :func:`fra
 
 from __future__ import annotations
 
+import logging
 import time
 
 import numpy as np
@@ -11,11 +12,13 @@ import numpy as np
 from ..geometry.boxes import center_size_to_extents
 from ..protocol import WarningRegistry, check_validate_mode, enforce, validate_frame_inputs
 from ..types import Frame, MatchResult
+from .domain import BOOTSTRAP_HINT, SHIPPED_SITES, check_geometry_mode, geometry_match_result, out_of_domain
 from .fusion import fuse_scores, geometric_iou, is_multi_camera, resolve_use_calibration
 
 __all__ = ["ASSIGNMENTS", "assign", "validate_match_inputs", "run_match", "frame_match_args"]
 
 ASSIGNMENTS = ("argmax", "hungarian")
+log = logging.getLogger("xcalib.matcher")
 
 
 def validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, mode: str, *, bbox_expansion: float,
@@ -70,20 +73,33 @@ def assign(similarity: np.ndarray, *, top_k: int = 1, threshold: float = 0.0, me
     return top, pairs
 
 
-def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_threshold: float, validate: str,
+def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_threshold: float | None, validate: str,
               assignment: str, images, camera_per_det, use_calibration, box7, score_range,
-              fill_value: float | None, return_latency: bool = False) -> MatchResult:
+              fill_value: float | None, return_latency: bool = False, intrinsics=None,
+              geometry: str = "auto") -> MatchResult:
     """One frame through matcher ``m`` (``Matcher`` or ``OnnxMatcher``: ``crop_config``,
     ``warning_registry``, ``prepare``, ``similarity`` -> numpy [K',M'], ``calibration``,
     ``fusion_weight``, ``fusion_eps``, ``model_name``, ``device``). ``latency_ms`` = crop + model
     (+ projection and fusion) wall time, validation excluded (``return_latency``: the model's
-    ``similarity`` call alone); matches in the caller's numbering."""
+    ``similarity`` call alone); matches in the caller's numbering. ``geometry`` / ``intrinsics``:
+    geometric consensus instead of the model (:mod:`xcalib.engine.domain`). ``match_threshold``
+    None: the site threshold in the model config (``xcalib.oneshot.threshold``), else 0."""
     if assignment not in ASSIGNMENTS:
         raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {assignment!r}")
-    fuse = resolve_use_calibration(use_calibration, m.calibration, is_multi_camera(images, camera_per_det))
+    check_geometry_mode(geometry)
+    if match_threshold is None:  # the site's threshold (chosen by bootstrap, in the model config), else 0
+        match_threshold = float(m.config.get("match_threshold", 0.0))
+    multi_cam = is_multi_camera(images, camera_per_det)
+    fuse = resolve_use_calibration(use_calibration, m.calibration, multi_cam)
     validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, validate,
                           bbox_expansion=m.crop_config.bbox_expansion, registry=m.warning_registry)
     t0 = time.perf_counter()
+    frame = (image, point_cloud, bboxes_2d, bboxes_3d if box7 is None else box7)
+    if geometry == "on" and not multi_cam:
+        res, why = geometry_match_result(m, *frame, intrinsics=intrinsics, match_threshold=match_threshold, t0=t0)
+        if res is not None:
+            return res
+        log.warning("match(geometry='on'): %s; the model's scores are returned", why)
     multi = {"images": images, "camera_per_det": camera_per_det} if images is not None else {}
     inputs = m.prepare(image, point_cloud, bboxes_2d, bboxes_3d, **multi)
     t1 = time.perf_counter()
@@ -95,21 +111,44 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
         geo = geometric_iou(image, point_cloud, bboxes_2d, bboxes_3d, m.calibration, k2, k3, box7=box7)
         weight = float(m.fusion_weight)
         sim = fuse_scores(sim, geo, score_range=score_range, weight=weight, eps=m.fusion_eps, fill_value=fill_value)
+    elif geometry == "auto" and not multi_cam and getattr(m, "site", None) in SHIPPED_SITES:
+        why = out_of_domain(sim, score_range, fill_value)
+        if why or intrinsics is not None:  # with intrinsics the consensus is fast and beats off-site weights
+            res, none_why = geometry_match_result(m, *frame, intrinsics=intrinsics, match_threshold=match_threshold,
+                                                  t0=t0)
+            _warn_off_site(m, why, res is not None, none_why)
+            if res is not None:
+                return res
     ms = forward_ms if return_latency else (time.perf_counter() - t0) * 1000.0
     top, pairs = assign(sim, top_k=top_k, threshold=match_threshold, method=assignment, fill_value=fill_value)
     matches = [(int(k2[i]), int(k3[j]), s) for i, j, s in pairs]
     return MatchResult(similarity=sim, top_indices=top, matches=matches, kept_2d_indices=k2.astype(np.int64),
                        kept_3d_indices=k3.astype(np.int64), latency_ms=ms, model=m.model_name,
-                       device=str(m.device), assignment=assignment, geometry_iou=geo, fusion_weight=weight)
+                       device=str(m.device), assignment=assignment, geometry_iou=geo, fusion_weight=weight,
+                       source="fused" if geo is not None else "model")
+
+
+def _warn_off_site(m, why: str, geometric: bool, none_why: str) -> None:
+    """Warn once per matcher that its shipped weights are off site (and what ``match`` did)."""
+    if not m.warning_registry.first_time("off-site"):
+        return
+    what = (f"their scores on this frame are out of domain ({why})" if why
+            else "they were trained on synthetic sites, not on this one")
+    did = ("matched by geometric consensus instead (MatchResult.source='geometry')" if geometric
+           else f"no geometric consensus either ({none_why}): the model's scores are unreliable")
+    log.warning("%s with the shipped %r weights and no site calibration: %s; %s. %s", m.model_name, m.site, what, did,
+                BOOTSTRAP_HINT)
 
 
 def frame_match_args(frame: Frame, kw: dict) -> tuple[tuple, dict]:
     """``match`` arguments of a :class:`~xcalib.types.Frame`: its arrays, plus (unless given in
-    ``kw``) its per-camera images for multi-camera frames and ``meta["box7"]``."""
+    ``kw``) its per-camera images for multi-camera frames, ``meta["box7"]`` and its intrinsics."""
     kw = dict(kw)
     if frame.images and frame.camera_per_det is not None:
         kw.setdefault("images", frame.images)
         kw.setdefault("camera_per_det", frame.camera_per_det)
     if frame.meta and "box7" in frame.meta:
         kw.setdefault("box7", frame.meta["box7"])
+    if frame.intrinsics is not None:
+        kw.setdefault("intrinsics", frame.intrinsics)
     return frame.inputs(), kw

@@ -33,6 +33,7 @@ from ..data.crops import CropConfig, FrameInputs, prepare_frame
 from ..protocol import WarningRegistry
 from ..types import DatasetFrame, Frame, MatchResult, as_frame
 from .host import assign, frame_match_args, run_match, validate_match_inputs  # torch-free, shared with ONNX Runtime
+from .domain import BOOTSTRAP_HINT
 from .fusion import FUSION_WEIGHT, GEO_EPS
 from ..errors import FormatError
 from .checkpoint import (WeightsNotFoundError, find_site_weights, load_state_strict, probe_model, read_checkpoint,
@@ -148,7 +149,8 @@ class Matcher:
                         repo_id: str | None = None, revision: str | None = None,
                         token: str | None = None) -> "Matcher":
         """Load ``model`` with weights from the site folders (``weights=None``), a directory
-        written by :meth:`save_pretrained`, or a weights file. The config is ``config`` (YAML path
+        written by :meth:`save_pretrained`, or a weights file (the shipped ``synthetic`` site, also the
+        default, loads with a warning naming ``xcalib bootstrap``). The config is ``config`` (YAML path
         or dict, merged onto the model defaults) or else the YAML beside the weights, else the
         one stored in the weights file. A checkpoint that does not fit is an error. Site folders
         and weights directories with a ``calibration.json`` give the matcher that calibration.
@@ -163,6 +165,10 @@ class Matcher:
                              "directory or a weights file")
 
         model_class(model)  # unknown model -> UnknownModelError
+        if weights is None and site == "synthetic":  # also the default: say what these weights are
+            log.warning("Matcher.from_pretrained(%r): loading the shipped 'synthetic' weights (trained on one synthetic "
+                        "site; they do not know yours: without a site calibration match() uses geometric consensus "
+                        "when the intrinsics are known or their scores are out of domain). %s", model, BOOTSTRAP_HINT)
         if weights is None:
             path = find_site_weights(model, site)
         else:
@@ -270,18 +276,24 @@ class Matcher:
         validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, mode,
                               bbox_expansion=self.crop_config.bbox_expansion, registry=self.warning_registry)
 
-    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float = 0.0,
+    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float | None = None,
               return_latency: bool = False, validate: str = "warn", *, assignment: str = "argmax", images=None,
-              camera_per_det=None, use_calibration: str | bool = "auto", box7=None) -> MatchResult:
+              camera_per_det=None, use_calibration: str | bool = "auto", box7=None, intrinsics=None,
+              geometry: str = "auto") -> MatchResult:
         """Match one frame (the reference's positional order). ``latency_ms`` = crop + model (+
         projection and fusion) wall time (validation excluded), or the model's forward alone with
         ``return_latency=True``. ``use_calibration``: "auto" fuses the model's scores with the
         projection IoU through :attr:`calibration` when one is set (single-camera frames), True
         requires it, False gives the model's scores alone. ``box7`` [M,7]: optional yawed 3D boxes
-        for the projection when ``bboxes_3d`` are axis-aligned [M,6]."""
+        for the projection when ``bboxes_3d`` are axis-aligned [M,6]. ``geometry``: "auto" matches
+        by geometric consensus (``MatchResult.source == "geometry"``) when the shipped off-site
+        weights score the frame out of domain (:mod:`xcalib.engine.domain`), "on" always, "off"
+        never; ``intrinsics`` (``CameraIntrinsics`` or 3x3 K) help it, else they are searched.
+        ``match_threshold`` None: the site's threshold (chosen label-free by ``xcalib bootstrap``,
+        saved in the model config as ``match_threshold``), else 0."""
         return run_match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k=top_k, match_threshold=match_threshold,
                          validate=validate, assignment=assignment, images=images, camera_per_det=camera_per_det,
-                         return_latency=return_latency,
+                         return_latency=return_latency, intrinsics=intrinsics, geometry=geometry,
                          use_calibration=use_calibration, box7=box7,
                          score_range=getattr(self.model, "score_range", (-1.0, 1.0)),
                          fill_value=getattr(self.model, "fill_value", None))

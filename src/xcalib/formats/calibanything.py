@@ -27,6 +27,7 @@ Every reader returns a :class:`~xcalib.calib.result.CalibrationResult` whose ``r
 from __future__ import annotations
 
 import json
+import secrets
 import warnings
 from pathlib import Path
 from typing import Any
@@ -357,23 +358,39 @@ def read_opencalib(extrinsic_path, intrinsic_path=None, *, repair: bool = False)
                 f"{name}.param.sensor_calib", repair)
     cam = blk.get("target_sensor_name", "")
     lidar = blk.get("sensor_name", "")
+    embedded = blk.get(_EMBEDDED_INTRINSIC) if intrinsic_path is None else None
     if intrinsic_path is None and cam:
         cand = extrinsic_path.with_name(f"{cam}-intrinsic.json")
         intrinsic_path = cand if cand.is_file() else None
     intr = None
-    if intrinsic_path is not None:
+    if isinstance(embedded, dict) and len(embedded) == 1:  # written by xcalib: the pair id decides
+        loaded = _single_block(load_json(intrinsic_path), intrinsic_path) if intrinsic_path is not None else None
+        if loaded is None or loaded[1].get(_PAIR) != blk.get(_PAIR):  # the file is from another write
+            intr = _opencalib_intrinsics(*next(iter(embedded.items())), extrinsic_path)
+        else:
+            intr = _opencalib_intrinsics(*loaded, Path(intrinsic_path))
+    elif intrinsic_path is not None:
         ipath = Path(intrinsic_path)
-        iname, iblk = _single_block(load_json(ipath), ipath)
-        ip = require(iblk, "param", ipath, iname + ".")
-        K, _ = _K_and_offset(_opencv_matrix(require(ip, "cam_K", ipath, iname + ".param."), ipath,
-                                            f"{iname}.param.cam_K", (3, 3)), ipath, f"{iname}.param.cam_K")
-        dist = _distortion_list(ip.get("cam_dist", {}), ipath, f"{iname}.param.cam_dist")
-        try:
-            intr = CameraIntrinsics.from_matrix(K, dist, width=ip.get("img_dist_w"), height=ip.get("img_dist_h"))
-        except (TypeError, ValueError) as exc:
-            raise FormatError(ipath, str(exc), f"{iname}.param") from None
+        intr = _opencalib_intrinsics(*_single_block(load_json(ipath), ipath), ipath)
     return calibration_record(intr, T, method="opencalib", camera_name=cam,
                               meta={"format": "opencalib", "lidar_name": lidar})
+
+
+_PAIR = "xcalib_pair"
+_EMBEDDED_INTRINSIC = "xcalib_intrinsic"
+
+
+def _opencalib_intrinsics(iname: str, iblk, ipath: Path) -> CameraIntrinsics:
+    if not isinstance(iblk, dict):
+        raise FormatError(ipath, "expected a JSON object", iname)
+    ip = require(iblk, "param", ipath, iname + ".")
+    K, _ = _K_and_offset(_opencv_matrix(require(ip, "cam_K", ipath, iname + ".param."), ipath,
+                                        f"{iname}.param.cam_K", (3, 3)), ipath, f"{iname}.param.cam_K")
+    dist = _distortion_list(ip.get("cam_dist", {}), ipath, f"{iname}.param.cam_dist")
+    try:
+        return CameraIntrinsics.from_matrix(K, dist, width=ip.get("img_dist_w"), height=ip.get("img_dist_h"))
+    except (TypeError, ValueError) as exc:
+        raise FormatError(ipath, str(exc), f"{iname}.param") from None
 
 
 def write_opencalib(result: CalibrationResult, out_dir, *, lidar: str = "lidar",
@@ -387,8 +404,9 @@ def write_opencalib(result: CalibrationResult, out_dir, *, lidar: str = "lidar",
                       "param_type": "extrinsic",
                       "param": {"time_lag": 0, "sensor_calib": {"rows": 4, "cols": 4, "type": 6, "continuous": True,
                                                                 "data": result.extrinsics.tolist()}}}}
-    ep = _write_json(out_dir / f"{ext_name}.json", ext)
-    ip = None
+    pair = secrets.token_hex(8)  # both files carry it; the extrinsic file also embeds the intrinsics, so a
+    ext[ext_name][_PAIR] = pair   # write killed between the two renames is never read as a mixed pair
+    iblock = None
     if result.intrinsics is not None:
         intr = result.intrinsics
         dist = intr.dist_coeffs.tolist()
@@ -398,7 +416,9 @@ def write_opencalib(result: CalibrationResult, out_dir, *, lidar: str = "lidar",
         if intr.width is not None and intr.height is not None:
             param = {"img_dist_w": intr.width, "img_dist_h": intr.height, **param}
         iname = f"{camera}-intrinsic"
-        ip = _write_json(out_dir / f"{iname}.json", {iname: {
-            "sensor_name": camera, "target_sensor_name": camera, "device_type": "camera",
-            "param_type": "intrinsic", "param": param}})
+        iblock = {iname: {"sensor_name": camera, "target_sensor_name": camera, "device_type": "camera",
+                          "param_type": "intrinsic", "param": param, _PAIR: pair}}
+        ext[ext_name][_EMBEDDED_INTRINSIC] = iblock
+    ep = _write_json(out_dir / f"{ext_name}.json", ext)
+    ip = _write_json(out_dir / f"{iname}.json", iblock) if iblock is not None else None
     return ep, ip

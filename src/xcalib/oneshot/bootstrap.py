@@ -5,13 +5,16 @@
 3. train a matcher on the pseudo-labels: from the weights of ``init`` (a site or a weights
    file; "auto" = the packaged ``synthetic`` site when present) with the heads mode, or from
    random weights with the full mode ("scratch");
-4. install the weights (and ``calibration.json``) where ``Matcher.from_pretrained(model, site=SITE)``
+4. choose the site's match threshold from the pseudo-labels (``oneshot.threshold``; saved in the
+   model config, used by ``match`` when no ``match_threshold`` is given);
+5. install the weights (and ``calibration.json``) where ``Matcher.from_pretrained(model, site=SITE)``
    finds them (``$XCALIB_HOME/sites/<site>/``), unless ``install=False``; the reloaded matcher
    carries that calibration and fuses it into ``match``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -20,10 +23,13 @@ from typing import Callable, Iterable
 
 from ..calib.config import CalibConfig
 from ..calib.result import CalibrationResult
+from .threshold import ThresholdChoice, choose_threshold
 from ..types import Frame
 from .adapt import AdaptReport
 
 __all__ = ["BootstrapResult", "bootstrap", "starting_matcher"]
+
+THRESHOLD_FRAMES = 32  # frames kept to choose the site's match threshold (label-free, ``oneshot.threshold``)
 
 log = logging.getLogger("xcalib.oneshot")
 
@@ -42,6 +48,7 @@ class BootstrapResult:
     paths: dict[str, Path] = field(default_factory=dict)
     elapsed_s: float = 0.0
     matcher: object = None
+    threshold: ThresholdChoice | None = None
 
     def summary(self) -> dict:
         c = self.calibration
@@ -50,7 +57,8 @@ class BootstrapResult:
                 "calibration_iou_median": c.iou_median, "calibration_residual_px_median": c.residual_px_median,
                 "T_cam_lidar": c.extrinsics.tolist() if c.success else None, "adapt": {k: v for k, v in self.adapt.to_dict().items()
                                                                 if k != "losses"},
-                "paths": {k: str(v) for k, v in self.paths.items()}, "elapsed_s": self.elapsed_s}
+                "paths": {k: str(v) for k, v in self.paths.items()}, "elapsed_s": self.elapsed_s,
+                "match_threshold": None if self.threshold is None else dataclasses.asdict(self.threshold)}
 
 
 def starting_matcher(model: str, init: str = "auto", *, device: str | None = "cpu", seed: int = 0):
@@ -94,9 +102,11 @@ def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "f
     t0 = time.perf_counter()
     matcher, init_desc, default_mode = starting_matcher(model, init, device=device, seed=seed)
     session = OneShotSession(matcher, intrinsics, mode=mode or default_mode, seed=seed, calib_config=calib_config)
-    n = 0
+    n, kept = 0, []
     for n, frame in enumerate(frames, start=1):
         rep = session.observe_frame(frame, validate="off")
+        if len(kept) < THRESHOLD_FRAMES:
+            kept.append(frame)
         if on_frame is not None:
             on_frame(n, rep)
     if n == 0:
@@ -108,10 +118,14 @@ def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "f
     report = session.adapt(steps=steps, lr=lr, holdout=holdout, progress=on_step)
     if not report.trained:
         raise OneShotError(f"bootstrap: training did not produce weights ({report.message}); nothing installed")
+    threshold = choose_threshold(session.matcher, kept, session.calibration)
+    if threshold is not None:  # saved with the weights (model config); match() uses it by default
+        session.matcher.config["match_threshold"] = threshold.threshold
     paths: dict[str, Path] = {}
     if out_dir is not None:
         paths.update({f"out_{k}": v for k, v in session.save(out_dir).items()})
     if install:
         paths.update(session.save_site(site))
     return BootstrapResult(site=site, model=model, init=init_desc, n_frames=n, calibration=session.calibration,
-                           adapt=report, paths=paths, elapsed_s=time.perf_counter() - t0, matcher=session.matcher)
+                           adapt=report, paths=paths, elapsed_s=time.perf_counter() - t0, matcher=session.matcher,
+                           threshold=threshold)

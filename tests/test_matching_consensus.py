@@ -1,0 +1,101 @@
+"""Matching at a site the weights never saw: out-of-domain detection, geometric consensus
+(``xcalib.calib.consensus``) and ``MatchResult.source``."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from xcalib.calib.consensus import ConsensusConfig, consensus_matches, searched_intrinsics
+from xcalib.data.synth import generate_frames, sample_site
+from xcalib.engine.domain import out_of_domain
+from xcalib.engine.matcher import Matcher
+
+
+def _pairs(mm: np.ndarray) -> set:
+    return {(int(i), int(j)) for i, j in zip(*np.nonzero(mm))}
+
+
+@pytest.fixture(scope="module")
+def site2_frames():
+    """Frames of synthetic site 2: the shipped 'synthetic' weights (site 0) score them out of domain."""
+    return generate_frames(sample_site(2), 2, seed=100)
+
+
+def test_out_of_domain_symptoms():
+    good = np.full((5, 6), 0.02)
+    good[np.arange(5), np.arange(5)] = 0.97
+    assert out_of_domain(good) == ""
+    assert "no confident pair" in out_of_domain(good * 0.3)
+    collapsed = good.copy()
+    collapsed[:, 2] = 0.99
+    assert "collapsed" in out_of_domain(collapsed)
+    assert "collapsed" in out_of_domain(2 * collapsed - 1, score_range=(-1.0, 1.0))  # cosine models
+    assert out_of_domain(good[:1]) == ""  # one row: cannot tell
+
+
+def test_consensus_recovers_the_true_matches(site2_frames):
+    f = site2_frames[0]
+    truth = _pairs(f.match_matrix)
+    cm = consensus_matches(f, f.intrinsics)
+    assert cm.found and cm.intrinsics_source == "given"
+    got = {tuple(p) for p in cm.pairs.tolist()}
+    assert len(got & truth) >= 0.9 * len(truth) and len(got - truth) <= 0.05 * len(got) + 1
+    assert cm.iou.shape == f.match_matrix.shape and np.all((cm.iou >= 0) & (cm.iou <= 1))
+
+
+def test_consensus_without_intrinsics_searches_them(site2_frames):
+    f = site2_frames[1]
+    truth = _pairs(f.match_matrix)
+    cm = consensus_matches(f.inputs())
+    assert cm.found and cm.intrinsics_source == "searched"
+    W, H = f.image_size
+    assert (cm.intrinsics.cx, cm.intrinsics.cy) == (W / 2, H / 2)
+    got = {tuple(p) for p in cm.pairs.tolist()}
+    assert len(got & truth) >= 0.8 * len(truth) and len(got - truth) <= 0.1 * len(got) + 1
+
+
+def test_consensus_refuses_too_few_boxes(site2_frames):
+    f = site2_frames[0]
+    i, j = np.nonzero(f.match_matrix)
+    cm = consensus_matches((f.image, f.point_cloud, f.bboxes_2d[i[:2]], f.bboxes_3d[j[:2]]), f.intrinsics)
+    assert not cm.found and len(cm.pairs) == 0 and cm.message
+    with pytest.raises(ValueError, match="gate"):
+        ConsensusConfig(gate=0.0)
+    assert searched_intrinsics(1000, 500, 90.0).fx == pytest.approx(500.0)
+
+
+def test_shipped_weights_out_of_domain_fall_back_to_geometry(site2_frames, caplog):
+    m = Matcher.from_pretrained("fastmatch", site="synthetic", device="cpu")
+    f = site2_frames[0]
+    with caplog.at_level(logging.WARNING, logger="xcalib.matcher"):
+        r = m.match_frame(f, validate="off")
+    assert r.source == "geometry" and r.assignment == "hungarian"
+    assert "xcalib bootstrap" in caplog.text and "out of domain" in caplog.text
+    truth = _pairs(f.match_matrix)
+    got = set(map(tuple, r.as_pairs().tolist()))
+    assert len(got & truth) >= 0.9 * len(truth) and len(got - truth) <= 0.05 * len(got) + 1
+    model_only = m.match_frame(f, validate="off", geometry="off")
+    assert model_only.source == "model" and out_of_domain(model_only.similarity) != ""
+
+
+def test_in_domain_and_forced_paths():
+    m = Matcher.from_pretrained("fastmatch", site="synthetic", device="cpu")
+    f = generate_frames(sample_site(0), 1, seed=4)[0]  # the weights' own site: in domain
+    r = m.match(*f.inputs(), validate="off")  # no intrinsics: the consensus would have to search them
+    assert r.source == "model" and out_of_domain(r.similarity) == ""
+    g = m.match_frame(f, validate="off")  # the frame's intrinsics: consensus (shipped weights, no calibration)
+    assert g.source == "geometry" and np.array_equal(g.similarity, g.geometry_iou)
+    truth = _pairs(f.match_matrix)
+    assert len(set(map(tuple, g.as_pairs().tolist())) & truth) >= 0.9 * len(truth)
+    assert m.match_frame(f, validate="off", geometry="off").source == "model"
+    with pytest.raises(ValueError, match="geometry must be"):
+        m.match_frame(f, geometry="maybe")
+
+
+def test_from_pretrained_synthetic_site_warns(caplog):
+    with caplog.at_level(logging.WARNING, logger="xcalib.matcher"):
+        m = Matcher.from_pretrained("fastmatch", device="cpu")
+    assert m.site == "synthetic" and "xcalib bootstrap" in caplog.text
