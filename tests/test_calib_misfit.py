@@ -11,7 +11,7 @@ from xcalib.calib.api import calibrate
 from xcalib.calib.config import CalibConfig
 
 
-@pytest.mark.parametrize("variant, cause", [("mirrored", "mirrored")])
+@pytest.mark.parametrize("variant, cause", [("focal x1.2", "focal length about 0.83x"), ("mirrored", "mirrored")])
 def test_model_misfit_is_refused_with_its_cause(variant, cause):
     frames, K, T = bent_case(variant, seed=1, n_frames=10)
     # the given intrinsics as they are (the default "auto" would estimate this focal length: issue 13)
