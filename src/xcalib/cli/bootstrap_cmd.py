@@ -38,6 +38,7 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0, "--seed"),
         device: str = typer.Option("cpu", "--device"),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable summary on stdout."),
+        force: bool = typer.Option(False, "--force", help="Replace the files of an existing --out folder."),
     ) -> None:
         import itertools
 
@@ -50,6 +51,8 @@ def register(app: typer.Typer) -> None:
 
         if no_install and out_dir is None:
             raise typer.BadParameter("--no-install needs --out DIR (the weights must go somewhere)")
+        if out_dir is not None and not force and out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
+            raise FileExistsError(f"{out_dir} already exists; pass --force to replace it")
         source = read_frames(frames)
         K = read_intrinsics_json(intrinsics) if intrinsics is not None else getattr(source, "intrinsics", None)
         if K is None and hasattr(source, "__getitem__") and len(source):  # HDF5 caches: per-frame /calibration
