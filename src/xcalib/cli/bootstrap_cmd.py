@@ -8,8 +8,9 @@ from typing import Optional
 
 import typer
 
-_EXAMPLE = ("Example: xcalib bootstrap ../shared/data/a9_sample --intrinsics ../shared/data/a9_sample/intrinsics.json "
-            "--site a9_south1 --model fastmatch --limit 10")
+_EXAMPLE = ("A short recording may be refused as poorly constrained (on A9 the first 10 frames are); the "
+            "message says why. Example (16 A9 frames): xcalib bootstrap ../shared/data/a9_sample "
+            "--intrinsics ../shared/data/a9_sample/intrinsics.json --site a9_south1 --model fastmatch")
 
 
 def register(app: typer.Typer) -> None:
