@@ -100,6 +100,12 @@ def register(app: typer.Typer) -> None:
             typer.echo(f"site match threshold {t.threshold:.2f} (chosen without labels: the default matches agree "
                        f"with the pseudo-labels of {t.n_frames} frames at precision {t.precision:.2f}, recall "
                        f"{t.recall:.2f}); match() uses it when no match_threshold is given")
+        if res.site_default is not None:
+            d = res.site_default
+            typer.echo(f"site default matching: {d.source} (held-out {d.n_frames} frames, {d.n_pose} pose pairs: "
+                       f"adapted model alone Top-1/precision/recall {d.model_top1:.2f}/{d.model_precision:.2f}/"
+                       f"{d.model_recall:.2f} vs pose {d.pose_top1:.2f}/{d.pose_precision:.2f}/{d.pose_recall:.2f}); "
+                       "match(geometry='off') keeps the model, use_calibration=True fuses")
         where = res.paths.get("weights") or res.paths.get("out_weights")
         typer.echo(f"weights: {where}" + (f"  (load with Matcher.from_pretrained({model!r}, site={site!r}))"
                                           if not no_install else ""))
