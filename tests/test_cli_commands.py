@@ -193,3 +193,26 @@ def test_bootstrap_installs_site_weights(calib_site, tmp_path, monkeypatch, caps
 def test_calibrate_selfcal_flags_reject_bad_values(calib_site, tmp_path, flag, value):
     rc = main(["calibrate", str(calib_site / "test.h5"), "--out", str(tmp_path / "c"), flag, value])
     assert rc == 2 and not (tmp_path / "c").exists()
+
+
+@pytest.mark.slow
+def test_bootstrapped_site_defaults_to_geometry_unless_model_beats_pose(calib_site, tmp_path, monkeypatch, capsys):
+    """Issue 17 item 3: a 2-step model cannot reproduce the pose-only matches on the held-out
+    frames, so the site's default path is geometry; geometry="off" still gives the model."""
+    from xcalib.engine.matcher import Matcher
+    from xcalib.io.hdf5 import CacheReader
+
+    monkeypatch.setenv("XCALIB_HOME", str(tmp_path / "home"))
+    rc = main(["bootstrap", str(calib_site / "test.h5"), "--site", "geo", "--steps", "2", "--init", "scratch"])
+    assert rc == 0
+    assert "site default matching: geometry" in capsys.readouterr().out
+    m = Matcher.from_pretrained("fastmatch", site="geo", device="cpu")
+    d = m.config["site_default"]
+    assert d["source"] == "geometry" and d["n_pose"] > 0 and d["model_top1"] < 1.0 and d["pose_top1"] == 1.0
+    frame = next(iter(CacheReader(calib_site / "test.h5")))
+    r = m.match_frame(frame, validate="off")
+    assert r.source == "geometry" and r.matches and r.assignment == "hungarian"
+    assert len({j for _, j, _ in r.matches}) == len(r.matches)  # one-to-one
+    assert m.match_frame(frame, validate="off", geometry="off", use_calibration=False).source == "model"
+    assert m.match_frame(frame, validate="off", geometry="off").source == "fused"
+    assert m.match_frame(frame, validate="off", use_calibration=True).source == "fused"

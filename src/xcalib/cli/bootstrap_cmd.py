@@ -39,6 +39,7 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0, "--seed"),
         device: str = typer.Option("cpu", "--device"),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable summary on stdout."),
+        force: bool = typer.Option(False, "--force", help="Replace the files of an existing --out folder."),
     ) -> None:
         import itertools
 
@@ -51,6 +52,8 @@ def register(app: typer.Typer) -> None:
 
         if no_install and out_dir is None:
             raise typer.BadParameter("--no-install needs --out DIR (the weights must go somewhere)")
+        if out_dir is not None and not force and out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
+            raise FileExistsError(f"{out_dir} already exists; pass --force to replace it")
         source = read_frames(frames)
         K = read_intrinsics_json(intrinsics) if intrinsics is not None else getattr(source, "intrinsics", None)
         if K is None and hasattr(source, "__getitem__") and len(source):  # HDF5 caches: per-frame /calibration
@@ -97,6 +100,12 @@ def register(app: typer.Typer) -> None:
             typer.echo(f"site match threshold {t.threshold:.2f} (chosen without labels: the default matches agree "
                        f"with the pseudo-labels of {t.n_frames} frames at precision {t.precision:.2f}, recall "
                        f"{t.recall:.2f}); match() uses it when no match_threshold is given")
+        if res.site_default is not None:
+            d = res.site_default
+            typer.echo(f"site default matching: {d.source} (held-out {d.n_frames} frames, {d.n_pose} pose pairs: "
+                       f"adapted model alone Top-1/precision/recall {d.model_top1:.2f}/{d.model_precision:.2f}/"
+                       f"{d.model_recall:.2f} vs pose {d.pose_top1:.2f}/{d.pose_precision:.2f}/{d.pose_recall:.2f}); "
+                       "match(geometry='off') keeps the model, use_calibration=True fuses")
         where = res.paths.get("weights") or res.paths.get("out_weights")
         typer.echo(f"weights: {where}" + (f"  (load with Matcher.from_pretrained({model!r}, site={site!r}))"
                                           if not no_install else ""))

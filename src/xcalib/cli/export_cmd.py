@@ -30,6 +30,7 @@ def register(app: typer.Typer) -> None:
         allow_random: bool = typer.Option(False, "--allow-random", help="Export random weights (testing only)."),
         no_verify: bool = typer.Option(False, "--no-verify", help="Skip the parity check (reported as not OK)."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
+        force: bool = typer.Option(False, "--force", help="Replace an existing OUT/<model>_<site>/ export."),
     ) -> None:
         if fmt not in ("onnx", "trt"):
             raise typer.BadParameter(f"--format must be onnx or trt, got {fmt!r}", param_hint="--format")
@@ -50,7 +51,7 @@ def register(app: typer.Typer) -> None:
                 m = Matcher.from_pretrained(model, weights=weights, config=config, device="cpu", site=site)
         with console.status(f"exporting {model} to {fmt} (parity check included)"):
             res = m.build(fmt, out, site=site if m.weights_path is not None else None, allow_random=allow_random,
-                          site_folder=True,
+                          site_folder=True, overwrite=force,
                           verify=not no_verify, precision=precision, trtexec=trtexec, extra_trt_args=trt_arg,
                           onnx_dir=onnx_dir)
         d = res.to_dict()

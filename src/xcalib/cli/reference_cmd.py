@@ -41,13 +41,14 @@ def register(app: typer.Typer) -> None:
         output: Optional[Path] = typer.Option(None, "--output", help="Output folder (default ./onnx/<model>/)."),
         export_device: str = typer.Option("cpu", "--export-device",
                                           help="Accepted for the reference; xcalib always traces a CPU copy."),
+        force: bool = typer.Option(False, "--force", help="Replace an existing export in the output folder."),
     ) -> None:
         _refuse_hub(repo, revision, token)
         from ..engine.matcher import Matcher
 
         m = Matcher.from_pretrained(model, weights=weights, config=config, device=device or "cpu", site=site)
         res = m.build("onnx", output if output is not None else Path("onnx") / model,
-                      site=site if weights is None else None)
+                      site=site if weights is None else None, overwrite=force)
         for a in res.artifacts:
             typer.echo(f"wrote {a}")
         worst = f"{res.max_parity_error:.3g}" if res.parity else "not checked"

@@ -37,6 +37,7 @@ def register(app: typer.Typer) -> None:
         limit_train_frames: Optional[int] = typer.Option(None, "--limit-train-frames"),
         limit_val_frames: Optional[int] = typer.Option(None, "--limit-val-frames"),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable summary."),
+        force: bool = typer.Option(False, "--force", help="Replace a previous run's files in OUTPUT_DIR."),
     ) -> None:
         import torch.distributed as dist
 
@@ -44,6 +45,11 @@ def register(app: typer.Typer) -> None:
         from ..io._files import atomic_dir
         from ..engine.trainer import shutdown_distributed, train
 
+        if not resume and not force:  # a previous run's best/last checkpoints are not silently replaced
+            for f in ("best.pth", "best.yaml", "last.pt"):
+                if (output_dir / f).exists():
+                    raise FileExistsError(f"{output_dir / f} already exists (a previous run); pass --force to "
+                                          "replace it or --resume to continue it")
         cfg = read_config(config) if config else None
         recipe = XCALIB_RECIPE.kwargs(epochs=epochs, lr=lr, warmup_epochs=warmup_epochs)
         best = train(model, train_data, val_data, config=cfg, **recipe,

@@ -212,11 +212,17 @@ def _check_folder(man_folder: Path, model: str, site: str, weights_sha: str) -> 
     return man
 
 
+def _refuse_existing(folder: Path) -> None:
+    if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
+        raise FileExistsError(f"{folder} already exists; pass --force to replace it")
+
+
 def build(matcher, target: str = "onnx", output_dir: str | Path | None = None, *, site: str | None = None,
           allow_random: bool = False, verify: bool = True, opset: int = OPSET,
           parity_tolerance: float = PARITY_TOLERANCE, precision: str = "fp16", onnx_dir: str | Path | None = None,
           trtexec: str | Path | None = None, extra_trt_args: Sequence[str] = (), envelope=None,
-          timeout_s: float | None = None, device: str | None = None, site_folder: bool = False) -> BuildResult:
+          timeout_s: float | None = None, device: str | None = None, site_folder: bool = False,
+          overwrite: bool = True) -> BuildResult:
     """Export ``matcher`` (see module docstring). ``target``: "onnx" or "trt" ("tensorrt",
     "engine"). The files go to ``output_dir`` (default ``./onnx/<model>/`` for ONNX,
     ``./engines/<model>/`` for TRT, as the reference), or with ``site_folder`` to
@@ -226,7 +232,8 @@ def build(matcher, target: str = "onnx", output_dir: str | Path | None = None, *
     ``local-<weights hash>``. A matcher whose weights were never loaded is refused unless
     ``allow_random``. TRT: ``onnx_dir`` = an existing export folder to build from (it must match
     model, site and weights); otherwise the graphs are exported (or reused when current) into
-    the engine folder. ``precision`` "fp32" | "fp16" | "int8" | "best"."""
+    the engine folder. ``precision`` "fp32" | "fp16" | "int8" | "best". ``overwrite=False``
+    refuses a target folder that exists and is not empty (FileExistsError)."""
     t = str(target).lower()
     if t != "onnx" and t not in TRT_TARGETS:
         raise ValueError(f"target must be 'onnx' or one of {TRT_TARGETS}, got {target!r}")
@@ -243,6 +250,8 @@ def build(matcher, target: str = "onnx", output_dir: str | Path | None = None, *
             return (Path(output_dir) if output_dir is not None else Path(default_root)) / name
         return Path(output_dir) if output_dir is not None else Path(default_root) / matcher.model_name
 
+    if not overwrite:  # the CLI's gate: an earlier export is replaced only with --force
+        _refuse_existing(place("onnx" if t == "onnx" else "engines"))
     if t == "onnx":
         return export_onnx(matcher, place("onnx"), site=site, weights_sha=weights_sha, opset=opset, verify=verify,
                            parity_tolerance=parity_tolerance)

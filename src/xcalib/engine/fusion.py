@@ -30,11 +30,12 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["FUSION_WEIGHT", "GEO_EPS", "USE_CALIBRATION", "fuse_scores", "geometric_iou", "is_multi_camera",
+__all__ = ["FUSION_WEIGHT", "GEO_EPS", "POSE_IOU_GATE", "USE_CALIBRATION", "fuse_scores", "geometric_iou", "is_multi_camera",
            "resolve_use_calibration"]
 
 FUSION_WEIGHT = 0.85
 GEO_EPS = 0.02
+POSE_IOU_GATE = 0.3  # pose-only matches: projected IoU at least this (as ``derive_matches``'s gate)
 USE_CALIBRATION = ("auto", True, False)
 _P_CLIP = 1e-6
 

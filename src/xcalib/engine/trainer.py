@@ -40,7 +40,7 @@ import torch.distributed as dist
 from ..data.crops import CropConfig, FrameInputs, crop_images, crop_points, gather_box_points, resample_points
 from ..types import Frame, as_frame
 from ..io._files import atomic_write
-from .checkpoint import (WeightsMismatchError, load_resume_state, load_state_strict, read_checkpoint,
+from .checkpoint import (WeightsMismatchError, checksum_path, load_resume_state, load_state_strict, read_checkpoint,
                          save_resume_state, save_weights, write_config)
 from .fit import Schedule, fit, make_optimizer
 from .recipes import REFERENCE_RECIPE, XCALIB_RECIPE, Recipe  # noqa: F401 - re-exported
@@ -351,6 +351,9 @@ def train(model, train_data, val_data=None, *, model_name: str | None = None,
             raise WeightsMismatchError(rpath, f"optimizer state does not fit ({exc})", "optimizer") from None
         start_epoch, best_mrr, history = state["epoch"] + 1, state["best_mrr"], state["history"]
     best_path = out / "best.pth"
+    if rank == 0 and not resume:  # a previous run's best must not pair with this run's best.yaml
+        for stale in (best_path, checksum_path(best_path)):
+            stale.unlink(missing_ok=True)
 
     bar = None
     if progress and rank == 0:
@@ -400,9 +403,11 @@ def train(model, train_data, val_data=None, *, model_name: str | None = None,
             if rank == 0:
                 if met.mrr > best_mrr:
                     best_mrr = met.mrr
+                    # yaml first, weights last: the yaml is the same for every save of a run and a
+                    # stale best.pth was removed at the start, so a kill never pairs files of two runs
+                    write_config(out / "best.yaml", net.config)
                     save_weights(net, best_path, model_name=name, config=net.config, dtype=weights_dtype,
                                  extra={"epoch": epoch + 1, "metrics": met.to_dict(), "train_args": train_args})
-                    write_config(out / "best.yaml", net.config)
                 save_resume_state(out / "last.pt", state_dict=net.state_dict(), optimizer=opt.state_dict(),
                                   epoch=epoch, best_mrr=best_mrr, history=history, model_name=name,
                                   config=net.config)

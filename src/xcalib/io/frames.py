@@ -274,11 +274,26 @@ def _rows(a) -> list:
 def write_frame_folder(out_dir, frames: Iterable[Frame], *, camera: str | None = None,
                        intrinsics: CameraIntrinsics | None = None, pcd_encoding: str = "binary",
                        image_ext: str = ".png", site: str | None = None, split: str | None = None) -> Path:
-    """Write frames in the demo layout (``manifest.json`` last, so a half-written folder has none).
+    """Write frames in the demo layout. A new (or empty) folder is built beside ``out_dir`` and
+    swapped in whole (``atomic_dir``): a killed writer leaves no folder, never a partial one. Into
+    an existing non-empty folder the files are written in place, ``manifest.json`` last.
 
     Returns the manifest path. Point-cloud field names (``Frame.point_fields``) are kept.
     """
     out = Path(out_dir)
+    def write(folder: Path) -> Path:
+        return _write_frames_into(folder, frames, camera=camera, intrinsics=intrinsics, pcd_encoding=pcd_encoding,
+                                  image_ext=image_ext, site=site, split=split)
+
+    if out.is_dir() and any(out.iterdir()):
+        return write(out)
+    with atomic_dir(out) as tmp:
+        write(tmp)
+    return out / "manifest.json"
+
+
+def _write_frames_into(out: Path, frames: Iterable[Frame], *, camera, intrinsics, pcd_encoding, image_ext,
+                       site, split) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     entries = []
     first_camera = None

@@ -6,7 +6,9 @@
    file; "auto" = the packaged ``synthetic`` site when present) with the heads mode, or from
    random weights with the full mode ("scratch");
 4. choose the site's match threshold from the pseudo-labels (``oneshot.threshold``; saved in the
-   model config, used by ``match`` when no ``match_threshold`` is given);
+   model config, used by ``match`` when no ``match_threshold`` is given); decide the site's default
+   matching path (``oneshot.site_default``: geometry unless the adapted model alone reproduces the
+   pose-only matches on the held-out frames; saved in the model config as ``site_default``);
 5. install the weights (and ``calibration.json``) where ``Matcher.from_pretrained(model, site=SITE)``
    finds them (``$XCALIB_HOME/sites/<site>/``), unless ``install=False``; the reloaded matcher
    carries that calibration and fuses it into ``match``.
@@ -23,6 +25,7 @@ from typing import Callable, Iterable
 
 from ..calib.config import CalibConfig
 from ..calib.result import CalibrationResult
+from .site_default import SiteDefault, choose_site_default
 from .threshold import ThresholdChoice, choose_threshold
 from ..types import Frame
 from .adapt import AdaptReport
@@ -49,6 +52,7 @@ class BootstrapResult:
     elapsed_s: float = 0.0
     matcher: object = None
     threshold: ThresholdChoice | None = None
+    site_default: SiteDefault | None = None
 
     def summary(self) -> dict:
         c = self.calibration
@@ -58,7 +62,8 @@ class BootstrapResult:
                 "T_cam_lidar": c.extrinsics.tolist() if c.success else None, "adapt": {k: v for k, v in self.adapt.to_dict().items()
                                                                 if k != "losses"},
                 "paths": {k: str(v) for k, v in self.paths.items()}, "elapsed_s": self.elapsed_s,
-                "match_threshold": None if self.threshold is None else dataclasses.asdict(self.threshold)}
+                "match_threshold": None if self.threshold is None else dataclasses.asdict(self.threshold),
+                "site_default": None if self.site_default is None else dataclasses.asdict(self.site_default)}
 
 
 def starting_matcher(model: str, init: str = "auto", *, device: str | None = "cpu", seed: int = 0):
@@ -121,6 +126,9 @@ def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "f
     threshold = choose_threshold(session.matcher, kept, session.calibration)
     if threshold is not None:  # saved with the weights (model config); match() uses it by default
         session.matcher.config["match_threshold"] = threshold.threshold
+    site_default = choose_site_default(session.matcher, kept, session.calibration, holdout=holdout)
+    if site_default is not None:  # saved with the weights; match(geometry="auto") projects when "geometry"
+        session.matcher.config["site_default"] = dataclasses.asdict(site_default)
     paths: dict[str, Path] = {}
     if out_dir is not None:
         paths.update({f"out_{k}": v for k, v in session.save(out_dir).items()})
@@ -128,4 +136,4 @@ def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "f
         paths.update(session.save_site(site))
     return BootstrapResult(site=site, model=model, init=init_desc, n_frames=n, calibration=session.calibration,
                            adapt=report, paths=paths, elapsed_s=time.perf_counter() - t0, matcher=session.matcher,
-                           threshold=threshold)
+                           threshold=threshold, site_default=site_default)
