@@ -62,9 +62,6 @@ def register(app: typer.Typer) -> None:
             return
         installed = None
         if site:
-            from ..engine.checkpoint import write_checksum
-            from ..io._files import atomic_dir
-
             d = site_dirs(site)[0]
             with atomic_dir(d, keep_existing=True) as tmp:  # other models' files of the site are kept
                 shutil.copyfile(best, tmp / f"{model}.pth")

@@ -7,7 +7,6 @@ the same direction, whatever the file's own convention (see each format module's
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -239,7 +238,7 @@ def export_calibration(result: CalibrationResult, fmt: str, path, *, overwrite: 
     import shutil
     import tempfile
 
-    from ..io._files import _tmp_prefix, check_overwrite, sweep_stale
+    from ..io._files import tmp_prefix, check_overwrite, sweep_stale
 
     f = _get(fmt)
     if f.write is None:
@@ -251,7 +250,7 @@ def export_calibration(result: CalibrationResult, fmt: str, path, *, overwrite: 
     target = path if is_dir else path.parent
     target.mkdir(parents=True, exist_ok=True)
     sweep_stale(target, path.name)
-    stage = Path(tempfile.mkdtemp(prefix=_tmp_prefix(path.name), suffix=".tmp", dir=target))
+    stage = Path(tempfile.mkdtemp(prefix=tmp_prefix(path.name), suffix=".tmp", dir=target))
     try:
         staged = [Path(p) for p in f.write(result, stage if is_dir else stage / path.name)]
         final = [target / p.relative_to(stage) for p in staged]

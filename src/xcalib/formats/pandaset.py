@@ -25,7 +25,6 @@ tracks seen in one frame only). ``meta``: ``R_lidar_box`` [M,3,3] (exact box rot
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -33,6 +32,7 @@ import numpy as np
 
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
+from ..io._files import load_json
 from ..types import Frame
 from ._checks import as_float, as_matrix, require
 from ._media import load_cloud, load_rgb
@@ -52,11 +52,9 @@ def is_pandaset_root(path) -> bool:
 
 def _load_json(path: Path):
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        return load_json(path, what="PandaSet JSON file")
     except FileNotFoundError:
         raise FormatError(path, "file not found") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FormatError(path, f"not valid JSON ({exc})") from None
 
 
 def read_pandaset_cuboids(path) -> dict:

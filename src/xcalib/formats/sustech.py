@@ -19,7 +19,6 @@ Only frames with an image of the chosen camera are listed.
 
 from __future__ import annotations
 
-import json
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -29,6 +28,7 @@ import numpy as np
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.rotations import euler_to_matrix
+from ..io._files import load_json
 from ..types import Frame
 from ._checks import as_float, as_matrix, require
 from ._media import load_rgb
@@ -67,10 +67,7 @@ def read_sustech_pcd(path) -> tuple[np.ndarray, float]:
 def read_sustech_labels(path) -> dict:
     """``label/<id>.json`` -> {"box7" [M,7], "R_lidar_box" [M,3,3], "obj_ids", "types"}."""
     path = Path(path)
-    try:
-        raw = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FormatError(path, f"not valid JSON ({exc})") from None
+    raw = load_json(path, what="SUSTech label file")
     if not isinstance(raw, list):
         raise FormatError(path, f"expected a JSON list of objects, got {type(raw).__name__}")
     box7, rots, ids, types = [], [], [], []
@@ -99,7 +96,7 @@ class SustechFrames(Sequence):
         cal_path = self.root / "calib" / "camera" / f"{self.camera}.json"
         if not cal_path.is_file():
             raise FormatError(cal_path, "camera calibration not found")
-        cal = json.loads(cal_path.read_text(encoding="utf-8"))
+        cal = load_json(cal_path, what="SUSTech camera calibration")
         K = as_matrix(require(cal, "intrinsic", cal_path), (3, 3), cal_path, "intrinsic")
         self.T_cam_lidar = as_matrix(require(cal, "extrinsic", cal_path), (4, 4), cal_path, "extrinsic")
         imgs = sorted((self.root / "camera" / self.camera).glob("*.jpg"))

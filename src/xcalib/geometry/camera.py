@@ -116,6 +116,14 @@ class CameraIntrinsics:
             d = json.loads(path.read_text(encoding="utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise FormatError(path, f"not valid JSON ({exc})") from None
+        return cls.from_json_object(d, path)
+
+    @classmethod
+    def from_json_object(cls, d, path) -> "CameraIntrinsics":
+        """Intrinsics from the parsed JSON ``d`` of file ``path``: ``{"fx", "fy", "cx", "cy"}`` or
+        ``{"K"}``; anything else is a FormatError naming the file and the missing key."""
+        from ..errors import FormatError
+
         if not isinstance(d, dict):
             raise FormatError(path, f"expected a JSON object, got {type(d).__name__}")
         missing = [k for k in ("fx", "fy", "cx", "cy") if k not in d]
@@ -124,7 +132,7 @@ class CameraIntrinsics:
                               field=missing[0])
         try:
             return cls.from_dict(d, source="CameraIntrinsics")
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:
             raise FormatError(path, str(exc)) from None
 
     def to_dict(self) -> dict:

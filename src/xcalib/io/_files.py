@@ -86,7 +86,8 @@ def sweep_stale(parent, name: str) -> int:
     return n
 
 
-def _tmp_prefix(name: str) -> str:
+def tmp_prefix(name: str) -> str:
+    """Prefix of this process's temp entries for output ``name`` (``sweep_stale`` recognises them)."""
     return f".{name}.{os.getpid()}."
 
 
@@ -107,7 +108,7 @@ def atomic_write(path, payload: Iterable[bytes], *, overwrite: bool = True) -> P
     check_overwrite(path, overwrite)
     path.parent.mkdir(parents=True, exist_ok=True)
     sweep_stale(path.parent, path.name)
-    fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix(path.name), suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=tmp_prefix(path.name), suffix=".tmp", dir=path.parent)
     try:
         os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as f:
@@ -159,7 +160,7 @@ def atomic_dir(path, *, overwrite: bool = False, keep_existing: bool = False,
         check_overwrite(path, overwrite or keep_existing, "output folder")
     path.parent.mkdir(parents=True, exist_ok=True)
     sweep_stale(path.parent, path.name)
-    tmp = Path(tempfile.mkdtemp(prefix=_tmp_prefix(path.name), suffix=".tmp", dir=path.parent))
+    tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(path.name), suffix=".tmp", dir=path.parent))
     try:
         os.chmod(tmp, 0o777 & ~_umask())
         yield tmp
@@ -168,7 +169,7 @@ def atomic_dir(path, *, overwrite: bool = False, keep_existing: bool = False,
         _fsync_tree(tmp)
         if path.is_dir():
             if not _exchange(str(tmp), str(path)):
-                old = Path(tempfile.mkdtemp(prefix=_tmp_prefix(path.name), suffix=".old", dir=path.parent))
+                old = Path(tempfile.mkdtemp(prefix=tmp_prefix(path.name), suffix=".old", dir=path.parent))
                 os.rmdir(old)
                 os.replace(path, old)
                 os.replace(tmp, path)

@@ -75,17 +75,7 @@ def _box_array(path: Path, key: str, value, widths: tuple[int, ...]) -> np.ndarr
 def read_intrinsics_json(path) -> CameraIntrinsics:
     """``{"fx", "fy", "cx", "cy", "distortion"?, "width"?, "height"?}`` (pixels) -> intrinsics
     (:meth:`CameraIntrinsics.from_json`)."""
-    d = load_json(path, what="intrinsics file")
-    if not isinstance(d, dict):
-        raise FormatError(path, f"expected a JSON object, got {type(d).__name__}")
-    missing = [k for k in ("fx", "fy", "cx", "cy") if k not in d]
-    if missing and "K" not in d:
-        raise FormatError(path, f"missing key; expected fx, fy, cx, cy (pixels) or K [3,3], found {sorted(d)}",
-                          field=missing[0])
-    try:
-        return CameraIntrinsics.from_dict(d, source="CameraIntrinsics")
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise FormatError(path, str(exc)) from None
+    return CameraIntrinsics.from_json_object(load_json(path, what="intrinsics file"), path)
 
 
 def read_detections(path, *, default_key: str = "", default_camera: str = "",

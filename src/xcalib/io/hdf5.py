@@ -46,7 +46,7 @@ import numpy as np
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..types import DatasetFrame, Frame
-from ._files import _tmp_prefix, open_regular, sweep_stale
+from ._files import tmp_prefix, open_regular, sweep_stale
 from ._validate import check_boxes_2d, check_boxes_3d, check_count, check_rigid
 from .timing import checked_timing, timing_of
 
@@ -741,7 +741,7 @@ class CacheWriter:
             raise ValueError(f"CacheWriter: {self.path} should end in .h5 or .hdf5")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         sweep_stale(self.path.parent, self.path.name)  # temps of writers that were killed
-        self._tmp = self.path.with_name(f"{_tmp_prefix(self.path.name)}{uuid.uuid4().hex[:8]}.tmp")
+        self._tmp = self.path.with_name(f"{tmp_prefix(self.path.name)}{uuid.uuid4().hex[:8]}.tmp")
         self._f = h5py.File(self._tmp, "w", libver=("v110", "latest"))
         self._finalizer = weakref.finalize(self, _abandon, self._f, self._tmp)
         self.camera_names = list(camera_names) if camera_names else []

@@ -26,7 +26,7 @@ from typing import Literal
 
 import numpy as np
 
-from ...geometry.boxes import boxes3d_to_center_size, detect_box3d_convention
+from ...geometry.boxes import detect_box3d_convention
 from ...geometry.transforms import invert_transform
 from ...types import Frame
 from . import _convert as cv
