@@ -41,6 +41,9 @@ MAX_REST_COND = 1e15
 # share of the box-model shift (hull of the points vs box corners) taken as the model-misfit floor:
 # half the difference of two equally plausible models, as for the frame halves
 BOX_MODEL_WEIGHT = 0.5
+# the box-corner outline is a plausible alternative only while its robust cost is within this factor
+# of the point hull's (synthetic yaw-less sites: 0.6-1.9; a hull that fits clearly better: 2.7)
+BOX_MODEL_MAX_COST_RATIO = 2.0
 
 
 @dataclass
@@ -332,9 +335,11 @@ def box_model_shift(frames, pairs, intr, pose: Pose, noise: NoiseModel | None = 
                     max_nfev: int = 40, occlusion=None) -> np.ndarray | None:
     """Pose shift (6-vector, deg / m) when every matched 3D box is outlined by its 8 box corners
     instead of the hull of the LiDAR points inside it (``inputs``: yaw-less boxes, re-estimated
-    yaw). The two outlines are two models of the same object; the truth is not known to lie
-    closer to either, so the shift is a systematic error the Jacobian cannot see (on synthetic
-    yaw-less sites it is what covers the translation bias). None when every outline is the box."""
+    yaw). Where the box outline explains the 2D boxes about as well (robust cost within
+    ``BOX_MODEL_MAX_COST_RATIO`` of the hull's), the two are equally plausible models of the same
+    objects and the shift is a systematic error the Jacobian cannot see (on synthetic yaw-less
+    sites it is what covers the translation bias). None when every outline is its box, or when the
+    box outline fits clearly worse (not a plausible alternative)."""
     import dataclasses
 
     from .cost import Occlusion
@@ -346,7 +351,11 @@ def box_model_shift(frames, pairs, intr, pose: Pose, noise: NoiseModel | None = 
         return None
     alt = [f if f.box_corners is None else dataclasses.replace(f, corners=f.box_corners) for f in frames]
     occl = Occlusion() if occlusion is None else occlusion
-    return _refit(alt, pairs, intr, pose, noise, f_scale, max_nfev, occl).delta(pose)
+    _, _, cost_hull, _, _ = lsq(frames, pairs, intr, pose.R, pose.t, f_scale, max_nfev, noise, occl)
+    R, t, cost_box, _, _ = lsq(alt, pairs, intr, pose.R, pose.t, f_scale, max_nfev, noise, occl)
+    if not cost_box <= BOX_MODEL_MAX_COST_RATIO * max(cost_hull, 1e-12):
+        return None
+    return Pose(R, t).delta(pose)
 
 
 def _lst(v):
