@@ -32,7 +32,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, match
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, prepare_frames
-from .misfit import flipped_frames, focal_scale_check, mirror_check, principal_point_check, time_offset_check, unexplained_frames_check
+from .misfit import flipped_frames, focal_scale_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .pose import Pose
 from .refine import RefineResult, match_all, pair_metrics, refine_pose
@@ -166,6 +166,24 @@ def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion) -> f
     return _refine_candidates(flipped, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None).best_score
 
 
+def _second_pose(cframes, pairs, intr, pose: Pose, config: CalibConfig, occlusion: Occlusion):
+    """The search (a few frames, few candidates) on the 2D boxes the pose leaves unmatched:
+    (score, matches, (deg, m) from ``pose``, admissible under ``config.max_baseline_m``) of the best
+    pose found there, or (0, 0, None, False)."""
+    left = leftover_frames(cframes, pairs)
+    if sum(f.n2 for f in left) < 6:
+        return 0.0, 0, None, False
+    small = config.replace(max_hyp_frames=min(config.max_hyp_frames, 4), max_refine=min(config.max_refine, 3))
+    bu = pose_hypotheses(left, intr, small, max_baseline_m=config.max_baseline_m, rng=np.random.default_rng(config.seed))
+    if len(bu.hyps) == 0:
+        return 0.0, 0, None, False
+    ref = _refine_candidates(left, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None)
+    p2, cap = Pose(ref.best.R, ref.best.t), config.max_baseline_m
+    n2 = int(sum(len(p) for p in match_all(left, intr, p2.R, p2.t, gate_iou=config.gate_iou)))
+    admissible = cap is None or np.linalg.norm(pose.t) > cap or np.linalg.norm(p2.t) <= cap
+    return ref.best_score, n2, tuple(float(v) for v in p2.error(pose)), bool(admissible)
+
+
 def _frame_times(frames_in) -> tuple[np.ndarray, str]:
     """LiDAR time of each frame (s) when every frame has one, else the frame index ("frames")."""
     t = [getattr(f, "lidar_time_s", None) for f in frames_in]
@@ -193,6 +211,9 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
         chk, msg = time_offset_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, times, unit,
                                      seed=config.seed)
         found.append((chk, msg, "misfit_time_offset"))
+    chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)),
+                                 *_second_pose(cframes, pairs, intr, pose, config, occlusion))
+    found.append((chk, msg, "misfit_mixed_cameras"))
     diag.misfit = [c for c, _, _ in found]
     return next((Refusal(code, m) for _, m, code in found if m), None)
 
