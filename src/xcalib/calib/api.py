@@ -152,7 +152,7 @@ def _search(cframes, frames_in, intr, config: CalibConfig, matcher, prior: Pose 
     return bu.hyps
 
 
-_MISFIT_CAN_EXPLAIN = ("poorly_constrained", "ambiguous", "few_explained")
+_MISFIT_CAN_EXPLAIN = ("poorly_constrained", "ambiguous", "few_explained", "uncertain")
 
 
 def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion) -> float:
@@ -297,13 +297,11 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     unc = estimate_uncertainty(cframes, pairs, intr, pose, best.noise, f_scale, occlusion=occlusion,
                                mode=config.uncertainty, track_ids=_track_ids(frames_in, cframes), seed=config.seed,
                                floor=inflation)
-    diag.uncertainty = unc.parts
-    if inflation is not None:  # the floor here is the pose spread the estimated intrinsics / offset add
-        diag.uncertainty.floor, diag.uncertainty.selfcal = None, [float(v) for v in inflation]
+    diag.uncertainty = unc.parts  # its selfcal part: the pose spread the estimated intrinsics / offset add
     # a runner-up within 2 sigma of the best is the same solution (the decision then bounds the
     # error by 2 sigma); only one beyond that is a competing explanation
-    runner = _runner_up(ref, config.max_baseline_m, 2 * float(np.linalg.norm(unc.rot_sd)),
-                        2 * float(np.linalg.norm(unc.tr_sd)))
+    runner = _runner_up(ref, config.max_baseline_m, 2 * float(np.linalg.norm(unc.rot_sd_data)),
+                        2 * float(np.linalg.norm(unc.tr_sd_data)))
     diag.ambiguity_runner_up_score = runner
     n_pairs = int(sum(len(p) for p in pairs))
     diag.max_pairs_per_frame = int(max((len(p) for p in pairs), default=0))
@@ -317,7 +315,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     refusal = verdict(Evidence(n_pairs=n_pairs, n_2d=diag.n_2d, most_per_frame=diag.max_pairs_per_frame,
                                places=len(places), places_off_line=int(np.sum(off > POOLED_OFF_LINE_M)),
                                halves_available=unc.halves_available, best_score=ref.best_score,
-                               runner_up_score=runner, rot_sd=unc.rot_sd, tr_sd=unc.tr_sd), config)
+                               runner_up_score=runner, rot_sd=unc.rot_sd_data, tr_sd=unc.tr_sd_data,
+                               rot_sd_total=unc.rot_sd, tr_sd_total=unc.tr_sd), config)
     if refusal is None and prior is None:
         refusal = crowded_check(cframes, config)
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):

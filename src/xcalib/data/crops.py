@@ -115,30 +115,31 @@ def _image_float_scale(image: np.ndarray) -> float:
 def _crop_windows(b: np.ndarray, W: int, H: int, S: int, keep_aspect: bool):
     """Integer crop geometry of every 2D box, vectorised: (kept [N] int64, image windows
     [N,4] (x0, y0, x1, y1) px, output windows [N,4] (x0, y0, x1, y1) in the S x S crop,
-    subsampling steps [N], whether each resize shrinks [N])."""
-    ok = np.all(np.isfinite(b), axis=1) & (b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])
-    ok &= (b[:, 2] > 0) & (b[:, 0] < W) & (b[:, 3] > 0) & (b[:, 1] < H)
+    subsampling steps [N], whether each resize shrinks [N]). Few array calls: a frame has ~10
+    boxes, so each call's fixed cost is what counts."""
+    lo, hi = b[:, :2], b[:, 2:]
+    ok = np.isfinite(b).all(1) & (hi > lo).all(1) & (hi > 0).all(1) & (lo < (W, H)).all(1)
     src = np.where(ok[:, None], b, 0.0)
     if keep_aspect and len(src):
         c = (src[:, :2] + src[:, 2:]) / 2.0
-        half = np.maximum(src[:, 2] - src[:, 0], src[:, 3] - src[:, 1])[:, None] / 2.0
-        src = np.hstack([c - half, c + half])
-    lim = np.array([W, H, W, H])
-    win = np.clip(src, 0, lim)
-    win = np.hstack([np.floor(win[:, :2]), np.ceil(win[:, 2:])]).astype(np.int64)
-    ok &= (win[:, 2] > win[:, 0]) & (win[:, 3] > win[:, 1])
-    kept = np.nonzero(ok)[0].astype(np.int64)
+        ext = src[:, 2:] - src[:, :2]
+        half = ext.max(1, keepdims=True) / 2.0
+        src = np.concatenate([c - half, c + half], 1)
+    win = np.minimum(np.maximum(src, 0), (W, H, W, H))  # as np.clip (src is finite)
+    win = np.concatenate([np.floor(win[:, :2]), np.ceil(win[:, 2:])], 1).astype(np.int64)
+    ok &= (win[:, 2:] > win[:, :2]).all(1)
+    kept = np.flatnonzero(ok)
     src, win = src[kept], win[kept]
-    size = np.tile(src[:, 2:] - src[:, :2], 2)  # (w, h, w, h) of the (square) source box
-    rel = np.rint((win - np.tile(src[:, :2], 2)) * S / size)  # round half to even, as round()
+    o2 = src[:, :2]
+    size = src[:, 2:] - o2  # (w, h) of the (square) source box
+    rel = np.rint((win - np.concatenate([o2, o2], 1)) * S / np.concatenate([size, size], 1))  # half to even
     out = np.empty_like(win)
-    out[:, :2] = np.clip(rel[:, :2], 0, S - 1)
-    out[:, 2:] = np.clip(rel[:, 2:], out[:, :2] + 1, S)
-    ph, pw = win[:, 3] - win[:, 1], win[:, 2] - win[:, 0]
-    oh, ow = out[:, 3] - out[:, 1], out[:, 2] - out[:, 0]
-    step = (np.minimum(ph / oh, pw / ow) // 2).astype(np.int64)
-    step = np.where(step > 1, step, 1)
-    shrink = (-(-ph // step) > oh) | (-(-pw // step) > ow)  # subsampled patch larger than its window
+    out[:, :2] = np.minimum(np.maximum(rel[:, :2], 0), S - 1)
+    out[:, 2:] = np.minimum(np.maximum(rel[:, 2:], out[:, :2] + 1), S)
+    pwh, owh = win[:, 2:] - win[:, :2], out[:, 2:] - out[:, :2]  # (w, h) of patch and output
+    step = ((pwh / owh).min(1) // 2).astype(np.int64)
+    step[step < 1] = 1
+    shrink = (-(-pwh // step[:, None]) > owh).any(1)  # subsampled patch larger than its window
     return kept, win, out, step, shrink
 
 
