@@ -226,7 +226,8 @@ def after_bootstrap(name: str, fit_frames, data, steps: int, note: str) -> dict:
            "heldout_check": None if h is None else {"frames": h.n_frames, "top1": h.top1,
                                                      "top1_independent": h.top1_independent,
                                                      "label_agreement": h.label_agreement, "verified": h.verified,
-                                                     "reported_top1": h.reported_top1, "message": h.message}}
+                                                     "reported_top1": h.reported_top1, "interval": list(h.interval),
+                                                     "message": h.message}}
     for row, fn in rows.items():
         recs = []
         for f, truth in data:

@@ -386,6 +386,7 @@ def test_heldout_figure_is_reported_only_when_an_independent_pose_agrees(site, f
     ok = check_heldout(s, rep.heldout_frames, calib_config=CalibConfig(max_rot_std_deg=2.0, max_trans_std_m=1.0))
     assert ok.n_frames == 4 and ok.n_pairs >= 12 and ok.verified, ok.message
     assert ok.reported_top1 == ok.top1 and abs(ok.top1 - ok.top1_independent) <= 0.05 and ok.label_agreement >= 0.9
+    assert ok.interval[0] <= ok.top1 <= ok.interval[1] and ok.interval[1] - ok.interval[0] > 0.05  # 32 matches
 
     T = site.T_cam_lidar
     off = CalibrationResult(success=True, intrinsics=site.intrinsics,

@@ -10,8 +10,8 @@ so they agree with themselves at 1.00; the model beats them only when it reprodu
 is saved in the model config (``site_default``, beside the site weights); ``match(geometry=
 "auto")`` then projects through the site calibration, ``geometry="off"`` keeps the model (fused
 with the calibration unless ``use_calibration=False``), and ``use_calibration=True`` fuses.
-On A9 (bootstrap on frames 0-11): adapted model 0.92 / 0.84 / 0.92 Top-1 / precision / recall
-vs pose 1.00 / 1.00 / 1.00 on frames 12-15.
+On A9 (bootstrap on frames 0-11): adapted model 0.87 / 0.81 / 0.87 Top-1 / precision / recall
+vs pose 1.00 / 1.00 / 1.00 on frames 12-15 (``benchmarks/bench_matching_sites.py``).
 """
 
 from __future__ import annotations
