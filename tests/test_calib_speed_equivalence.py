@@ -113,3 +113,45 @@ def test_project_rects_bitwise_equal_040(seed):
         valid.append(want[1])
     if corners.shape[1] > 1:  # (a single point has an empty rectangle: never valid)
         assert valid[0].any() and not valid[0].all()  # boxes in view and out of it
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_centre_hits_equal_broadcast_form(seed):
+    from dataclasses import dataclass
+
+    from xcalib.calib.hypotheses import _centre_hits
+    from xcalib.geometry.camera import CameraIntrinsics
+    from xcalib.geometry.rotations import rotvec_to_matrix
+
+    @dataclass
+    class _Fr:  # the fields _centre_hits reads
+        boxes2d: np.ndarray
+        boxes3d: np.ndarray
+
+        @property
+        def n2(self):
+            return len(self.boxes2d)
+
+        @property
+        def n3(self):
+            return len(self.boxes3d)
+
+    r = np.random.default_rng(seed)
+    intr = CameraIntrinsics(fx=800.0, fy=800.0, cx=640.0, cy=360.0, width=1280, height=720)
+    K, M, H = 25, 60, 40
+    xy = r.uniform(0, 1200, (K, 2))
+    fr = _Fr(np.concatenate([xy, xy + r.uniform(5, 300, (K, 2))], 1), np.c_[r.uniform(-20, 20, (M, 2)),
+                                                                             r.uniform(-2, 40, M)])
+    R = np.stack([rotvec_to_matrix(v) for v in r.normal(scale=0.3, size=(H, 3))])
+    t = r.normal(size=(H, 3))
+    Xc = np.einsum("hij,mj->hmi", R, fr.boxes3d[:, :3]) + t[:, None, :]  # the 0.4.0 broadcast form
+    z = Xc[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.where(z > 0.5, Xc[..., 0] / z * intr.fx + intr.cx, np.nan)
+        v = np.where(z > 0.5, Xc[..., 1] / z * intr.fy + intr.cy, np.nan)
+    b = fr.boxes2d
+    inside = ((u[:, None, :] >= b[None, :, 0, None]) & (u[:, None, :] <= b[None, :, 2, None])
+              & (v[:, None, :] >= b[None, :, 1, None]) & (v[:, None, :] <= b[None, :, 3, None]))
+    want = inside.any(2).sum(1).astype(np.float64)
+    got = _centre_hits(fr, intr, R, t, max_elems=(5000, 10**7)[seed % 2])  # chunked and not
+    assert 0 < want.max() and np.array_equal(got, want)

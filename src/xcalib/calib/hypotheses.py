@@ -347,10 +347,10 @@ def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nd
     with np.errstate(divide="ignore", invalid="ignore"):
         u = np.where(z > 0.5, Xc[..., 0] / z * intr.fx + intr.cx, np.nan)
         v = np.where(z > 0.5, Xc[..., 1] / z * intr.fy + intr.cy, np.nan)
-    b = fr.boxes2d
-    inside = ((u[:, None, :] >= b[None, :, 0, None]) & (u[:, None, :] <= b[None, :, 2, None])
-              & (v[:, None, :] >= b[None, :, 1, None]) & (v[:, None, :] <= b[None, :, 3, None]))
-    return inside.any(2).sum(1).astype(np.float64)
+    hits = np.zeros(len(R), dtype=np.int64)
+    for x0, y0, x1, y1 in np.asarray(fr.boxes2d, dtype=np.float64).tolist():  # box by box: [H,M] masks stay in cache
+        hits += ((u >= x0) & (u <= x1) & (v >= y0) & (v <= y1)).any(1)
+    return hits.astype(np.float64)
 
 
 def score_poses(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.ndarray, *,
