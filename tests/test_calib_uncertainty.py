@@ -101,3 +101,34 @@ def test_box_model_shift_is_zero_for_box_outlines_and_seen_otherwise():
     shift = box_model_shift(lowered, pairs, intr, fitted)
     assert shift is not None and np.linalg.norm(shift[3:]) > 0.05
     np.testing.assert_allclose(shift, pose.delta(fitted), atol=0.02)
+
+
+def test_verdict_refuses_a_determined_pose_whose_reported_bound_is_too_wide():
+    from xcalib.calib.config import CalibConfig
+    from xcalib.calib.decision import Evidence, verdict
+
+    def ev(total_deg, total_m):
+        return Evidence(n_pairs=80, n_2d=100, most_per_frame=6, places=10, places_off_line=5, halves_available=True,
+                        best_score=50.0, runner_up_score=0.0, rot_sd=np.full(3, 0.1), tr_sd=np.full(3, 0.05),
+                        rot_sd_total=np.full(3, total_deg), tr_sd_total=np.full(3, total_m))
+
+    cfg = CalibConfig()
+    assert verdict(ev(0.5, 0.3), cfg) is None  # 2 sigma = 1.73 deg / 1.04 m: within 2 deg / 1.2 m
+    wide = verdict(ev(0.7, 0.3), cfg)  # 2 sigma = 2.4 deg
+    assert wide is not None and wide.code == "uncertain" and "counting each object once" in wide.message
+    assert verdict(ev(np.inf, 0.1), cfg).code == "uncertain"
+    assert verdict(ev(0.7, 0.3), cfg.replace(max_rot_bound_deg=3.0)) is None
+    # the frame-level sigma still judges whether the pose is determined at all
+    loose = Evidence(**{**ev(0.1, 0.05).__dict__, "rot_sd": np.full(3, 0.4)})
+    assert verdict(loose, cfg).code == "poorly_constrained"
+
+
+def test_exact_refits_replace_the_largest_linearised_moves():
+    frames, T = _repeated_scene(seed=1, n_frames=8, bias_px=4.0)
+    cframes, pairs, intr, pose = _fit(frames, T)
+    groups = object_groups(cframes, pairs)
+    lin = object_sandwich(cframes, pairs, intr, pose.R, pose.t, groups, exact=0)
+    ref = object_sandwich(cframes, pairs, intr, pose.R, pose.t, groups, exact=3)
+    assert np.all(np.isfinite(ref)) and not np.allclose(lin, ref)
+    # a benign scene (no pair dominates): the refits agree with the linearisation within a factor 1.5
+    assert 1 / 1.5 < np.linalg.norm(ref[:3]) / np.linalg.norm(lin[:3]) < 1.5
