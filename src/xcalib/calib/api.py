@@ -196,6 +196,9 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
             diag: CalibDiagnostics, frames_in) -> Refusal | None:
     """Run the model-misfit checks (``misfit``); the first that flags becomes the refusal."""
     found = []
+    # a mirrored image first: it also bends the focal / principal-point fits, but is the cause to name
+    chk, msg = mirror_check(best_score, _mirror_score(cframes, intr, config, occlusion), pose)
+    found.append((chk, msg, "misfit_mirrored"))
     chk, msg = unexplained_frames_check(cframes, pairs)
     found.append((chk, msg, "misfit_mixed_cameras"))
     if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
@@ -205,8 +208,6 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
     if config.refine_intrinsics != "focal+center":
         chk, msg = principal_point_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed)
         found.append((chk, msg, "misfit_principal_point"))
-    chk, msg = mirror_check(best_score, _mirror_score(cframes, intr, config, occlusion), pose)
-    found.append((chk, msg, "misfit_mirrored"))
     if config.time_offset is None:  # a fixed or estimated offset is already in the model
         times, unit = _frame_times(frames_in)
         chk, msg = time_offset_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, times, unit,
