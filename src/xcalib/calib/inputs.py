@@ -14,7 +14,7 @@ import numpy as np
 
 from ..geometry.boxes import as_box7, box7_corners, check_boxes2d, check_boxes3d, valid_boxes2d
 from ..geometry.camera import CameraIntrinsics
-from .boxmodel import estimate_yaw_from_points, shapes_from_points
+from .boxmodel import fit_yaw_to_points, lidar_angular_step, shapes_from_points
 
 __all__ = ["CalibFrame", "as_intrinsics", "prepare_frames"]
 
@@ -153,13 +153,15 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
             raise ValueError(f"reestimate_yaw: expected 'auto', 'always' or 'never', got {reestimate_yaw!r}")
         redo = reestimate_yaw in (True, "always") or (reestimate_yaw == "auto" and not had_yaw)
         if redo and p is not None and len(box7):
-            box7 = estimate_yaw_from_points(box7, p)
+            yf = fit_yaw_to_points(box7, p)
+            box7 = yf.boxes7
+            meta = {**meta, "yaw_fitted": int(yf.fitted.sum()), "yaw_ambiguous": int(yf.ambiguous.sum())}
         if box_model not in ("auto", "corners", "points"):
             raise ValueError(f"box_model: expected 'auto', 'corners' or 'points', got {box_model!r}")
         shapes = box7_corners(box7) if len(box7) else np.zeros((0, 8, 3))
         use_pts = box_model == "points" or (box_model == "auto" and not had_yaw)
         if use_pts and p is not None and len(p) and len(box7):
-            shapes, from_pts = shapes_from_points(box7, shapes, p)
+            shapes, from_pts = shapes_from_points(box7, shapes, p, scan_step_rad=lidar_angular_step(p))
             meta = {**meta, "boxes_from_points": int(from_pts.sum())}
         out.append(CalibFrame(
             key=str(key), camera=cam, boxes2d=b2[idx2].astype(np.float64), boxes3d=box7,
