@@ -54,7 +54,7 @@ def _rect_cost(dx: np.ndarray, dy: np.ndarray, half_l: float, half_w: float, cos
 
 
 def fit_yaw_to_points(boxes7: np.ndarray, points: np.ndarray, *, min_points: int = 8,
-                      ground_clearance_m: float = 0.3, band_m: float = 0.3, margin_m: float = 0.3,
+                      ground_clearance_m: float = 0.3, side_top: float = 0.7, band_m: float = 0.3, margin_m: float = 0.3,
                       step_deg: float = 1.0, ambiguity_deg: float = 20.0, min_contrast: float = 1.5,
                       min_aspect: float = 1.3) -> YawFit:
     """Fit the yaw of each box7 [M,7] (LiDAR frame, m) to the LiDAR points [P,>=3] around it.
@@ -64,8 +64,9 @@ def fit_yaw_to_points(boxes7: np.ndarray, points: np.ndarray, *, min_points: int
     the box outline: every heading in [0, 180) deg (``step_deg`` grid, refined by a parabola) is
     scored by the points' distance to the nearest side of the turned rectangle (capped at
     ``band_m``). Points used: within the box's half diagonal + ``margin_m`` (x-y) of its centre,
-    from ``ground_clearance_m`` above its bottom to 0.2 m above its top. Boxes with fewer than
-    ``min_points`` such points keep their yaw.
+    from ``ground_clearance_m`` above its bottom up to ``side_top`` of its height: the sides, not
+    the roof (roof returns fill the footprint and pull a side onto them; a car's greenhouse is
+    inset from its footprint). Boxes with fewer than ``min_points`` such points keep their yaw.
     """
     b = np.asarray(boxes7, dtype=np.float64).copy()
     M = len(b)
@@ -84,7 +85,7 @@ def fit_yaw_to_points(boxes7: np.ndarray, points: np.ndarray, *, min_points: int
             idx = tree.query_ball_point([x, y], float(np.hypot(ln, wd) / 2 + margin_m))
             p = pts[idx]
             bottom = z - h / 2
-            p = p[(p[:, 2] > bottom + ground_clearance_m) & (p[:, 2] < bottom + h + 0.2)]
+            p = p[(p[:, 2] > bottom + ground_clearance_m) & (p[:, 2] < bottom + max(side_top * h, ground_clearance_m + 0.3))]
             n_used[j] = len(p)
             if len(p) < min_points:
                 continue
@@ -107,11 +108,12 @@ def estimate_yaw_from_points(boxes7: np.ndarray, points: np.ndarray, **kwargs) -
     return fit_yaw_to_points(boxes7, points, **kwargs).boxes7
 
 
-def lidar_angular_step(points: np.ndarray, *, n_sample: int = 3000, min_range_m: float = 3.0,
+def lidar_angular_step(points: np.ndarray, *, n_sample: int = 500, k: int = 48, min_range_m: float = 3.0,
                        seed: int = 0) -> tuple[float, float] | None:
     """(azimuth step, elevation step) in radians of the scan pattern of a LiDAR cloud [P,>=3]
-    (sensor at the origin): the median angular distance to the nearest return in the same ring,
-    and to the nearest return of the next ring in the same azimuth column. None with < 50 points."""
+    (sensor at the origin): over a seeded sample of returns, the median angular distance to the
+    nearest return in the same ring, and to the nearest return of the next ring in the same azimuth
+    column (among the ``k`` nearest in angle). None with < 50 points or no such neighbours."""
     from scipy.spatial import cKDTree
 
     p = np.asarray(points, dtype=np.float64).reshape(-1, np.shape(points)[-1])[:, :3]
@@ -120,22 +122,18 @@ def lidar_angular_step(points: np.ndarray, *, n_sample: int = 3000, min_range_m:
         return None
     ang = np.column_stack([np.arctan2(p[:, 1], p[:, 0]), np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))])
     tree = cKDTree(ang)
-    rng = np.random.default_rng(seed)
-    s = ang[rng.choice(len(ang), size=min(n_sample, len(ang)), replace=False)]
-    nearest = tree.query(s, k=2)[0][:, 1]
-    step = float(np.median(nearest[nearest > 0])) if np.any(nearest > 0) else 0.0
+    s = ang[np.random.default_rng(seed).choice(len(ang), size=min(n_sample, len(ang)), replace=False)]
+    dist, idx = tree.query(s, k=min(k, len(ang)))
+    step = float(np.median(dist[:, 1]))
     if not step > 0:
         return None
-    d_az, d_el = [], []
-    for a, nb in zip(s, tree.query_ball_point(s, r=max(12 * step, np.radians(3.0)))):
-        d = ang[nb] - a
-        col = (np.abs(d[:, 0]) < 0.6 * step) & (np.abs(d[:, 1]) > 0.5 * step)
-        row = (np.abs(d[:, 1]) < 0.3 * step) & (np.abs(d[:, 0]) > 1e-9)
-        if col.any():
-            d_el.append(np.abs(d[col, 1]).min())
-        if row.any():
-            d_az.append(np.abs(d[row, 0]).min())
-    if not d_az or not d_el:
+    d = np.abs(ang[idx] - s[:, None, :])
+    col = (d[..., 0] < 0.6 * step) & (d[..., 1] > 0.5 * step)
+    row = (d[..., 1] < 0.3 * step) & (d[..., 0] > 1e-9)
+    d_el = np.where(col, d[..., 1], np.inf).min(1)
+    d_az = np.where(row, d[..., 0], np.inf).min(1)
+    d_el, d_az = d_el[np.isfinite(d_el)], d_az[np.isfinite(d_az)]
+    if len(d_el) < 10 or len(d_az) < 10:
         return None
     return float(np.median(d_az)), float(np.median(d_el))
 

@@ -92,7 +92,10 @@ def edge_term(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraInt
               noise: NoiseModel | None = None, occlusion: Occlusion | None = Occlusion()) -> BoxEdgeTerm:
     """The box-edge term of the matched ``pairs``, weighted by ``noise`` at ``pose``."""
     outlines, obs = _stack(frames, pairs)
-    sigma = edge_sigma(obs, outlines, intr, pose, DEFAULT_NOISE if noise is None else noise)
+    extra = [fr.outline_sigma_m[p[:, 1]] if fr.outline_sigma_m is not None else np.zeros(len(p))
+             for fr, p in zip(frames, pairs) if len(p)]
+    sigma = edge_sigma(obs, outlines, intr, pose, DEFAULT_NOISE if noise is None else noise,
+                       np.concatenate(extra) if extra else None)
     return BoxEdgeTerm(outlines, obs, frames[0].size, sigma, occlusion)
 
 
