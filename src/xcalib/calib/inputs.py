@@ -31,8 +31,9 @@ class CalibFrame:
     points, see ``box_model``), box_corners [M,8,3] the 8 corners, from_points [M] bool: the outline
     is a point hull, yaw_ambiguous [M] bool: a yaw-less box whose heading the points do not tell
     (None: yaw given), outline_sigma_m [M] the outline's own 1-sigma (m; None: 0): a quarter of
-    length minus width for an ambiguous yaw, which makes such a box count little in the fit while
-    it still counts in matching and scoring. idx2d [K] / idx3d [M] map rows back to the input numbering.
+    length minus width for the 8 corners of a box whose yaw is open (a point hull does not depend
+    on it), which makes such a box count little in the fit while it still counts in matching and
+    scoring. idx2d [K] / idx3d [M] map rows back to the input numbering.
     size = (width, height) px. points: [P,3] LiDAR-frame cloud or None (overlays, yaw).
     """
 
@@ -182,7 +183,8 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
         out.append(CalibFrame(
             key=str(key), camera=cam, boxes2d=b2[idx2].astype(np.float64), boxes3d=box7,
             corners=shapes, box_corners=corners8, from_points=from_pts, yaw_ambiguous=ambiguous,
-            outline_sigma_m=None if ambiguous is None else np.where(ambiguous, YAW_OPEN_SIGMA * np.abs(box7[:, 3] - box7[:, 4]), 0.0),
+            outline_sigma_m=None if ambiguous is None else np.where(ambiguous & ~from_pts,
+                                                                   YAW_OPEN_SIGMA * np.abs(box7[:, 3] - box7[:, 4]), 0.0),
             idx2d=idx2, idx3d=idx3,
             size=size, points=p, image=None if image is None else np.asarray(image),
             gt=None if gt is None else np.asarray(gt, dtype=np.float64), meta=meta,
@@ -192,8 +194,8 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
 
 def with_corner_outlines(frames: Sequence[CalibFrame]) -> list[CalibFrame] | None:
     """The frames with every point-hull outline replaced by its box's 8 corners, except boxes whose
-    yaw the points leave ambiguous (their hull is the better outline); None when no outline comes
-    from points (nothing to choose)."""
+    yaw the points leave ambiguous (their hull is the better outline, weighted as one whose yaw is
+    open: among corners it is another model); None when no outline comes from points."""
     if not any(f.from_points is not None and f.from_points.any() for f in frames):
         return None
     out = []
@@ -207,5 +209,8 @@ def with_corner_outlines(frames: Sequence[CalibFrame]) -> list[CalibFrame] | Non
         S = max(f.corners.shape[1], 8)
         shapes = np.concatenate([f.corners, np.repeat(f.corners[:, :1], S - f.corners.shape[1], 1)], 1)
         shapes[swap] = np.concatenate([f.box_corners[swap], np.repeat(f.box_corners[swap][:, :1], S - 8, 1)], 1)
-        out.append(replace(f, corners=shapes, from_points=f.from_points & ~swap))
+        hull = f.from_points & ~swap  # open yaw: a hull among corners is another model, counted little
+        sig = np.where(hull, YAW_OPEN_SIGMA * np.abs(f.boxes3d[:, 3] - f.boxes3d[:, 4]),
+                       0.0 if f.outline_sigma_m is None else f.outline_sigma_m)
+        out.append(replace(f, corners=shapes, from_points=hull, outline_sigma_m=sig))
     return out
