@@ -42,14 +42,26 @@ def _sigma(res) -> tuple[float, float]:
     return float(np.linalg.norm(res.rotation_std_deg)), float(np.linalg.norm(res.translation_std_m))
 
 
-def _run(frames, intr, ref, ref_sigma) -> dict:
+def _parts(res) -> dict:
+    """The uncertainty parts as norms (deg, m) over the axes, for the JSON."""
+    u = res.diagnostics.uncertainty if res.diagnostics else None
+    out = {}
+    for name in ("jacobian", "halves", "jackknife", "clusters", "objects", "occlusion", "floor", "selfcal"):
+        v = getattr(u, name, None) if u is not None else None
+        if v is not None:
+            out[name] = [float(np.linalg.norm(v[:3])), float(np.linalg.norm(v[3:]))]
+    return out
+
+
+def _run(frames, intr, ref, ref_sigma, config=None) -> dict:
     from xcalib.calib.api import calibrate
     from xcalib.calib.pose import Pose
 
     t0 = time.perf_counter()
-    res = calibrate(frames, intr)
+    res = calibrate(frames, intr, config)
     rec = {"frames": [f.frame_key for f in frames], "success": bool(res.success), "message": res.message,
-           "time_s": time.perf_counter() - t0, "n_pairs": res.n_pairs}
+           "time_s": time.perf_counter() - t0, "n_pairs": res.n_pairs, "refusal": res.diagnostics.refusal,
+           "sigma_parts": _parts(res)}
     T = res.extrinsics if res.rotation is not None else getattr(res.diagnostics, "refused_T", None)
     if T is not None:  # a refused result keeps its pose in the diagnostics only
         rec["gap_deg"], rec["gap_m"] = Pose.parse(np.asarray(T)).error(ref)
@@ -107,6 +119,8 @@ def main(argv=None) -> int:
     ap.add_argument("--subsets", type=int, default=20, help="random subsets per size")
     ap.add_argument("--quick", action="store_true", help="5 random subsets per size")
     ap.add_argument("--skip-misfit", action="store_true")
+    ap.add_argument("--uncertainty", choices=("clusters", "objects", "frames"), default=None,
+                    help="CalibConfig.uncertainty for every run (default: the config's default)")
     ap.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args(argv)
     root = SHARED / "a9_sample"
@@ -114,23 +128,28 @@ def main(argv=None) -> int:
         print(f"no A9 sample at {root}")
         return 0
     from xcalib.calib.api import calibrate
+    from xcalib.calib.config import CalibConfig
     from xcalib.calib.pose import Pose
     from xcalib.io.frames import read_frames
 
     log = (lambda s: print(s, flush=True))
+    config = CalibConfig() if args.uncertainty is None else CalibConfig(uncertainty=args.uncertainty)
     seq = read_frames(root)
     frames, intr = [seq[i] for i in range(len(seq))], seq.intrinsics
-    full = calibrate(frames, intr)
-    if not full.success:
+    full = calibrate(frames, intr, config)
+    if not full.success and full.diagnostics.refused_T is None:
         print(f"the all-frame calibration failed: {full.message}")
         return 1
-    ref, ref_sigma = Pose(full.rotation, full.translation), _sigma(full)
+    if not full.success:  # still a reference for the label-free check: its pose is kept in the diagnostics
+        log(f"the all-frame calibration was REFUSED ({full.message[:160]}); its pose is the reference anyway")
+    ref = Pose.parse(np.asarray(full.extrinsics if full.success else full.diagnostics.refused_T))
+    ref_sigma = _sigma(full)
     log(f"all {len(frames)} frames: {full.n_pairs} pairs, 1-sigma {ref_sigma[0]:.3f} deg / {ref_sigma[1]:.3f} m")
     rows = []
     for name, sets in subsets(len(frames), 5 if args.quick else args.subsets).items():
         recs = []
         for s in sets:
-            rec = _run([frames[i] for i in s], intr, ref, ref_sigma)
+            rec = _run([frames[i] for i in s], intr, ref, ref_sigma, config)
             recs.append(rec)
             log(f"  {name:>9} {s}: " + ("ok  " if rec["success"] else "FAIL")
                 + (f" gap {rec['gap_deg']:.2f} deg {rec['gap_m']:.2f} m, 1-sigma {rec['sigma_deg']:.2f} / "
@@ -152,9 +171,10 @@ def main(argv=None) -> int:
         print("\nModel misfit on all 16 frames (each must be refused, naming the cause)")
         for m in misfit:
             print(f"  {m['case']:>15}: {'SUCCESS' if m['success'] else 'refused'}  {m['message'][:150]}")
-    write_result(args.out, {"machine": machine_info(), "reference": {
-        "n_pairs": full.n_pairs, "rotation_std_deg": full.rotation_std_deg.tolist(),
-        "translation_std_m": full.translation_std_m.tolist(), "T_cam_lidar": full.extrinsics.tolist()},
+    write_result(args.out, {"machine": machine_info(), "uncertainty": config.uncertainty, "reference": {
+        "success": bool(full.success), "message": full.message, "n_pairs": full.n_pairs, "rotation_std_deg": full.rotation_std_deg.tolist(),
+        "translation_std_m": full.translation_std_m.tolist(), "T_cam_lidar": ref.T.tolist(),
+        "sigma_parts": _parts(full)},
         "rows": rows, "misfit": misfit})
     return 0
 

@@ -24,7 +24,13 @@ def test_a9_calibration_explains_the_boxes():
     assert res.residual_px_median < 15 and res.iou_median > 0.55
     # better than the reference's ~30 px median box-centre offset
     assert res.diagnostics.centre_offset_px_median < 25
-    assert np.all(res.rotation_std_deg < 0.5) and np.all(res.translation_std_m < 0.3)
+    # the reported sigma counts each vehicle once: two cars stand in all 16 frames, so the object
+    # jackknife (about 0.8 deg / 0.5 m over the axes) exceeds what the frames alone verify
+    u = res.diagnostics.uncertainty
+    assert u.clusters is not None and u.n_objects >= 20
+    assert np.linalg.norm(u.clusters[:3]) > np.linalg.norm(u.jacobian[:3])
+    assert np.all(res.rotation_std_deg < 0.8) and np.all(res.translation_std_m < 0.5)
+    assert 2 * np.linalg.norm(res.rotation_std_deg) <= res.config.max_rot_bound_deg
     # the uncertainty covers the real 3D-detection noise: the fitted error model is wide
     assert res.diagnostics.noise_model.sigma_3d_m > 0.05 or res.diagnostics.noise_model.sigma_size > 0.03
     # camera and LiDAR sit on the same gantry: the baseline is short

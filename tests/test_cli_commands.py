@@ -213,6 +213,10 @@ def test_bootstrapped_site_defaults_to_geometry_unless_model_beats_pose(calib_si
     r = m.match_frame(frame, validate="off")
     assert r.source == "geometry" and r.matches and r.assignment == "hungarian"
     assert len({j for _, j, _ in r.matches}) == len(r.matches)  # one-to-one
+    from xcalib.calib.matching import derive_matches  # every box, also those the model's crops drop
+
+    assert len(r.kept_3d_indices) == frame.num_3d and len(r.kept_2d_indices) == frame.num_2d
+    assert sorted(map(tuple, r.as_pairs().tolist())) == sorted(map(tuple, derive_matches(frame, m.calibration).pairs.tolist()))
     assert m.match_frame(frame, validate="off", geometry="off", use_calibration=False).source == "model"
     assert m.match_frame(frame, validate="off", geometry="off").source == "fused"
     assert m.match_frame(frame, validate="off", use_calibration=True).source == "fused"

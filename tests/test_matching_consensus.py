@@ -8,7 +8,7 @@ import logging
 import numpy as np
 import pytest
 
-from xcalib.calib.consensus import ConsensusConfig, consensus_matches, searched_intrinsics
+from xcalib.calib.consensus import ConsensusConfig, consensus_matches, pair_margins, searched_intrinsics
 from xcalib.data.synth import generate_frames, sample_site
 from xcalib.engine.domain import out_of_domain
 from xcalib.engine.matcher import Matcher
@@ -44,6 +44,24 @@ def test_consensus_recovers_the_true_matches(site2_frames):
     got = {tuple(p) for p in cm.pairs.tolist()}
     assert len(got & truth) >= 0.9 * len(truth) and len(got - truth) <= 0.05 * len(got) + 1
     assert cm.iou.shape == f.match_matrix.shape and np.all((cm.iou >= 0) & (cm.iou <= 1))
+
+
+def test_pair_margins_count_only_poses_that_pair_a_box_otherwise():
+    best = np.array([[0, 5], [1, 6], [2, 7]])
+    others = [(9.5, np.array([[0, 5], [1, 6]])),  # leaves box 2 unmatched: no alternative
+              (8.0, np.array([[0, 5], [1, 7], [2, 6]])),  # pairs 1 and 2 otherwise
+              (9.8, np.array([[3, 5]]))]  # 3D box 5 to another 2D box
+    np.testing.assert_allclose(pair_margins(best, 10.0, others), [0.2, 2.0, 2.0])
+    assert pair_margins(best, 10.0, []).tolist() == [10.0] * 3
+
+
+def test_consensus_leaves_out_matches_another_pose_explains_as_well(site2_frames):
+    f = site2_frames[0]
+    cm = consensus_matches(f, f.intrinsics)
+    assert len(cm.margin) == len(cm.pairs) and np.all(cm.margin >= cm.config.min_margin)
+    strict = consensus_matches(f, f.intrinsics, ConsensusConfig(min_margin=1e6))  # nothing is that sure
+    assert strict.found and len(strict.pairs) == 0 and len(strict.ambiguous) == len(cm.pairs) + len(cm.ambiguous)
+    assert "left out" in strict.message
 
 
 def test_consensus_without_intrinsics_searches_them(site2_frames):

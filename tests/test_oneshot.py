@@ -367,3 +367,34 @@ def test_cli_bootstrap_installs_site_weights(site, frames, tmp_path, monkeypatch
     assert (m.weights_path.parent / "calibration.json").is_file()
     rc = main(["bootstrap", str(cache), "--site", "x", "--no-install"])
     assert rc == 2  # --no-install needs --out
+
+
+def test_heldout_figure_is_reported_only_when_an_independent_pose_agrees(site, frames, monkeypatch):
+    """Issue 17: the bootstrap's held-out Top-1 is measured on >= 4 frames left out of training and
+    reported only when a pose calibrated without those frames gives the same matches and figure."""
+    import xcalib.calib.api as api
+    from xcalib.geometry.rotations import rotvec_to_matrix
+    from xcalib.oneshot.heldout import MIN_HELDOUT_FRAMES, check_heldout
+
+    s = _matcher().oneshot(site.intrinsics, min_frames=100, seed=0)
+    _observe(s, frames)
+    s.set_calibration(site.T_cam_lidar)
+    rep = s.adapt(steps=2, holdout=0.25, min_holdout=MIN_HELDOUT_FRAMES, box_gain=None)
+    assert rep.n_heldout_frames == 4 and rep.n_train_frames == 4 and len(rep.heldout_frames) == 4
+    from xcalib.calib.config import CalibConfig
+
+    ok = check_heldout(s, rep.heldout_frames, calib_config=CalibConfig(max_rot_std_deg=2.0, max_trans_std_m=1.0))
+    assert ok.n_frames == 4 and ok.n_pairs >= 12 and ok.verified, ok.message
+    assert ok.reported_top1 == ok.top1 and abs(ok.top1 - ok.top1_independent) <= 0.05 and ok.label_agreement >= 0.9
+    assert ok.interval[0] <= ok.top1 <= ok.interval[1] and ok.interval[1] - ok.interval[0] > 0.05  # 32 matches
+
+    T = site.T_cam_lidar
+    off = CalibrationResult(success=True, intrinsics=site.intrinsics,
+                            rotation=rotvec_to_matrix(np.array([0.0, 0.2, 0.0])) @ T[:3, :3], translation=T[:3, 3])
+    monkeypatch.setattr(api, "calibrate", lambda *a, **k: off)  # an "independent" pose 11 degrees away
+    bad = check_heldout(s, rep.heldout_frames)
+    assert not bad.verified and bad.reported_top1 is None and "disagree" in bad.message
+    monkeypatch.setattr(api, "calibrate", lambda *a, **k: CalibrationResult(success=False, message="too few pairs"))
+    refused = check_heldout(s, rep.heldout_frames)
+    assert not refused.verified and "refused" in refused.message and refused.reported_top1 is None
+    assert check_heldout(s, rep.heldout_frames[:2]).reported_top1 is None  # too few frames: not reported

@@ -32,7 +32,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, match
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, prepare_frames, with_corner_outlines
-from .misfit import flipped_frames, focal_scale_check, mirror_check, principal_point_check, time_offset_check, unexplained_frames_check
+from .misfit import flipped_frames, focal_scale_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .pose import Pose
 from .refine import RefineResult, match_all, pair_metrics, refine_pose
@@ -182,7 +182,7 @@ def _search(cframes, frames_in, intr, config: CalibConfig, matcher, prior: Pose 
     return bu.hyps
 
 
-_MISFIT_CAN_EXPLAIN = ("poorly_constrained", "ambiguous", "few_explained")
+_MISFIT_CAN_EXPLAIN = ("poorly_constrained", "ambiguous", "few_explained", "uncertain")
 
 
 def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion) -> float:
@@ -194,6 +194,24 @@ def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion) -> f
     if len(bu.hyps) == 0:
         return 0.0
     return _refine_candidates(flipped, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None).best_score
+
+
+def _second_pose(cframes, pairs, intr, pose: Pose, config: CalibConfig, occlusion: Occlusion):
+    """The search (a few frames, few candidates) on the 2D boxes the pose leaves unmatched:
+    (score, matches, (deg, m) from ``pose``, admissible under ``config.max_baseline_m``) of the best
+    pose found there, or (0, 0, None, False)."""
+    left = leftover_frames(cframes, pairs)
+    if sum(f.n2 for f in left) < 6:
+        return 0.0, 0, None, False
+    small = config.replace(max_hyp_frames=min(config.max_hyp_frames, 4), max_refine=min(config.max_refine, 3))
+    bu = pose_hypotheses(left, intr, small, max_baseline_m=config.max_baseline_m, rng=np.random.default_rng(config.seed))
+    if len(bu.hyps) == 0:
+        return 0.0, 0, None, False
+    ref = _refine_candidates(left, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None)
+    p2, cap = Pose(ref.best.R, ref.best.t), config.max_baseline_m
+    n2 = int(sum(len(p) for p in match_all(left, intr, p2.R, p2.t, gate_iou=config.gate_iou)))
+    admissible = cap is None or np.linalg.norm(pose.t) > cap or np.linalg.norm(p2.t) <= cap
+    return ref.best_score, n2, tuple(float(v) for v in p2.error(pose)), bool(admissible)
 
 
 def _frame_times(frames_in) -> tuple[np.ndarray, str]:
@@ -223,6 +241,9 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
         chk, msg = time_offset_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, times, unit,
                                      seed=config.seed)
         found.append((chk, msg, "misfit_time_offset"))
+    chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)),
+                                 *_second_pose(cframes, pairs, intr, pose, config, occlusion))
+    found.append((chk, msg, "misfit_mixed_cameras"))
     diag.misfit = [c for c, _, _ in found]
     return next((Refusal(code, m) for _, m, code in found if m), None)
 
@@ -306,13 +327,11 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     unc = estimate_uncertainty(cframes, pairs, intr, pose, best.noise, f_scale, occlusion=occlusion,
                                mode=config.uncertainty, track_ids=_track_ids(frames_in, cframes), seed=config.seed,
                                floor=inflation)
-    diag.uncertainty = unc.parts
-    if inflation is not None:  # the floor here is the pose spread the estimated intrinsics / offset add
-        diag.uncertainty.floor, diag.uncertainty.selfcal = None, [float(v) for v in inflation]
+    diag.uncertainty = unc.parts  # its selfcal part: the pose spread the estimated intrinsics / offset add
     # a runner-up within 2 sigma of the best is the same solution (the decision then bounds the
     # error by 2 sigma); only one beyond that is a competing explanation
-    runner = _runner_up(ref, config.max_baseline_m, 2 * float(np.linalg.norm(unc.rot_sd)),
-                        2 * float(np.linalg.norm(unc.tr_sd)))
+    runner = _runner_up(ref, config.max_baseline_m, 2 * float(np.linalg.norm(unc.rot_sd_data)),
+                        2 * float(np.linalg.norm(unc.tr_sd_data)))
     diag.ambiguity_runner_up_score = runner
     n_pairs = int(sum(len(p) for p in pairs))
     diag.max_pairs_per_frame = int(max((len(p) for p in pairs), default=0))
@@ -326,7 +345,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     refusal = verdict(Evidence(n_pairs=n_pairs, n_2d=diag.n_2d, most_per_frame=diag.max_pairs_per_frame,
                                places=len(places), places_off_line=int(np.sum(off > POOLED_OFF_LINE_M)),
                                halves_available=unc.halves_available, best_score=ref.best_score,
-                               runner_up_score=runner, rot_sd=unc.rot_sd, tr_sd=unc.tr_sd), config)
+                               runner_up_score=runner, rot_sd=unc.rot_sd_data, tr_sd=unc.tr_sd_data,
+                               rot_sd_total=unc.rot_sd, tr_sd_total=unc.tr_sd), config)
     if refusal is None and prior is None:
         refusal = crowded_check(cframes, config)
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):

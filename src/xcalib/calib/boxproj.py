@@ -38,22 +38,25 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
         out = np.zeros((H, 0, 4)), np.zeros((H, 0), dtype=bool)
         return (out[0][0], out[1][0]) if single else out
     S = c.shape[1]
-    X = np.matmul(R, c.reshape(-1, 3).T) + t[:, :, None]  # [H,3,M*S] (batched BLAS)
+    X = np.matmul(R, c.reshape(-1, 3).T)  # [H,3,M*S] (batched BLAS)
+    X += t[:, :, None]  # the arithmetic below runs in place on X (same operations, same values)
     z = X[:, 2].reshape(H, M, S)
-    front = np.all(z > MIN_DEPTH_M, axis=2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = np.where(z > MIN_DEPTH_M, 1.0 / z, np.nan)
-    x = X[:, 0].reshape(H, M, S) * inv
-    y = X[:, 1].reshape(H, M, S) * inv
+    ahead = z > MIN_DEPTH_M
+    front = np.all(ahead, axis=2)
+    inv = np.full(z.shape, np.nan)
+    np.divide(1.0, z, out=inv, where=ahead)
+    x = np.multiply(X[:, 0].reshape(H, M, S), inv, out=X[:, 0].reshape(H, M, S))
+    y = np.multiply(X[:, 1].reshape(H, M, S), inv, out=X[:, 1].reshape(H, M, S))
     if intr.distortion is not None:
         # The polynomial model is meaningless far outside the field of view; clamp first.
         flat = np.clip(np.stack([x.ravel(), y.ravel()], 1), -1.5, 1.5)
         d = distort_normalized(flat, intr.distortion)
         x, y = d[:, 0].reshape(H, M, S), d[:, 1].reshape(H, M, S)
-    u = x * intr.fx + intr.cx
-    v = y * intr.fy + intr.cy
-    with np.errstate(invalid="ignore"):
-        rect = np.stack([u.min(2), v.min(2), u.max(2), v.max(2)], axis=-1)
+    u = np.multiply(x, intr.fx, out=x)  # x, y: views of X or of the fresh distorted array
+    u += intr.cx
+    v = np.multiply(y, intr.fy, out=y)
+    v += intr.cy
+    rect = _corner_extremes(u, v)
     if clip:
         W, Hh = size
         rect[..., [0, 2]] = np.clip(rect[..., [0, 2]], 0.0, W)
@@ -64,15 +67,43 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
     return (rect[0], valid[0]) if single else (rect, valid)
 
 
+def _corner_extremes(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """[H,M,4] (u.min, v.min, u.max, v.max over the last axis) of u, v [H,M,S]. Many rectangles:
+    corner by corner with np.minimum / np.maximum (a reduction over a short last axis is slow);
+    min and max are exact and propagate NaN either way, so the values are the same."""
+    H, M, S = u.shape
+    if H * M < 4096:
+        return np.stack([u.min(2), v.min(2), u.max(2), v.max(2)], axis=-1)
+    rect = np.empty((H, M, 4))
+    for k, (a, red) in enumerate(((u, np.minimum), (v, np.minimum), (u, np.maximum), (v, np.maximum))):
+        rect[..., k] = a[..., 0]
+        for j in range(1, S):
+            red(rect[..., k], a[..., j], out=rect[..., k])
+    return rect
+
+
 def iou_batched(rects: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """IoU of observed boxes [K,4] with predicted rects [H,M,4] -> [H,K,M] (NaN rect -> 0)."""
-    r = np.nan_to_num(rects[:, None, :, :], nan=0.0)
-    b = boxes[None, :, None, :]
-    iw = np.clip(np.minimum(r[..., 2], b[..., 2]) - np.maximum(r[..., 0], b[..., 0]), 0, None)
-    ih = np.clip(np.minimum(r[..., 3], b[..., 3]) - np.maximum(r[..., 1], b[..., 1]), 0, None)
-    inter = iw * ih
-    ar = (r[..., 2] - r[..., 0]) * (r[..., 3] - r[..., 1])
-    ab = (b[..., 2] - b[..., 0]) * (b[..., 3] - b[..., 1])
-    union = ar + ab - inter
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(union > 0, inter / union, 0.0)
+    """IoU of observed boxes [K,4] with predicted rects [H,M,4] -> [H,K,M] (NaN rect -> 0).
+
+    The [H,K,M] arithmetic runs in place on three buffers (the large arrays were a dozen fresh
+    allocations, each paid again in page faults); the operations, and so the values, are unchanged."""
+    r = np.nan_to_num(rects, nan=0.0)
+    H, M = r.shape[:2]
+    b = np.asarray(boxes, dtype=np.float64)
+    rx0, ry0, rx1, ry1 = (np.ascontiguousarray(r[..., k]).reshape(H, 1, M) for k in range(4))
+    bx0, by0, bx1, by1 = (b[:, k].reshape(1, -1, 1) for k in range(4))
+    tmp = np.maximum(rx0, bx0)
+    inter = np.minimum(rx1, bx1)
+    inter -= tmp
+    np.clip(inter, 0, None, out=inter)  # width of the overlap
+    ih = np.minimum(ry1, by1)
+    np.maximum(ry0, by0, out=tmp)
+    ih -= tmp
+    np.clip(ih, 0, None, out=ih)
+    inter *= ih
+    union = np.add((rx1 - rx0) * (ry1 - ry0), (bx1 - bx0) * (by1 - by0), out=ih)
+    union -= inter
+    pos = union > 0
+    np.divide(inter, union, out=inter, where=pos)
+    np.copyto(inter, 0.0, where=~pos)
+    return inter

@@ -16,7 +16,7 @@ __all__ = ["CalibConfig", "YawMode", "BoxModel", "UncertaintyMode", "IntrinsicsM
 
 YawMode = Literal["auto", "always", "never"]
 BoxModel = Literal["auto", "corners", "points"]
-UncertaintyMode = Literal["objects", "frames"]
+UncertaintyMode = Literal["clusters", "objects", "frames"]
 IntrinsicsMode = Literal["auto", "none", "focal", "focal+center"]
 TimeOffsetMode = Literal["auto", "estimate"]
 
@@ -56,12 +56,19 @@ class CalibConfig:
         min_pairs: fewest matched pairs a pose may rest on.
         min_explained: fail when the pose explains fewer than this fraction of the 2D boxes.
         ambiguity_ratio: fail when a distinct runner-up pose scores at least this fraction of the best.
-        max_rot_std_deg / max_trans_std_m: fail when the norm of the 1-sigma vector exceeds these
-            (2 sigma within 1 deg / 0.5 m by default).
+        max_rot_std_deg / max_trans_std_m: fail when the norm of the 1-sigma vector that the frames
+            verify (Jacobian, frame halves, occlusion; the 0.4 sigma) exceeds these (2 sigma within
+            1 deg / 0.5 m by default): the pose is not determined by the data.
+        max_rot_bound_deg / max_trans_bound_m: fail when 2x the norm of the reported 1-sigma (which
+            also counts each object once and the 3D box model, see ``uncertainty``) exceeds these:
+            the pose is determined but too uncertain to be of use. A success promises the pose
+            within the reported 2 sigma.
         misfit_check: refuse a pose whose residuals show the model does not fit (wrong focal
             length, sensors out of time, mixed cameras, mirrored image); see ``decision``.
-        uncertainty: "objects" resamples by object (tracks repeated across frames count once),
-            "frames" by frame halves only (the 0.3 behaviour).
+        uncertainty: "clusters" (default) adds to the Jacobian and frame-halves sigma the sandwich
+            clustered by object (the same car in many frames carries one error, so repeated
+            frames add no information) and the model-misfit floor; "objects" also resamples
+            objects (bootstrap); "frames": Jacobian and frame halves only (the 0.4 behaviour).
     Inputs:
         reestimate_yaw: "auto" (re-estimate yaw from the points for yaw-less [M,6] boxes),
             "always", "never".
@@ -97,8 +104,10 @@ class CalibConfig:
     ambiguity_ratio: float = 0.85
     max_rot_std_deg: float = 0.5
     max_trans_std_m: float = 0.25
+    max_rot_bound_deg: float = 2.0
+    max_trans_bound_m: float = 1.2
     misfit_check: bool = True
-    uncertainty: UncertaintyMode = "frames"
+    uncertainty: UncertaintyMode = "clusters"
     reestimate_yaw: YawMode = "auto"
     box_model: BoxModel = "auto"
     max_baseline_m: float | None = 8.0
@@ -121,7 +130,7 @@ class CalibConfig:
                 raise ValueError(f"CalibConfig.{name}: expected one of {get_args(allowed)}, got {getattr(self, name)!r}")
         if not (0.0 < self.gate_iou <= 1.0):
             raise ValueError(f"CalibConfig.gate_iou: expected an IoU in (0, 1], got {self.gate_iou}")
-        for name in ("max_rot_std_deg", "max_trans_std_m", "occlusion_tau", "occlusion_slope", "focal_max_std",
+        for name in ("max_rot_std_deg", "max_trans_std_m", "max_rot_bound_deg", "max_trans_bound_m", "occlusion_tau", "occlusion_slope", "focal_max_std",
                      "time_offset_max_std_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"CalibConfig.{name}: expected > 0, got {getattr(self, name)}")

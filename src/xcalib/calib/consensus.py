@@ -4,7 +4,11 @@ that explains most of them, found from that frame alone (no site weights, no lab
 This is the calibration bring-up (:mod:`xcalib.calib.hypotheses`: box triples -> P3P ->
 Kabsch, scored by how well every projected 3D box explains the 2D boxes), run on one frame,
 followed by a short refinement of the best few distinct poses (:func:`xcalib.calib.refine.refine_pose`)
-and one-to-one matching by projection (Hungarian on IoU >= ``gate``). It transfers between
+and one-to-one matching by projection (Hungarian on IoU >= ``gate``). A match is kept only when
+no other refined pose that pairs either of its boxes differently explains the frame within
+``min_margin`` summed IoU of the best (:func:`pair_margins`): a frame whose few boxes fit two
+poses equally well (SUSTech's right camera: 2 objects and a false box) gets no matches rather
+than wrong ones (``ConsensusMatches.ambiguous`` lists them). It transfers between
 sites because it learns nothing: what it needs is 3+ objects seen by both sensors, not on one
 line.
 
@@ -35,7 +39,7 @@ from .hypotheses import frame_hypotheses
 from .inputs import CalibFrame, prepare_frames
 from .refine import match_frame, pair_metrics, refine_pose
 
-__all__ = ["ConsensusConfig", "ConsensusMatches", "consensus_matches", "searched_intrinsics"]
+__all__ = ["ConsensusConfig", "ConsensusMatches", "consensus_matches", "pair_margins", "searched_intrinsics"]
 
 SEARCH_KEEP = 2  # searched intrinsics: fields of view whose poses are refined (the best is kept)
 
@@ -44,7 +48,13 @@ SEARCH_KEEP = 2  # searched intrinsics: fields of view whose poses are refined (
 class ConsensusConfig:
     """``gate``: IoU gate of a match; ``max_baseline_m``: first search with the camera within this
     distance of the LiDAR-frame origin (then without); ``n_refine``: distinct poses refined;
-    ``fov_deg``: horizontal fields of view tried when the intrinsics are unknown; ``seed``."""
+    ``fov_deg``: horizontal fields of view tried when the intrinsics are unknown; ``min_altitude_m``:
+    thinnest box triangle (m) the pose search accepts; ``score_budget``: IoU entries (2D x 3D boxes
+    x poses) the search scores, so small frames keep more hypotheses than ``keep`` (a true pose
+    that puts only 3 box centres into their boxes is not lost behind poses that hit more);
+    ``min_margin``: summed IoU by which the best
+    pose must beat every refined pose that pairs a box differently for that match to be kept
+    (:func:`pair_margins`); ``seed``."""
 
     gate: float = 0.3
     max_baseline_m: float | None = 8.0
@@ -52,11 +62,16 @@ class ConsensusConfig:
     keep: int = 40
     max_triples: int = 20000  # box triples tried (crowded frames, e.g. 70+ 3D boxes around a car, need many)
     fov_deg: tuple[float, ...] = (30.0, 45.0, 60.0, 80.0, 100.0)
+    min_altitude_m: float = 0.3  # one frame: thin triangles too (refinement fixes the roll); calibrate uses 0.8
+    min_margin: float = 0.3  # one match at the IoU gate
+    score_budget: int = 300_000
     seed: int = 0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.gate <= 1.0:
             raise ValueError(f"ConsensusConfig.gate must be an IoU in (0, 1], got {self.gate}")
+        if not (self.min_margin >= 0.0 and self.min_altitude_m >= 0.0):
+            raise ValueError("ConsensusConfig.min_margin and min_altitude_m must be >= 0")
         if self.n_refine < 1 or self.keep < 1:
             raise ValueError("ConsensusConfig.n_refine and keep must be >= 1")
         if not self.fov_deg or not all(0.0 < f < 180.0 for f in self.fov_deg):
@@ -71,8 +86,11 @@ class ConsensusMatches:
     3D box projected through the consensus pose (0 for dropped boxes); kept_2d / kept_3d: the
     boxes the geometry could use; T_cam_lidar [4,4] the pose (None when none was found);
     intrinsics (given or searched) and ``intrinsics_source`` ("given" | "searched"); ``score``:
-    summed IoU of the matches; ``runner_up``: the same for the best distinct pose (ambiguity);
-    ``message``: why there is no pose, else ""."""
+    summed IoU of the matches; ``runner_up``: the same for the best distinct pose; ``margin`` [n]:
+    per pair, by how much the best pose beats the best refined pose pairing either box otherwise
+    (its confidence, summed IoU); ``ambiguous`` [a,2]: the pairs of the best pose left out because
+    their margin is below ``config.min_margin``; ``message``: why there is no pose or what was
+    left out, else ""."""
 
     pairs: np.ndarray
     iou: np.ndarray
@@ -86,6 +104,8 @@ class ConsensusMatches:
     message: str = ""
     elapsed_s: float = 0.0
     config: ConsensusConfig = field(default_factory=ConsensusConfig)
+    margin: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    ambiguous: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
 
     @property
     def found(self) -> bool:
@@ -99,16 +119,33 @@ def searched_intrinsics(width: int, height: int, fov_deg: float) -> CameraIntrin
     return CameraIntrinsics(fx=f, fy=f, cx=width / 2.0, cy=height / 2.0, width=int(width), height=int(height))
 
 
+def pair_margins(pairs: np.ndarray, score: float, others) -> np.ndarray:
+    """Per pair (i, j) of the best pose (summed IoU ``score``): ``score`` minus the best score of
+    the other poses ``others`` [(score, pairs [n,2])] that pair box i or box j with another box
+    (a pose that merely leaves them unmatched is no alternative); ``score`` when none does."""
+    out = np.full(len(pairs), float(score))
+    for s_k, p_k in others:
+        if len(p_k) == 0:
+            continue
+        row_to = dict(zip(p_k[:, 0].tolist(), p_k[:, 1].tolist()))
+        col_to = dict(zip(p_k[:, 1].tolist(), p_k[:, 0].tolist()))
+        for n, (i, j) in enumerate(pairs.tolist()):
+            if row_to.get(i, j) != j or col_to.get(j, i) != i:
+                out[n] = min(out[n], float(score) - float(s_k))
+    return out
+
+
 def _distinct(Ra, ta, Rb, tb, rot_deg: float, trans_m: float) -> bool:
     return rotation_angle(Ra, Rb, degrees=True) > rot_deg or float(np.linalg.norm(ta - tb)) > trans_m
 
 
 def _hypotheses(fr: CalibFrame, intr: CameraIntrinsics, cfg: ConsensusConfig):
     rng = np.random.default_rng(cfg.seed)
-    h = frame_hypotheses(fr, intr, 0, rng=rng, max_baseline_m=cfg.max_baseline_m, keep=cfg.keep,
-                         max_triples=cfg.max_triples)
+    keep = max(cfg.keep, cfg.score_budget // max(8 * fr.n2 * fr.n3, 1))  # frame_hypotheses IoU-scores 8 x keep
+    kw = {"keep": keep, "max_triples": cfg.max_triples, "min_altitude_m": cfg.min_altitude_m}
+    h = frame_hypotheses(fr, intr, 0, rng=rng, max_baseline_m=cfg.max_baseline_m, **kw)
     if len(h) == 0 and cfg.max_baseline_m is not None:
-        h = frame_hypotheses(fr, intr, 0, rng=np.random.default_rng(cfg.seed), keep=cfg.keep, max_triples=cfg.max_triples)
+        h = frame_hypotheses(fr, intr, 0, rng=np.random.default_rng(cfg.seed), **kw)
     return h
 
 
@@ -171,6 +208,8 @@ def consensus_matches(frame, intrinsics=None, config: ConsensusConfig | None = N
     score, best = poses[0]
     runner = next((s for s, r in poses[1:] if _distinct(r.R, r.t, best.R, best.t, 1.0, 0.3)), 0.0)
     pairs, _, rects = match_frame(fr, intr, best.R, best.t, gate_iou=cfg.gate)
+    margin = pair_margins(pairs, score, [(s, r.pairs[0]) for s, r in poses[1:]])
+    sure = margin >= cfg.min_margin
     iou = np.zeros((K, M))
     if fr.n2 and fr.n3:
         iou[np.ix_(fr.idx2d, fr.idx3d)] = iou_batched(rects[None], fr.boxes2d)[0]
@@ -178,5 +217,9 @@ def consensus_matches(frame, intrinsics=None, config: ConsensusConfig | None = N
               else np.zeros((0, 2), np.int64))
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = best.R, best.t
-    return ConsensusMatches(caller, iou, fr.idx2d.astype(np.int64), fr.idx3d.astype(np.int64), T, intr, source,
-                            score=score, runner_up=float(runner), elapsed_s=time.perf_counter() - t0, config=cfg)
+    n_unsure = int(np.count_nonzero(~sure))
+    msg = (f"{n_unsure} of {len(pairs)} match(es) left out: another pose that pairs those boxes differently explains "
+           f"the frame within {cfg.min_margin} summed IoU of the best" if n_unsure else "")
+    return ConsensusMatches(caller[sure], iou, fr.idx2d.astype(np.int64), fr.idx3d.astype(np.int64), T, intr, source,
+                            score=score, runner_up=float(runner), message=msg, margin=margin[sure],
+                            ambiguous=caller[~sure], elapsed_s=time.perf_counter() - t0, config=cfg)

@@ -107,6 +107,8 @@ class Evidence:
     runner_up_score: float
     rot_sd: np.ndarray
     tr_sd: np.ndarray
+    rot_sd_total: np.ndarray | None = None  # the reported sigma (objects counted once, box-model floor)
+    tr_sd_total: np.ndarray | None = None
 
 
 def _few_pairs_message(n_pairs: int, rot_sd, tr_sd, max_rot: float, max_tr: float) -> str:
@@ -150,7 +152,23 @@ def verdict(ev: Evidence, config: CalibConfig) -> Refusal | None:
         return Refusal("poorly_constrained", f"not identifiable: the pose is poorly constrained (1-sigma rotation "
                        f"{r:.2f} deg, translation {t:.2f} m, over all axes; the frame halves and the occlusion model "
                        "included); add frames or objects at other places/depths")
-    return None
+    return _bound_check(ev, config)
+
+
+def _bound_check(ev: Evidence, config: CalibConfig) -> Refusal | None:
+    """Refuse a determined pose whose reported 2-sigma bound (each object counted once, the 3D box
+    model included) exceeds the config's limits: a success promises the pose within 2 sigma."""
+    if ev.rot_sd_total is None:
+        return None
+    r, t = 2 * float(np.linalg.norm(ev.rot_sd_total)), 2 * float(np.linalg.norm(ev.tr_sd_total))
+    if np.isfinite(r) and np.isfinite(t) and r <= config.max_rot_bound_deg and t <= config.max_trans_bound_m:
+        return None
+    bound = "unbounded (one object alone fixes part of the pose)" if not (np.isfinite(r) and np.isfinite(t)) \
+        else f"{r:.2f} deg / {t:.2f} m"
+    return Refusal("uncertain", f"too uncertain: the frames agree on the pose, but counting each object once (the same "
+                   f"vehicles repeat over the frames) and the 3D box model, its 2-sigma bound is {bound} (limit "
+                   f"{config.max_rot_bound_deg:g} deg / {config.max_trans_bound_m:g} m); add recordings with other "
+                   "objects at other places")
 
 
 def crowded_check(cframes: Sequence[CalibFrame], config: CalibConfig) -> Refusal | None:

@@ -66,7 +66,8 @@ class UncertaintyParts:
     jackknife: leave-one-pair-out sigma (few matches); objects: sigma from resampling objects
     (tracks repeated across frames count once); occlusion: pose shift without the occlusion
     model; floor: the model-misfit floor; selfcal: the pose spread that estimating the intrinsics /
-    time offset adds (marginal minus conditional sigma, ``selfcal``); n_objects: distinct objects resampled."""
+    time offset adds (marginal minus conditional sigma, ``selfcal``); clusters: the sandwich sigma clustered by object
+    (every object's pairs over all frames share one error); n_objects: distinct objects."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -75,6 +76,7 @@ class UncertaintyParts:
     occlusion: list[float] | None = None
     floor: list[float] | None = None
     selfcal: list[float] | None = None
+    clusters: list[float] | None = None
     n_objects: int = 0
 
 
@@ -160,7 +162,8 @@ class CalibDiagnostics:
         names = {f.name for f in fields(cls)}
         d = {k: v for k, v in dict(d).items() if k in names}
         d["noise_model"] = NoiseModel(**d.get("noise_model", {}))
-        d["uncertainty"] = UncertaintyParts(**d.get("uncertainty", {}))
+        known = {f.name for f in fields(UncertaintyParts)}  # a newer version's parts are ignored
+        d["uncertainty"] = UncertaintyParts(**{k: v for k, v in dict(d.get("uncertainty") or {}).items() if k in known})
         d["candidates"] = [CandidateSummary(**c) for c in d.get("candidates", [])]
         d["misfit"] = [MisfitCheck(**c) for c in d.get("misfit", [])]
         sc = {k: v for k, v in dict(d.get("selfcal") or {}).items() if k in {f.name for f in fields(SelfCalDiagnostics)}}

@@ -156,8 +156,12 @@ def _candidate_pairs(fr: CalibFrame, intr: CameraIntrinsics, prior_sim, top_k: i
 def _pair_distances(P: np.ndarray) -> np.ndarray:
     """Euclidean distances [n,n] between rows of P [n,3] (Gram form: never an [n,n,3] array)."""
     sq = np.einsum("ij,ij->i", P, P)
-    d2 = sq[:, None] + sq[None, :] - 2.0 * (P @ P.T)
-    return np.sqrt(np.maximum(d2, 0.0))
+    gram = P @ P.T
+    gram *= 2.0
+    d2 = np.add(sq[:, None], sq[None, :])
+    d2 -= gram  # in place: two [n,n] buffers instead of five, the same values
+    np.maximum(d2, 0.0, out=d2)
+    return np.sqrt(d2, out=d2)
 
 
 def _azimuth_windows(X: np.ndarray, cap: int, rng: np.random.Generator, weight: np.ndarray | None,
@@ -283,10 +287,17 @@ def _triple_poses(c: _Candidates, rng: np.random.Generator, max_triples: int, mi
     Xc = lam[:, None] * ray
     dc = _pair_distances(Xc)
     dl = _pair_distances(X)
-    tol = np.maximum(c.dtol[:, None], c.dtol[None])
-    same = c.fk[:, None] == c.fk[None]
-    C = (np.abs(dc - dl) <= tol) & (~same | ((c.ii[:, None] != c.ii[None]) & (c.jj[:, None] != c.jj[None])))
-    del dc, tol, same
+    dc -= dl
+    np.abs(dc, out=dc)  # |dc - dl|, in place
+    C = dc <= np.maximum(c.dtol[:, None], c.dtol[None])
+    del dc
+    if len(np.unique(c.fk)) > 1:
+        same = c.fk[:, None] == c.fk[None]
+        C &= ~same | ((c.ii[:, None] != c.ii[None]) & (c.jj[:, None] != c.jj[None]))
+        del same
+    else:  # one frame: two pairs must differ in both boxes
+        C &= c.ii[:, None] != c.ii[None]
+        C &= c.jj[:, None] != c.jj[None]
     C &= dl > 0.5  # two pairs on (nearly) the same LiDAR point say nothing about rotation
     del dl
     C = np.triu(C, 1)
@@ -336,10 +347,10 @@ def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nd
     with np.errstate(divide="ignore", invalid="ignore"):
         u = np.where(z > 0.5, Xc[..., 0] / z * intr.fx + intr.cx, np.nan)
         v = np.where(z > 0.5, Xc[..., 1] / z * intr.fy + intr.cy, np.nan)
-    b = fr.boxes2d
-    inside = ((u[:, None, :] >= b[None, :, 0, None]) & (u[:, None, :] <= b[None, :, 2, None])
-              & (v[:, None, :] >= b[None, :, 1, None]) & (v[:, None, :] <= b[None, :, 3, None]))
-    return inside.any(2).sum(1).astype(np.float64)
+    hits = np.zeros(len(R), dtype=np.int64)
+    for x0, y0, x1, y1 in np.asarray(fr.boxes2d, dtype=np.float64).tolist():  # box by box: [H,M] masks stay in cache
+        hits += ((u >= x0) & (u <= x1) & (v >= y0) & (v <= y1)).any(1)
+    return hits.astype(np.float64)
 
 
 def score_poses(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.ndarray, *,

@@ -89,8 +89,15 @@ def register(app: typer.Typer) -> None:
         a = res.adapt
         typer.echo(res.calibration.summary())
         typer.echo(f"trained {model} ({res.init}, mode {a.mode}) on {a.n_pairs} pseudo-labelled pairs in "
-                   f"{a.n_train_frames} frames: loss {a.loss_first:.3f} -> {a.loss_last:.3f}; held-out Top-1 vs "
-                   f"pseudo-labels {a.top1_before:.3f} -> {a.top1_after:.3f} ({a.n_heldout_frames} frames)")
+                   f"{a.n_train_frames} frames ({a.n_heldout_frames} held out): loss {a.loss_first:.3f} -> "
+                   f"{a.loss_last:.3f}")
+        h = res.heldout
+        if h is None:
+            typer.echo("held-out Top-1 not reported: no frame was held out")
+        elif h.verified:
+            typer.echo(f"held-out Top-1 {h.reported_top1:.3f}, checked: {h.message}")
+        else:
+            typer.echo(f"held-out Top-1 {h.message}")
         if len(a.gain_trials) > 1:
             typer.echo("box-geometry gain kept on the held-out frames: " + ", ".join(
                 f"{g.box_gain:.3g} (Top-1 {g.top1:.3f}, loss {g.loss:.3f}{', kept' if g.chosen else ''})"

@@ -34,7 +34,7 @@ from typing import Any, Mapping
 import cv2
 import numpy as np
 
-from ..geometry.boxes import as_box7, box_point_pairs
+from ..geometry.boxes import as_box7, box_point_pairs, take_rows
 
 __all__ = [
     "IMAGENET_MEAN", "IMAGENET_STD", "CropConfig", "FrameInputs", "crop_images", "crop_points",
@@ -115,37 +115,40 @@ def _image_float_scale(image: np.ndarray) -> float:
 def _crop_windows(b: np.ndarray, W: int, H: int, S: int, keep_aspect: bool):
     """Integer crop geometry of every 2D box, vectorised: (kept [N] int64, image windows
     [N,4] (x0, y0, x1, y1) px, output windows [N,4] (x0, y0, x1, y1) in the S x S crop,
-    subsampling steps [N], whether each resize shrinks [N])."""
-    ok = np.all(np.isfinite(b), axis=1) & (b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])
-    ok &= (b[:, 2] > 0) & (b[:, 0] < W) & (b[:, 3] > 0) & (b[:, 1] < H)
+    subsampling steps [N], whether each resize shrinks [N]). Few array calls: a frame has ~10
+    boxes, so each call's fixed cost is what counts."""
+    lo, hi = b[:, :2], b[:, 2:]
+    ok = np.isfinite(b).all(1) & (hi > lo).all(1) & (hi > 0).all(1) & (lo < (W, H)).all(1)
     src = np.where(ok[:, None], b, 0.0)
     if keep_aspect and len(src):
         c = (src[:, :2] + src[:, 2:]) / 2.0
-        half = np.maximum(src[:, 2] - src[:, 0], src[:, 3] - src[:, 1])[:, None] / 2.0
-        src = np.hstack([c - half, c + half])
-    lim = np.array([W, H, W, H])
-    win = np.clip(src, 0, lim)
-    win = np.hstack([np.floor(win[:, :2]), np.ceil(win[:, 2:])]).astype(np.int64)
-    ok &= (win[:, 2] > win[:, 0]) & (win[:, 3] > win[:, 1])
-    kept = np.nonzero(ok)[0].astype(np.int64)
+        ext = src[:, 2:] - src[:, :2]
+        half = ext.max(1, keepdims=True) / 2.0
+        src = np.concatenate([c - half, c + half], 1)
+    win = np.minimum(np.maximum(src, 0), (W, H, W, H))  # as np.clip (src is finite)
+    win = np.concatenate([np.floor(win[:, :2]), np.ceil(win[:, 2:])], 1).astype(np.int64)
+    ok &= (win[:, 2:] > win[:, :2]).all(1)
+    kept = np.flatnonzero(ok)
     src, win = src[kept], win[kept]
-    size = np.tile(src[:, 2:] - src[:, :2], 2)  # (w, h, w, h) of the (square) source box
-    rel = np.rint((win - np.tile(src[:, :2], 2)) * S / size)  # round half to even, as round()
+    o2 = src[:, :2]
+    size = src[:, 2:] - o2  # (w, h) of the (square) source box
+    rel = np.rint((win - np.concatenate([o2, o2], 1)) * S / np.concatenate([size, size], 1))  # half to even
     out = np.empty_like(win)
-    out[:, :2] = np.clip(rel[:, :2], 0, S - 1)
-    out[:, 2:] = np.clip(rel[:, 2:], out[:, :2] + 1, S)
-    ph, pw = win[:, 3] - win[:, 1], win[:, 2] - win[:, 0]
-    oh, ow = out[:, 3] - out[:, 1], out[:, 2] - out[:, 0]
-    step = (np.minimum(ph / oh, pw / ow) // 2).astype(np.int64)
-    step = np.where(step > 1, step, 1)
-    shrink = (-(-ph // step) > oh) | (-(-pw // step) > ow)  # subsampled patch larger than its window
+    out[:, :2] = np.minimum(np.maximum(rel[:, :2], 0), S - 1)
+    out[:, 2:] = np.minimum(np.maximum(rel[:, 2:], out[:, :2] + 1), S)
+    pwh, owh = win[:, 2:] - win[:, :2], out[:, 2:] - out[:, :2]  # (w, h) of patch and output
+    step = ((pwh / owh).min(1) // 2).astype(np.int64)
+    step[step < 1] = 1
+    shrink = (-(-pwh // step[:, None]) > owh).any(1)  # subsampled patch larger than its window
     return kept, win, out, step, shrink
 
 
 def crop_images(image: np.ndarray, bboxes_2d, crop_size: int = 32, *, keep_aspect: bool = True,
                 normalize: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Crop + resize every 2D box. Returns (crops [N,3,S,S] float32, kept indices [N] int64).
-    The crop geometry is computed for all boxes at once; the loop only cuts and resizes."""
+    The crop geometry is computed for all boxes at once; the loop only cuts and resizes. A uint8
+    image is resized in uint8 and normalised through a 256-entry table per channel (the same
+    float32 operations as for a float image, so the same values)."""
     if image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"image: expected shape [H, W, 3], got {image.shape}")
     S = int(crop_size)
@@ -154,22 +157,63 @@ def crop_images(image: np.ndarray, bboxes_2d, crop_size: int = 32, *, keep_aspec
     kept, win, dst, step, shrink = _crop_windows(b, W, H, S, keep_aspect)
     scale = _image_float_scale(image)
     fill = IMAGENET_MEAN / scale if normalize else np.zeros(3, np.float32)
+    if image.dtype == np.uint8:
+        return _crop_uint8(image, win, dst, step, shrink, S, fill, scale, normalize), kept
     out = np.empty((len(kept), S, S, 3), dtype=np.float32)
     out[:] = fill
+    _cut_and_resize(image, out, win, dst, step, shrink)
+    return _normalized_chw(out, scale, normalize), kept
+
+
+def _normalized_chw(x: np.ndarray, scale: float, normalize: bool) -> np.ndarray:
+    """[..., 3] float32 pixel values -> ``x * scale`` (then ``(. - mean) / std`` per channel), in
+    place, moved to channels-first [N,3,S,S]."""
+    x *= scale
+    if normalize:
+        x -= IMAGENET_MEAN
+        x /= IMAGENET_STD
+    return np.ascontiguousarray(np.moveaxis(x, -1, 1)) if x.ndim == 4 else x
+
+
+def _cut_and_resize(image: np.ndarray, out: np.ndarray, win, dst, step, shrink) -> None:
+    """Resize each image window ``win[n]`` into ``out[n]``'s window ``dst[n]`` (same dtype or float)."""
     pixels = _pixel_view(image)
-    for n, (x0, y0, x1, y1), (u0, v0, u1, v1), st, sh in zip(range(len(kept)), win.tolist(), dst.tolist(),
+    S = out.shape[1]
+    for n, (x0, y0, x1, y1), (u0, v0, u1, v1), st, sh in zip(range(len(win)), win.tolist(), dst.tolist(),
                                                             step.tolist(), shrink.tolist()):
         patch = pixels[y0:y1:st, x0:x1:st]  # big box: subsample to ~2x the output size, then area-average
         if st > 1:
             patch = np.ascontiguousarray(patch)
         patch = patch.view(image.dtype).reshape(patch.shape[0], patch.shape[1], 3)
-        patch = cv2.resize(patch, (u1 - u0, v1 - v0), interpolation=cv2.INTER_AREA if sh else cv2.INTER_LINEAR)
+        interp = cv2.INTER_AREA if sh else cv2.INTER_LINEAR
+        if out.dtype == image.dtype and u1 - u0 == S and v1 - v0 == S:  # whole crop: resize in place
+            cv2.resize(patch, (S, S), dst=out[n], interpolation=interp)
+            continue
+        patch = cv2.resize(patch, (u1 - u0, v1 - v0), interpolation=interp)
         out[n, v0:v1, u0:u1] = patch.reshape(v1 - v0, u1 - u0, 3)
-    out *= scale
-    if normalize:
-        out -= IMAGENET_MEAN
-        out /= IMAGENET_STD
-    return np.ascontiguousarray(out.transpose(0, 3, 1, 2)), kept
+
+
+def _crop_uint8(image, win, dst, step, shrink, S: int, fill: np.ndarray, scale: float,
+                normalize: bool) -> np.ndarray:
+    """The crops of a uint8 image: resized in uint8 (as OpenCV does for uint8 input anyway),
+    then every value mapped through its channel's table (exactly ``_normalized_chw`` of the
+    value), the parts of a crop outside the image set to the normalised fill."""
+    N = len(win)
+    buf = np.empty((N, S, S, 3), dtype=np.uint8)
+    _cut_and_resize(image, buf, win, dst, step, shrink)
+    lut = _normalized_chw(np.repeat(np.arange(256, dtype=np.float32)[:, None], 3, axis=1), scale, normalize)
+    lut = np.ascontiguousarray(lut.T)  # [3, 256]
+    out = np.empty((N, 3, S, S), dtype=np.float32)
+    for c in range(3):  # a gather per channel, straight into the channels-first layout
+        out[:, c] = lut[c].take(buf[..., c])
+    part = np.flatnonzero(np.any(dst != np.array([0, 0, S, S]), axis=1))
+    if len(part):
+        fill_n = _normalized_chw(fill.astype(np.float32).reshape(1, 3), scale, normalize)[0]
+        for n, (u0, v0, u1, v1) in zip(part.tolist(), dst[part].tolist()):
+            inside = np.zeros((S, S), dtype=bool)
+            inside[v0:v1, u0:u1] = True
+            out[n][:, ~inside] = fill_n[:, None]
+    return out
 
 
 def _pixel_view(image: np.ndarray) -> np.ndarray:
@@ -190,8 +234,8 @@ def gather_box_points(points: np.ndarray, boxes7: np.ndarray, expansion: float =
     xyz = np.asarray(points)[:, :3]
     mi, pi = box_point_pairs(xyz, b, expansion=expansion)  # grouped box by box, points ascending
     counts = np.bincount(mi, minlength=len(b)).astype(np.int64)
-    d = xyz[pi].astype(np.float64) - b[mi, :3]
-    c, s = np.cos(b[mi, 6]), np.sin(b[mi, 6])
+    d = take_rows(xyz, pi).astype(np.float64) - b[mi, :3]
+    c, s = np.cos(b[:, 6])[mi], np.sin(b[:, 6])[mi]  # per box, then per point (the same values)
     local = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=1)
     return local.astype(np.float32), counts
 
@@ -215,7 +259,7 @@ def resample_points(points: np.ndarray, counts: np.ndarray, n: int,
     j = np.arange(n)[None, :]
     fill = np.minimum((rng.random((M, n)) * counts[:, None]).astype(np.int64), counts[:, None] - 1)
     src = np.where(j < counts[:, None], j, fill)
-    return np.asarray(points, dtype=np.float32)[order[starts[:, None] + src]]
+    return take_rows(np.asarray(points, dtype=np.float32), order[starts[:, None] + src])
 
 
 def _shuffle_within_groups(seg: np.ndarray, r: np.ndarray) -> np.ndarray:

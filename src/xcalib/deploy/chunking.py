@@ -65,6 +65,8 @@ def run_chunked(fn: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]],
     if len(set(sizes.values())) > 1:
         raise ValueError(f"run_chunked: inputs must share their first axis, got {sizes}")
     n = next(iter(sizes.values()))
+    if max_rows is None or n <= max_rows:  # one call on the feeds themselves
+        return fn(dict(feeds))
     parts = [fn({k: v[s] for k, v in feeds.items()}) for s in chunk_slices(n, max_rows)]
     if len(parts) == 1:
         return parts[0]

@@ -108,6 +108,7 @@ class OnnxMatcher:
         self.providers = list(providers or ["CPUExecutionProvider"])
         self.sessions: dict[str, Any] = {}
         self.input_names: dict[str, list[str]] = {}
+        self.output_names: dict[str, list[str]] = {}  # read once: a per-call get_outputs() costs
         for name, g in man.graphs.items():
             path = self.folder / g.file
             try:
@@ -120,6 +121,7 @@ class OnnxMatcher:
                 raise OnnxFolderError(path, f"graph inputs {have_in} differ from {want_in} in {MANIFEST}")
             self.sessions[name] = sess
             self.input_names[name] = have_in
+            self.output_names[name] = [o.name for o in sess.get_outputs()]
         for need in ("image_embed", "lidar_embed") + (("pair_score",) if self.family != "cosine" else ()):
             if need not in self.sessions:
                 raise OnnxFolderError(mpath, f"family {self.family!r} needs graph {need!r}; graphs: {sorted(self.sessions)}")
@@ -153,7 +155,7 @@ class OnnxMatcher:
         """Run one graph (chunked along its batch axis inside the envelope, when set)."""
         sess = self.sessions[graph]
         names = self.input_names[graph]
-        outs = [o.name for o in sess.get_outputs()]
+        outs = self.output_names[graph]
         limit = self._max_rows(graph)
 
         def call(f: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

@@ -30,7 +30,7 @@ import numpy as np
 from ..types import MatchResult
 
 __all__ = ["GEOMETRY_MODES", "SHIPPED_SITES", "out_of_domain", "check_geometry_mode", "geometry_match_result",
-           "BOOTSTRAP_HINT"]
+           "site_geometry_result", "BOOTSTRAP_HINT"]
 
 log = logging.getLogger("xcalib.matcher")
 
@@ -77,6 +77,8 @@ def geometry_match_result(m, image, point_cloud, bboxes_2d, bboxes_3d, *, intrin
     cm = consensus_matches((image, point_cloud, bboxes_2d, bboxes_3d), intrinsics)
     if not cm.found:
         return None, cm.message
+    if cm.message:  # matches left out as ambiguous (another pose pairs those boxes otherwise)
+        log.info("geometric consensus: %s", cm.message)
     k2, k3 = cm.kept_2d, cm.kept_3d
     sim = cm.iou[np.ix_(k2, k3)].astype(np.float32)
     top = sim.argmax(axis=1).astype(np.int64) if sim.size else np.full(len(k2), -1, np.int64)
@@ -87,3 +89,24 @@ def geometry_match_result(m, image, point_cloud, bboxes_2d, bboxes_3d, *, intrin
     return MatchResult(similarity=sim, top_indices=top, matches=matches, kept_2d_indices=k2, kept_3d_indices=k3,
                        latency_ms=(time.perf_counter() - t0) * 1000.0, model=m.model_name, device=str(m.device),
                        assignment="hungarian", geometry_iou=sim, fusion_weight=1.0, source="geometry"), ""
+
+
+def site_geometry_result(m, image, point_cloud, bboxes_2d, bboxes_3d, *, box7=None, t0: float | None = None) -> MatchResult:
+    """``MatchResult`` (``source="geometry"``) of a site whose default is geometry: every 3D box
+    projected through the site calibration ``m.calibration`` and assigned one to one (Hungarian,
+    IoU >= ``POSE_IOU_GATE``) over **all** boxes (the projection needs no LiDAR points inside a
+    box, unlike the model's crops), the same matches as ``derive_matches``."""
+    from .fusion import POSE_IOU_GATE, geometric_iou
+    from .host import assign
+
+    t0 = time.perf_counter() if t0 is None else t0
+    k2 = np.arange(len(np.asarray(bboxes_2d).reshape(-1, 4)), dtype=np.int64)
+    b3 = np.asarray(bboxes_3d)
+    k3 = np.arange(len(b3) if b3.size else 0, dtype=np.int64)
+    geo = geometric_iou(image, point_cloud, bboxes_2d, bboxes_3d, m.calibration, k2, k3, box7=box7) \
+        if len(k2) and len(k3) else np.zeros((len(k2), len(k3)))
+    top, pairs = assign(geo, top_k=1, threshold=POSE_IOU_GATE, method="hungarian")
+    return MatchResult(similarity=geo.astype(np.float32), top_indices=top, matches=pairs, kept_2d_indices=k2,
+                       kept_3d_indices=k3, latency_ms=(time.perf_counter() - t0) * 1000.0, model=m.model_name,
+                       device=str(m.device), assignment="hungarian", geometry_iou=geo, fusion_weight=1.0,
+                       source="geometry")

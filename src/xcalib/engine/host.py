@@ -12,8 +12,9 @@ import numpy as np
 from ..geometry.boxes import center_size_to_extents
 from ..protocol import WarningRegistry, check_validate_mode, enforce, validate_frame_inputs
 from ..types import Frame, MatchResult
-from .domain import BOOTSTRAP_HINT, SHIPPED_SITES, check_geometry_mode, geometry_match_result, out_of_domain
-from .fusion import POSE_IOU_GATE, fuse_scores, geometric_iou, is_multi_camera, resolve_use_calibration
+from .domain import (BOOTSTRAP_HINT, SHIPPED_SITES, check_geometry_mode, geometry_match_result, out_of_domain,
+                     site_geometry_result)
+from .fusion import fuse_scores, geometric_iou, is_multi_camera, resolve_use_calibration
 
 __all__ = ["ASSIGNMENTS", "assign", "validate_match_inputs", "run_match", "frame_match_args"]
 
@@ -100,6 +101,8 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
         if res is not None:
             return res
         log.warning("match(geometry='on'): %s; the model's scores are returned", why)
+    if fuse and geometry == "auto" and use_calibration == "auto" and site_default_source(m) == "geometry":
+        return site_geometry_result(m, *frame[:3], bboxes_3d, box7=box7, t0=t0)  # every box: no model needed
     multi = {"images": images, "camera_per_det": camera_per_det} if images is not None else {}
     inputs = m.prepare(image, point_cloud, bboxes_2d, bboxes_3d, **multi)
     t1 = time.perf_counter()
@@ -107,14 +110,6 @@ def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_
     forward_ms = (time.perf_counter() - t1) * 1000.0
     k2, k3 = inputs.kept_2d, inputs.kept_3d
     geo, weight = None, 0.0
-    if fuse and sim.size and geometry == "auto" and use_calibration == "auto" and site_default_source(m) == "geometry":
-        geo = geometric_iou(image, point_cloud, bboxes_2d, bboxes_3d, m.calibration, k2, k3, box7=box7)
-        top, pairs = assign(geo, top_k=top_k, threshold=POSE_IOU_GATE, method="hungarian")
-        return MatchResult(similarity=geo.astype(np.float32), top_indices=top,
-                           matches=[(int(k2[i]), int(k3[j]), s) for i, j, s in pairs],
-                           kept_2d_indices=k2.astype(np.int64), kept_3d_indices=k3.astype(np.int64),
-                           latency_ms=(time.perf_counter() - t0) * 1000.0, model=m.model_name, device=str(m.device),
-                           assignment="hungarian", geometry_iou=geo, fusion_weight=1.0, source="geometry")
     if fuse and sim.size:
         geo = geometric_iou(image, point_cloud, bboxes_2d, bboxes_3d, m.calibration, k2, k3, box7=box7)
         weight = float(m.fusion_weight)

@@ -21,7 +21,7 @@ import numpy as np
 __all__ = [
     "CONVENTIONS", "detect_box3d_convention", "boxes3d_to_center_size", "boxes3d_to_extents",
     "center_size_to_extents", "extents_to_center_size", "as_box7", "box7_corners", "box7_to_extents", "expand_box7",
-    "points_in_boxes", "box_point_pairs", "box2d_centers", "box2d_sizes", "box2d_areas", "iou_matrix", "clip_boxes2d",
+    "points_in_boxes", "box_point_pairs", "take_rows", "box2d_centers", "box2d_sizes", "box2d_areas", "iou_matrix", "clip_boxes2d",
     "valid_boxes2d", "xyxy_to_xywh", "xywh_to_xyxy", "xyxy_to_cxcywh", "cxcywh_to_xyxy",
     "boxes2d_from_points", "check_boxes2d", "check_boxes3d",
 ]
@@ -150,6 +150,7 @@ def _box_affines(b: np.ndarray) -> np.ndarray:
 
 
 _GRID = 128  # cells per axis of the x-y grid over the boxes' footprints (candidate search)
+_FEW_BOXES = 32  # up to this many boxes, occupancy is marked box by box (else a 2D prefix sum)
 
 
 def _box_footprints(b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -169,12 +170,12 @@ def _grid_cells(xy: np.ndarray, lo: np.ndarray, hi: np.ndarray):
     org = lo.min(0) - pad
     cell = (hi.max(0) + pad - org) / G
     cells = np.empty((2, len(xy)), dtype=np.int32)
-    for a in range(2):  # x, then y: one strided read each, then contiguous float32 passes
-        f = xy[:, a] * np.float32(1.0 / cell[a])
-        f += np.float32(1.0 - org[a] / cell[a])
-        np.fmax(f, np.float32(0.0), out=f)  # fmax/fmin: a NaN coordinate lands on the border too
-        np.fmin(f, np.float32(G + 1.0), out=f)
-        cells[a] = f
+    with np.errstate(invalid="ignore"):  # NaN / huge: some int (INT_MIN or saturated), clipped below
+        for a in range(2):  # x, then y: one strided read each, then contiguous float32 passes
+            f = xy[:, a] * np.float32(1.0 / cell[a])
+            f += np.float32(1.0 - org[a] / cell[a])
+            cells[a] = f  # truncation toward zero: every f < 1 gives <= 0, the border after the clip
+    np.clip(cells, 0, G + 1, out=cells)  # out-of-grid, NaN and huge coordinates land on the border
     cid = cells[1] * (G + 2) + cells[0]
     lo_c = np.clip(np.floor((lo - org) / cell), 1, G).astype(np.int64)  # + 1 border - 1 margin
     hi_c = np.clip(np.floor((hi - org) / cell) + 2, 1, G).astype(np.int64)
@@ -183,6 +184,11 @@ def _grid_cells(xy: np.ndarray, lo: np.ndarray, hi: np.ndarray):
 
 def _occupied(cid: np.ndarray, lo_c: np.ndarray, hi_c: np.ndarray) -> np.ndarray:
     """Indices of the points whose cell lies in some box's cell rectangle (2D prefix sum)."""
+    if len(lo_c) <= _FEW_BOXES:  # a few boxes: mark their rectangles directly
+        occ = np.zeros((_GRID + 2, _GRID + 2), dtype=bool)
+        for (x0, y0), (x1, y1) in zip(lo_c.tolist(), hi_c.tolist()):
+            occ[y0:y1 + 1, x0:x1 + 1] = True
+        return np.flatnonzero(occ.ravel().take(cid))
     n = _GRID + 3
     d = np.zeros((n, n), dtype=np.int32)
     np.add.at(d, (lo_c[:, 1], lo_c[:, 0]), 1)
@@ -232,9 +238,18 @@ def box_point_pairs(points, boxes, *, expansion: float = 1.0, convention: str = 
         return none
     mi = np.repeat(seg_box, lens)
     pi = cand[order[np.repeat(seg_start, lens) + np.arange(total) - np.repeat(np.cumsum(lens) - lens, lens)]]
-    inside = _inside(_box_affines(b), mi, np.ascontiguousarray(xyz[pi].T))
+    inside = _inside(_box_affines(b), mi, np.ascontiguousarray(take_rows(xyz, pi).T))
     key = np.sort(mi[inside] * len(pts) + pi[inside])
     return key // len(pts), key % len(pts)
+
+
+def take_rows(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``a[idx]`` for a 2D array: rows of a C-contiguous array are gathered as single opaque
+    items (one copy per row instead of one per element); the same values as ``a[idx]``."""
+    if a.ndim != 2 or not a.flags.c_contiguous or a.shape[1] == 0:
+        return a[idx]
+    rows = a.view(np.dtype((np.void, a.shape[1] * a.itemsize)))[:, 0]
+    return rows.take(idx).view(a.dtype).reshape(*np.shape(idx), a.shape[1])
 
 
 def _inside(Af: np.ndarray, mi: np.ndarray, p: np.ndarray) -> np.ndarray:

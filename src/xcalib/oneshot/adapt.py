@@ -71,6 +71,7 @@ class AdaptReport:
     steps: int = 0
     n_train_frames: int = 0
     n_heldout_frames: int = 0
+    heldout_frames: list[int] = field(default_factory=list)  # Observation.index of the held-out frames
     n_pairs: int = 0
     n_heldout_pairs: int = 0
     n_trainable: int = 0
@@ -145,11 +146,14 @@ def pseudo_loss(model, observations: Sequence[Observation], targets: Sequence[Ps
     return float(np.mean(vals)) if vals else float("nan")
 
 
-def holdout_split(n: int, fraction: float) -> tuple[np.ndarray, np.ndarray]:
-    """(train indices, held-out indices): every k-th frame held out (deterministic, spread in time)."""
+def holdout_split(n: int, fraction: float, min_frames: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(train indices, held-out indices): every k-th frame held out (deterministic, spread in time);
+    ``floor(n * fraction)`` frames, raised to ``min_frames`` while at least as many stay for training."""
     if not (0.0 <= fraction < 1.0):
         raise ValueError(f"holdout must be a fraction in [0, 1), got {fraction}")
     n_hold = int(math.floor(n * fraction))
+    if n_hold < min_frames <= n - min_frames:
+        n_hold = int(min_frames)
     if n_hold == 0:
         return np.arange(n), np.zeros(0, np.int64)
     hold = np.unique(np.round(np.linspace(0, n - 1, n_hold + 2)[1:-1]).astype(np.int64))
@@ -238,7 +242,8 @@ def _gain_candidates(box_gain, model, observations, targets, augment) -> list[fl
 
 def adapt_model(model, observations: Sequence[Observation], targets: Sequence[PseudoTargets], *, steps: int,
                 n_points: int, device, mode: str = "heads", lr: float = 1e-3, frames_per_batch: int = 4,
-                anchor: float = 1e-2, holdout: float = 0.2, grad_clip: float = 5.0, keep_if_worse: bool = False,
+                anchor: float = 1e-2, holdout: float = 0.2, min_holdout: int = 0, grad_clip: float = 5.0,
+                keep_if_worse: bool = False,
                 min_pairs: int = 8, eval_seed: int = 0, seed: int = 0, augment=None, p_augment: float = 1.0,
                 box_weight: float = 0.0, box_gain=None,
                 progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
@@ -269,11 +274,12 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
         raise ValueError(f"frames_per_batch must be >= 1, got {frames_per_batch}")
     named = trainable_parameters(model, mode)
     usable = [k for k, o in enumerate(observations) if not o.empty]
-    tr_rel, ho_rel = holdout_split(len(usable), holdout)
+    tr_rel, ho_rel = holdout_split(len(usable), holdout, min_holdout)
     tr = [usable[k] for k in tr_rel]
     ho = [usable[k] for k in ho_rel]
     n_pairs = int(sum(targets[k].n_pairs for k in tr))
     rep = AdaptReport(trained=False, mode=mode, n_train_frames=len(tr), n_heldout_frames=len(ho), n_pairs=n_pairs,
+                      heldout_frames=[int(getattr(observations[k], "index", k)) for k in ho],
                       n_heldout_pairs=int(sum(targets[k].n_pairs for k in ho)),
                       n_trainable=int(sum(p.numel() for _, p in named)))
     ho_obs, ho_t = [observations[k] for k in ho], [targets[k] for k in ho]

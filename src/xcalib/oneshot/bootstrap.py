@@ -9,6 +9,8 @@
    model config, used by ``match`` when no ``match_threshold`` is given); decide the site's default
    matching path (``oneshot.site_default``: geometry unless the adapted model alone reproduces the
    pose-only matches on the held-out frames; saved in the model config as ``site_default``);
+   check the held-out Top-1 (``oneshot.heldout``: a quarter of the frames, at least 4, held out of
+   training; reported only when it agrees with the matches of a pose calibrated without them);
 5. install the weights (and ``calibration.json``) where ``Matcher.from_pretrained(model, site=SITE)``
    finds them (``$XCALIB_HOME/sites/<site>/``), unless ``install=False``; the reloaded matcher
    carries that calibration and fuses it into ``match``.
@@ -25,6 +27,7 @@ from typing import Callable, Iterable
 
 from ..calib.config import CalibConfig
 from ..calib.result import CalibrationResult
+from .heldout import HELDOUT_SHARE, MIN_HELDOUT_FRAMES, HeldoutCheck, check_heldout
 from .site_default import SiteDefault, choose_site_default
 from .threshold import ThresholdChoice, choose_threshold
 from ..types import Frame
@@ -53,6 +56,7 @@ class BootstrapResult:
     matcher: object = None
     threshold: ThresholdChoice | None = None
     site_default: SiteDefault | None = None
+    heldout: HeldoutCheck | None = None
 
     def summary(self) -> dict:
         c = self.calibration
@@ -63,7 +67,9 @@ class BootstrapResult:
                                                                 if k != "losses"},
                 "paths": {k: str(v) for k, v in self.paths.items()}, "elapsed_s": self.elapsed_s,
                 "match_threshold": None if self.threshold is None else dataclasses.asdict(self.threshold),
-                "site_default": None if self.site_default is None else dataclasses.asdict(self.site_default)}
+                "site_default": None if self.site_default is None else dataclasses.asdict(self.site_default),
+                "heldout": None if self.heldout is None else {**dataclasses.asdict(self.heldout),
+                                                               "reported_top1": self.heldout.reported_top1}}
 
 
 def starting_matcher(model: str, init: str = "auto", *, device: str | None = "cpu", seed: int = 0):
@@ -92,7 +98,7 @@ def starting_matcher(model: str, init: str = "auto", *, device: str | None = "cp
 
 
 def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "fastmatch", init: str = "auto",
-              steps: int = 600, mode: str | None = None, lr: float = 1e-3, holdout: float = 0.2,
+              steps: int = 600, mode: str | None = None, lr: float = 1e-3, holdout: float = HELDOUT_SHARE,
               install: bool = True, out_dir: str | Path | None = None, device: str | None = "cpu", seed: int = 0,
               calib_config: CalibConfig | None = None,
               on_frame: Callable[[int, object], None] | None = None,
@@ -120,15 +126,19 @@ def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "f
     if not session.is_calibrated:
         raise OneShotError(f"bootstrap: no calibration from {n} frame(s): the detections do not determine the pose "
                            f"(calibrator: {last.reason}); record more frames with several objects seen by both sensors")
-    report = session.adapt(steps=steps, lr=lr, holdout=holdout, progress=on_step)
+    report = session.adapt(steps=steps, lr=lr, holdout=holdout, min_holdout=MIN_HELDOUT_FRAMES if holdout > 0 else 0,
+                           progress=on_step)
     if not report.trained:
         raise OneShotError(f"bootstrap: training did not produce weights ({report.message}); nothing installed")
     threshold = choose_threshold(session.matcher, kept, session.calibration)
     if threshold is not None:  # saved with the weights (model config); match() uses it by default
         session.matcher.config["match_threshold"] = threshold.threshold
-    site_default = choose_site_default(session.matcher, kept, session.calibration, holdout=holdout)
+    held = [k for k in report.heldout_frames if k < len(kept)]
+    site_default = choose_site_default(session.matcher, kept, session.calibration, holdout=holdout, held=held)
     if site_default is not None:  # saved with the weights; match(geometry="auto") projects when "geometry"
         session.matcher.config["site_default"] = dataclasses.asdict(site_default)
+    heldout = check_heldout(session, report.heldout_frames, calib_config=calib_config) if report.heldout_frames \
+        else None
     paths: dict[str, Path] = {}
     if out_dir is not None:
         paths.update({f"out_{k}": v for k, v in session.save(out_dir).items()})
@@ -136,4 +146,4 @@ def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "f
         paths.update(session.save_site(site))
     return BootstrapResult(site=site, model=model, init=init_desc, n_frames=n, calibration=session.calibration,
                            adapt=report, paths=paths, elapsed_s=time.perf_counter() - t0, matcher=session.matcher,
-                           threshold=threshold, site_default=site_default)
+                           threshold=threshold, site_default=site_default, heldout=heldout)

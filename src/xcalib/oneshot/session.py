@@ -374,7 +374,8 @@ class OneShotSession:
     def adapt(self, steps: int = 50, *, lr: float = 1e-3, batch_size: int | None = None,
               temperature: float | None = None, mode: str | None = None, replay_weight: float | None = None,
               min_bank: int | None = None, frames_per_batch: int = 4,
-              anchor: float = 1e-2, holdout: float = 0.2, min_pairs: int = 8, keep_if_worse: bool = False,
+              anchor: float = 1e-2, holdout: float = 0.2, min_holdout: int = 0, min_pairs: int = 8,
+              keep_if_worse: bool = False,
               augment: bool = True, p_augment: float = 1.0, augment_options: dict | None = None,
               box_weight: float = 10.0, box_gain: float | str | tuple | None = "auto",
               progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
@@ -398,6 +399,8 @@ class OneShotSession:
         and keeps the better on the held-out buffer frames (twice the training time; the report's
         ``gain_trials`` has both scores); a number or "residual": that gain alone; None: as is.
         Defaults chosen on the tuning sequences of ``benchmarks/bench_oneshot.py``.
+        ``holdout`` / ``min_holdout``: the share of buffered frames (at least ``min_holdout`` while as
+        many stay for training) held out of training (``AdaptReport.heldout_frames``).
         Raises :class:`NotCalibratedError` before any calibration. With fewer than ``min_pairs``
         pseudo-matches it warns and returns a report with ``trained=False`` (weights untouched).
         """
@@ -421,7 +424,7 @@ class OneShotSession:
                                    neg_iou=self.neg_iou, **(augment_options or {}))
         rep = adapt_model(self.model, obs, targets, steps=int(steps), n_points=self.matcher.crop_config.point_cloud_size,
                           device=dev, mode=mode or self.mode, lr=lr, frames_per_batch=frames_per_batch, anchor=anchor,
-                          holdout=holdout, min_pairs=min_pairs, keep_if_worse=keep_if_worse,
+                          holdout=holdout, min_holdout=min_holdout, min_pairs=min_pairs, keep_if_worse=keep_if_worse,
                           eval_seed=self.matcher.crop_config.seed, seed=self.seed + len(self.history),
                           augment=aug, p_augment=p_augment, box_weight=box_weight if augment else 0.0,
                           box_gain=box_gain if augment else None, progress=progress)

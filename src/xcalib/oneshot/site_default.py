@@ -10,14 +10,14 @@ so they agree with themselves at 1.00; the model beats them only when it reprodu
 is saved in the model config (``site_default``, beside the site weights); ``match(geometry=
 "auto")`` then projects through the site calibration, ``geometry="off"`` keeps the model (fused
 with the calibration unless ``use_calibration=False``), and ``use_calibration=True`` fuses.
-On A9 (bootstrap on frames 0-11): adapted model 0.92 / 0.84 / 0.92 Top-1 / precision / recall
-vs pose 1.00 / 1.00 / 1.00 on frames 12-15.
+On A9 (bootstrap on frames 0-11): adapted model 0.87 / 0.81 / 0.87 Top-1 / precision / recall
+vs pose 1.00 / 1.00 / 1.00 on frames 12-15 (``benchmarks/bench_matching_sites.py``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Sequence
 
 __all__ = ["SiteDefault", "choose_site_default"]
 
@@ -38,13 +38,16 @@ class SiteDefault:
     n_pose: int
 
 
-def choose_site_default(matcher, frames, calibration, *, holdout: float = 0.2) -> SiteDefault | None:
-    """Model-only vs pose-only agreement on the held-out ``frames`` (None without pose pairs)."""
+def choose_site_default(matcher, frames, calibration, *, holdout: float = 0.2,
+                        held: Sequence[int] | None = None) -> SiteDefault | None:
+    """Model-only vs pose-only agreement on the held-out ``frames`` (None without pose pairs):
+    ``held`` (indices into ``frames``, e.g. adapt's held-out frames), else the ``holdout_split``."""
     from ..calib.matching import derive_matches
     from .adapt import holdout_split
 
     frames = list(frames)
-    _, held = holdout_split(len(frames), holdout) if holdout > 0 and len(frames) > 1 else ([], [])
+    if held is None:
+        _, held = holdout_split(len(frames), holdout) if holdout > 0 and len(frames) > 1 else ([], [])
     held = list(held) or list(range(len(frames)))
     n_pose = n_model = hit = top_hit = n_rows = 0
     for k in held:

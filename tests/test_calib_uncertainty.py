@@ -1,0 +1,123 @@
+"""Uncertainty (issue 12 item 4): the sigma clustered by object and the box-model floor.
+
+Small, seeded box-level scenes (``test_calib_support``), matches taken from the truth, no search:
+the same objects seen in many frames with one error each must widen the sigma (frames that
+repeat them add no information), independent objects must not, and the box-model shift is
+zero when every outline is its box.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from test_calib_support import sim_frames
+
+from xcalib.calib.inputs import prepare_frames
+from xcalib.calib.pose import Pose
+from xcalib.calib.refine import lsq
+from xcalib.calib.uncertainty import box_model_shift, combine, object_groups, object_sandwich, pose_covariance
+from xcalib.types import Frame
+
+
+def _truth_pairs(frames, cframes):
+    """Per CalibFrame, the true (2D row, 3D row) pairs from each Frame's match matrix."""
+    out = []
+    for fr, cf in zip(frames, cframes):
+        i2 = {int(k): r for r, k in enumerate(cf.idx2d)}
+        i3 = {int(k): r for r, k in enumerate(cf.idx3d)}
+        ij = [(i2[a], i3[b]) for a, b in np.argwhere(fr.match_matrix) if a in i2 and b in i3]
+        out.append(np.asarray(ij, dtype=np.int64).reshape(-1, 2))
+    return out
+
+
+def _repeated_scene(seed: int, n_frames: int, bias_px: float):
+    """One frame's objects seen again in ``n_frames`` frames: fresh 1 px box noise per frame plus
+    an error per object (its 2D box shifted by the same ``bias_px``-scale offset in every frame)."""
+    base, T = sim_frames(seed=seed, n_frames=1, noise_px=0.0, miss=0.0, false_pos=0.0, extra_3d=0)
+    rng = np.random.default_rng(seed)
+    f0 = base[0]
+    bias = rng.normal(0, bias_px, (len(f0.bboxes_2d), 4))
+    frames = [Frame(**{**f0.__dict__, "frame_key": f"{k:04d}",
+                       "bboxes_2d": f0.bboxes_2d + bias + rng.normal(0, 1.0, f0.bboxes_2d.shape)})
+              for k in range(n_frames)]
+    return frames, T
+
+
+def _fit(frames, T):
+    cframes, intr, _ = prepare_frames(frames, frames[0].intrinsics)
+    pairs = _truth_pairs(frames, cframes)
+    R, t, _, _, _ = lsq(cframes, pairs, intr, T[:3, :3], T[:3, 3], 2.0, 60)
+    return cframes, pairs, intr, Pose(R, t)
+
+
+def test_objects_repeated_over_frames_widen_the_sigma():
+    frames, T = _repeated_scene(seed=1, n_frames=8, bias_px=4.0)
+    cframes, pairs, intr, pose = _fit(frames, T)
+    groups = object_groups(cframes, pairs)
+    n_objects = len(pairs[0])
+    assert int(groups.max()) + 1 == n_objects  # each object's 8 views are one cluster
+    rot, tr, _ = pose_covariance(cframes, pairs, intr, pose.R, pose.t)
+    clus = object_sandwich(cframes, pairs, intr, pose.R, pose.t, groups)
+    # 8 views of one error count once: about sqrt(8) wider than counting every pair
+    assert np.linalg.norm(clus[:3]) > 1.8 * np.linalg.norm(rot)
+    assert np.linalg.norm(clus[3:]) > 1.8 * np.linalg.norm(tr)
+    # and the combined 2 sigma covers the actual error of the pose (the per-pair sigma does not)
+    err_deg, err_m = pose.error(Pose.parse(T))
+    r, t = combine(np.concatenate([rot, tr]), None, np.zeros(6), np.concatenate([rot, tr]), clusters=clus)
+    assert err_deg <= 2 * np.linalg.norm(r) and err_m <= 2 * np.linalg.norm(t)
+
+
+def test_independent_objects_keep_the_pair_sigma():
+    frames, T = sim_frames(seed=2, n_frames=6, miss=0.0, false_pos=0.0, extra_3d=0)
+    cframes, pairs, intr, pose = _fit(frames, T)
+    groups = object_groups(cframes, pairs, radius_m=0.05)  # every object is new in every frame
+    rot, _, _ = pose_covariance(cframes, pairs, intr, pose.R, pose.t)
+    clus = object_sandwich(cframes, pairs, intr, pose.R, pose.t, groups)
+    assert int(groups.max()) + 1 == sum(len(p) for p in pairs)
+    assert 0.5 < np.linalg.norm(clus[:3]) / np.linalg.norm(rot) < 1.6
+
+
+def test_object_sandwich_needs_four_objects_and_each_object_must_not_fix_the_pose_alone():
+    frames, T = _repeated_scene(seed=1, n_frames=4, bias_px=1.0)
+    cframes, pairs, intr, pose = _fit(frames, T)
+    three = [p[:3] for p in pairs]
+    assert object_sandwich(cframes, three, intr, pose.R, pose.t, object_groups(cframes, three)) is None
+    four = [p[:4] for p in pairs]
+    assert np.all(np.isfinite(object_sandwich(cframes, four, intr, pose.R, pose.t, object_groups(cframes, four))))
+    # one frame of 4 objects: without any one of them 3 boxes remain -> still determined (finite)
+    one = [p[:4] if k == 0 else p[:0] for k, p in enumerate(pairs)]
+    assert np.all(np.isfinite(object_sandwich(cframes, one, intr, pose.R, pose.t, object_groups(cframes, one))))
+
+
+def test_box_model_shift_is_zero_for_box_outlines_and_seen_otherwise():
+    frames, T = sim_frames(seed=3, n_frames=3, miss=0.0, false_pos=0.0, extra_3d=0)
+    cframes, pairs, intr, pose = _fit(frames, T)
+    assert box_model_shift(cframes, pairs, intr, pose) is None  # outlines are the box corners
+    # a point-hull outline that sits lower than the box (as a LiDAR sees the near, lower side)
+    lowered = [dataclasses.replace(f, corners=f.box_corners - np.array([0.0, 0.0, 0.3])) for f in cframes]
+    R, t, _, _, _ = lsq(lowered, pairs, intr, pose.R, pose.t, 2.0, 60)
+    fitted = Pose(R, t)  # fitted to the lowered outlines: the box corners pull it back towards the truth
+    shift = box_model_shift(lowered, pairs, intr, fitted)
+    assert shift is not None and np.linalg.norm(shift[3:]) > 0.05
+    np.testing.assert_allclose(shift, pose.delta(fitted), atol=0.02)
+
+
+def test_verdict_refuses_a_determined_pose_whose_reported_bound_is_too_wide():
+    from xcalib.calib.config import CalibConfig
+    from xcalib.calib.decision import Evidence, verdict
+
+    def ev(total_deg, total_m):
+        return Evidence(n_pairs=80, n_2d=100, most_per_frame=6, places=10, places_off_line=5, halves_available=True,
+                        best_score=50.0, runner_up_score=0.0, rot_sd=np.full(3, 0.1), tr_sd=np.full(3, 0.05),
+                        rot_sd_total=np.full(3, total_deg), tr_sd_total=np.full(3, total_m))
+
+    cfg = CalibConfig()
+    assert verdict(ev(0.5, 0.3), cfg) is None  # 2 sigma = 1.73 deg / 1.04 m: within 2 deg / 1.2 m
+    wide = verdict(ev(0.7, 0.3), cfg)  # 2 sigma = 2.4 deg
+    assert wide is not None and wide.code == "uncertain" and "counting each object once" in wide.message
+    assert verdict(ev(np.inf, 0.1), cfg).code == "uncertain"
+    assert verdict(ev(0.7, 0.3), cfg.replace(max_rot_bound_deg=3.0)) is None
+    # the frame-level sigma still judges whether the pose is determined at all
+    loose = Evidence(**{**ev(0.1, 0.05).__dict__, "rot_sd": np.full(3, 0.4)})
+    assert verdict(loose, cfg).code == "poorly_constrained"
