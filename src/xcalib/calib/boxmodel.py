@@ -138,51 +138,22 @@ def lidar_angular_step(points: np.ndarray, *, n_sample: int = 500, k: int = 48, 
     return float(np.median(d_az)), float(np.median(d_el))
 
 
-def _ray_box_entry(dirs: np.ndarray, box7: np.ndarray) -> np.ndarray:
-    """Distance [N] along unit rays from the LiDAR origin to their entry into ``box7`` (inf: miss)."""
-    c, s = np.cos(box7[6]), np.sin(box7[6])
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    o = -box7[:3] @ R  # origin in box coordinates
-    d = dirs @ R
-    d = np.where(np.abs(d) < 1e-12, 1e-12, d)
-    half = box7[3:6] / 2
-    t1, t2 = (-half - o) / d, (half - o) / d
-    near, far = np.minimum(t1, t2).max(1), np.maximum(t1, t2).min(1)
-    return np.where((near <= far) & (near > 0), near, np.inf)
-
-
-def expand_by_scan_gap(vertices: np.ndarray, box7: np.ndarray, step_rad: tuple[float, float],
-                       n_bisect: int = 6) -> np.ndarray:
+def expand_by_scan_gap(vertices: np.ndarray, step_rad: tuple[float, float]) -> np.ndarray:
     """Points where the surface of an object sampled at ``vertices`` [N,3] (LiDAR frame) is expected
-    to end: a LiDAR misses up to one scan step beyond its last return, half a step on average.
-    Each vertex's ray is turned by half the (azimuth, elevation) step both ways and re-cast on the
-    box (as a LiDAR would hit it), turned back towards the vertex where it would miss the box (the
-    object never leaves its box). Returns [4N,3]; rays that miss even unturned keep the vertex."""
+    to end: a LiDAR misses up to one scan step beyond its last return, half a step on average. Each
+    vertex is turned about the sensor by half the (azimuth, elevation) step both ways at its own
+    range (as a camera beside the LiDAR sees it: half a step further out). The box is not used: a
+    detected box's centre and size are noisier than the returns. Returns [4N,3]."""
     v = np.asarray(vertices, dtype=np.float64)
-    r = np.linalg.norm(v, axis=1)
-    u = v / np.maximum(r, 1e-9)[:, None]
+    r = np.linalg.norm(v, axis=1, keepdims=True)
+    u = v / np.maximum(r, 1e-9)
     az, el = np.arctan2(u[:, 1], u[:, 0]), np.arcsin(np.clip(u[:, 2], -1, 1))
     e_az = np.column_stack([-np.sin(az), np.cos(az), np.zeros_like(az)])
     e_el = np.column_stack([-np.sin(el) * np.cos(az), -np.sin(el) * np.sin(az), np.cos(el)])
     out = []
     for e, half in ((e_az, step_rad[0] / 2), (-e_az, step_rad[0] / 2), (e_el, step_rad[1] / 2), (-e_el, step_rad[1] / 2)):
-        lo, hi = np.zeros(len(v)), np.ones(len(v))
-        tan = np.tan(half)
-
-        def cast(frac):
-            d = u + (frac * tan)[:, None] * e
-            d /= np.linalg.norm(d, axis=1, keepdims=True)
-            return d, _ray_box_entry(d, box7)
-
-        d, t = cast(hi)
-        full = np.isfinite(t)
-        for _ in range(n_bisect):  # largest turn that still hits the box
-            mid = (lo + hi) / 2
-            hit = np.isfinite(cast(mid)[1])
-            lo, hi = np.where(hit, mid, lo), np.where(hit, hi, mid)
-        frac = np.where(full, 1.0, lo)
-        d, t = cast(frac)
-        out.append(np.where(np.isfinite(t)[:, None], d * t[:, None], v))
+        d = u * np.cos(half) + e * np.sin(half)
+        out.append(d * r)
     return np.concatenate(out)
 
 
@@ -197,7 +168,7 @@ def shapes_from_points(boxes7: np.ndarray, corners: np.ndarray, points: np.ndarr
     ``ground_clearance_m`` above the box bottom excluded; the box grown by ``expansion`` in x-y)
     plus their vertical drop onto the box bottom (objects stand on the ground).
     ``scan_step_rad`` (azimuth, elevation steps of the LiDAR, see :func:`lidar_angular_step`): the
-    hull is first grown by half a scan step within the box (:func:`expand_by_scan_gap`): the last
+    hull is first grown by half a scan step (:func:`expand_by_scan_gap`): the last
     return on an object lies on average half a step inside its silhouette (on the synthetic no-yaw
     sites the bare hull's top edge sat 10 px, 5 % of the box height, below the object's).
     Boxes with fewer than ``min_points`` points keep their 8 corners. Rows are padded by repeating
@@ -225,7 +196,7 @@ def shapes_from_points(boxes7: np.ndarray, corners: np.ndarray, points: np.ndarr
             try:
                 hv = p[ConvexHull(p).vertices]
                 if scan_step_rad is not None:
-                    grown_hv = np.concatenate([hv, expand_by_scan_gap(hv, b[j], scan_step_rad)])
+                    grown_hv = np.concatenate([hv, expand_by_scan_gap(hv, scan_step_rad)])
                     hv = grown_hv[ConvexHull(grown_hv).vertices]
                 if len(hv) > max_vertices:
                     # keep the extremes along many directions
