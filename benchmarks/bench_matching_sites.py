@@ -188,7 +188,7 @@ def bootstrap_sets(args) -> dict:
         out["synthetic B"] = split(d, args.bootstrap_fit) + (
             f"bootstrap on {args.bootstrap_fit} frames, evaluated on {args.synthetic_frames}",)
     if "synthetic C" in args.datasets:
-        out["synthetic C"] = "not run: <= 2 objects per frame, the calibrator cannot bring a pose up"
+        out["synthetic C"] = "not measured: <= 2 objects per frame (the model path serves it, see first frame)"
     return out
 
 
@@ -268,7 +268,7 @@ def print_table(table: dict) -> None:
         after = rows.get("after bootstrap")
         if isinstance(after, dict) and "model" in after:
             h = after["heldout_check"]
-            check = ("-" if h is None else f"{h['reported_top1']:.2f} ({h['frames']} frames, checked)" if h["verified"]
+            check = ("none held out (too few frames)" if h is None else f"{h['reported_top1']:.2f} ({h['frames']} frames, checked)" if h["verified"]
                      else f"not reported ({h['frames']} frames)")
             rest = [cell(after[c]) for c in AFTER_COLUMNS] + [check]
         else:
