@@ -199,7 +199,8 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
     chk, msg = unexplained_frames_check(cframes, pairs)
     found.append((chk, msg, "misfit_mixed_cameras"))
     if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
-        chk, msg = focal_scale_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed)
+        chk, msg = focal_scale_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed,
+                                     places=len(matched_places(cframes, pairs)[0]))
         found.append((chk, msg, "misfit_focal_length"))
     if config.refine_intrinsics != "focal+center":
         chk, msg = principal_point_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed)

@@ -62,8 +62,10 @@ def _focal_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion) -> fl
 
 def focal_scale_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
                       noise: NoiseModel, f_scale: float, occlusion: Occlusion, *, draws: int = 6,
-                      seed: int = 0) -> tuple[MisfitCheck, str | None]:
-    """Fitted focal scale (pose refitted too, matches fixed) and its bootstrap spread over frames."""
+                      seed: int = 0, places: int | None = None) -> tuple[MisfitCheck, str | None]:
+    """Fitted focal scale (pose refitted too, matches fixed) and its bootstrap spread over frames.
+    ``places``: distinct places of the matched 3D boxes; when the matches repeat a few objects
+    (4+ matches per place) the message says that the pose may be ambiguous too."""
     n = sum(len(p) for p in pairs)
     if n < 12:
         return MisfitCheck("focal_scale", 1.0, FOCAL_TOL, False, "too few matches to fit the focal length"), None
@@ -90,6 +92,10 @@ def focal_scale_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr: C
                f"px instead of {intr.fx:.0f}, fy ~{intr.fy * s:.0f} instead of {intr.fy:.0f}); the pose found with the "
                "given intrinsics is biased. Check the intrinsics (and the image size they belong to), or let xcalib "
                "estimate the focal length")
+        if places is not None and n >= 4 * max(places, 1):
+            msg += (f" -- but the {n} matches lie at only {places} distinct places (queued or parked objects repeated "
+                    "over the frames), where the focal length and the pose are hard to separate: add frames with "
+                    "other objects before changing the intrinsics")
     return MisfitCheck("focal_scale", s, FOCAL_TOL, flagged, detail), msg
 
 
