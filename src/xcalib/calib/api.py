@@ -31,7 +31,7 @@ from .cost import Occlusion
 from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, matched_places, precheck, verdict
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
 from .hypotheses import Hypotheses
-from .inputs import CalibFrame, prepare_frames
+from .inputs import CalibFrame, prepare_frames, with_corner_outlines
 from .misfit import flipped_frames, focal_scale_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .pose import Pose
@@ -90,6 +90,36 @@ def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
             progress("refine", len(cand) + k + 1, len(cand) + len(finals))
     refined.sort(key=lambda x: -x[0])
     return _Refined(refined[0][1], refined[0][0], refined[1:])
+
+
+def _outline_kind(cframes) -> str:
+    n_pts = sum(int(f.from_points.sum()) for f in cframes if f.from_points is not None)
+    n_all = sum(f.n3 for f in cframes)
+    return "corners" if n_pts == 0 else "points" if n_pts == n_all else "corners+points"
+
+
+def _choose_box_model(cframes, intr, cand: Hypotheses, ref: _Refined, occlusion: Occlusion, config: CalibConfig,
+                      diag: CalibDiagnostics, progress: Progress | None) -> tuple[list, _Refined]:
+    """``box_model="auto"`` with point-hull outlines (yaw-less boxes): fit the yaw-fitted boxes'
+    8 corners too and keep the outlines whose edges fit the 2D boxes better (median px). A hull
+    follows a real vehicle (rounded, narrower roof: on A9 the corners overshoot the 2D boxes by
+    8-17 % of their size) but misses the parts between scan lines; corners are exact for box-shaped
+    objects. When the corners win, every candidate is refined again with them."""
+    alt = with_corner_outlines(cframes) if config.box_model == "auto" else None
+    if alt is None:
+        diag.box_model = _outline_kind(cframes)
+        return cframes, ref
+    best = ref.best
+    rr = refine_pose(alt, intr, best.R, best.t, gates=((0.2, 0.5), (0.3, 0.0), (0.3, 0.0)), occlusion=occlusion)
+    px_hull, _ = pair_metrics(cframes, intr, best.R, best.t, best.pairs)
+    px_corner, _ = pair_metrics(alt, intr, rr.R, rr.t, rr.pairs)
+    med = [float(np.median(v)) if len(v) else float("inf") for v in (px_hull, px_corner)]
+    diag.box_model_px = med
+    if not med[1] < med[0]:
+        diag.box_model = _outline_kind(cframes)
+        return cframes, ref
+    diag.box_model = _outline_kind(alt)
+    return alt, _refine_candidates(alt, intr, cand, occlusion, progress)
 
 
 def _runner_up(ref: _Refined, max_baseline_m: float | None, r2: float = 1.0, t2: float = 0.3) -> float:
@@ -274,6 +304,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     diag.bringup_T = Pose(cand.R[0], cand.t[0]).T.tolist()
     occlusion = Occlusion(config.occlusion_tau, config.occlusion_slope)
     ref = _refine_candidates(cframes, intr, cand, occlusion, progress)
+    cframes, ref = _choose_box_model(cframes, intr, cand, ref, occlusion, config, diag, progress)
     inflation = None
     if wants_selfcal(config):
         choice = decide_selfcal(cframes, intr, Pose(ref.best.R, ref.best.t), config, motion, occlusion, diag.selfcal)

@@ -97,10 +97,15 @@ def _pair_features(obs: np.ndarray, outlines: np.ndarray, intr: CameraIntrinsics
 
 
 def edge_sigma(obs: np.ndarray, outlines: np.ndarray, intr: CameraIntrinsics, pose: Pose,
-               noise: NoiseModel) -> np.ndarray:
-    """Per-pair 1-sigma (px) of an edge residual at ``pose`` under the error model ``noise``."""
+               noise: NoiseModel, outline_sigma_m: np.ndarray | None = None) -> np.ndarray:
+    """Per-pair 1-sigma (px) of an edge residual at ``pose`` under the error model ``noise``, plus
+    each outline's own uncertainty ``outline_sigma_m`` [n] (m, seen at depth Z; e.g. a 3D box
+    whose yaw the LiDAR points leave open)."""
     s, fz = _pair_features(obs, outlines, intr, pose)
-    return np.sqrt(noise.sigma_px ** 2 + (fz * noise.sigma_3d_m) ** 2 + (noise.sigma_size * s) ** 2)
+    var = noise.sigma_px ** 2 + (fz * noise.sigma_3d_m) ** 2 + (noise.sigma_size * s) ** 2
+    if outline_sigma_m is not None:
+        var = var + (fz * np.asarray(outline_sigma_m, dtype=np.float64)) ** 2
+    return np.sqrt(var)
 
 
 class BoxEdgeTerm(CostTerm):

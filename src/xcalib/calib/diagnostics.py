@@ -145,6 +145,8 @@ class CalibDiagnostics:
     max_baseline_m: float | None = None
     misfit: list[MisfitCheck] = field(default_factory=list)
     selfcal: SelfCalDiagnostics = field(default_factory=SelfCalDiagnostics)
+    box_model: str = ""                    # outlines used: "corners" | "points" | "corners+points" ("": 3D boxes with yaw, corners)
+    box_model_px: list[float] | None = None  # median edge residual (px) of the [point-hull, corner] outline fits compared
     refusal: str = ""                      # short code of the refusal reason ("" on success)
     refused_T: list | None = None          # [4,4] the refined pose that was refused (a failed result has none)
     frames: list[FrameSummary] = field(default_factory=list)

@@ -7,16 +7,19 @@ their corner "shapes" [M,8,3], plus index maps back to the caller's numbering.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
 
 from ..geometry.boxes import as_box7, box7_corners, check_boxes2d, check_boxes3d, valid_boxes2d
 from ..geometry.camera import CameraIntrinsics
-from .boxmodel import estimate_yaw_from_points, shapes_from_points
+from .boxmodel import fit_yaw_to_points, lidar_angular_step, shapes_from_points
 
-__all__ = ["CalibFrame", "as_intrinsics", "prepare_frames"]
+__all__ = ["CalibFrame", "as_intrinsics", "prepare_frames", "with_corner_outlines", "YAW_OPEN_SIGMA"]
+
+#: 1-sigma of a box outline whose yaw the points leave open, as a fraction of |length - width|
+YAW_OPEN_SIGMA = 0.25
 
 
 @dataclass
@@ -24,7 +27,13 @@ class CalibFrame:
     """One frame as the calibrator sees it.
 
     boxes2d [K,4] px (valid rows only), boxes3d box7 [M,7] LiDAR frame (metres, radians),
-    corners [M,8,3] LiDAR frame, idx2d [K] / idx3d [M] map rows back to the input numbering.
+    corners [M,S,3] LiDAR frame: each 3D box's outline (its 8 corners, or the hull of its LiDAR
+    points, see ``box_model``), box_corners [M,8,3] the 8 corners, from_points [M] bool: the outline
+    is a point hull, yaw_ambiguous [M] bool: a yaw-less box whose heading the points do not tell
+    (None: yaw given), outline_sigma_m [M] the outline's own 1-sigma (m; None: 0): a quarter of
+    length minus width for the 8 corners of a box whose yaw is open (a point hull does not depend
+    on it), which makes such a box count little in the fit while it still counts in matching and
+    scoring. idx2d [K] / idx3d [M] map rows back to the input numbering.
     size = (width, height) px. points: [P,3] LiDAR-frame cloud or None (overlays, yaw).
     """
 
@@ -37,6 +46,9 @@ class CalibFrame:
     idx3d: np.ndarray
     size: tuple[int, int]
     box_corners: np.ndarray | None = None
+    from_points: np.ndarray | None = None
+    yaw_ambiguous: np.ndarray | None = None
+    outline_sigma_m: np.ndarray | None = None
     points: np.ndarray | None = None
     image: np.ndarray | None = None
     gt: np.ndarray | None = None
@@ -126,6 +138,7 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
     frame_intr = [r[7] for r in raw if r[7] is not None]
     if problem is None and any(fi != frame_intr[0] for fi in frame_intr[1:]):
         problem = "frames carry different camera intrinsics (mixed cameras?); calibrate one camera at a time"
+    scan_step = None
     for i, (image, pts, b2, b3, cam, key, gt, _fi, meta) in enumerate(raw):
         size = _image_size(image, intr, meta)
         intr.check_image_size(*size)
@@ -152,20 +165,52 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
         if reestimate_yaw not in ("auto", "always", "never", True, False):
             raise ValueError(f"reestimate_yaw: expected 'auto', 'always' or 'never', got {reestimate_yaw!r}")
         redo = reestimate_yaw in (True, "always") or (reestimate_yaw == "auto" and not had_yaw)
+        ambiguous = None
         if redo and p is not None and len(box7):
-            box7 = estimate_yaw_from_points(box7, p)
+            yf = fit_yaw_to_points(box7, p)
+            box7, ambiguous = yf.boxes7, yf.ambiguous
+            meta = {**meta, "yaw_fitted": int(yf.fitted.sum()), "yaw_ambiguous": int(yf.ambiguous.sum())}
         if box_model not in ("auto", "corners", "points"):
             raise ValueError(f"box_model: expected 'auto', 'corners' or 'points', got {box_model!r}")
-        shapes = box7_corners(box7) if len(box7) else np.zeros((0, 8, 3))
+        corners8 = box7_corners(box7) if len(box7) else np.zeros((0, 8, 3))
+        shapes, from_pts = corners8, np.zeros(len(box7), dtype=bool)
         use_pts = box_model == "points" or (box_model == "auto" and not had_yaw)
         if use_pts and p is not None and len(p) and len(box7):
-            shapes, from_pts = shapes_from_points(box7, shapes, p)
+            if scan_step is None:  # one LiDAR for all frames: its scan pattern once
+                scan_step = lidar_angular_step(p)
+            shapes, from_pts = shapes_from_points(box7, corners8, p, scan_step_rad=scan_step)
             meta = {**meta, "boxes_from_points": int(from_pts.sum())}
         out.append(CalibFrame(
             key=str(key), camera=cam, boxes2d=b2[idx2].astype(np.float64), boxes3d=box7,
-            corners=shapes, box_corners=box7_corners(box7) if len(box7) else np.zeros((0, 8, 3)),
+            corners=shapes, box_corners=corners8, from_points=from_pts, yaw_ambiguous=ambiguous,
+            outline_sigma_m=None if ambiguous is None else np.where(ambiguous & ~from_pts,
+                                                                   YAW_OPEN_SIGMA * np.abs(box7[:, 3] - box7[:, 4]), 0.0),
             idx2d=idx2, idx3d=idx3,
             size=size, points=p, image=None if image is None else np.asarray(image),
             gt=None if gt is None else np.asarray(gt, dtype=np.float64), meta=meta,
         ))
     return out, intr, problem
+
+
+def with_corner_outlines(frames: Sequence[CalibFrame]) -> list[CalibFrame] | None:
+    """The frames with every point-hull outline replaced by its box's 8 corners, except boxes whose
+    yaw the points leave ambiguous (their hull is the better outline, weighted as one whose yaw is
+    open: among corners it is another model); None when no outline comes from points."""
+    if not any(f.from_points is not None and f.from_points.any() for f in frames):
+        return None
+    out = []
+    for f in frames:
+        swap = np.zeros(f.n3, dtype=bool) if f.from_points is None else f.from_points.copy()
+        if f.yaw_ambiguous is not None:
+            swap &= ~f.yaw_ambiguous
+        if not swap.any():
+            out.append(f)
+            continue
+        S = max(f.corners.shape[1], 8)
+        shapes = np.concatenate([f.corners, np.repeat(f.corners[:, :1], S - f.corners.shape[1], 1)], 1)
+        shapes[swap] = np.concatenate([f.box_corners[swap], np.repeat(f.box_corners[swap][:, :1], S - 8, 1)], 1)
+        hull = f.from_points & ~swap  # open yaw: a hull among corners is another model, counted little
+        sig = np.where(hull, YAW_OPEN_SIGMA * np.abs(f.boxes3d[:, 3] - f.boxes3d[:, 4]),
+                       0.0 if f.outline_sigma_m is None else f.outline_sigma_m)
+        out.append(replace(f, corners=shapes, from_points=hull, outline_sigma_m=sig))
+    return out

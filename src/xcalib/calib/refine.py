@@ -92,8 +92,16 @@ def edge_term(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraInt
               noise: NoiseModel | None = None, occlusion: Occlusion | None = Occlusion()) -> BoxEdgeTerm:
     """The box-edge term of the matched ``pairs``, weighted by ``noise`` at ``pose``."""
     outlines, obs = _stack(frames, pairs)
-    sigma = edge_sigma(obs, outlines, intr, pose, DEFAULT_NOISE if noise is None else noise)
+    sigma = edge_sigma(obs, outlines, intr, pose, DEFAULT_NOISE if noise is None else noise,
+                       _outline_sigma(frames, pairs))
     return BoxEdgeTerm(outlines, obs, frames[0].size, sigma, occlusion)
+
+
+def _outline_sigma(frames: list[CalibFrame], pairs: list[np.ndarray]) -> np.ndarray:
+    """Each matched outline's own 1-sigma (m, ``CalibFrame.outline_sigma_m``; 0 where none), in ``_stack`` order."""
+    parts = [fr.outline_sigma_m[p[:, 1]] if fr.outline_sigma_m is not None else np.zeros(len(p))
+             for fr, p in zip(frames, pairs) if len(p)]
+    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
@@ -118,6 +126,7 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
     X = np.repeat(np.column_stack([np.ones(len(s)), fz ** 2, s ** 2]), 4, axis=0)
     border = np.column_stack([rects[:, 0] <= 0.5, rects[:, 1] <= 0.5, rects[:, 2] >= W - 0.5, rects[:, 3] >= H - 0.5])
     out = valid[:, None] & ~border & np.isfinite(e) & (np.nan_to_num(e) * INWARD < 0)
+    out &= (_outline_sigma(frames, pairs) == 0)[:, None]  # outlines with their own error (open yaw) say nothing of it
     y = 2.0 * np.nan_to_num(e).ravel() ** 2
     use = out.ravel()
     floor = np.array(DEFAULT_NOISE) ** 2
