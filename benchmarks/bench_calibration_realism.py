@@ -7,7 +7,9 @@ For each condition, the same ``--sites`` identifiable roadside sites (the first 
 calibrated with the public call ``xcalib.calibrate(case.frames, case.intrinsics_given)`` (no
 initial guess, default options) and compared with the truth.
 
-Columns: n (sites), success (share with ``success=True``), wrong (successes with a rotation error
+Columns: n (sites), success (share with ``success=True``), 4+ obj (successes / sites among those
+whose frames show 4+ distinct objects to both sensors: a pose resting on fewer is refused
+as not verifiable, ``decision``), wrong (successes with a rotation error
 > 1 deg or a translation error > 0.5 m against the true ``T_cam_lidar``), median rotation /
 translation error of the successes, 2-sigma coverage (share of the successes whose rotation error
 <= 2 * norm(rotation_std_deg) AND translation error <= 2 * norm(translation_std_m), the norms of the
@@ -111,6 +113,10 @@ def summarise(name: str, recs: list[dict]) -> dict:
         "condition": name, "description": REALISM_CONDITIONS[name.removesuffix(SELFCAL_SUFFIX)].description
         + (" [refine_intrinsics / time_offset estimated]" if name.endswith(SELFCAL_SUFFIX) else ""), "n": len(recs),
         "success": len(ok), "success_rate": len(ok) / max(len(recs), 1), "wrong_successes": len(wrong),
+        # the calibrator refuses poses resting on < 4 distinct objects (decision.MIN_OBJECTS): the
+        # success rate over the sites whose frames show 4+ objects to both sensors
+        "n_4plus_objects": len(four := [r for r in recs if r.get("objects_seen", 0) >= 4]),
+        "success_4plus_objects": sum(r["success"] for r in four),
         "rot_deg_median": _median([r["rot_deg"] for r in ok]), "trans_m_median": _median([r["trans_m"] for r in ok]),
         "coverage_2sigma": float(np.mean([r["within_2sigma"] for r in ok])) if ok else None,
         "coverage_2sigma_rot": float(np.mean([r["rot_within_2sigma"] for r in ok])) if ok else None,
@@ -133,11 +139,12 @@ def summarise(name: str, recs: list[dict]) -> dict:
 
 def print_table(rows: list[dict]) -> None:
     f = (lambda v, d=3: "-" if v is None else f"{v:.{d}f}")
-    print(f"\n{'condition':>34} {'n':>3} {'success':>8} {'wrong':>5} {'rot med':>8} {'trans med':>9} "
+    print(f"\n{'condition':>34} {'n':>3} {'success':>8} {'4+ obj':>7} {'wrong':>5} {'rot med':>8} {'trans med':>9} "
           f"{'2sig cov':>8} {'wrong: rot/trans med':>21} {'time med':>8}")
     for r in rows:
         wr = "-" if not r["wrong_successes"] else f"{r['wrong_rot_deg_median']:.2f}/{r['wrong_trans_m_median']:.2f}"
-        print(f"{r['condition']:>34} {r['n']:>3} {r['success']:>3} ({r['success_rate'] * 100:>3.0f}%) "
+        four = f"{r['success_4plus_objects']}/{r['n_4plus_objects']}"
+        print(f"{r['condition']:>34} {r['n']:>3} {r['success']:>3} ({r['success_rate'] * 100:>3.0f}%) {four:>7} "
               f"{r['wrong_successes']:>4} {f(r['rot_deg_median']):>8} {f(r['trans_m_median']):>9} "
               f"{f(r['coverage_2sigma'], 2):>8} {wr:>21} {f(r['time_s_median'], 2):>7}s")
 

@@ -49,3 +49,36 @@ def test_second_pose_check_passes_the_clean_site():
     assert not checks["time_offset"].flagged
     rot, trans = res.pose_error(case.T_cam_lidar)
     assert rot < 0.2 and trans < 0.1
+
+
+@pytest.mark.parametrize("condition", ["principal_point+3%W", "time_offset_0.05s"])
+def test_three_object_site_is_refused_as_unverifiable(condition):
+    """0.5.0 (before the objects check): success 1.6 deg / 0.55 m (principal point) and 2.3 deg /
+    1.8 m (time offset) off at site 20, whose 37 matches come from 3 objects."""
+    case, res = _calibrate(condition, 20)
+    assert case.objects_seen == 3
+    assert not res.success
+    assert res.diagnostics.refusal == "few_objects", res.message
+    assert "3 distinct object" in res.message and res.rotation is None
+
+
+def test_principal_point_fit_far_outside_the_image_does_not_raise():
+    """0.5.0 raised ValueError from the principal-point check: a trial step of its fit put (cx, cy)
+    at (677, -599) on a 1920x1200 image (roadside site 35, 0.5 px, the search retried without the
+    baseline). Bad fits must end in a result, never an exception."""
+
+    from xcalib.data.synth import generate_frames, sample_site
+
+    site = sample_site(35, preset="roadside")
+    frames = generate_frames(site, 20, seed=35, render_images=False, lidar=False, miss_rate_2d=0.1,
+                             false_positive_rate_2d=0.05, box_noise_px=0.5, center_noise_m=0.0,
+                             size_noise_frac=0.0, yaw_noise_deg=0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = calibrate(frames, frames[0].intrinsics)
+    assert isinstance(res.success, bool)
+    if res.success:
+        rot, trans = res.pose_error(frames[0].extrinsics)
+        assert rot < 1.0 and trans < 0.5
+    else:
+        assert res.message and res.rotation is None

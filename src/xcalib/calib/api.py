@@ -348,7 +348,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
                                places=len(places), places_off_line=int(np.sum(off > POOLED_OFF_LINE_M)),
                                halves_available=unc.halves_available, best_score=ref.best_score,
                                runner_up_score=runner, rot_sd=unc.rot_sd_data, tr_sd=unc.tr_sd_data,
-                               rot_sd_total=unc.rot_sd, tr_sd_total=unc.tr_sd), config)
+                               rot_sd_total=unc.rot_sd, tr_sd_total=unc.tr_sd,
+                               n_objects=unc.parts.n_objects if config.uncertainty != "frames" else None), config)
     if refusal is None and prior is None:
         refusal = crowded_check(cframes, config)
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):
@@ -410,7 +411,7 @@ def calibrate(frames, intrinsics=None, config: CalibConfig | None = None, *args,
     res = _calibrate(frames_in, intrinsics, config, matcher, prior_pose, progress)
     if not res.success and config.max_baseline_m is not None and prior_pose is None \
             and res.diagnostics.refusal not in ("mixed_cameras", "too_few_detections", "collinear_3d", "collinear_2d") \
-            and not res.diagnostics.refusal.startswith("misfit") and res.diagnostics.refusal != "crowded":
+            and not res.diagnostics.refusal.startswith("misfit") and res.diagnostics.refusal not in ("crowded", "few_objects"):
         # the co-located-rig assumption may be wrong (e.g. boxes in a global frame): search again
         retry = _calibrate(frames_in, intrinsics, config.replace(max_baseline_m=None), matcher, None, progress)
         if retry.success or res.diagnostics.refusal == "no_hypothesis":

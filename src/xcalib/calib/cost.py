@@ -33,7 +33,7 @@ from .boxproj import project_rects
 from .diagnostics import NoiseModel
 from .pose import Pose
 
-__all__ = ["PoseState", "CostTerm", "Occlusion", "BoxEdgeTerm", "PosePriorTerm", "FocalScaleTerm",
+__all__ = ["shift_principal_point", "PoseState", "CostTerm", "Occlusion", "BoxEdgeTerm", "PosePriorTerm", "FocalScaleTerm",
            "PrincipalPointTerm", "TimeOffsetTerm", "CostModel", "CostFit", "edge_sigma", "INWARD", "POSE_X_SCALE"]
 
 INWARD = np.array([-1.0, -1.0, 1.0, 1.0])  # sign of (pred - obs) per edge when the 2D box lies inside
@@ -172,6 +172,16 @@ class FocalScaleTerm(CostTerm):
         return np.asarray(state.params[self.name], dtype=np.float64) / self.sigma_log
 
 
+def shift_principal_point(intr: CameraIntrinsics, dx_px: float, dy_px: float) -> CameraIntrinsics:
+    """``intr`` with (cx, cy) moved by (dx, dy) px; with a known image size held within 20 % of it
+    beyond the edges (a trial step of a fit far outside the image is not an intrinsics error)."""
+    cx, cy = intr.cx + dx_px, intr.cy + dy_px
+    W, H = intr.width, intr.height
+    if W is not None and H is not None:
+        cx, cy = float(np.clip(cx, -0.2 * W, 1.2 * W)), float(np.clip(cy, -0.2 * H, 1.2 * H))
+    return replace(intr, cx=cx, cy=cy)
+
+
 class PrincipalPointTerm(CostTerm):
     """Two parameters: the shift (px) of the principal point (cx, cy); with ``sigma_px`` a Gaussian
     prior on it."""
@@ -185,7 +195,7 @@ class PrincipalPointTerm(CostTerm):
 
     def apply(self, state: PoseState, x: np.ndarray) -> PoseState:
         state.params[self.name] = x
-        state.intr = replace(state.intr, cx=state.intr.cx + float(x[0]), cy=state.intr.cy + float(x[1]))
+        state.intr = shift_principal_point(state.intr, float(x[0]), float(x[1]))
         return state
 
     def residuals(self, state: PoseState) -> np.ndarray:

@@ -23,7 +23,7 @@ import numpy as np
 from ..geometry.camera import CameraIntrinsics
 from .config import CalibConfig
 from .decision import matched_places
-from .cost import CostModel, FocalScaleTerm, Occlusion, PrincipalPointTerm, TimeOffsetTerm
+from .cost import CostModel, FocalScaleTerm, Occlusion, PrincipalPointTerm, TimeOffsetTerm, shift_principal_point
 from .diagnostics import SelfCalDiagnostics
 from .inputs import CalibFrame
 from .motion import MOVING_MPS, BoxMotion, shift_frames
@@ -157,7 +157,7 @@ def joint_refine(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, 
         pp = pp + np.array([x.get("cx", 0.0), x.get("cy", 0.0)])
         dt += float(x.get("dt", 0.0))
         cur_pose = fit.pose
-        cur_intr = replace(intr, fx=intr.fx * scale, fy=intr.fy * scale, cx=intr.cx + pp[0], cy=intr.cy + pp[1])
+        cur_intr = shift_principal_point(replace(intr, fx=intr.fx * scale, fy=intr.fy * scale), pp[0], pp[1])
         if it >= 3 and step < 2e-4 and np.linalg.norm(moved[:3]) < 2e-3 and np.linalg.norm(moved[3:]) < 2e-3:
             break
     frames = shift_frames(cframes, motion.velocity, dt) if estimate_dt else cframes
