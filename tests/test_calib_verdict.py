@@ -82,3 +82,13 @@ def test_principal_point_fit_far_outside_the_image_does_not_raise():
         assert rot < 1.0 and trans < 0.5
     else:
         assert res.message and res.rotation is None
+
+
+def test_principal_point_refusal_at_a_queue_says_the_places_are_few():
+    """Queue site 9 (66 matches at 5 places): the exact intrinsics fit a principal point shift of
+    80 px, a real 3 % W error 76 px -- refused either way, and the message says why it may be the
+    pose's ambiguity rather than the intrinsics."""
+    _, res = _calibrate("clean", 9)
+    assert not res.success
+    assert res.diagnostics.refusal == "misfit_principal_point", res.message
+    assert "5 distinct places" in res.message and "add frames with other objects" in res.message

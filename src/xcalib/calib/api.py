@@ -231,12 +231,14 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
     found.append((chk, msg, "misfit_mirrored"))
     chk, msg = unexplained_frames_check(cframes, pairs)
     found.append((chk, msg, "misfit_mixed_cameras"))
+    places = len(matched_places(cframes, pairs)[0])
     if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
         chk, msg = focal_scale_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed,
-                                     places=len(matched_places(cframes, pairs)[0]))
+                                     places=places)
         found.append((chk, msg, "misfit_focal_length"))
     if config.refine_intrinsics != "focal+center":
-        chk, msg = principal_point_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed)
+        chk, msg = principal_point_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed,
+                                         places=places)
         found.append((chk, msg, "misfit_principal_point"))
     if config.time_offset is None:  # a fixed or estimated offset is already in the model
         times, unit = _frame_times(frames_in)

@@ -278,9 +278,12 @@ def _pp_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion) -> np.nd
 
 def principal_point_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
                           noise: NoiseModel, f_scale: float, occlusion: Occlusion, *, draws: int = 5,
-                          seed: int = 0) -> tuple[MisfitCheck, str | None]:
+                          seed: int = 0, places: int | None = None) -> tuple[MisfitCheck, str | None]:
     """Fitted shift of the principal point (px; pose refitted, matches fixed) and its bootstrap
-    spread over frames; flagged beyond ``PP_TOL_FRAC`` of the width and 4 sigma."""
+    spread over frames; flagged beyond ``PP_TOL_FRAC`` of the width and 4 sigma. ``places``:
+    distinct places of the matched 3D boxes; when the matches repeat a few objects (4+ matches
+    per place) the message says that the shift may be the pose's ambiguity instead (realism queue
+    site 9: exact intrinsics fit a shift of 80 px, a 3 % W error one of 76 px)."""
     W = frames[0].size[0]
     if sum(len(p) for p in pairs) < 12 or sum(len(p) > 0 for p in pairs) < 4:
         # a principal-point shift trades off against a small rotation; with fewer than 4 frames the
@@ -308,4 +311,9 @@ def principal_point_check(frames: list[CalibFrame], pairs: list[np.ndarray], int
                f"(cx ~{intr.cx + d[0]:.0f} instead of {intr.cx:.0f}, cy ~{intr.cy + d[1]:.0f} instead of {intr.cy:.0f}); "
                "the pose found with the given intrinsics is biased. Check the intrinsics (cropped or resized image?), or "
                "let xcalib estimate them (refine_intrinsics='focal+center')")
+        n = sum(len(p) for p in pairs)
+        if places is not None and n >= 4 * max(places, 1):
+            msg += (f" -- but the {n} matches lie at only {places} distinct places (queued or parked objects "
+                    "repeated over the frames), where the principal point and the pose are hard to separate: add "
+                    "frames with other objects before changing the intrinsics")
     return MisfitCheck("principal_point", shift, PP_TOL_FRAC * W, flagged, detail), msg
