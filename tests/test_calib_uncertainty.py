@@ -132,3 +132,26 @@ def test_exact_refits_replace_the_largest_linearised_moves():
     assert np.all(np.isfinite(ref)) and not np.allclose(lin, ref)
     # a benign scene (no pair dominates): the refits agree with the linearisation within a factor 1.5
     assert 1 / 1.5 < np.linalg.norm(ref[:3]) / np.linalg.norm(lin[:3]) < 1.5
+
+
+def test_frame_jackknife_grows_with_the_noise_and_needs_four_frames():
+    from xcalib.calib.uncertainty import frame_jackknife
+
+    spread = []
+    for noise_px in (0.5, 4.0):
+        frames, T = sim_frames(seed=2, n_frames=6, noise_px=noise_px, miss=0.0, false_pos=0.0, extra_3d=0)
+        cframes, pairs, intr, pose = _fit(frames, T)
+        assert frame_jackknife(cframes, [p if k < 3 else p[:0] for k, p in enumerate(pairs)], intr, pose) is None
+        sd = frame_jackknife(cframes, pairs, intr, pose)
+        assert sd is not None and sd.shape == (6,) and np.all(np.isfinite(sd))
+        spread.append(np.linalg.norm(sd[:3]))
+    assert spread[1] > 3 * spread[0]  # 8x the box noise: the frames disagree more
+
+
+def test_calibrate_reports_the_frame_jackknife_it_judged_by():
+    import xcalib
+
+    frames, T = sim_frames(seed=2, n_frames=6)
+    res = xcalib.calibrate(frames, frames[0].intrinsics)
+    parts = res.diagnostics.uncertainty
+    assert parts.frames is not None and len(parts.frames) == 6 and np.all(np.isfinite(parts.frames))

@@ -152,7 +152,7 @@ def verdict(ev: Evidence, config: CalibConfig) -> Refusal | None:
             return Refusal("few_matches", _few_pairs_message(n_pairs, ev.rot_sd, ev.tr_sd, config.max_rot_std_deg,
                                                              config.max_trans_std_m))
         return Refusal("poorly_constrained", f"not identifiable: the pose is poorly constrained (1-sigma rotation "
-                       f"{r:.2f} deg, translation {t:.2f} m, over all axes; the frame halves and the occlusion model "
+                       f"{r:.2f} deg, translation {t:.2f} m, over all axes; the spread over the frames and the occlusion model "
                        "included); add frames or objects at other places/depths")
     return _objects_check(ev) or _bound_check(ev, config)
 

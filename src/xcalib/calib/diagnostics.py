@@ -67,7 +67,8 @@ class UncertaintyParts:
     (tracks repeated across frames count once); occlusion: pose shift without the occlusion
     model; floor: the model-misfit floor; selfcal: the pose spread that estimating the intrinsics /
     time offset adds (marginal minus conditional sigma, ``selfcal``); clusters: the sandwich sigma clustered by object
-    (every object's pairs over all frames share one error); n_objects: distinct objects."""
+    (every object's pairs over all frames share one error); frames: the leave-frames-out jackknife
+    sigma (what the verdict judges the pose by, in place of the halves); n_objects: distinct objects."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -77,6 +78,7 @@ class UncertaintyParts:
     floor: list[float] | None = None
     selfcal: list[float] | None = None
     clusters: list[float] | None = None
+    frames: list[float] | None = None
     n_objects: int = 0
 
 
