@@ -52,3 +52,48 @@ def test_crowded_frames_are_refused_without_a_guess():
     cf, _, _ = prepare_frames(busy, K)
     why = crowded_check(cf, CalibConfig())
     assert why is not None and why.code == "crowded" and "prior" in why.message
+
+
+def test_boxes_given_in_the_camera_frame_are_refused_before_the_search():
+    """3D boxes (and points) in the camera frame (y down, z forward) spread over a plane far from
+    z-up: refused naming the frame, before any search; the same site in the LiDAR frame passes."""
+    import numpy as np
+
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.calib.misfit import BOX_FRAME_MAX_TILT_DEG, box_frame_check
+    from xcalib.data.synth.realism import make_realism_case
+
+    lidar = make_realism_case("clean", 0, n_frames=6)
+    cf, _, _ = prepare_frames(list(lidar.frames), lidar.intrinsics_given)
+    chk, msg = box_frame_check(cf)
+    assert msg is None and chk.statistic < 5.0
+    cam = make_realism_case("boxes_in_camera_frame", 0, n_frames=6)
+    np.testing.assert_allclose(cam.T_cam_lidar, np.eye(4))
+    res = calibrate(list(cam.frames), cam.intrinsics_given)
+    assert not res.success and res.diagnostics.refusal == "misfit_box_frame"
+    assert "camera frame" in res.message and "z up" in res.message
+    (chk,) = res.diagnostics.misfit
+    assert chk.name == "box_frame" and chk.flagged and chk.statistic > BOX_FRAME_MAX_TILT_DEG
+    # the check is part of misfit_check: switched off, the search runs (and refuses for other reasons)
+    res = calibrate(list(cam.frames), cam.intrinsics_given, CalibConfig(misfit_check=False))
+    assert res.diagnostics.refusal != "misfit_box_frame"
+
+
+def test_box_frame_check_judges_a_line_of_boxes_by_its_elevation():
+    """Boxes along one road (one wide direction): the elevation of that line is the statistic."""
+    import numpy as np
+
+    from xcalib.calib.misfit import box_frame_check
+
+    s = np.linspace(5.0, 60.0, 12)
+    for tilt_deg, flagged in ((3.0, False), (50.0, True)):
+        a = np.radians(tilt_deg)
+        centres = np.column_stack([s * np.cos(a), 0.3 * np.sin(s), s * np.sin(a)])
+
+        class F:  # the two fields the check reads
+            n3 = len(centres)
+            boxes3d = np.column_stack([centres, np.tile([4.5, 1.9, 1.6, 0.0], (len(centres), 1))])
+
+        chk, msg = box_frame_check([F()])
+        assert chk.flagged is flagged and (msg is not None) is flagged
+        assert abs(chk.statistic - tilt_deg) < 1.0

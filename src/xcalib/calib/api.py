@@ -32,7 +32,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, match
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, prepare_frames, with_corner_outlines
-from .misfit import flipped_frames, focal_scale_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, unexplained_frames_check
+from .misfit import box_frame_check, flipped_frames, focal_scale_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .pose import Pose
 from .refine import RefineResult, match_all, pair_metrics, refine_pose
@@ -248,7 +248,7 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
     chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)),
                                  *_second_pose(cframes, pairs, intr, pose, config, occlusion))
     found.append((chk, msg, "misfit_mixed_cameras"))
-    diag.misfit = [c for c, _, _ in found]
+    diag.misfit = [c for c in diag.misfit if c.name == "box_frame"] + [c for c, _, _ in found]
     return next((Refusal(code, m) for _, m, code in found if m), None)
 
 
@@ -294,6 +294,10 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     if why:
         return _refused(Refusal("time_offset", why), intr, cframes, config, diag)
     pre = precheck(cframes)
+    if pre is None and config.misfit_check:  # boxes in a wrong frame: named before any search
+        chk, msg = box_frame_check(cframes)
+        diag.misfit = [chk]
+        pre = Refusal("misfit_box_frame", msg) if msg else None
     if pre is not None:
         return _refused(pre, intr, cframes, config, diag)
     hyps = _search(cframes, frames_in, intr, config, matcher, prior, diag, progress)

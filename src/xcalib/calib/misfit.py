@@ -20,6 +20,11 @@ and x1.1 gives 0.910).
   Realism suite: a second camera's boxes score 0.28-0.91 x the best pose, clean sites <= 0.05.
 * ``time_offset``: fitted camera-LiDAR offset (multi-start), flagged when significant and it
   moves the moving objects by more than ``TIME_MIN_SHIFT_M``.
+* ``box_frame``: the 3D boxes (pooled over the frames) spread along a direction far out of the
+  LiDAR's x-y plane -- boxes given in a camera frame (x right, y down, z forward) or another
+  frame whose z axis is not up. Runs on the inputs alone, before the search. Real rigs: the
+  spread of the boxes leaves the x-y plane by 1.4-3.1 deg (A9, nuScenes, PandaSet, SUSTech);
+  synthetic roadside boxes in the camera frame by 73-78 deg.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ from .inputs import CalibFrame
 from .pose import Pose
 from .refine import lsq
 
-__all__ = ["MisfitVerdict", "focal_scale_check", "second_pose_check", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "time_offset_check", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL"]
+__all__ = ["MisfitVerdict", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "time_offset_check", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL"]
 
 FOCAL_TOL = 0.03          # |fitted focal scale - 1| beyond this (and 4 sigma) is a misfit
 FOCAL_SIGMAS = 4.0
@@ -44,6 +49,8 @@ UNEXPLAINED_SHARE = 0.25  # share of the frames with 4+ 2D boxes left unexplaine
 SECOND_POSE_SHARE = 0.2   # a second pose scoring this share of the best on the leftover 2D boxes
 SECOND_POSE_MIN_PAIRS = 10  # ... with at least this many matches
 SECOND_POSE_MIN_IOU = 0.6  # ... of this mean IoU (a coherent camera, not boxes aligned by chance)
+BOX_FRAME_MAX_TILT_DEG = 30.0  # a direction the 3D boxes spread along may leave the x-y plane by this
+BOX_FRAME_MIN_SPREAD_M = 2.0   # ... counting directions with at least this 1-sigma spread (m)
 
 
 @dataclass
@@ -97,6 +104,41 @@ def focal_scale_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr: C
                     "over the frames), where the focal length and the pose are hard to separate: add frames with "
                     "other objects before changing the intrinsics")
     return MisfitCheck("focal_scale", s, FOCAL_TOL, flagged, detail), msg
+
+
+def box_frame_check(frames: list[CalibFrame]) -> tuple[MisfitCheck, str | None]:
+    """Flag 3D boxes that do not lie along the LiDAR's x-y plane (z up). The box centres of all
+    frames spread along principal directions; with two of ``BOX_FRAME_MIN_SPREAD_M``+ (1-sigma)
+    the statistic is the tilt of the plane they span (its normal from z, deg), with one the
+    elevation of that line. Traffic on the ground spreads horizontally; the same boxes in a
+    camera frame spread along its x-z plane (y down)."""
+    X = [f.boxes3d[:, :3] for f in frames if f.n3]
+    X = np.concatenate(X) if X else np.zeros((0, 3))
+    if len(X) < 4:
+        return MisfitCheck("box_frame", 0.0, BOX_FRAME_MAX_TILT_DEG, False, "too few 3D boxes"), None
+    _, s, Vt = np.linalg.svd(X - np.median(X, axis=0), full_matrices=False)
+    spread = s / np.sqrt(len(X))
+    n_wide = int(np.sum(spread >= BOX_FRAME_MIN_SPREAD_M))
+    if n_wide == 0:
+        return MisfitCheck("box_frame", 0.0, BOX_FRAME_MAX_TILT_DEG, False, "the 3D boxes spread too little"), None
+    if n_wide >= 2:
+        n = Vt[2]
+        tilt = float(np.degrees(np.arccos(min(1.0, abs(n[2])))))
+        detail = (f"they spread {spread[0]:.1f} x {spread[1]:.1f} m (1-sigma) over a plane whose normal "
+                  f"({n[0]:+.2f}, {n[1]:+.2f}, {n[2]:+.2f}) is {tilt:.1f} deg from z")
+    else:
+        d = Vt[0]
+        tilt = float(np.degrees(np.arcsin(min(1.0, abs(d[2])))))
+        detail = (f"they spread {spread[0]:.1f} m (1-sigma) along ({d[0]:+.2f}, {d[1]:+.2f}, {d[2]:+.2f}), "
+                  f"{tilt:.1f} deg out of the x-y plane")
+    flagged = tilt > BOX_FRAME_MAX_TILT_DEG
+    msg = None
+    if flagged:
+        msg = (f"model misfit: the 3D boxes do not lie along the ground of a z-up frame ({detail}); they seem to be "
+               "given in a camera frame (x right, y down, z forward) or another frame whose z axis is not up. The "
+               "calibration's 3D boxes stand on the x-y plane and turn about z (yaw): give the 3D detections in the "
+               "LiDAR frame (z up) or another gravity-aligned frame")
+    return MisfitCheck("box_frame", tilt, BOX_FRAME_MAX_TILT_DEG, bool(flagged), detail), msg
 
 
 def unexplained_frames_check(frames: list[CalibFrame], pairs: list[np.ndarray]) -> tuple[MisfitCheck, str | None]:

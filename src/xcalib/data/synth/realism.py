@@ -58,6 +58,8 @@ class RealismCondition:
     2D (and 3D) boxes from the second camera. mirrored: the image and 2D boxes are flipped.
     box_noise_px ... yaw_noise_deg: detection noise (``iter_frames`` noise fields).
     lidar_points: generate the LiDAR sweep (needed where the calibrator uses points).
+    box3d_frame: "camera" gives the 3D boxes (centres moved by the true ``T_cam_lidar``, size and
+    yaw kept, as a converter that moves centres only) and the points in the camera frame.
     """
 
     name: str
@@ -82,9 +84,11 @@ class RealismCondition:
     size_noise_frac: float = 0.0
     yaw_noise_deg: float = 0.0
     lidar_points: bool = False
+    box3d_frame: Literal["lidar", "camera"] = "lidar"
 
     def __post_init__(self) -> None:
-        for name, allowed in (("second_camera", get_args(SecondCamera)), ("box3d_yaw", ("kept", "dropped"))):
+        for name, allowed in (("second_camera", get_args(SecondCamera)), ("box3d_yaw", ("kept", "dropped")),
+                              ("box3d_frame", ("lidar", "camera"))):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"RealismCondition.{name}: expected one of {allowed}, got {getattr(self, name)!r}")
         if not self.focal_scale > 0 or not 0.0 <= self.second_camera_share < 1.0:
@@ -149,6 +153,8 @@ def _builtin() -> None:
     register_condition(C("mirrored", "image mirrored left-right (u -> W - u)", mirrored=True))
     register_condition(C("box3d_noise", "3D box noise: 0.1 m centre, 3 % size, 2 deg yaw (1 sigma)",
                          center_noise_m=0.1, size_noise_frac=0.03, yaw_noise_deg=2.0))
+    register_condition(C("boxes_in_camera_frame", "3D boxes (centres) and points given in the camera frame "
+                         "(x right, y down, z forward) instead of the LiDAR frame", box3d_frame="camera"))
     register_condition(C("dropout", "detection dropout: 35 % of 2D and 35 % of 3D detections missed",
                          miss_rate_2d=0.35, miss_rate_3d=0.35))
 
@@ -162,7 +168,8 @@ class RealismCase:
 
     frames: what the calibrator sees (``intrinsics`` = ``intrinsics_given``; ``extrinsics`` and
     ``match_matrix`` removed; ``meta`` keeps the generator's per-box ids for diagnostics).
-    T_cam_lidar: the true extrinsics [4,4]; time_offset_s: true camera minus LiDAR time (s).
+    T_cam_lidar: the true extrinsics [4,4] from the frame the 3D boxes are given in (identity
+    when they are given in the camera frame); time_offset_s: true camera minus LiDAR time (s).
     objects_seen / true_pairs: distinct objects seen by both sensors and true 2D-3D detections.
     """
 
@@ -235,6 +242,19 @@ def _mix_second_camera(cond: RealismCondition, site: Site, frames: list[Frame], 
     return out
 
 
+def _to_camera_frame(f: Frame, T_cam_lidar: np.ndarray) -> Frame:
+    """Frame ``f`` with its 3D boxes' centres and its points moved into the camera frame (box7
+    rows, size and yaw as they were; the generator's ``box7`` meta dropped)."""
+    R, t = T_cam_lidar[:3, :3], T_cam_lidar[:3, 3]
+    meta = dict(f.meta)
+    b7 = np.array(meta.pop("box7"), dtype=np.float64)
+    b7[:, :3] = b7[:, :3] @ R.T + t
+    pts = np.array(f.point_cloud, dtype=np.float32)
+    if len(pts):
+        pts[:, :3] = pts[:, :3] @ R.T.astype(np.float32) + t.astype(np.float32)
+    return dataclasses.replace(f, bboxes_3d=b7.astype(np.float32), point_cloud=pts, meta=meta)
+
+
 def make_realism_case(condition: RealismCondition | str, site_seed: int, n_frames: int = 20) -> RealismCase:
     """Site ``sample_site(site_seed, "roadside")`` bent by ``condition``, ``n_frames`` at 10 Hz."""
     cond = REALISM_CONDITIONS[condition] if isinstance(condition, str) else condition
@@ -244,9 +264,13 @@ def make_realism_case(condition: RealismCondition | str, site_seed: int, n_frame
     n_obj, n_true = _truth_counts(frames)
     if cond.second_camera != "none":
         frames = _mix_second_camera(cond, site, frames, site_seed, noise)
+    T_true = site.T_cam_lidar.copy()
+    if cond.box3d_frame == "camera":
+        frames = [_to_camera_frame(f, site.T_cam_lidar) for f in frames]
+        T_true = np.eye(4)  # the given 3D frame is the camera's
     seen = tuple(dataclasses.replace(f, extrinsics=None, match_matrix=None) for f in frames)
     return RealismCase(condition=cond, site_seed=int(site_seed), frames=seen, intrinsics_given=site.intrinsics_given,
-                       intrinsics_true=site.intrinsics, T_cam_lidar=site.T_cam_lidar.copy(),
+                       intrinsics_true=site.intrinsics, T_cam_lidar=T_true,
                        time_offset_s=float(site.config.camera_time_offset_s), objects_seen=n_obj, true_pairs=n_true)
 
 
