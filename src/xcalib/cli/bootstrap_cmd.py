@@ -8,9 +8,10 @@ from typing import Optional
 
 import typer
 
-_EXAMPLE = ("A short recording may be refused as poorly constrained (on A9 the first 10 frames are); the "
-            "message says why. Example (16 A9 frames): xcalib bootstrap ../shared/data/a9_sample "
-            "--intrinsics ../shared/data/a9_sample/intrinsics.json --site a9_south1 --model fastmatch")
+_EXAMPLE = ("Example (the first 10 A9 frames, about 40 s on 2 cores): xcalib bootstrap ../shared/data/a9_sample "
+            "--intrinsics ../shared/data/a9_sample/intrinsics.json --site a9_south1 --model fastmatch --limit 10. "
+            "A recording too short to determine the pose is refused as poorly constrained; the message says why "
+            "and what to add.")
 
 
 def register(app: typer.Typer) -> None:
