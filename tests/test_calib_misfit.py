@@ -97,3 +97,17 @@ def test_box_frame_check_judges_a_line_of_boxes_by_its_elevation():
         chk, msg = box_frame_check([F()])
         assert chk.flagged is flagged and (msg is not None) is flagged
         assert abs(chk.statistic - tilt_deg) < 1.0
+
+
+def test_a_horizontal_principal_point_error_under_noisy_boxes_is_refused():
+    """Realism site 4, cx + 3 % W, 4 px 2D noise: the shift's norm is within 4 bootstrap sigmas
+    (its y part wanders), but its x part alone is far outside its own spread -> refused. Before
+    the x test this pose was a success 2.3 deg / 0.77 m off."""
+    from xcalib.data.synth.realism import make_realism_case
+
+    case = make_realism_case("principal_point+3%W_4px", 4)
+    res = calibrate(list(case.frames), case.intrinsics_given)
+    assert not res.success and res.diagnostics.refusal == "misfit_principal_point"
+    chk = next(c for c in res.diagnostics.misfit if c.name == "principal_point")
+    assert chk.flagged and "x alone" in chk.detail
+    assert "principal point moved by (-" in res.message  # the given cx is too large: the fit moves it left

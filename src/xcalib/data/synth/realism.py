@@ -134,6 +134,9 @@ def _builtin() -> None:
             register_condition(C(f"focal{word}{pct}%", f"given fx, fy = true x {s:g}", focal_scale=s))
     register_condition(C("principal_point+3%W", "given cx = true cx + 3 % of the image width",
                          principal_offset_frac=0.03))
+    register_condition(C("clean_4px", "the base with 4 px 2D box noise (a real detector's)", box_noise_px=4.0))
+    register_condition(C("principal_point+3%W_4px", "given cx = true cx + 3 % of the image width, 4 px 2D box noise",
+                         principal_offset_frac=0.03, box_noise_px=4.0))
     for dt in (0.05, 0.1, 0.2):
         register_condition(C(f"time_offset_{dt:g}s", f"camera fires {dt:g} s before the LiDAR (3D boxes "
                              f"{dt:g} s late); vehicles at 5-15 m/s, 10 Hz", time_offset_s=-dt,
