@@ -248,7 +248,7 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
     chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)),
                                  *_second_pose(cframes, pairs, intr, pose, config, occlusion))
     found.append((chk, msg, "misfit_mixed_cameras"))
-    diag.misfit = [c for c in diag.misfit if c.name == "box_frame"] + [c for c, _, _ in found]
+    diag.misfit = diag.misfit + [c for c, _, _ in found]  # after the box-frame check of the inputs
     return next((Refusal(code, m) for _, m, code in found if m), None)
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .cost import CostModel
+from .cost import CostModel, Occlusion
 from .diagnostics import NoiseModel, UncertaintyParts
 from .inputs import CalibFrame
 from .pose import Pose
@@ -160,8 +160,6 @@ def object_sandwich(frames, pairs, intr, R, t, groups: np.ndarray, *, noise: Noi
 
 def _exact_moves(frames, pairs, intr, pose: Pose, groups, used, d, noise, f_scale, occlusion, k: int) -> np.ndarray:
     """``d`` (linearised leave-one-object-out moves, rad / m) with the ``k`` largest replaced by refits."""
-    from .cost import Occlusion
-
     occl = Occlusion() if occlusion is None else occlusion
     offs = np.cumsum([0] + [len(p) for p in pairs])
     d = d.copy()
@@ -190,8 +188,6 @@ def pose_spread(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f
     ``occlusion``: the ``cost.Occlusion`` of the fit (default: the default one).
     Returns (halves_delta [6] or None, occlusion_delta [6]).
     """
-    from .cost import Occlusion
-
     pose = Pose(R, t)
     occl = Occlusion() if occlusion is None else occlusion
     halves = None
@@ -210,6 +206,13 @@ def pose_spread(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f
     return halves, free.delta(pose)
 
 
+def _jackknife_sd(deltas) -> np.ndarray:
+    """Jackknife 1-sigma ``sqrt((G-1)/G * sum (d_g - d_mean)^2)`` of G leave-out pose deltas [G,6]."""
+    d = np.asarray(deltas)
+    G = len(d)
+    return np.sqrt((G - 1) / G * np.sum((d - d.mean(0)) ** 2, axis=0))
+
+
 def pose_jackknife(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f_scale: float = F_SCALE,
                    max_nfev: int = 40, max_groups: int = 24, occlusion=None) -> np.ndarray | None:
     """Leave-one-pair-out (jackknife) 1-sigma of the pose, 6-vector (deg about camera x,y,z; m).
@@ -221,8 +224,6 @@ def pose_jackknife(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None
     error model fitted to the residuals, stays honest with a handful of pairs. Beyond
     ``max_groups`` pairs, groups of pairs are left out instead. None with fewer than 4 pairs.
     """
-    from .cost import Occlusion
-
     pose = Pose(R, t)
     occl = Occlusion() if occlusion is None else occlusion
     where = np.array([(k, i) for k, p in enumerate(pairs) for i in range(len(p))], dtype=np.int64).reshape(-1, 2)
@@ -234,9 +235,7 @@ def pose_jackknife(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None
         drop = where[g]
         sub = [np.delete(p, drop[drop[:, 0] == j, 1], axis=0) for j, p in enumerate(pairs)]
         d.append(_refit(frames, sub, intr, pose, noise, f_scale, max_nfev, occl).delta(pose))
-    d = np.asarray(d)
-    G = len(d)
-    return np.sqrt((G - 1) / G * np.sum((d - d.mean(0)) ** 2, axis=0))
+    return _jackknife_sd(d)
 
 
 def frame_jackknife(frames, pairs, intr, pose: Pose, *, noise: NoiseModel | None = None, f_scale: float = F_SCALE,
@@ -246,8 +245,6 @@ def frame_jackknife(frames, pairs, intr, pose: Pose, *, noise: NoiseModel | None
     The frames with matches are split into ``G = min(n, max_groups)`` interleaved groups; the
     pose is refitted without each group and ``sqrt((G-1)/G * sum (p_g - p_mean)^2)`` is the
     spread. None with fewer than 4 frames with matches (the halves / pair jackknife decide)."""
-    from .cost import Occlusion
-
     occl = Occlusion() if occlusion is None else occlusion
     nz = [k for k, p in enumerate(pairs) if len(p)]
     if len(nz) < 4:
@@ -258,8 +255,7 @@ def frame_jackknife(frames, pairs, intr, pose: Pose, *, noise: NoiseModel | None
         out = set(nz[g::G])
         sub = [p[:0] if k in out else p for k, p in enumerate(pairs)]
         d.append(_refit(frames, sub, intr, pose, noise, f_scale, max_nfev, occl).delta(pose))
-    d = np.asarray(d)
-    return np.sqrt((G - 1) / G * np.sum((d - d.mean(0)) ** 2, axis=0))
+    return _jackknife_sd(d)
 
 
 def object_groups(frames: list[CalibFrame], pairs: list[np.ndarray], *, radius_m: float = 1.5,
@@ -316,8 +312,6 @@ def pose_object_bootstrap(frames, pairs, intr, R, t, groups: np.ndarray, *, nois
                           occlusion=None) -> np.ndarray | None:
     """1-sigma of the pose (6-vector) from refits on bootstrap draws of whole objects (matches
     fixed; an object drawn twice counts twice). None with fewer than 5 objects."""
-    from .cost import Occlusion
-
     n_obj = int(groups.max()) + 1 if len(groups) else 0
     if n_obj < 5:
         return None
@@ -394,8 +388,6 @@ def box_model_shift(frames, pairs, intr, pose: Pose, noise: NoiseModel | None = 
     sites it is what covers the translation bias). None when every outline is its box, or when the
     box outline fits clearly worse (not a plausible alternative)."""
     import dataclasses
-
-    from .cost import Occlusion
 
     def same(f: CalibFrame) -> bool:
         return f.box_corners is None or (f.corners.shape == f.box_corners.shape and np.allclose(f.corners, f.box_corners))
