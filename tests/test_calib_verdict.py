@@ -92,3 +92,24 @@ def test_principal_point_refusal_at_a_queue_says_the_places_are_few():
     assert not res.success
     assert res.diagnostics.refusal == "misfit_principal_point", res.message
     assert "5 distinct places" in res.message and "add frames with other objects" in res.message
+
+
+def test_focal_length_the_detections_cannot_check_is_refused():
+    """0.5.0 with 8 px 2D noise (a real detector's; A9 fits ~8 px): at site 16 (5 objects, ~35 m
+    away) focal -5 % was a success 0.7 deg / 1.5 m off with a 1-sigma of 0.58 m -- the detections
+    fit the focal x1.053 +- 3.8 %, too wide to flag it. Now refused as not verifiable, naming the
+    pose shift a 5 % focal error would cause."""
+    import dataclasses
+
+    from xcalib.data.synth.realism import REALISM_CONDITIONS
+
+    cond = dataclasses.replace(REALISM_CONDITIONS["focal-5%"], box_noise_px=8.0)
+    case = make_realism_case(cond, 16, 20)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = calibrate(list(case.frames), case.intrinsics_given)
+    assert not res.success and res.rotation is None
+    assert res.diagnostics.refusal == "focal_unverifiable", res.message
+    assert "cannot check the given focal length" in res.message and "m along the view" in res.message
+    check = next(c for c in res.diagnostics.misfit if c.name == "focal_scale")
+    assert check.flagged and "too wide" in check.detail

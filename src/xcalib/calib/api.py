@@ -233,9 +233,8 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
     found.append((chk, msg, "misfit_mixed_cameras"))
     places = len(matched_places(cframes, pairs)[0])
     if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
-        chk, msg = focal_scale_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed,
-                                     places=places)
-        found.append((chk, msg, "misfit_focal_length"))
+        found.append(focal_scale_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed,
+                                       places=places))
     if config.refine_intrinsics != "focal+center":
         chk, msg = principal_point_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed,
                                          places=places)
@@ -417,7 +416,7 @@ def calibrate(frames, intrinsics=None, config: CalibConfig | None = None, *args,
     res = _calibrate(frames_in, intrinsics, config, matcher, prior_pose, progress)
     if not res.success and config.max_baseline_m is not None and prior_pose is None \
             and res.diagnostics.refusal not in ("mixed_cameras", "too_few_detections", "collinear_3d", "collinear_2d") \
-            and not res.diagnostics.refusal.startswith("misfit") and res.diagnostics.refusal not in ("crowded", "few_objects"):
+            and not res.diagnostics.refusal.startswith("misfit") and res.diagnostics.refusal not in ("crowded", "few_objects", "focal_unverifiable"):
         # the co-located-rig assumption may be wrong (e.g. boxes in a global frame): search again
         retry = _calibrate(frames_in, intrinsics, config.replace(max_baseline_m=None), matcher, None, progress)
         if retry.success or res.diagnostics.refusal == "no_hypothesis":
