@@ -32,7 +32,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, match
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, prepare_frames, with_corner_outlines
-from .misfit import box_frame_check, flipped_frames, focal_scale_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, unexplained_frames_check
+from .misfit import box_frame_check, flipped_frames, focal_fit, focal_scale_check, focal_width_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .pose import Pose
 from .refine import RefineResult, match_all, pair_metrics, refine_pose
@@ -223,8 +223,10 @@ def _frame_times(frames_in) -> tuple[np.ndarray, str]:
 
 
 def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_score: float, config: CalibConfig,
-            diag: CalibDiagnostics, frames_in) -> Refusal | None:
-    """Run the model-misfit checks (``misfit``); the first that flags becomes the refusal."""
+            diag: CalibDiagnostics, frames_in, refusal: Refusal | None = None) -> Refusal | None:
+    """Run the model-misfit checks (``misfit``); the first that flags becomes the refusal. A given
+    focal length the matches cannot check refuses only a pose that ``refusal`` (the verdict's)
+    and every misfit check let through."""
     found = []
     # a mirrored image first: it also bends the focal / principal-point fits, but is the cause to name
     chk, msg = mirror_check(best_score, _mirror_score(cframes, intr, config, occlusion), pose)
@@ -232,9 +234,12 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
     chk, msg = unexplained_frames_check(cframes, pairs)
     found.append((chk, msg, "misfit_mixed_cameras"))
     places = len(matched_places(cframes, pairs)[0])
+    width = None
     if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
-        found.append(focal_scale_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed,
-                                       places=places))
+        fit = focal_fit(cframes, pairs, intr, pose, noise, f_scale, occlusion)
+        chk, msg = focal_scale_check(fit, intr, n_matches=int(sum(len(p) for p in pairs)), places=places)
+        found.append((chk, msg, "misfit_focal_length"))
+        width = focal_width_check(fit, cframes, pairs, pose)
     if config.refine_intrinsics != "focal+center":
         chk, msg = principal_point_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed,
                                          places=places)
@@ -247,8 +252,11 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
     chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)),
                                  *_second_pose(cframes, pairs, intr, pose, config, occlusion))
     found.append((chk, msg, "misfit_mixed_cameras"))
-    diag.misfit = diag.misfit + [c for c, _, _ in found]  # after the box-frame check of the inputs
-    return next((Refusal(code, m) for _, m, code in found if m), None)
+    diag.misfit = diag.misfit + [c for c, _, _ in found] + ([] if width is None else [width[0]])
+    named = next((Refusal(code, m) for _, m, code in found if m), None)  # a misfit names the cause first
+    if named is None and refusal is None and width is not None and width[1]:
+        return Refusal("focal_unverifiable", width[1])  # only a pose nothing else refused
+    return named
 
 
 def _motion(frames_in, cframes, config: CalibConfig, diag: CalibDiagnostics) -> tuple[list, BoxMotion | None, str]:
@@ -360,7 +368,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):
         # a refusal that a model misfit explains is replaced by the misfit's message (it names the cause)
         refusal = _misfit(cframes, pairs, intr, pose, best.noise, f_scale, occlusion, ref.best_score, config, diag,
-                          frames_in) or refusal
+                          frames_in, refusal) or refusal
     if refusal is not None and inflation is not None:
         refusal = Refusal(refusal.code, refusal.message + _selfcal_note(diag))
     diag.refusal = "" if refusal is None else refusal.code
