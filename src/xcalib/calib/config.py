@@ -64,7 +64,8 @@ class CalibConfig:
             the pose is determined but too uncertain to be of use. A success promises the pose
             within the reported 2 sigma.
         misfit_check: refuse a pose whose residuals show the model does not fit (wrong focal
-            length, sensors out of time, mixed cameras, mirrored image); see ``decision``.
+            length, sensors out of time, mixed cameras, mirrored image) or cannot check the given
+            focal length (``focal_unverifiable``); see ``misfit``. False turns both off.
         uncertainty: "clusters" (default) adds to the Jacobian and frame-halves sigma the sandwich
             clustered by object (the same car in many frames carries one error, so repeated
             frames add no information) and the model-misfit floor; "objects" also resamples

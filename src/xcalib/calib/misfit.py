@@ -48,7 +48,8 @@ __all__ = ["MisfitVerdict", "FocalFit", "focal_fit", "focal_width_check", "box_f
 
 FOCAL_TOL = 0.03          # |fitted focal scale - 1| beyond this (and 2 sigma) is a misfit
 FOCAL_SIGMAS = 2.0        # clean sites fit within 1 % (1-4 px 2D noise, 3D noise, A9 subsets: 2 %), so the
-# tolerance guards the clean; with 4 px 2D noise a 5 % error fits at 2.2-3.8 bootstrap sigmas
+# tolerance guards the clean; with 4 px 2D noise a 5 % error fit at 2.2-3.8 sigmas (6-draw bootstrap,
+# before the jackknife)
 # (4 sigmas let 4 of 40 realism sites through, 0.6-0.9 deg / 0.55-1.7 m off)
 FOCAL_MAX_UNCHECKED = 0.05  # ... and the fit must rule out a focal this far off by FOCAL_SIGMAS sigmas:
 # realism with 8 px 2D noise, site 16 (5 objects, ~35 m): focal +-5 % fit x0.980 +- 1.8 % / x1.053
