@@ -42,6 +42,7 @@ from .diagnostics import MisfitCheck, NoiseModel
 from .inputs import CalibFrame
 from .pose import Pose
 from .refine import lsq
+from .uncertainty import jackknife_sd, leave_frames_out
 
 __all__ = ["MisfitVerdict", "FocalFit", "focal_fit", "focal_width_check", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "time_offset_check", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
            "FOCAL_MAX_UNCHECKED"]
@@ -99,21 +100,12 @@ def focal_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraInt
     if len(where) < 12:
         return None
     s = _focal_fit(frames, pairs, intr, pose, noise, f_scale, occlusion)
-    nz = [k for k, p in enumerate(pairs) if len(p)]
-    logs = []
-    if len(nz) >= 4:  # frames left out
-        G = min(len(nz), FOCAL_JACK_GROUPS)
-        for g in range(G):
-            out = set(nz[g::G])
-            sub = [p[:0] if k in out else p for k, p in enumerate(pairs)]
-            logs.append(np.log(_focal_fit(frames, sub, intr, pose, noise, f_scale, occlusion)))
-    else:  # pairs left out
+    subsets = list(leave_frames_out(pairs, FOCAL_JACK_GROUPS))
+    if not subsets:  # fewer than 4 frames with matches: pairs left out
         for g in np.array_split(np.arange(len(where)), FOCAL_JACK_GROUPS):
             drop = {where[i] for i in g}
-            sub = [p[[i for i in range(len(p)) if (k, i) not in drop]] for k, p in enumerate(pairs)]
-            logs.append(np.log(_focal_fit(frames, sub, intr, pose, noise, f_scale, occlusion)))
-    d = np.asarray(logs)
-    sd = float(np.sqrt((len(d) - 1) / len(d) * np.sum((d - d.mean()) ** 2)))
+            subsets.append([p[[i for i in range(len(p)) if (k, i) not in drop]] for k, p in enumerate(pairs)])
+    sd = float(jackknife_sd([np.log(_focal_fit(frames, sub, intr, pose, noise, f_scale, occlusion)) for sub in subsets]))
     return FocalFit(s, sd if np.isfinite(sd) and np.isfinite(s) else float("inf"))
 
 

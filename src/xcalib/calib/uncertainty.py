@@ -206,11 +206,24 @@ def pose_spread(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f
     return halves, free.delta(pose)
 
 
-def _jackknife_sd(deltas) -> np.ndarray:
-    """Jackknife 1-sigma ``sqrt((G-1)/G * sum (d_g - d_mean)^2)`` of G leave-out pose deltas [G,6]."""
+def jackknife_sd(deltas) -> np.ndarray:
+    """Jackknife 1-sigma ``sqrt((G-1)/G * sum (d_g - d_mean)^2)`` of G leave-out estimates [G, ...]."""
     d = np.asarray(deltas)
     G = len(d)
     return np.sqrt((G - 1) / G * np.sum((d - d.mean(0)) ** 2, axis=0))
+
+
+def leave_frames_out(pairs: list[np.ndarray], max_groups: int):
+    """The matches with one of ``min(n, max_groups)`` interleaved groups of the n frames with
+    matches left out, one list per group (the leave-frames-out jackknife's subsets); nothing with
+    fewer than 4 such frames."""
+    nz = [k for k, p in enumerate(pairs) if len(p)]
+    if len(nz) < 4:
+        return
+    G = min(len(nz), max_groups)
+    for g in range(G):
+        out = set(nz[g::G])
+        yield [p[:0] if k in out else p for k, p in enumerate(pairs)]
 
 
 def pose_jackknife(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f_scale: float = F_SCALE,
@@ -235,7 +248,7 @@ def pose_jackknife(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None
         drop = where[g]
         sub = [np.delete(p, drop[drop[:, 0] == j, 1], axis=0) for j, p in enumerate(pairs)]
         d.append(_refit(frames, sub, intr, pose, noise, f_scale, max_nfev, occl).delta(pose))
-    return _jackknife_sd(d)
+    return jackknife_sd(d)
 
 
 def frame_jackknife(frames, pairs, intr, pose: Pose, *, noise: NoiseModel | None = None, f_scale: float = F_SCALE,
@@ -246,16 +259,9 @@ def frame_jackknife(frames, pairs, intr, pose: Pose, *, noise: NoiseModel | None
     pose is refitted without each group and ``sqrt((G-1)/G * sum (p_g - p_mean)^2)`` is the
     spread. None with fewer than 4 frames with matches (the halves / pair jackknife decide)."""
     occl = Occlusion() if occlusion is None else occlusion
-    nz = [k for k, p in enumerate(pairs) if len(p)]
-    if len(nz) < 4:
-        return None
-    G = min(len(nz), max_groups)
-    d = []
-    for g in range(G):
-        out = set(nz[g::G])
-        sub = [p[:0] if k in out else p for k, p in enumerate(pairs)]
-        d.append(_refit(frames, sub, intr, pose, noise, f_scale, max_nfev, occl).delta(pose))
-    return _jackknife_sd(d)
+    d = [_refit(frames, sub, intr, pose, noise, f_scale, max_nfev, occl).delta(pose)
+         for sub in leave_frames_out(pairs, max_groups)]
+    return jackknife_sd(d) if d else None
 
 
 def object_groups(frames: list[CalibFrame], pairs: list[np.ndarray], *, radius_m: float = 1.5,
