@@ -1,14 +1,14 @@
 """The ``xcalib`` command line (typer + rich).
 
-Each command lives in its own module ``xcalib.cli.<name>`` exposing ``register(app)``; heavy
+Each command lives in its own module exposing ``register(app)``, declared in the ``xcalib.commands``
+entry-point group (:mod:`xcalib.plugins`; xcalib's own in ``pyproject.toml``, a third party's in
+its own package): adding a command is one module and no edit here. Heavy
 imports (torch, h5py, ...) happen inside the command functions so ``xcalib --help`` stays fast.
 Exit codes: 0 success, 1 failure, 2 usage error.
 """
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import logging
 import sys
 
@@ -22,19 +22,35 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
-# Order = order in --help.
-_COMMAND_MODULES = [
-    "demo", "match", "calibrate", "bootstrap", "train", "validate", "export", "synth", "cache",
-    "convert", "bag", "version", "reference",
-]
+#: Where xcalib's own commands come first in --help (an ordering only: every declared command is
+#: registered, listed here or not).
+_HELP_ORDER = ["demo", "match", "calibrate", "bootstrap", "train", "validate", "export", "synth", "cache",
+               "convert", "bag", "version", "reference"]
 
 
-def _load_commands() -> None:
-    for name in _COMMAND_MODULES:
-        modname = f"xcalib.cli.{name}_cmd"
-        if importlib.util.find_spec(modname) is None:
+def _load_commands() -> list[str]:
+    """Register every ``xcalib.commands`` entry point; returns the names registered. A module
+    without ``register(app)`` or one that fails to import is reported by name (PluginWarning)."""
+    from ..plugins import PluginWarning
+    from ..plugins import entries as plugin_entries
+    from ..plugins import load as load_plugin
+
+    order = {n: i for i, n in enumerate(_HELP_ORDER)}
+    done = []
+    for entry in sorted(plugin_entries("xcalib.commands"), key=lambda e: (order.get(e.name, len(order)), e.name)):
+        mod = load_plugin(entry)
+        if mod is None:
             continue
-        importlib.import_module(modname).register(app)
+        register = getattr(mod, "register", None)
+        if not callable(register):
+            import warnings
+
+            warnings.warn(f"xcalib plugin {entry.name!r} ({entry.value!r}, from {entry.dist}) has no "
+                          "register(app) function; command not added", PluginWarning, stacklevel=2)
+            continue
+        register(app)
+        done.append(entry.name)
+    return done
 
 
 
@@ -44,7 +60,7 @@ def _root() -> None:
     """Camera-LiDAR matching and targetless extrinsic calibration."""
 
 
-_load_commands()
+COMMANDS = _load_commands()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -57,7 +57,7 @@ def register(app: typer.Typer) -> None:
         from ..calib.api import calibrate
         from ..calib.config import CalibConfig
         from ..calib.result import CalibrationResult
-        from ..io._files import atomic_dir
+        from ..io._files import atomic_dir, claim_output
         from ..io.frames import read_intrinsics_json
         from ..site import calibrate_site
         from ..viz.site_report import site_table, write_site_report
@@ -68,41 +68,52 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter(str(exc), param_hint="--refine-intrinsics / --time-offset") from None
         if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
             raise FileExistsError(f"{out} already exists; pass --force to replace it")
-        cams = list(camera or [])
-        if intrinsics is not None and len(cams) > 1:
-            raise typer.BadParameter("--intrinsics applies to one camera; give one --camera",
-                                     param_hint="--intrinsics")
-        if prior is not None and len(cams) > 1:
-            raise typer.BadParameter("--prior applies to one camera; give one --camera", param_hint="--prior")
-        intr = read_intrinsics_json(intrinsics) if intrinsics is not None else None
-        views = _open_views(frames, cams, frame_range, limit, intr, tolerance)
-        name0 = next(iter(views))
-        if len(views) == 1 and intr is None and getattr(views[name0], "intrinsics", None) is None and len(views[name0]) \
-                and views[name0][0].intrinsics is None:
-            raise typer.BadParameter(f"{frames} has no intrinsics; pass --intrinsics K.json", param_hint="--intrinsics")
-        prior_res = CalibrationResult.load(prior) if prior is not None else None
-        console = Console(stderr=True)
-        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                      console=console, disable=as_json, transient=False) as bar:
-            tasks: dict[str, int] = {}
+        with claim_output(out, "output folder"):  # a second run to the same --out is refused now, not after
+            _check_camera_names(camera)
+            cams = list(camera or [])
+            if intrinsics is not None and len(cams) > 1:
+                raise typer.BadParameter("--intrinsics applies to one camera; give one --camera",
+                                         param_hint="--intrinsics")
+            if prior is not None and len(cams) > 1:
+                raise typer.BadParameter("--prior applies to one camera; give one --camera", param_hint="--prior")
+            intr = read_intrinsics_json(intrinsics) if intrinsics is not None else None
+            views = _open_views(frames, cams, frame_range, limit, intr, tolerance)
+            name0 = next(iter(views))
+            if len(views) == 1 and intr is None and getattr(views[name0], "intrinsics", None) is None and len(views[name0]) \
+                    and views[name0][0].intrinsics is None:
+                raise typer.BadParameter(f"{frames} has no intrinsics; pass --intrinsics K.json", param_hint="--intrinsics")
+            prior_res = CalibrationResult.load(prior) if prior is not None else None
+            console = Console(stderr=True)
+            with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                          console=console, disable=as_json, transient=False) as bar:
+                tasks: dict[str, int] = {}
 
-            def progress(stage: str, done: int, total: int) -> None:
-                if stage not in tasks:
-                    tasks[stage] = bar.add_task(stage, total=total)
-                bar.update(tasks[stage], completed=done, total=total)
+                def progress(stage: str, done: int, total: int) -> None:
+                    if stage not in tasks:
+                        tasks[stage] = bar.add_task(stage, total=total)
+                    bar.update(tasks[stage], completed=done, total=total)
 
-            def run(items, k, stage):
-                return calibrate(items, k, selfcal, prior=prior_res, box_model=box_model, seed=seed, progress=stage)
+                def run(items, k, stage):
+                    return calibrate(items, k, selfcal, prior=prior_res, box_model=box_model, seed=seed, progress=stage)
 
-            site, loaded = calibrate_site(views, {name0: intr} if intr is not None else None, source=str(frames),
-                                          calibrate=run, progress=progress)
-            with atomic_dir(out, overwrite=force) as tmp:  # the whole folder is swapped in at once
-                paths = write_site_report(tmp, site, loaded, max_overlays=max_overlays, progress=progress,
-                                          title=f"xcalib calibrate: {frames}")
-            paths = paths.relocated(tmp, out)
-        _print(site, paths, as_json, site_table)
-        if not all(c.result.success for c in site.cameras):
-            raise typer.Exit(1)
+                site, loaded = calibrate_site(views, {name0: intr} if intr is not None else None, source=str(frames),
+                                              calibrate=run, progress=progress)
+                with atomic_dir(out, overwrite=force) as tmp:  # the whole folder is swapped in at once
+                    paths = write_site_report(tmp, site, loaded, max_overlays=max_overlays, progress=progress,
+                                              title=f"xcalib calibrate: {frames}")
+                paths = paths.relocated(tmp, out)
+            _print(site, paths, as_json, site_table)
+            if not all(c.result.success for c in site.cameras):
+                raise typer.Exit(1)
+
+
+def _check_camera_names(cameras) -> None:
+    """Each --camera once: a name given twice would calibrate one camera twice into one folder."""
+    seen = set()
+    for c in cameras or []:
+        if c in seen:
+            raise typer.BadParameter(f"camera {c!r} is given twice", param_hint="--camera")
+        seen.add(c)
 
 
 def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, tolerance: float) -> dict:
@@ -124,6 +135,9 @@ def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, to
                 raise typer.BadParameter(f"{source}: no frames found", param_hint="SOURCE")
             own = getattr(seq, "camera", None)  # a source's camera attribute (KITTI's is the camera number)
             name = c or (own if isinstance(own, str) and own else "") or seq[0].camera_name or "camera"
+            if name in views:  # two cameras of one name: never drop one silently
+                raise typer.BadParameter(f"{source}: two cameras resolve to the name {name!r}; name each by its "
+                                         "image topic (--camera /ns/image)", param_hint="--camera")
             views[name] = seq
     except ValueError as exc:
         if type(exc).__name__ == "FormatError":

@@ -39,10 +39,13 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Machine-readable summary."),
         force: bool = typer.Option(False, "--force", help="Replace a previous run's files in OUTPUT_DIR."),
     ) -> None:
+        import contextlib
+        import os
+
         import torch.distributed as dist
 
         from ..engine.checkpoint import read_config, site_dirs, write_checksum
-        from ..io._files import atomic_dir
+        from ..io._files import atomic_dir, claim_output
         from ..engine.trainer import shutdown_distributed, train
 
         if not resume and not force:  # a previous run's best/last checkpoints are not silently replaced
@@ -50,26 +53,32 @@ def register(app: typer.Typer) -> None:
                 if (output_dir / f).exists():
                     raise FileExistsError(f"{output_dir / f} already exists (a previous run); pass --force to "
                                           "replace it or --resume to continue it")
-        cfg = read_config(config) if config else None
-        recipe = XCALIB_RECIPE.kwargs(epochs=epochs, lr=lr, warmup_epochs=warmup_epochs)
-        best = train(model, train_data, val_data, config=cfg, **recipe,
-                     frames_per_batch=frames_per_batch, weights=weights, resume=resume or None,
-                     output_dir=output_dir, device=device, seed=seed, limit_train_frames=limit_train_frames,
-                     limit_val_frames=limit_val_frames, progress=not as_json)
-        rank = dist.get_rank() if dist.is_initialized() else 0
-        shutdown_distributed()
-        if rank != 0:
-            return
-        installed = None
-        if site:
-            d = site_dirs(site)[0]
-            with atomic_dir(d, keep_existing=True) as tmp:  # other models' files of the site are kept
-                shutil.copyfile(best, tmp / f"{model}.pth")
-                write_checksum(tmp / f"{model}.pth")
-                shutil.copyfile(best.with_suffix(".yaml"), tmp / f"{model}.yaml")
-            if (d / f"{model}.pt").is_file():  # one set of weights per model in a site folder
-                (d / f"{model}.pt").unlink()
-            installed = str(d / f"{model}.pth")
+        with contextlib.ExitStack() as claims:  # outputs claimed before training: a second run is refused now
+            primary = os.environ.get("RANK", "0") == "0"  # under torchrun, rank 0 writes for all
+            if primary:
+                claims.enter_context(claim_output(output_dir, "output folder"))
+            if site and primary:
+                claims.enter_context(claim_output(site_dirs(site)[0], f"site {site!r}"))
+            cfg = read_config(config) if config else None
+            recipe = XCALIB_RECIPE.kwargs(epochs=epochs, lr=lr, warmup_epochs=warmup_epochs)
+            best = train(model, train_data, val_data, config=cfg, **recipe,
+                         frames_per_batch=frames_per_batch, weights=weights, resume=resume or None,
+                         output_dir=output_dir, device=device, seed=seed, limit_train_frames=limit_train_frames,
+                         limit_val_frames=limit_val_frames, progress=not as_json)
+            rank = dist.get_rank() if dist.is_initialized() else 0
+            shutdown_distributed()
+            if rank != 0:
+                return
+            installed = None
+            if site:
+                d = site_dirs(site)[0]
+                with atomic_dir(d, keep_existing=True) as tmp:  # other models' files of the site are kept
+                    shutil.copyfile(best, tmp / f"{model}.pth")
+                    write_checksum(tmp / f"{model}.pth")
+                    shutil.copyfile(best.with_suffix(".yaml"), tmp / f"{model}.yaml")
+                if (d / f"{model}.pt").is_file():  # one set of weights per model in a site folder
+                    (d / f"{model}.pt").unlink()
+                installed = str(d / f"{model}.pth")
         hist = json.loads((Path(output_dir) / "history.json").read_text())
         bestrow = max(hist, key=lambda h: h["val_mrr"])
         summary = {"model": model, "best": str(best), "installed": installed, "epochs": len(hist),

@@ -212,23 +212,27 @@ class Matcher:
             out.set_calibration(load_calibration_beside(path.parent))
         return out
 
-    def save_pretrained(self, save_dir: str | Path, *, dtype: str = "float32",
-                        overwrite: bool = False) -> dict[str, Path]:
+    def save_pretrained(self, save_dir: str | Path, *, dtype: str = "float32", overwrite: bool = False,
+                        extra_files: dict[str, bytes] | None = None, drop: tuple[str, ...] = ()) -> dict[str, Path]:
         """Write ``<dir>/<model>.pth`` (as the reference; directories load ``.pth`` or ``.pt``), its
         ``.sha256`` and ``<dir>/<model>.yaml`` (no device in either), and ``<dir>/calibration.json``
         when a calibration is set; an older ``<dir>/<model>.pt`` is removed (one set of weights
         per model in a folder). The files are written
         into a temporary folder and swapped in whole (other files of ``<dir>`` are kept), so a
         killed save leaves the old set or the new one. Existing weights of this model in ``<dir>``
-        are replaced only with ``overwrite=True``."""
-        from ..io._files import atomic_dir
+        are replaced only with ``overwrite=True``. ``extra_files`` (file name -> bytes) are written
+        in the same swap (a one-shot session's ``oneshot.json``); ``drop`` names files of the old
+        folder the new set supersedes (not carried over)."""
+        from ..io._files import atomic_dir, safe_name
 
         d = Path(save_dir)
         name = self.model_name
         old = weights_in_dir(d, name) if d.is_dir() else None
         if old is not None and not overwrite:
             raise FileExistsError(f"{old} already exists; pass overwrite=True to replace it")
-        with atomic_dir(d, keep_existing=True, drop=[f"{name}.pt"]) as tmp:
+        with atomic_dir(d, keep_existing=True, drop=[f"{name}.pt", *drop]) as tmp:
+            for fname, data in (extra_files or {}).items():
+                (tmp / safe_name(fname)).write_bytes(data)
             save_weights(self.model, tmp / f"{name}.pth", model_name=name, config=self.config, dtype=dtype)
             write_config(tmp / f"{name}.yaml", self.config)
             if self._calibration is not None:
@@ -236,6 +240,7 @@ class Matcher:
         if (d / f"{name}.pt").is_file():  # an older save (.pt): the .pth and its sidecar replace it
             (d / f"{name}.pt").unlink()
         out = {"weights": d / f"{name}.pth", "config": d / f"{name}.yaml"}
+        out.update({Path(f).stem: d / safe_name(f) for f in extra_files or {}})
         if self._calibration is not None:
             out["calibration"] = d / CALIBRATION_FILE
         return out

@@ -17,6 +17,7 @@ frame ``<camera>_link``, x forward / y left / z up, joined to the LiDAR, and the
 from __future__ import annotations
 
 import logging
+import re
 import secrets
 from pathlib import Path
 from typing import Any
@@ -35,9 +36,38 @@ from ._result import calibration_record, require_intrinsics
 __all__ = ["camera_info_dict", "static_transform_dict", "write_ros", "read_ros", "read_camera_info",
            "read_static_transform", "tf_path_for", "static_transform_args", "static_transform_command",
            "urdf_joints", "write_urdf", "read_urdf", "tf_static_dict", "write_tf_static", "read_tf_static",
-           "R_BODY_OPTICAL"]
+           "R_BODY_OPTICAL", "ros_name", "printable"]
 
 log = logging.getLogger("xcalib.formats.ros")
+
+
+_NOT_ROS = re.compile(r"[^A-Za-z0-9_/]+")
+
+
+def ros_name(text, default: str = "frame") -> str:
+    """A ROS frame / link / topic token derived from data (a camera name, a topic, a frame id read
+    from a recording): characters other than letters, digits, ``_`` and ``/`` become ``_``, no
+    leading or repeated ``/`` (tf2 frame ids have none), and it starts with a letter. Names that
+    are already valid (``velodyne``, ``cam/front``) come back unchanged."""
+    s = _NOT_ROS.sub("_", str(text))
+    s = re.sub(r"/+", "/", s).strip("/")
+    if not s:
+        return default
+    return s if s[0].isalpha() else "x" + s
+
+
+def printable(text, max_len: int = 400) -> str:
+    """``text`` on one line for a comment in a generated script or file: newlines, carriage
+    returns, other control and bidirectional-override characters are written as ``\\xNN`` /
+    ``\\uNNNN`` escapes, so a name can never end the comment or hide what follows it."""
+    out = []
+    for ch in str(text)[:max_len]:
+        if ch.isprintable() and ch not in "\\":
+            out.append(ch)
+        else:
+            o = ord(ch)
+            out.append(f"\\x{o:02x}" if o < 0x100 else f"\\u{o:04x}" if o < 0x10000 else f"\\U{o:08x}")
+    return "".join(out)
 
 
 def _yaml():
@@ -124,6 +154,7 @@ def urdf_joints(T_cam_lidar, lidar_link: str, camera: str) -> str:
     T_lidar_optical = invert_transform(T_cam_lidar)
     T_body_optical = make_transform(R_BODY_OPTICAL, np.zeros(3))
     T_lidar_body = T_lidar_optical @ invert_transform(T_body_optical)
+    lidar_link, camera = ros_name(lidar_link, "lidar"), ros_name(camera, "camera")
     body, optical = f"{camera}_link", f"{camera}_optical_frame"
     return "\n".join([
         f'  <link name="{body}"/>',
@@ -140,8 +171,8 @@ def write_urdf(result: CalibrationResult, path, *, lidar_link: str = "lidar") ->
     """A URDF file (``<robot>`` with the LiDAR link and the camera's body and optical joints)."""
     from ..io._files import atomic_write
 
-    name = result.camera_name or "camera"
-    text = (f'<?xml version="1.0"?>\n<robot name="xcalib_{name}">\n  <link name="{lidar_link}"/>\n'
+    name = ros_name(result.camera_name or "camera", "camera")
+    text = (f'<?xml version="1.0"?>\n<robot name="xcalib_{name}">\n  <link name="{ros_name(lidar_link, "lidar")}"/>\n'
             f"{urdf_joints(result.extrinsics, lidar_link, name)}\n</robot>\n")
     return atomic_write(Path(path), [text.encode()])
 
@@ -180,7 +211,8 @@ def read_urdf(path, camera: str | None = None) -> CalibrationResult:
             raise FormatError(path, f"joint {j.get('name')!r} needs <parent> and <child>", "joint")
         parent_of[c.get("link")] = (p.get("link"), _urdf_origin(j, path))
     opticals = sorted(k for k in parent_of if k.endswith("_optical_frame"))
-    want = [o for o in opticals if camera is None or o == f"{camera}_optical_frame"]
+    want = [o for o in opticals if camera is None
+            or o in (f"{camera}_optical_frame", f"{ros_name(camera, 'camera')}_optical_frame")]
     if len(want) != 1:
         raise FormatError(path, f"expected one *_optical_frame link{'' if camera is None else ' of ' + camera}; "
                                 f"found {opticals}", "link")
@@ -211,8 +243,8 @@ def write_tf_static(result: CalibrationResult, path, *, parent_frame: str = "lid
     """One-transform tf_static YAML: LiDAR -> ``<camera>_optical_frame``."""
     from ..io._files import atomic_write
 
-    child = f"{result.camera_name or 'camera'}_optical_frame"
-    d = tf_static_dict([(parent_frame, child, invert_transform(result.extrinsics))])
+    child = f"{ros_name(result.camera_name or 'camera', 'camera')}_optical_frame"
+    d = tf_static_dict([(ros_name(parent_frame, "lidar"), child, invert_transform(result.extrinsics))])
     return atomic_write(Path(path), [_yaml().safe_dump(d, sort_keys=False).encode()])
 
 
@@ -248,7 +280,7 @@ def write_ros(result: CalibrationResult, path, *, parent_frame: str = "lidar",
     """Write ``camera_info`` YAML to ``path`` and the static transform to ``<stem>_tf.yaml``."""
     intr = require_intrinsics(result, "ros camera_info")
     name = result.camera_name or "camera"
-    child = child_frame or f"{name}_optical_frame"
+    child = child_frame or f"{ros_name(name, 'camera')}_optical_frame"
     yaml = _yaml()
     path = Path(path)
     tf = tf_path_for(path)

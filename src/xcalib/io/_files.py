@@ -27,7 +27,8 @@ from typing import IO, Iterable, Iterator
 from ..errors import FormatError
 
 __all__ = ["atomic_write", "atomic_dir", "sweep_stale", "open_regular", "read_bytes", "read_text",
-           "inside", "safe_name", "check_overwrite", "load_json", "MAX_FILE_BYTES", "MAX_TEXT_BYTES"]
+           "inside", "safe_name", "check_overwrite", "load_json", "claim_output", "OutputBusyError",
+           "MAX_FILE_BYTES", "MAX_TEXT_BYTES"]
 
 #: Largest file any reader loads into memory whole (point clouds, images, caches read lazily).
 MAX_FILE_BYTES = 2 << 30
@@ -167,6 +168,11 @@ def atomic_dir(path, *, overwrite: bool = False, keep_existing: bool = False,
         if keep_existing and path.is_dir():
             _carry_over(path, tmp, set(drop))
         _fsync_tree(tmp)
+        if not (overwrite or keep_existing) and (path.is_symlink() or (path.exists() and (
+                not path.is_dir() or any(path.iterdir())))):
+            # another writer filled it while we computed: never swap its output away
+            raise FileExistsError(f"output folder {path} was written by another process while this one ran; "
+                                  "nothing replaced (pass overwrite / --force to replace it)")
         if path.is_dir():
             if not _exchange(str(tmp), str(path)):
                 old = Path(tempfile.mkdtemp(prefix=tmp_prefix(path.name), suffix=".old", dir=path.parent))
@@ -180,6 +186,59 @@ def atomic_dir(path, *, overwrite: bool = False, keep_existing: bool = False,
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+class OutputBusyError(FileExistsError):
+    """Another running process has claimed the same output (see :func:`claim_output`)."""
+
+
+def _lock_path(path: Path) -> Path:
+    return path.parent / f".{path.name}.lock"
+
+
+@contextlib.contextmanager
+def claim_output(path, what: str = "output") -> Iterator[Path]:
+    """Claim output ``path`` for this process before any work is done: an advisory lock
+    (``flock``) on ``.<name>.lock`` beside it. A second claim of the same output while the first
+    holder runs raises :class:`OutputBusyError` at once, naming the holder's process id; the lock
+    dies with its process (kill -9 included), so nothing stale blocks a later run. Creating the
+    lock also proves the parent folder is writable, before hours of computing. Yields the lock
+    file's path; it is removed on exit."""
+    import fcntl
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lock = _lock_path(path)
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+        except OSError as exc:
+            raise PermissionError(f"cannot write {what} {path}: cannot create {lock} "
+                                  f"({exc.strerror or exc})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            try:
+                holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            finally:
+                os.close(fd)
+            raise OutputBusyError(f"{what} {path} is being written by another run (process {holder}, lock "
+                                  f"{lock}); wait for it to finish or choose another output") from None
+        try:  # the lock file we hold must still be the one at that path (a releasing holder unlinks it)
+            same = os.path.samestat(os.fstat(fd), os.stat(lock, follow_symlinks=False))
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield lock
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(lock)
+        os.close(fd)
 
 
 def _carry_over(old: Path, new: Path, drop: set[str]) -> None:

@@ -5,9 +5,10 @@ A source is a module that calls :func:`register_source` when it is imported: fra
 and the dataset formats of :mod:`xcalib.formats` (KITTI, CalibAnything/OpenCalib, mmdetection3d
 and nuScenes info pickles, Waymo). :func:`open_source` imports those modules on first use
 (``xcalib.io`` itself never imports ``xcalib.formats``), asks each source's ``detect`` in
-priority order and opens the first that accepts the path. Adding a source is one module that
-calls ``register_source`` plus its name in :data:`SOURCE_MODULES` (or an import of it by the
-caller).
+priority order and opens the first that accepts the path. Sources are discovered through the
+``xcalib.sources`` entry-point group (:mod:`xcalib.plugins`): adding one is one module that calls
+``register_source`` (or exposes a :class:`FrameSource`), declared in its package's
+``pyproject.toml``; xcalib's own are declared the same way.
 
 Every source takes ``camera=`` (a camera name; ``None``: the source's default camera) and
 :func:`open_source` applies ``frames=`` (``"0:8"``, ``"0,3,5"``, ``"2:"``, ``"::2"``, or a list
@@ -16,7 +17,6 @@ of indices) to any source.
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,13 +25,17 @@ from typing import Callable
 import numpy as np
 
 from ..errors import FormatError
+from ..plugins import BUILTIN
+from ..plugins import entries as plugin_entries
+from ..plugins import load as load_plugin
 from ..types import Frame
 
 __all__ = ["FrameSource", "register_source", "unregister_source", "frame_sources", "find_source", "open_source",
            "parse_frame_range", "FrameSubset", "CameraView", "camera_view", "merge_cameras", "SOURCE_MODULES"]
 
 # Modules that register sources on import (imported by the registry on first use).
-SOURCE_MODULES = ("xcalib.io.frames", "xcalib.io.hdf5", "xcalib.io.bags", "xcalib.formats")
+#: xcalib's own source modules (declared as ``xcalib.sources`` entry points; kept for reference).
+SOURCE_MODULES = tuple(BUILTIN["xcalib.sources"].values())
 
 
 @dataclass(frozen=True)
@@ -47,7 +51,7 @@ class FrameSource:
 
 
 _REGISTRY: dict[str, FrameSource] = {}
-_LOADED: list[str] = []  # modules of SOURCE_MODULES already imported (the registry's own bookkeeping)
+_LOADED: list[str] = []  # entry points already loaded (the registry's own bookkeeping)
 
 
 def register_source(name: str, detect: Callable[[Path], bool], open: Callable[..., Sequence[Frame]],  # noqa: A002
@@ -64,10 +68,17 @@ def unregister_source(name: str) -> None:
 
 
 def _load_modules() -> None:
-    for mod in SOURCE_MODULES:
-        if mod not in _LOADED:
-            _LOADED.append(mod)
-            importlib.import_module(mod)
+    """Load every ``xcalib.sources`` entry point once: a module registers itself on import; an
+    entry that names a :class:`FrameSource` is registered here. A broken one is reported by name
+    (:class:`xcalib.plugins.PluginWarning`) and the others still load."""
+    for entry in plugin_entries("xcalib.sources"):
+        key = f"{entry.name}={entry.value}"
+        if key in _LOADED:
+            continue
+        _LOADED.append(key)
+        obj = load_plugin(entry)
+        if isinstance(obj, FrameSource):
+            _REGISTRY[obj.name] = obj
 
 
 def frame_sources() -> list[FrameSource]:

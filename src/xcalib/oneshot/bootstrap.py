@@ -18,6 +18,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import time
@@ -27,6 +28,7 @@ from typing import Callable, Iterable
 
 from ..calib.config import CalibConfig
 from ..calib.result import CalibrationResult
+from ..io._files import claim_output
 from .heldout import HELDOUT_SHARE, MIN_HELDOUT_FRAMES, HeldoutCheck, check_heldout
 from .site_default import SiteDefault, choose_site_default
 from .threshold import ThresholdChoice, choose_threshold
@@ -108,42 +110,50 @@ def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "f
     Raises ``OneShotError`` when the frames do not determine a pose (nothing is written then).
     ``out_dir``: also (or, with ``install=False``, only) save there.
     """
+    from ..engine.checkpoint import site_dirs
     from .session import OneShotError, OneShotSession
 
-    t0 = time.perf_counter()
-    matcher, init_desc, default_mode = starting_matcher(model, init, device=device, seed=seed)
-    session = OneShotSession(matcher, intrinsics, mode=mode or default_mode, seed=seed, calib_config=calib_config)
-    n, kept = 0, []
-    for n, frame in enumerate(frames, start=1):
-        rep = session.observe_frame(frame, validate="off")
-        if len(kept) < THRESHOLD_FRAMES:
-            kept.append(frame)
-        if on_frame is not None:
-            on_frame(n, rep)
-    if n == 0:
-        raise OneShotError("bootstrap: no frames in the recording")
-    last = session.calibrate()  # a last attempt on the whole recording (the gate keeps the better pose)
-    if not session.is_calibrated:
-        raise OneShotError(f"bootstrap: no calibration from {n} frame(s): the detections do not determine the pose "
-                           f"(calibrator: {last.reason}); record more frames with several objects seen by both sensors")
-    report = session.adapt(steps=steps, lr=lr, holdout=holdout, min_holdout=MIN_HELDOUT_FRAMES if holdout > 0 else 0,
-                           progress=on_step)
-    if not report.trained:
-        raise OneShotError(f"bootstrap: training did not produce weights ({report.message}); nothing installed")
-    threshold = choose_threshold(session.matcher, kept, session.calibration)
-    if threshold is not None:  # saved with the weights (model config); match() uses it by default
-        session.matcher.config["match_threshold"] = threshold.threshold
-    held = [k for k in report.heldout_frames if k < len(kept)]
-    site_default = choose_site_default(session.matcher, kept, session.calibration, holdout=holdout, held=held)
-    if site_default is not None:  # saved with the weights; match(geometry="auto") projects when "geometry"
-        session.matcher.config["site_default"] = dataclasses.asdict(site_default)
-    heldout = check_heldout(session, report.heldout_frames, calib_config=calib_config) if report.heldout_frames \
-        else None
-    paths: dict[str, Path] = {}
-    if out_dir is not None:
-        paths.update({f"out_{k}": v for k, v in session.save(out_dir).items()})
-    if install:
-        paths.update(session.save_site(site))
-    return BootstrapResult(site=site, model=model, init=init_desc, n_frames=n, calibration=session.calibration,
-                           adapt=report, paths=paths, elapsed_s=time.perf_counter() - t0, matcher=session.matcher,
-                           threshold=threshold, site_default=site_default, heldout=heldout)
+    with contextlib.ExitStack() as claims:  # outputs claimed before any work: a second run is refused at once
+        if install:
+            if not site or any(c in site for c in "/\\") or site in (".", ".."):
+                raise ValueError(f"site: expected a plain folder name, got {site!r}")
+            claims.enter_context(claim_output(site_dirs(site)[0], f"site {site!r}"))
+        if out_dir is not None:
+            claims.enter_context(claim_output(out_dir, "output folder"))
+        t0 = time.perf_counter()
+        matcher, init_desc, default_mode = starting_matcher(model, init, device=device, seed=seed)
+        session = OneShotSession(matcher, intrinsics, mode=mode or default_mode, seed=seed, calib_config=calib_config)
+        n, kept = 0, []
+        for n, frame in enumerate(frames, start=1):
+            rep = session.observe_frame(frame, validate="off")
+            if len(kept) < THRESHOLD_FRAMES:
+                kept.append(frame)
+            if on_frame is not None:
+                on_frame(n, rep)
+        if n == 0:
+            raise OneShotError("bootstrap: no frames in the recording")
+        last = session.calibrate()  # a last attempt on the whole recording (the gate keeps the better pose)
+        if not session.is_calibrated:
+            raise OneShotError(f"bootstrap: no calibration from {n} frame(s): the detections do not determine the pose "
+                               f"(calibrator: {last.reason}); record more frames with several objects seen by both sensors")
+        report = session.adapt(steps=steps, lr=lr, holdout=holdout, min_holdout=MIN_HELDOUT_FRAMES if holdout > 0 else 0,
+                               progress=on_step)
+        if not report.trained:
+            raise OneShotError(f"bootstrap: training did not produce weights ({report.message}); nothing installed")
+        threshold = choose_threshold(session.matcher, kept, session.calibration)
+        if threshold is not None:  # saved with the weights (model config); match() uses it by default
+            session.matcher.config["match_threshold"] = threshold.threshold
+        held = [k for k in report.heldout_frames if k < len(kept)]
+        site_default = choose_site_default(session.matcher, kept, session.calibration, holdout=holdout, held=held)
+        if site_default is not None:  # saved with the weights; match(geometry="auto") projects when "geometry"
+            session.matcher.config["site_default"] = dataclasses.asdict(site_default)
+        heldout = check_heldout(session, report.heldout_frames, calib_config=calib_config) if report.heldout_frames \
+            else None
+        paths: dict[str, Path] = {}
+        if out_dir is not None:
+            paths.update({f"out_{k}": v for k, v in session.save(out_dir).items()})
+        if install:
+            paths.update(session.save_site(site))
+        return BootstrapResult(site=site, model=model, init=init_desc, n_frames=n, calibration=session.calibration,
+                               adapt=report, paths=paths, elapsed_s=time.perf_counter() - t0, matcher=session.matcher,
+                               threshold=threshold, site_default=site_default, heldout=heldout)

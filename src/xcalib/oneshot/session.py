@@ -441,19 +441,17 @@ class OneShotSession:
         reloads them bit-exactly), ``calibration.json`` (when calibrated) and ``oneshot.json``."""
         d = Path(save_dir)
         self._sync_matcher()
-        stale = d / "calibration.json"
-        if not self.is_calibrated and stale.is_file():
-            stale.unlink()  # never leave another pose beside these weights
-        paths = self.matcher.save_pretrained(d, overwrite=True)  # + calibration.json when calibrated
         info = {"format": "xcalib-oneshot-v1", "model": self.matcher.model_name, "observed_frames": self.n_observed,
                 "buffer_frames": len(self.buffer), "image_size": self.image_size,
                 "intrinsics": self.intrinsics.to_dict(), "calibrated": self.is_calibrated,
                 "pose_locked": self.pose.locked, "adapt": [r.to_dict() for r in self.history],
                 "options": {"gate": self.gate, "neg_iou": self.neg_iou, "mode": self.mode, "seed": self.seed}}
-        from ..io._files import atomic_write
-
-        p = atomic_write(d / "oneshot.json", [json.dumps(info, indent=1, default=_json_default).encode()])
-        paths["oneshot"] = p
+        # weights, config, calibration and oneshot.json in one folder swap: a killed or concurrent
+        # save leaves the old set or the new one, never weights of one run beside metadata of another;
+        # an uncalibrated session drops the folder's calibration.json (never another pose beside these)
+        paths = self.matcher.save_pretrained(
+            d, overwrite=True, drop=() if self.is_calibrated else ("calibration.json",),
+            extra_files={"oneshot.json": json.dumps(info, indent=1, default=_json_default).encode()})
         return paths
 
     def save_site(self, site: str) -> dict[str, Path]:

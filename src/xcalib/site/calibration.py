@@ -25,18 +25,39 @@ from ..geometry.camera import CameraIntrinsics
 from ..geometry.projection import project_points
 from ..geometry.rotations import rotation_angle
 from ..geometry.transforms import invert_transform
-from ..io._files import atomic_write
+from ..formats.ros import ros_name
+from ..io._files import atomic_write, safe_name
 from ..types import Frame
 
 __all__ = ["SITE_FORMAT", "CameraCalibration", "CameraAgreement", "SiteCalibration", "calibrate_site",
-           "optical_frame"]
+           "optical_frame", "camera_folders"]
 
 SITE_FORMAT = "xcalib-site-calibration-v1"
 
 
 def optical_frame(camera: str) -> str:
-    """The tf name of a camera's OpenCV optical frame (REP 103: ``<camera>_optical_frame``)."""
-    return f"{camera}_optical_frame"
+    """The tf name of a camera's OpenCV optical frame (REP 103: ``<camera>_optical_frame``); a
+    camera name read from a recording is made a valid ROS name first (:func:`ros_name`)."""
+    return f"{ros_name(camera, 'camera')}_optical_frame"
+
+
+def camera_folders(cameras: Sequence[str]) -> dict[str, str]:
+    """camera name -> a file-name component for its outputs (folders, ``<x>_camera_info.yaml``):
+    safe for the file system whatever the name holds (``/``, ``..``, newlines, controls; see
+    :func:`xcalib.io._files.safe_name`), and distinct for distinct cameras (``-2``, ``-3``, ...
+    where two names map to one token), so no output leaves its folder or replaces another's."""
+    out: dict[str, str] = {}
+    used: set[str] = set()
+    for cam in cameras:
+        if cam in out:
+            continue
+        base = safe_name(cam, max_len=80, default="camera")
+        token, k = base, 2
+        while token.lower() in used:
+            token, k = f"{base}-{k}", k + 1
+        used.add(token.lower())
+        out[cam] = token
+    return out
 
 
 @dataclass(frozen=True)

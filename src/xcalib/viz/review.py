@@ -23,7 +23,10 @@ import numpy as np
 from ..geometry.boxes import as_box7, box7_corners
 from ..geometry.rotations import matrix_to_quaternion
 from ..geometry.transforms import invert_transform
+from ..formats.ros import ros_name
+from ..io._files import sweep_stale, tmp_prefix
 from ..io.images import encode_jpeg
+from ..site.calibration import optical_frame
 
 __all__ = ["write_review_mcap", "REVIEW_SCHEMAS"]
 
@@ -134,7 +137,7 @@ def _calibration(ns: int, cam: str, result, frame) -> dict:
     d = [] if intr.distortion is None else [float(v) for v in intr.distortion]
     K = np.asarray(intr.K, dtype=np.float64)
     h, w = frame.image.shape[:2]
-    return {"timestamp": _t(ns), "frame_id": f"{cam}_optical_frame", "width": int(w), "height": int(h),
+    return {"timestamp": _t(ns), "frame_id": optical_frame(cam), "width": int(w), "height": int(h),
             "distortion_model": "rational_polynomial" if len(d) > 5 else "plumb_bob", "D": d,
             "K": K.reshape(-1).tolist(), "R": np.eye(3).reshape(-1).tolist(),
             "P": np.hstack([K, np.zeros((3, 1))]).reshape(-1).tolist()}
@@ -156,8 +159,8 @@ def _transforms(ns: int, site) -> dict:
             continue
         T = invert_transform(c.result.extrinsics)
         q = matrix_to_quaternion(T[:3, :3])
-        items.append({"timestamp": _t(ns), "parent_frame_id": site.lidar_frame,
-                      "child_frame_id": f"{c.camera}_optical_frame",
+        items.append({"timestamp": _t(ns), "parent_frame_id": ros_name(site.lidar_frame, "lidar"),
+                      "child_frame_id": optical_frame(c.camera),
                       "translation": {k: float(v) for k, v in zip("xyz", T[:3, 3])},
                       "rotation": {k: float(v) for k, v in zip("xyzw", q)}})
     return {"transforms": items}
@@ -171,7 +174,8 @@ def write_review_mcap(path, site, frames_by_camera: dict[str, Sequence], *, max_
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    sweep_stale(path.parent, path.name)  # temps of killed writers
+    fd, tmp = tempfile.mkstemp(prefix=tmp_prefix(path.name), suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
             w = Writer(f)
@@ -183,18 +187,20 @@ def write_review_mcap(path, site, frames_by_camera: dict[str, Sequence], *, max_
             for i in range(n):
                 ns = t0 + int(round(i * period_s * 1e9))
                 first = next(iter(frames_by_camera.values()))[i]
-                out.add("/lidar/points", "foxglove.PointCloud", ns, _cloud(ns, first, site.lidar_frame, max_points))
+                out.add("/lidar/points", "foxglove.PointCloud", ns,
+                        _cloud(ns, first, ros_name(site.lidar_frame, "lidar"), max_points))
                 for cam, frames in frames_by_camera.items():
+                    topic = "/" + ros_name(cam, "camera")  # a name from a recording: a valid topic
                     frame, res = frames[i], site.camera(cam).result
                     if frame.image.size == 0:
                         continue
-                    out.add(f"/{cam}/image", "foxglove.CompressedImage", ns,
-                            {"timestamp": _t(ns), "frame_id": f"{cam}_optical_frame", "format": "jpeg",
+                    out.add(f"{topic}/image", "foxglove.CompressedImage", ns,
+                            {"timestamp": _t(ns), "frame_id": optical_frame(cam), "format": "jpeg",
                              "data": base64.b64encode(encode_jpeg(frame.image, 85)).decode()})
-                    out.add(f"/{cam}/annotations", "foxglove.ImageAnnotations", ns,
+                    out.add(f"{topic}/annotations", "foxglove.ImageAnnotations", ns,
                             _annotations(ns, frame, res, max_points // 4))
                     if res.intrinsics is not None or frame.intrinsics is not None:
-                        out.add(f"/{cam}/calibration", "foxglove.CameraCalibration", ns,
+                        out.add(f"{topic}/calibration", "foxglove.CameraCalibration", ns,
                                 _calibration(ns, cam, res, frame))
             w.finish()
         os.chmod(tmp, 0o644)

@@ -86,6 +86,7 @@ def write_site_report(out_dir, site, frames_by_camera: dict[str, Sequence], *, m
     frames each camera was calibrated on; see the module docstring for the layout."""
     from ..calib.report import write_report
     from ..site import write_site_ros
+    from ..site.calibration import camera_folders
     from .report import write_calibration_report
     from .review import write_review_mcap
 
@@ -95,8 +96,9 @@ def write_site_report(out_dir, site, frames_by_camera: dict[str, Sequence], *, m
     cams: dict[str, Path] = {}
     summaries: dict[str, Path] = {}
     page = None
+    folders = camera_folders([c.camera for c in site.cameras])  # safe, distinct: never outside out
     for c in site.cameras:
-        d = out if single else out / c.camera
+        d = out if single else out / folders[c.camera]
         frames = frames_by_camera[c.camera]
         paths = write_report(c.result, frames, d, max_overlays=max_overlays, progress=progress)
         page = write_calibration_report(d, c.result, frames, ground_truth=c.ground_truth,

@@ -123,11 +123,11 @@ def write_site(out_dir, n_train: int, n_val: int, n_test: int, seed: int = 0, pr
     The site is written into a temporary folder and swapped in whole (the caches and ``site.json``
     always belong to the same run); an existing non-empty ``out_dir`` needs ``overwrite=True``.
     """
-    from ...io._files import atomic_dir
+    from ...io._files import atomic_dir, claim_output
 
     out = Path(out_dir)
     site = sample_site(seed, preset, **overrides)
-    with atomic_dir(out, overwrite=overwrite) as tmp:
+    with claim_output(out, "output folder"), atomic_dir(out, overwrite=overwrite) as tmp:
         _write_site_files(tmp, site, n_train, n_val, n_test, seed, progress, render_images, lidar, image_format)
     return out
 

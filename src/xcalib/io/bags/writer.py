@@ -28,6 +28,7 @@ import numpy as np
 
 from ...geometry.boxes import detect_box3d_convention
 from ...geometry.transforms import invert_transform
+from .._files import sweep_stale, tmp_prefix
 from ...types import Frame
 from . import _convert as cv
 from ._msgs import CAMERA_INFO, COMPRESSED, DET2D, DET3D, IMAGE, POINTCLOUD2, STRING, TF, typestore
@@ -121,11 +122,15 @@ def write_bag(path, frames: Iterable[Frame], *, image_format: Literal["raw", "pn
     container = path.suffix.lower()
     if container not in BAG_SUFFIXES:
         raise ValueError(f"write_bag: {path.name}: expected a {', '.join(BAG_SUFFIXES)} file name")
+    if path.suffix != container:  # bag readers (rosbags, ROS tools) recognise lower-case suffixes only
+        raise ValueError(f"write_bag: {path.name}: write it as {path.stem}{container} (ROS bag readers recognise "
+                         f"the lower-case suffix only; {path.suffix} could not be read back)")
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True (--force) to replace it")
     store = typestore(1 if container == ".bag" else 2, vision_layout)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    sweep_stale(path.parent, path.name)  # temp folders of writers that were killed
+    tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(path.name), suffix=".tmp", dir=path.parent))
     try:
         sink = _Sink(tmp, container, store)
         _write_frames(sink, store, frames, image_format, start_s, period_s, camera_delay_s, lidar_frame)
