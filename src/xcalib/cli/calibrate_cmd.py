@@ -19,8 +19,12 @@ sub-folder per camera). One camera: DIR/calibration.json + .npz, DIR/summary.txt
 Exit code 1 when a camera's frames do not determine its pose (the reason is printed and saved).
 
 Example: xcalib calibrate ../shared/data/a9_sample --out runs/a9_calib
+
 Example: xcalib calibrate nus.mcap --camera CAM_FRONT --camera CAM_BACK --out runs/nus
 """
+# one line per paragraph: the help formatter wraps to the terminal, and a source line break inside
+# a paragraph would break the sentence there too
+_HELP = "\n\n".join(" ".join(p.split()) for p in _HELP.split("\n\n"))
 
 
 def register(app: typer.Typer) -> None:

@@ -254,7 +254,8 @@ def merge_cameras(views: dict[str, Sequence[Frame]]) -> list[Frame]:
                          point_fields=first.point_fields,
                          meta={"intrinsics_by_camera": {n: f.intrinsics for n, f in frames.items()},
                                "extrinsics_by_camera": {n: f.extrinsics for n, f in frames.items()},
-                               "camera_time_s_by_camera": {n: f.camera_time_s for n, f in frames.items()}},
+                               "camera_time_s_by_camera": {n: f.camera_time_s for n, f in frames.items()},
+                               "frame_key_by_camera": {n: f.frame_key for n, f in frames.items()}},
                          lidar_time_s=first.lidar_time_s,
                          track_ids_3d=None if any(t is None for t in tracks) else np.asarray(tracks, np.int64),
                          velocities_3d=None if any(v is None for v in vels) else np.asarray(vels).reshape(-1, 3)))

@@ -519,7 +519,8 @@ class BagFrames(Sequence):
 
     @property
     def frame_keys(self) -> list[str]:
-        return [str(e.meta.get("frame_key", e.lidar[0])) for e in self._entries]
+        return [str(e.meta.get("cameras", {}).get(self.camera, {}).get("frame_key", e.meta.get("frame_key", e.lidar[0])))
+                for e in self._entries]
 
     def _frame(self, e: _Entry) -> Frame:
         tp = self.topics
@@ -571,7 +572,7 @@ class BagFrames(Sequence):
                      track_ids_3d=None if tracks is None else np.asarray(tracks, dtype=np.int64),
                      velocities_3d=None if vel is None else np.asarray(vel, dtype=np.float64).reshape(-1, 3),
                      camera_name=str(rec.get("camera_name", self.camera)),
-                     frame_key=str(e.meta.get("frame_key", e.lidar[0])),
+                     frame_key=str(rec.get("frame_key", e.meta.get("frame_key", e.lidar[0]))),
                      match_matrix=None if mm is None else np.asarray(mm, dtype=bool).reshape(len(b2), len(b3)),
                      intrinsics=intr, extrinsics=extr,
                      point_fields=fields, meta=meta)
