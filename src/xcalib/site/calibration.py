@@ -47,6 +47,13 @@ class CameraCalibration:
     result: CalibrationResult
     num_frames: int
     ground_truth: np.ndarray | None = None
+    frame: str = ""  # the camera's tf frame (the recording's image header.frame_id); "" -> <camera>_optical_frame
+    image_size: tuple[int, int] | None = None  # (width, height) of its images
+
+    @property
+    def child_frame(self) -> str:
+        """The camera's optical frame in the tree: the recording's own name, else ``<camera>_optical_frame``."""
+        return self.frame or optical_frame(self.camera)
 
     @property
     def verdict(self) -> Literal["calibrated", "refused"]:
@@ -107,7 +114,7 @@ class SiteCalibration:
         out = []
         for c in self.cameras:
             r = c.result
-            edge = {"parent": self.lidar_frame, "child": optical_frame(c.camera), "camera": c.camera,
+            edge = {"parent": self.lidar_frame, "child": c.child_frame, "camera": c.camera,
                     "verdict": c.verdict, "message": r.message, "num_frames": c.num_frames,
                     "n_pairs": r.n_pairs}
             if r.success:
@@ -142,7 +149,10 @@ class SiteCalibration:
         cams = []
         for edge in d.get("transforms", []):
             res = CalibrationResult.from_dict(d["cameras"][edge["camera"]])
-            cams.append(CameraCalibration(edge["camera"], res, int(edge.get("num_frames", 0))))
+            child = str(edge.get("child", ""))
+            cams.append(CameraCalibration(edge["camera"], res, int(edge.get("num_frames", 0)),
+                                          frame="" if child == optical_frame(edge["camera"]) else child,
+                                          image_size=res.image_size))
         agr = tuple(CameraAgreement(**a) for a in d.get("agreements", []))
         return cls(tuple(cams), agr, str(d.get("lidar_frame", "lidar")), str(d.get("source", "")))
 
@@ -210,6 +220,23 @@ def _agreement(a: CameraCalibration, b: CameraCalibration, fa, fb) -> CameraAgre
                            float(np.linalg.norm(T_ab[:3, 3])), err_deg, err_m)
 
 
+def _distinct_frames(cams: list[CameraCalibration], lidar_frame: str) -> list[CameraCalibration]:
+    """Cameras whose recorded frame name is shared with another camera or the LiDAR get the
+    default ``<camera>_optical_frame`` (one tf frame cannot hold two poses), with a warning."""
+    import dataclasses
+    import logging
+
+    names = [c.child_frame for c in cams] + [lidar_frame]
+    out = []
+    for c in cams:
+        if c.frame and names.count(c.frame) > 1:
+            logging.getLogger(__name__).warning("camera %s: its frame id %r is shared with another sensor; "
+                                                "writing %s instead", c.camera, c.frame, optical_frame(c.camera))
+            c = dataclasses.replace(c, frame="")
+        out.append(c)
+    return out
+
+
 def _default_calibrate(frames, intrinsics, progress):
     from ..calib.api import calibrate
 
@@ -217,14 +244,17 @@ def _default_calibrate(frames, intrinsics, progress):
 
 
 def calibrate_site(views: dict[str, Sequence[Frame]], intrinsics: dict[str, CameraIntrinsics | None] | None = None,
-                   *, lidar_frame: str = "lidar", source: str = "",
+                   *, lidar_frame: str | None = None, source: str = "",
                    calibrate: Callable[..., CalibrationResult] | None = None,
-                   progress: Callable[[str, int, int], None] | None = None) -> tuple[SiteCalibration, dict]:
+                   progress: Callable[[str, int, int], None] | None = None,
+                   camera_frames: dict[str, str] | None = None) -> tuple[SiteCalibration, dict]:
     """Calibrate each camera's frames (``views``: camera name -> its frames, the same LiDAR)
     against the LiDAR with ``calibrate(frames, intrinsics, progress)`` (default: the public
     :func:`xcalib.calibrate` with its defaults). Returns ``(SiteCalibration, frames read per
     camera)``; a camera whose frames do not determine its pose is in the result as refused, with
-    the reason."""
+    the reason. Frame names: ``lidar_frame`` / ``camera_frames[camera]`` when given, else the
+    source's own (a bag's ``header.frame_id``s: ``lidar_frame_id`` / ``camera_frame_id`` of its
+    view), else ``lidar`` / ``<camera>_optical_frame``."""
     run = calibrate or _default_calibrate
     intrinsics = intrinsics or {}
     cams, loaded = [], {}
@@ -241,7 +271,14 @@ def calibrate_site(views: dict[str, Sequence[Frame]], intrinsics: dict[str, Came
             stage = (lambda s, d, t, _n=name: progress(f"{_n}: {s}", d, t)) if progress else None
             res = run(frames, intr, stage)
             res.camera_name = res.camera_name or name
-        cams.append(CameraCalibration(name, res, len(frames), _common_truth(frames)))
+        size = next((f.image.shape[1::-1] for f in frames if np.asarray(f.image).ndim == 3
+                     and f.image.shape[0] > 1), None)
+        own = (camera_frames or {}).get(name) or getattr(seq, "camera_frame_id", None) or ""
+        cams.append(CameraCalibration(name, res, len(frames), _common_truth(frames), frame=str(own),
+                                      image_size=None if size is None else (int(size[0]), int(size[1]))))
+        if lidar_frame is None:
+            lidar_frame = getattr(seq, "lidar_frame_id", None) or None
+    cams = _distinct_frames(cams, lidar_frame or "lidar")
     agreements = []
     for i in range(len(cams)):
         for j in range(i + 1, len(cams)):
@@ -250,4 +287,4 @@ def calibrate_site(views: dict[str, Sequence[Frame]], intrinsics: dict[str, Came
                 ag = _agreement(a, b, loaded[a.camera], loaded[b.camera])
                 if ag is not None:
                     agreements.append(ag)
-    return SiteCalibration(tuple(cams), tuple(agreements), lidar_frame, source), loaded
+    return SiteCalibration(tuple(cams), tuple(agreements), lidar_frame or "lidar", source), loaded

@@ -44,6 +44,10 @@ def _reader(path: Path):
     does not define. Unreadable input -> FormatError naming the file."""
     from rosbags.highlevel import AnyReader
 
+    if path.suffix.lower() == ".mcap" and path.is_file():  # either ROS profile, schema names with or without /msg/
+        from ._mcap import open_mcap
+
+        return open_mcap(path, typestore)
     default = typestore(1 if path.suffix.lower() == ".bag" else 2)
     try:
         reader = AnyReader([path], default_typestore=default)
