@@ -49,6 +49,15 @@ class CameraCalibration:
     ground_truth: np.ndarray | None = None
     frame: str = ""  # the camera's tf frame (the recording's image header.frame_id); "" -> <camera>_optical_frame
     image_size: tuple[int, int] | None = None  # (width, height) of its images
+    recorded: np.ndarray | None = None  # the recording's own T_cam_lidar (its tf between the two frames)
+
+    @property
+    def vs_recorded(self) -> tuple[float, float] | None:
+        """(rotation deg, translation m) of the recording's tf from this calibration (None without
+        one or when refused)."""
+        if self.recorded is None or not self.result.success:
+            return None
+        return tuple(float(v) for v in self.result.pose_error(self.recorded))
 
     @property
     def child_frame(self) -> str:
@@ -121,6 +130,11 @@ class SiteCalibration:
                 edge.update(T_cam_lidar=r.extrinsics.tolist(), T_parent_child=invert_transform(r.extrinsics).tolist(),
                             rotation_std_deg=r.rotation_std_deg.tolist(), translation_std_m=r.translation_std_m.tolist(),
                             residual_px_median=r.residual_px_median, iou_median=r.iou_median)
+            if c.recorded is not None:
+                edge["recorded_T_cam_lidar"] = np.asarray(c.recorded).tolist()
+                if c.vs_recorded is not None:
+                    edge["recorded_tf_vs_calibration"] = {"rotation_deg": c.vs_recorded[0],
+                                                          "translation_m": c.vs_recorded[1]}
             if c.error_vs_truth is not None:
                 edge["error_vs_truth"] = {"rotation_deg": c.error_vs_truth[0], "translation_m": c.error_vs_truth[1]}
             out.append(edge)
@@ -152,7 +166,9 @@ class SiteCalibration:
             child = str(edge.get("child", ""))
             cams.append(CameraCalibration(edge["camera"], res, int(edge.get("num_frames", 0)),
                                           frame="" if child == optical_frame(edge["camera"]) else child,
-                                          image_size=res.image_size))
+                                          image_size=res.image_size,
+                                          recorded=None if edge.get("recorded_T_cam_lidar") is None else
+                                          np.asarray(edge["recorded_T_cam_lidar"], dtype=np.float64)))
         agr = tuple(CameraAgreement(**a) for a in d.get("agreements", []))
         return cls(tuple(cams), agr, str(d.get("lidar_frame", "lidar")), str(d.get("source", "")))
 
@@ -247,14 +263,16 @@ def calibrate_site(views: dict[str, Sequence[Frame]], intrinsics: dict[str, Came
                    *, lidar_frame: str | None = None, source: str = "",
                    calibrate: Callable[..., CalibrationResult] | None = None,
                    progress: Callable[[str, int, int], None] | None = None,
-                   camera_frames: dict[str, str] | None = None) -> tuple[SiteCalibration, dict]:
+                   camera_frames: dict[str, str] | None = None,
+                   priors: dict[str, np.ndarray] | None = None) -> tuple[SiteCalibration, dict]:
     """Calibrate each camera's frames (``views``: camera name -> its frames, the same LiDAR)
     against the LiDAR with ``calibrate(frames, intrinsics, progress)`` (default: the public
     :func:`xcalib.calibrate` with its defaults). Returns ``(SiteCalibration, frames read per
     camera)``; a camera whose frames do not determine its pose is in the result as refused, with
     the reason. Frame names: ``lidar_frame`` / ``camera_frames[camera]`` when given, else the
     source's own (a bag's ``header.frame_id``s: ``lidar_frame_id`` / ``camera_frame_id`` of its
-    view), else ``lidar`` / ``<camera>_optical_frame``."""
+    view), else ``lidar`` / ``<camera>_optical_frame``. ``priors[camera]``: a starting pose passed
+    to ``calibrate(..., prior=)`` for that camera (e.g. the recording's own tf)."""
     run = calibrate or _default_calibrate
     intrinsics = intrinsics or {}
     cams, loaded = [], {}
@@ -269,13 +287,16 @@ def calibrate_site(views: dict[str, Sequence[Frame]], intrinsics: dict[str, Came
             res = CalibrationResult(success=False, camera_name=name, message=f"camera {name}: no frames")
         else:
             stage = (lambda s, d, t, _n=name: progress(f"{_n}: {s}", d, t)) if progress else None
-            res = run(frames, intr, stage)
+            res = run(frames, intr, stage, prior=priors[name]) if priors and name in priors else \
+                run(frames, intr, stage)
             res.camera_name = res.camera_name or name
         size = next((f.image.shape[1::-1] for f in frames if np.asarray(f.image).ndim == 3
                      and f.image.shape[0] > 1), None)
         own = (camera_frames or {}).get(name) or getattr(seq, "camera_frame_id", None) or ""
+        rec = getattr(seq, "tf_T_cam_lidar", None)
         cams.append(CameraCalibration(name, res, len(frames), _common_truth(frames), frame=str(own),
-                                      image_size=None if size is None else (int(size[0]), int(size[1]))))
+                                      image_size=None if size is None else (int(size[0]), int(size[1])),
+                                      recorded=None if rec is None else np.asarray(rec, dtype=np.float64)))
         if lidar_frame is None:
             lidar_frame = getattr(seq, "lidar_frame_id", None) or None
     cams = _distinct_frames(cams, lidar_frame or "lidar")
