@@ -536,3 +536,56 @@ def test_bag_round_trip_keeps_each_cameras_frame_key(tmp_path, frames):
     path = write_bag(tmp_path / "two.mcap", merge_cameras(views))
     rear = BagFrames(path, "rear")
     assert [f.frame_key for f in rear] == ["s0/rear", "s1/rear"] == rear.frame_keys
+
+
+def test_tf_prior_starts_from_the_recordings_tf(tmp_path, frames):
+    from xcalib.cli.calibrate_cmd import _tf_priors
+    from xcalib.site import calibrate_site
+
+    seq = BagFrames(_bag(tmp_path, frames))
+    priors = _tf_priors({"camera": seq}, "rec.mcap")
+    np.testing.assert_allclose(priors["camera"], frames[0].extrinsics, atol=1e-6)
+    seen = {}
+
+    def fake(fr, intr, stage, prior=None):
+        seen["prior"] = prior
+        return CalibrationResult(success=True, rotation=np.asarray(prior)[:3, :3], translation=np.asarray(prior)[:3, 3],
+                                 intrinsics=intr)
+
+    site, _ = calibrate_site({"camera": seq}, calibrate=fake, priors=priors)
+    assert seen["prior"] is priors["camera"] and site.cameras[0].vs_recorded == pytest.approx((0.0, 0.0), abs=1e-6)
+    # a recording without a tf between the two frames: --tf-prior is refused, naming both frames
+    import typer
+
+    seq.tf_T_cam_lidar = None
+    with pytest.raises(typer.BadParameter, match="no tf between the cloud's frame 'velodyne' and the image's "
+                                                 "'camera_optical_frame'"):
+        _tf_priors({"camera": seq}, "rec.mcap")
+
+
+def test_mcap_without_a_summary_is_read(tmp_path, frames):
+    """A recording that was not closed (no summary section): schemas and channels from the records."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    good = _bag(tmp_path, frames, "mcap_ros2-no-msg.mcap")
+    cut = tmp_path / "cut.mcap"
+    with open(good, "rb") as f, open(cut, "wb") as g:
+        w = Writer(g, use_chunking=False)
+        w.start(profile="ros2", library="test")
+        sch, ch = {}, {}
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            if schema.id not in sch:
+                sch[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in ch:
+                ch[channel.id] = w.register_channel(channel.topic, channel.message_encoding, sch[schema.id])
+            w.add_message(ch[channel.id], message.log_time, message.data, message.publish_time)
+        g.flush()  # no finish(): no summary, no footer
+    with open(cut, "rb") as f:
+        try:
+            summary = make_reader(f).get_summary()
+        except Exception:  # noqa: BLE001 - the mcap library's error for a missing footer
+            summary = None
+    assert summary is None
+    seq = BagFrames(cut)
+    assert len(seq) == len(frames)

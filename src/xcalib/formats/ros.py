@@ -298,10 +298,7 @@ def write_ros(result: CalibrationResult, path, *, parent_frame: str = "lidar",
     # parsers ignore). camera_info is renamed first: a write killed before the tf file's rename
     # leaves a tf file of another pair id, and read_ros then takes the embedded transform.
     pair = secrets.token_hex(8)
-    try:
-        info_d = camera_info_dict(intr, name, result.image_size)
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
+    info_d = camera_info_dict(intr, name, result.image_size)  # ValueError without an image size
     info = yaml.safe_dump({**info_d, PAIR_KEY: pair, EMBEDDED_TF: tf_dict},
                           sort_keys=False).encode()
     tfy = yaml.safe_dump({**tf_dict, PAIR_KEY: pair}, sort_keys=False).encode()

@@ -7,6 +7,7 @@ rosbags' ``AnyReader`` interface that :mod:`.reader` uses (``connections``, ``me
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from ...errors import FormatError
 
 __all__ = ["McapReader", "normalise_msgtype", "open_mcap"]
 
+log = logging.getLogger(__name__)
 _ENCODINGS = {"cdr": 2, "ros1": 1}
 
 
@@ -43,13 +45,16 @@ class McapReader:
         self._file = open(self.path, "rb")  # noqa: SIM115 - closed by close()
         try:
             self._reader = make_reader(self._file)
-            summary = self._reader.get_summary()
-            if summary is None:
-                raise ValueError("the file has no summary section (not finished?)")
+            try:
+                summary = self._reader.get_summary()
+            except Exception:  # noqa: BLE001 - no footer: a recording that was not closed
+                summary = None
+            self._linear = summary is None
+            schemas, channels = (summary.schemas, summary.channels) if summary is not None else self._scan()
             self.typestore = get_typestore(Stores.EMPTY)
             cons = []
-            for ch in summary.channels.values():
-                schema = summary.schemas.get(ch.schema_id)
+            for ch in channels.values():
+                schema = schemas.get(ch.schema_id)
                 if ch.message_encoding not in _ENCODINGS or schema is None:
                     continue  # JSON, protobuf, ...: not ROS messages; not listed
                 name = normalise_msgtype(schema.name)
@@ -70,16 +75,51 @@ class McapReader:
             self.typestore.register(missing)
         self._ros = {c.msgtype: c.ros for c in self.connections}
 
+    def _scan(self) -> tuple[dict, dict]:
+        """Schemas and channels of a file without a summary section (a recording that was not
+        closed), read from the records themselves."""
+        from mcap.records import Channel, Schema
+        from mcap.stream_reader import StreamReader
+
+        from mcap.exceptions import EndOfFile
+
+        schemas, channels = {}, {}
+        self._file.seek(0)
+        try:
+            for rec in StreamReader(self._file, skip_magic=False).records:
+                if isinstance(rec, Schema):
+                    schemas[rec.id] = rec
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = rec
+        except EndOfFile:  # the file ends without a footer: what was written is read
+            log.warning("%s: the MCAP file ends without a summary and footer (a recording that was not "
+                        "closed); reading the records it holds", self.path)
+        self._file.seek(0)
+        return schemas, channels
+
     def messages(self, connections=None):
         """``(connection, log time ns, raw bytes)`` of ``connections`` (default: all), in log-time order."""
         wanted = {c.id: c for c in (self.connections if connections is None else connections)}
         if not wanted:
             return
         topics = sorted({c.topic for c in wanted.values()})
-        for _schema, channel, message in self._reader.iter_messages(topics=topics, log_time_order=True):
-            con = wanted.get(channel.id)
-            if con is not None:
-                yield con, int(message.log_time), message.data
+        if self._linear:  # no summary to seek with: read the records in file order
+            from mcap.reader import NonSeekingReader
+
+            self._file.seek(0)
+            it = NonSeekingReader(self._file).iter_messages(topics=topics, log_time_order=False)
+        else:
+            it = self._reader.iter_messages(topics=topics, log_time_order=True)
+        from mcap.exceptions import EndOfFile
+
+        try:
+            for _schema, channel, message in it:
+                con = wanted.get(channel.id)
+                if con is not None:
+                    yield con, int(message.log_time), message.data
+        except EndOfFile:
+            if not self._linear:
+                raise
 
     def deserialize(self, raw: bytes, msgtype: str):
         if self._ros.get(msgtype, 2) == 1:
