@@ -589,3 +589,21 @@ def test_mcap_without_a_summary_is_read(tmp_path, frames):
     assert summary is None
     seq = BagFrames(cut)
     assert len(seq) == len(frames)
+
+
+def test_frame_ids_that_are_not_plain_names_are_not_written(frames, caplog):
+    from xcalib.site import calibrate_site
+
+    class View(list):
+        lidar_frame_id, camera_frame_id = "velodyne", 'cam"\n touch x #'
+
+    def fake(fr, intr, stage, prior=None):
+        return CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3), intrinsics=intr)
+
+    with caplog.at_level(logging.WARNING):
+        site, _ = calibrate_site({"front": View(frames[:1])}, calibrate=fake)
+    assert site.lidar_frame == "velodyne" and site.cameras[0].child_frame == "front_optical_frame"
+    assert "not a plain tf frame name" in caplog.text
+    from xcalib.cli import main
+
+    assert main(["calibrate", "missing.mcap", "--lidar-frame", "a b"]) == 2  # a usage error, before reading

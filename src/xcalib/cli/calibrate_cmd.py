@@ -73,12 +73,16 @@ def register(app: typer.Typer) -> None:
         from ..io._files import atomic_dir
         from ..io.frames import read_intrinsics_json
         from ..site import calibrate_site
+        from ..site.calibration import is_frame_id
         from ..viz.site_report import site_table, write_site_report
 
         try:
             selfcal = CalibConfig(refine_intrinsics=refine_intrinsics, time_offset=time_offset)
         except ValueError as exc:
             raise typer.BadParameter(str(exc), param_hint="--refine-intrinsics / --time-offset") from None
+        if lidar_frame is not None and not is_frame_id(lidar_frame):
+            raise typer.BadParameter(f"{lidar_frame!r} is not a tf frame name (letters, digits, _ . / -)",
+                                     param_hint="--lidar-frame")
         if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
             raise FileExistsError(f"{out} already exists; pass --force to replace it")
         cams = list(camera or [])
@@ -97,6 +101,7 @@ def register(app: typer.Typer) -> None:
         if tf_prior and prior is not None:
             raise typer.BadParameter("give --prior or --tf-prior, not both", param_hint="--tf-prior")
         priors = _tf_priors(views, frames) if tf_prior else {}
+
         cam_frames = _camera_frames(camera_frame, list(views))
         console = Console(stderr=True)
         with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
@@ -156,6 +161,8 @@ def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, to
 
 def _camera_frames(values: list[str] | None, cams: list[str]) -> dict[str, str]:
     """--camera-frame FRAME (one camera) / CAMERA=FRAME -> {camera: frame}."""
+    from ..site.calibration import is_frame_id
+
     out = {}
     for v in values or []:
         cam, sep, frame = v.rpartition("=")
@@ -165,6 +172,9 @@ def _camera_frames(values: list[str] | None, cams: list[str]) -> dict[str, str]:
             cam = cams[0]
         if cam not in cams or not frame:
             raise typer.BadParameter(f"{v!r}: cameras are {', '.join(cams)}", param_hint="--camera-frame")
+        if not is_frame_id(frame):
+            raise typer.BadParameter(f"{frame!r} is not a tf frame name (letters, digits, _ . / -)",
+                                     param_hint="--camera-frame")
         out[cam] = frame
     return out
 

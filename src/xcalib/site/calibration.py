@@ -11,6 +11,8 @@ Frames: ``T_cam_lidar`` maps LiDAR points into the camera's OpenCV optical frame
 from __future__ import annotations
 
 import json
+import logging
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,7 +31,7 @@ from ..io._files import atomic_write
 from ..types import Frame
 
 __all__ = ["SITE_FORMAT", "CameraCalibration", "CameraAgreement", "SiteCalibration", "calibrate_site",
-           "optical_frame"]
+           "optical_frame", "is_frame_id"]
 
 SITE_FORMAT = "xcalib-site-calibration-v1"
 
@@ -37,6 +39,15 @@ SITE_FORMAT = "xcalib-site-calibration-v1"
 def optical_frame(camera: str) -> str:
     """The tf name of a camera's OpenCV optical frame (REP 103: ``<camera>_optical_frame``)."""
     return f"{camera}_optical_frame"
+
+
+_FRAME_ID = re.compile(r"[A-Za-z_][A-Za-z0-9_./-]{0,199}")
+
+
+def is_frame_id(name: str) -> bool:
+    """A tf frame name xcalib writes as it is: letters, digits, ``_ . / -``, a letter or ``_`` first
+    (a recording's ``header.frame_id`` that is not is replaced by the default name, with a warning)."""
+    return isinstance(name, str) and _FRAME_ID.fullmatch(name) is not None
 
 
 @dataclass(frozen=True)
@@ -236,11 +247,22 @@ def _agreement(a: CameraCalibration, b: CameraCalibration, fa, fb) -> CameraAgre
                            float(np.linalg.norm(T_ab[:3, 3])), err_deg, err_m)
 
 
+def _recorded_frame(name, what: str) -> str:
+    """A recording's frame id as written, or "" (the default name) when it has none or it is not
+    a plain tf name (it reaches shell lines, XML and Python launch files)."""
+    if not name:
+        return ""
+    if not is_frame_id(str(name)):
+        logging.getLogger(__name__).warning("%s: the recording's frame id %r is not a plain tf frame name; the "
+                                            "default name is written instead", what, str(name)[:80])
+        return ""
+    return str(name)
+
+
 def _distinct_frames(cams: list[CameraCalibration], lidar_frame: str) -> list[CameraCalibration]:
     """Cameras whose recorded frame name is shared with another camera or the LiDAR get the
     default ``<camera>_optical_frame`` (one tf frame cannot hold two poses), with a warning."""
     import dataclasses
-    import logging
 
     names = [c.child_frame for c in cams] + [lidar_frame]
     out = []
@@ -292,13 +314,13 @@ def calibrate_site(views: dict[str, Sequence[Frame]], intrinsics: dict[str, Came
             res.camera_name = res.camera_name or name
         size = next((f.image.shape[1::-1] for f in frames if np.asarray(f.image).ndim == 3
                      and f.image.shape[0] > 1), None)
-        own = (camera_frames or {}).get(name) or getattr(seq, "camera_frame_id", None) or ""
+        own = (camera_frames or {}).get(name) or _recorded_frame(getattr(seq, "camera_frame_id", None), name)
         rec = getattr(seq, "tf_T_cam_lidar", None)
         cams.append(CameraCalibration(name, res, len(frames), _common_truth(frames), frame=str(own),
                                       image_size=None if size is None else (int(size[0]), int(size[1])),
                                       recorded=None if rec is None else np.asarray(rec, dtype=np.float64)))
         if lidar_frame is None:
-            lidar_frame = getattr(seq, "lidar_frame_id", None) or None
+            lidar_frame = _recorded_frame(getattr(seq, "lidar_frame_id", None), "LiDAR") or None
     cams = _distinct_frames(cams, lidar_frame or "lidar")
     agreements = []
     for i in range(len(cams)):
