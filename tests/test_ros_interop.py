@@ -347,6 +347,11 @@ def test_outputs_connect_to_the_recordings_tree(tmp_path, frames):
 def test_frame_overrides(tmp_path, frames):
     site, _, _ = _site(tmp_path, frames, lidar_frame="os_sensor", camera_frames={"camera": "cam0_optical_frame"})
     assert site.lidar_frame == "os_sensor" and site.transforms()[0]["child"] == "cam0_optical_frame"
+    from xcalib.io.sources import open_source
+
+    sub = open_source(next(tmp_path.glob("rec*/*.mcap")), frames="0:2")  # --frames / --limit keep them too
+    assert (len(sub), sub.lidar_frame_id, sub.camera_frame_id) == (2, LIDAR, CAMERA)
+    assert sub.tf_T_cam_lidar is not None
 
 
 def _parse_camera_info(path: Path) -> dict:

@@ -117,11 +117,12 @@ def parse_frame_range(spec, count: int, *, where="frames") -> list[int]:
 
 class FrameSubset(Sequence):
     """The frames ``indices`` of a lazy source, still lazy; forwards ``intrinsics`` / ``camera`` /
-    ``camera_names`` / ``source_name`` of the source."""
+    ``camera_names`` / ``source_name`` of the source (and a bag's frame names and tf)."""
 
     def __init__(self, base: Sequence[Frame], indices: list[int]):
         self.base, self.indices = base, list(indices)
-        for attr in ("intrinsics", "camera", "camera_names", "source_name", "path", "report"):
+        for attr in ("intrinsics", "camera", "camera_names", "source_name", "path", "report",
+                     "lidar_frame_id", "camera_frame_id", "tf_T_cam_lidar"):  # a bag's frame names and tf
             if hasattr(base, attr):
                 setattr(self, attr, getattr(base, attr))
 
