@@ -612,3 +612,43 @@ def test_frame_ids_that_are_not_plain_names_are_not_written(frames, caplog):
     from xcalib.cli import main
 
     assert main(["calibrate", "missing.mcap", "--lidar-frame", "a b"]) == 2  # a usage error, before reading
+
+
+def test_autoware_shapes_cylinder_polygon_and_unknown_orientation():
+    from xcalib.io.bags._objects import boxes3d_any
+
+    store = typestore(2)
+    T = store.types
+    pkg = "autoware_perception_msgs"
+
+    def obj(shape_type, dims, footprint=(), yaw=0.3, availability=2, pos=(10.0, 2.0, 0.5)):
+        pose = T["geometry_msgs/msg/Pose"](
+            position=T["geometry_msgs/msg/Point"](x=pos[0], y=pos[1], z=pos[2]),
+            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2))))
+        zero = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+        kin = T[f"{pkg}/msg/DetectedObjectKinematics"](
+            pose_with_covariance=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+            has_position_covariance=False, orientation_availability=availability,
+            twist_with_covariance=T["geometry_msgs/msg/TwistWithCovariance"](
+                twist=T["geometry_msgs/msg/Twist"](linear=zero, angular=zero), covariance=np.zeros(36)),
+            has_twist=False, has_twist_covariance=False)
+        pts = [T["geometry_msgs/msg/Point32"](x=float(x), y=float(y), z=0.0) for x, y in footprint]
+        shape = T[f"{pkg}/msg/Shape"](type=shape_type, footprint=T["geometry_msgs/msg/Polygon"](points=pts),
+                                      dimensions=T["geometry_msgs/msg/Vector3"](x=dims[0], y=dims[1], z=dims[2]))
+        return T[f"{pkg}/msg/DetectedObject"](existence_probability=1.0, classification=[], kinematics=kin, shape=shape)
+
+    def msg(*objs):
+        return T[f"{pkg}/msg/DetectedObjects"](header=cv.make_header(store, 1, LIDAR), objects=list(objs))
+
+    where = ("rec.mcap", "/objects")
+    b = boxes3d_any(msg(obj(1, (0.6, 0.0, 1.7)), obj(2, (0.0, 0.0, 1.5), footprint=[(0, -1), (4, -1), (4, 1), (0, 1)])),
+                    where)
+    np.testing.assert_allclose(b.box7[0], [10.0, 2.0, 0.5, 0.6, 0.6, 1.7, 0.3], atol=1e-12)  # cylinder: diameter
+    c, s = np.cos(0.3), np.sin(0.3)  # the polygon's centre (2, 0) in the object frame, turned by the yaw
+    np.testing.assert_allclose(b.box7[1], [10.0 + 2 * c, 2.0 + 2 * s, 0.5, 4.0, 2.0, 1.5, 0.3], atol=1e-12)
+    assert not b.yawless
+    assert boxes3d_any(msg(obj(0, (4.0, 2.0, 1.5), availability=0)), where).yawless  # UNAVAILABLE
+    with pytest.raises(FormatError, match="unknown shape type 7"):
+        boxes3d_any(msg(obj(7, (1.0, 1.0, 1.0))), where)
+    with pytest.raises(FormatError, match=r"box size \[4.0, -2.0, 1.5\] is not positive"):
+        boxes3d_any(msg(obj(0, (4.0, -2.0, 1.5))), where)
