@@ -479,6 +479,12 @@ def test_review_keeps_the_recordings_stamps_and_whole_cloud(tmp_path, frames):
     images = [(t, json.loads(d)) for topic, t, d in msgs if topic == "/camera/image"]
     assert [t for t, _ in images] == [fr.meta["camera_stamp_ns"] for fr in loaded["camera"]]
     assert images[0][1]["frame_id"] == CAMERA
+    # decimated only when asked
+    path = write_review_mcap(tmp_path / "small.mcap", site, loaded, max_points=50)
+    with open(path, "rb") as f:
+        n = [len(base64.b64decode(json.loads(m.data)["data"])) // 12
+             for _, c, m in make_reader(f).iter_messages(topics=["/lidar/points"])]
+    assert all(0 < k <= 50 for k in n)
 
 
 # ----------------------------------------------------------------------------- smaller

@@ -59,6 +59,8 @@ def register(app: typer.Typer) -> None:
                                                help="tf frame of a camera's optical frame: FRAME (one camera) or "
                                                     "CAMERA=FRAME (repeat); default: the recording's image "
                                                     "header.frame_id, else <camera>_optical_frame."),
+        review_max_points: int = typer.Option(0, "--review-max-points", help="Decimate the clouds of review.mcap to "
+                                                                             "about N points (0: the whole cloud)."),
         tf_prior: bool = typer.Option(False, "--tf-prior", help="Bags: start from the recording's own tf between the "
                                                                 "cloud's and the image's frames (skips bring-up)."),
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
@@ -122,7 +124,8 @@ def register(app: typer.Typer) -> None:
                                           camera_frames=cam_frames, priors=priors)
             with atomic_dir(out, overwrite=force) as tmp:  # the whole folder is swapped in at once
                 paths = write_site_report(tmp, site, loaded, max_overlays=max_overlays, progress=progress,
-                                          title=f"xcalib calibrate: {frames}")
+                                          title=f"xcalib calibrate: {frames}",
+                                          review_max_points=review_max_points or None)
             paths = paths.relocated(tmp, out)
         _print(site, paths, as_json, site_table)
         if not as_json:
