@@ -48,18 +48,27 @@ def register(app: typer.Typer) -> None:
         seq = BagFrames(path, camera, lidar=lidar, camera_info=camera_info, detections_2d=det2d,
                         detections_3d=det3d, tolerance_s=tolerance,
                         intrinsics=None if intrinsics is None else CameraIntrinsics.from_json(intrinsics))
+        bad = _undecodable(seq, progress=not as_json)
         if as_json:
             typer.echo(json.dumps({"topics": seq.topics, "camera": seq.camera, "cameras": seq.camera_names,
-                                   "frame_keys": seq.frame_keys, **seq.report.to_dict()}, indent=1))
-            return
-        typer.echo(f"camera {seq.camera} (cameras in the bag: {', '.join(seq.camera_names)})")
-        for k, v in seq.topics.items():
-            typer.echo(f"  {k:<14} {v}")
-        typer.echo("\n".join(seq.report.lines()))
-        for d in seq.report.dropped[:20]:
-            typer.echo(f"    {d.topic} @ {d.stamp_s:.6f} s: {d.reason}")
-        if len(seq.report.dropped) > 20:
-            typer.echo(f"    ... {len(seq.report.dropped) - 20} more (--json lists all)")
+                                   "frame_keys": seq.frame_keys, **seq.report.to_dict(),
+                                   "frames_paired": seq.report.frames, "frames": seq.report.frames - len(bad),
+                                   "undecodable": [{"index": i, "frame_key": k, "error": e} for i, k, e in bad]},
+                                  indent=1))
+        else:
+            typer.echo(f"camera {seq.camera} (cameras in the bag: {', '.join(seq.camera_names)})")
+            for k, v in seq.topics.items():
+                typer.echo(f"  {k:<14} {v}")
+            typer.echo("\n".join(seq.report.lines()))
+            for d in seq.report.dropped[:20]:
+                typer.echo(f"    {d.topic} @ {d.stamp_s:.6f} s: {d.reason}")
+            if len(seq.report.dropped) > 20:
+                typer.echo(f"    ... {len(seq.report.dropped) - 20} more (--json lists all)")
+            typer.echo(f"{seq.report.frames - len(bad)} of {seq.report.frames} paired frame(s) decode")
+            for i, k, e in bad[:20]:
+                typer.echo(f"    frame {i} ({k}): {e}")
+        if len(bad) == seq.report.frames:
+            raise typer.Exit(1)
 
     @bag_app.command("write", help=f"Write any frame source (one or several cameras) to a .bag, .db3 or .mcap."
                                    f"\n\n{_WRITE_EX}")
@@ -93,3 +102,21 @@ def register(app: typer.Typer) -> None:
             frames = (seq[i] for i in range(len(seq)))
         path = write_bag(out, frames, image_format=image_format, overwrite=force)
         typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
+
+
+def _undecodable(seq, progress: bool) -> list[tuple[int, str, str]]:
+    """Decode every paired frame (one at a time): ``[(index, frame key, error)]`` of those that fail,
+    so that the count printed is of frames a calibration can use, not of stamps that pair."""
+    from rich.console import Console
+    from rich.progress import track
+
+    from ..errors import FormatError
+
+    keys, bad = seq.frame_keys, []
+    for i in track(range(len(seq)), description="decoding frames", disable=not progress, transient=True,
+                   console=Console(stderr=True)):
+        try:
+            seq[i]
+        except FormatError as exc:
+            bad.append((i, keys[i], str(exc)))
+    return bad

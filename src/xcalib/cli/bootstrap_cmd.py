@@ -8,8 +8,8 @@ from typing import Optional
 
 import typer
 
-_EXAMPLE = ("Example (the first 10 A9 frames, about 40 s on 2 cores): xcalib bootstrap ../shared/data/a9_sample "
-            "--intrinsics ../shared/data/a9_sample/intrinsics.json --site a9_south1 --model fastmatch --limit 10. "
+_EXAMPLE = ("Example (the first 10 A9 frames; a few minutes: about 150 s of CPU):\n\nxcalib bootstrap ../shared/data/a9_sample "
+            "--intrinsics ../shared/data/a9_sample/intrinsics.json --site a9_south1 --model fastmatch --limit 10\n\n"
             "A recording too short to determine the pose is refused as poorly constrained; the message says why "
             "and what to add.")
 

@@ -19,8 +19,12 @@ sub-folder per camera). One camera: DIR/calibration.json + .npz, DIR/summary.txt
 Exit code 1 when a camera's frames do not determine its pose (the reason is printed and saved).
 
 Example: xcalib calibrate ../shared/data/a9_sample --out runs/a9_calib
+
 Example: xcalib calibrate nus.mcap --camera CAM_FRONT --camera CAM_BACK --out runs/nus
 """
+# one line per paragraph: the help formatter wraps to the terminal, and a source line break inside
+# a paragraph would break the sentence there too
+_HELP = "\n\n".join(" ".join(p.split()) for p in _HELP.split("\n\n"))
 
 
 def register(app: typer.Typer) -> None:
@@ -48,6 +52,17 @@ def register(app: typer.Typer) -> None:
                                         help="none | auto | estimate | SECONDS: camera-minus-LiDAR time offset; "
                                              "auto/estimate fit it from moving objects (auto falls back to none "
                                              "when not observable, estimate refuses)."),
+        lidar_frame: str = typer.Option(None, "--lidar-frame", help="tf frame of the LiDAR in the outputs "
+                                                                    "(default: the recording's cloud header.frame_id, "
+                                                                    "else lidar)."),
+        camera_frame: list[str] = typer.Option(None, "--camera-frame",
+                                               help="tf frame of a camera's optical frame: FRAME (one camera) or "
+                                                    "CAMERA=FRAME (repeat); default: the recording's image "
+                                                    "header.frame_id, else <camera>_optical_frame."),
+        review_max_points: int = typer.Option(0, "--review-max-points", help="Decimate the clouds of review.mcap to "
+                                                                             "about N points (0: the whole cloud)."),
+        tf_prior: bool = typer.Option(False, "--tf-prior", help="Bags: start from the recording's own tf between the "
+                                                                "cloud's and the image's frames (skips bring-up)."),
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
         force: bool = typer.Option(False, "--force", help="Replace an existing report folder."),
     ) -> None:
@@ -60,12 +75,16 @@ def register(app: typer.Typer) -> None:
         from ..io._files import atomic_dir, claim_output
         from ..io.frames import read_intrinsics_json
         from ..site import calibrate_site
+        from ..site.calibration import is_frame_id
         from ..viz.site_report import site_table, write_site_report
 
         try:
             selfcal = CalibConfig(refine_intrinsics=refine_intrinsics, time_offset=time_offset)
         except ValueError as exc:
             raise typer.BadParameter(str(exc), param_hint="--refine-intrinsics / --time-offset") from None
+        if lidar_frame is not None and not is_frame_id(lidar_frame):
+            raise typer.BadParameter(f"{lidar_frame!r} is not a tf frame name (letters, digits, _ . / -)",
+                                     param_hint="--lidar-frame")
         if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
             raise FileExistsError(f"{out} already exists; pass --force to replace it")
         with claim_output(out, "output folder"):  # a second run to the same --out is refused now, not after
@@ -83,6 +102,11 @@ def register(app: typer.Typer) -> None:
                     and views[name0][0].intrinsics is None:
                 raise typer.BadParameter(f"{frames} has no intrinsics; pass --intrinsics K.json", param_hint="--intrinsics")
             prior_res = CalibrationResult.load(prior) if prior is not None else None
+            if tf_prior and prior is not None:
+                raise typer.BadParameter("give --prior or --tf-prior, not both", param_hint="--tf-prior")
+            priors = _tf_priors(views, frames) if tf_prior else {}
+
+            cam_frames = _camera_frames(camera_frame, list(views))
             console = Console(stderr=True)
             with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                           console=console, disable=as_json, transient=False) as bar:
@@ -93,16 +117,22 @@ def register(app: typer.Typer) -> None:
                         tasks[stage] = bar.add_task(stage, total=total)
                     bar.update(tasks[stage], completed=done, total=total)
 
-                def run(items, k, stage):
-                    return calibrate(items, k, selfcal, prior=prior_res, box_model=box_model, seed=seed, progress=stage)
+                def run(items, k, stage, prior=None):
+                    return calibrate(items, k, selfcal, prior=prior_res if prior is None else prior, box_model=box_model,
+                                     seed=seed, progress=stage)
 
                 site, loaded = calibrate_site(views, {name0: intr} if intr is not None else None, source=str(frames),
-                                              calibrate=run, progress=progress)
+                                              calibrate=run, progress=progress, lidar_frame=lidar_frame,
+                                              camera_frames=cam_frames, priors=priors)
                 with atomic_dir(out, overwrite=force) as tmp:  # the whole folder is swapped in at once
                     paths = write_site_report(tmp, site, loaded, max_overlays=max_overlays, progress=progress,
-                                              title=f"xcalib calibrate: {frames}")
+                                              title=f"xcalib calibrate: {frames}",
+                                              review_max_points=review_max_points or None)
                 paths = paths.relocated(tmp, out)
             _print(site, paths, as_json, site_table)
+            if not as_json:
+                for line in _recorded_lines(site):
+                    typer.echo(line)
             if not all(c.result.success for c in site.cameras):
                 raise typer.Exit(1)
 
@@ -144,6 +174,50 @@ def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, to
             raise
         raise typer.BadParameter(str(exc), param_hint="--frames") from None
     return views
+
+
+def _camera_frames(values: list[str] | None, cams: list[str]) -> dict[str, str]:
+    """--camera-frame FRAME (one camera) / CAMERA=FRAME -> {camera: frame}."""
+    from ..site.calibration import is_frame_id
+
+    out = {}
+    for v in values or []:
+        cam, sep, frame = v.rpartition("=")
+        if not sep:
+            if len(cams) != 1:
+                raise typer.BadParameter(f"{v!r}: with several cameras write CAMERA=FRAME", param_hint="--camera-frame")
+            cam = cams[0]
+        if cam not in cams or not frame:
+            raise typer.BadParameter(f"{v!r}: cameras are {', '.join(cams)}", param_hint="--camera-frame")
+        if not is_frame_id(frame):
+            raise typer.BadParameter(f"{frame!r} is not a tf frame name (letters, digits, _ . / -)",
+                                     param_hint="--camera-frame")
+        out[cam] = frame
+    return out
+
+
+def _tf_priors(views: dict, source) -> dict:
+    """camera -> the recording's own T_cam_lidar (its tf), for --tf-prior; refused when a camera has none."""
+    out = {}
+    for name, seq in views.items():
+        T = getattr(seq, "tf_T_cam_lidar", None)
+        if T is None:
+            frames = (getattr(seq, "lidar_frame_id", "?"), getattr(seq, "camera_frame_id", "?"))
+            raise typer.BadParameter(f"{source}: camera {name}: the recording has no tf between the cloud's frame "
+                                     f"{frames[0]!r} and the image's {frames[1]!r}", param_hint="--tf-prior")
+        out[name] = T
+    return out
+
+
+def _recorded_lines(site) -> list[str]:
+    """One line per camera whose recording holds its own tf: how far it is from this calibration."""
+    out = []
+    for c in site.cameras:
+        d = c.vs_recorded
+        if d is not None:
+            out.append(f"camera {c.camera}: the recording's tf ({site.lidar_frame} -> {c.child_frame}) is "
+                       f"{d[0]:.2f} deg / {d[1]:.3f} m from this calibration")
+    return out
 
 
 def _print(site, paths, as_json: bool, site_table) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -24,6 +25,8 @@ def register(app: typer.Typer) -> None:
         src_format: str = typer.Option(None, "--from", "-f", help="Input format (default: detected)."),
         repair: bool = typer.Option(False, "--repair", help="Fix unambiguous problems: re-orthonormalise "
                                                             "rotations off by <= 1e-3, normalise quaternions."),
+        image_size: str = typer.Option(None, "--image-size", help="WIDTHxHEIGHT of the images, for formats that "
+                                                                   "store it (ros CameraInfo) when the input has none."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
         force: bool = typer.Option(False, "--force", help="Replace existing output file(s)."),
     ) -> None:
@@ -35,6 +38,8 @@ def register(app: typer.Typer) -> None:
                                      param_hint="--to")
         fmt_in = src_format or detect_format(src)
         result = read_calibration(src, fmt_in, repair=repair)
+        if image_size is not None:
+            result = dataclasses.replace(result, image_size=_size(image_size))
         if out is None:
             base = src if src.is_dir() else src.parent
             out = base / default_filename(to)
@@ -51,3 +56,14 @@ def register(app: typer.Typer) -> None:
         typer.echo(f"  T_cam_lidar translation (m) = [{t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}]")
         for p in written:
             typer.echo(f"  wrote {p}")
+
+
+def _size(text: str) -> tuple[int, int]:
+    parts = text.lower().split("x")
+    try:
+        w, h = (int(v) for v in parts)
+    except ValueError:
+        w = h = 0
+    if len(parts) != 2 or w <= 0 or h <= 0:
+        raise typer.BadParameter(f"{text!r}: expected WIDTHxHEIGHT, e.g. 1920x1200", param_hint="--image-size")
+    return w, h

@@ -59,7 +59,7 @@ def register(app: typer.Typer) -> None:
 
     @app.command("build-trt", context_settings={"allow_extra_args": True, "ignore_unknown_options": True},
                  help="The reference's TensorRT build: trtexec on an existing ONNX export (no export here). "
-                      "Arguments after -- go to trtexec. Exit 2 when trtexec is missing.\n\n"
+                      "Arguments after -- go to trtexec. Exit 1 when trtexec is missing (2 is for usage errors).\n\n"
                       "Example: xcalib build-trt --model crlite --site synthetic --precision fp16 -- --verbose")
     def build_trt(
         ctx: typer.Context,
@@ -82,7 +82,7 @@ def register(app: typer.Typer) -> None:
             exe = trt.find_trtexec(trtexec)
         except FileNotFoundError as exc:
             typer.echo(f"error: {exc}", err=True)
-            raise typer.Exit(2)
+            raise typer.Exit(1)  # a missing tool is a failure, not a usage error (exit 2)
         src = onnx_dir if onnx_dir is not None else Path("onnx") / folder_name(model, site)
         man = read_manifest(src)
         if man.model != model:

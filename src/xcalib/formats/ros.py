@@ -33,27 +33,29 @@ from ..io._files import MAX_TEXT_BYTES, atomic_write, read_text
 from ._checks import as_float, as_matrix, checked_quaternion, require
 from ._result import calibration_record, require_intrinsics
 
-__all__ = ["camera_info_dict", "static_transform_dict", "write_ros", "read_ros", "read_camera_info",
+__all__ = ["camera_info_dict", "camera_info_size", "static_transform_dict", "write_ros", "read_ros", "read_camera_info",
            "read_static_transform", "tf_path_for", "static_transform_args", "static_transform_command",
+           "static_transform_ros1_args", "static_transform_ros1_command", "body_link",
            "urdf_joints", "write_urdf", "read_urdf", "tf_static_dict", "write_tf_static", "read_tf_static",
            "R_BODY_OPTICAL", "ros_name", "printable"]
 
 log = logging.getLogger("xcalib.formats.ros")
 
 
-_NOT_ROS = re.compile(r"[^A-Za-z0-9_/]+")
+_NOT_ROS = re.compile(r"[^A-Za-z0-9_./-]+")
 
 
 def ros_name(text, default: str = "frame") -> str:
     """A ROS frame / link / topic token derived from data (a camera name, a topic, a frame id read
-    from a recording): characters other than letters, digits, ``_`` and ``/`` become ``_``, no
-    leading or repeated ``/`` (tf2 frame ids have none), and it starts with a letter. Names that
-    are already valid (``velodyne``, ``cam/front``) come back unchanged."""
+    from a recording): characters other than letters, digits, ``_ . - /`` become ``_``, no
+    leading or repeated ``/`` (tf2 frame ids have none), and it starts with a letter or ``_`` (never
+    ``-``: no name reads as a command-line option). Names that are already valid (``velodyne``,
+    ``cam/front``, ``os1-lidar``) come back unchanged."""
     s = _NOT_ROS.sub("_", str(text))
     s = re.sub(r"/+", "/", s).strip("/")
     if not s:
         return default
-    return s if s[0].isalpha() else "x" + s
+    return s if (s[0].isalpha() or s[0] == "_") else "x" + s
 
 
 def printable(text, max_len: int = 400) -> str:
@@ -80,16 +82,30 @@ def _mat(rows: int, cols: int, data) -> dict:
     return {"rows": rows, "cols": cols, "data": [float(v) for v in np.asarray(data).reshape(-1)]}
 
 
-def camera_info_dict(intr: CameraIntrinsics, camera_name: str = "camera") -> dict[str, Any]:
-    """``camera_info`` YAML content (distortion model plumb_bob for <= 5 coefficients, else
-    rational_polynomial)."""
+def camera_info_size(intr: CameraIntrinsics, image_size=None) -> tuple[int, int]:
+    """``(width, height)`` for a CameraInfo: the intrinsics' own, else ``image_size`` (the images');
+    ``ValueError`` when neither is known (``camera_calibration_parsers`` refuses a YAML without them)."""
+    if intr.width is not None and intr.height is not None:
+        return int(intr.width), int(intr.height)
+    if image_size is not None:
+        w, h = (int(v) for v in image_size)
+        if w > 0 and h > 0:
+            return w, h
+    raise ValueError("a CameraInfo YAML needs image_width and image_height, and neither the intrinsics nor the "
+                     "calibration hold the image size (xcalib convert: pass --image-size WIDTHxHEIGHT)")
+
+
+def camera_info_dict(intr: CameraIntrinsics, camera_name: str = "camera", image_size=None) -> dict[str, Any]:
+    """``camera_info`` YAML content as ``camera_calibration_parsers`` reads it: every key it
+    requires (``image_width``/``image_height`` from the intrinsics, else ``image_size`` (width,
+    height) of the images; ``ValueError`` when neither is known), distortion model plumb_bob for
+    <= 5 coefficients, else rational_polynomial."""
+    w, h = camera_info_size(intr, image_size)
     d = np.zeros(5) if intr.distortion is None else np.asarray(intr.distortion, dtype=np.float64)
     if d.size < 5:
         d = np.concatenate([d, np.zeros(5 - d.size)])
     model = "plumb_bob" if d.size == 5 else "rational_polynomial"
-    out: dict[str, Any] = {}
-    if intr.width is not None and intr.height is not None:
-        out.update(image_width=intr.width, image_height=intr.height)
+    out: dict[str, Any] = {"image_width": w, "image_height": h}
     out.update(camera_name=camera_name, camera_matrix=_mat(3, 3, intr.K), distortion_model=model,
                distortion_coefficients=_mat(1, d.size, d), rectification_matrix=_mat(3, 3, np.eye(3)),
                projection_matrix=_mat(3, 4, np.hstack([intr.K, np.zeros((3, 1))])))
@@ -133,6 +149,22 @@ def static_transform_command(T_parent_child, parent_frame: str, child_frame: str
     return "ros2 run tf2_ros static_transform_publisher " + " ".join(shlex.quote(a) for a in args)
 
 
+def static_transform_ros1_args(T_parent_child, parent_frame: str, child_frame: str) -> list[str]:
+    """ROS 1 ``static_transform_publisher`` arguments (positional: ``x y z qx qy qz qw frame_id
+    child_frame_id``; ROS 2 also accepts this form)."""
+    T = np.asarray(T_parent_child, dtype=np.float64)
+    t, q = T[:3, 3], matrix_to_quaternion(T[:3, :3])
+    return [_num(v) for v in [*t, *q]] + [parent_frame, child_frame]
+
+
+def static_transform_ros1_command(T_parent_child, parent_frame: str, child_frame: str) -> str:
+    """A runnable ROS 1 ``rosrun tf2_ros static_transform_publisher ...`` line (shell-quoted)."""
+    import shlex
+
+    args = static_transform_ros1_args(T_parent_child, parent_frame, child_frame)
+    return "rosrun tf2_ros static_transform_publisher " + " ".join(shlex.quote(a) for a in args)
+
+
 # REP 103: a camera's body frame (x forward, y left, z up) -> its optical frame (x right, y down,
 # z forward). Columns = the optical axes in body coordinates.
 R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -147,15 +179,25 @@ def _origin(T) -> str:
             f'rpy="{" ".join(_num(v) for v in rpy)}"/>')
 
 
-def urdf_joints(T_cam_lidar, lidar_link: str, camera: str) -> str:
+def body_link(optical: str) -> str:
+    """The REP 103 body link of an optical frame: ``x_optical_frame`` / ``x_optical`` -> ``x_link``."""
+    for suffix in ("_optical_frame", "_optical"):
+        if optical.endswith(suffix) and len(optical) > len(suffix):
+            return optical[: -len(suffix)] + "_link"
+    return optical + "_link"
+
+
+def urdf_joints(T_cam_lidar, lidar_link: str, camera: str, optical: str | None = None) -> str:
     """URDF snippet: ``lidar_link -> <camera>_link`` (body frame, REP 103) and the fixed
     ``<camera>_link -> <camera>_optical_frame`` rotation; the optical frame is xcalib's camera
-    frame (``T_cam_lidar`` maps LiDAR points into it)."""
+    frame (``T_cam_lidar`` maps LiDAR points into it). ``optical``: the optical frame's name
+    (the recording's image ``header.frame_id``; its body link is named by :func:`body_link`)."""
     T_lidar_optical = invert_transform(T_cam_lidar)
     T_body_optical = make_transform(R_BODY_OPTICAL, np.zeros(3))
     T_lidar_body = T_lidar_optical @ invert_transform(T_body_optical)
-    lidar_link, camera = ros_name(lidar_link, "lidar"), ros_name(camera, "camera")
-    body, optical = f"{camera}_link", f"{camera}_optical_frame"
+    lidar_link = ros_name(lidar_link, "lidar")  # names from a recording: valid tf names only
+    optical = ros_name(optical or f"{ros_name(camera, 'camera')}_optical_frame", "camera_optical_frame")
+    body = body_link(optical)
     return "\n".join([
         f'  <link name="{body}"/>',
         f'  <link name="{optical}"/>',
@@ -289,7 +331,8 @@ def write_ros(result: CalibrationResult, path, *, parent_frame: str = "lidar",
     # parsers ignore). camera_info is renamed first: a write killed before the tf file's rename
     # leaves a tf file of another pair id, and read_ros then takes the embedded transform.
     pair = secrets.token_hex(8)
-    info = yaml.safe_dump({**camera_info_dict(intr, name), PAIR_KEY: pair, EMBEDDED_TF: tf_dict},
+    info_d = camera_info_dict(intr, name, result.image_size)  # ValueError without an image size
+    info = yaml.safe_dump({**info_d, PAIR_KEY: pair, EMBEDDED_TF: tf_dict},
                           sort_keys=False).encode()
     tfy = yaml.safe_dump({**tf_dict, PAIR_KEY: pair}, sort_keys=False).encode()
     atomic_write(path, [info])

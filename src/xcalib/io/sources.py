@@ -128,11 +128,12 @@ def parse_frame_range(spec, count: int, *, where="frames") -> list[int]:
 
 class FrameSubset(Sequence):
     """The frames ``indices`` of a lazy source, still lazy; forwards ``intrinsics`` / ``camera`` /
-    ``camera_names`` / ``source_name`` of the source."""
+    ``camera_names`` / ``source_name`` of the source (and a bag's frame names and tf)."""
 
     def __init__(self, base: Sequence[Frame], indices: list[int]):
         self.base, self.indices = base, list(indices)
-        for attr in ("intrinsics", "camera", "camera_names", "source_name", "path", "report"):
+        for attr in ("intrinsics", "camera", "camera_names", "source_name", "path", "report",
+                     "lidar_frame_id", "camera_frame_id", "tf_T_cam_lidar"):  # a bag's frame names and tf
             if hasattr(base, attr):
                 setattr(self, attr, getattr(base, attr))
 
@@ -265,7 +266,8 @@ def merge_cameras(views: dict[str, Sequence[Frame]]) -> list[Frame]:
                          point_fields=first.point_fields,
                          meta={"intrinsics_by_camera": {n: f.intrinsics for n, f in frames.items()},
                                "extrinsics_by_camera": {n: f.extrinsics for n, f in frames.items()},
-                               "camera_time_s_by_camera": {n: f.camera_time_s for n, f in frames.items()}},
+                               "camera_time_s_by_camera": {n: f.camera_time_s for n, f in frames.items()},
+                               "frame_key_by_camera": {n: f.frame_key for n, f in frames.items()}},
                          lidar_time_s=first.lidar_time_s,
                          track_ids_3d=None if any(t is None for t in tracks) else np.asarray(tracks, np.int64),
                          velocities_3d=None if any(v is None for v in vels) else np.asarray(vels).reshape(-1, 3)))

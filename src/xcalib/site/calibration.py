@@ -11,6 +11,8 @@ Frames: ``T_cam_lidar`` maps LiDAR points into the camera's OpenCV optical frame
 from __future__ import annotations
 
 import json
+import logging
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +32,7 @@ from ..io._files import atomic_write, safe_name
 from ..types import Frame
 
 __all__ = ["SITE_FORMAT", "CameraCalibration", "CameraAgreement", "SiteCalibration", "calibrate_site",
-           "optical_frame", "camera_folders"]
+           "optical_frame", "camera_folders", "is_frame_id"]
 
 SITE_FORMAT = "xcalib-site-calibration-v1"
 
@@ -60,6 +62,15 @@ def camera_folders(cameras: Sequence[str]) -> dict[str, str]:
     return out
 
 
+_FRAME_ID = re.compile(r"[A-Za-z_][A-Za-z0-9_./-]{0,199}")
+
+
+def is_frame_id(name: str) -> bool:
+    """A tf frame name xcalib writes as it is: letters, digits, ``_ . / -``, a letter or ``_`` first
+    (a recording's ``header.frame_id`` that is not is replaced by the default name, with a warning)."""
+    return isinstance(name, str) and _FRAME_ID.fullmatch(name) is not None
+
+
 @dataclass(frozen=True)
 class CameraCalibration:
     """One camera's result; ``ground_truth`` = the frames' common ``T_cam_lidar`` when they carry one."""
@@ -68,6 +79,22 @@ class CameraCalibration:
     result: CalibrationResult
     num_frames: int
     ground_truth: np.ndarray | None = None
+    frame: str = ""  # the camera's tf frame (the recording's image header.frame_id); "" -> <camera>_optical_frame
+    image_size: tuple[int, int] | None = None  # (width, height) of its images
+    recorded: np.ndarray | None = None  # the recording's own T_cam_lidar (its tf between the two frames)
+
+    @property
+    def vs_recorded(self) -> tuple[float, float] | None:
+        """(rotation deg, translation m) of the recording's tf from this calibration (None without
+        one or when refused)."""
+        if self.recorded is None or not self.result.success:
+            return None
+        return tuple(float(v) for v in self.result.pose_error(self.recorded))
+
+    @property
+    def child_frame(self) -> str:
+        """The camera's optical frame in the tree: the recording's own name, else ``<camera>_optical_frame``."""
+        return self.frame or optical_frame(self.camera)
 
     @property
     def verdict(self) -> Literal["calibrated", "refused"]:
@@ -128,13 +155,18 @@ class SiteCalibration:
         out = []
         for c in self.cameras:
             r = c.result
-            edge = {"parent": self.lidar_frame, "child": optical_frame(c.camera), "camera": c.camera,
+            edge = {"parent": self.lidar_frame, "child": c.child_frame, "camera": c.camera,
                     "verdict": c.verdict, "message": r.message, "num_frames": c.num_frames,
                     "n_pairs": r.n_pairs}
             if r.success:
                 edge.update(T_cam_lidar=r.extrinsics.tolist(), T_parent_child=invert_transform(r.extrinsics).tolist(),
                             rotation_std_deg=r.rotation_std_deg.tolist(), translation_std_m=r.translation_std_m.tolist(),
                             residual_px_median=r.residual_px_median, iou_median=r.iou_median)
+            if c.recorded is not None:
+                edge["recorded_T_cam_lidar"] = np.asarray(c.recorded).tolist()
+                if c.vs_recorded is not None:
+                    edge["recorded_tf_vs_calibration"] = {"rotation_deg": c.vs_recorded[0],
+                                                          "translation_m": c.vs_recorded[1]}
             if c.error_vs_truth is not None:
                 edge["error_vs_truth"] = {"rotation_deg": c.error_vs_truth[0], "translation_m": c.error_vs_truth[1]}
             out.append(edge)
@@ -163,7 +195,12 @@ class SiteCalibration:
         cams = []
         for edge in d.get("transforms", []):
             res = CalibrationResult.from_dict(d["cameras"][edge["camera"]])
-            cams.append(CameraCalibration(edge["camera"], res, int(edge.get("num_frames", 0))))
+            child = str(edge.get("child", ""))
+            cams.append(CameraCalibration(edge["camera"], res, int(edge.get("num_frames", 0)),
+                                          frame="" if child == optical_frame(edge["camera"]) else child,
+                                          image_size=res.image_size,
+                                          recorded=None if edge.get("recorded_T_cam_lidar") is None else
+                                          np.asarray(edge["recorded_T_cam_lidar"], dtype=np.float64)))
         agr = tuple(CameraAgreement(**a) for a in d.get("agreements", []))
         return cls(tuple(cams), agr, str(d.get("lidar_frame", "lidar")), str(d.get("source", "")))
 
@@ -231,6 +268,34 @@ def _agreement(a: CameraCalibration, b: CameraCalibration, fa, fb) -> CameraAgre
                            float(np.linalg.norm(T_ab[:3, 3])), err_deg, err_m)
 
 
+def _recorded_frame(name, what: str) -> str:
+    """A recording's frame id as written, or "" (the default name) when it has none or it is not
+    a plain tf name (it reaches shell lines, XML and Python launch files)."""
+    if not name:
+        return ""
+    if not is_frame_id(str(name)):
+        logging.getLogger(__name__).warning("%s: the recording's frame id %r is not a plain tf frame name; the "
+                                            "default name is written instead", what, str(name)[:80])
+        return ""
+    return str(name)
+
+
+def _distinct_frames(cams: list[CameraCalibration], lidar_frame: str) -> list[CameraCalibration]:
+    """Cameras whose recorded frame name is shared with another camera or the LiDAR get the
+    default ``<camera>_optical_frame`` (one tf frame cannot hold two poses), with a warning."""
+    import dataclasses
+
+    names = [c.child_frame for c in cams] + [lidar_frame]
+    out = []
+    for c in cams:
+        if c.frame and names.count(c.frame) > 1:
+            logging.getLogger(__name__).warning("camera %s: its frame id %r is shared with another sensor; "
+                                                "writing %s instead", c.camera, c.frame, optical_frame(c.camera))
+            c = dataclasses.replace(c, frame="")
+        out.append(c)
+    return out
+
+
 def _default_calibrate(frames, intrinsics, progress):
     from ..calib.api import calibrate
 
@@ -238,14 +303,19 @@ def _default_calibrate(frames, intrinsics, progress):
 
 
 def calibrate_site(views: dict[str, Sequence[Frame]], intrinsics: dict[str, CameraIntrinsics | None] | None = None,
-                   *, lidar_frame: str = "lidar", source: str = "",
+                   *, lidar_frame: str | None = None, source: str = "",
                    calibrate: Callable[..., CalibrationResult] | None = None,
-                   progress: Callable[[str, int, int], None] | None = None) -> tuple[SiteCalibration, dict]:
+                   progress: Callable[[str, int, int], None] | None = None,
+                   camera_frames: dict[str, str] | None = None,
+                   priors: dict[str, np.ndarray] | None = None) -> tuple[SiteCalibration, dict]:
     """Calibrate each camera's frames (``views``: camera name -> its frames, the same LiDAR)
     against the LiDAR with ``calibrate(frames, intrinsics, progress)`` (default: the public
     :func:`xcalib.calibrate` with its defaults). Returns ``(SiteCalibration, frames read per
     camera)``; a camera whose frames do not determine its pose is in the result as refused, with
-    the reason."""
+    the reason. Frame names: ``lidar_frame`` / ``camera_frames[camera]`` when given, else the
+    source's own (a bag's ``header.frame_id``s: ``lidar_frame_id`` / ``camera_frame_id`` of its
+    view), else ``lidar`` / ``<camera>_optical_frame``. ``priors[camera]``: a starting pose passed
+    to ``calibrate(..., prior=)`` for that camera (e.g. the recording's own tf)."""
     run = calibrate or _default_calibrate
     intrinsics = intrinsics or {}
     cams, loaded = [], {}
@@ -260,9 +330,19 @@ def calibrate_site(views: dict[str, Sequence[Frame]], intrinsics: dict[str, Came
             res = CalibrationResult(success=False, camera_name=name, message=f"camera {name}: no frames")
         else:
             stage = (lambda s, d, t, _n=name: progress(f"{_n}: {s}", d, t)) if progress else None
-            res = run(frames, intr, stage)
+            res = run(frames, intr, stage, prior=priors[name]) if priors and name in priors else \
+                run(frames, intr, stage)
             res.camera_name = res.camera_name or name
-        cams.append(CameraCalibration(name, res, len(frames), _common_truth(frames)))
+        size = next((f.image.shape[1::-1] for f in frames if np.asarray(f.image).ndim == 3
+                     and f.image.shape[0] > 1), None)
+        own = (camera_frames or {}).get(name) or _recorded_frame(getattr(seq, "camera_frame_id", None), name)
+        rec = getattr(seq, "tf_T_cam_lidar", None)
+        cams.append(CameraCalibration(name, res, len(frames), _common_truth(frames), frame=str(own),
+                                      image_size=None if size is None else (int(size[0]), int(size[1])),
+                                      recorded=None if rec is None else np.asarray(rec, dtype=np.float64)))
+        if lidar_frame is None:
+            lidar_frame = _recorded_frame(getattr(seq, "lidar_frame_id", None), "LiDAR") or None
+    cams = _distinct_frames(cams, lidar_frame or "lidar")
     agreements = []
     for i in range(len(cams)):
         for j in range(i + 1, len(cams)):
@@ -271,4 +351,4 @@ def calibrate_site(views: dict[str, Sequence[Frame]], intrinsics: dict[str, Came
                 ag = _agreement(a, b, loaded[a.camera], loaded[b.camera])
                 if ag is not None:
                     agreements.append(ag)
-    return SiteCalibration(tuple(cams), tuple(agreements), lidar_frame, source), loaded
+    return SiteCalibration(tuple(cams), tuple(agreements), lidar_frame or "lidar", source), loaded

@@ -4,9 +4,13 @@ channels with the ``foxglove.*`` JSON schemas).
 Per camera ``<cam>``: ``/<cam>/image`` (``foxglove.CompressedImage``, JPEG),
 ``/<cam>/annotations`` (``foxglove.ImageAnnotations``: LiDAR points projected with the
 calibration, coloured by depth; the projected 3D boxes (orange); the 2D detections (green)),
-``/<cam>/calibration`` (``foxglove.CameraCalibration``, frame ``<cam>_optical_frame``). Shared:
-``/lidar/points`` (``foxglove.PointCloud``, frame ``lidar``) and ``/tf`` (``foxglove.FrameTransforms``:
-LiDAR -> each calibrated camera's optical frame). Written to a temporary name and renamed.
+``/<cam>/calibration`` (``foxglove.CameraCalibration``, the camera's optical frame). Shared:
+``/lidar/points`` (``foxglove.PointCloud``, the LiDAR frame: the whole cloud unless ``max_points``
+is given) and ``/tf`` (``foxglove.FrameTransforms``: LiDAR -> each calibrated camera's optical
+frame). Frame names are the site's (a recording's own ``header.frame_id``s when it had them);
+messages keep the recording's stamps (a bag's header stamps, else the frames' LiDAR times),
+so the file opens beside the source recording; frames without times get 1 s + 0.1 s x i.
+Written to a temporary name and renamed.
 """
 
 from __future__ import annotations
@@ -132,20 +136,22 @@ def _annotations(ns: int, frame, result, max_points: int) -> dict:
     return {"circles": [], "points": pts, "texts": []}
 
 
-def _calibration(ns: int, cam: str, result, frame) -> dict:
+def _calibration(ns: int, cam: str, result, frame) -> dict:  # cam: the camera's optical frame name
     intr = result.intrinsics if result.intrinsics is not None else frame.intrinsics
     d = [] if intr.distortion is None else [float(v) for v in intr.distortion]
     K = np.asarray(intr.K, dtype=np.float64)
     h, w = frame.image.shape[:2]
-    return {"timestamp": _t(ns), "frame_id": optical_frame(cam), "width": int(w), "height": int(h),
+    return {"timestamp": _t(ns), "frame_id": cam, "width": int(w), "height": int(h),
             "distortion_model": "rational_polynomial" if len(d) > 5 else "plumb_bob", "D": d,
             "K": K.reshape(-1).tolist(), "R": np.eye(3).reshape(-1).tolist(),
             "P": np.hstack([K, np.zeros((3, 1))]).reshape(-1).tolist()}
 
 
-def _cloud(ns: int, frame, lidar_frame: str, max_points: int) -> dict:
+def _cloud(ns: int, frame, lidar_frame: str, max_points: int | None) -> dict:
     pts = np.asarray(frame.point_cloud, dtype=np.float32)[:, :3]
-    pts = np.ascontiguousarray(pts[:: max(1, len(pts) // max_points)])
+    if max_points:
+        pts = pts[:: max(1, -(-len(pts) // max_points))]
+    pts = np.ascontiguousarray(pts)
     return {"timestamp": _t(ns), "frame_id": lidar_frame,
             "pose": {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
             "point_stride": 12, "fields": [{"name": n, "offset": 4 * i, "type": _FLOAT32} for i, n in enumerate("xyz")],
@@ -160,16 +166,38 @@ def _transforms(ns: int, site) -> dict:
         T = invert_transform(c.result.extrinsics)
         q = matrix_to_quaternion(T[:3, :3])
         items.append({"timestamp": _t(ns), "parent_frame_id": ros_name(site.lidar_frame, "lidar"),
-                      "child_frame_id": optical_frame(c.camera),
+                      "child_frame_id": ros_name(c.child_frame, "camera_optical_frame"),
                       "translation": {k: float(v) for k, v in zip("xyz", T[:3, 3])},
                       "rotation": {k: float(v) for k, v in zip("xyzw", q)}})
     return {"transforms": items}
 
 
+def _stamps(frames: Sequence, n: int, period_s: float) -> tuple[list[int], bool]:
+    """Per frame the LiDAR stamp (ns) of the recording: a bag's header stamp, else the frame's
+    ``lidar_time_s``; (synthetic 1 s + period x i, False) when any is missing or they do not increase."""
+    out = []
+    for i in range(n):
+        f = frames[i]
+        ns = (f.meta or {}).get("lidar_stamp_ns") if isinstance(getattr(f, "meta", None), dict) else None
+        if ns is None and f.lidar_time_s is not None and np.isfinite(f.lidar_time_s) and f.lidar_time_s > 0:
+            ns = int(round(float(f.lidar_time_s) * 1e9))
+        out.append(None if ns is None else int(ns))
+    if n and all(v is not None and v > 0 for v in out) and all(b > a for a, b in zip(out, out[1:])):
+        return out, True
+    return [1_000_000_000 + int(round(i * period_s * 1e9)) for i in range(n)], False
+
+
+def _camera_stamp(frame, lidar_ns: int, recorded: bool) -> int:
+    ns = (frame.meta or {}).get("camera_stamp_ns") if isinstance(getattr(frame, "meta", None), dict) else None
+    return int(ns) if recorded and ns is not None and int(ns) > 0 else lidar_ns
+
+
 def write_review_mcap(path, site, frames_by_camera: dict[str, Sequence], *, max_frames: int = 8,
-                      max_points: int = 20000, period_s: float = 0.1) -> Path:
+                      max_points: int | None = None, period_s: float = 0.1) -> Path:
     """Write the review file of ``site`` (a :class:`xcalib.site.SiteCalibration`) over up to
-    ``max_frames`` frames of each camera (frame ``i`` of each camera = the same LiDAR sweep)."""
+    ``max_frames`` frames of each camera (frame ``i`` of each camera = the same LiDAR sweep).
+    ``max_points``: decimate the cloud to about that many points (None: the whole cloud); the
+    points projected into the images are decimated to 5000 per image."""
     from mcap.writer import Writer
 
     path = Path(path)
@@ -182,26 +210,29 @@ def write_review_mcap(path, site, frames_by_camera: dict[str, Sequence], *, max_
             w.start(profile="", library="xcalib")
             out = _Out(w)
             n = min([max_frames] + [len(v) for v in frames_by_camera.values()])
-            t0 = 1_000_000_000
+            first_cam = next(iter(frames_by_camera.values()))
+            stamps, recorded = _stamps(first_cam, n, period_s)
+            t0 = stamps[0] if stamps else 1_000_000_000
             out.add("/tf", "foxglove.FrameTransforms", t0, _transforms(t0, site))
             for i in range(n):
-                ns = t0 + int(round(i * period_s * 1e9))
-                first = next(iter(frames_by_camera.values()))[i]
+                ns = stamps[i]
                 out.add("/lidar/points", "foxglove.PointCloud", ns,
-                        _cloud(ns, first, ros_name(site.lidar_frame, "lidar"), max_points))
+                        _cloud(ns, first_cam[i], ros_name(site.lidar_frame, "lidar"), max_points))
                 for cam, frames in frames_by_camera.items():
                     topic = "/" + ros_name(cam, "camera")  # a name from a recording: a valid topic
-                    frame, res = frames[i], site.camera(cam).result
+                    frame, cc = frames[i], site.camera(cam)
+                    res, optical = cc.result, ros_name(cc.child_frame, "camera_optical_frame")
                     if frame.image.size == 0:
                         continue
-                    out.add(f"{topic}/image", "foxglove.CompressedImage", ns,
-                            {"timestamp": _t(ns), "frame_id": optical_frame(cam), "format": "jpeg",
+                    cs = _camera_stamp(frame, ns, recorded)
+                    out.add(f"{topic}/image", "foxglove.CompressedImage", cs,
+                            {"timestamp": _t(cs), "frame_id": optical, "format": "jpeg",
                              "data": base64.b64encode(encode_jpeg(frame.image, 85)).decode()})
-                    out.add(f"{topic}/annotations", "foxglove.ImageAnnotations", ns,
-                            _annotations(ns, frame, res, max_points // 4))
+                    out.add(f"{topic}/annotations", "foxglove.ImageAnnotations", cs,
+                            _annotations(cs, frame, res, 5000))
                     if res.intrinsics is not None or frame.intrinsics is not None:
-                        out.add(f"{topic}/calibration", "foxglove.CameraCalibration", ns,
-                                _calibration(ns, cam, res, frame))
+                        out.add(f"{topic}/calibration", "foxglove.CameraCalibration", cs,
+                                _calibration(cs, optical, res, frame))
             w.finish()
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)

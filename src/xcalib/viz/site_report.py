@@ -81,7 +81,8 @@ def _index_html(title: str, site, cams: dict[str, Path], out: Path) -> str:
 
 def write_site_report(out_dir, site, frames_by_camera: dict[str, Sequence], *, max_overlays: int = 8,
                       title: str = "xcalib site calibration",
-                      progress: Callable[[str, int, int], None] | None = None) -> SiteReportPaths:
+                      progress: Callable[[str, int, int], None] | None = None,
+                      review_max_points: int | None = None) -> SiteReportPaths:
     """Write every report file of ``site`` (a :class:`xcalib.site.SiteCalibration`) from the
     frames each camera was calibrated on; see the module docstring for the layout."""
     from ..calib.report import write_report
@@ -107,7 +108,8 @@ def write_site_report(out_dir, site, frames_by_camera: dict[str, Sequence], *, m
         cams[c.camera], summaries[c.camera] = d, paths.summary
     site_json = site.save(out / "site_calibration.json")
     ros = write_site_ros(site, out / "ros")
-    review = write_review_mcap(out / "review.mcap", site, frames_by_camera, max_frames=max_overlays or 1)
+    review = write_review_mcap(out / "review.mcap", site, frames_by_camera, max_frames=max_overlays or 1,
+                               max_points=review_max_points)
     if not single:
         page = atomic_write(out / "report.html", [_index_html(title, site, cams, out).encode()])
     atomic_write(out / "site_summary.txt", ["\n".join(site_table(site)).encode() + b"\n"])

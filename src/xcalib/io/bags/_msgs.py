@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Literal
 
 __all__ = ["VISION_MSGS_ROS1", "VISION_MSGS_ROS2", "typestore", "DET2D", "DET3D", "IMAGE", "COMPRESSED",
-           "CAMERA_INFO", "POINTCLOUD2", "TF", "TF_TYPES", "STRING", "SUPPORTED_TYPES"]
+           "CAMERA_INFO", "POINTCLOUD2", "TF", "TF_TYPES", "STRING", "SUPPORTED_TYPES", "DET3D_TYPES"]
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -18,7 +18,9 @@ DET3D = "vision_msgs/msg/Detection3DArray"
 TF = "tf2_msgs/msg/TFMessage"
 TF_TYPES = (TF, "tf/msg/tfMessage")
 STRING = "std_msgs/msg/String"
-SUPPORTED_TYPES = (POINTCLOUD2, IMAGE, COMPRESSED, CAMERA_INFO, DET2D, DET3D, *TF_TYPES, STRING)
+DET3D_TYPES = (DET3D, *(f"{pkg}/msg/{t}" for pkg in ("autoware_perception_msgs", "autoware_auto_perception_msgs")
+                        for t in ("DetectedObjects", "TrackedObjects")))
+SUPPORTED_TYPES = (POINTCLOUD2, IMAGE, COMPRESSED, CAMERA_INFO, DET2D, *DET3D_TYPES, *TF_TYPES, STRING)
 
 # vision_msgs 4.x (ROS 2 humble and later)
 VISION_MSGS_ROS2 = {
@@ -65,5 +67,10 @@ def typestore(ros: Literal[1, 2], vision_layout: Literal["ros1", "ros2"] | None 
     if ros == 1:  # noetic's stock set lacks tf's message
         for name in TF_TYPES:
             types.update(get_types_from_msg("geometry_msgs/TransformStamped[] transforms\n", name))
+    from ._objects import autoware_types  # Autoware DetectedObjects / TrackedObjects (both packages)
+
+    for name, text in autoware_types().items():
+        if name not in store.fielddefs:
+            types.update(get_types_from_msg(text, name))
     store.register(types)
     return store

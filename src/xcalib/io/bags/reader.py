@@ -22,7 +22,9 @@ from ...geometry.camera import CameraIntrinsics
 from ...geometry.transforms import invert_transform
 from ...types import Frame
 from . import _convert as cv
-from ._msgs import CAMERA_INFO, COMPRESSED, DET2D, DET3D, IMAGE, POINTCLOUD2, STRING, SUPPORTED_TYPES, TF_TYPES, typestore
+from ._msgs import (CAMERA_INFO, COMPRESSED, DET2D, DET3D_TYPES, IMAGE, POINTCLOUD2, STRING, SUPPORTED_TYPES, TF_TYPES,
+                    typestore)
+from ._objects import MAX_TILT_DEG, boxes3d_any
 
 __all__ = ["BAG_SUFFIXES", "is_bag", "BagTopic", "BagInfo", "bag_info", "BagCamera", "Dropped", "PairingReport",
            "BagFrames", "pair_by_time", "META_TOPIC"]
@@ -44,6 +46,10 @@ def _reader(path: Path):
     does not define. Unreadable input -> FormatError naming the file."""
     from rosbags.highlevel import AnyReader
 
+    if path.suffix.lower() == ".mcap" and path.is_file():  # either ROS profile, schema names with or without /msg/
+        from ._mcap import open_mcap
+
+        return open_mcap(path, typestore)
     default = typestore(1 if path.suffix.lower() == ".bag" else 2)
     try:
         reader = AnyReader([path], default_typestore=default)
@@ -295,7 +301,11 @@ class BagFrames(Sequence):
         self.tolerance_s = float(tolerance_s)
         self._entries, self.report = self._pair(msgs)
         self.transforms = self._tf_edges(msgs)
+        self._static = self._tf_edges(msgs, static_only=True)
+        self.lidar_frame_id = str(self._entries[0].lidar[1].header.frame_id).lstrip("/") if self._entries else ""
+        self.camera_frame_id = str(self._entries[0].image[1].header.frame_id).lstrip("/") if self._entries else ""
         self.tf_T_cam_lidar = self._tf_lookup()
+        self._det_frames: dict[str, np.ndarray | None] = {}
         self.intrinsics = intrinsics if intrinsics is not None else (
             self._intrinsics(self._entries[0].info) if self._entries and self._entries[0].info else None)
         self.source_name = "bag"
@@ -369,7 +379,7 @@ class BagFrames(Sequence):
                                       "--camera-info", False),
             "detections_2d": self._pick(det2d or cam.detections_topic, (DET2D,), cam.namespace,
                                         f"2D detections of camera {cam.name}", "--detections-2d", True),
-            "detections_3d": self._pick(det3d, (DET3D,), lid_ns, "3D detections", "--detections-3d", True),
+            "detections_3d": self._pick(det3d, DET3D_TYPES, lid_ns, "3D detections", "--detections-3d", True),
         }
         if topics["camera_info"] is None and intrinsics is None:
             raise FormatError(self.path, f"no CameraInfo topic for camera {cam.name} ({cam.image_topic}); pass "
@@ -414,8 +424,8 @@ class BagFrames(Sequence):
                                                        f"(nearest {dt / 1e6:.1f} ms)") for i, dt in lost_l.items()]
         dropped += [Dropped(tp["image"], i_ns[j] / 1e9, f"no LiDAR sweep within {self.tolerance_s * 1e3:g} ms "
                                                         f"(nearest {dt / 1e6:.1f} ms)") for j, dt in lost_i.items()]
-        d3 = {s: m for s, m in msgs[tp["detections_3d"]]}
-        d2 = {s: m for s, m in msgs[tp["detections_2d"]]}
+        d3 = _nearest_within(l_ns, msgs[tp["detections_3d"]], tol)  # sweep stamp -> (stamp, message)
+        d2 = _nearest_within(i_ns, msgs[tp["detections_2d"]], tol)
         infos = msgs[tp["camera_info"]] if tp["camera_info"] else []
         meta = {}
         for _, m in msgs.get(META_TOPIC, []):
@@ -425,20 +435,22 @@ class BagFrames(Sequence):
         for i, j in pairs:
             (ls, lm), (is_, im) = lid[i], img[j]
             if ls not in d3:
-                dropped.append(Dropped(tp["detections_3d"], ls / 1e9, "no 3D detections stamped like the sweep"))
+                dropped.append(Dropped(tp["detections_3d"], ls / 1e9, f"no 3D detections within "
+                                       f"{self.tolerance_s * 1e3:g} ms of the sweep"))
                 continue
             if is_ not in d2:
-                dropped.append(Dropped(tp["detections_2d"], is_ / 1e9, "no 2D detections stamped like the image"))
+                dropped.append(Dropped(tp["detections_2d"], is_ / 1e9, f"no 2D detections within "
+                                       f"{self.tolerance_s * 1e3:g} ms of the image"))
                 continue
-            used3.add(ls)
-            used2.add(is_)
+            used3.add(d3[ls][0])
+            used2.add(d2[is_][0])
             max_dt = max(max_dt, abs(ls - is_))
             info = min(infos, key=lambda x: abs(x[0] - is_)) if infos else None
-            entries.append(_Entry((ls, lm), (is_, im), (ls, d3[ls]), (is_, d2[is_]), info, meta.get(ls, {})))
-        dropped += [Dropped(tp["detections_3d"], s / 1e9, "no paired LiDAR sweep with this stamp")
-                    for s in d3 if s not in used3]
-        dropped += [Dropped(tp["detections_2d"], s / 1e9, "no paired image with this stamp")
-                    for s in d2 if s not in used2]
+            entries.append(_Entry((ls, lm), (is_, im), d3[ls], d2[is_], info, meta.get(ls, {})))
+        dropped += [Dropped(tp["detections_3d"], s / 1e9, "no paired LiDAR sweep near this stamp")
+                    for s, _ in msgs[tp["detections_3d"]] if s not in used3]
+        dropped += [Dropped(tp["detections_2d"], s / 1e9, "no paired image near this stamp")
+                    for s, _ in msgs[tp["detections_2d"]] if s not in used2]
         report = PairingReport(str(self.path), tp["lidar"], tp["image"], self.tolerance_s, len(lid), len(img),
                                len(entries), tuple(sorted(dropped, key=lambda d: (d.topic, d.stamp_s))),
                                max_dt / 1e9)
@@ -459,23 +471,41 @@ class BagFrames(Sequence):
         return rec
 
     # ---------------------------------------------------------------- tf
-    def _tf_edges(self, msgs) -> dict[str, tuple[str, np.ndarray]]:
+    def _tf_edges(self, msgs, static_only: bool = False) -> dict[str, tuple[str, np.ndarray]]:
         edges: dict[str, tuple[str, np.ndarray]] = {}
         for topic, m in self._types.items():
-            if m not in TF_TYPES:
+            if m not in TF_TYPES or (static_only and not topic.endswith("tf_static")):
                 continue
             for _, msg in msgs.get(topic, []):
                 for parent, child, T, _ in cv.transforms_from_msg(msg):
                     edges.setdefault(child, (parent, T))  # the first (static) value of each edge
         return edges
 
-    def _root_path(self, frame: str) -> tuple[str, np.ndarray]:
+    def _root_path(self, frame: str, edges=None) -> tuple[str, np.ndarray]:
+        edges = self.transforms if edges is None else edges
         T, seen = np.eye(4), set()
-        while frame in self.transforms and frame not in seen:
+        while frame in edges and frame not in seen:
             seen.add(frame)
-            parent, T_pc = self.transforms[frame]
+            parent, T_pc = edges[frame]
             T, frame = T_pc @ T, parent
         return frame, T
+
+    def _lidar_from(self, frame: str) -> np.ndarray | None:
+        """``T_lidar_frame`` through the static tf for detections stamped in ``frame`` (None: the
+        cloud's own frame, or no frame named); FormatError when the static tf does not connect them."""
+        frame = frame.lstrip("/")
+        if not frame or frame == self.lidar_frame_id or not self.lidar_frame_id:
+            return None
+        if frame not in self._det_frames:
+            root_d, T_root_det = self._root_path(frame, self._static)
+            root_l, T_root_lidar = self._root_path(self.lidar_frame_id, self._static)
+            if root_d != root_l:
+                raise FormatError(self.path, f"3D detections are in frame {frame!r} and the cloud in "
+                                             f"{self.lidar_frame_id!r}, and the recording's /tf_static does not "
+                                             "connect them (a moving frame such as map needs the detections in "
+                                             "the sensor's frame)", self.topics["detections_3d"])
+            self._det_frames[frame] = invert_transform(T_root_lidar) @ T_root_det
+        return self._det_frames[frame]
 
     def _tf_lookup(self) -> np.ndarray | None:
         if not self._entries or not self.transforms:
@@ -519,14 +549,21 @@ class BagFrames(Sequence):
 
     @property
     def frame_keys(self) -> list[str]:
-        return [str(e.meta.get("frame_key", e.lidar[0])) for e in self._entries]
+        return [str(e.meta.get("cameras", {}).get(self.camera, {}).get("frame_key", e.meta.get("frame_key", e.lidar[0])))
+                for e in self._entries]
 
     def _frame(self, e: _Entry) -> Frame:
         tp = self.topics
         image = cv.image_from_msg(e.image[1], self._where(tp["image"]))
         points, fields, n_bad = cv.cloud_from_msg(e.lidar[1], self._where(tp["lidar"]))
         b2, ids2 = cv.boxes2d_from_msg(e.det2d[1])
-        box7, ids3 = cv.boxes3d_from_msg(e.det3d[1], self._where(tp["detections_3d"]))
+        det = boxes3d_any(e.det3d[1], self._where(tp["detections_3d"]),
+                          self._lidar_from(str(e.det3d[1].header.frame_id)), MAX_TILT_DEG)
+        box7, ids3 = det.box7, det.ids
+        if det.flattened:
+            log.warning("%s [%s] frame at %.3f s: %d 3D box(es) turned about x/y (up to %.1f deg) flattened to "
+                        "their heading (refused beyond %g deg)", self.path, tp["detections_3d"], e.lidar[0] / 1e9,
+                        det.flattened, det.max_tilt_deg, MAX_TILT_DEG)
         intr = self._fixed_intrinsics or self._intrinsics(e.info)
         fisheye = self._fisheye(e)
         if fisheye is not None:  # equidistant: image and 2D boxes rectified to the pinhole ``intr``
@@ -543,8 +580,11 @@ class BagFrames(Sequence):
         if not (np.all(np.isfinite(b2)) and np.all(np.isfinite(box7))):
             raise FormatError(self.path, "detections hold non-finite box values",
                               tp["detections_2d"] if not np.all(np.isfinite(b2)) else tp["detections_3d"])
+        rows = e.meta.get("box3d_rows")
+        if rows is None and not e.meta and det.yawless:  # no orientation given: yaw re-estimated from the points
+            rows = ["extents"] * len(box7)
         with np.errstate(over="ignore"):
-            b3 = _boxes3d_as_written(box7, e.meta.get("box3d_rows"))
+            b3 = _boxes3d_as_written(box7, rows)
         if not np.all(np.isfinite(b3)):
             raise FormatError(self.path, "3D boxes out of float32 range", tp["detections_3d"])
         mm = rec.get("match_matrix")
@@ -558,11 +598,15 @@ class BagFrames(Sequence):
                 "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "detection_ids_2d": ids2}
         if n_bad:
             meta["points_dropped_nonfinite"] = n_bad
+        if det.flattened:
+            meta["boxes3d_flattened"] = det.flattened
         if fisheye is not None:
             meta["rectified_from"] = "equidistant"
         tracks = e.meta.get("track_ids_3d")
         if tracks is None and ids3 and all(i.lstrip("-").isdigit() for i in ids3):
             tracks = [int(i) for i in ids3]
+        elif tracks is None and ids3 and all(len(i) == 32 and set(i) <= set("0123456789abcdef") for i in ids3):
+            tracks = [int(i[:15], 16) for i in ids3]  # Autoware TrackedObjects' UUIDs
         vel = e.meta.get("velocities_3d")
         lt, ct = e.meta.get("lidar_time_s"), rec.get("camera_time_s")
         return Frame(image=image, point_cloud=points, bboxes_2d=b2, bboxes_3d=b3,
@@ -571,10 +615,18 @@ class BagFrames(Sequence):
                      track_ids_3d=None if tracks is None else np.asarray(tracks, dtype=np.int64),
                      velocities_3d=None if vel is None else np.asarray(vel, dtype=np.float64).reshape(-1, 3),
                      camera_name=str(rec.get("camera_name", self.camera)),
-                     frame_key=str(e.meta.get("frame_key", e.lidar[0])),
+                     frame_key=str(rec.get("frame_key", e.meta.get("frame_key", e.lidar[0]))),
                      match_matrix=None if mm is None else np.asarray(mm, dtype=bool).reshape(len(b2), len(b3)),
                      intrinsics=intr, extrinsics=extr,
                      point_fields=fields, meta=meta)
+
+
+def _nearest_within(stamps, items, tol: int) -> dict[int, tuple[int, object]]:
+    """Each of ``stamps`` -> the message of ``items`` ([(stamp, message)] sorted) nearest to it
+    within ``tol`` ns (each message used once, the closest pairs first): detections stamped a few
+    ms off their sensor message, as detector nodes stamp them."""
+    pairs, _, _ = pair_by_time(stamps, [s for s, _ in items], tol)
+    return {int(stamps[i]): items[j] for i, j in pairs}
 
 
 def _boxes3d_as_written(box7: np.ndarray, rows) -> np.ndarray:

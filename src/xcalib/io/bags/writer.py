@@ -177,6 +177,9 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
                          cv.make_camera_info(store, intr, cs, optical, image.shape[1], image.shape[0]))
             sink.add(f"/{seg}/detections", DET2D, cs, cv.make_detection2d_array(store, b2, cs, optical))
             rec = {"camera_name": cam, "camera_time_s": cam_time}
+            key = (frame.meta.get("frame_key_by_camera") or {}).get(cam) if frame.images else None
+            if key is not None:  # each camera's own key (a merged frame's is the first camera's)
+                rec["frame_key"] = str(key)
             if mm is not None:
                 rec["match_matrix"] = np.asarray(mm).astype(int).tolist()
             if extr is not None:
