@@ -264,6 +264,8 @@ class BagFrames(Sequence):
     ``detections_3d`` — topics (default: found under the camera's / LiDAR's namespace, or the only
     one of the type). ``tolerance_s`` — largest LiDAR/image stamp difference paired.
     ``intrinsics`` — used instead of CameraInfo (required when the bag has none).
+    ``detections`` — False: read the sensors only (no detection topics needed; frames carry no
+    boxes, for :mod:`xcalib.detect` to fill).
 
     Attributes: ``report`` (:class:`PairingReport`), ``cameras`` (every :class:`BagCamera`),
     ``camera`` (the chosen one's name), ``intrinsics``, ``transforms`` (tf_static / tf edges:
@@ -274,8 +276,9 @@ class BagFrames(Sequence):
     def __init__(self, path, camera: str | None = None, *, lidar: str | None = None,
                  camera_info: str | None = None, detections_2d: str | None = None,
                  detections_3d: str | None = None, tolerance_s: float = 0.05,
-                 intrinsics: CameraIntrinsics | None = None):
+                 intrinsics: CameraIntrinsics | None = None, detections: bool = True):
         self.path = Path(path)
+        self.with_detections = bool(detections)
         if not self.path.exists():
             raise FileNotFoundError(f"bag not found: {self.path}")
         if not tolerance_s > 0:
@@ -354,8 +357,10 @@ class BagFrames(Sequence):
         if not required:
             return None
         if not cands:
-            raise FormatError(self.path, f"no {' or '.join(types)} topic for the {what}; topics: {self._listing()}",
-                              option)
+            hint = " (xcalib detect BAG --out OUT.mcap, or calibrate --detect, makes them)" \
+                if types[0] in (DET2D, DET3D) else ""
+            raise FormatError(self.path, f"no {' or '.join(types)} topic for the {what}{hint}; topics: "
+                                         f"{self._listing()}", option)
         raise FormatError(self.path, f"several {types[0]} topics for the {what}: {', '.join(near or cands)}; "
                                      f"choose one with {option}", option)
 
@@ -368,8 +373,10 @@ class BagFrames(Sequence):
             "camera_info": self._pick(info or cam.info_topic, (CAMERA_INFO,), cam.namespace, "camera info",
                                       "--camera-info", False),
             "detections_2d": self._pick(det2d or cam.detections_topic, (DET2D,), cam.namespace,
-                                        f"2D detections of camera {cam.name}", "--detections-2d", True),
-            "detections_3d": self._pick(det3d, (DET3D,), lid_ns, "3D detections", "--detections-3d", True),
+                                        f"2D detections of camera {cam.name}", "--detections-2d", True)
+            if self.with_detections else None,
+            "detections_3d": self._pick(det3d, (DET3D,), lid_ns, "3D detections", "--detections-3d", True)
+            if self.with_detections else None,
         }
         if topics["camera_info"] is None and intrinsics is None:
             raise FormatError(self.path, f"no CameraInfo topic for camera {cam.name} ({cam.image_topic}); pass "
@@ -401,7 +408,7 @@ class BagFrames(Sequence):
         tp = self.topics
         lid, img = msgs[tp["lidar"]], msgs[tp["image"]]
         for key in ("lidar", "image", "detections_2d", "detections_3d"):
-            if not msgs[tp[key]]:
+            if tp[key] is not None and not msgs[tp[key]]:
                 raise FormatError(self.path, "topic has no messages", tp[key])
         tol = int(round(self.tolerance_s * 1e9))
         l_ns, i_ns = [s for s, _ in lid], [s for s, _ in img]
@@ -414,8 +421,8 @@ class BagFrames(Sequence):
                                                        f"(nearest {dt / 1e6:.1f} ms)") for i, dt in lost_l.items()]
         dropped += [Dropped(tp["image"], i_ns[j] / 1e9, f"no LiDAR sweep within {self.tolerance_s * 1e3:g} ms "
                                                         f"(nearest {dt / 1e6:.1f} ms)") for j, dt in lost_i.items()]
-        d3 = {s: m for s, m in msgs[tp["detections_3d"]]}
-        d2 = {s: m for s, m in msgs[tp["detections_2d"]]}
+        d3 = {s: m for s, m in msgs[tp["detections_3d"]]} if tp["detections_3d"] else None
+        d2 = {s: m for s, m in msgs[tp["detections_2d"]]} if tp["detections_2d"] else None
         infos = msgs[tp["camera_info"]] if tp["camera_info"] else []
         meta = {}
         for _, m in msgs.get(META_TOPIC, []):
@@ -424,6 +431,11 @@ class BagFrames(Sequence):
         entries, used3, used2, max_dt = [], set(), set(), 0
         for i, j in pairs:
             (ls, lm), (is_, im) = lid[i], img[j]
+            if d3 is None or d2 is None:  # sensors only (detections=False)
+                max_dt = max(max_dt, abs(ls - is_))
+                info = min(infos, key=lambda x: abs(x[0] - is_)) if infos else None
+                entries.append(_Entry((ls, lm), (is_, im), None, None, info, meta.get(ls, {})))
+                continue
             if ls not in d3:
                 dropped.append(Dropped(tp["detections_3d"], ls / 1e9, "no 3D detections stamped like the sweep"))
                 continue
@@ -436,9 +448,9 @@ class BagFrames(Sequence):
             info = min(infos, key=lambda x: abs(x[0] - is_)) if infos else None
             entries.append(_Entry((ls, lm), (is_, im), (ls, d3[ls]), (is_, d2[is_]), info, meta.get(ls, {})))
         dropped += [Dropped(tp["detections_3d"], s / 1e9, "no paired LiDAR sweep with this stamp")
-                    for s in d3 if s not in used3]
+                    for s in d3 or () if s not in used3]
         dropped += [Dropped(tp["detections_2d"], s / 1e9, "no paired image with this stamp")
-                    for s in d2 if s not in used2]
+                    for s in d2 or () if s not in used2]
         report = PairingReport(str(self.path), tp["lidar"], tp["image"], self.tolerance_s, len(lid), len(img),
                                len(entries), tuple(sorted(dropped, key=lambda d: (d.topic, d.stamp_s))),
                                max_dt / 1e9)
@@ -525,8 +537,11 @@ class BagFrames(Sequence):
         tp = self.topics
         image = cv.image_from_msg(e.image[1], self._where(tp["image"]))
         points, fields, n_bad = cv.cloud_from_msg(e.lidar[1], self._where(tp["lidar"]))
-        b2, ids2 = cv.boxes2d_from_msg(e.det2d[1])
-        box7, ids3 = cv.boxes3d_from_msg(e.det3d[1], self._where(tp["detections_3d"]))
+        if e.det2d is None:  # sensors only
+            b2, ids2, box7, ids3 = np.zeros((0, 4), np.float32), [], np.zeros((0, 7), np.float32), []
+        else:
+            b2, ids2 = cv.boxes2d_from_msg(e.det2d[1])
+            box7, ids3 = cv.boxes3d_from_msg(e.det3d[1], self._where(tp["detections_3d"]))
         intr = self._fixed_intrinsics or self._intrinsics(e.info)
         fisheye = self._fisheye(e)
         if fisheye is not None:  # equidistant: image and 2D boxes rectified to the pinhole ``intr``
@@ -547,7 +562,7 @@ class BagFrames(Sequence):
             b3 = _boxes3d_as_written(box7, e.meta.get("box3d_rows"))
         if not np.all(np.isfinite(b3)):
             raise FormatError(self.path, "3D boxes out of float32 range", tp["detections_3d"])
-        mm = rec.get("match_matrix")
+        mm = rec.get("match_matrix") if e.det2d is not None else None
         extr = rec.get("extrinsics")
         if extr is not None:
             extr = np.asarray(extr, dtype=np.float64)

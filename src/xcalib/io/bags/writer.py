@@ -114,9 +114,11 @@ class _Sink:
 def write_bag(path, frames: Iterable[Frame], *, image_format: Literal["raw", "png", "jpeg"] = "raw",
               vision_layout: Literal["ros1", "ros2"] | None = None, start_s: float = 1_700_000_000.0,
               period_s: float = 0.1, camera_delay_s: float = 0.01, lidar_frame: str = "lidar",
-              overwrite: bool = False) -> Path:
+              overwrite: bool = False, detections: bool = True) -> Path:
     """Write ``frames`` (single- or multi-camera) to ``path`` (container from the suffix: ``.bag``,
-    ``.db3``, ``.mcap``); written to a temporary name beside it and renamed into place."""
+    ``.db3``, ``.mcap``); written to a temporary name beside it and renamed into place.
+    ``detections=False``: sensor topics only (images, CameraInfo, clouds, tf_static; no
+    detections and no ``/xcalib/frames`` record), as a raw recording."""
     path = Path(path)
     container = path.suffix.lower()
     if container not in BAG_SUFFIXES:
@@ -128,7 +130,8 @@ def write_bag(path, frames: Iterable[Frame], *, image_format: Literal["raw", "pn
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
     try:
         sink = _Sink(tmp, container, store)
-        _write_frames(sink, store, frames, image_format, start_s, period_s, camera_delay_s, lidar_frame)
+        _write_frames(sink, store, frames, image_format, (start_s, period_s, camera_delay_s), lidar_frame,
+                      detections)
         out = sink.close()
         os.chmod(out, 0o644)
         os.replace(out, path)
@@ -137,7 +140,8 @@ def write_bag(path, frames: Iterable[Frame], *, image_format: Literal["raw", "pn
     return path
 
 
-def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, camera_delay_s, lidar_frame) -> None:
+def _write_frames(sink: _Sink, store, frames, image_format, clock, lidar_frame, detections=True) -> None:
+    start_s, period_s, camera_delay_s = clock
     static: dict[str, np.ndarray] = {}
     t0 = int(round(start_s * 1e9))
     for i, frame in enumerate(frames):
@@ -148,7 +152,8 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
         sink.add("/lidar/points", POINTCLOUD2, ls, cv.make_pointcloud2(store, pts, fields, ls, lidar_frame))
         box7, rows = _box7_and_rows(frame.bboxes_3d)
         tracks = None if frame.track_ids_3d is None else np.asarray(frame.track_ids_3d, dtype=np.int64).tolist()
-        sink.add("/lidar/detections", DET3D, ls, cv.make_detection3d_array(store, box7, ls, lidar_frame, ids=tracks))
+        if detections:
+            sink.add("/lidar/detections", DET3D, ls, cv.make_detection3d_array(store, box7, ls, lidar_frame, ids=tracks))
         record = {"lidar_stamp_ns": ls, "frame_key": frame.frame_key, "box3d_rows": rows, "cameras": {},
                   "lidar_time_s": frame.lidar_time_s, "track_ids_3d": tracks,
                   "velocities_3d": None if frame.velocities_3d is None else
@@ -170,7 +175,8 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
             if intr is not None:
                 sink.add(f"/{seg}/camera_info", CAMERA_INFO, cs,
                          cv.make_camera_info(store, intr, cs, optical, image.shape[1], image.shape[0]))
-            sink.add(f"/{seg}/detections", DET2D, cs, cv.make_detection2d_array(store, b2, cs, optical))
+            if detections:
+                sink.add(f"/{seg}/detections", DET2D, cs, cv.make_detection2d_array(store, b2, cs, optical))
             rec = {"camera_name": cam, "camera_time_s": cam_time}
             if mm is not None:
                 rec["match_matrix"] = np.asarray(mm).astype(int).tolist()
@@ -179,6 +185,7 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
                 static.setdefault(optical, invert_transform(np.asarray(extr, dtype=np.float64)))
             record["cameras"][seg] = rec
         Str = store.types[STRING]
-        sink.add(META_TOPIC, STRING, ls, Str(data=json.dumps(record)))
+        if detections:  # a sensors-only bag is a raw recording: no xcalib record either
+            sink.add(META_TOPIC, STRING, ls, Str(data=json.dumps(record)))
         if i == 0 and static:
             sink.add("/tf_static", TF, ls, cv.make_tf_message(store, [(lidar_frame, k, v) for k, v in static.items()], ls))
