@@ -6,9 +6,10 @@ The classical pipeline of the ROS perception stacks:
 1. ground: a RANSAC plane below the sensor (normal within ``max_ground_tilt_deg`` of the
    LiDAR's z), refined by least squares and corrected per ``ground_cell_m`` cell (slopes, kerbs);
    points between ``ground_tol_m`` and ``max_height_m`` over the ground are object points;
-2. static LiDAR (roadside): a background model over the recording (voxels occupied in at least
-   ``background_fraction`` of the frames, dilated by one voxel) removes buildings, poles and
-   vegetation (:class:`Background`); a moving LiDAR skips it;
+2. static LiDAR (roadside): a background model over the recording (:class:`Background`: the
+   points whose voxel, or an x-y neighbour, is occupied in at least ``background_fraction`` of
+   the frames are dropped, and so is a cluster whose points mostly lie in voxels occupied in
+   half that share) removes buildings, poles, vegetation and parked cars; a moving LiDAR skips it;
 3. clustering: connected components of the occupied ``cell_m`` x-y grid (8-neighbour);
 4. boxes: minimum-area rectangle of each cluster's footprint (yaw about the LiDAR z), bottom on
    the ground, top at the highest point; size filters keep traffic objects (pedestrian to bus).
@@ -33,7 +34,10 @@ class LidarDetectConfig:
     """Label-free LiDAR object extraction. Distances in metres, angles in degrees.
 
     ``mode``: static (roadside: background model over the recording), moving (ground removal
-    and clustering only) or auto (static when the clouds of the recording overlap)."""
+    and clustering only) or auto (static when the clouds of the recording overlap).
+    ``complete_vehicles``: a LiDAR sees one or two faces of a vehicle; a vehicle-sized cluster
+    (top >= 1.2 m, footprint >= 1.4 m) seen along one side only gets ``vehicle_width_m``, seen
+    at one end only ``vehicle_length_m``, the hidden part placed away from the sensor."""
 
     mode: Literal["auto", "static", "moving"] = "auto"
     max_range_m: float = 90.0
@@ -50,6 +54,9 @@ class LidarDetectConfig:
     max_length_m: float = 14.0
     max_width_m: float = 3.2
     max_gap_to_ground_m: float = 0.8
+    complete_vehicles: bool = True
+    vehicle_width_m: float = 1.8
+    vehicle_length_m: float = 4.4
     seed: int = 0
 
     def __post_init__(self):
@@ -150,41 +157,57 @@ def _voxel_keys(xyz: np.ndarray, size: float) -> np.ndarray:
     return (v[:, 0] << 42) | (v[:, 1] << 21) | v[:, 2]
 
 
+_XY_STEPS = np.array([dx * (1 << 42) + dy * (1 << 21) for dx in (-1, 0, 1) for dy in (-1, 0, 1)], dtype=np.int64)
+
+
 @dataclass(frozen=True)
 class Background:
-    """Voxels (sorted int64 keys, ``voxel_m`` edge) that are occupied in most frames of a static
-    LiDAR's recording: the scene without its traffic. ``frames``: how many clouds built it."""
+    """A static LiDAR's scene without its traffic: every voxel (sorted int64 ``keys``,
+    ``voxel_m`` edge) seen above the ground, with the share of the ``frames`` clouds it was
+    occupied in (``fraction``). ``threshold``: the share from which a voxel is background."""
 
     keys: np.ndarray
+    fraction: np.ndarray
     voxel_m: float
     frames: int
+    threshold: float
+
+    def _lookup(self, k: np.ndarray) -> np.ndarray:
+        if not len(self.keys):
+            return np.zeros(len(k))
+        i = np.clip(np.searchsorted(self.keys, k), 0, len(self.keys) - 1)
+        return np.where(self.keys[i] == k, self.fraction[i], 0.0)
+
+    def fraction_of(self, xyz: np.ndarray) -> np.ndarray:
+        """Per point: the share of the recording its voxel was occupied in (0-1)."""
+        return self._lookup(_voxel_keys(np.asarray(xyz)[:, :3], self.voxel_m))
 
     def mask(self, xyz: np.ndarray) -> np.ndarray:
-        """True for points in background voxels."""
-        if not len(self.keys):
-            return np.zeros(len(xyz), dtype=bool)
-        k = _voxel_keys(xyz[:, :3], self.voxel_m)
-        i = np.clip(np.searchsorted(self.keys, k), 0, len(self.keys) - 1)
-        return self.keys[i] == k
+        """True for background points: their voxel or one of its 8 x-y neighbours is occupied in
+        at least ``threshold`` of the recording."""
+        k = _voxel_keys(np.asarray(xyz)[:, :3], self.voxel_m)
+        out = np.zeros(len(k), dtype=bool)
+        for step in _XY_STEPS:
+            out |= self._lookup(k + step) >= self.threshold
+        return out
 
 
-def build_background(clouds, config: LidarDetectConfig = LidarDetectConfig()) -> Background:
-    """Background voxels of a static LiDAR from ``clouds`` (an iterable of [P, >=3] arrays):
-    voxels occupied in at least ``background_fraction`` of them, dilated by one voxel."""
+def build_background(clouds, config: LidarDetectConfig = LidarDetectConfig(), *,
+                     ground: GroundPlane | None = None) -> Background:
+    """Background of a static LiDAR from ``clouds`` (an iterable of [P, >=3] arrays): the
+    occupancy share of every voxel above ``ground`` (default: each cloud's own)."""
     keys_all, n = [], 0
     for c in clouds:
         xyz = np.asarray(c, dtype=np.float64)[:, :3]
         xyz = xyz[_in_range(xyz, config.max_range_m)]
+        if len(xyz) >= 50:
+            xyz = xyz[(ground or fit_ground(xyz, config)).height(xyz) > config.ground_tol_m]
         keys_all.append(np.unique(_voxel_keys(xyz, config.background_voxel_m)))
         n += 1
     if n == 0:
-        return Background(np.zeros(0, np.int64), config.background_voxel_m, 0)
+        return Background(np.zeros(0, np.int64), np.zeros(0), config.background_voxel_m, 0, config.background_fraction)
     k, cnt = np.unique(np.concatenate(keys_all), return_counts=True)
-    bg = k[cnt >= max(1, int(np.ceil(config.background_fraction * n)))]
-    steps = np.array([dx * (1 << 42) + dy * (1 << 21) + dz for dx in (-1, 0, 1) for dy in (-1, 0, 1)
-                      for dz in (-1, 0, 1)], dtype=np.int64)
-    dil = np.unique((bg[:, None] + steps[None]).ravel())
-    return Background(dil, config.background_voxel_m, n)
+    return Background(k, cnt / n, config.background_voxel_m, n, config.background_fraction)
 
 
 def is_static_recording(clouds, config: LidarDetectConfig = LidarDetectConfig()) -> bool:
@@ -234,6 +257,24 @@ def _min_area_rect(xy: np.ndarray) -> tuple[float, float, float, float, float]:
     return float(cx), float(cy), float(w), float(h), float(yaw)
 
 
+def _complete_vehicle(cx, cy, length, width, yaw, top, config: LidarDetectConfig):
+    """The footprint of a vehicle seen from one side or one end, completed away from the sensor."""
+    if top < 1.2 or length < 1.4:
+        return cx, cy, length, width, yaw
+    u = np.array([np.cos(yaw), np.sin(yaw)])  # length axis
+    v = np.array([-u[1], u[0]])               # width axis
+    c = np.array([cx, cy])
+    away = np.sign(v @ c) or 1.0
+    if length >= 2.5 and width < 0.6 * config.vehicle_width_m:  # one long side seen
+        c = c + away * v * (config.vehicle_width_m - width) / 2
+        width = config.vehicle_width_m
+    elif length < 2.5 and width < 0.8:  # one end seen: the face is the width, the length is hidden
+        c = c + away * v * (config.vehicle_length_m - width) / 2
+        length, width, yaw = config.vehicle_length_m, length, yaw + np.pi / 2
+        yaw = (yaw + np.pi / 2) % np.pi - np.pi / 2
+    return float(c[0]), float(c[1]), float(length), float(width), float(yaw)
+
+
 def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, ground: GroundPlane | None = None,
                 background: Background | None = None) -> np.ndarray:
     """Traffic-object boxes of one cloud ([P, >=3], LiDAR frame, metres) as box7 [M, 7] float32.
@@ -250,6 +291,7 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
     if background is not None:
         obj &= ~background.mask(xyz)
     xyz, h = xyz[obj], h[obj]
+    bg_share = None if background is None else background.fraction_of(xyz) >= background.threshold / 2
     if len(xyz) < config.min_points:
         return np.zeros((0, 7), np.float32)
     order, starts = _clusters(xyz[:, :2], config.cell_m, config.min_points)
@@ -257,6 +299,8 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
     for a, b in zip(starts[:-1], starts[1:]):
         idx = order[a:b]
         hc = h[idx]
+        if bg_share is not None and bg_share[idx].mean() >= 0.5:  # mostly where something usually is
+            continue
         top = float(hc.max())
         if top < config.min_object_height_m or float(hc.min()) > config.max_gap_to_ground_m:
             continue
@@ -268,6 +312,8 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
             continue
         if length < 0.8 and top > 2.4:  # poles, trunks, posts
             continue
+        if config.complete_vehicles:
+            cx, cy, length, width, yaw = _complete_vehicle(cx, cy, length, width, yaw, top, config)
         zg = float(ground.z_at(np.array([[cx, cy]]))[0])
         z_top = float(xyz[idx, 2].max())
         height = max(z_top - zg, config.min_object_height_m)

@@ -90,8 +90,8 @@ class DetectedFrames(Sequence):
         if mode == "static":
             if progress:
                 progress("background model", 0, 1)
-            self.background = build_background(_clouds(source, lc.background_frames), lc)
-            self.ground = fit_ground(np.concatenate(list(_clouds(source, 4)))[:, :3], lc)
+            self.ground = fit_ground(np.concatenate([c[:, :3] for c in _clouds(source, 4)]), lc)
+            self.background = build_background(_clouds(source, lc.background_frames), lc, ground=self.ground)
             if progress:
                 progress("background model", 1, 1)
         self._boxes: dict[int, tuple] = {}
