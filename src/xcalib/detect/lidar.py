@@ -10,7 +10,9 @@ The classical pipeline of the ROS perception stacks:
    points whose voxel, or an x-y neighbour, is occupied in at least ``background_fraction`` of
    the frames are dropped, and so is a cluster whose points mostly lie in voxels occupied in
    half that share) removes buildings, poles, vegetation and parked cars; a moving LiDAR skips it;
-3. clustering: connected components of the occupied ``cell_m`` x-y grid (8-neighbour);
+3. clustering: connected components of the occupied ``cell_m`` x-y grid (8-neighbour) of the
+   points up to ``max_height_m`` + 2 m (a cluster taller than ``max_height_m`` is a tree, pole or
+   building, and dropped whole);
 4. boxes: minimum-area rectangle of each cluster's footprint (yaw about the LiDAR z), bottom on
    the ground, top at the highest point; size filters keep traffic objects (pedestrian to bus).
 
@@ -54,7 +56,8 @@ class LidarDetectConfig:
     max_length_m: float = 14.0
     max_width_m: float = 3.2
     max_gap_to_ground_m: float = 0.8
-    complete_vehicles: bool = True
+    min_width_m: float = 0.3
+    complete_vehicles: bool = False
     vehicle_width_m: float = 1.8
     vehicle_length_m: float = 4.4
     seed: int = 0
@@ -287,7 +290,7 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
         return np.zeros((0, 7), np.float32)
     ground = ground or fit_ground(xyz, config)
     h = ground.height(xyz)
-    obj = (h > config.ground_tol_m) & (h < config.max_height_m)
+    obj = (h > config.ground_tol_m) & (h < config.max_height_m + 2.0)  # taller clusters are seen whole, then dropped
     if background is not None:
         obj &= ~background.mask(xyz)
     xyz, h = xyz[obj], h[obj]
@@ -302,15 +305,14 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
         if bg_share is not None and bg_share[idx].mean() >= 0.5:  # mostly where something usually is
             continue
         top = float(hc.max())
-        if top < config.min_object_height_m or float(hc.min()) > config.max_gap_to_ground_m:
+        if not config.min_object_height_m <= top <= config.max_height_m or float(hc.min()) > config.max_gap_to_ground_m:
             continue
         cx, cy, length, width, yaw = _min_area_rect(xyz[idx, :2])
-        length, width = max(length, config.cell_m / 2), max(width, config.cell_m / 2)
-        if length > config.max_length_m or width > config.max_width_m:
+        if length > config.max_length_m or width > config.max_width_m or width < config.min_width_m:
+            continue  # too long or wide for traffic; too thin: fences, walls, kerbs, posts
+        if length > 5.0 and width < 0.5:  # fences, walls
             continue
-        if length > 5.0 and width < 0.5:  # fences, walls, kerbs
-            continue
-        if length < 0.8 and top > 2.4:  # poles, trunks, posts
+        if length < 1.2 and top > 2.3:  # poles, trunks, posts, signs
             continue
         if config.complete_vehicles:
             cx, cy, length, width, yaw = _complete_vehicle(cx, cy, length, width, yaw, top, config)
