@@ -227,3 +227,13 @@ def test_detect_cli_writes_a_bag_that_calibrate_reads(tmp_path, capsys):
     rc = main(["calibrate", str(out), "--out", str(tmp_path / "r1"), "--max-overlays", "0"])
     assert rc in (0, 1) and (tmp_path / "r1" / "calibration.json").is_file()  # read and judged (2 frames)
     assert main(["detect", str(raw), "--out", str(out)]) == 2  # exists, no --force
+
+
+def test_layering_detect_imports_nothing_above_it():
+    import subprocess
+    import sys
+
+    code = ("import sys, xcalib.detect; print(sorted(m for m in ('xcalib.calib', 'xcalib.cli', 'xcalib.site', "
+            "'xcalib.models', 'torch', 'onnxruntime') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"  # onnxruntime only when a detector is loaded

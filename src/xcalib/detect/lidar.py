@@ -22,6 +22,7 @@ radians); see :mod:`xcalib.geometry.boxes`.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import Literal
 
@@ -29,6 +30,8 @@ import numpy as np
 
 __all__ = ["LidarDetectConfig", "GroundPlane", "Background", "fit_ground", "build_background", "lidar_boxes",
            "is_static_recording"]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -288,7 +291,12 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
     xyz = xyz[_in_range(xyz, config.max_range_m)]
     if len(xyz) < config.min_points:
         return np.zeros((0, 7), np.float32)
-    ground = ground or fit_ground(xyz, config)
+    if ground is None:
+        try:
+            ground = fit_ground(xyz, config)
+        except ValueError as exc:  # no ground in view (indoor, pointed at the sky): no objects to stand on it
+            log.warning("no 3D boxes: %s", exc)
+            return np.zeros((0, 7), np.float32)
     h = ground.height(xyz)
     obj = (h > config.ground_tol_m) & (h < config.max_height_m + 2.0)  # taller clusters are seen whole, then dropped
     if background is not None:
