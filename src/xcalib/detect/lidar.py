@@ -12,7 +12,8 @@ The classical pipeline of the ROS perception stacks:
    half that share) removes buildings, poles, vegetation and parked cars; a moving LiDAR skips it;
 3. clustering: connected components of the occupied ``cell_m`` x-y grid (8-neighbour) of the
    points up to ``max_height_m`` + 2 m (a cluster taller than ``max_height_m`` is a tree, pole or
-   building, and dropped whole);
+   building, and dropped whole); a cluster longer than 6 m is cut where its points leave a gap of
+   ``split_gap_m`` along its long axis (parked cars in a row);
 4. boxes: minimum-area rectangle of each cluster's footprint (yaw about the LiDAR z), bottom on
    the ground, top at the highest point; size filters keep traffic objects (pedestrian to bus).
 
@@ -60,6 +61,7 @@ class LidarDetectConfig:
     max_width_m: float = 3.2
     max_gap_to_ground_m: float = 0.8
     min_width_m: float = 0.3
+    split_gap_m: float = 0.3
     complete_vehicles: bool = False
     vehicle_width_m: float = 1.8
     vehicle_length_m: float = 4.4
@@ -111,9 +113,11 @@ def _in_range(xyz: np.ndarray, max_range: float) -> np.ndarray:
 
 def fit_ground(xyz: np.ndarray, config: LidarDetectConfig = LidarDetectConfig(), *,
                rng: np.random.Generator | None = None) -> GroundPlane:
-    """The ground under the sensor: RANSAC (vectorised over 256 hypotheses on <= 6000 points),
-    least-squares refit on the inliers, then per-cell offsets (the 10th percentile of the
-    near-ground heights in each ``ground_cell_m`` cell)."""
+    """The ground: RANSAC (vectorised over 256 hypotheses on <= 6000 points; normal within
+    ``max_ground_tilt_deg`` of z, the sensor no more than 1 m below it), least-squares refit on
+    the inliers, then per-cell offsets for slopes and hills (the 5th percentile of the heights
+    within 3 m of the plane in each ``ground_cell_m`` cell, median-filtered over 3 x 3 cells so a
+    vehicle filling a cell does not lift its ground; +-3 m at most)."""
     rng = rng or np.random.default_rng(config.seed)
     p = np.asarray(xyz, dtype=np.float64)[:, :3]
     p = p[_in_range(p, config.max_range_m)]
@@ -127,7 +131,7 @@ def fit_ground(xyz: np.ndarray, config: LidarDetectConfig = LidarDetectConfig(),
     n, tri = n[ok] / norm[ok, None], tri[ok]
     n *= np.sign(n[:, 2:3] + 1e-12)
     d = -np.einsum("ij,ij->i", n, tri[:, 0])
-    flat = (n[:, 2] >= np.cos(np.radians(config.max_ground_tilt_deg))) & (d > 0.3)  # below the sensor
+    flat = (n[:, 2] >= np.cos(np.radians(config.max_ground_tilt_deg))) & (d > -1.0)  # not far above the sensor
     if not flat.any():
         raise ValueError("no ground plane below the sensor within the allowed tilt")
     n, d = n[flat], d[flat]
@@ -140,22 +144,34 @@ def fit_ground(xyz: np.ndarray, config: LidarDetectConfig = LidarDetectConfig(),
     if nrm[2] < np.cos(np.radians(config.max_ground_tilt_deg)):
         nrm = n[best]
     dd = float(-nrm @ c)
-    if dd < 0:  # keep the sensor on the positive side
-        nrm, dd = -nrm, -dd
     plane = GroundPlane(nrm, dd)
     h = plane.height(p)
-    near = np.abs(h) < 1.0
+    near = np.abs(h) < 3.0
     lo = p[:, :2].min(0)
     ij = np.floor((p[near, :2] - lo) / config.ground_cell_m).astype(np.int64)
     shape = tuple(np.floor((p[:, :2].max(0) - lo) / config.ground_cell_m).astype(int) + 1)
     flat_ij = ij[:, 0] * shape[1] + ij[:, 1]
-    off = np.zeros(shape[0] * shape[1])
+    off = np.full(shape[0] * shape[1], np.nan)
     if len(flat_ij):
         order = np.lexsort((h[near], flat_ij))
         keys, start, counts = np.unique(flat_ij[order], return_index=True, return_counts=True)
-        q = start + (0.1 * (counts - 1)).astype(np.int64)
-        off[keys] = np.clip(h[near][order][q], -0.6, 0.6)
-    return GroundPlane(nrm, dd, lo, config.ground_cell_m, off.reshape(shape))
+        q = start + (0.05 * (counts - 1)).astype(np.int64)
+        ok = counts >= 5
+        off[keys[ok]] = h[near][order][q[ok]]
+    off = _nan_median3(off.reshape(shape))
+    return GroundPlane(nrm, dd, lo, config.ground_cell_m, np.clip(np.nan_to_num(off, nan=0.0), -3.0, 3.0))
+
+
+def _nan_median3(a: np.ndarray) -> np.ndarray:
+    """3 x 3 median of a 2D grid ignoring NaN (all-NaN neighbourhoods stay NaN)."""
+    pad = np.pad(a, 1, constant_values=np.nan)
+    stack = np.stack([pad[i:i + a.shape[0], j:j + a.shape[1]] for i in range(3) for j in range(3)])
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return np.nanmedian(stack, axis=0)
 
 
 def _voxel_keys(xyz: np.ndarray, size: float) -> np.ndarray:
@@ -263,6 +279,18 @@ def _min_area_rect(xy: np.ndarray) -> tuple[float, float, float, float, float]:
     return float(cx), float(cy), float(w), float(h), float(yaw)
 
 
+def _split_at_gaps(xy: np.ndarray, idx: np.ndarray, gap: float, min_points: int) -> list[np.ndarray]:
+    """A long cluster (a row of parked cars merged by the grid) cut where its points leave a gap
+    of at least ``gap`` metres along its long axis; pieces under ``min_points`` are dropped."""
+    p = xy[idx]
+    c = p - p.mean(0)
+    axis = np.linalg.svd(c, full_matrices=False)[2][0]
+    t = c @ axis
+    order = np.argsort(t)
+    cuts = np.nonzero(np.diff(t[order]) >= gap)[0] + 1
+    return [idx[o] for o in np.split(order, cuts) if len(o) >= min_points]
+
+
 def _complete_vehicle(cx, cy, length, width, yaw, top, config: LidarDetectConfig):
     """The footprint of a vehicle seen from one side or one end, completed away from the sensor."""
     if top < 1.2 or length < 1.4:
@@ -306,9 +334,16 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
     if len(xyz) < config.min_points:
         return np.zeros((0, 7), np.float32)
     order, starts = _clusters(xyz[:, :2], config.cell_m, config.min_points)
-    boxes = []
+    pieces = []
     for a, b in zip(starts[:-1], starts[1:]):
         idx = order[a:b]
+        ext = np.ptp(xyz[idx, :2], axis=0)
+        if ext.max() > 6.0 and config.split_gap_m > 0:
+            pieces += _split_at_gaps(xyz[:, :2], idx, config.split_gap_m, config.min_points)
+        else:
+            pieces.append(idx)
+    boxes = []
+    for idx in pieces:
         hc = h[idx]
         if bg_share is not None and bg_share[idx].mean() >= 0.5:  # mostly where something usually is
             continue
