@@ -16,7 +16,7 @@ without truth, from the labelled pose), detection counts and times.
   (background model over the 16 frames).
 * PandaSet 002 (30 frames, moving car, truth): labelled = cuboids + 2D boxes projected from them
   with the true calibration (``synthetic_2d_boxes``: the labelled run is optimistic).
-* KITTI (openpcdet_pr653 training 000000-000005, truth): labelled = KITTI label_2 boxes.
+* KITTI (openpcdet_pr653 training 000001-000005 (one drive; 000000 is another), truth): labelled = KITTI label_2 boxes.
 
 Prints a table and writes ``benchmarks/results/detect.json``.
 
@@ -136,14 +136,14 @@ def _kitti(detector, log) -> list[dict]:
     root = SHARED / "kitti" / "openpcdet_pr653" / "training"
     if not root.exists():
         return []
-    seq = kitti_frames(root, ids=[0, 1, 2, 3, 4, 5])
+    seq = kitti_frames(root, ids=[1, 2, 3, 4, 5])  # 000000 has other intrinsics (another drive)
     frames = [seq[i] for i in range(len(seq))]
     truth = frames[0].extrinsics
     rl = _calibrate(frames, frames[0].intrinsics, None, truth)
-    rows = [{"dataset": "KITTI 6 frames", "detections": "labelled (label_2)", **rl}]
+    rows = [{"dataset": "KITTI 5 frames", "detections": "labelled (label_2)", **rl}]
     log(rows[-1])
     det, dt = _detected(seq, "auto", detector)
-    rows.append({"dataset": "KITTI 6 frames", "detections": "detected (auto)", "detect_s": dt,
+    rows.append({"dataset": "KITTI 5 frames", "detections": "detected (auto)", "detect_s": dt,
                  **_calibrate(det, frames[0].intrinsics, rl["T"], truth)})
     log(rows[-1])
     return rows
