@@ -10,7 +10,8 @@ match matrix and ground truth, the 3D box layout), so frames read back equal the
 Frame ``i`` is stamped ``lidar_time_s`` / ``camera_time_s`` when the frame has them (a relative
 clock, below 1e8 s, shifted by ``start_s``; the exact times travel in the record), else
 ``start_s + i * period_s`` (LiDAR) and camera ``c`` (0, 1, ...) ``camera_delay_s`` + ``c`` ms
-later; track ids go into ``Detection3D.id`` (ROS 2 layout) and the record.
+later (a frame read from a bag keeps its exact header stamps, ``meta["lidar_stamp_ns"]`` /
+``meta["camera_stamp_ns"]``); track ids go into ``Detection3D.id`` (ROS 2 layout) and the record.
 """
 
 from __future__ import annotations
@@ -70,6 +71,15 @@ def _box7_and_rows(b3) -> tuple[np.ndarray, list[str] | None]:
 
 
 ABSOLUTE_CLOCK_S = 1e8  # frame times from this on (1973+) are a Unix clock and stamped as they are
+
+
+def _exact(frame: Frame, key: str, t: float | None) -> int | None:
+    """A frame read from a bag keeps its header stamp (ns) in ``meta[key]``: used when it is the
+    frame's time (float seconds of a Unix clock lose ~200 ns)."""
+    ns = frame.meta.get(key) if isinstance(frame.meta, dict) else None
+    if isinstance(ns, int) and not isinstance(ns, bool) and ns > 0 and t is not None and abs(ns / 1e9 - t) < 1e-6:
+        return ns
+    return None
 
 
 def _stamp(t: float, start_s: float) -> int:
@@ -145,7 +155,8 @@ def _write_frames(sink: _Sink, store, frames, image_format, clock, lidar_frame, 
     static: dict[str, np.ndarray] = {}
     t0 = int(round(start_s * 1e9))
     for i, frame in enumerate(frames):
-        ls = t0 + int(round(i * period_s * 1e9)) if frame.lidar_time_s is None else _stamp(frame.lidar_time_s, start_s)
+        ls = t0 + int(round(i * period_s * 1e9)) if frame.lidar_time_s is None else \
+            (_exact(frame, "lidar_stamp_ns", frame.lidar_time_s) or _stamp(frame.lidar_time_s, start_s))
         pts = np.asarray(frame.point_cloud, dtype=np.float32)
         fields = tuple(frame.point_fields) if len(frame.point_fields) == pts.shape[1] else \
             ("x", "y", "z") + tuple(f"f{k}" for k in range(3, pts.shape[1]))
@@ -164,7 +175,7 @@ def _write_frames(sink: _Sink, store, frames, image_format, clock, lidar_frame, 
             cam_time = (frame.meta.get("camera_time_s_by_camera") or {}).get(cam) if frame.images \
                 else frame.camera_time_s
             if cam_time is not None:
-                cs = _stamp(cam_time, start_s)
+                cs = (None if frame.images else _exact(frame, "camera_stamp_ns", cam_time)) or _stamp(cam_time, start_s)
             image, b2, mm, intr, extr = _view(frame, cam)
             optical = f"{seg}_optical_frame"
             if image_format == "raw":
