@@ -18,8 +18,7 @@ Foxglove review file (DIR/review.mcap) and the report (DIR/report.html; with sev
 sub-folder per camera). One camera: DIR/calibration.json + .npz, DIR/summary.txt, DIR/overlays/.
 Exit code 1 when a camera's frames do not determine its pose (the reason is printed and saved).
 
-A recording without detections (only images, CameraInfo and clouds): add --detect to make them
-in memory with xcalib's own detectors (see `xcalib detect`; needs xcalib[onnx]).
+A recording without detections (only images, CameraInfo and clouds): --detect makes them in memory with xcalib's own detectors (see xcalib detect; needs the onnx extra).
 
 Example: xcalib calibrate ../shared/data/a9_sample --out runs/a9_calib
 Example: xcalib calibrate raw.mcap --detect --out runs/raw

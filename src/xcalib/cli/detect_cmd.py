@@ -7,20 +7,19 @@ from pathlib import Path
 
 import typer
 
-_HELP = """Detect objects in every frame of SOURCE and write them, with the sensor data, to OUT.
-
-Camera: the shipped YOLOX-Nano (COCO, Apache-2.0) with ONNX Runtime on the CPU, or your own ONNX
-detector (--detector-2d, YOLOX / YOLOv5 / YOLOv8 output layouts). LiDAR: label-free boxes from
-the clouds (ground removal, background model for a static LiDAR, clustering, oriented boxes).
-OUT (.bag, .db3 or .mcap) holds the images, CameraInfo and clouds of SOURCE with
-vision_msgs/Detection2DArray and Detection3DArray stamped like their sensor messages: `xcalib
-calibrate OUT` reads it as it is (or run `xcalib calibrate SOURCE --detect` to skip the file).
-SOURCE is any frame source (bag without detection topics, frame folder, KITTI, ...); a source's
-own boxes are replaced. Needs the extra xcalib[onnx].
-
-Example: xcalib detect raw.mcap --out detected.mcap
-Example: xcalib detect ../shared/data/a9_sample --out a9_detected.mcap --lidar-mode moving
-"""
+_HELP = (
+    "Detect objects in every frame of SOURCE and write them, with the sensor data, to OUT.\n\n"
+    "Camera: the shipped YOLOX-Nano (COCO, Apache-2.0) with ONNX Runtime on the CPU, or your own ONNX detector "
+    "(--detector-2d; YOLOX, YOLOv5 or YOLOv8 output layout). LiDAR: label-free boxes from the clouds (ground "
+    "removal, background model for a static LiDAR, clustering, oriented boxes).\n\n"
+    "OUT (.bag, .db3 or .mcap) holds the images, CameraInfo and clouds of SOURCE with "
+    "vision_msgs/Detection2DArray and Detection3DArray stamped like their sensor messages: xcalib calibrate OUT "
+    "reads it as it is (xcalib calibrate SOURCE --detect skips the file). SOURCE is any frame source (a bag "
+    "without detection topics, a frame folder, KITTI, ...); a source's own boxes are replaced. Needs the onnx "
+    "extra of xcalib (onnx, onnxruntime).\n\n"
+    "Example: xcalib detect raw.mcap --out detected.mcap\n\n"
+    "Example: xcalib detect ../shared/data/a9_sample --out a9_detected.mcap --lidar-mode moving\n"
+)
 
 
 def detect_options(detector_2d, classes_file, score_min, input_size, lidar_mode):
