@@ -238,3 +238,44 @@ def test_layering_detect_imports_nothing_above_it():
             "'xcalib.models', 'torch', 'onnxruntime') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"  # onnxruntime only when a detector is loaded
+
+
+class _FakeDetector:
+    """A stand-in camera detector: one fixed box per image."""
+
+    path = __import__("pathlib").Path("fake.onnx")
+    layout = "fake"
+
+    def __init__(self):
+        self.calls = 0
+
+    def __call__(self, image):
+        from xcalib.detect.camera import Detections2D
+
+        self.calls += 1
+        return Detections2D(np.array([[1, 2, 30, 40]], np.float32), np.array([0.9], np.float32),
+                            np.array([2]), ("car",))
+
+
+def test_detected_frames_replace_the_boxes_once_and_keep_the_sensors():
+    from xcalib.data.synth import generate_frames, sample_site
+    from xcalib.detect import DetectConfig, DetectedFrames, LidarDetectConfig
+
+    frames = generate_frames(sample_site(3, width=320, height=200, focal_px=300), 2, seed=0)
+    fake = _FakeDetector()
+    det = DetectedFrames(frames, DetectConfig(lidar=LidarDetectConfig(mode="moving")), detector=fake).run()
+    assert det.mode == "moving" and len(det) == 2 and fake.calls == 2
+    f = det[1]
+    assert fake.calls == 2  # boxes kept, not detected again
+    assert np.array_equal(f.bboxes_2d, [[1, 2, 30, 40]]) and f.match_matrix is None and f.bboxes_3d.shape[1] == 7
+    assert np.array_equal(f.point_cloud, frames[1].point_cloud) and f.meta["detections"]["classes_2d"] == ["car"]
+    assert det.counts() == (2, sum(len(det[i].bboxes_3d) for i in range(2))) and det.counts()[1] > 0
+
+
+def test_detect_help_and_usage_errors(tmp_path, capsys):
+    from xcalib.cli import main
+
+    assert main(["detect", "--help"]) == 0
+    assert "Example: xcalib detect" in capsys.readouterr().out
+    assert main(["detect", str(tmp_path), "--out", str(tmp_path / "x.txt")]) == 2  # not a bag name
+    assert main(["detect", str(tmp_path), "--out", str(tmp_path / "x.mcap"), "--lidar-mode", "flying"]) == 2
