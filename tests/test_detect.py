@@ -264,7 +264,7 @@ def test_detected_frames_replace_the_boxes_once_and_keep_the_sensors():
     frames = generate_frames(sample_site(3, width=320, height=200, focal_px=300), 2, seed=0)
     fake = _FakeDetector()
     det = DetectedFrames(frames, DetectConfig(lidar=LidarDetectConfig(mode="moving")), detector=fake).run()
-    assert det.mode == "moving" and len(det) == 2 and fake.calls == 2
+    assert det.mode == "moving" and len(det) == 2 and fake.calls == 2 and det.replaced == 2  # synthetic labels
     f = det[1]
     assert fake.calls == 2  # boxes kept, not detected again
     assert np.array_equal(f.bboxes_2d, [[1, 2, 30, 40]]) and f.match_matrix is None and f.bboxes_3d.shape[1] == 7

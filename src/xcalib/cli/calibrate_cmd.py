@@ -104,6 +104,10 @@ def register(app: typer.Typer) -> None:
 
                 dcfg = detect_options(detector_2d, None, 0.3, 1280, lidar_mode)
                 views = {k: open_detected(v, dcfg, progress) for k, v in views.items()}
+                for k, v in views.items():
+                    if v.replaced:
+                        console.print(f"--detect: {k}: the source's own detections in {v.replaced} frame(s) "
+                                      "were replaced by xcalib's", markup=False)
 
             def run(items, k, stage):
                 return calibrate(items, k, selfcal, prior=prior_res, box_model=box_model, seed=seed, progress=stage)

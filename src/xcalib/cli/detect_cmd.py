@@ -95,6 +95,8 @@ def register(app: typer.Typer) -> None:
             frames = (det[i] for i in range(n))
             path = write_bag(out, frames, image_format=image_format, overwrite=force)
         n2, n3 = det.counts()
+        if det.replaced:
+            typer.echo(f"the source's own detections in {det.replaced} frame(s) were replaced", err=True)
         typer.echo(f"{n} frame(s): {n2} 2D boxes ({det.detector.path.name}, {det.detector.layout}), {n3} 3D boxes "
                    f"(LiDAR {det.mode})")
         typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB); next: xcalib calibrate {path}")

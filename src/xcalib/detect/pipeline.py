@@ -69,7 +69,8 @@ class DetectedFrames(Sequence):
     frame's boxes are computed once and kept, the images and clouds are re-read).
 
     ``mode`` (after construction): ``static`` (background model over the recording) or
-    ``moving``; ``background`` / ``ground``: the static LiDAR's models."""
+    ``moving``; ``background`` / ``ground``: the static LiDAR's models; ``replaced``: how many
+    frames had boxes of their own (replaced)."""
 
     def __init__(self, source: Sequence[Frame], config: DetectConfig | None = None, *,
                  detector: Detector2D | None = None, progress: Progress | None = None):
@@ -95,13 +96,15 @@ class DetectedFrames(Sequence):
             if progress:
                 progress("background model", 1, 1)
         self._boxes: dict[int, tuple] = {}
+        self.replaced = 0  # frames whose source had boxes of its own (replaced by these)
 
     def __len__(self) -> int:
         return len(self.source)
 
     def _detect(self, i: int) -> Frame:
-        f = detect_frame(self.source[i], self.detector, self.config.lidar, ground=self.ground,
-                         background=self.background)
+        src = self.source[i]
+        self.replaced += bool(src.num_2d or src.num_3d)
+        f = detect_frame(src, self.detector, self.config.lidar, ground=self.ground, background=self.background)
         self._boxes[i] = (f.bboxes_2d, f.bboxes_3d, f.camera_per_det, f.meta["detections"])
         return f
 
