@@ -37,7 +37,7 @@ BUILTIN: dict[str, dict[str, str]] = {
     "xcalib.sources": {"frames": "xcalib.io.frames", "hdf5": "xcalib.io.hdf5", "bags": "xcalib.io.bags",
                        "formats": "xcalib.formats"},
     "xcalib.commands": {n: f"xcalib.cli.{n}_cmd" for n in (
-        "demo", "match", "calibrate", "bootstrap", "train", "validate", "export", "synth", "cache", "convert",
+        "demo", "match", "calibrate", "detect", "bootstrap", "train", "validate", "export", "synth", "cache", "convert",
         "bag", "version", "reference")},
 }
 

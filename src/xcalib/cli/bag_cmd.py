@@ -80,6 +80,8 @@ def register(app: typer.Typer) -> None:
         frame_range: str = typer.Option(None, "--frames", help="Frames: 0:8, 0,3,5, 8: (indices)."),
         image_format: str = typer.Option("raw", "--image-format", help="raw (Image rgb8) | png | jpeg "
                                                                        "(CompressedImage)."),
+        no_detections: bool = typer.Option(False, "--no-detections", help="Sensor topics only (images, CameraInfo, "
+                                                                           "clouds), as a raw recording."),
         force: bool = typer.Option(False, "--force", help="Replace an existing output file."),
     ) -> None:
         from ..io.bags import write_bag
@@ -100,7 +102,7 @@ def register(app: typer.Typer) -> None:
         else:
             seq = next(iter(views.values()))
             frames = (seq[i] for i in range(len(seq)))
-        path = write_bag(out, frames, image_format=image_format, overwrite=force)
+        path = write_bag(out, frames, image_format=image_format, overwrite=force, detections=not no_detections)
         typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
 
 

@@ -18,7 +18,11 @@ Foxglove review file (DIR/review.mcap) and the report (DIR/report.html; with sev
 sub-folder per camera). One camera: DIR/calibration.json + .npz, DIR/summary.txt, DIR/overlays/.
 Exit code 1 when a camera's frames do not determine its pose (the reason is printed and saved).
 
+A recording without detections (only images, CameraInfo and clouds): --detect makes them in memory with xcalib's own detectors (see xcalib detect; needs the onnx extra).
+
 Example: xcalib calibrate ../shared/data/a9_sample --out runs/a9_calib
+
+Example: xcalib calibrate raw.mcap --detect --out runs/raw
 
 Example: xcalib calibrate nus.mcap --camera CAM_FRONT --camera CAM_BACK --out runs/nus
 """
@@ -65,6 +69,11 @@ def register(app: typer.Typer) -> None:
                                                                 "cloud's and the image's frames (skips bring-up)."),
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
         force: bool = typer.Option(False, "--force", help="Replace an existing report folder."),
+        detect: bool = typer.Option(False, "--detect", help="Make the detections with xcalib's detectors (shipped "
+                                                            "YOLOX-Nano + label-free LiDAR boxes), replacing any "
+                                                            "the source has; see `xcalib detect`."),
+        detector_2d: Path = typer.Option(None, "--detector-2d", help="With --detect: your ONNX 2D detector."),
+        lidar_mode: str = typer.Option("auto", "--lidar-mode", help="With --detect: auto | static | moving."),
     ) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -96,7 +105,7 @@ def register(app: typer.Typer) -> None:
             if prior is not None and len(cams) > 1:
                 raise typer.BadParameter("--prior applies to one camera; give one --camera", param_hint="--prior")
             intr = read_intrinsics_json(intrinsics) if intrinsics is not None else None
-            views = _open_views(frames, cams, frame_range, limit, intr, tolerance)
+            views = _open_views(frames, cams, frame_range, limit, intr, tolerance, detect)
             name0 = next(iter(views))
             if len(views) == 1 and intr is None and getattr(views[name0], "intrinsics", None) is None and len(views[name0]) \
                     and views[name0][0].intrinsics is None:
@@ -116,6 +125,16 @@ def register(app: typer.Typer) -> None:
                     if stage not in tasks:
                         tasks[stage] = bar.add_task(stage, total=total)
                     bar.update(tasks[stage], completed=done, total=total)
+
+                if detect:
+                    from .detect_cmd import detect_options, open_detected
+
+                    dcfg = detect_options(detector_2d, None, 0.3, 1280, lidar_mode)
+                    views = {k: open_detected(v, dcfg, progress) for k, v in views.items()}
+                    for k, v in views.items():
+                        if v.replaced:
+                            console.print(f"--detect: {k}: the source's own detections in {v.replaced} frame(s) "
+                                          "were replaced by xcalib's", markup=False)
 
                 def run(items, k, stage, prior=None):
                     return calibrate(items, k, selfcal, prior=prior_res if prior is None else prior, box_model=box_model,
@@ -146,8 +165,10 @@ def _check_camera_names(cameras) -> None:
         seen.add(c)
 
 
-def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, tolerance: float) -> dict:
-    """camera name -> its frames (lazy), for each ``--camera`` (or the source's default camera)."""
+def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, tolerance: float,
+                detect: bool = False) -> dict:
+    """camera name -> its frames (lazy), for each ``--camera`` (or the source's default camera);
+    ``detect``: a bag is read without its detection topics (they are made by xcalib.detect)."""
     from ..io.sources import find_source, open_source
 
     if frame_range is None and limit > 0:
@@ -155,6 +176,8 @@ def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, to
     options = {}
     if find_source(source).name == "bag":
         options["tolerance_s"] = tolerance
+        if detect:
+            options["detections"] = False
         if intr is not None:
             options["intrinsics"] = intr
     views = {}

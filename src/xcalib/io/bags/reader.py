@@ -270,6 +270,8 @@ class BagFrames(Sequence):
     ``detections_3d`` — topics (default: found under the camera's / LiDAR's namespace, or the only
     one of the type). ``tolerance_s`` — largest LiDAR/image stamp difference paired.
     ``intrinsics`` — used instead of CameraInfo (required when the bag has none).
+    ``detections`` — False: read the sensors only (no detection topics needed; frames carry no
+    boxes, for :mod:`xcalib.detect` to fill).
 
     Attributes: ``report`` (:class:`PairingReport`), ``cameras`` (every :class:`BagCamera`),
     ``camera`` (the chosen one's name), ``intrinsics``, ``transforms`` (tf_static / tf edges:
@@ -280,8 +282,9 @@ class BagFrames(Sequence):
     def __init__(self, path, camera: str | None = None, *, lidar: str | None = None,
                  camera_info: str | None = None, detections_2d: str | None = None,
                  detections_3d: str | None = None, tolerance_s: float = 0.05,
-                 intrinsics: CameraIntrinsics | None = None):
+                 intrinsics: CameraIntrinsics | None = None, detections: bool = True):
         self.path = Path(path)
+        self.with_detections = bool(detections)
         if not self.path.exists():
             raise FileNotFoundError(f"bag not found: {self.path}")
         if not tolerance_s > 0:
@@ -364,8 +367,10 @@ class BagFrames(Sequence):
         if not required:
             return None
         if not cands:
-            raise FormatError(self.path, f"no {' or '.join(types)} topic for the {what}; topics: {self._listing()}",
-                              option)
+            hint = " (xcalib detect BAG --out OUT.mcap, or calibrate --detect, makes them)" \
+                if types[0] in (DET2D, DET3D) else ""
+            raise FormatError(self.path, f"no {' or '.join(types)} topic for the {what}{hint}; topics: "
+                                         f"{self._listing()}", option)
         raise FormatError(self.path, f"several {types[0]} topics for the {what}: {', '.join(near or cands)}; "
                                      f"choose one with {option}", option)
 
@@ -378,8 +383,10 @@ class BagFrames(Sequence):
             "camera_info": self._pick(info or cam.info_topic, (CAMERA_INFO,), cam.namespace, "camera info",
                                       "--camera-info", False),
             "detections_2d": self._pick(det2d or cam.detections_topic, (DET2D,), cam.namespace,
-                                        f"2D detections of camera {cam.name}", "--detections-2d", True),
-            "detections_3d": self._pick(det3d, DET3D_TYPES, lid_ns, "3D detections", "--detections-3d", True),
+                                        f"2D detections of camera {cam.name}", "--detections-2d", True)
+            if self.with_detections else None,
+            "detections_3d": self._pick(det3d, DET3D_TYPES, lid_ns, "3D detections", "--detections-3d", True)
+            if self.with_detections else None,
         }
         if topics["camera_info"] is None and intrinsics is None:
             raise FormatError(self.path, f"no CameraInfo topic for camera {cam.name} ({cam.image_topic}); pass "
@@ -411,7 +418,7 @@ class BagFrames(Sequence):
         tp = self.topics
         lid, img = msgs[tp["lidar"]], msgs[tp["image"]]
         for key in ("lidar", "image", "detections_2d", "detections_3d"):
-            if not msgs[tp[key]]:
+            if tp[key] is not None and not msgs[tp[key]]:
                 raise FormatError(self.path, "topic has no messages", tp[key])
         tol = int(round(self.tolerance_s * 1e9))
         l_ns, i_ns = [s for s, _ in lid], [s for s, _ in img]
@@ -424,8 +431,9 @@ class BagFrames(Sequence):
                                                        f"(nearest {dt / 1e6:.1f} ms)") for i, dt in lost_l.items()]
         dropped += [Dropped(tp["image"], i_ns[j] / 1e9, f"no LiDAR sweep within {self.tolerance_s * 1e3:g} ms "
                                                         f"(nearest {dt / 1e6:.1f} ms)") for j, dt in lost_i.items()]
-        d3 = _nearest_within(l_ns, msgs[tp["detections_3d"]], tol)  # sweep stamp -> (stamp, message)
-        d2 = _nearest_within(i_ns, msgs[tp["detections_2d"]], tol)
+        # sweep / image stamp -> (stamp, message) of the nearest detections within the tolerance
+        d3 = _nearest_within(l_ns, msgs[tp["detections_3d"]], tol) if tp["detections_3d"] else None
+        d2 = _nearest_within(i_ns, msgs[tp["detections_2d"]], tol) if tp["detections_2d"] else None
         infos = msgs[tp["camera_info"]] if tp["camera_info"] else []
         meta = {}
         for _, m in msgs.get(META_TOPIC, []):
@@ -434,6 +442,11 @@ class BagFrames(Sequence):
         entries, used3, used2, max_dt = [], set(), set(), 0
         for i, j in pairs:
             (ls, lm), (is_, im) = lid[i], img[j]
+            if d3 is None or d2 is None:  # sensors only (detections=False)
+                max_dt = max(max_dt, abs(ls - is_))
+                info = min(infos, key=lambda x: abs(x[0] - is_)) if infos else None
+                entries.append(_Entry((ls, lm), (is_, im), None, None, info, meta.get(ls, {})))
+                continue
             if ls not in d3:
                 dropped.append(Dropped(tp["detections_3d"], ls / 1e9, f"no 3D detections within "
                                        f"{self.tolerance_s * 1e3:g} ms of the sweep"))
@@ -447,10 +460,11 @@ class BagFrames(Sequence):
             max_dt = max(max_dt, abs(ls - is_))
             info = min(infos, key=lambda x: abs(x[0] - is_)) if infos else None
             entries.append(_Entry((ls, lm), (is_, im), d3[ls], d2[is_], info, meta.get(ls, {})))
-        dropped += [Dropped(tp["detections_3d"], s / 1e9, "no paired LiDAR sweep near this stamp")
-                    for s, _ in msgs[tp["detections_3d"]] if s not in used3]
-        dropped += [Dropped(tp["detections_2d"], s / 1e9, "no paired image near this stamp")
-                    for s, _ in msgs[tp["detections_2d"]] if s not in used2]
+        if d3 is not None and d2 is not None:
+            dropped += [Dropped(tp["detections_3d"], s / 1e9, "no paired LiDAR sweep near this stamp")
+                        for s, _ in msgs[tp["detections_3d"]] if s not in used3]
+            dropped += [Dropped(tp["detections_2d"], s / 1e9, "no paired image near this stamp")
+                        for s, _ in msgs[tp["detections_2d"]] if s not in used2]
         report = PairingReport(str(self.path), tp["lidar"], tp["image"], self.tolerance_s, len(lid), len(img),
                                len(entries), tuple(sorted(dropped, key=lambda d: (d.topic, d.stamp_s))),
                                max_dt / 1e9)
@@ -556,14 +570,18 @@ class BagFrames(Sequence):
         tp = self.topics
         image = cv.image_from_msg(e.image[1], self._where(tp["image"]))
         points, fields, n_bad = cv.cloud_from_msg(e.lidar[1], self._where(tp["lidar"]))
-        b2, ids2 = cv.boxes2d_from_msg(e.det2d[1])
-        det = boxes3d_any(e.det3d[1], self._where(tp["detections_3d"]),
-                          self._lidar_from(str(e.det3d[1].header.frame_id)), MAX_TILT_DEG)
-        box7, ids3 = det.box7, det.ids
-        if det.flattened:
-            log.warning("%s [%s] frame at %.3f s: %d 3D box(es) turned about x/y (up to %.1f deg) flattened to "
-                        "their heading (refused beyond %g deg)", self.path, tp["detections_3d"], e.lidar[0] / 1e9,
-                        det.flattened, det.max_tilt_deg, MAX_TILT_DEG)
+        flattened = 0
+        if e.det2d is None:  # sensors only
+            b2, ids2, box7, ids3 = np.zeros((0, 4), np.float32), [], np.zeros((0, 7), np.float32), []
+        else:
+            b2, ids2 = cv.boxes2d_from_msg(e.det2d[1])
+            det = boxes3d_any(e.det3d[1], self._where(tp["detections_3d"]),
+                              self._lidar_from(str(e.det3d[1].header.frame_id)), MAX_TILT_DEG)
+            box7, ids3, flattened = det.box7, det.ids, det.flattened
+            if det.flattened:
+                log.warning("%s [%s] frame at %.3f s: %d 3D box(es) turned about x/y (up to %.1f deg) flattened "
+                            "to their heading (refused beyond %g deg)", self.path, tp["detections_3d"],
+                            e.lidar[0] / 1e9, det.flattened, det.max_tilt_deg, MAX_TILT_DEG)
         intr = self._fixed_intrinsics or self._intrinsics(e.info)
         fisheye = self._fisheye(e)
         if fisheye is not None:  # equidistant: image and 2D boxes rectified to the pinhole ``intr``
@@ -587,7 +605,7 @@ class BagFrames(Sequence):
             b3 = _boxes3d_as_written(box7, rows)
         if not np.all(np.isfinite(b3)):
             raise FormatError(self.path, "3D boxes out of float32 range", tp["detections_3d"])
-        mm = rec.get("match_matrix")
+        mm = rec.get("match_matrix") if e.det2d is not None else None
         extr = rec.get("extrinsics")
         if extr is not None:
             extr = np.asarray(extr, dtype=np.float64)
@@ -598,8 +616,8 @@ class BagFrames(Sequence):
                 "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "detection_ids_2d": ids2}
         if n_bad:
             meta["points_dropped_nonfinite"] = n_bad
-        if det.flattened:
-            meta["boxes3d_flattened"] = det.flattened
+        if flattened:
+            meta["boxes3d_flattened"] = flattened
         if fisheye is not None:
             meta["rectified_from"] = "equidistant"
         tracks = e.meta.get("track_ids_3d")

@@ -10,7 +10,8 @@ match matrix and ground truth, the 3D box layout), so frames read back equal the
 Frame ``i`` is stamped ``lidar_time_s`` / ``camera_time_s`` when the frame has them (a relative
 clock, below 1e8 s, shifted by ``start_s``; the exact times travel in the record), else
 ``start_s + i * period_s`` (LiDAR) and camera ``c`` (0, 1, ...) ``camera_delay_s`` + ``c`` ms
-later; track ids go into ``Detection3D.id`` (ROS 2 layout) and the record.
+later (a frame read from a bag keeps its exact header stamps, ``meta["lidar_stamp_ns"]`` /
+``meta["camera_stamp_ns"]``); track ids go into ``Detection3D.id`` (ROS 2 layout) and the record.
 """
 
 from __future__ import annotations
@@ -73,6 +74,15 @@ def _box7_and_rows(b3) -> tuple[np.ndarray, list[str] | None]:
 ABSOLUTE_CLOCK_S = 1e8  # frame times from this on (1973+) are a Unix clock and stamped as they are
 
 
+def _exact(frame: Frame, key: str, t: float | None) -> int | None:
+    """A frame read from a bag keeps its header stamp (ns) in ``meta[key]``: used when it is the
+    frame's time (float seconds of a Unix clock lose ~200 ns)."""
+    ns = frame.meta.get(key) if isinstance(frame.meta, dict) else None
+    if isinstance(ns, int) and not isinstance(ns, bool) and ns > 0 and t is not None and abs(ns / 1e9 - t) < 1e-6:
+        return ns
+    return None
+
+
 def _stamp(t: float, start_s: float) -> int:
     """Header stamp (ns) of a frame time: an absolute clock as is, a relative one (simulation
     seconds, may be negative) shifted by ``start_s``."""
@@ -115,9 +125,11 @@ class _Sink:
 def write_bag(path, frames: Iterable[Frame], *, image_format: Literal["raw", "png", "jpeg"] = "raw",
               vision_layout: Literal["ros1", "ros2"] | None = None, start_s: float = 1_700_000_000.0,
               period_s: float = 0.1, camera_delay_s: float = 0.01, lidar_frame: str = "lidar",
-              overwrite: bool = False) -> Path:
+              overwrite: bool = False, detections: bool = True) -> Path:
     """Write ``frames`` (single- or multi-camera) to ``path`` (container from the suffix: ``.bag``,
-    ``.db3``, ``.mcap``); written to a temporary name beside it and renamed into place."""
+    ``.db3``, ``.mcap``); written to a temporary name beside it and renamed into place.
+    ``detections=False``: sensor topics only (images, CameraInfo, clouds, tf_static; no
+    detections and no ``/xcalib/frames`` record), as a raw recording."""
     path = Path(path)
     container = path.suffix.lower()
     if container not in BAG_SUFFIXES:
@@ -133,7 +145,8 @@ def write_bag(path, frames: Iterable[Frame], *, image_format: Literal["raw", "pn
     tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(path.name), suffix=".tmp", dir=path.parent))
     try:
         sink = _Sink(tmp, container, store)
-        _write_frames(sink, store, frames, image_format, start_s, period_s, camera_delay_s, lidar_frame)
+        _write_frames(sink, store, frames, image_format, (start_s, period_s, camera_delay_s), lidar_frame,
+                      detections)
         out = sink.close()
         os.chmod(out, 0o644)
         os.replace(out, path)
@@ -142,18 +155,21 @@ def write_bag(path, frames: Iterable[Frame], *, image_format: Literal["raw", "pn
     return path
 
 
-def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, camera_delay_s, lidar_frame) -> None:
+def _write_frames(sink: _Sink, store, frames, image_format, clock, lidar_frame, detections=True) -> None:
+    start_s, period_s, camera_delay_s = clock
     static: dict[str, np.ndarray] = {}
     t0 = int(round(start_s * 1e9))
     for i, frame in enumerate(frames):
-        ls = t0 + int(round(i * period_s * 1e9)) if frame.lidar_time_s is None else _stamp(frame.lidar_time_s, start_s)
+        ls = t0 + int(round(i * period_s * 1e9)) if frame.lidar_time_s is None else \
+            (_exact(frame, "lidar_stamp_ns", frame.lidar_time_s) or _stamp(frame.lidar_time_s, start_s))
         pts = np.asarray(frame.point_cloud, dtype=np.float32)
         fields = tuple(frame.point_fields) if len(frame.point_fields) == pts.shape[1] else \
             ("x", "y", "z") + tuple(f"f{k}" for k in range(3, pts.shape[1]))
         sink.add("/lidar/points", POINTCLOUD2, ls, cv.make_pointcloud2(store, pts, fields, ls, lidar_frame))
         box7, rows = _box7_and_rows(frame.bboxes_3d)
         tracks = None if frame.track_ids_3d is None else np.asarray(frame.track_ids_3d, dtype=np.int64).tolist()
-        sink.add("/lidar/detections", DET3D, ls, cv.make_detection3d_array(store, box7, ls, lidar_frame, ids=tracks))
+        if detections:
+            sink.add("/lidar/detections", DET3D, ls, cv.make_detection3d_array(store, box7, ls, lidar_frame, ids=tracks))
         record = {"lidar_stamp_ns": ls, "frame_key": frame.frame_key, "box3d_rows": rows, "cameras": {},
                   "lidar_time_s": frame.lidar_time_s, "track_ids_3d": tracks,
                   "velocities_3d": None if frame.velocities_3d is None else
@@ -164,7 +180,7 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
             cam_time = (frame.meta.get("camera_time_s_by_camera") or {}).get(cam) if frame.images \
                 else frame.camera_time_s
             if cam_time is not None:
-                cs = _stamp(cam_time, start_s)
+                cs = (None if frame.images else _exact(frame, "camera_stamp_ns", cam_time)) or _stamp(cam_time, start_s)
             image, b2, mm, intr, extr = _view(frame, cam)
             optical = f"{seg}_optical_frame"
             if image_format == "raw":
@@ -175,7 +191,8 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
             if intr is not None:
                 sink.add(f"/{seg}/camera_info", CAMERA_INFO, cs,
                          cv.make_camera_info(store, intr, cs, optical, image.shape[1], image.shape[0]))
-            sink.add(f"/{seg}/detections", DET2D, cs, cv.make_detection2d_array(store, b2, cs, optical))
+            if detections:
+                sink.add(f"/{seg}/detections", DET2D, cs, cv.make_detection2d_array(store, b2, cs, optical))
             rec = {"camera_name": cam, "camera_time_s": cam_time}
             key = (frame.meta.get("frame_key_by_camera") or {}).get(cam) if frame.images else None
             if key is not None:  # each camera's own key (a merged frame's is the first camera's)
@@ -187,6 +204,7 @@ def _write_frames(sink: _Sink, store, frames, image_format, start_s, period_s, c
                 static.setdefault(optical, invert_transform(np.asarray(extr, dtype=np.float64)))
             record["cameras"][seg] = rec
         Str = store.types[STRING]
-        sink.add(META_TOPIC, STRING, ls, Str(data=json.dumps(record)))
+        if detections:  # a sensors-only bag is a raw recording: no xcalib record either
+            sink.add(META_TOPIC, STRING, ls, Str(data=json.dumps(record)))
         if i == 0 and static:
             sink.add("/tf_static", TF, ls, cv.make_tf_message(store, [(lidar_frame, k, v) for k, v in static.items()], ls))
