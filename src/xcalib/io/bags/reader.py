@@ -368,7 +368,7 @@ class BagFrames(Sequence):
             return None
         if not cands:
             hint = " (xcalib detect BAG --out OUT.mcap, or calibrate --detect, makes them)" \
-                if types[0] in (DET2D, DET3D) else ""
+                if types[0] in (DET2D, *DET3D_TYPES) else ""
             raise FormatError(self.path, f"no {' or '.join(types)} topic for the {what}{hint}; topics: "
                                          f"{self._listing()}", option)
         raise FormatError(self.path, f"several {types[0]} topics for the {what}: {', '.join(near or cands)}; "
@@ -570,14 +570,14 @@ class BagFrames(Sequence):
         tp = self.topics
         image = cv.image_from_msg(e.image[1], self._where(tp["image"]))
         points, fields, n_bad = cv.cloud_from_msg(e.lidar[1], self._where(tp["lidar"]))
-        flattened = 0
+        flattened, yawless = 0, False
         if e.det2d is None:  # sensors only
             b2, ids2, box7, ids3 = np.zeros((0, 4), np.float32), [], np.zeros((0, 7), np.float32), []
         else:
             b2, ids2 = cv.boxes2d_from_msg(e.det2d[1])
             det = boxes3d_any(e.det3d[1], self._where(tp["detections_3d"]),
                               self._lidar_from(str(e.det3d[1].header.frame_id)), MAX_TILT_DEG)
-            box7, ids3, flattened = det.box7, det.ids, det.flattened
+            box7, ids3, flattened, yawless = det.box7, det.ids, det.flattened, det.yawless
             if det.flattened:
                 log.warning("%s [%s] frame at %.3f s: %d 3D box(es) turned about x/y (up to %.1f deg) flattened "
                             "to their heading (refused beyond %g deg)", self.path, tp["detections_3d"],
@@ -599,7 +599,7 @@ class BagFrames(Sequence):
             raise FormatError(self.path, "detections hold non-finite box values",
                               tp["detections_2d"] if not np.all(np.isfinite(b2)) else tp["detections_3d"])
         rows = e.meta.get("box3d_rows")
-        if rows is None and not e.meta and det.yawless:  # no orientation given: yaw re-estimated from the points
+        if rows is None and not e.meta and yawless:  # no orientation given: yaw re-estimated from the points
             rows = ["extents"] * len(box7)
         with np.errstate(over="ignore"):
             b3 = _boxes3d_as_written(box7, rows)
