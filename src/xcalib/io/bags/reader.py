@@ -9,6 +9,7 @@ Problems raise :class:`~xcalib.errors.FormatError` naming the bag and the topic.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
@@ -28,7 +29,8 @@ from ...types import Frame
 from . import _convert as cv
 from ._msgs import CAMERA_INFO, COMPRESSED, DET2D, DET3D, IMAGE, POINTCLOUD2, STRING, SUPPORTED_TYPES, TF_TYPES, typestore
 
-__all__ = ["BAG_SUFFIXES", "is_bag", "BagTopic", "BagInfo", "bag_info", "BagCamera", "Dropped", "PairingReport",
+__all__ = ["BAG_SUFFIXES", "MAX_BAG_BYTES", "check_bag_input", "is_bag", "BagTopic", "BagInfo", "bag_info",
+           "BagCamera", "bag_cameras", "Dropped", "PairingReport",
            "BagFrames", "pair_by_time", "META_TOPIC"]
 
 log = logging.getLogger(__name__)
@@ -65,13 +67,20 @@ def check_bag_input(path: Path) -> None:
     open_regular(p, max_bytes=MAX_BAG_BYTES, what="bag file").close()
 
 
+@functools.lru_cache(maxsize=2)
+def _default_store(ros: int):
+    """The stock types + vision_msgs, built once per process (only read: AnyReader copies the
+    definitions it needs into a store of its own)."""
+    return typestore(ros)
+
+
 def _reader(path: Path):
     """An opened rosbags AnyReader; the stock ROS 1/ROS 2 types + vision_msgs fill in what the bag
     does not define. Unreadable input -> FormatError naming the file."""
     from rosbags.highlevel import AnyReader
 
     check_bag_input(path)
-    default = typestore(1 if path.suffix.lower() == ".bag" else 2)
+    default = _default_store(1 if path.suffix.lower() == ".bag" else 2)
     try:
         reader = AnyReader([path], default_typestore=default)
         reader.open()
@@ -278,6 +287,55 @@ def _under(topic: str, ns: str) -> bool:
     return bool(ns) and topic.startswith(ns + "/")
 
 
+def _cameras_of(types: dict[str, str], path) -> list[BagCamera]:
+    """One camera per image namespace (a raw Image wins over a CompressedImage of the same
+    namespace). Cameras whose namespaces end alike (``/a/camera/image``, ``/b/camera/image``)
+    are all kept, named after their whole namespace (``a_camera``, ``b_camera``)."""
+    def of_type(*ts):
+        return sorted(t for t, m in types.items() if m in ts)
+
+    by_ns: dict[str, tuple[str, str]] = {}
+    for topic in of_type(IMAGE) + of_type(COMPRESSED):
+        name, ns = _namespace(topic)
+        by_ns.setdefault(ns, (name, topic))
+    counts: dict[str, int] = {}
+    for name, _ in by_ns.values():
+        counts[name] = counts.get(name, 0) + 1
+    found: list[BagCamera] = []
+    for ns, (name, topic) in by_ns.items():
+        if counts[name] > 1:
+            name = ns.strip("/").replace("/", "_") or name
+            log.warning("%s: several image namespaces end in the same camera name; camera %s is %s", path, name, topic)
+        info = [t for t in of_type(CAMERA_INFO) if _under(t, ns)]
+        dets = [t for t in of_type(DET2D) if _under(t, ns)]
+        found.append(BagCamera(name, ns, topic, info[0] if len(info) == 1 else None,
+                               dets[0] if len(dets) == 1 else None))
+    return found
+
+
+def bag_cameras(path) -> list[BagCamera]:
+    """The cameras of a bag (image topics by namespace; see :class:`BagFrames`), read from its
+    topic list only. Topic names outside ROS names are a FormatError."""
+    p = Path(path)
+    reader = _reader(p)
+    try:
+        types = {c.topic: c.msgtype for c in reader.connections}
+    finally:
+        reader.close()
+    _check_topic_names(types, p)
+    return _cameras_of(types, p)
+
+
+def _check_topic_names(types, path) -> None:
+    """Topic names become camera names, file names and script text downstream: a name with
+    characters outside ROS names (newline, quote, space, control or unicode characters) is
+    refused, naming it escaped."""
+    for t in sorted(types):
+        if not _SAFE_TOPIC.match(t) or len(t) > 512:
+            raise FormatError(path, f"topic name {ascii(t)[:200]} holds characters outside ROS names "
+                                    "(letters, digits, _ / ~ { } . -); refusing the bag", "topic")
+
+
 @dataclass
 class _Entry:
     lidar: tuple
@@ -314,7 +372,7 @@ class BagFrames(Sequence):
         reader = _reader(self.path)
         try:
             self._types = {c.topic: c.msgtype for c in reader.connections}
-            self._check_topic_names()
+            _check_topic_names(self._types, self.path)
             self.cameras = self._find_cameras()
             cam = self._choose_camera(camera)
             self.camera = cam.name
@@ -336,15 +394,6 @@ class BagFrames(Sequence):
     def _where(self, topic: str | None, index: int | None = None) -> tuple[str, str | None, int | None]:
         return str(self.path), topic, index
 
-    def _check_topic_names(self) -> None:
-        """Topic names become camera names, file names and script text downstream: a name with
-        characters outside ROS names (newline, quote, space, control or unicode characters) is
-        refused, naming it escaped."""
-        for t in sorted(self._types):
-            if not _SAFE_TOPIC.match(t) or len(t) > 512:
-                raise FormatError(self.path, f"topic name {ascii(t)[:200]} holds characters outside ROS names "
-                                             "(letters, digits, _ / ~ { } . -); refusing the bag", "topic")
-
     def _of_type(self, *types: str) -> list[str]:
         return sorted(t for t, m in self._types.items() if m in types)
 
@@ -352,27 +401,7 @@ class BagFrames(Sequence):
         return "; ".join(f"{t} ({m})" for t, m in sorted(self._types.items()))
 
     def _find_cameras(self) -> list[BagCamera]:
-        """One camera per image namespace (a raw Image wins over a CompressedImage of the same
-        namespace). Cameras whose namespaces end alike (``/a/camera/image``, ``/b/camera/image``)
-        are all kept, named after their whole namespace (``a_camera``, ``b_camera``)."""
-        by_ns: dict[str, tuple[str, str]] = {}
-        for topic in self._of_type(IMAGE) + self._of_type(COMPRESSED):
-            name, ns = _namespace(topic)
-            by_ns.setdefault(ns, (name, topic))
-        counts: dict[str, int] = {}
-        for name, _ in by_ns.values():
-            counts[name] = counts.get(name, 0) + 1
-        found: list[BagCamera] = []
-        for ns, (name, topic) in by_ns.items():
-            if counts[name] > 1:
-                name = ns.strip("/").replace("/", "_") or name
-                log.warning("%s: several image namespaces end in the same camera name; camera %s is %s",
-                            self.path, name, topic)
-            info = [t for t in self._of_type(CAMERA_INFO) if _under(t, ns)]
-            dets = [t for t in self._of_type(DET2D) if _under(t, ns)]
-            found.append(BagCamera(name, ns, topic, info[0] if len(info) == 1 else None,
-                                   dets[0] if len(dets) == 1 else None))
-        return found
+        return _cameras_of(self._types, self.path)
 
     def _choose_camera(self, camera: str | None) -> BagCamera:
         if not self.cameras:
