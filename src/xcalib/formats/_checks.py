@@ -39,7 +39,7 @@ def require_numbers(values, path, field: str, *, integral: bool = False):
     """``values`` (a number or nested lists of numbers) unchanged, or a FormatError naming the
     field when an entry is a string, a bool, null or a mapping (YAML / JSON readers: ``"500"``
     or ``true`` is not a focal length); ``integral``: non-negative integers only."""
-    def bad(v):
+    def bad(v):  # (the offending value,) or None
         if isinstance(v, (list, tuple)):
             for x in v:
                 b = bad(x)
@@ -47,15 +47,15 @@ def require_numbers(values, path, field: str, *, integral: bool = False):
                     return b
             return None
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            return v
+            return (v,)
         if integral and (not isinstance(v, int) or v < 0):
-            return v
+            return (v,)
         return None
 
     b = bad(values)
     if b is not None:
-        raise FormatError(path, f"expected {'an integer' if integral else 'numbers'}, found {b!r:.60} "
-                                f"({type(b).__name__})", field)
+        raise FormatError(path, f"expected {'an integer' if integral else 'numbers'}, found {b[0]!r:.60} "
+                                f"({type(b[0]).__name__})", field)
     return values
 
 

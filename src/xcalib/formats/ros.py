@@ -284,16 +284,29 @@ def _load_yaml(path: Path) -> dict:
     return d
 
 
+def _matrix_data(d: dict, key: str, path: Path) -> list:
+    """``d[key]["data"]``, all numbers, as many as the matrix's ``rows`` x ``cols`` say (a number
+    dropped or added is a FormatError, not a shifted matrix)."""
+    m = require(d, key, path)
+    data = require_numbers(require(m, "data", path, key + "."), path, key + ".data")
+    if not isinstance(data, list):
+        raise FormatError(path, f"expected a list of numbers, got {type(data).__name__}", key + ".data")
+    if isinstance(m, dict) and ("rows" in m or "cols" in m):
+        rows = require_numbers(require(m, "rows", path, key + "."), path, key + ".rows", integral=True)
+        cols = require_numbers(require(m, "cols", path, key + "."), path, key + ".cols", integral=True)
+        if rows * cols != len(data):
+            raise FormatError(path, f"{rows} x {cols} matrix holds {len(data)} numbers", key + ".data")
+    return data
+
+
 def read_camera_info(path) -> CameraIntrinsics:
     """Intrinsics from a ``camera_info`` YAML (camera_matrix; a non-trivial rectification is refused)."""
     path = Path(path)
     d = _load_yaml(path)
-    K = as_matrix(require_numbers(require(require(d, "camera_matrix", path), "data", path, "camera_matrix."), path,
-                                  "camera_matrix.data"), (3, 3), path, "camera_matrix.data")
+    K = as_matrix(_matrix_data(d, "camera_matrix", path), (3, 3), path, "camera_matrix.data")
     dist = None
     if "distortion_coefficients" in d:
-        raw = require_numbers(require(d["distortion_coefficients"], "data", path, "distortion_coefficients."), path,
-                              "distortion_coefficients.data")
+        raw = _matrix_data(d, "distortion_coefficients", path)
         try:
             dist = np.asarray(raw, dtype=np.float64).reshape(-1)
         except (TypeError, ValueError):
@@ -304,8 +317,7 @@ def read_camera_info(path) -> CameraIntrinsics:
             raise FormatError(path, f"unsupported distortion_model {model!r} (plumb_bob or rational_polynomial)",
                               "distortion_model")
     if "rectification_matrix" in d:
-        Rr = as_matrix(require_numbers(require(d["rectification_matrix"], "data", path, "rectification_matrix."),
-                                       path, "rectification_matrix.data"), (3, 3), path, "rectification_matrix.data")
+        Rr = as_matrix(_matrix_data(d, "rectification_matrix", path), (3, 3), path, "rectification_matrix.data")
         if np.abs(Rr - np.eye(3)).max() > 1e-9:
             raise FormatError(path, "rectification_matrix is not identity (stereo-rectified camera_info is "
                                     "not a plain LiDAR->camera calibration)", "rectification_matrix")

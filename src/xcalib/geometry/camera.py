@@ -15,9 +15,9 @@ _DIST_LENGTHS = (0, 4, 5, 8, 12, 14)
 
 
 def _non_number(value, integral: bool = False):
-    """The first entry of ``value`` (a number or nested lists of numbers) that is not a number
-    (a string, a bool, null, a mapping; a non-integral or out-of-range value when ``integral``),
-    or None."""
+    """``(entry,)`` for the first entry of ``value`` (a number or nested lists of numbers) that
+    is not a number (a string, a bool, null, a mapping; a non-integral or out-of-range value when
+    ``integral``), or None."""
     if isinstance(value, (list, tuple)):
         for v in value:
             bad = _non_number(v, integral)
@@ -25,9 +25,9 @@ def _non_number(value, integral: bool = False):
                 return bad
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return value
+        return (value,)
     if integral and (not isinstance(value, int) or not 0 < value <= 1_000_000):
-        return value
+        return (value,)
     return None
 
 
@@ -205,7 +205,7 @@ class CameraIntrinsics:
                 bad = _non_number(d[key], integral=key in ("width", "height"))
                 if bad is not None:
                     raise FormatError(path, f"expected {'an integer' if key in ('width', 'height') else 'numbers'}, "
-                                            f"found {bad!r:.60} ({type(bad).__name__})", field=key)
+                                            f"found {bad[0]!r:.60} ({type(bad[0]).__name__})", field=key)
         try:
             intr = cls.from_dict(d, source="CameraIntrinsics")
             intr.check_plausible()
