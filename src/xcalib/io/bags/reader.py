@@ -17,6 +17,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -173,9 +174,9 @@ def bag_info(path) -> BagInfo:
         reader.close()
 
 
-def _messages(reader, path: Path, connections):
+def _messages(reader, path: Path, connections, start: int | None = None, stop: int | None = None):
     """rosbags' message iterator with read errors (truncated chunk, bad compression) as FormatError."""
-    it = reader.messages(connections=connections)
+    it = reader.messages(connections=connections, start=start, stop=stop)
     while True:
         try:
             item = next(it)
@@ -336,6 +337,16 @@ def _check_topic_names(types, path) -> None:
                                     "(letters, digits, _ / ~ { } . -); refusing the bag", "topic")
 
 
+@dataclass(frozen=True)
+class _Lazy:
+    """A LiDAR sweep or image not kept in memory: where to read it again (its log time, its rank
+    among the topic's messages of that log time) and its header (stamp, frame id)."""
+
+    t_log: int
+    rank: int
+    header: Any
+
+
 @dataclass
 class _Entry:
     lidar: tuple
@@ -461,7 +472,11 @@ class BagFrames(Sequence):
     def _index(self, reader) -> dict[str, list[tuple[int, object, int]]]:
         """Deserialise the chosen topics (+ tf, tf_static, xcalib's frame records): topic ->
         [(header stamp ns (log time when the header has none), message, index on the topic in
-        log order)] sorted by stamp."""
+        log order)] sorted by stamp. LiDAR sweeps and images are not kept: each is read once for
+        its header and stands as a :class:`_Lazy` (read again when its frame is asked for), so
+        memory holds one sweep at a time whatever the recording's length."""
+        lazy = {self.topics["lidar"], self.topics["image"]}
+        seen_log: dict[tuple[str, int], int] = {}
         wanted = {t for t in self.topics.values() if t}
         wanted |= {t for t, m in self._types.items() if m in TF_TYPES or (t == META_TOPIC and m == STRING)}
         cons = [c for c in reader.connections if c.topic in wanted]
@@ -475,6 +490,10 @@ class BagFrames(Sequence):
                                   con.topic) from None
             header = getattr(msg, "header", None)
             stamp = cv.stamp_ns(header, self._where(con.topic, k)) if header is not None else int(t_log)
+            if con.topic in lazy:
+                rank = seen_log.get((con.topic, int(t_log)), 0)
+                seen_log[(con.topic, int(t_log))] = rank + 1
+                msg = _Lazy(int(t_log), rank, header)
             out[con.topic].append((stamp if stamp > 0 else int(t_log), msg, k))
         for v in out.values():
             v.sort(key=lambda x: x[0])
@@ -634,6 +653,48 @@ class BagFrames(Sequence):
         return invert_transform(T_root_cam) @ T_root_lidar
 
     # ---------------------------------------------------------------- frames
+    def _load(self, topic: str, item):
+        """The message of an index entry, read again from the bag when it was not kept."""
+        msg = item[1]
+        if not isinstance(msg, _Lazy):
+            return msg
+        import os
+
+        if getattr(self, "_open", None) is None or self._open[0] != os.getpid():
+            self._open = (os.getpid(), _reader(self.path))
+        reader = self._open[1]
+        cons = [c for c in reader.connections if c.topic == topic]
+        rank = 0
+        for con, t, raw in _messages(reader, self.path, cons, msg.t_log, msg.t_log + 1):
+            if t != msg.t_log:
+                continue
+            if rank == msg.rank:
+                try:
+                    return reader.deserialize(raw, con.msgtype)
+                except Exception as exc:  # noqa: BLE001
+                    raise FormatError(self.path, f"message {item[2]} of type {con.msgtype} does not deserialise "
+                                                 f"({exc})", topic) from None
+            rank += 1
+        raise FormatError(self.path, f"message {item[2]} is no longer in the bag (changed while read?)", topic)
+
+    def close(self) -> None:
+        """Close the bag opened to read frames (reopened when another frame is asked for)."""
+        opened, self._open = getattr(self, "_open", None), None
+        if opened is not None:
+            opened[1].close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown
+            pass
+
     def _intrinsics(self, info) -> CameraIntrinsics:
         return cv.intrinsics_from_msg(info[1], self._where(self.topics["camera_info"], info[2]))
 
@@ -665,8 +726,8 @@ class BagFrames(Sequence):
 
     def _frame(self, e: _Entry) -> Frame:
         tp = self.topics
-        image = cv.image_from_msg(e.image[1], self._where(tp["image"], e.image[2]))
-        points, fields, n_bad = cv.cloud_from_msg(e.lidar[1], self._where(tp["lidar"], e.lidar[2]))
+        image = cv.image_from_msg(self._load(tp["image"], e.image), self._where(tp["image"], e.image[2]))
+        points, fields, n_bad = cv.cloud_from_msg(self._load(tp["lidar"], e.lidar), self._where(tp["lidar"], e.lidar[2]))
         if n_bad:
             log.warning("%s: %s message %d: %d of %d point(s) with NaN/Inf coordinates dropped", self.path,
                         tp["lidar"], e.lidar[2], n_bad, n_bad + len(points))
