@@ -30,7 +30,7 @@ from ...types import Frame
 from . import _convert as cv
 from ._msgs import CAMERA_INFO, COMPRESSED, DET2D, DET3D, IMAGE, POINTCLOUD2, STRING, SUPPORTED_TYPES, TF_TYPES, typestore
 
-__all__ = ["BAG_SUFFIXES", "MAX_BAG_BYTES", "check_bag_input", "is_bag", "BagTopic", "BagInfo", "bag_info",
+__all__ = ["BAG_SUFFIXES", "MAX_BAG_BYTES", "MAX_MESSAGE_BYTES", "check_bag_input", "is_bag", "BagTopic", "BagInfo", "bag_info",
            "BagCamera", "bag_cameras", "Dropped", "PairingReport",
            "BagFrames", "pair_by_time", "META_TOPIC"]
 
@@ -49,6 +49,8 @@ def is_bag(path) -> bool:
 
 #: Largest bag file read (streamed, never loaded whole): a sanity limit, not a memory one.
 MAX_BAG_BYTES = 1 << 40
+#: Largest single message decoded (a 2M-point sweep of 8 float32 fields is 64 MB).
+MAX_MESSAGE_BYTES = 512 << 20
 
 
 def check_bag_input(path: Path) -> None:
@@ -483,6 +485,9 @@ class BagFrames(Sequence):
         out: dict[str, list[tuple[int, object, int]]] = {t: [] for t in wanted}
         for con, t_log, raw in _messages(reader, self.path, cons):
             k = len(out[con.topic])
+            if len(raw) > MAX_MESSAGE_BYTES:
+                raise FormatError(self.path, f"message {k} is {len(raw)} bytes; the limit is {MAX_MESSAGE_BYTES} "
+                                             "bytes per message", con.topic)
             try:
                 msg = reader.deserialize(raw, con.msgtype)
             except Exception as exc:  # noqa: BLE001 - rosbags' deserialisation errors
