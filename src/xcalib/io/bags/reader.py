@@ -30,8 +30,8 @@ from ...types import Frame
 from . import _convert as cv
 from ._msgs import CAMERA_INFO, COMPRESSED, DET2D, DET3D, IMAGE, POINTCLOUD2, STRING, SUPPORTED_TYPES, TF_TYPES, typestore
 
-__all__ = ["BAG_SUFFIXES", "MAX_BAG_BYTES", "MAX_MESSAGE_BYTES", "check_bag_input", "is_bag", "BagTopic", "BagInfo", "bag_info",
-           "BagCamera", "bag_cameras", "Dropped", "PairingReport",
+__all__ = ["BAG_SUFFIXES", "MAX_BAG_BYTES", "MAX_MESSAGE_BYTES", "check_bag_input", "is_bag", "BagTopic", "BagInfo",
+           "bag_info", "BagCamera", "bag_cameras", "Dropped", "PairingReport",
            "BagFrames", "pair_by_time", "META_TOPIC"]
 
 log = logging.getLogger(__name__)
@@ -44,7 +44,9 @@ _IMAGE_SUFFIXES = {"image_raw", "image", "compressed", "image_color", "image_rec
 def is_bag(path) -> bool:
     """A ``.bag`` / ``.db3`` / ``.mcap`` file, or a ROS 2 bag folder (``metadata.yaml``)."""
     p = Path(path)  # any non-folder with a bag suffix: a FIFO / device is refused by the reader, not skipped
-    return (not p.is_dir() and (p.exists() or p.is_symlink()) and p.suffix.lower() in BAG_SUFFIXES) or (p.is_dir() and (p / "metadata.yaml").is_file())
+    if p.is_dir():
+        return (p / "metadata.yaml").exists() or (p / "metadata.yaml").is_symlink()
+    return (p.exists() or p.is_symlink()) and p.suffix.lower() in BAG_SUFFIXES
 
 
 #: Largest bag file read (streamed, never loaded whole): a sanity limit, not a memory one.
@@ -732,7 +734,8 @@ class BagFrames(Sequence):
     def _frame(self, e: _Entry) -> Frame:
         tp = self.topics
         image = cv.image_from_msg(self._load(tp["image"], e.image), self._where(tp["image"], e.image[2]))
-        points, fields, n_bad = cv.cloud_from_msg(self._load(tp["lidar"], e.lidar), self._where(tp["lidar"], e.lidar[2]))
+        points, fields, n_bad = cv.cloud_from_msg(self._load(tp["lidar"], e.lidar),
+                                                  self._where(tp["lidar"], e.lidar[2]))
         if n_bad:
             log.warning("%s: %s message %d: %d of %d point(s) with NaN/Inf coordinates dropped", self.path,
                         tp["lidar"], e.lidar[2], n_bad, n_bad + len(points))
