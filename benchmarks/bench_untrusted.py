@@ -1,7 +1,11 @@
 """Untrusted files and interrupted runs (issue 16): a seeded fuzz campaign over every reader, code-
-execution probes, kill -9 during every multi-file writer, and peak memory of "bomb" inputs.
+execution probes, kill -9 during every multi-file writer, and peak memory of "bomb" inputs; the
+untrusted-recording campaign (issue 31): mutated bags of all three containers, CameraInfo YAML /
+intrinsics JSON files and mmdetection3d info pickles (``tests/_bag_cases.py``), and FIFOs /
+``/dev/zero`` symlinks in the place of each bag.
 
-    PYTHONPATH=src python benchmarks/bench_untrusted.py [--cases 200] [--kills 8]
+    PYTHONPATH=src python benchmarks/bench_untrusted.py [--cases 200] [--kills 8] [--bag-cases 220]
+    PYTHONPATH=src python benchmarks/bench_untrusted.py --part recordings   # only the bag campaign
 
 Every reader case runs in a worker process (restarted after a case that hangs for more than
 ``--timeout`` s, counted as unclear). Prints one table per part and writes
@@ -352,13 +356,111 @@ def bombs() -> dict:
     return rows
 
 
+# ------------------------------------------------------------------------------ recordings
+def recordings(bag_cases: int, file_cases: int, timeout: float, max_rss_mb: float) -> dict:
+    """The issue-31 campaign: ``bag_cases`` mutated bags per container, ``file_cases`` mutated
+    CameraInfo YAML / intrinsics JSON / mmdet3d pickles, each read in a killable worker (a case
+    without an answer in ``timeout`` s is a hang, a worker past ``max_rss_mb`` a memory blow-up);
+    then a FIFO and a symlink to /dev/zero named like each container."""
+    from _bag_cases import OUTCOMES, READERS, Pool, plan
+
+    out: dict = {"readers": {}, "special_files": {}}
+    with tempfile.TemporaryDirectory() as root:
+        pool = Pool(root, REPO / "tests", ENV, timeout=timeout, max_rss_mb=max_rss_mb)
+        for reader in READERS:
+            n = bag_cases if reader in ("bag", "db3", "mcap") else file_cases
+            c: Counter = Counter()
+            by_kind: dict[str, Counter] = {}
+            examples: list[str] = []
+            peak = 0.0
+            t0 = time.perf_counter()
+            for case in plan(reader, n, "bench"):
+                outcome, detail, rss = pool.run(case)
+                peak = max(peak, rss)
+                c[outcome] += 1
+                by_kind.setdefault(case[1], Counter())[outcome] += 1
+                if outcome not in ("ok", "clear") and len(examples) < 8:
+                    examples.append(f"{case[1]} a={case[2]} b={case[3]}: {outcome}: {detail[:200]}")
+            out["readers"][reader] = {"tried": n, **{k: c[k] for k in OUTCOMES}, "worker_peak_rss_mb": round(peak, 1),
+                                      "seconds": round(time.perf_counter() - t0, 1), "examples": examples,
+                                      "by_kind": {k: dict(v) for k, v in sorted(by_kind.items())}}
+            print(f"  {reader:18s} {dict(c)}", flush=True)
+        pool.close()
+        for suffix in (".bag", ".db3", ".mcap"):
+            res = {}
+            for kind in ("fifo", "dev_zero"):
+                target = Path(root) / f"special_{kind}{suffix}"
+                os.mkfifo(target) if kind == "fifo" else target.symlink_to("/dev/zero")
+                code = ("import sys; sys.path.insert(0, 'tests'); from pathlib import Path; "
+                        "from _bag_cases import classify_bag; print(classify_bag(Path(sys.argv[1]), None)[0])")
+                try:
+                    r = subprocess.run([PY, "-c", code, str(target)], capture_output=True, text=True, timeout=timeout,
+                                       env=ENV, cwd=REPO)
+                    res[kind] = (r.stdout.strip().splitlines() or ["crash"])[-1]
+                except subprocess.TimeoutExpired:
+                    res[kind] = "hang"
+            out["special_files"][suffix] = res
+            print(f"  special {suffix:5s} {res}", flush=True)
+    tot = Counter()
+    for r in out["readers"].values():
+        tot.update({k: r[k] for k in ("tried", *OUTCOMES)})
+    bags = Counter()
+    for k in ("bag", "db3", "mcap"):
+        bags.update({o: out["readers"][k][o] for o in ("tried", *OUTCOMES)})
+    out["summary"] = {
+        "bag_inputs": bags["tried"], **{f"bag_{o}": bags[o] for o in OUTCOMES},
+        "file_inputs": tot["tried"] - bags["tried"], **{f"file_{o}": tot[o] - bags[o] for o in OUTCOMES},
+        "special_file_cases": sum(len(v) for v in out["special_files"].values()),
+        "special_file_not_clear": sum(v != "clear" for r in out["special_files"].values() for v in r.values()),
+        "max_worker_peak_rss_mb": max(r["worker_peak_rss_mb"] for r in out["readers"].values())}
+    return out
+
+
+def _print_recordings(rec: dict) -> None:
+    from _bag_cases import OUTCOMES
+
+    print(f"\n{'recording reader':18s} {'tried':>6s} " + " ".join(f"{o:>8s}" for o in OUTCOMES) + "  peak MB")
+    for name, r in rec["readers"].items():
+        print(f"{name:18s} {r['tried']:6d} " + " ".join(f"{r[o]:8d}" for o in OUTCOMES)
+              + f"  {r['worker_peak_rss_mb']:7.0f}")
+    print("special files: " + ", ".join(f"{k} {v}" for k, v in rec["special_files"].items()))
+    print("recordings summary: " + json.dumps(rec["summary"]))
+
+
 # ------------------------------------------------------------------------------------ main
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=200, help="mutated inputs per reader")
     ap.add_argument("--kills", type=int, default=8, help="kill -9 runs per multi-file output")
     ap.add_argument("--timeout", type=float, default=20.0, help="seconds before a case counts as a hang")
+    ap.add_argument("--bag-cases", type=int, default=220, help="mutated bags per container (issue 31)")
+    ap.add_argument("--file-cases", type=int, default=200,
+                    help="mutated CameraInfo YAML / intrinsics JSON / mmdet3d pickles each (issue 31)")
+    ap.add_argument("--max-rss-mb", type=float, default=1500.0, help="worker peak RSS counted as a memory blow-up")
+    ap.add_argument("--part", choices=("all", "readers", "recordings"), default="all",
+                    help="readers: the issue-16 parts; recordings: the issue-31 campaign (the other part's "
+                         "results in the JSON are kept)")
     args = ap.parse_args()
+    t0 = time.perf_counter()
+    old = json.loads(RESULTS.read_text()) if RESULTS.is_file() else {}
+    doc = dict(old)
+    if args.part in ("all", "readers"):
+        doc.update(_readers_part(args))
+    if args.part in ("all", "recordings"):
+        print("untrusted recordings (issue 31)", flush=True)
+        rec = recordings(args.bag_cases, args.file_cases, max(args.timeout, 30.0), args.max_rss_mb)
+        _print_recordings(rec)
+        doc["recordings"] = {"command": "PYTHONPATH=src python benchmarks/bench_untrusted.py --part recordings "
+                                        f"--bag-cases {args.bag_cases} --file-cases {args.file_cases}",
+                             "wall_s": round(time.perf_counter() - t0, 1), **rec}
+    doc.setdefault("benchmark", "untrusted")
+    doc["machine"] = {"python": platform.python_version(), "platform": platform.platform(), "cpus": os.cpu_count()}
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps(doc, indent=1) + "\n")
+    print(f"wrote {RESULTS.relative_to(REPO)}")
+
+
+def _readers_part(args) -> dict:
     t0 = time.perf_counter()
     print("fuzz campaign", flush=True)
     fz = fuzz(args.cases, args.timeout)
@@ -397,14 +499,10 @@ def main() -> None:
                "leftover_temp_files": sum(r["leftover_temp_after_sweep"] for r in kl.values()),
                "bomb_peak_rss_mb_max": max(r["peak_rss_mb"] for k, r in bm.items() if not k.startswith("baseline"))}
     print("\nsummary: " + json.dumps(summary))
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps({
-        "benchmark": "untrusted", "command": "PYTHONPATH=src python benchmarks/bench_untrusted.py "
-                                             f"--cases {args.cases} --kills {args.kills}",
-        "machine": {"python": platform.python_version(), "platform": platform.platform(), "cpus": os.cpu_count()},
-        "wall_s": round(time.perf_counter() - t0, 1), "summary": summary, "fuzz": fz, "special_files": sp,
-        "code_execution": ce, "kill9": kl, "bombs": bm}, indent=1) + "\n")
-    print(f"wrote {RESULTS.relative_to(REPO)}")
+    return {"command": "PYTHONPATH=src python benchmarks/bench_untrusted.py "
+                       f"--cases {args.cases} --kills {args.kills}",
+            "wall_s": round(time.perf_counter() - t0, 1), "summary": summary, "fuzz": fz, "special_files": sp,
+            "code_execution": ce, "kill9": kl, "bombs": bm}
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ import numpy as np
 from ..errors import FormatError
 from ..geometry.rotations import orthonormality_error, orthonormalize, quaternion_to_matrix
 
-__all__ = ["ROTATION_TOL", "REPAIR_TOL", "as_matrix", "checked_rotation", "checked_quaternion",
+__all__ = ["ROTATION_TOL", "REPAIR_TOL", "require_numbers", "as_matrix", "checked_rotation", "checked_quaternion",
            "require", "as_float"]
 
 #: A rotation read from a file is accepted as-is when max|R R^T - I| and |det - 1| are within this.
@@ -33,6 +33,30 @@ def require(d: dict, key: str, path, field_prefix: str = "", kind: type | None =
         raise FormatError(path, f"expected a JSON {'object' if kind is dict else 'array'}, got {type(v).__name__}",
                           f"{field_prefix}{key}")
     return v
+
+
+def require_numbers(values, path, field: str, *, integral: bool = False):
+    """``values`` (a number or nested lists of numbers) unchanged, or a FormatError naming the
+    field when an entry is a string, a bool, null or a mapping (YAML / JSON readers: ``"500"``
+    or ``true`` is not a focal length); ``integral``: non-negative integers only."""
+    def bad(v):  # (the offending value,) or None
+        if isinstance(v, (list, tuple)):
+            for x in v:
+                b = bad(x)
+                if b is not None:
+                    return b
+            return None
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            return (v,)
+        if integral and (not isinstance(v, int) or v < 0):
+            return (v,)
+        return None
+
+    b = bad(values)
+    if b is not None:
+        raise FormatError(path, f"expected {'an integer' if integral else 'numbers'}, found {b[0]!r:.60} "
+                                f"({type(b[0]).__name__})", field)
+    return values
 
 
 def as_float(value, path, field: str) -> float:

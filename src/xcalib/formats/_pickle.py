@@ -34,13 +34,26 @@ class _Restricted(pickle.Unpickler):
         return super().find_class(module, name)
 
 
-def load_pickle_restricted(path) -> Any:
-    """Load a pickle made of dicts/lists/numpy data; FormatError for anything else."""
+#: Largest info pickle read (read whole, then unpickled from memory).
+MAX_PICKLE_BYTES = 1 << 30
+
+
+def load_pickle_restricted(path, max_bytes: int = MAX_PICKLE_BYTES) -> Any:
+    """Load a pickle made of dicts/lists/numpy data; FormatError for anything else.
+
+    The file passes the special-file and size checks of every reader and is unpickled from
+    memory: a corrupted length field cannot make the unpickler allocate more than the file
+    holds (reading from a file object, ``read(n)`` reserves the ``n`` bytes a length claims)."""
+    import io
+
+    from ..io._files import read_bytes
+
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"pickle not found: {path}")
+    data = read_bytes(path, max_bytes=max_bytes, what="pickle")
     try:
-        with open(path, "rb") as fh:
-            return _Restricted(fh, encoding="latin1").load()
-    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, ValueError, TypeError) as exc:
-        raise FormatError(path, f"not a plain-data pickle ({exc})") from None
+        return _Restricted(io.BytesIO(data), encoding="latin1").load()
+    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, ValueError, TypeError, KeyError,
+            IndexError, OverflowError, RecursionError, MemoryError, UnicodeDecodeError) as exc:
+        raise FormatError(path, f"not a plain-data pickle ({type(exc).__name__}: {str(exc)[:160]})") from None

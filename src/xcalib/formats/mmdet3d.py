@@ -87,12 +87,24 @@ def _find(name: str | None, roots: list[Path], subdirs: tuple[str, ...], exts: t
     return None
 
 
+def _check_box7(b: np.ndarray, path: Path, where: str) -> None:
+    if not np.all(np.isfinite(b)):
+        raise FormatError(path, "NaN/Inf in bbox_3d", where)
+    if len(b) and (np.any(b[:, 3:6] <= 0) or np.abs(b[:, :6]).max() > 1e4):
+        raise FormatError(path, "bbox_3d sizes must be > 0 and values within 1e4 m", where)
+
+
+def _check_boxes2d(b: np.ndarray, path: Path, where: str) -> None:
+    if not np.all(np.isfinite(b)) or (b.size and np.abs(b).max() > 1e6):
+        raise FormatError(path, "NaN/Inf or values beyond 1e6 px in bbox", where)
+    if len(b) and np.any(b[:, 2:] < b[:, :2]):
+        raise FormatError(path, "inverted 2D bbox (need x1 <= x2, y1 <= y2)", where)
+
+
 def _cam_calib(cam: dict, path: Path, where: str) -> tuple[CameraIntrinsics, np.ndarray]:
-    M = np.asarray(cam.get("cam2img", []), dtype=np.float64)
-    if M.size == 9:
-        M = np.hstack([M.reshape(3, 3), np.zeros((3, 1))])
-    else:
-        M = as_matrix(M, (3, 4), path, where + ".cam2img", alt_shapes=[(4, 4)])
+    M = as_matrix(cam.get("cam2img", []), (3, 4), path, where + ".cam2img", alt_shapes=[(4, 4)]) \
+        if np.size(cam.get("cam2img", [])) != 9 else np.hstack([as_matrix(cam["cam2img"], (3, 3), path,
+                                                                         where + ".cam2img"), np.zeros((3, 1))])
     L = as_matrix(cam.get("lidar2cam", []), (4, 4), path, where + ".lidar2cam")
     R = checked_rotation(L[:3, :3], path, where + ".lidar2cam")
     K = M[:, :3]
@@ -100,8 +112,11 @@ def _cam_calib(cam: dict, path: Path, where: str) -> tuple[CameraIntrinsics, np.
     T = make_transform(np.eye(3), off) @ make_transform(R, L[:3, 3])
     try:
         intr = CameraIntrinsics.from_matrix(K, width=cam.get("width"), height=cam.get("height"))
+        intr.check_plausible()
     except (TypeError, ValueError) as exc:
         raise FormatError(path, str(exc), where + ".cam2img") from None
+    if not np.all(np.isfinite(T)) or np.abs(T[:3, 3]).max() > 1e4:
+        raise FormatError(path, "lidar2cam translation / cam2img offset not finite or beyond 1e4 m", where)
     return intr, T
 
 
@@ -110,12 +125,38 @@ def read_mmdet3d_infos(path, data_root=None) -> list[InfoSample]:
 
     Files are looked up under ``data_root`` and next to the pickle. Each camera's 2D boxes come
     from ``cam_instances`` and are tied to the LiDAR boxes by their 3D centre (they are the same
-    boxes expressed in the camera frame; tolerance 1 cm)."""
+    boxes expressed in the camera frame; tolerance 1 cm). Every value read is checked (finite
+    boxes with positive sizes, rigid extrinsics, plausible intrinsics); a malformed info is a
+    FormatError naming the file and the sample."""
     path = Path(path)
     d = load_pickle_restricted(path)
-    if not isinstance(d, dict) or "data_list" not in d:
-        raise FormatError(path, "expected an mmdetection3d v1.x info dict with 'data_list'", "data_list")
+    if not isinstance(d, dict) or "data_list" not in d or not isinstance(d["data_list"], (list, tuple)):
+        raise FormatError(path, "expected an mmdetection3d v1.x info dict with a 'data_list' list", "data_list")
+    state = {"where": "metainfo"}
+    try:
+        return _read_infos(d, path, data_root, state)
+    except FormatError:
+        raise
+    except (TypeError, KeyError, AttributeError, IndexError, ValueError, OverflowError, ZeroDivisionError,
+            np.linalg.LinAlgError) as exc:
+        raise FormatError(path, f"malformed info ({type(exc).__name__}: {str(exc)[:120]})", state["where"]) from None
+
+
+def _checked(info, key: str, kind, path, where: str, default):
+    """``info[key]`` of type ``kind`` (``default`` when absent or None)."""
+    v = info.get(key)
+    if v is None:
+        return default
+    if not isinstance(v, kind):
+        raise FormatError(path, f"expected {getattr(kind, '__name__', kind)}, got {type(v).__name__}",
+                          f"{where}.{key}")
+    return v
+
+
+def _read_infos(d: dict, path: Path, data_root, state: dict) -> list[InfoSample]:
     meta = d.get("metainfo", {}) or {}
+    if not isinstance(meta, dict):
+        raise FormatError(path, f"expected a mapping, got {type(meta).__name__}", "metainfo")
     dataset = str(meta.get("dataset", meta.get("DATASET", ""))).lower()
     if dataset == "kitti":
         raise FormatError(path, "KITTI infos hold camera-frame boxes: read them with xcalib.formats.kitti "
@@ -129,23 +170,36 @@ def read_mmdet3d_infos(path, data_root=None) -> list[InfoSample]:
     out = []
     for si, info in enumerate(d["data_list"]):
         where = f"data_list[{si}]"
-        insts = info.get("instances", []) or []
+        state["where"] = where
+        if not isinstance(info, dict):
+            raise FormatError(path, f"expected a mapping, got {type(info).__name__}", where)
+        insts = _checked(info, "instances", (list, tuple), path, where, [])
         try:
-            b = np.array([[float(v) for v in i["bbox_3d"]] for i in insts], dtype=np.float64).reshape(-1, 7)
-        except (KeyError, TypeError, ValueError):
+            b = np.array([[float(v) for v in i["bbox_3d"]] for i in insts], dtype=np.float64)
+            if b.size == 0:
+                b = b.reshape(0, 7)
+            if b.ndim != 2 or b.shape[1] != 7:
+                raise ValueError
+        except (KeyError, TypeError, ValueError, IndexError):
             raise FormatError(path, "instances need bbox_3d with 7 numbers", where + ".instances") from None
+        _check_box7(b, path, where + ".instances")
         b[:, 2] += (0.5 - z0) * b[:, 5]
         labels = np.array([int(i.get("bbox_label_3d", i.get("bbox_label", -1))) for i in insts], dtype=np.int64)
         lp = info.get("lidar_points", {}) or {}
         nfeat = int(lp.get("num_pts_feats", 4))
+        if not 3 <= nfeat <= 64:
+            raise FormatError(path, f"num_pts_feats {nfeat} outside 3..64", where + ".lidar_points.num_pts_feats")
         lidar = _find(lp.get("lidar_path"), roots, ("velodyne",), (".bin",))
         cams: dict[str, InfoCamera] = {}
-        for name, cam in (info.get("images", {}) or {}).items():
+        for name, cam in _checked(info, "images", dict, path, where, {}).items():
             if not isinstance(cam, dict) or "lidar2cam" not in cam:
                 continue
+            state["where"] = f"{where}.images.{name}"
             intr, T = _cam_calib(cam, path, f"{where}.images.{name}")
-            ci = (info.get("cam_instances", {}) or {}).get(name, []) or []
+            ci = _checked(info, "cam_instances", dict, path, where, {}).get(name, []) or []
+            state["where"] = f"{where}.cam_instances.{name}"
             b2 = np.array([[float(v) for v in c["bbox"]] for c in ci], dtype=np.float64).reshape(-1, 4)
+            _check_boxes2d(b2, path, f"{where}.cam_instances.{name}")
             idx = np.full(len(ci), -1, dtype=np.int64)
             cls2d = [names.get(int(c.get("bbox_label", -1)), str(c.get("bbox_label", ""))) for c in ci]
             if len(ci) and len(b):

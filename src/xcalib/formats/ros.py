@@ -30,7 +30,7 @@ from ..geometry.camera import CameraIntrinsics
 from ..geometry.rotations import matrix_to_quaternion
 from ..geometry.transforms import invert_transform, make_transform
 from ..io._files import MAX_TEXT_BYTES, atomic_write, read_text
-from ._checks import as_float, as_matrix, checked_quaternion, require
+from ._checks import as_float, as_matrix, checked_quaternion, require, require_numbers
 from ._result import calibration_record, require_intrinsics
 
 __all__ = ["camera_info_dict", "camera_info_size", "static_transform_dict", "write_ros", "read_ros", "read_camera_info",
@@ -359,15 +359,29 @@ def _load_yaml(path: Path) -> dict:
     return d
 
 
+def _matrix_data(d: dict, key: str, path: Path) -> list:
+    """``d[key]["data"]``, all numbers, as many as the matrix's ``rows`` x ``cols`` say (a number
+    dropped or added is a FormatError, not a shifted matrix)."""
+    m = require(d, key, path)
+    data = require_numbers(require(m, "data", path, key + "."), path, key + ".data")
+    if not isinstance(data, list):
+        raise FormatError(path, f"expected a list of numbers, got {type(data).__name__}", key + ".data")
+    if isinstance(m, dict) and ("rows" in m or "cols" in m):
+        rows = require_numbers(require(m, "rows", path, key + "."), path, key + ".rows", integral=True)
+        cols = require_numbers(require(m, "cols", path, key + "."), path, key + ".cols", integral=True)
+        if rows * cols != len(data):
+            raise FormatError(path, f"{rows} x {cols} matrix holds {len(data)} numbers", key + ".data")
+    return data
+
+
 def read_camera_info(path) -> CameraIntrinsics:
     """Intrinsics from a ``camera_info`` YAML (camera_matrix; a non-trivial rectification is refused)."""
     path = Path(path)
     d = _load_yaml(path)
-    K = as_matrix(require(require(d, "camera_matrix", path), "data", path, "camera_matrix."), (3, 3), path,
-                  "camera_matrix.data")
+    K = as_matrix(_matrix_data(d, "camera_matrix", path), (3, 3), path, "camera_matrix.data")
     dist = None
     if "distortion_coefficients" in d:
-        raw = require(d["distortion_coefficients"], "data", path, "distortion_coefficients.")
+        raw = _matrix_data(d, "distortion_coefficients", path)
         try:
             dist = np.asarray(raw, dtype=np.float64).reshape(-1)
         except (TypeError, ValueError):
@@ -378,13 +392,18 @@ def read_camera_info(path) -> CameraIntrinsics:
             raise FormatError(path, f"unsupported distortion_model {model!r} (plumb_bob or rational_polynomial)",
                               "distortion_model")
     if "rectification_matrix" in d:
-        Rr = as_matrix(require(d["rectification_matrix"], "data", path, "rectification_matrix."), (3, 3), path,
-                       "rectification_matrix.data")
+        Rr = as_matrix(_matrix_data(d, "rectification_matrix", path), (3, 3), path, "rectification_matrix.data")
         if np.abs(Rr - np.eye(3)).max() > 1e-9:
             raise FormatError(path, "rectification_matrix is not identity (stereo-rectified camera_info is "
                                     "not a plain LiDAR->camera calibration)", "rectification_matrix")
+    for key in ("image_width", "image_height"):
+        if d.get(key) is not None:
+            require_numbers(d[key], path, key, integral=True)
     try:
-        return CameraIntrinsics.from_matrix(K, dist, width=d.get("image_width"), height=d.get("image_height"))
+        intr = CameraIntrinsics.from_matrix(K, dist, width=d.get("image_width") or None,
+                                            height=d.get("image_height") or None)
+        intr.check_plausible()
+        return intr
     except (TypeError, ValueError) as exc:
         raise FormatError(path, str(exc), "camera_matrix") from None
 

@@ -14,6 +14,23 @@ __all__ = ["CameraIntrinsics"]
 _DIST_LENGTHS = (0, 4, 5, 8, 12, 14)
 
 
+def _non_number(value, integral: bool = False):
+    """``(entry,)`` for the first entry of ``value`` (a number or nested lists of numbers) that
+    is not a number (a string, a bool, null, a mapping; a non-integral or out-of-range value when
+    ``integral``), or None."""
+    if isinstance(value, (list, tuple)):
+        for v in value:
+            bad = _non_number(v, integral)
+            if bad is not None:
+                return bad
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return (value,)
+    if integral and (not isinstance(value, int) or not 0 < value <= 1_000_000):
+        return (value,)
+    return None
+
+
 @dataclass(frozen=True)
 class CameraIntrinsics:
     """Camera intrinsics in pixels.
@@ -91,7 +108,50 @@ class CameraIntrinsics:
         K = np.asarray(K, dtype=np.float64)
         if K.shape != (3, 3):
             raise ValueError(f"CameraIntrinsics.from_matrix: K must be 3x3, got shape {K.shape}")
+        if not np.all(np.isfinite(K)):
+            raise ValueError(f"CameraIntrinsics.from_matrix: K has NaN/Inf entries: {K.tolist()}")
+        scale = max(abs(K[0, 0]), abs(K[1, 1]), 1.0)
+        if abs(K[0, 1]) > 1e-6 * scale or abs(K[1, 0]) > 1e-6 * scale or np.abs(K[2] - [0, 0, 1]).max() > 1e-6:
+            raise ValueError("CameraIntrinsics.from_matrix: K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] "
+                             f"(no skew, K[2,2] = 1), got {K.tolist()}")
         return cls(K[0, 0], K[1, 1], K[0, 2], K[1, 2], distortion, width, height)
+
+    def check_plausible(self, width: int | None = None, height: int | None = None) -> None:
+        """Raise ValueError when these intrinsics cannot be a real camera's for a ``width`` x
+        ``height`` image (default: their own size): focal lengths below 1 px, outside 1/50..100x
+        the image's larger side or with fx/fy beyond 4; distortion coefficients beyond 1e3, or a
+        radial distortion factor outside 0.1..10 within the image (e.g. k1 = 1e6)."""
+        w, h = width or self.width, height or self.height
+        if min(self.fx, self.fy) < 1.0:
+            raise ValueError(f"CameraIntrinsics: focal lengths fx={self.fx:g}, fy={self.fy:g} px are below 1 px")
+        if not 0.25 <= self.fx / self.fy <= 4.0:
+            raise ValueError(f"CameraIntrinsics: fx/fy = {self.fx / self.fy:.3g} (fx={self.fx:g}, fy={self.fy:g}); "
+                             "pixels are not that far from square")
+        if w and h:
+            side = float(max(w, h))
+            for name in ("fx", "fy"):
+                v = getattr(self, name)
+                if not side / 50 <= v <= side * 100:
+                    raise ValueError(f"CameraIntrinsics.{name} = {v:g} px is implausible for a {w}x{h} image "
+                                     f"(expected {side / 50:g}..{side * 100:g})")
+        if self.distortion is None:
+            return
+        d = np.asarray(self.distortion, dtype=np.float64)
+        if np.abs(d).max() > 1e3:
+            raise ValueError(f"CameraIntrinsics.distortion: coefficients {d.tolist()} beyond 1e3 are absurd")
+        if not (w and h):
+            return
+        k = np.zeros(8)
+        k[:min(d.size, 8)] = d[:8]
+        r_max = max(max(self.cx, w - self.cx) / self.fx, max(self.cy, h - self.cy) / self.fy)
+        r2 = np.linspace(0.0, r_max, 33) ** 2
+        num = 1 + k[0] * r2 + k[1] * r2 ** 2 + k[4] * r2 ** 3
+        den = 1 + k[5] * r2 + k[6] * r2 ** 2 + k[7] * r2 ** 3
+        with np.errstate(all="ignore"):
+            f = num / den
+        if not np.all(np.isfinite(f)) or f.min() < 0.1 or f.max() > 10:
+            raise ValueError(f"CameraIntrinsics.distortion: {d.tolist()} scales radii by {np.nanmin(f):.3g}.."
+                             f"{np.nanmax(f):.3g} within the {w}x{h} image (expected 0.1..10): absurd coefficients")
 
     @classmethod
     def from_dict(cls, d: dict, *, source: str = "intrinsics") -> "CameraIntrinsics":
@@ -109,13 +169,23 @@ class CameraIntrinsics:
         """Read a JSON file like ``{"fx":..,"fy":..,"cx":..,"cy":..,"distortion":[..]}``."""
         from ..errors import FormatError
 
+        import os
+        import stat
+
+        from ..errors import FormatError
+
         path = Path(path)
-        if not path.is_file():
+        if not path.exists():
             raise FileNotFoundError(f"intrinsics file not found: {path}")
+        st = os.stat(path)  # the geometry layer cannot use io._files: the same checks, inline
+        if not stat.S_ISREG(st.st_mode):
+            raise FormatError(path, "refusing to read a FIFO, device or folder; expected a regular intrinsics file")
+        if st.st_size > 1 << 20:
+            raise FormatError(path, f"intrinsics file is {st.st_size} bytes; the limit is {1 << 20} bytes")
         try:
-            d = json.loads(path.read_text(encoding="utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise FormatError(path, f"not valid JSON ({exc})") from None
+            d = json.loads(path.read_bytes()[: (1 << 20) + 1].decode("utf-8"))
+        except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+            raise FormatError(path, f"not valid JSON ({type(exc).__name__}: {str(exc)[:120]})") from None
         return cls.from_json_object(d, path)
 
     @classmethod
@@ -130,8 +200,16 @@ class CameraIntrinsics:
         if missing and "K" not in d:
             raise FormatError(path, f"missing key; expected fx, fy, cx, cy (pixels) or K [3,3], found {sorted(d)}",
                               field=missing[0])
+        for key in ("fx", "fy", "cx", "cy", "K", "distortion", "width", "height"):
+            if key in d and not (key == "distortion" and d[key] is None):
+                bad = _non_number(d[key], integral=key in ("width", "height"))
+                if bad is not None:
+                    raise FormatError(path, f"expected {'an integer' if key in ('width', 'height') else 'numbers'}, "
+                                            f"found {bad[0]!r:.60} ({type(bad[0]).__name__})", field=key)
         try:
-            return cls.from_dict(d, source="CameraIntrinsics")
+            intr = cls.from_dict(d, source="CameraIntrinsics")
+            intr.check_plausible()
+            return intr
         except (TypeError, ValueError, OverflowError) as exc:
             raise FormatError(path, str(exc)) from None
 

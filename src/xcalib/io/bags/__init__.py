@@ -17,6 +17,7 @@ from .reader import (  # noqa: F401
     BagTopic,
     Dropped,
     PairingReport,
+    bag_cameras,
     bag_info,
     is_bag,
     pair_by_time,
@@ -24,7 +25,7 @@ from .reader import (  # noqa: F401
 from .writer import topic_name, write_bag  # noqa: F401
 
 __all__ = ["BAG_SUFFIXES", "META_TOPIC", "BagCamera", "BagFrames", "BagInfo", "BagTopic", "Dropped", "PairingReport",
-           "bag_info", "is_bag", "pair_by_time", "topic_name", "write_bag"]
+           "bag_cameras", "bag_info", "is_bag", "pair_by_time", "topic_name", "write_bag"]
 
 
 def _register() -> None:

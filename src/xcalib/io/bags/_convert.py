@@ -23,15 +23,25 @@ _PF_CODES = {v: k for k, v in _PF_DTYPES.items()}
 _DIST_MODELS = {"plumb_bob": (4, 5), "rational_polynomial": (8, 12, 14)}
 
 
-def _err(where, problem: str) -> FormatError:
-    """``where`` = (bag path, topic): the error names both."""
-    return FormatError(where[0], problem, field=where[1])
+def _err(where, problem: str, fld: str | None = None) -> FormatError:
+    """``where`` = (bag path, topic[, message index]): the error names the bag, the topic, the
+    message (its index on the topic, in log order) and the message field ``fld``."""
+    at = []
+    if len(where) > 2 and where[2] is not None:
+        at.append(f"message {where[2]}")
+    if fld:
+        at.append(f"field {fld}")
+    return FormatError(where[0], (", ".join(at) + ": " if at else "") + problem, field=where[1])
 
 
-def stamp_ns(header) -> int:
-    """A header's stamp in integer nanoseconds."""
+def stamp_ns(header, where=None) -> int:
+    """A header's stamp in integer nanoseconds (``where``: a nanosecond part outside
+    0..999999999 is a FormatError)."""
     st = header.stamp
-    return int(st.sec) * 1_000_000_000 + int(st.nanosec)
+    ns = int(st.nanosec)
+    if where is not None and not 0 <= ns < 1_000_000_000:
+        raise _err(where, f"stamp nanoseconds {ns} outside 0..999999999", "header.stamp.nanosec")
+    return int(st.sec) * 1_000_000_000 + ns
 
 
 def make_header(store, stamp: int, frame_id: str):
@@ -45,45 +55,94 @@ def make_header(store, stamp: int, frame_id: str):
 
 # ----------------------------------------------------------------------------- PointCloud2
 def _cloud_dtype(msg, where) -> np.dtype:
-    names, formats, offsets = [], [], []
+    """The numpy record type a PointCloud2's fields declare, each field checked against the
+    point: known datatype, count >= 1, inside ``point_step``, no two fields sharing bytes, x/y/z
+    floating point and present once."""
+    names, formats, offsets, spans = [], [], [], []
     endian = ">" if msg.is_bigendian else "<"
-    for f in msg.fields:
+    step = int(msg.point_step)
+    if step <= 0 or step > 1 << 16:
+        raise _err(where, f"point_step {step} outside 1..65536", "point_step")
+    for k, f in enumerate(msg.fields):
+        fname = str(f.name)
         code = _PF_DTYPES.get(int(f.datatype))
         if code is None:
-            raise _err(where, f"field {f.name!r} has unknown PointField datatype {f.datatype}")
+            raise _err(where, f"field {fname!r} has unknown PointField datatype {f.datatype}", f"fields[{k}].datatype")
         size = np.dtype(code).itemsize
-        count = max(1, int(f.count))
+        off, count = int(f.offset), int(f.count)
+        if count < 0 or count * size > step:
+            raise _err(where, f"field {fname!r} count {count} does not fit point_step {step}", f"fields[{k}].count")
+        count = max(1, count)
+        if off < 0 or off + count * size > step:
+            raise _err(where, f"field {fname!r} ({count} x {size} bytes at offset {off}) ends past point_step "
+                              f"{step}", f"fields[{k}].offset")
+        for lo, hi, other in spans:
+            if off < hi and lo < off + count * size:
+                raise _err(where, f"field {fname!r} (bytes {off}-{off + count * size - 1}) overlaps field "
+                                  f"{other!r} (bytes {lo}-{hi - 1})", f"fields[{k}].offset")
+        spans.append((off, off + count * size, fname))
+        if fname in ("x", "y", "z"):
+            if fname in names:
+                raise _err(where, f"field {fname!r} declared twice", f"fields[{k}].name")
+            if code not in ("f4", "f8") or count != 1:
+                raise _err(where, f"coordinate field {fname!r} must be one FLOAT32 or FLOAT64, got datatype "
+                                  f"{f.datatype} x {count}", f"fields[{k}].datatype")
         for c in range(count):
-            name = f.name if count == 1 else f"{f.name}_{c}"
+            name = fname if count == 1 else f"{fname}_{c}"
             if not name or name in names:
-                continue  # unnamed padding or a repeated name: skipped
+                continue  # unnamed padding or a repeated (non-coordinate) name: skipped
             names.append(name)
             formats.append(endian + code)
-            offsets.append(int(f.offset) + c * size)
-            if offsets[-1] + size > int(msg.point_step):
-                raise _err(where, f"field {name!r} ends at byte {offsets[-1] + size}, past point_step "
-                                          f"{msg.point_step}")
+            offsets.append(off + c * size)
     missing = [a for a in "xyz" if a not in names]
     if missing:
-        raise _err(where, f"PointCloud2 has no field(s) {missing}; fields: {names}")
-    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": int(msg.point_step)})
+        raise _err(where, f"PointCloud2 has no field(s) {missing}; fields: {names}", "fields")
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
+
+
+#: Points farther than this are refused as corrupt (a wrong layout or endianness), as other readers do.
+MAX_COORD_M = 1.0e5
 
 
 def cloud_from_msg(msg, where) -> tuple[np.ndarray, tuple[str, ...], int]:
     """PointCloud2 (any field layout and endianness, organised or not, point and row padding) ->
-    ``(points float32 [N, C] with x, y, z first, field names, number of non-finite points dropped)``."""
+    ``(points float32 [N, C] with x, y, z first, field names, number of non-finite points dropped)``.
+
+    Every field the decoding relies on is checked against the data: the layout (see
+    ``_cloud_dtype``), ``row_step`` >= ``width * point_step``, ``height * row_step`` == the data
+    length, and the coordinates: beyond ``MAX_COORD_M`` or denormal-small (data of the other
+    endianness than ``is_bigendian`` says) is a FormatError; NaN / Inf points are dropped and
+    counted."""
     dt = _cloud_dtype(msg, where)
     h, w, step, row = int(msg.height), int(msg.width), int(msg.point_step), int(msg.row_step)
     data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
-    if row < w * step or data.size < h * row:
+    if h < 0 or w < 0:
+        raise _err(where, f"height {h} / width {w} negative", "height")
+    if row < w * step:
+        raise _err(where, f"row_step {row} is less than width {w} x point_step {step}: does not fit",
+                   "row_step")
+    if data.size != h * row:
         raise _err(where, f"PointCloud2 data has {data.size} bytes; height {h} x row_step {row} "
-                                  f"(width {w} x point_step {step}) does not fit")
-    rows = data[: h * row].reshape(h, row)[:, : w * step]
+                          f"(width {w} x point_step {step}) = {h * row} bytes does not fit", "data")
+    rows = data.reshape(h, row)[:, : w * step] if h * row else np.zeros((h, 0), np.uint8)
     arr = np.ascontiguousarray(rows).reshape(-1).view(dt) if h * w else np.zeros(0, dt)
     names = ["x", "y", "z"] + [n for n in dt.names if n not in ("x", "y", "z")]
-    pts = np.stack([arr[n].astype(np.float32) for n in names], axis=1) if len(arr) else np.zeros((0, len(names)), np.float32)
-    finite = np.isfinite(pts[:, :3]).all(axis=1)
-    return np.ascontiguousarray(pts[finite]), tuple(names), int((~finite).sum())
+    xyz = np.stack([arr[n].astype(np.float64) for n in "xyz"], axis=1) if len(arr) else np.zeros((0, 3))
+    finite = np.isfinite(xyz).all(axis=1)
+    good = xyz[finite]
+    if good.size:
+        big = np.abs(good).max()
+        if big > MAX_COORD_M:
+            raise _err(where, f"coordinates up to {big:.3g} m (> {MAX_COORD_M:g} m): corrupt data, a wrong "
+                              f"field layout or is_bigendian={bool(msg.is_bigendian)} wrong", "data")
+        nz = good[good != 0]
+        if nz.size and np.mean(np.abs(nz) < 1e-30) > 0.5:
+            raise _err(where, f"most coordinates are below 1e-30 m: the data are not of the endianness "
+                              f"is_bigendian={bool(msg.is_bigendian)} declares (or the layout is wrong)",
+                       "is_bigendian")
+    pts = np.stack([arr[n][finite].astype(np.float32) for n in names], axis=1) if len(arr) \
+        else np.zeros((0, len(names)), np.float32)
+    return np.ascontiguousarray(pts), tuple(names), int((~finite).sum())
 
 
 def make_pointcloud2(store, points, fields, stamp: int, frame_id: str, *, datatypes=None, big_endian: bool = False,
@@ -227,35 +286,52 @@ def camera_model_from_msg(msg, where) -> CameraIntrinsics | Fisheye:
     D = _field(msg, "d", "D")
     R = _field(msg, "r", "R")
     model = str(msg.distortion_model or "plumb_bob")
-    if K.size != 9 or K[0] <= 0 or K[4] <= 0:
-        raise _err(where, f"CameraInfo K is not a calibrated 3x3 matrix ({K.tolist()}); pass --intrinsics")
+    if K.size != 9 or not np.all(np.isfinite(K)) or K[0] <= 0 or K[4] <= 0:
+        raise _err(where, f"CameraInfo K is not a calibrated 3x3 matrix ({K.tolist()}); pass --intrinsics", "k")
+    if abs(K[1]) > 1e-6 * K[0] or K[3] != 0 or K[6] != 0 or K[7] != 0 or abs(K[8] - 1) > 1e-9:
+        raise _err(where, f"CameraInfo K must be [fx 0 cx; 0 fy cy; 0 0 1] (no skew, K[8] = 1), got {K.tolist()}",
+                   "k")
     if model not in _DIST_MODELS and model != "equidistant":
         raise _err(where, f"unsupported distortion_model {model!r}; supported: plumb_bob, rational_polynomial, "
-                          "equidistant")
+                          "equidistant", "distortion_model")
+    if not np.all(np.isfinite(D)):
+        raise _err(where, f"distortion coefficients are not finite: {D.tolist()}", "d")
+    if R.size not in (0, 9) or not np.all(np.isfinite(R)):
+        raise _err(where, f"R (rectification) must be 9 finite numbers, got {R.tolist()}", "r")
     if R.size == 9 and np.abs(R.reshape(3, 3) - np.eye(3)).max() > 1e-9 and np.any(R):
         raise _err(where, "CameraInfo R (rectification) is not identity: a stereo-rectified camera_info is "
-                          "not a plain camera calibration")
+                          "not a plain camera calibration", "r")
     w, h = int(msg.width), int(msg.height)
+    if not (0 <= w <= 100_000 and 0 <= h <= 100_000) or (w == 0) != (h == 0):
+        raise _err(where, f"image size {w}x{h} is not a camera's", "width")
     if model == "equidistant":
         return _fisheye(K, D, w, h, where)
     dist = D if D.size and np.any(D) else None
     if dist is not None and dist.size not in _DIST_MODELS[model] and dist.size != 5:
-        raise _err(where, f"{model} with {dist.size} coefficients; expected {_DIST_MODELS[model]}")
+        raise _err(where, f"{model} with {dist.size} coefficients; expected {_DIST_MODELS[model]}", "d")
     try:
-        return CameraIntrinsics(K[0], K[4], K[2], K[5], dist, w or None, h or None)
+        intr = CameraIntrinsics(K[0], K[4], K[2], K[5], dist, w or None, h or None)
+        intr.check_plausible()
     except ValueError as exc:
-        raise _err(where, str(exc)) from None
+        raise _err(where, str(exc), "k" if "distortion" not in str(exc) else "d") from None
+    return intr
 
 
 def _fisheye(K, D, w: int, h: int, where) -> Fisheye:
     import cv2
 
-    if D.size != 4 or not np.all(np.isfinite(D)):
-        raise _err(where, f"equidistant needs 4 finite coefficients k1-k4, got {D.tolist()}")
+    if D.size != 4 or not np.all(np.isfinite(D)) or np.abs(D).max() > 1e3:
+        raise _err(where, f"equidistant needs 4 finite coefficients k1-k4 (|k| <= 1e3), got {D.tolist()}", "d")
     if w <= 0 or h <= 0:
-        raise _err(where, "equidistant CameraInfo needs width and height (the images are rectified)")
+        raise _err(where, "equidistant CameraInfo needs width and height (the images are rectified)", "width")
+    try:
+        CameraIntrinsics(K[0], K[4], K[2], K[5], None, w, h).check_plausible()
+    except ValueError as exc:
+        raise _err(where, str(exc), "k") from None
     Km = K.reshape(3, 3)
     K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(Km, D, (w, h), np.eye(3), balance=0.0)
+    if not np.all(np.isfinite(K_new)) or K_new[0, 0] <= 0 or K_new[1, 1] <= 0:
+        raise _err(where, f"equidistant coefficients {D.tolist()} give no usable rectified camera", "d")
     return Fisheye(Km, D.astype(np.float64), (w, h), np.asarray(K_new, dtype=np.float64))
 
 
@@ -282,13 +358,22 @@ def make_camera_info(store, intr: CameraIntrinsics, stamp: int, frame_id: str, w
 
 
 # ----------------------------------------------------------------------------- detections
-def boxes2d_from_msg(msg) -> tuple[np.ndarray, list[str]]:
-    """Detection2DArray (ROS 1 or ROS 2 layout) -> ``(boxes [K, 4] x1 y1 x2 y2 float32, ids)``."""
+def boxes2d_from_msg(msg, where=None) -> tuple[np.ndarray, list[str]]:
+    """Detection2DArray (ROS 1 or ROS 2 layout) -> ``(boxes [K, 4] x1 y1 x2 y2 float32, ids)``;
+    non-finite centres / sizes and negative sizes are a FormatError (``where``: bag, topic,
+    message index)."""
     rows, ids = [], []
-    for det in msg.detections:
+    for i, det in enumerate(msg.detections):
         c = det.bbox.center
         cx, cy = (c.position.x, c.position.y) if hasattr(c, "position") else (c.x, c.y)
         sx, sy = float(det.bbox.size_x), float(det.bbox.size_y)
+        v = np.array([cx, cy, sx, sy], dtype=np.float64)
+        if where is not None:
+            if not np.all(np.isfinite(v)) or np.abs(v).max() > 1e6:
+                raise _err(where, f"detection {i}: bbox center/size {v.tolist()} not finite or beyond 1e6 px",
+                           f"detections[{i}].bbox")
+            if sx < 0 or sy < 0:
+                raise _err(where, f"detection {i}: negative bbox size ({sx:g}, {sy:g})", f"detections[{i}].bbox.size")
         rows.append([cx - sx / 2, cy - sy / 2, cx + sx / 2, cy + sy / 2])
         ids.append(str(getattr(det, "id", "")))
     return np.asarray(rows, dtype=np.float64).reshape(-1, 4).astype(np.float32), ids
@@ -315,22 +400,41 @@ def make_detection2d_array(store, boxes, stamp: int, frame_id: str, ids=None):
     return T["vision_msgs/msg/Detection2DArray"](header=hdr, detections=dets)
 
 
+#: 3D box centres farther than this (metres) are refused as corrupt.
+MAX_BOX_CENTER_M = 1.0e4
+
+
 def boxes3d_from_msg(msg, where, max_tilt_deg: float = 1.0) -> tuple[np.ndarray, list[str]]:
     """Detection3DArray -> ``(box7 [M, 7] float64 (cx, cy, cz, l, w, h, yaw), ids)``; boxes turned
-    about x or y by more than ``max_tilt_deg`` are refused (xcalib's boxes turn about z only)."""
+    about x or y by more than ``max_tilt_deg`` are refused (xcalib's boxes turn about z only), so
+    are non-finite values, sizes <= 0, centres beyond ``MAX_BOX_CENTER_M`` and orientations that
+    are no rotation (NaN, zero or a norm far from 1)."""
     rows, ids = [], []
     for i, det in enumerate(msg.detections):
         p, q, s = det.bbox.center.position, det.bbox.center.orientation, det.bbox.size
+        pos = np.array([p.x, p.y, p.z], dtype=np.float64)
+        size = np.array([s.x, s.y, s.z], dtype=np.float64)
         qv = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
-        n = np.linalg.norm(qv)
-        qv = qv / n if n > 0 else np.array([0.0, 0.0, 0.0, 1.0])
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(size))):
+            raise _err(where, f"detection {i}: non-finite centre {pos.tolist()} or size {size.tolist()}",
+                       f"detections[{i}].bbox")
+        if np.any(size <= 0):
+            raise _err(where, f"detection {i}: box size {size.tolist()} must be > 0", f"detections[{i}].bbox.size")
+        if np.abs(pos).max() > MAX_BOX_CENTER_M or size.max() > MAX_BOX_CENTER_M:
+            raise _err(where, f"detection {i}: centre {pos.tolist()} / size beyond {MAX_BOX_CENTER_M:g} m",
+                       f"detections[{i}].bbox.center")
+        n = np.linalg.norm(qv) if np.all(np.isfinite(qv)) else np.nan
+        if not np.isfinite(n) or abs(n - 1.0) > 0.1:
+            raise _err(where, f"detection {i}: orientation {qv.tolist()} is not a unit quaternion (norm {n:.3g})",
+                       f"detections[{i}].bbox.center.orientation")
+        qv = qv / n
         tilt = np.degrees(2 * np.arcsin(min(1.0, float(np.hypot(qv[0], qv[1])))))
         if tilt > max_tilt_deg:
             raise _err(where, f"detection {i}: the box is turned {tilt:.1f} deg about x/y; xcalib's 3D "
-                                      "boxes turn about z only")
+                              "boxes turn about z only", f"detections[{i}].bbox.center.orientation")
         yaw = 2.0 * np.arctan2(qv[2], qv[3])
         yaw = (yaw + np.pi) % (2 * np.pi) - np.pi if abs(yaw) > np.pi else yaw
-        rows.append([p.x, p.y, p.z, s.x, s.y, s.z, yaw])
+        rows.append([*pos, *size, yaw])
         ids.append(str(getattr(det, "id", "")))
     return np.asarray(rows, dtype=np.float64).reshape(-1, 7), ids
 
@@ -356,16 +460,24 @@ def make_detection3d_array(store, box7, stamp: int, frame_id: str, ids=None):
 
 
 # ----------------------------------------------------------------------------- tf
-def transforms_from_msg(msg) -> list[tuple[str, str, np.ndarray, int]]:
+def transforms_from_msg(msg, where=None) -> list[tuple[str, str, np.ndarray, int]]:
     """TFMessage -> ``[(parent, child, T_parent_child [4, 4], stamp_ns)]`` (the child's pose in the
-    parent: maps child-frame points into the parent frame)."""
+    parent: maps child-frame points into the parent frame); a non-finite translation or a
+    rotation that is no unit quaternion is a FormatError (``where``: bag, topic, message)."""
     from ...geometry.rotations import quaternion_to_matrix
 
     out = []
-    for t in msg.transforms:
+    for i, t in enumerate(msg.transforms):
         tr, r = t.transform.translation, t.transform.rotation
+        qv = np.array([r.x, r.y, r.z, r.w], dtype=np.float64)
+        tv = np.array([tr.x, tr.y, tr.z], dtype=np.float64)
+        n = np.linalg.norm(qv) if np.all(np.isfinite(qv)) else np.nan
+        if where is not None and (not np.isfinite(n) or abs(n - 1.0) > 1e-3 or not np.all(np.isfinite(tv))
+                                  or np.abs(tv).max() > MAX_BOX_CENTER_M):
+            raise _err(where, f"transform {i}: rotation {qv.tolist()} (norm {n:.4g}) / translation {tv.tolist()} "
+                              "is not a rigid transform", f"transforms[{i}].transform")
         T = np.eye(4)
-        T[:3, :3] = quaternion_to_matrix(np.array([r.x, r.y, r.z, r.w], dtype=np.float64))
+        T[:3, :3] = quaternion_to_matrix(qv)
         T[:3, 3] = [tr.x, tr.y, tr.z]
         out.append((str(t.header.frame_id).lstrip("/"), str(t.child_frame_id).lstrip("/"), T, stamp_ns(t.header)))
     return out

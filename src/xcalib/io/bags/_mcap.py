@@ -97,8 +97,9 @@ class McapReader:
         self._file.seek(0)
         return schemas, channels
 
-    def messages(self, connections=None):
-        """``(connection, log time ns, raw bytes)`` of ``connections`` (default: all), in log-time order."""
+    def messages(self, connections=None, start: int | None = None, stop: int | None = None):
+        """``(connection, log time ns, raw bytes)`` of ``connections`` (default: all), in log-time
+        order; ``start`` / ``stop``: log times in ns (``start <= t < stop``), as rosbags takes them."""
         wanted = {c.id: c for c in (self.connections if connections is None else connections)}
         if not wanted:
             return
@@ -109,14 +110,15 @@ class McapReader:
             self._file.seek(0)
             it = NonSeekingReader(self._file).iter_messages(topics=topics, log_time_order=False)
         else:
-            it = self._reader.iter_messages(topics=topics, log_time_order=True)
+            it = self._reader.iter_messages(topics=topics, log_time_order=True, start_time=start, end_time=stop)
         from mcap.exceptions import EndOfFile
 
         try:
             for _schema, channel, message in it:
                 con = wanted.get(channel.id)
-                if con is not None:
-                    yield con, int(message.log_time), message.data
+                t = int(message.log_time)
+                if con is not None and (start is None or t >= start) and (stop is None or t < stop):
+                    yield con, t, message.data
         except EndOfFile:
             if not self._linear:
                 raise

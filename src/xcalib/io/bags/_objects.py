@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import FormatError
+from ._convert import MAX_BOX_CENTER_M
 
 __all__ = ["AUTOWARE_3D", "Boxes3D", "boxes3d_any", "MAX_TILT_DEG", "autoware_types"]
 
@@ -69,6 +70,9 @@ class Boxes3D:
 
 
 def _err(where, problem: str) -> FormatError:
+    """``where``: (bag, topic[, message index])."""
+    if len(where) > 2 and where[2] is not None:
+        problem = f"message {where[2]}: {problem}"
     return FormatError(where[0], problem, field=where[1])
 
 
@@ -132,9 +136,16 @@ def boxes3d_any(msg, where, T_lidar_det: np.ndarray | None = None, max_tilt_deg:
     if len(s) and not np.all(s > 0):
         k = int(np.flatnonzero(~np.all(s > 0, axis=1))[0])
         raise _err(where, f"detection {k}: box size {s[k].tolist()} is not positive")
+    far = np.maximum(np.abs(c).max(axis=1), s.max(axis=1)) > MAX_BOX_CENTER_M if len(c) else np.zeros(0, bool)
+    if np.any(far):
+        k = int(np.flatnonzero(far)[0])
+        raise _err(where, f"detection {k}: centre {c[k].tolist()} / size beyond {MAX_BOX_CENTER_M:g} m")
     n = np.linalg.norm(q, axis=1)
     if len(n) and not np.all(n > 1e-6):
         raise _err(where, f"detection {int(np.flatnonzero(n <= 1e-6)[0])}: zero orientation quaternion")
+    if len(n) and not np.all(np.abs(n - 1.0) <= 0.1):
+        k = int(np.flatnonzero(np.abs(n - 1.0) > 0.1)[0])
+        raise _err(where, f"detection {k}: orientation {q[k].tolist()} is not a unit quaternion (norm {n[k]:.3g})")
     identity = np.all(np.abs(q[:, :3]) == 0.0, axis=1) if len(q) else np.zeros(0, bool)
     yawless = bool(len(q)) and (bool(np.all(identity)) or not any(known))
     R_T = np.eye(3) if T_lidar_det is None else np.asarray(T_lidar_det, dtype=np.float64)[:3, :3]

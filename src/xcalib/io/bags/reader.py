@@ -9,15 +9,21 @@ Problems raise :class:`~xcalib.errors.FormatError` naming the bag and the topic.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
+import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ...errors import FormatError
+from .._files import open_regular
+from .._validate import check_rigid
 from ...geometry.camera import CameraIntrinsics
 from ...geometry.transforms import invert_transform
 from ...types import Frame
@@ -26,19 +32,53 @@ from ._msgs import (CAMERA_INFO, COMPRESSED, DET2D, DET3D_TYPES, IMAGE, POINTCLO
                     typestore)
 from ._objects import MAX_TILT_DEG, boxes3d_any
 
-__all__ = ["BAG_SUFFIXES", "is_bag", "BagTopic", "BagInfo", "bag_info", "BagCamera", "Dropped", "PairingReport",
+__all__ = ["BAG_SUFFIXES", "MAX_BAG_BYTES", "MAX_MESSAGE_BYTES", "check_bag_input", "is_bag", "BagTopic", "BagInfo",
+           "bag_info", "BagCamera", "bag_cameras", "Dropped", "PairingReport",
            "BagFrames", "pair_by_time", "META_TOPIC"]
 
 log = logging.getLogger(__name__)
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 META_TOPIC = "/xcalib/frames"  # xcalib's own per-frame record (frame key, ground truth) in bags it writes
+_SAFE_TOPIC = re.compile(r"^[A-Za-z0-9_/~{}.\-]+$")  # ROS name characters (plus . and -)
 _IMAGE_SUFFIXES = {"image_raw", "image", "compressed", "image_color", "image_rect", "image_rect_color", "image_mono"}
 
 
 def is_bag(path) -> bool:
     """A ``.bag`` / ``.db3`` / ``.mcap`` file, or a ROS 2 bag folder (``metadata.yaml``)."""
+    p = Path(path)  # any non-folder with a bag suffix: a FIFO / device is refused by the reader, not skipped
+    if p.is_dir():
+        return (p / "metadata.yaml").exists() or (p / "metadata.yaml").is_symlink()
+    return (p.exists() or p.is_symlink()) and p.suffix.lower() in BAG_SUFFIXES
+
+
+#: Largest bag file read (streamed, never loaded whole): a sanity limit, not a memory one.
+MAX_BAG_BYTES = 1 << 40
+#: Largest single message decoded (a 2M-point sweep of 8 float32 fields is 64 MB).
+MAX_MESSAGE_BYTES = 512 << 20
+
+
+def check_bag_input(path: Path) -> None:
+    """The special-file and size checks every reader applies, before the bag library opens
+    anything: a bag file (or a ROS 2 bag folder's ``metadata.yaml`` and storage files) must be a
+    regular file (FIFOs, devices, sockets - also behind symlinks - are refused at once, so
+    ``mkfifo x.mcap`` cannot hang a read nor ``ln -s /dev/zero x.bag`` fill the memory)."""
     p = Path(path)
-    return (p.is_file() and p.suffix.lower() in BAG_SUFFIXES) or (p.is_dir() and (p / "metadata.yaml").is_file())
+    if not p.exists() and not p.is_symlink():
+        raise FileNotFoundError(f"bag not found: {p}")
+    if p.is_dir():
+        files = [p / "metadata.yaml"] + sorted(q for q in p.iterdir() if q.name != "metadata.yaml"
+                                               and q.suffix.lower() in BAG_SUFFIXES)
+        for f in files:
+            open_regular(f, max_bytes=MAX_BAG_BYTES, what="bag file").close()
+        return
+    open_regular(p, max_bytes=MAX_BAG_BYTES, what="bag file").close()
+
+
+@functools.lru_cache(maxsize=2)
+def _default_store(ros: int):
+    """The stock types + vision_msgs, built once per process (only read: AnyReader copies the
+    definitions it needs into a store of its own)."""
+    return typestore(ros)
 
 
 def _reader(path: Path):
@@ -46,11 +86,12 @@ def _reader(path: Path):
     does not define. Unreadable input -> FormatError naming the file."""
     from rosbags.highlevel import AnyReader
 
+    check_bag_input(path)
     if path.suffix.lower() == ".mcap" and path.is_file():  # either ROS profile, schema names with or without /msg/
         from ._mcap import open_mcap
 
         return open_mcap(path, typestore)
-    default = typestore(1 if path.suffix.lower() == ".bag" else 2)
+    default = _default_store(1 if path.suffix.lower() == ".bag" else 2)
     try:
         reader = AnyReader([path], default_typestore=default)
         reader.open()
@@ -104,12 +145,20 @@ class BagInfo:
     def lines(self) -> list[str]:
         out = [f"{self.path} ({self.container}): {sum(t.count for t in self.topics)} messages, "
                f"{self.end_s - self.start_s:.3f} s"]
-        w = max([len(t.topic) for t in self.topics] + [5])
+        w = max([len(_shown(t.topic)) for t in self.topics] + [5])
         out.append(f"  {'topic':<{w}}  {'type':<36} {'count':>6} {'rate Hz':>8}")
         for t in self.topics:
             flag = "" if t.msgtype in SUPPORTED_TYPES else "  (not read by xcalib)"
-            out.append(f"  {t.topic:<{w}}  {t.msgtype:<36} {t.count:>6} {t.rate_hz:>8.2f}{flag}")
+            if not _SAFE_TOPIC.match(t.topic):
+                flag += "  (name holds characters outside ROS names: refused by bag frames)"
+            out.append(f"  {_shown(t.topic):<{w}}  {_shown(t.msgtype):<36} {t.count:>6} {t.rate_hz:>8.2f}{flag}")
         return out
+
+
+def _shown(topic: str) -> str:
+    """A topic name as printed: names with characters outside ROS names (newlines, controls,
+    unicode) escaped."""
+    return topic if _SAFE_TOPIC.match(topic) else ascii(topic)
 
 
 def _container(path: Path) -> str:
@@ -119,8 +168,6 @@ def _container(path: Path) -> str:
 def bag_info(path) -> BagInfo:
     """Topics, types, counts and rates of a bag (reads every message's log time, not its data)."""
     p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"bag not found: {p}")
     reader = _reader(p)
     try:
         spans: dict[str, list[int]] = {}
@@ -137,9 +184,9 @@ def bag_info(path) -> BagInfo:
         reader.close()
 
 
-def _messages(reader, path: Path, connections):
+def _messages(reader, path: Path, connections, start: int | None = None, stop: int | None = None):
     """rosbags' message iterator with read errors (truncated chunk, bad compression) as FormatError."""
-    it = reader.messages(connections=connections)
+    it = reader.messages(connections=connections, start=start, stop=stop)
     while True:
         try:
             item = next(it)
@@ -251,6 +298,65 @@ def _under(topic: str, ns: str) -> bool:
     return bool(ns) and topic.startswith(ns + "/")
 
 
+def _cameras_of(types: dict[str, str], path) -> list[BagCamera]:
+    """One camera per image namespace (a raw Image wins over a CompressedImage of the same
+    namespace). Cameras whose namespaces end alike (``/a/camera/image``, ``/b/camera/image``)
+    are all kept, named after their whole namespace (``a_camera``, ``b_camera``)."""
+    def of_type(*ts):
+        return sorted(t for t, m in types.items() if m in ts)
+
+    by_ns: dict[str, tuple[str, str]] = {}
+    for topic in of_type(IMAGE) + of_type(COMPRESSED):
+        name, ns = _namespace(topic)
+        by_ns.setdefault(ns, (name, topic))
+    counts: dict[str, int] = {}
+    for name, _ in by_ns.values():
+        counts[name] = counts.get(name, 0) + 1
+    found: list[BagCamera] = []
+    for ns, (name, topic) in by_ns.items():
+        if counts[name] > 1:
+            name = ns.strip("/").replace("/", "_") or name
+            log.warning("%s: several image namespaces end in the same camera name; camera %s is %s", path, name, topic)
+        info = [t for t in of_type(CAMERA_INFO) if _under(t, ns)]
+        dets = [t for t in of_type(DET2D) if _under(t, ns)]
+        found.append(BagCamera(name, ns, topic, info[0] if len(info) == 1 else None,
+                               dets[0] if len(dets) == 1 else None))
+    return found
+
+
+def bag_cameras(path) -> list[BagCamera]:
+    """The cameras of a bag (image topics by namespace; see :class:`BagFrames`), read from its
+    topic list only. Topic names outside ROS names are a FormatError."""
+    p = Path(path)
+    reader = _reader(p)
+    try:
+        types = {c.topic: c.msgtype for c in reader.connections}
+    finally:
+        reader.close()
+    _check_topic_names(types, p)
+    return _cameras_of(types, p)
+
+
+def _check_topic_names(types, path) -> None:
+    """Topic names become camera names, file names and script text downstream: a name with
+    characters outside ROS names (newline, quote, space, control or unicode characters) is
+    refused, naming it escaped."""
+    for t in sorted(types):
+        if not _SAFE_TOPIC.match(t) or len(t) > 512:
+            raise FormatError(path, f"topic name {ascii(t)[:200]} holds characters outside ROS names "
+                                    "(letters, digits, _ / ~ { } . -); refusing the bag", "topic")
+
+
+@dataclass(frozen=True)
+class _Lazy:
+    """A LiDAR sweep or image not kept in memory: where to read it again (its log time, its rank
+    among the topic's messages of that log time) and its header (stamp, frame id)."""
+
+    t_log: int
+    rank: int
+    header: Any
+
+
 @dataclass
 class _Entry:
     lidar: tuple
@@ -292,6 +398,7 @@ class BagFrames(Sequence):
         reader = _reader(self.path)
         try:
             self._types = {c.topic: c.msgtype for c in reader.connections}
+            _check_topic_names(self._types, self.path)
             self.cameras = self._find_cameras()
             cam = self._choose_camera(camera)
             self.camera = cam.name
@@ -314,8 +421,8 @@ class BagFrames(Sequence):
         self.source_name = "bag"
 
     # ---------------------------------------------------------------- topic resolution
-    def _where(self, topic: str | None) -> tuple[str, str | None]:
-        return str(self.path), topic
+    def _where(self, topic: str | None, index: int | None = None) -> tuple[str, str | None, int | None]:
+        return str(self.path), topic, index
 
     def _of_type(self, *types: str) -> list[str]:
         return sorted(t for t, m in self._types.items() if m in types)
@@ -324,16 +431,7 @@ class BagFrames(Sequence):
         return "; ".join(f"{t} ({m})" for t, m in sorted(self._types.items()))
 
     def _find_cameras(self) -> list[BagCamera]:
-        found: dict[str, BagCamera] = {}
-        for topic in self._of_type(IMAGE) + self._of_type(COMPRESSED):
-            name, ns = _namespace(topic)
-            if name in found:
-                continue  # a raw Image wins over a CompressedImage of the same camera
-            info = [t for t in self._of_type(CAMERA_INFO) if _under(t, ns)]
-            dets = [t for t in self._of_type(DET2D) if _under(t, ns)]
-            found[name] = BagCamera(name, ns, topic, info[0] if len(info) == 1 else None,
-                                    dets[0] if len(dets) == 1 else None)
-        return list(found.values())
+        return _cameras_of(self._types, self.path)
 
     def _choose_camera(self, camera: str | None) -> BagCamera:
         if not self.cameras:
@@ -394,22 +492,35 @@ class BagFrames(Sequence):
         return topics
 
     # ---------------------------------------------------------------- indexing and pairing
-    def _index(self, reader) -> dict[str, list[tuple[int, object]]]:
+    def _index(self, reader) -> dict[str, list[tuple[int, object, int]]]:
         """Deserialise the chosen topics (+ tf, tf_static, xcalib's frame records): topic ->
-        [(header stamp ns (log time when the header has none), message)] sorted by stamp."""
+        [(header stamp ns (log time when the header has none), message, index on the topic in
+        log order)] sorted by stamp. LiDAR sweeps and images are not kept: each is read once for
+        its header and stands as a :class:`_Lazy` (read again when its frame is asked for), so
+        memory holds one sweep at a time whatever the recording's length."""
+        lazy = {self.topics["lidar"], self.topics["image"]}
+        seen_log: dict[tuple[str, int], int] = {}
         wanted = {t for t in self.topics.values() if t}
         wanted |= {t for t, m in self._types.items() if m in TF_TYPES or (t == META_TOPIC and m == STRING)}
         cons = [c for c in reader.connections if c.topic in wanted]
-        out: dict[str, list[tuple[int, object]]] = {t: [] for t in wanted}
+        out: dict[str, list[tuple[int, object, int]]] = {t: [] for t in wanted}
         for con, t_log, raw in _messages(reader, self.path, cons):
+            k = len(out[con.topic])
+            if len(raw) > MAX_MESSAGE_BYTES:
+                raise FormatError(self.path, f"message {k} is {len(raw)} bytes; the limit is {MAX_MESSAGE_BYTES} "
+                                             "bytes per message", con.topic)
             try:
                 msg = reader.deserialize(raw, con.msgtype)
             except Exception as exc:  # noqa: BLE001 - rosbags' deserialisation errors
-                raise FormatError(self.path, f"message of type {con.msgtype} does not deserialise ({exc})",
+                raise FormatError(self.path, f"message {k} of type {con.msgtype} does not deserialise ({exc})",
                                   con.topic) from None
             header = getattr(msg, "header", None)
-            stamp = cv.stamp_ns(header) if header is not None else int(t_log)
-            out[con.topic].append((stamp if stamp > 0 else int(t_log), msg))
+            stamp = cv.stamp_ns(header, self._where(con.topic, k)) if header is not None else int(t_log)
+            if con.topic in lazy:
+                rank = seen_log.get((con.topic, int(t_log)), 0)
+                seen_log[(con.topic, int(t_log))] = rank + 1
+                msg = _Lazy(int(t_log), rank, header)
+            out[con.topic].append((stamp if stamp > 0 else int(t_log), msg, k))
         for v in out.values():
             v.sort(key=lambda x: x[0])
         return out
@@ -421,31 +532,41 @@ class BagFrames(Sequence):
             if tp[key] is not None and not msgs[tp[key]]:
                 raise FormatError(self.path, "topic has no messages", tp[key])
         tol = int(round(self.tolerance_s * 1e9))
-        l_ns, i_ns = [s for s, _ in lid], [s for s, _ in img]
+        dropped: list[Dropped] = []
+        lid, img = self._unique(lid, tp["lidar"], dropped), self._unique(img, tp["image"], dropped)
+        d3u = self._unique(msgs[tp["detections_3d"]], tp["detections_3d"], dropped) if tp["detections_3d"] else None
+        d2u = self._unique(msgs[tp["detections_2d"]], tp["detections_2d"], dropped) if tp["detections_2d"] else None
+        if not lid or not img:
+            raise FormatError(self.path, "every message shares its stamp with another", tp["lidar" if not lid
+                                                                                                  else "image"])
+        l_ns, i_ns = [s for s, _, _ in lid], [s for s, _, _ in img]
         if l_ns[-1] + tol < i_ns[0] or i_ns[-1] + tol < l_ns[0]:
             raise FormatError(self.path, f"clocks do not overlap: LiDAR {tp['lidar']} stamps "
                                          f"{l_ns[0] / 1e9:.3f}-{l_ns[-1] / 1e9:.3f} s, camera {tp['image']} "
                                          f"{i_ns[0] / 1e9:.3f}-{i_ns[-1] / 1e9:.3f} s", tp["image"])
         pairs, lost_l, lost_i = pair_by_time(l_ns, i_ns, tol)
-        dropped = [Dropped(tp["lidar"], l_ns[i] / 1e9, f"no image within {self.tolerance_s * 1e3:g} ms "
+        dropped += [Dropped(tp["lidar"], l_ns[i] / 1e9, f"no image within {self.tolerance_s * 1e3:g} ms "
                                                        f"(nearest {dt / 1e6:.1f} ms)") for i, dt in lost_l.items()]
         dropped += [Dropped(tp["image"], i_ns[j] / 1e9, f"no LiDAR sweep within {self.tolerance_s * 1e3:g} ms "
                                                         f"(nearest {dt / 1e6:.1f} ms)") for j, dt in lost_i.items()]
-        # sweep / image stamp -> (stamp, message) of the nearest detections within the tolerance
-        d3 = _nearest_within(l_ns, msgs[tp["detections_3d"]], tol) if tp["detections_3d"] else None
-        d2 = _nearest_within(i_ns, msgs[tp["detections_2d"]], tol) if tp["detections_2d"] else None
+        # sweep / image stamp -> (stamp, message, index) of the nearest detections within the tolerance
+        d3 = _nearest_within(l_ns, d3u, tol) if d3u is not None else None
+        d2 = _nearest_within(i_ns, d2u, tol) if d2u is not None else None
         infos = msgs[tp["camera_info"]] if tp["camera_info"] else []
         meta = {}
-        for _, m in msgs.get(META_TOPIC, []):
-            rec = self._record(m.data)
+        for _, m, k in msgs.get(META_TOPIC, []):
+            rec = self._record(m.data, k)
+            if rec["lidar_stamp_ns"] in meta:
+                raise FormatError(self.path, f"message {k}: a second frame record for LiDAR stamp "
+                                             f"{rec['lidar_stamp_ns']}", META_TOPIC)
             meta[rec["lidar_stamp_ns"]] = rec
         entries, used3, used2, max_dt = [], set(), set(), 0
         for i, j in pairs:
-            (ls, lm), (is_, im) = lid[i], img[j]
+            (ls, lm, lk), (is_, im, ik) = lid[i], img[j]
             if d3 is None or d2 is None:  # sensors only (detections=False)
                 max_dt = max(max_dt, abs(ls - is_))
                 info = min(infos, key=lambda x: abs(x[0] - is_)) if infos else None
-                entries.append(_Entry((ls, lm), (is_, im), None, None, info, meta.get(ls, {})))
+                entries.append(_Entry((ls, lm, lk), (is_, im, ik), None, None, info, meta.get(ls, {})))
                 continue
             if ls not in d3:
                 dropped.append(Dropped(tp["detections_3d"], ls / 1e9, f"no 3D detections within "
@@ -459,12 +580,12 @@ class BagFrames(Sequence):
             used2.add(d2[is_][0])
             max_dt = max(max_dt, abs(ls - is_))
             info = min(infos, key=lambda x: abs(x[0] - is_)) if infos else None
-            entries.append(_Entry((ls, lm), (is_, im), d3[ls], d2[is_], info, meta.get(ls, {})))
+            entries.append(_Entry((ls, lm, lk), (is_, im, ik), d3[ls], d2[is_], info, meta.get(ls, {})))
         if d3 is not None and d2 is not None:
             dropped += [Dropped(tp["detections_3d"], s / 1e9, "no paired LiDAR sweep near this stamp")
-                        for s, _ in msgs[tp["detections_3d"]] if s not in used3]
+                        for s, _, _ in d3u if s not in used3]
             dropped += [Dropped(tp["detections_2d"], s / 1e9, "no paired image near this stamp")
-                        for s, _ in msgs[tp["detections_2d"]] if s not in used2]
+                        for s, _, _ in d2u if s not in used2]
         report = PairingReport(str(self.path), tp["lidar"], tp["image"], self.tolerance_s, len(lid), len(img),
                                len(entries), tuple(sorted(dropped, key=lambda d: (d.topic, d.stamp_s))),
                                max_dt / 1e9)
@@ -472,16 +593,66 @@ class BagFrames(Sequence):
             raise FormatError(self.path, "no frame could be paired: " + " / ".join(report.lines()), tp["image"])
         return entries, report
 
-    def _record(self, text: str) -> dict:
-        """One xcalib frame record (JSON), checked for the keys the frames read from it."""
+    def _unique(self, items, topic: str, dropped: list[Dropped]):
+        """``items`` without the messages that share their header stamp with another on the same
+        topic (which of them goes with which is unknowable): each is reported as dropped."""
+        counts: dict[int, int] = {}
+        for s, _, _ in items:
+            counts[s] = counts.get(s, 0) + 1
+        if all(c == 1 for c in counts.values()):
+            return items
+        for s, _, k in items:
+            if counts[s] > 1:
+                dropped.append(Dropped(topic, s / 1e9, f"{counts[s]} messages share this stamp (message {k})"))
+        log.warning("%s: %s: %d message(s) share their header stamp with another; dropped", self.path, topic,
+                    sum(c for c in counts.values() if c > 1))
+        return [it for it in items if counts[it[0]] == 1]
+
+    def _record(self, text: str, index: int = 0) -> dict:
+        """One xcalib frame record (JSON), every key the frames read from it checked."""
+        def bad(problem: str, key: str):
+            return FormatError(self.path, f"message {index}, frame record {key}: {problem}", META_TOPIC)
+
         try:
             rec = json.loads(text)
-        except ValueError as exc:
-            raise FormatError(self.path, f"frame record is not valid JSON ({exc})", META_TOPIC) from None
-        if not isinstance(rec, dict) or not isinstance(rec.get("lidar_stamp_ns"), int) \
+        except (ValueError, RecursionError) as exc:
+            raise FormatError(self.path, f"message {index}: frame record is not valid JSON "
+                                         f"({type(exc).__name__}: {str(exc)[:120]})", META_TOPIC) from None
+        if not isinstance(rec, dict) or type(rec.get("lidar_stamp_ns")) is not int \
                 or not isinstance(rec.get("cameras", {}), dict):
-            raise FormatError(self.path, "frame record needs an integer lidar_stamp_ns and a cameras mapping",
-                              META_TOPIC)
+            raise FormatError(self.path, f"message {index}: frame record needs an integer lidar_stamp_ns and a "
+                                         "cameras mapping", META_TOPIC)
+        _time(rec.get("lidar_time_s"), bad, "lidar_time_s")
+        if not isinstance(rec.get("frame_key", ""), (str, int)) or isinstance(rec.get("frame_key"), bool):
+            raise bad("expected a string", "frame_key")
+        rows = rec.get("box3d_rows")
+        if rows is not None and (not isinstance(rows, list) or any(r not in ("extents", "center") for r in rows)):
+            raise bad("expected a list of 'extents' / 'center'", "box3d_rows")
+        tracks = rec.get("track_ids_3d")
+        if tracks is not None and (not isinstance(tracks, list)
+                                   or any(type(t) is not int or abs(t) >= 1 << 63 for t in tracks)):
+            raise bad("expected a list of integers", "track_ids_3d")
+        vel = rec.get("velocities_3d")
+        if vel is not None:
+            v = _numbers(vel, bad, "velocities_3d")
+            if v.ndim != 2 or v.shape[1:] != (3,) or (tracks is not None and len(v) != len(tracks)):
+                raise bad(f"expected [M, 3] finite numbers, got shape {list(v.shape)}", "velocities_3d")
+        for cam, c in rec["cameras"].items():
+            if not isinstance(c, dict):
+                raise bad("expected a mapping", f"cameras.{cam}")
+            _time(c.get("camera_time_s"), bad, f"cameras.{cam}.camera_time_s")
+            if not isinstance(c.get("camera_name", ""), str):
+                raise bad("expected a string", f"cameras.{cam}.camera_name")
+            if c.get("extrinsics") is not None:
+                T = _numbers(c["extrinsics"], bad, f"cameras.{cam}.extrinsics")
+                try:
+                    check_rigid(self.path, f"{META_TOPIC} message {index} cameras.{cam}.extrinsics", T)
+                except FormatError as exc:
+                    raise bad(exc.problem, f"cameras.{cam}.extrinsics") from None
+            if c.get("match_matrix") is not None:
+                mm = _numbers(c["match_matrix"], bad, f"cameras.{cam}.match_matrix")
+                if mm.ndim != 2 or not np.isin(mm, (0, 1)).all():
+                    raise bad("expected a 0/1 matrix", f"cameras.{cam}.match_matrix")
         return rec
 
     # ---------------------------------------------------------------- tf
@@ -490,8 +661,8 @@ class BagFrames(Sequence):
         for topic, m in self._types.items():
             if m not in TF_TYPES or (static_only and not topic.endswith("tf_static")):
                 continue
-            for _, msg in msgs.get(topic, []):
-                for parent, child, T, _ in cv.transforms_from_msg(msg):
+            for _, msg, k in msgs.get(topic, []):
+                for parent, child, T, _ in cv.transforms_from_msg(msg, self._where(topic, k)):
                     edges.setdefault(child, (parent, T))  # the first (static) value of each edge
         return edges
 
@@ -536,14 +707,56 @@ class BagFrames(Sequence):
         return invert_transform(T_root_cam) @ T_root_lidar
 
     # ---------------------------------------------------------------- frames
+    def _load(self, topic: str, item):
+        """The message of an index entry, read again from the bag when it was not kept."""
+        msg = item[1]
+        if not isinstance(msg, _Lazy):
+            return msg
+        import os
+
+        if getattr(self, "_open", None) is None or self._open[0] != os.getpid():
+            self._open = (os.getpid(), _reader(self.path))
+        reader = self._open[1]
+        cons = [c for c in reader.connections if c.topic == topic]
+        rank = 0
+        for con, t, raw in _messages(reader, self.path, cons, msg.t_log, msg.t_log + 1):
+            if t != msg.t_log:
+                continue
+            if rank == msg.rank:
+                try:
+                    return reader.deserialize(raw, con.msgtype)
+                except Exception as exc:  # noqa: BLE001
+                    raise FormatError(self.path, f"message {item[2]} of type {con.msgtype} does not deserialise "
+                                                 f"({exc})", topic) from None
+            rank += 1
+        raise FormatError(self.path, f"message {item[2]} is no longer in the bag (changed while read?)", topic)
+
+    def close(self) -> None:
+        """Close the bag opened to read frames (reopened when another frame is asked for)."""
+        opened, self._open = getattr(self, "_open", None), None
+        if opened is not None:
+            opened[1].close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown
+            pass
+
     def _intrinsics(self, info) -> CameraIntrinsics:
-        return cv.intrinsics_from_msg(info[1], self._where(self.topics["camera_info"]))
+        return cv.intrinsics_from_msg(info[1], self._where(self.topics["camera_info"], info[2]))
 
     def _fisheye(self, e: _Entry):
         """The frame's equidistant camera model when its CameraInfo has one (and no --intrinsics)."""
         if self._fixed_intrinsics is not None or e.info is None:
             return None
-        m = cv.camera_model_from_msg(e.info[1], self._where(self.topics["camera_info"]))
+        m = cv.camera_model_from_msg(e.info[1], self._where(self.topics["camera_info"], e.info[2]))
         return m if isinstance(m, cv.Fisheye) else None
 
     def __len__(self) -> int:
@@ -568,14 +781,20 @@ class BagFrames(Sequence):
 
     def _frame(self, e: _Entry) -> Frame:
         tp = self.topics
-        image = cv.image_from_msg(e.image[1], self._where(tp["image"]))
-        points, fields, n_bad = cv.cloud_from_msg(e.lidar[1], self._where(tp["lidar"]))
+        image = cv.image_from_msg(self._load(tp["image"], e.image), self._where(tp["image"], e.image[2]))
+        points, fields, n_bad = cv.cloud_from_msg(self._load(tp["lidar"], e.lidar),
+                                                  self._where(tp["lidar"], e.lidar[2]))
+        if n_bad:
+            log.warning("%s: %s message %d: %d of %d point(s) with NaN/Inf coordinates dropped", self.path,
+                        tp["lidar"], e.lidar[2], n_bad, n_bad + len(points))
+        if len(points) == 0:
+            log.warning("%s: %s message %d: the point cloud is empty", self.path, tp["lidar"], e.lidar[2])
         flattened, yawless = 0, False
         if e.det2d is None:  # sensors only
             b2, ids2, box7, ids3 = np.zeros((0, 4), np.float32), [], np.zeros((0, 7), np.float32), []
         else:
-            b2, ids2 = cv.boxes2d_from_msg(e.det2d[1])
-            det = boxes3d_any(e.det3d[1], self._where(tp["detections_3d"]),
+            b2, ids2 = cv.boxes2d_from_msg(e.det2d[1], self._where(tp["detections_2d"], e.det2d[2]))
+            det = boxes3d_any(e.det3d[1], self._where(tp["detections_3d"], e.det3d[2]),
                               self._lidar_from(str(e.det3d[1].header.frame_id)), MAX_TILT_DEG)
             box7, ids3, flattened, yawless = det.box7, det.ids, det.flattened, det.yawless
             if det.flattened:
@@ -609,9 +828,6 @@ class BagFrames(Sequence):
         extr = rec.get("extrinsics")
         if extr is not None:
             extr = np.asarray(extr, dtype=np.float64)
-            if extr.shape != (4, 4) or not np.all(np.isfinite(extr)):
-                raise FormatError(self.path, f"frame record: extrinsics must be a finite 4x4, got {extr.shape}",
-                                  META_TOPIC)
         meta = {"source": "bag", "bag": str(self.path), "lidar_topic": tp["lidar"], "image_topic": tp["image"],
                 "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "detection_ids_2d": ids2}
         if n_bad:
@@ -634,17 +850,48 @@ class BagFrames(Sequence):
                      velocities_3d=None if vel is None else np.asarray(vel, dtype=np.float64).reshape(-1, 3),
                      camera_name=str(rec.get("camera_name", self.camera)),
                      frame_key=str(rec.get("frame_key", e.meta.get("frame_key", e.lidar[0]))),
-                     match_matrix=None if mm is None else np.asarray(mm, dtype=bool).reshape(len(b2), len(b3)),
+                     match_matrix=None if mm is None else _match(mm, len(b2), len(b3), self.path),
                      intrinsics=intr, extrinsics=extr,
                      point_fields=fields, meta=meta)
 
 
-def _nearest_within(stamps, items, tol: int) -> dict[int, tuple[int, object]]:
-    """Each of ``stamps`` -> the message of ``items`` ([(stamp, message)] sorted) nearest to it
+def _nearest_within(stamps, items, tol: int) -> dict[int, tuple]:
+    """Each of ``stamps`` -> the item of ``items`` ([(stamp, message, index)] sorted) nearest to it
     within ``tol`` ns (each message used once, the closest pairs first): detections stamped a few
     ms off their sensor message, as detector nodes stamp them."""
-    pairs, _, _ = pair_by_time(stamps, [s for s, _ in items], tol)
+    pairs, _, _ = pair_by_time(stamps, [it[0] for it in items], tol)
     return {int(stamps[i]): items[j] for i, j in pairs}
+
+
+def _time(value, bad, key: str) -> None:
+    """A frame record's time: absent/null or a finite number (not a bool, not ``NaN``)."""
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise bad(f"expected a finite number of seconds, got {value!r:.40}", key)
+
+
+def _numbers(value, bad, key: str) -> np.ndarray:
+    """Nested lists of finite numbers (no bools, strings, nulls) as a float64 array."""
+    def walk(v):
+        if isinstance(v, list):
+            return all(walk(x) for x in v)
+        return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+
+    if not isinstance(value, list) or not walk(value):
+        raise bad("expected nested lists of finite numbers", key)
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except ValueError:
+        raise bad("rows of unequal length", key) from None
+
+
+def _match(mm, n2: int, n3: int, path) -> np.ndarray:
+    a = np.asarray(mm, dtype=bool)
+    if a.shape != (n2, n3):
+        raise FormatError(path, f"frame record: match_matrix is {list(a.shape)} for {n2} 2D and {n3} 3D boxes",
+                          META_TOPIC)
+    return a
 
 
 def _boxes3d_as_written(box7: np.ndarray, rows) -> np.ndarray:
