@@ -1,0 +1,59 @@
+"""The change test's statistics: a threshold from a false-alarm rate and the change it can detect.
+
+Every decision tests a handful of 6-vectors ``d`` (a pose change: rotation vector in radians about
+the camera axes, translation in metres along them) against their covariance ``C`` with the
+statistic ``s = d^T C^-1 d`` (chi-square, 6 degrees of freedom, when nothing changed). A decision
+runs ``n_tests`` such tests every ``stride`` frames; the threshold is set by a union (Bonferroni)
+bound so that the expected number of false alarms per frame stays below ``rate``: each test
+gets ``rate * stride / n_tests``. Overlapping windows make successive decisions correlated, so the
+real rate is lower than the bound (the benchmark measures it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2, ncx2
+
+__all__ = ["threshold", "detectable_lambda", "detectable_change", "chi2_stat"]
+
+DOF = 6
+
+
+def threshold(rate_per_frame: float, stride: int, n_tests: int) -> float:
+    """Chi-square (6 dof) threshold that keeps false alarms below ``rate_per_frame``."""
+    if not 0.0 < rate_per_frame < 1.0:
+        raise ValueError(f"false_alarm_rate must be in (0, 1) per frame, got {rate_per_frame}")
+    p = min(0.5, rate_per_frame * max(int(stride), 1) / max(int(n_tests), 1))
+    return float(chi2.isf(p, DOF))
+
+
+def detectable_lambda(h: float, power: float = 0.95) -> float:
+    """Non-centrality a change needs to cross the threshold ``h`` with probability ``power``."""
+    lo, hi = 0.0, 10.0 * h + 100.0
+    for _ in range(60):  # bisection: ncx2.sf grows with the non-centrality
+        mid = 0.5 * (lo + hi)
+        if ncx2.sf(h, DOF, mid) < power:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def detectable_change(cov: np.ndarray, lam: float) -> np.ndarray:
+    """Per axis, the smallest change along that axis alone detected with non-centrality ``lam``:
+    ``sqrt(lam / (C^-1)_aa)`` (6-vector: rad, rad, rad, m, m, m; inf where C is singular)."""
+    try:
+        info = np.linalg.inv(cov)
+    except np.linalg.LinAlgError:
+        return np.full(DOF, np.inf)
+    d = np.diag(info)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(d > 0, np.sqrt(lam / d), np.inf)
+
+
+def chi2_stat(d: np.ndarray, cov: np.ndarray) -> float:
+    """``d^T C^-1 d`` (inf where C is singular and d is not zero)."""
+    try:
+        return float(d @ np.linalg.solve(cov, d))
+    except np.linalg.LinAlgError:
+        return float("inf") if np.any(d != 0) else 0.0
