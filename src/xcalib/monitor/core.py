@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Iterable, Literal
 
@@ -72,7 +72,7 @@ class MonitorConfig:
     history: int = 600
     false_alarm_rate: float = 1e-4
     fps: float = 10.0
-    min_pairs: int = 12
+    min_pairs: int = 20
     max_detectable_deg: float = 1.0
     max_detectable_m: float = 0.5
     calibration_sigma_deg: float = 0.1
@@ -104,9 +104,12 @@ class MonitorConfig:
 
 @dataclass
 class DriftEvent:
-    """A detected change: the frame it was detected at and the frame it started (index, time),
-    the change relative to the calibration (6-vector deg, deg, deg, m, m, m) with its 1-sigma,
-    and the step across the change point (after minus before)."""
+    """A detected change: the frame it was detected at and the frame it started (index, time);
+    ``step``: the change across the change point (after minus before; 6-vector deg, deg, deg, m, m,
+    m, about / along the camera axes) as the simplest ``model`` the data need ("rotation",
+    "translation" or "rotation+translation", ``stats.select_model``) with its 1-sigma
+    ``step_sigma``; ``change``: the pose since the change relative to the calibration (6-vector,
+    all axes) with its 1-sigma ``sigma``; ``statistic``: the test's chi-square at detection."""
 
     camera: str
     detected_frame: int
@@ -116,15 +119,30 @@ class DriftEvent:
     change: np.ndarray
     sigma: np.ndarray
     step: np.ndarray
+    step_sigma: np.ndarray
+    model: str
     statistic: float
+    before_x: np.ndarray | None = None    # pre-change estimate (rad / m) and its covariance
+    before_cov: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         return {"camera": self.camera, "detected_frame": self.detected_frame, "detected_time_s": self.detected_time_s,
-                "change_frame": self.change_frame, "change_time_s": self.change_time_s,
+                "change_frame": self.change_frame, "change_time_s": self.change_time_s, "model": self.model,
+                "rotation_step_deg": _l(self.step[:3]), "translation_step_m": _l(self.step[3:]),
+                "rotation_step_sigma_deg": _l(self.step_sigma[:3]), "translation_step_sigma_m": _l(self.step_sigma[3:]),
                 "rotation_change_deg": _l(self.change[:3]), "translation_change_m": _l(self.change[3:]),
                 "rotation_sigma_deg": _l(self.sigma[:3]), "translation_sigma_m": _l(self.sigma[3:]),
-                "rotation_step_deg": _l(self.step[:3]), "translation_step_m": _l(self.step[3:]),
                 "statistic": self.statistic}
+
+    def update(self, fit: "_Fit") -> None:
+        """Refresh the estimates from the frames since the change (``fit``)."""
+        self.change, self.sigma = _to_units(fit.x), fit.sd6
+        bx = np.zeros(6) if self.before_x is None else self.before_x
+        bc = np.zeros((6, 6)) if self.before_cov is None else self.before_cov
+        x, cov, self.model = stats.select_model(fit.x - bx, fit.cov + bc)
+        self.step = _to_units(x)
+        d = np.sqrt(np.clip(np.diag(cov), 0, None))
+        self.step_sigma = np.concatenate([np.degrees(d[:3]), d[3:]])
 
 
 @dataclass
@@ -185,6 +203,7 @@ class _Rec:
     n_res: int
     n2: int
     n_pairs: int
+    cf: CalibFrame | None = None  # kept for the recent frames only: re-linearised at a detected change
 
 
 @dataclass
@@ -237,7 +256,7 @@ class _Sums:
             return None
         x = -Hinv @ g
         rss = float(self.c[b] - self.c[a] + x @ g)  # = sum w (r + J x)^2 at the optimum
-        s2 = max(rss / max(n_res - 6, 1), 0.5)
+        s2 = max(rss / max(n_res - 6, 1), 1.0)  # never less noise than the calibration's model
         return _Fit(x, Hinv * s2 * inflation, n_pairs, b - a, s2)
 
 
@@ -404,9 +423,13 @@ class CameraMonitor:
                              f"frame's {self.last_time:.3f} s; frames must arrive in time order")
         self.last_time = t
         cfs, _, _ = prepare_frames([frame], self.intr, **self._prep)
-        rec = self._linearise(cfs[0])
-        rec.index, rec.time_s = index, t
+        cf = replace(cfs[0], points=None, image=None)
+        rec = self._linearise(cf)
+        rec.index, rec.time_s, rec.cf = index, t, cf
         self.recs.append(rec)
+        keep = self.config.window * 2 ** (self.config.scales - 1) + self.config.stride
+        if len(self.recs) > keep:
+            self.recs[-keep - 1].cf = None
         self.n_seen += 1
         self._since_decision += 1
         if len(self.recs) < self.config.window or self._since_decision < self.config.stride:
@@ -453,11 +476,11 @@ class CameraMonitor:
     @property
     def inflation(self) -> float:
         """Factor on every covariance: how much more successive windows disagree than their
-        covariances say (median of d^T C^-1 d / 6 over adjacent non-overlapping windows, relative to
-        its value for chi-square 6, at least 1); INFLATION_PRIOR until MIN_DIFFS pairs are in."""
+        covariances say (75th percentile of d^T C^-1 d / 6 over adjacent non-overlapping windows,
+        relative to its value for chi-square 6, at least 1: robust to the rare real change); INFLATION_PRIOR until MIN_DIFFS pairs are in."""
         if len(self._diffs) < MIN_DIFFS:
             return INFLATION_PRIOR
-        return max(1.0, float(np.median(self._diffs)) / CHI2_6_MEDIAN_OVER_6)
+        return max(1.0, float(np.quantile(self._diffs, 0.75)) / CHI2_6_Q75_OVER_6)
 
     def _update_inflation(self, sums: _Sums, n: int) -> None:
         W = self.config.window
@@ -524,23 +547,47 @@ class CameraMonitor:
         k, _ = _scan(sums, n, cfg.min_pairs)
         if length == 0 and k < n // 4:  # an offset from the calibration with no change point inside the history
             k = 0
-        fa = sums.fit(k, n, phi) or sums.fit(n - cfg.window, n, phi)
         fb = sums.fit(0, k, phi) if k > 0 else None
-        change = _to_units(fa.x)
-        step = change - (_to_units(fb.x) if fb is not None else 0.0)
-        ev = DriftEvent(self.camera, recs[-1].index, recs[-1].time_s, recs[k].index, recs[k].time_s, change,
-                        fa.sd6, step, float(stat))
+        fa = self._refit_after(recs, k, phi)
+        ev = DriftEvent(self.camera, recs[-1].index, recs[-1].time_s, recs[k].index, recs[k].time_s, np.zeros(6),
+                        np.zeros(6), np.zeros(6), np.zeros(6), "", float(stat),
+                        None if fb is None else fb.x, None if fb is None else fb.cov)
+        ev.update(fa)
         self.events.append(ev)
         self.drift = ev
         st = self._status("drift", fa, _drift_message(ev), "change", stat, det, n - k)
         if cfg.latch:
             self.x_lin = np.array(fa.x, dtype=np.float64)  # new frames are matched / linearised at the moved pose
-            keep = recs[k:]  # the frames since the change are the new segment's evidence
+            keep = list(self.recs)[k:]  # the frames since the change are the new segment's evidence
             self.recs.clear()
             self.recs.extend(keep)
         else:
             self.reset()
         return st
+
+    def _refit_after(self, recs: list[_Rec], k: int, phi: float) -> _Fit:
+        """The pose since the change point: frames that still have their boxes are matched and
+        linearised again at the estimate (RELIN_ITERS times; the occlusion shaping of the cost is
+        not linear over a change of several pixels), the rest keep their linearisation."""
+        n = len(recs)
+        fa = _Sums(recs).fit(k, n, phi) or _Sums(recs).fit(n - self.config.window, n, phi)
+        for _ in range(RELIN_ITERS):
+            if fa is None:
+                break
+            self.x_lin = np.array(fa.x, dtype=np.float64)
+            for j in range(k, n):
+                q = recs[j]
+                if q.cf is not None:
+                    new = self._linearise(q.cf)
+                    new.index, new.time_s, new.cf = q.index, q.time_s, q.cf
+                    recs[j] = new
+            fa = _Sums(recs).fit(k, n, phi) or fa
+        if not self.config.latch:
+            self.x_lin = np.zeros(6)
+        else:  # the deque holds the re-linearised records too
+            self.recs.clear()
+            self.recs.extend(recs)
+        return fa
 
     def _decide_latched(self, recs: list[_Rec], sums: _Sums) -> MonitorStatus:
         ev = self.drift
@@ -548,9 +595,7 @@ class CameraMonitor:
         fit = sums.fit(0, n, self.inflation) if sums.pairs(0, n) >= self.config.min_pairs else None
         det, s = None, 0.0
         if fit is not None:
-            before = ev.change - ev.step  # the pre-change estimate stays the step's reference
-            ev.change, ev.sigma = _to_units(fit.x), fit.sd6
-            ev.step = ev.change - before
+            ev.update(fit)
             self.x_lin = np.array(fit.x, dtype=np.float64)
             det = _to_units(stats.detectable_change(fit.cov + self.cov_cal, self.lam))
             s = stats.chi2_stat(fit.x, fit.cov + self.cov_cal)
@@ -568,19 +613,25 @@ class CameraMonitor:
 
 
 _AXES = ("x", "y", "z")
+RELIN_ITERS = 2  # re-linearisations of the frames after a detected change
 MIN_DIFFS = 5  # adjacent window pairs before the measured inflation replaces the prior
 INFLATION_PRIOR = 2.0
-CHI2_6_MEDIAN_OVER_6 = 0.8907  # median of chi-square(6) / 6
+CHI2_6_Q75_OVER_6 = 1.3068  # 75th percentile of chi-square(6) / 6
 
 
 def _drift_message(ev: DriftEvent) -> str:
-    r, t, sr, st = ev.change[:3], ev.change[3:], ev.sigma[:3], ev.sigma[3:]
-    ir = int(np.argmax(np.abs(r) / np.maximum(sr, 1e-9)))
-    it = int(np.argmax(np.abs(t) / np.maximum(st, 1e-9)))
-    return (f"the camera has moved since frame {ev.change_frame} (t={ev.change_time_s:.1f} s): "
-            f"rotation {np.linalg.norm(r):.3f} deg (largest {r[ir]:+.3f} deg about its {_AXES[ir]} axis, 1-sigma "
-            f"{sr[ir]:.3f}), translation {100 * np.linalg.norm(t):.1f} cm (largest {100 * t[it]:+.1f} cm along "
-            f"{_AXES[it]}, 1-sigma {100 * st[it]:.1f}); recalibrate")
+    r, t, sr, st = ev.step[:3], ev.step[3:], ev.step_sigma[:3], ev.step_sigma[3:]
+    parts = []
+    if ev.model != "translation":
+        i = int(np.argmax(np.abs(r)))
+        parts.append(f"turned {np.linalg.norm(r):.3f} deg (largest {r[i]:+.3f} deg about its {_AXES[i]} axis, "
+                     f"1-sigma {sr[i]:.3f})")
+    if ev.model != "rotation":
+        i = int(np.argmax(np.abs(t)))
+        parts.append(f"shifted {100 * np.linalg.norm(t):.1f} cm (largest {100 * t[i]:+.1f} cm along its {_AXES[i]} "
+                     f"axis, 1-sigma {100 * st[i]:.1f})")
+    return (f"the camera has {' and '.join(parts)} since frame {ev.change_frame} (t={ev.change_time_s:.1f} s, "
+            f"detected at frame {ev.detected_frame}); recalibrate")
 
 
 def load_calibration(path) -> dict[str, CalibrationResult]:

@@ -57,3 +57,35 @@ def chi2_stat(d: np.ndarray, cov: np.ndarray) -> float:
         return float(d @ np.linalg.solve(cov, d))
     except np.linalg.LinAlgError:
         return float("inf") if np.any(d != 0) else 0.0
+
+
+MODEL_LEVEL = 0.01  # a nested model (rotation only / translation only) is kept unless rejected at this level
+
+
+def select_model(d: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
+    """The simplest model of a change ``d`` (6-vector, rad / m) with covariance ``cov`` that the data
+    do not reject: a pure rotation, a pure translation (each: the constrained generalised least
+    squares estimate, kept when its misfit d^T C^-1 d - ... is below the chi-square(3) quantile at
+    MODEL_LEVEL; the better of the two when both are kept) or both. Returns (estimate [6],
+    covariance [6,6], "rotation" | "translation" | "rotation+translation")."""
+    try:
+        info = np.linalg.inv(cov)
+    except np.linalg.LinAlgError:
+        return d, cov, "rotation+translation"
+    limit = float(chi2.isf(MODEL_LEVEL, 3))
+    best = None
+    for name, sl in (("rotation", slice(0, 3)), ("translation", slice(3, 6))):
+        E = np.zeros((6, 3))
+        E[sl] = np.eye(3)
+        try:
+            ca = np.linalg.inv(E.T @ info @ E)
+        except np.linalg.LinAlgError:
+            continue
+        a = ca @ E.T @ info @ d
+        res = d - E @ a
+        misfit = float(res @ info @ res)
+        if misfit < limit and (best is None or misfit < best[0]):
+            best = (misfit, E @ a, E @ ca @ E.T, name)
+    if best is None:
+        return d, cov, "rotation+translation"
+    return best[1], best[2], best[3]
