@@ -25,7 +25,7 @@ app = typer.Typer(
 # Order = order in --help.
 _COMMAND_MODULES = [
     "demo", "match", "calibrate", "bootstrap", "train", "validate", "export", "synth", "cache",
-    "convert", "bag", "version", "reference",
+    "convert", "bag", "monitor", "version", "reference",
 ]
 
 

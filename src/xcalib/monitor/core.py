@@ -59,7 +59,8 @@ class MonitorConfig:
     recent segments of window * 2^k frames, k < scales; history: frames kept (reference
     segment, change-point search; bounds memory); false_alarm_rate: expected false alarms per
     frame (default 1 per 10,000); fps: frame rate where frames carry no time; min_pairs:
-    matched pairs a segment needs; max_detectable_deg / _m: a decision is ``unknown`` when the
+    matched pairs a segment needs; min_objects: distinct matched objects it needs (where frames carry
+    track ids); max_detectable_deg / _m: a decision is ``unknown`` when the
     change it could detect (95 % power) exceeds these on any axis; calibration_sigma_deg / _m:
     the calibration's 1-sigma where the result has none; gate_iou / gate_dist: matching gates
     (``refine.match_frame``); latch: a drift stays (and the estimate follows the frames since
@@ -73,6 +74,7 @@ class MonitorConfig:
     false_alarm_rate: float = 1e-4
     fps: float = 10.0
     min_pairs: int = 20
+    min_objects: int = 3
     max_detectable_deg: float = 1.0
     max_detectable_m: float = 0.5
     calibration_sigma_deg: float = 0.1
@@ -204,6 +206,7 @@ class _Rec:
     n2: int
     n_pairs: int
     cf: CalibFrame | None = None  # kept for the recent frames only: re-linearised at a detected change
+    objects: np.ndarray | None = None  # track ids of the matched 3D boxes (None: the frame has none)
 
 
 @dataclass
@@ -339,6 +342,7 @@ class CameraMonitor:
         self.drift: DriftEvent | None = None
         self._since_decision = 0
         self._steps = None
+        self._last_pairs: np.ndarray | None = None
         self._last_block: _Fit | None = None
         self._block_end = -1
 
@@ -391,6 +395,7 @@ class CameraMonitor:
         pose = self.pose_lin
         pairs, _, _ = match_frame(cf, self.intr, pose.R, pose.t, gate_iou=self.config.gate_iou,
                                   gate_dist=self.config.gate_dist)
+        self._last_pairs = pairs
         if len(pairs) == 0:
             return _Rec(0, 0.0, np.zeros((6, 6)), np.zeros(6), 0.0, 0, cf.n2, 0)
         term = edge_term([cf], [pairs], self.intr, pose, self.noise, self.occlusion)
@@ -426,6 +431,12 @@ class CameraMonitor:
         cf = replace(cfs[0], points=None, image=None)
         rec = self._linearise(cf)
         rec.index, rec.time_s, rec.cf = index, t, cf
+        ids = getattr(frame, "track_ids_3d", None)
+        if ids is not None and rec.n_pairs and self._last_pairs is not None:
+            ids = np.asarray(ids, dtype=np.int64)
+            cols = cf.idx3d[self._last_pairs[:, 1]]
+            if len(ids) > int(cols.max()):
+                rec.objects = np.unique(ids[cols][ids[cols] >= 0])
         self.recs.append(rec)
         keep = self.config.window * 2 ** (self.config.scales - 1) + self.config.stride
         if len(self.recs) > keep:
@@ -471,6 +482,13 @@ class CameraMonitor:
                                             "boxes (the camera may have moved far, or the 3D detections are missing)")
             return "too_few_objects", (f"too few objects: {npairs} matched 2D/3D box pairs in {span} "
                                        f"(need >= {cfg.min_pairs}){extra}")
+        tracked = [q.objects for q in recs if q.objects is not None]
+        if tracked and len(tracked) == sum(1 for q in recs if q.n_pairs):
+            n_obj = len(np.unique(np.concatenate(tracked)))
+            if n_obj < cfg.min_objects:
+                return "too_few_objects", (f"too few objects: {npairs} matched pairs in {span} are {n_obj} distinct "
+                                           f"object(s) (track ids; need >= {cfg.min_objects}): one object's 3D box "
+                                           "error would pass for a change")
         return None
 
     @property
@@ -691,15 +709,17 @@ class Monitor:
     def threshold(self) -> float:
         return self.config.threshold
 
-    def update(self, frame) -> list[MonitorStatus]:
-        """Add one frame; returns the decisions due at it (possibly none)."""
+    def update(self, frame, index: int | None = None) -> list[MonitorStatus]:
+        """Add one frame (``index``: its position in the stream, default: the count so far; views of
+        several cameras of one sweep share it); returns the decisions due at it (possibly none)."""
         from ..io.sources import camera_view
 
         out = []
+        idx = self.n_frames if index is None else int(index)
         multi = getattr(frame, "images", None) is not None or getattr(frame, "camera_per_det", None) is not None
         if len(self.cameras) == 1 and not multi:
             (cm,) = self.cameras.values()
-            st = cm.update(frame, self.n_frames)
+            st = cm.update(frame, idx)
             out = [st] if st is not None else []
         else:
             present = set(frame.images or {}) | set(frame.camera_per_det or []) | {frame.camera_name}
@@ -707,13 +727,13 @@ class Monitor:
                 if name not in present:
                     continue
                 view = camera_view(frame, name) if multi else frame
-                st = cm.update(view, self.n_frames)
+                st = cm.update(view, idx)
                 if st is not None:
                     out.append(st)
             if not any(n in present for n in self.cameras):
                 raise ValueError(f"frame {frame.frame_key!r}: none of the calibrated cameras "
                                  f"({', '.join(self.cameras)}) is in it (cameras: {', '.join(sorted(present))})")
-        self.n_frames += 1
+        self.n_frames = max(self.n_frames, idx + 1)
         return out
 
     def run(self, frames: Iterable) -> Iterable[MonitorStatus]:
