@@ -95,8 +95,9 @@ def register(app: typer.Typer) -> None:
                             lines.append(line)
                             if as_json:
                                 typer.echo(line)
-                            elif st.state == "drift" or not shown_detectable and st.state == "ok":
-                                console.print(_human(st))
+                            elif (st.state == "drift" and st.frame == monitor.cameras[st.camera].events[-1].detected_frame) \
+                                    or (not shown_detectable and st.state == "ok"):
+                                console.print(_human(st))  # a new change, and the first detectable change
                                 shown_detectable = shown_detectable or st.state == "ok"
                     bar.update(task, completed=i + 1)
             atomic_write(tmp / "monitor.jsonl", [("\n".join(lines) + "\n").encode() if lines else b""])
