@@ -15,8 +15,10 @@ detector's yawed 3D boxes, calibration = the true pose with 1-sigma 0.05 deg / 2
 
 A9 (``../shared/data/a9_sample``, 16 real frames cycled: frame i of the stream is sample frame
 i mod 16; calibration = ``calibrate`` on the 16 frames): the yaw-less boxes get their yaw from the
-points once (as a 3D detector would deliver them), then the same injected steps at frame 160 of
-320, and a 1,600-frame drift-free stream. CPU per frame (``time.process_time``, one thread) at A9
+points once for the fast path (as a 3D detector with yaw delivers boxes): a 1,600-frame
+drift-free stream; the frames as they are (yaw-less: ``prepare_frames`` fits yaw and point-hull
+outlines every frame, as the calibration did): an 800-frame drift-free stream and the same
+injected steps at frame 160 of 320 frames. CPU per frame (``time.process_time``, one thread) at A9
 density, against ``calibrate`` on one window (20 frames) of the same frames in the same run; and
 the cost with yaw-less boxes (yaw fitted from 43k points per frame by ``prepare_frames``).
 
@@ -200,7 +202,7 @@ def _null(name: str, streams: dict, log) -> dict:
     return row
 
 
-def _a9(runs_cycle: int, log) -> dict:
+def _a9(runs_cycle: int, n_step: int, log) -> dict:
     from xcalib.calib.api import calibrate
     from xcalib.calib.inputs import prepare_frames
     from xcalib.io.sources import open_source
@@ -225,22 +227,27 @@ def _a9(runs_cycle: int, log) -> dict:
     out = {"calibration_cpu_s": cal_cpu, "calibration_sigma": [*cal.rotation_std_deg, *cal.translation_std_m],
            "frames_2d_mean": float(np.mean([f.num_2d for f in raw])), "frames_3d_mean": float(np.mean([f.num_3d for f in raw]))}
     null = _run(cal, stream(runs_cycle, yawed), latch=False)
+    null_raw = _run(cal, stream(runs_cycle // 5, raw), latch=False)
     out["null"] = {"frames": runs_cycle, "false_alarms": null["alarms"], "states": null["states"],
                    "cpu_ms_per_frame": null["cpu_ms"]}
-    log(f"A9 drift-free, {runs_cycle} frames (16 cycled): {null['alarms']} alarms, states {null['states']}, "
+    out["null_yawless"] = {"frames": runs_cycle // 5, "false_alarms": null_raw["alarms"], "states": null_raw["states"],
+                           "cpu_ms_per_frame": null_raw["cpu_ms"]}
+    log(f"A9 drift-free, {runs_cycle} frames (16 cycled), yawed boxes: {null['alarms']} alarms, states {null['states']}, "
         f"{null['cpu_ms']:.2f} ms CPU/frame")
+    log(f"A9 drift-free, {runs_cycle // 5} frames, the sample's yaw-less boxes: {null_raw['alarms']} alarms, states "
+        f"{null_raw['states']}, {null_raw['cpu_ms']:.1f} ms CPU/frame")
     rows = []
-    for kind, size, within in STEPS:
+    for kind, size, within in STEPS:  # the frames as they are (yaw-less boxes: yaw and outlines from the points)
         for axis in range(3):
-            q = _run(cal, stream(320, yawed), k0=160, change=_change(kind, size, axis))
+            q = _run(cal, stream(n_step, raw), k0=n_step // 2, change=_change(kind, size, axis))
             rows.append(_summarise(f"A9 step {size:g} {'deg' if kind == 'rotation' else 'm'} {kind} {AXES[axis]}",
-                                   [q], kind, size, axis, within, 160, log))
+                                   [q], kind, size, axis, within, n_step // 2, log))
     out["steps"] = rows
     win = yawed[:16] + yawed[:4]  # one 20-frame window
     t0 = time.process_time()
     calibrate(win, cal.intrinsics)
     cal_win = time.process_time() - t0
-    yawless = _run(cal, stream(32, raw), latch=False)
+    yawless = null_raw
     out["cpu"] = {"monitor_ms_per_frame_yawed": null["cpu_ms"], "calibrate_window_20_frames_s": cal_win,
                   "calibrate_ms_per_frame_of_window": 1e3 * cal_win / 20,
                   "monitor_ms_per_frame_yawless_boxes": yawless["cpu_ms"]}
@@ -257,12 +264,31 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=9, help="runs per step size and axis")
     ap.add_argument("--null-frames", type=int, default=1500)
     ap.add_argument("--skip-a9", action="store_true")
+    ap.add_argument("--part", choices=("all", "synth", "a9"), default="all",
+                    help="run one part; its keys are merged into an existing results file")
+    ap.add_argument("--a9-frames", type=int, default=320, help="A9 step streams (change at the middle)")
     args = ap.parse_args()
     n_null = 18000 if args.full else args.null_frames
     t_all = time.time()
     log = print
     seeds = [3, 5, 7, 11, 13, 17][:args.sites]
-    result = {"machine": machine_info(), "command": " ".join(sys.argv), "config": "MonitorConfig() defaults"}
+    result = {"machine": machine_info(), "config": "MonitorConfig() defaults"}
+    out = REPO / "benchmarks" / "results" / "monitor.json"
+    if args.part != "all" and out.exists():
+        import json
+
+        result = {**json.loads(out.read_text()), **result}
+    result[f"command_{args.part}"] = " ".join(sys.argv)
+    if args.part != "a9":
+        _synthetic(result, seeds, n_null, args.runs, log)
+    if args.part != "synth" and not args.skip_a9 and A9.exists():
+        log("\n== A9 (16 real frames cycled, injected drift)")
+        result["a9"] = _a9(1600, args.a9_frames, log)
+    result[f"wall_s_{args.part}"] = time.time() - t_all
+    write_result(out, result)
+
+
+def _synthetic(result: dict, seeds: list[int], n_null: int, runs: int, log) -> None:
     log(f"== synthetic null streams ({n_null} frames per site, sites {seeds})")
     clean = {s: _synth_stream(s, n_null) for s in seeds}
     noisy = {s: _synth_stream(s, n_null, box_noise_px=4.0, miss_rate_2d=0.1) for s in seeds}
@@ -270,14 +296,9 @@ def main() -> None:
     result["null"] = [_null("default noise", clean, log), _null("4 px box noise, 10 % missed", noisy, log),
                       _null("sparse traffic (2-5 objects)", sparse, log)]
     log("\n== synthetic steps (change at frame 250 of 350)")
-    result["steps"] = _steps(clean, args.runs, log)
+    result["steps"] = _steps(clean, runs, log)
     log("\n== synthetic ramps")
-    result["ramps"] = _ramps(clean, max(3, args.runs // 3), log)
-    if not args.skip_a9 and A9.exists():
-        log("\n== A9 (16 real frames cycled, injected drift)")
-        result["a9"] = _a9(1600, log)
-    result["wall_s"] = time.time() - t_all
-    write_result(REPO / "benchmarks" / "results" / "monitor.json", result)
+    result["ramps"] = _ramps(clean, max(2, runs // 3), log)
 
 
 if __name__ == "__main__":
