@@ -597,7 +597,7 @@ class CameraMonitor:
                 q = recs[j]
                 if q.cf is not None:
                     new = self._linearise(q.cf)
-                    new.index, new.time_s, new.cf = q.index, q.time_s, q.cf
+                    new.index, new.time_s, new.cf, new.objects = q.index, q.time_s, q.cf, q.objects
                     recs[j] = new
             fa = _Sums(recs).fit(k, n, phi) or fa
         if not self.config.latch:
