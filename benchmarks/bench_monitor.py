@@ -274,10 +274,6 @@ def main() -> None:
     seeds = [3, 5, 7, 11, 13, 17][:args.sites]
     result = {"machine": machine_info(), "config": "MonitorConfig() defaults"}
     out = REPO / "benchmarks" / "results" / "monitor.json"
-    if args.part != "all" and out.exists():
-        import json
-
-        result = {**json.loads(out.read_text()), **result}
     result[f"command_{args.part}"] = " ".join(sys.argv)
     if args.part != "a9":
         _synthetic(result, seeds, n_null, args.runs, log)
@@ -285,6 +281,10 @@ def main() -> None:
         log("\n== A9 (16 real frames cycled, injected drift)")
         result["a9"] = _a9(1600, args.a9_frames, log)
     result[f"wall_s_{args.part}"] = time.time() - t_all
+    if args.part != "all" and out.exists():  # merged at write time: the other part may have finished meanwhile
+        import json
+
+        result = {**json.loads(out.read_text()), **result}
     write_result(out, result)
 
 
