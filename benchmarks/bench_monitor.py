@@ -264,7 +264,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=9, help="runs per step size and axis")
     ap.add_argument("--null-frames", type=int, default=1500)
     ap.add_argument("--skip-a9", action="store_true")
-    ap.add_argument("--part", choices=("all", "synth", "a9"), default="all",
+    ap.add_argument("--part", choices=("all", "synth", "a9", "null"), default="all",
                     help="run one part; its keys are merged into an existing results file")
     ap.add_argument("--a9-frames", type=int, default=320, help="A9 step streams (change at the middle)")
     args = ap.parse_args()
@@ -275,9 +275,15 @@ def main() -> None:
     result = {"machine": machine_info(), "config": "MonitorConfig() defaults"}
     out = REPO / "benchmarks" / "results" / "monitor.json"
     result[f"command_{args.part}"] = " ".join(sys.argv)
-    if args.part != "a9":
+    if args.part == "null":  # longer drift-free streams only (the false-alarm rate)
+        log(f"== long synthetic null streams ({n_null} frames per site, sites {seeds})")
+        result["null_long"] = [_null("default noise", {s: _synth_stream(s, n_null) for s in seeds}, log),
+                               _null("4 px box noise, 10 % missed",
+                                     {s: _synth_stream(s, n_null, box_noise_px=4.0, miss_rate_2d=0.1) for s in seeds},
+                                     log)]
+    elif args.part != "a9":
         _synthetic(result, seeds, n_null, args.runs, log)
-    if args.part != "synth" and not args.skip_a9 and A9.exists():
+    if args.part in ("all", "a9") and not args.skip_a9 and A9.exists():
         log("\n== A9 (16 real frames cycled, injected drift)")
         result["a9"] = _a9(1600, args.a9_frames, log)
     result[f"wall_s_{args.part}"] = time.time() - t_all
