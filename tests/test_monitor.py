@@ -199,3 +199,25 @@ def test_cli_rejects_a_calibration_of_another_camera(tmp_path, stream, capsys):
     rc = main(["monitor", str(src), "--calibration", str(tmp_path / "other.json"), "--out", str(tmp_path / "w")])
     assert rc == 1
     assert "cam_north" in capsys.readouterr().err
+
+
+def test_site_calibration_monitors_each_camera(tmp_path, stream):
+    from xcalib.monitor import load_calibration
+    from xcalib.site.calibration import CameraCalibration, SiteCalibration
+
+    site, frames = stream
+    a, b = _calibration(site), _calibration(site)
+    a.camera_name, b.camera_name = "cam_a", "cam_b"
+    path = SiteCalibration((CameraCalibration("cam_a", a, 10), CameraCalibration("cam_b", b, 10))).save(
+        tmp_path / "site_calibration.json")
+    cals = load_calibration(path)
+    assert sorted(cals) == ["cam_a", "cam_b"]
+    mon = Monitor(path)
+    out = []
+    for i, f in enumerate(frames[:40]):
+        out += mon.update(replace(f, camera_name="cam_a"), i)
+        out += mon.update(replace(f, camera_name="cam_b"), i)
+    assert {s.camera for s in out} == {"cam_a", "cam_b"}
+    assert mon.cameras["cam_a"].n_seen == mon.cameras["cam_b"].n_seen == 40
+    with pytest.raises(ValueError, match="none of the calibrated cameras"):
+        mon.update(replace(frames[41], camera_name="cam_c"), 41)
