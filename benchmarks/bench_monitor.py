@@ -25,6 +25,10 @@ the cost with yaw-less boxes (yaw fitted from 43k points per frame by ``prepare_
 Prints tables and writes ``benchmarks/results/monitor.json``.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_monitor.py [--full] [--sites N] [--runs N]
+
+The committed results: ``--part synth --sites 2 --runs 8 --null-frames 800``, ``--part a9
+--a9-frames 240`` and ``--part null --sites 1 --null-frames 5000`` (each part merges its keys
+into the results file).
 """
 
 from __future__ import annotations
