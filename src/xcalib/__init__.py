@@ -31,6 +31,8 @@ _LAZY = {
     "CalibrationResult": "xcalib.calib.result",
     "CalibConfig": "xcalib.calib.config",
     "calibrate": "xcalib.calib.api",
+    "Monitor": "xcalib.monitor",
+    "MonitorConfig": "xcalib.monitor",
     "load_dataset": "xcalib.io.hdf5",
     "read_frames": "xcalib.io.frames",
     "draw_matching_overlay": "xcalib.viz.matching",

@@ -38,7 +38,7 @@ BUILTIN: dict[str, dict[str, str]] = {
                        "formats": "xcalib.formats"},
     "xcalib.commands": {n: f"xcalib.cli.{n}_cmd" for n in (
         "demo", "match", "calibrate", "detect", "bootstrap", "train", "validate", "export", "synth", "cache", "convert",
-        "bag", "version", "reference")},
+        "bag", "monitor", "version", "reference")},
 }
 
 

@@ -1,0 +1,184 @@
+"""``xcalib monitor``: watch a calibrated camera's detections and say when it has moved."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+_HELP = """Watch a stream of frames against a calibration and say when the camera has moved, how far, and how sure.
+
+SOURCE is any frame source (frame folder, HDF5 cache, KITTI, nuScenes, ROS 1 .bag / ROS 2 .db3 /
+.mcap), read in time order. CAL is a calibration .json/.npz or a site_calibration.json (every
+calibrated camera is watched; --camera picks some). Over sliding windows of frames the pose change
+relative to the calibration is estimated with its uncertainty, and each window is ok, drift (with
+the change per axis and since when) or unknown (too few objects, and why). The change-point test
+keeps false alarms below --false-alarm-rate per frame; the change it can detect at the stream's
+traffic is printed. Writes DIR/monitor.jsonl, DIR/summary.json, DIR/report.html (the change over
+time) and DIR/monitor.mcap (diagnostic_msgs/DiagnosticArray on /diagnostics, the estimated pose
+on /tf, for Foxglove). --recalibrate runs calibrate on the frames after a change point
+(DIR/recalibration/<camera>.json). Exit code 0 ok, 3 drift, 1 could not tell.
+
+Example: xcalib monitor runs/site.mcap --calibration runs/a9_calib/calibration.json --out runs/watch
+Example: xcalib monitor frames/ --calibration site_calibration.json --json > decisions.jsonl
+"""
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("monitor", help=_HELP)
+    def monitor_command(
+        source: Path = typer.Argument(..., metavar="SOURCE", help="Frame source (xcalib.io.sources), in time order."),
+        calibration: Path = typer.Option(..., "--calibration", "-C",
+                                         help="Calibration .json/.npz or site_calibration.json."),
+        camera: list[str] = typer.Option(None, "--camera", "-c", help="Camera to watch (repeat; default: all "
+                                                                      "calibrated cameras)."),
+        frame_range: str = typer.Option(None, "--frames", help="Frames to use: 0:100, 8: (indices)."),
+        out: Path = typer.Option(Path("monitor_report"), "--out", "-o", help="Output folder."),
+        false_alarm_rate: float = typer.Option(1e-4, "--false-alarm-rate",
+                                               help="Expected false alarms per frame (default 1 per 10,000)."),
+        window: int = typer.Option(20, "--window", help="Frames in the shortest window."),
+        stride: int = typer.Option(5, "--stride", help="Frames between decisions."),
+        fps: float = typer.Option(10.0, "--fps", help="Frame rate where frames carry no time stamps."),
+        recalibrate: bool = typer.Option(False, "--recalibrate", help="After a drift, calibrate on the frames "
+                                                                       "after the change point."),
+        recalibrate_frames: int = typer.Option(20, "--recalibrate-frames", help="Frames --recalibrate uses."),
+        tolerance: float = typer.Option(0.05, "--tolerance", help="Bags: largest LiDAR/image stamp difference (s)."),
+        as_json: bool = typer.Option(False, "--json", help="Print one JSON line per window, then a summary line."),
+        force: bool = typer.Option(False, "--force", help="Replace an existing output folder."),
+    ) -> None:
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        from ..io._files import atomic_dir, atomic_write
+        from ..monitor import Monitor, MonitorConfig, load_calibration
+        from ..monitor.output import MonitorLog, MonitorMcap, write_monitor_html
+
+        if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
+            raise FileExistsError(f"{out} already exists; pass --force to replace it")
+        try:
+            config = MonitorConfig(window=window, stride=stride, false_alarm_rate=false_alarm_rate, fps=fps,
+                                   history=max(600, 2 * window * 4))
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc)) from None
+        cals = load_calibration(calibration)
+        if camera:
+            missing = [c for c in camera if c not in cals]
+            if missing:
+                raise typer.BadParameter(f"{calibration} has no calibrated camera {', '.join(missing)}; "
+                                         f"cameras: {', '.join(cals)}", param_hint="--camera")
+            cals = {c: cals[c] for c in camera}
+        views = _open_views(source, list(cals), frame_range, tolerance, single=len(cals) == 1)
+        monitor = Monitor(cals, config)
+        log = MonitorLog()
+        console = Console(stderr=True)
+        n = min(len(v) for v in views.values())
+        console.print(f"monitor: {n} frames, cameras {', '.join(views)}; false alarms <= {false_alarm_rate:g} per "
+                      f"frame (chi-square threshold {config.threshold:.1f}, 6 dof, windows of "
+                      f"{', '.join(str(window * 2 ** k) for k in range(config.scales))} frames every {stride})")
+        lines = []
+        with atomic_dir(out, overwrite=force) as tmp:
+            with MonitorMcap(tmp / "monitor.mcap", monitor) as mcap, \
+                    Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                             console=console, disable=as_json, transient=True) as bar:
+                task = bar.add_task("monitor", total=n)
+                shown_detectable = False
+                for i in range(n):
+                    for cam, seq in views.items():
+                        frame = seq[i]
+                        if len(views) > 1 or not frame.camera_name:
+                            frame.camera_name = cam
+                        for st in monitor.update(frame, i):
+                            log.add(st)
+                            mcap.add(st)
+                            line = json.dumps(st.to_dict())
+                            lines.append(line)
+                            if as_json:
+                                typer.echo(line)
+                            elif (st.state == "drift" and st.frame == monitor.cameras[st.camera].events[-1].detected_frame) \
+                                    or (not shown_detectable and st.state == "ok"):
+                                console.print(_human(st))  # a new change, and the first detectable change
+                                shown_detectable = shown_detectable or st.state == "ok"
+                    bar.update(task, completed=i + 1)
+            atomic_write(tmp / "monitor.jsonl", [("\n".join(lines) + "\n").encode() if lines else b""])
+            recal = _recalibrate(monitor, views, tmp, recalibrate_frames, console) if recalibrate else {}
+            summary = monitor.summary()
+            summary["source"], summary["calibration"] = str(source), str(calibration)
+            summary["recalibration"] = recal
+            atomic_write(tmp / "summary.json", [json.dumps(summary, indent=1).encode()])
+            write_monitor_html(tmp / "report.html", monitor, log, title=f"xcalib monitor: {source}")
+        if as_json:
+            typer.echo(json.dumps({"summary": summary}))
+        else:
+            for name, cs in summary["cameras"].items():
+                typer.echo(f"{name}: {cs['state']}: {cs['message']}")
+                dr, dt = cs["detectable_rotation_deg"], cs["detectable_translation_m"]
+                if dr is not None:
+                    typer.echo(f"  detectable change (95 % power, last window): rotation x/y/z "
+                               f"{_fmt3(dr)} deg, translation x/y/z {_fmt3(dt, 100)} cm")
+            typer.echo(f"state: {summary['state']} (exit code {summary['exit_code']}); wrote {out}/monitor.jsonl, "
+                       f"summary.json, report.html, monitor.mcap")
+        raise typer.Exit(monitor.exit_code)
+
+
+def _fmt3(v, scale: float = 1.0) -> str:
+    return "/".join("-" if x is None else f"{scale * x:.3g}" for x in v)
+
+
+def _human(st) -> str:
+    if st.state == "drift":
+        return f"[red]frame {st.frame} ({st.time_s:.1f} s) {st.camera}: DRIFT[/red] {st.message}"
+    return (f"frame {st.frame} {st.camera}: detectable change at this traffic (95 % power): rotation x/y/z "
+            f"{_fmt3(st.detectable_rotation_deg)} deg, translation {_fmt3(st.detectable_translation_m, 100)} cm")
+
+
+def _open_views(source: Path, cams: list[str], frame_range, tolerance: float, single: bool) -> dict:
+    """camera -> its frames (lazy); one camera: the source's default camera unless it has that name."""
+    from ..io.sources import find_source, open_source
+
+    options = {"tolerance_s": tolerance} if find_source(source).name == "bag" else {}
+    views = {}
+    try:
+        for c in cams:
+            try:
+                seq = open_source(source, camera=c, frames=frame_range, **options)
+            except (KeyError, ValueError) as exc:
+                if not single or type(exc).__name__ == "FormatError":
+                    raise
+                seq = open_source(source, frames=frame_range, **options)  # a one-camera source named otherwise
+            if len(seq) == 0:
+                raise typer.BadParameter(f"{source}: no frames found", param_hint="SOURCE")
+            views[c] = seq
+    except ValueError as exc:
+        if type(exc).__name__ == "FormatError":
+            raise
+        raise typer.BadParameter(str(exc), param_hint="SOURCE / --camera / --frames") from None
+    return views
+
+
+def _recalibrate(monitor, views: dict, out: Path, n_frames: int, console) -> dict:
+    """``calibrate`` on up to ``n_frames`` frames after each drifted camera's change point."""
+    from ..calib.api import calibrate
+
+    done = {}
+    for cam, cm in monitor.cameras.items():
+        if cm.drift is None:
+            continue
+        k = cm.drift.change_frame
+        seq = views[cam]
+        frames = [seq[i] for i in range(k, min(len(seq), k + n_frames))]
+        if len(frames) < 2:
+            done[cam] = {"success": False, "message": "fewer than 2 frames after the change point"}
+            continue
+        console.print(f"recalibrating {cam} on frames {k}..{k + len(frames) - 1}")
+        res = calibrate(frames, cm.intr, prior=cm.estimated_pose().T)
+        path = res.save(out / "recalibration" / f"{cam}.json")
+        done[cam] = {"success": res.success, "message": res.message, "path": str(Path("recalibration") / path.name),
+                     "frames": [k, k + len(frames)]}
+        if res.success:
+            from ..calib.pose import Pose
+
+            r, t = Pose.parse(res).error(cm.pose0)
+            done[cam].update(rotation_vs_calibration_deg=r, translation_vs_calibration_m=t)
+        console.print(f"  {'calibrated' if res.success else 'refused'}: {res.message or res.summary().splitlines()[0]}")
+    return done

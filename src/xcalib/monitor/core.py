@@ -1,0 +1,761 @@
+"""``Monitor``: watch a calibrated camera's detections and say when (and how far) it has moved.
+
+For every frame the 2D boxes are matched to the projected 3D boxes through the current pose
+(``calib.refine.match_frame``) and the box-edge cost of ``calib.cost`` is linearised there
+(``CostModel.jacobian``): residuals ``r`` [4n] (each already divided by its sigma of the
+calibration's noise model) and their Jacobian ``J`` [4n, 6] with respect to a pose change
+``x = (rotation vector rad, translation m)`` in camera axes (``R <- exp([x0:3]) R``,
+``t <- t + x3:6``), relative to the calibration. A segment of frames gives a robust (soft-L1,
+iteratively reweighted) least-squares estimate of ``x`` with a cluster-robust covariance (one
+cluster per object: the 3D box's track id when the frames carry one, else per matched pair).
+
+Every ``stride`` frames a decision tests (``stats``): the recent segments of ``window``,
+``2 window``, ... frames against the reference segment before them (a change point), and the
+longest recent segment against the calibration itself (with the calibration's own 1-sigma).
+The threshold comes from ``false_alarm_rate`` (per frame). A decision is ``ok`` (no change and
+the window could have seen one of ``max_detectable_*``), ``drift`` (a change; the estimate and the
+frame it started) or ``unknown`` (too few matched objects, or the boxes constrain the pose too
+weakly: the message says which). After a drift the monitor matches and linearises new frames
+at the drifted pose. Memory: ``history`` frames of linearised residuals, whatever the stream's
+length.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Iterable, Literal
+
+import numpy as np
+
+from ..calib.cost import CostModel, Occlusion
+from ..calib.diagnostics import NoiseModel
+from ..calib.inputs import CalibFrame, prepare_frames
+from ..calib.pose import Pose
+from ..calib.boxproj import project_rects
+from ..calib.refine import DEFAULT_NOISE, F_SCALE, edge_term, match_frame
+from ..calib.result import CalibrationResult
+from ..geometry.camera import CameraIntrinsics
+from . import stats
+
+__all__ = ["MonitorConfig", "MonitorStatus", "DriftEvent", "CameraMonitor", "Monitor", "State", "load_calibration",
+           "JSON_FIELDS"]
+
+State = Literal["ok", "drift", "unknown"]
+
+#: keys of every JSON line (``MonitorStatus.to_dict``)
+JSON_FIELDS = ("frame", "time_s", "camera", "state", "rotation_change_deg", "translation_change_m",
+               "rotation_sigma_deg", "translation_sigma_m", "detectable_rotation_deg", "detectable_translation_m",
+               "change_frame", "change_time_s", "n_frames", "n_pairs", "statistic", "threshold", "message")
+
+
+@dataclass(frozen=True)
+class MonitorConfig:
+    """Settings of the drift monitor.
+
+    window: frames of the shortest recent segment; stride: frames between decisions; scales:
+    recent segments of window * 2^k frames, k < scales; history: frames kept (reference
+    segment, change-point search; bounds memory); false_alarm_rate: expected false alarms per
+    frame (default 1 per 10,000); fps: frame rate where frames carry no time; min_pairs:
+    matched pairs a segment needs; min_objects: distinct matched objects it needs (where frames carry
+    track ids); max_detectable_deg / _m: a decision is ``unknown`` when the
+    change it could detect (95 % power) exceeds these on any axis; calibration_sigma_deg / _m:
+    the calibration's 1-sigma where the result has none; gate_iou / gate_dist: matching gates
+    (``refine.match_frame``); latch: a drift stays (and the estimate follows the frames since
+    the change); False: the monitor starts afresh after each alarm (benchmarks).
+    """
+
+    window: int = 20
+    stride: int = 5
+    scales: int = 3
+    history: int = 600
+    false_alarm_rate: float = 1e-4
+    fps: float = 10.0
+    min_pairs: int = 20
+    min_objects: int = 3
+    max_detectable_deg: float = 1.0
+    max_detectable_m: float = 0.5
+    calibration_sigma_deg: float = 0.1
+    calibration_sigma_m: float = 0.05
+    gate_iou: float = 0.2
+    gate_dist: float = 0.5
+    latch: bool = True
+    power: float = 0.95
+
+    def __post_init__(self) -> None:
+        for name in ("window", "stride", "scales", "history", "min_pairs"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"MonitorConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.history < 2 * self.window:
+            raise ValueError(f"MonitorConfig.history ({self.history}) must be at least 2 * window ({self.window})")
+        stats.threshold(self.false_alarm_rate, self.stride, 1)  # validates the rate
+        if not self.fps > 0:
+            raise ValueError(f"MonitorConfig.fps must be > 0, got {self.fps}")
+
+    @property
+    def n_tests(self) -> int:
+        return int(self.scales) + 1
+
+    @property
+    def threshold(self) -> float:
+        """Chi-square (6 dof) threshold of one test."""
+        return stats.threshold(self.false_alarm_rate, self.stride, self.n_tests)
+
+
+@dataclass
+class DriftEvent:
+    """A detected change: the frame it was detected at and the frame it started (index, time);
+    ``step``: the change across the change point (after minus before; 6-vector deg, deg, deg, m, m,
+    m, about / along the camera axes) as the simplest ``model`` the data need ("rotation",
+    "translation" or "rotation+translation", ``stats.select_model``) with its 1-sigma
+    ``step_sigma``; ``change``: the pose since the change relative to the calibration (6-vector,
+    all axes) with its 1-sigma ``sigma``; ``statistic``: the test's chi-square at detection."""
+
+    camera: str
+    detected_frame: int
+    detected_time_s: float
+    change_frame: int
+    change_time_s: float
+    change: np.ndarray
+    sigma: np.ndarray
+    step: np.ndarray
+    step_sigma: np.ndarray
+    model: str
+    statistic: float
+    before_x: np.ndarray | None = None    # pre-change estimate (rad / m) and its covariance
+    before_cov: np.ndarray | None = None
+
+    def to_dict(self) -> dict:
+        return {"camera": self.camera, "detected_frame": self.detected_frame, "detected_time_s": self.detected_time_s,
+                "change_frame": self.change_frame, "change_time_s": self.change_time_s, "model": self.model,
+                "rotation_step_deg": _l(self.step[:3]), "translation_step_m": _l(self.step[3:]),
+                "rotation_step_sigma_deg": _l(self.step_sigma[:3]), "translation_step_sigma_m": _l(self.step_sigma[3:]),
+                "rotation_change_deg": _l(self.change[:3]), "translation_change_m": _l(self.change[3:]),
+                "rotation_sigma_deg": _l(self.sigma[:3]), "translation_sigma_m": _l(self.sigma[3:]),
+                "statistic": self.statistic}
+
+    def update(self, fit: "_Fit") -> None:
+        """Refresh the estimates from the frames since the change (``fit``)."""
+        self.change, self.sigma = _to_units(fit.x), fit.sd6
+        bx = np.zeros(6) if self.before_x is None else self.before_x
+        bc = np.zeros((6, 6)) if self.before_cov is None else self.before_cov
+        x, cov, self.model = stats.select_model(fit.x - bx, fit.cov + bc)
+        self.step = _to_units(x)
+        d = np.sqrt(np.clip(np.diag(cov), 0, None))
+        self.step_sigma = np.concatenate([np.degrees(d[:3]), d[3:]])
+
+
+@dataclass
+class MonitorStatus:
+    """One decision (a window). Changes are relative to the calibration, about / along the camera
+    axes x, y, z (deg, m); sigmas are the window estimate's 1-sigma; detectable: the smallest
+    change along each axis the decision detects with 95 % power (deg, m)."""
+
+    frame: int
+    time_s: float
+    camera: str
+    state: State
+    rotation_change_deg: np.ndarray
+    translation_change_m: np.ndarray
+    rotation_sigma_deg: np.ndarray
+    translation_sigma_m: np.ndarray
+    detectable_rotation_deg: np.ndarray
+    detectable_translation_m: np.ndarray
+    message: str
+    n_frames: int = 0
+    n_pairs: int = 0
+    statistic: float = 0.0
+    threshold: float = 0.0
+    change_frame: int | None = None
+    change_time_s: float | None = None
+    reason: str = ""
+
+    def to_dict(self) -> dict:
+        d = {k: getattr(self, k) for k in JSON_FIELDS}
+        for k, v in d.items():
+            if isinstance(v, np.ndarray):
+                d[k] = _l(v)
+            elif isinstance(v, float):
+                d[k] = _f(v)
+        d["reason"] = self.reason
+        return d
+
+
+def _f(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+def _l(a) -> list:
+    return [_f(float(v)) for v in np.asarray(a, dtype=np.float64).ravel()]
+
+
+@dataclass
+class _Rec:
+    """One frame, linearised at the pose ``x_lin`` (relative to the calibration) and reduced to its
+    soft-L1-weighted normal equations in x relative to the calibration: H = J^T W J [6,6],
+    g = J^T W r' [6] and c = r'^T W r' with r' = r - J x_lin; n_res informative residuals; box counts."""
+
+    index: int
+    time_s: float
+    H: np.ndarray
+    g: np.ndarray
+    c: float
+    n_res: int
+    n2: int
+    n_pairs: int
+    cf: CalibFrame | None = None  # kept for the recent frames only: re-linearised at a detected change
+    objects: np.ndarray | None = None  # track ids of the matched 3D boxes (None: the frame has none)
+
+
+@dataclass
+class _Fit:
+    x: np.ndarray          # 6-vector, rad / m, relative to the calibration
+    cov: np.ndarray        # [6,6]
+    n_pairs: int
+    n_frames: int
+    scale2: float = 1.0    # residual variance factor (1: the noise model holds)
+
+    @property
+    def sd6(self) -> np.ndarray:
+        d = np.sqrt(np.clip(np.diag(self.cov), 0, None))
+        return np.concatenate([np.degrees(d[:3]), d[3:]])
+
+
+def _to_units(x: np.ndarray) -> np.ndarray:
+    """rad/m 6-vector -> deg/m."""
+    return np.concatenate([np.degrees(x[:3]), x[3:]])
+
+
+class _Sums:
+    """Cumulative sums of the frames' normal equations: any run of frames is one subtraction."""
+
+    def __init__(self, recs: list[_Rec]):
+        n = len(recs)
+        z = np.zeros(1)
+        self.H = np.concatenate([np.zeros((1, 6, 6)), np.cumsum(np.stack([q.H for q in recs]), 0)]) if n else \
+            np.zeros((1, 6, 6))
+        self.g = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([q.g for q in recs]), 0)]) if n else np.zeros((1, 6))
+        self.c = np.concatenate([z, np.cumsum([q.c for q in recs])])
+        self.n = np.concatenate([z, np.cumsum([q.n_res for q in recs])])
+        self.p = np.concatenate([z, np.cumsum([q.n_pairs for q in recs])])
+        self.n2 = np.concatenate([z, np.cumsum([q.n2 for q in recs])])
+
+    def pairs(self, a: int, b: int) -> int:
+        return int(self.p[b] - self.p[a])
+
+    def fit(self, a: int, b: int, inflation: float = 1.0) -> _Fit | None:
+        """Weighted least squares over frames [a, b) (soft-L1 weights of each frame's own residuals)."""
+        H, g = self.H[b] - self.H[a], self.g[b] - self.g[a]
+        n_res, n_pairs = self.n[b] - self.n[a], self.pairs(a, b)
+        if n_pairs < 2 or n_res < 7:
+            return None
+        try:
+            Hinv = np.linalg.inv(H)
+        except np.linalg.LinAlgError:
+            return None
+        if not np.all(np.isfinite(Hinv)) or np.linalg.cond(H) > 1e14:
+            return None
+        x = -Hinv @ g
+        rss = float(self.c[b] - self.c[a] + x @ g)  # = sum w (r + J x)^2 at the optimum
+        s2 = max(rss / max(n_res - 6, 1), 1.0)  # never less noise than the calibration's model
+        return _Fit(x, Hinv * s2 * inflation, n_pairs, b - a, s2)
+
+
+def _scan(sums: _Sums, n: int, min_pairs: int) -> tuple[int, float]:
+    """Most likely change point among n frames (index of the first frame after it) and its
+    two-sample statistic (classic covariances)."""
+    k = np.arange(1, n)
+    ok = (sums.p[k] >= min_pairs) & (sums.p[n] - sums.p[k] >= min_pairs)
+    if not np.any(ok):
+        return n // 2, 0.0
+    k = k[ok]
+    eye = 1e-12 * np.eye(6)
+    Hb, gb = sums.H[k] + eye, sums.g[k]
+    Ha, ga = sums.H[n] - sums.H[k] + eye, sums.g[n] - sums.g[k]
+    d = np.linalg.solve(Hb, gb[..., None])[..., 0] - np.linalg.solve(Ha, ga[..., None])[..., 0]
+    C = np.linalg.inv(Ha) + np.linalg.inv(Hb)
+    s = np.einsum("ni,ni->n", d, np.linalg.solve(C, d[..., None])[..., 0])
+    j = int(np.argmax(s))
+    return int(k[j]), float(s[j])
+
+
+_EPS = 1e-6
+
+
+def _perturbations(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """R [13,3,3], t [13,3]: the pose and its central-difference steps of each of the 6 parameters
+    (``Pose.moved``: R <- exp([w]x) R, t <- t + dt)."""
+    from scipy.spatial.transform import Rotation
+
+    steps = np.zeros((13, 6))
+    for k in range(6):
+        steps[1 + 2 * k, k], steps[2 + 2 * k, k] = _EPS, -_EPS
+    Rw = Rotation.from_rotvec(steps[:, :3]).as_matrix()
+    return Rw @ pose.R, pose.t + steps[:, 3:]
+
+
+class CameraMonitor:
+    """The monitor of one camera against its calibration (see the module docstring)."""
+
+    def __init__(self, calibration: CalibrationResult, config: MonitorConfig | None = None, *, camera: str = ""):
+        if not getattr(calibration, "success", False):
+            raise ValueError(f"monitor: calibration of camera {camera or calibration.camera_name!r} has no pose "
+                             f"({calibration.message or 'refused'})")
+        if calibration.intrinsics is None:
+            raise ValueError(f"monitor: calibration of camera {camera or calibration.camera_name!r} has no intrinsics")
+        self.calibration = calibration
+        self.config = config or MonitorConfig()
+        self.camera = camera or calibration.camera_name or "camera"
+        self.pose0 = Pose.parse(calibration, "monitor: calibration")
+        self.intr: CameraIntrinsics = calibration.intrinsics
+        diag = calibration.diagnostics
+        self.noise: NoiseModel = diag.noise_model if diag is not None else DEFAULT_NOISE
+        cfg = calibration.config
+        box_model = cfg.box_model if cfg is not None else "auto"
+        if diag is not None and diag.box_model in ("corners",) and box_model == "auto":
+            box_model = "corners"  # the outlines the calibration chose
+        self._prep = {"reestimate_yaw": cfg.reestimate_yaw if cfg is not None else "auto", "box_model": box_model}
+        self.occlusion = Occlusion(cfg.occlusion_tau, cfg.occlusion_slope) if cfg is not None else Occlusion()
+        rs = np.asarray(calibration.rotation_std_deg, dtype=np.float64)
+        ts = np.asarray(calibration.translation_std_m, dtype=np.float64)
+        # at least the configured floor: the box model's bias differs between traffic scenes
+        rs = np.where(np.isfinite(rs), np.maximum(rs, self.config.calibration_sigma_deg), self.config.calibration_sigma_deg)
+        ts = np.where(np.isfinite(ts), np.maximum(ts, self.config.calibration_sigma_m), self.config.calibration_sigma_m)
+        self.cov_cal = np.diag(np.concatenate([np.radians(rs), ts]) ** 2)
+        self.h = self.config.threshold
+        self.lam = stats.detectable_lambda(self.h, self.config.power)
+        self._diffs: deque[float] = deque(maxlen=200)  # successive windows' disagreement (chi2 / 6)
+        self.reset()
+        self.events: list[DriftEvent] = []
+        self.statuses_seen = {"ok": 0, "drift": 0, "unknown": 0}
+        self.n_seen = 0
+        self.last_time: float | None = None
+        self.last_status: MonitorStatus | None = None
+
+    # ---------------------------------------------------------------- state
+    def reset(self) -> None:
+        """Forget the history (the reference) and any latched drift."""
+        self.recs: deque[_Rec] = deque(maxlen=self.config.history)
+        self.x_lin = np.zeros(6)  # the pose (relative to the calibration) new frames are linearised at
+        self.drift: DriftEvent | None = None
+        self._since_decision = 0
+        self._steps = None
+        self._last_pairs: np.ndarray | None = None
+        self._last_block: _Fit | None = None
+        self._block_end = -1
+
+    @property
+    def pose_lin(self) -> Pose:
+        return self.pose0.moved(self.x_lin[:3], self.x_lin[3:])
+
+    def estimated_pose(self) -> Pose:
+        """The camera pose the monitor currently believes (the calibration unless a drift was found)."""
+        if self.drift is None:
+            return self.pose0
+        x = np.concatenate([np.radians(self.drift.change[:3]), self.drift.change[3:]])
+        return self.pose0.moved(x[:3], x[3:])
+
+    # ---------------------------------------------------------------- frames
+    def check_frame(self, frame) -> None:
+        """Raise ValueError when ``frame`` does not belong to this calibration (camera name,
+        image size or intrinsics differ)."""
+        name = getattr(frame, "camera_name", "") or ""
+        cal_name = self.calibration.camera_name or ""
+        key = getattr(frame, "frame_key", "") or "?"
+        if name and cal_name and name != cal_name:
+            raise ValueError(f"frame {key}: camera {name!r}, but the calibration is for camera {cal_name!r}")
+        fi = getattr(frame, "intrinsics", None)
+        if fi is not None:
+            a, b = fi, self.intr
+            diffs = [f"{k} {getattr(a, k):.6g} vs {getattr(b, k):.6g}" for k in ("fx", "fy", "cx", "cy")
+                     if abs(getattr(a, k) - getattr(b, k)) > 1e-3 * max(abs(getattr(b, k)), 1.0)]
+            if diffs:
+                raise ValueError(f"frame {key}: the frame's intrinsics differ from the calibration's "
+                                 f"({'; '.join(diffs)}): another camera, or a changed lens/resolution")
+        img = getattr(frame, "image", None)
+        size = self.calibration.image_size
+        if img is not None and size is not None and np.ndim(img) >= 2 and img.shape[0] > 1:
+            got = (int(img.shape[1]), int(img.shape[0]))
+            if tuple(size) != got:
+                raise ValueError(f"frame {key}: image size {got[0]}x{got[1]} px, but the calibration's is "
+                                 f"{size[0]}x{size[1]} px")
+
+    def frame_time(self, frame, index: int) -> float:
+        t = getattr(frame, "lidar_time_s", None)
+        if t is None:
+            t = (getattr(frame, "meta", None) or {}).get("timestamp")
+        return float(t) if t is not None else index / self.config.fps
+
+    def _linearise(self, cf: CalibFrame) -> _Rec:
+        """Match the frame at the current pose and reduce its linearised box-edge residuals
+        (``edge_term``'s weights and occlusion shaping; all 13 central-difference poses projected in
+        one batched ``project_rects`` call) to normal equations."""
+        pose = self.pose_lin
+        pairs, _, _ = match_frame(cf, self.intr, pose.R, pose.t, gate_iou=self.config.gate_iou,
+                                  gate_dist=self.config.gate_dist)
+        self._last_pairs = pairs
+        if len(pairs) == 0:
+            return _Rec(0, 0.0, np.zeros((6, 6)), np.zeros(6), 0.0, 0, cf.n2, 0)
+        term = edge_term([cf], [pairs], self.intr, pose, self.noise, self.occlusion)
+        key = self.x_lin.tobytes()
+        if self._steps is None or self._steps[0] != key:
+            self._steps = (key, *_perturbations(pose))
+        _, Rs, ts = self._steps
+        rects, valid = project_rects(term.outlines, Rs, ts, self.intr, term.size)
+        e = np.where(valid[..., None], rects - term.obs[None], term.fallback[None]) * term.w[None]
+        if term.occlusion is not None:
+            e = term.occlusion.shape(e)
+        e = e.reshape(13, -1)
+        r = e[0]
+        J = ((e[1::2] - e[2::2]) / (2 * _EPS)).T  # [4n, 6]
+        info = np.any(J != 0, axis=1) & np.isfinite(r)  # edges clipped at the border carry no information
+        r, J = r[info], J[info]
+        w = 1.0 / np.sqrt(1.0 + (r / F_SCALE) ** 2)
+        rr = r - J @ self.x_lin  # x relative to the calibration
+        JW = J * w[:, None]
+        return _Rec(0, 0.0, J.T @ JW, JW.T @ rr, float(np.sum(w * rr * rr)), int(info.sum()), cf.n2, int(len(pairs)))
+
+    def update(self, frame, index: int | None = None) -> MonitorStatus | None:
+        """Add one frame (an ``xcalib.types.Frame`` of this camera); returns the decision when one
+        is due (every ``stride`` frames once ``window`` frames are in), else None."""
+        index = self.n_seen if index is None else int(index)
+        self.check_frame(frame)
+        t = self.frame_time(frame, index)
+        if self.last_time is not None and t < self.last_time:
+            raise ValueError(f"frame {getattr(frame, 'frame_key', index)!r}: time {t:.3f} s is before the previous "
+                             f"frame's {self.last_time:.3f} s; frames must arrive in time order")
+        self.last_time = t
+        cfs, _, _ = prepare_frames([frame], self.intr, **self._prep)
+        cf = replace(cfs[0], points=None, image=None)
+        rec = self._linearise(cf)
+        rec.index, rec.time_s, rec.cf = index, t, cf
+        ids = getattr(frame, "track_ids_3d", None)
+        if ids is not None and rec.n_pairs and self._last_pairs is not None:
+            ids = np.asarray(ids, dtype=np.int64)
+            cols = cf.idx3d[self._last_pairs[:, 1]]
+            if len(ids) > int(cols.max()):
+                rec.objects = np.unique(ids[cols][ids[cols] >= 0])
+        self.recs.append(rec)
+        keep = self.config.window * 2 ** (self.config.scales - 1) + self.config.stride
+        if len(self.recs) > keep:
+            self.recs[-keep - 1].cf = None
+        self.n_seen += 1
+        self._since_decision += 1
+        if len(self.recs) < self.config.window or self._since_decision < self.config.stride:
+            return None
+        self._since_decision = 0
+        st = self._decide()
+        self.statuses_seen[st.state] += 1
+        self.last_status = st
+        return st
+
+    # ---------------------------------------------------------------- decisions
+    def _status(self, state: State, fit: _Fit | None, message: str, reason: str, stat: float = 0.0,
+                det: np.ndarray | None = None, n_frames: int = 0) -> MonitorStatus:
+        last = self.recs[-1]
+        x = _to_units(fit.x) if fit is not None else np.full(6, np.nan)
+        sd = fit.sd6 if fit is not None else np.full(6, np.nan)
+        det = np.full(6, np.nan) if det is None else det
+        ev = self.drift
+        return MonitorStatus(frame=last.index, time_s=last.time_s, camera=self.camera, state=state,
+                             rotation_change_deg=x[:3], translation_change_m=x[3:], rotation_sigma_deg=sd[:3],
+                             translation_sigma_m=sd[3:], detectable_rotation_deg=det[:3],
+                             detectable_translation_m=det[3:], message=message,
+                             n_frames=n_frames, n_pairs=fit.n_pairs if fit is not None else 0,
+                             statistic=float(stat), threshold=self.h,
+                             change_frame=None if ev is None else ev.change_frame,
+                             change_time_s=None if ev is None else ev.change_time_s, reason=reason)
+
+    def _evidence(self, recs: list[_Rec]) -> tuple[str, str] | None:
+        """(reason code, message) when the segment has too few matched objects, else None."""
+        cfg = self.config
+        n2 = sum(q.n2 for q in recs)
+        npairs = sum(q.n_pairs for q in recs)
+        span = f"the last {len(recs)} frames ({recs[-1].time_s - recs[0].time_s + 1.0 / cfg.fps:.1f} s)"
+        if n2 == 0:
+            return "no_objects", f"no objects detected by the camera in {span}"
+        if npairs < cfg.min_pairs:
+            frac = npairs / max(n2, 1)
+            extra = "" if frac >= 0.3 else (f"; only {100 * frac:.0f} % of the {n2} 2D boxes match the projected 3D "
+                                            "boxes (the camera may have moved far, or the 3D detections are missing)")
+            return "too_few_objects", (f"too few objects: {npairs} matched 2D/3D box pairs in {span} "
+                                       f"(need >= {cfg.min_pairs}){extra}")
+        tracked = [q.objects for q in recs if q.objects is not None]
+        if tracked and len(tracked) == sum(1 for q in recs if q.n_pairs):
+            n_obj = len(np.unique(np.concatenate(tracked)))
+            if n_obj < cfg.min_objects:
+                return "too_few_objects", (f"too few objects: {npairs} matched pairs in {span} are {n_obj} distinct "
+                                           f"object(s) (track ids; need >= {cfg.min_objects}): one object's 3D box "
+                                           "error would pass for a change")
+        return None
+
+    @property
+    def inflation(self) -> float:
+        """Factor on every covariance: how much more successive windows disagree than their
+        covariances say (75th percentile of d^T C^-1 d / 6 over adjacent non-overlapping windows,
+        relative to its value for chi-square 6, at least 1: robust to the rare real change); INFLATION_PRIOR until MIN_DIFFS pairs are in."""
+        if len(self._diffs) < MIN_DIFFS:
+            return INFLATION_PRIOR
+        return max(1.0, float(np.quantile(self._diffs, 0.75)) / CHI2_6_Q75_OVER_6)
+
+    def _update_inflation(self, sums: _Sums, n: int) -> None:
+        W = self.config.window
+        if self.n_seen - self._block_end < W:
+            return
+        fit = sums.fit(n - W, n) if sums.pairs(n - W, n) >= self.config.min_pairs else None
+        prev = self._last_block if self._block_end == self.n_seen - W else None
+        if fit is not None and prev is not None:
+            self._diffs.append(stats.chi2_stat(fit.x - prev.x, fit.cov + prev.cov) / stats.DOF)
+        self._last_block, self._block_end = fit, self.n_seen
+
+    def _decide(self) -> MonitorStatus:
+        cfg = self.config
+        recs = list(self.recs)
+        n = len(recs)
+        sums = _Sums(recs)
+        self._update_inflation(sums, n)
+        if self.drift is not None:
+            return self._decide_latched(recs, sums)
+        phi = self.inflation
+        W = cfg.window
+        lengths = [W * 2 ** k for k in range(cfg.scales) if W * 2 ** k <= n] or [W]
+        longest = lengths[-1]
+        why = self._evidence(recs[-longest:])
+        if why is not None:
+            return self._status("unknown", None, why[1], why[0], n_frames=longest)
+        fit_r = sums.fit(n - longest, n, phi)
+        if fit_r is None:
+            return self._status("unknown", None, "the matched boxes do not determine the pose (degenerate geometry)",
+                                "degenerate", n_frames=longest)
+        best_stat, best_len, det = 0.0, longest, None
+        for L in lengths:  # the change-point tests: each recent segment against the frames before it
+            if sums.pairs(0, n - L) < cfg.min_pairs or sums.pairs(n - L, n) < cfg.min_pairs:
+                continue
+            fa, fb = sums.fit(n - L, n, phi), sums.fit(0, n - L, phi)
+            if fa is None or fb is None:
+                continue
+            C = fa.cov + fb.cov
+            s = stats.chi2_stat(fa.x - fb.x, C)
+            if L == longest:
+                det = stats.detectable_change(C, self.lam)
+            if s > best_stat:
+                best_stat, best_len = s, L
+        s0 = stats.chi2_stat(fit_r.x, fit_r.cov + self.cov_cal)  # the offset from the calibration itself
+        if s0 > best_stat:
+            best_stat, best_len = s0, 0
+        det = _to_units(det if det is not None else stats.detectable_change(fit_r.cov, self.lam))
+        if best_stat > self.h:
+            return self._alarm(recs, sums, best_stat, best_len, det)
+        if np.any(det[:3] > cfg.max_detectable_deg) or np.any(det[3:] > cfg.max_detectable_m):
+            axes = [f"{a} {v:.2f} {'deg' if i < 3 else 'm'}" for i, (a, v) in
+                    enumerate(zip(("rx", "ry", "rz", "tx", "ty", "tz"), det))
+                    if v > (cfg.max_detectable_deg if i < 3 else cfg.max_detectable_m)]
+            return self._status("unknown", fit_r, "the matched boxes constrain the pose too weakly to rule out a "
+                                f"change: detectable {', '.join(axes)} (limit {cfg.max_detectable_deg:g} deg / "
+                                f"{cfg.max_detectable_m:g} m)", "weak_geometry", best_stat, det, longest)
+        return self._status("ok", fit_r, f"no change (statistic {best_stat:.1f} < threshold {self.h:.1f})", "",
+                            best_stat, det, longest)
+
+    def _alarm(self, recs: list[_Rec], sums: _Sums, stat: float, length: int, det: np.ndarray) -> MonitorStatus:
+        cfg = self.config
+        n = len(recs)
+        phi = self.inflation
+        k, _ = _scan(sums, n, cfg.min_pairs)
+        if length == 0 and k < n // 4:  # an offset from the calibration with no change point inside the history
+            k = 0
+        fb = sums.fit(0, k, phi) if k > 0 else None
+        fa = self._refit_after(recs, k, phi)
+        ev = DriftEvent(self.camera, recs[-1].index, recs[-1].time_s, recs[k].index, recs[k].time_s, np.zeros(6),
+                        np.zeros(6), np.zeros(6), np.zeros(6), "", float(stat),
+                        None if fb is None else fb.x, None if fb is None else fb.cov)
+        ev.update(fa)
+        self.events.append(ev)
+        self.drift = ev
+        st = self._status("drift", fa, _drift_message(ev), "change", stat, det, n - k)
+        if cfg.latch:
+            self.x_lin = np.array(fa.x, dtype=np.float64)  # new frames are matched / linearised at the moved pose
+            keep = list(self.recs)[k:]  # the frames since the change are the new segment's evidence
+            self.recs.clear()
+            self.recs.extend(keep)
+        else:
+            self.reset()
+        return st
+
+    def _refit_after(self, recs: list[_Rec], k: int, phi: float) -> _Fit:
+        """The pose since the change point: frames that still have their boxes are matched and
+        linearised again at the estimate (RELIN_ITERS times; the occlusion shaping of the cost is
+        not linear over a change of several pixels), the rest keep their linearisation."""
+        n = len(recs)
+        fa = _Sums(recs).fit(k, n, phi) or _Sums(recs).fit(n - self.config.window, n, phi)
+        for _ in range(RELIN_ITERS):
+            if fa is None:
+                break
+            self.x_lin = np.array(fa.x, dtype=np.float64)
+            for j in range(k, n):
+                q = recs[j]
+                if q.cf is not None:
+                    new = self._linearise(q.cf)
+                    new.index, new.time_s, new.cf, new.objects = q.index, q.time_s, q.cf, q.objects
+                    recs[j] = new
+            fa = _Sums(recs).fit(k, n, phi) or fa
+        if not self.config.latch:
+            self.x_lin = np.zeros(6)
+        else:  # the deque holds the re-linearised records too
+            self.recs.clear()
+            self.recs.extend(recs)
+        return fa
+
+    def _decide_latched(self, recs: list[_Rec], sums: _Sums) -> MonitorStatus:
+        ev = self.drift
+        n = len(recs)
+        fit = sums.fit(0, n, self.inflation) if sums.pairs(0, n) >= self.config.min_pairs else None
+        det, s = None, 0.0
+        if fit is not None:
+            ev.update(fit)
+            self.x_lin = np.array(fit.x, dtype=np.float64)
+            det = _to_units(stats.detectable_change(fit.cov + self.cov_cal, self.lam))
+            s = stats.chi2_stat(fit.x, fit.cov + self.cov_cal)
+        return self._status("drift", fit, _drift_message(ev), "change", s, det, n)
+
+    def summary(self) -> dict:
+        last = self.last_status
+        return {"camera": self.camera, "frames": self.n_seen, "decisions": dict(self.statuses_seen),
+                "state": "unknown" if last is None else last.state,
+                "threshold": self.h, "false_alarm_rate_per_frame": self.config.false_alarm_rate,
+                "detectable_rotation_deg": None if last is None else _l(last.detectable_rotation_deg),
+                "detectable_translation_m": None if last is None else _l(last.detectable_translation_m),
+                "events": [e.to_dict() for e in self.events],
+                "message": "no decision yet (fewer frames than one window)" if last is None else last.message}
+
+
+_AXES = ("x", "y", "z")
+RELIN_ITERS = 2  # re-linearisations of the frames after a detected change
+MIN_DIFFS = 5  # adjacent window pairs before the measured inflation replaces the prior
+INFLATION_PRIOR = 2.0
+CHI2_6_Q75_OVER_6 = 1.3068  # 75th percentile of chi-square(6) / 6
+
+
+def _drift_message(ev: DriftEvent) -> str:
+    r, t, sr, st = ev.step[:3], ev.step[3:], ev.step_sigma[:3], ev.step_sigma[3:]
+    parts = []
+    if ev.model != "translation":
+        i = int(np.argmax(np.abs(r)))
+        parts.append(f"turned {np.linalg.norm(r):.3f} deg (largest {r[i]:+.3f} deg about its {_AXES[i]} axis, "
+                     f"1-sigma {sr[i]:.3f})")
+    if ev.model != "rotation":
+        i = int(np.argmax(np.abs(t)))
+        parts.append(f"shifted {100 * np.linalg.norm(t):.1f} cm (largest {100 * t[i]:+.1f} cm along its {_AXES[i]} "
+                     f"axis, 1-sigma {100 * st[i]:.1f})")
+    return (f"the camera has {' and '.join(parts)} since frame {ev.change_frame} (t={ev.change_time_s:.1f} s, "
+            f"detected at frame {ev.detected_frame}); recalibrate")
+
+
+def load_calibration(path) -> dict[str, CalibrationResult]:
+    """camera name -> calibration from a result ``.json`` / ``.npz`` or a ``site_calibration.json``
+    (its successful cameras). Raises FormatError for unreadable files."""
+    import json
+
+    from ..errors import FormatError
+    from ..io._files import MAX_TEXT_BYTES, read_text
+    from ..site.calibration import SITE_FORMAT, SiteCalibration
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"calibration file not found: {p}")
+    if p.suffix == ".json":
+        try:
+            d = json.loads(read_text(p, max_bytes=MAX_TEXT_BYTES, what="calibration file"))
+        except (ValueError, OSError) as exc:
+            raise FormatError(p, f"not a readable calibration ({type(exc).__name__}: {str(exc)[:200]})") from None
+        if isinstance(d, dict) and d.get("format") == SITE_FORMAT:
+            site = SiteCalibration.load(p)
+            out = {c.camera: c.result for c in site.cameras if c.result.success}
+            if not out:
+                raise FormatError(p, "no camera of this site calibration has a pose (all refused)", "transforms")
+            return out
+    res = CalibrationResult.load(p)
+    if not res.success:
+        raise FormatError(p, f"the calibration has no pose (refused: {res.message})", "success")
+    return {res.camera_name or "camera": res}
+
+
+class Monitor:
+    """Drift monitor of one or several cameras (``calibration``: a ``CalibrationResult``, a
+    ``SiteCalibration``, a ``{camera: CalibrationResult}`` dict or a path to a result / site
+    calibration file). ``update(frame)`` takes frames one at a time, in time order, and returns
+    the decisions due at that frame (one per camera, usually none); ``run(frames)`` iterates them."""
+
+    def __init__(self, calibration, config: MonitorConfig | None = None):
+        if isinstance(calibration, (str, Path)):
+            cals = load_calibration(calibration)
+        elif isinstance(calibration, CalibrationResult):
+            cals = {calibration.camera_name or "camera": calibration}
+        elif isinstance(calibration, dict):
+            cals = dict(calibration)
+        elif hasattr(calibration, "cameras"):
+            cals = {c.camera: c.result for c in calibration.cameras if c.result.success}
+        else:
+            raise TypeError(f"Monitor: expected a CalibrationResult, SiteCalibration, dict or path, "
+                            f"got {type(calibration).__name__}")
+        if not cals:
+            raise ValueError("Monitor: no calibrated camera to monitor")
+        self.config = config or MonitorConfig()
+        self.cameras = {name: CameraMonitor(res, self.config, camera=name) for name, res in cals.items()}
+        self.n_frames = 0
+
+    @property
+    def threshold(self) -> float:
+        return self.config.threshold
+
+    def update(self, frame, index: int | None = None) -> list[MonitorStatus]:
+        """Add one frame (``index``: its position in the stream, default: the count so far; views of
+        several cameras of one sweep share it); returns the decisions due at it (possibly none)."""
+        from ..io.sources import camera_view
+
+        out = []
+        idx = self.n_frames if index is None else int(index)
+        multi = getattr(frame, "images", None) is not None or getattr(frame, "camera_per_det", None) is not None
+        if len(self.cameras) == 1 and not multi:
+            (cm,) = self.cameras.values()
+            st = cm.update(frame, idx)
+            out = [st] if st is not None else []
+        else:
+            present = set(frame.images or {}) | set(frame.camera_per_det or []) | {frame.camera_name}
+            for name, cm in self.cameras.items():
+                if name not in present:
+                    continue
+                view = camera_view(frame, name) if multi else frame
+                st = cm.update(view, idx)
+                if st is not None:
+                    out.append(st)
+            if not any(n in present for n in self.cameras):
+                raise ValueError(f"frame {frame.frame_key!r}: none of the calibrated cameras "
+                                 f"({', '.join(self.cameras)}) is in it (cameras: {', '.join(sorted(present))})")
+        self.n_frames = max(self.n_frames, idx + 1)
+        return out
+
+    def run(self, frames: Iterable) -> Iterable[MonitorStatus]:
+        for f in frames:
+            yield from self.update(f)
+
+    @property
+    def state(self) -> State:
+        """Overall state: drift if any camera drifted, ok if every camera's last decision is ok, else unknown."""
+        states = [(cm.drift is not None and "drift") or (cm.last_status.state if cm.last_status else "unknown")
+                  for cm in self.cameras.values()]
+        if "drift" in states:
+            return "drift"
+        return "ok" if all(s == "ok" for s in states) else "unknown"
+
+    @property
+    def exit_code(self) -> int:
+        """0 ok, 3 drift, 1 could not tell."""
+        return {"ok": 0, "drift": 3}.get(self.state, 1)
+
+    def summary(self) -> dict[str, Any]:
+        return {"state": self.state, "exit_code": self.exit_code, "frames": self.n_frames,
+                "threshold_chi2_6dof": self.threshold, "false_alarm_rate_per_frame": self.config.false_alarm_rate,
+                "config": {k: getattr(self.config, k) for k in self.config.__dataclass_fields__},
+                "cameras": {n: cm.summary() for n, cm in self.cameras.items()}}

@@ -1,0 +1,91 @@
+"""The change test's statistics: a threshold from a false-alarm rate and the change it can detect.
+
+Every decision tests a handful of 6-vectors ``d`` (a pose change: rotation vector in radians about
+the camera axes, translation in metres along them) against their covariance ``C`` with the
+statistic ``s = d^T C^-1 d`` (chi-square, 6 degrees of freedom, when nothing changed). A decision
+runs ``n_tests`` such tests every ``stride`` frames; the threshold is set by a union (Bonferroni)
+bound so that the expected number of false alarms per frame stays below ``rate``: each test
+gets ``rate * stride / n_tests``. Overlapping windows make successive decisions correlated, so the
+real rate is lower than the bound (the benchmark measures it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2, ncx2
+
+__all__ = ["threshold", "detectable_lambda", "detectable_change", "chi2_stat"]
+
+DOF = 6
+
+
+def threshold(rate_per_frame: float, stride: int, n_tests: int) -> float:
+    """Chi-square (6 dof) threshold that keeps false alarms below ``rate_per_frame``."""
+    if not 0.0 < rate_per_frame < 1.0:
+        raise ValueError(f"false_alarm_rate must be in (0, 1) per frame, got {rate_per_frame}")
+    p = min(0.5, rate_per_frame * max(int(stride), 1) / max(int(n_tests), 1))
+    return float(chi2.isf(p, DOF))
+
+
+def detectable_lambda(h: float, power: float = 0.95) -> float:
+    """Non-centrality a change needs to cross the threshold ``h`` with probability ``power``."""
+    lo, hi = 0.0, 10.0 * h + 100.0
+    for _ in range(60):  # bisection: ncx2.sf grows with the non-centrality
+        mid = 0.5 * (lo + hi)
+        if ncx2.sf(h, DOF, mid) < power:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def detectable_change(cov: np.ndarray, lam: float) -> np.ndarray:
+    """Per axis, the smallest change along that axis alone detected with non-centrality ``lam``:
+    ``sqrt(lam / (C^-1)_aa)`` (6-vector: rad, rad, rad, m, m, m; inf where C is singular)."""
+    try:
+        info = np.linalg.inv(cov)
+    except np.linalg.LinAlgError:
+        return np.full(DOF, np.inf)
+    d = np.diag(info)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(d > 0, np.sqrt(lam / d), np.inf)
+
+
+def chi2_stat(d: np.ndarray, cov: np.ndarray) -> float:
+    """``d^T C^-1 d`` (inf where C is singular and d is not zero)."""
+    try:
+        return float(d @ np.linalg.solve(cov, d))
+    except np.linalg.LinAlgError:
+        return float("inf") if np.any(d != 0) else 0.0
+
+
+MODEL_LEVEL = 0.01  # a nested model (rotation only / translation only) is kept unless rejected at this level
+
+
+def select_model(d: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
+    """The simplest model of a change ``d`` (6-vector, rad / m) with covariance ``cov`` that the data
+    do not reject: a pure rotation, a pure translation (each: the constrained generalised least
+    squares estimate, kept when its misfit d^T C^-1 d - ... is below the chi-square(3) quantile at
+    MODEL_LEVEL; the better of the two when both are kept) or both. Returns (estimate [6],
+    covariance [6,6], "rotation" | "translation" | "rotation+translation")."""
+    try:
+        info = np.linalg.inv(cov)
+    except np.linalg.LinAlgError:
+        return d, cov, "rotation+translation"
+    limit = float(chi2.isf(MODEL_LEVEL, 3))
+    best = None
+    for name, sl in (("rotation", slice(0, 3)), ("translation", slice(3, 6))):
+        E = np.zeros((6, 3))
+        E[sl] = np.eye(3)
+        try:
+            ca = np.linalg.inv(E.T @ info @ E)
+        except np.linalg.LinAlgError:
+            continue
+        a = ca @ E.T @ info @ d
+        res = d - E @ a
+        misfit = float(res @ info @ res)
+        if misfit < limit and (best is None or misfit < best[0]):
+            best = (misfit, E @ a, E @ ca @ E.T, name)
+    if best is None:
+        return d, cov, "rotation+translation"
+    return best[1], best[2], best[3]

@@ -1,0 +1,223 @@
+"""Drift monitor: seeded synthetic streams (no drift -> ok; a 1 deg step -> drift on the right axis
+within a stated number of frames; too few objects -> unknown with the reason), bad input, the CLI's
+exit codes, JSON lines schema and outputs."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from xcalib.calib.result import CalibrationResult
+from xcalib.data.synth import iter_frames, sample_site
+from xcalib.monitor import JSON_FIELDS, Monitor, MonitorConfig
+from xcalib.monitor.inject import inject_change
+from xcalib.monitor.stats import detectable_lambda, select_model, threshold
+
+#: a 1 deg step is detected within this many frames of the change (10 Hz: 2 s)
+DETECT_WITHIN = 20
+
+
+def _site(seed: int = 3, **kw):
+    return sample_site(seed, n_objects=(15, 30), **kw)
+
+
+def _frames(site, n: int, seed: int = 0, **noise):
+    """Frames with the detector's yawed boxes as [M,7] (what a tracker hands on)."""
+    out = []
+    for f in iter_frames(site, n, seed, render_images=False, lidar=False, **noise):
+        out.append(replace(f, bboxes_3d=np.asarray(f.meta["box7"], dtype=np.float32)))
+    return out
+
+
+def _calibration(site, sigma_deg: float = 0.05, sigma_m: float = 0.02) -> CalibrationResult:
+    T = site.T_cam_lidar
+    return CalibrationResult(success=True, intrinsics=site.intrinsics_given, rotation=T[:3, :3], translation=T[:3, 3],
+                             rotation_std_deg=np.full(3, sigma_deg), translation_std_m=np.full(3, sigma_m),
+                             camera_name=site.camera_name, image_size=(site.width, site.height))
+
+
+@pytest.fixture(scope="module")
+def stream():
+    site = _site()
+    return site, _frames(site, 160)
+
+
+def test_threshold_and_detectable_change_follow_the_rate():
+    h4, h5 = threshold(1e-4, 5, 4), threshold(1e-5, 5, 4)
+    assert 20 < h4 < h5  # a lower false-alarm rate needs a larger statistic
+    lam = detectable_lambda(h4)
+    assert lam > h4  # 95 % power needs a change beyond the threshold
+    with pytest.raises(ValueError, match="false_alarm_rate"):
+        threshold(0.0, 5, 4)
+
+
+def test_model_selection_names_a_pure_rotation():
+    cov = np.diag([1e-6] * 3 + [1e-4] * 3)
+    d = np.array([0.01, 0, 0, 0, 0, 0]) + np.array([1e-4, -1e-4, 0, 1e-3, 0, -1e-3])
+    x, c, model = select_model(d, cov)
+    assert model == "rotation" and np.allclose(x[3:], 0) and abs(x[0] - d[0]) < 1e-3
+
+
+def test_no_drift_is_ok_without_false_alarm(stream):
+    site, frames = stream
+    mon = Monitor(_calibration(site))
+    states = [st.state for f in frames for st in mon.update(f)]
+    assert "drift" not in states
+    assert states.count("ok") >= 0.8 * len(states)
+    assert mon.state == "ok" and mon.exit_code == 0
+    summ = mon.summary()
+    assert summ["cameras"][site.camera_name]["events"] == []
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+def test_one_degree_step_is_detected_on_its_axis(stream, axis):
+    site, frames = stream
+    k0 = 100
+    change = np.zeros(3)
+    change[axis] = 1.0
+    mon = Monitor(_calibration(site))
+    first = None
+    for i, f in enumerate(frames):
+        f = inject_change(f, site.T_cam_lidar, change, np.zeros(3)) if i >= k0 else f
+        for st in mon.update(f):
+            if st.state == "drift" and first is None:
+                first = (i, st)
+    assert first is not None, "a 1 deg step was not detected"
+    i, st = first
+    assert k0 <= i <= k0 + DETECT_WITHIN
+    ev = mon.cameras[site.camera_name].events[0]
+    assert abs(ev.change_frame - k0) <= 5
+    assert int(np.argmax(np.abs(ev.step[:3]))) == axis
+    assert ev.step[axis] == pytest.approx(1.0, rel=0.3)
+    assert "recalibrate" in st.message and "xyz"[axis] + " axis" in st.message
+    assert mon.exit_code == 3
+
+
+def test_too_few_objects_is_unknown_with_the_reason(stream):
+    site, frames = stream
+    mon = Monitor(_calibration(site))
+    sts = []
+    for f in frames[:60]:
+        empty = replace(f, bboxes_2d=np.zeros((0, 4), np.float32), bboxes_3d=np.zeros((0, 7), np.float32),
+                        match_matrix=None)
+        sts += mon.update(empty)
+    assert sts and all(s.state == "unknown" for s in sts)
+    assert sts[-1].reason == "no_objects" and "no objects" in sts[-1].message
+    assert mon.exit_code == 1
+    # one object seen in every frame: many pairs, but one object's box error would pass for a change
+    ids = np.concatenate([f.meta["ids_2d"] for f in frames[:60]])
+    target = np.bincount(ids[ids >= 0]).argmax()
+    sparse = Monitor(_calibration(site))
+    sts = []
+    for f in frames[:60]:
+        k2, k3 = f.meta["ids_2d"] == target, f.track_ids_3d == target
+        one = replace(f, bboxes_2d=f.bboxes_2d[k2], bboxes_3d=f.bboxes_3d[k3], match_matrix=None,
+                      track_ids_3d=f.track_ids_3d[k3])
+        sts += sparse.update(one)
+    assert sts[-1].state == "unknown" and sts[-1].reason == "too_few_objects"
+    assert "1 distinct object" in sts[-1].message
+
+
+def test_bad_input_names_what_differs(stream):
+    site, frames = stream
+    mon = Monitor(_calibration(site))
+    with pytest.raises(ValueError, match="camera 'other'"):
+        mon.update(replace(frames[0], camera_name="other"))
+    k = site.intrinsics_given
+    with pytest.raises(ValueError, match="intrinsics differ.*fx"):
+        mon.update(replace(frames[0], intrinsics=replace(k, fx=k.fx * 1.1)))
+    mon.update(frames[5])
+    with pytest.raises(ValueError, match="time order"):
+        mon.update(frames[2])
+    with pytest.raises(ValueError, match="history"):
+        MonitorConfig(window=20, history=30)
+
+
+def test_memory_is_bounded(stream):
+    site, frames = stream
+    mon = Monitor(_calibration(site), MonitorConfig(window=10, stride=5, history=40))
+    for f in frames[:120]:
+        mon.update(f)
+    cm = mon.cameras[site.camera_name]
+    assert len(cm.recs) <= 40
+    assert sum(q.cf is not None for q in cm.recs) <= 10 * 4 + 5
+
+
+def _write_stream(tmp_path, site, frames, k0, change):
+    from xcalib.io.frames import write_frame_folder
+
+    out = [inject_change(f, site.T_cam_lidar, change, np.zeros(3)) if i >= k0 else f for i, f in enumerate(frames)]
+    small = [replace(f, image=np.zeros((1, 1, 3), np.uint8)) for f in out]  # the size comes from the intrinsics
+    src = tmp_path / "frames"
+    write_frame_folder(src, small, pcd_encoding="binary")
+    cal = tmp_path / "cal.json"
+    _calibration(site).save(cal)
+    return src, cal
+
+
+def test_cli_exit_codes_json_lines_and_outputs(tmp_path, stream, capsys):
+    from mcap.reader import make_reader
+
+    from xcalib.cli import main
+
+    site, frames = stream
+    src, cal = _write_stream(tmp_path, site, frames[:90], 50, np.array([1.0, 0, 0]))
+    out = tmp_path / "watch"
+    rc = main(["monitor", str(src), "--calibration", str(cal), "--json", "--out", str(out)])
+    lines = [json.loads(x) for x in capsys.readouterr().out.strip().splitlines()]
+    assert rc == 3
+    rows, summary = lines[:-1], lines[-1]["summary"]
+    assert rows and all(set(JSON_FIELDS) <= set(r) for r in rows)
+    assert all(len(r["rotation_change_deg"]) == 3 and len(r["translation_sigma_m"]) == 3 for r in rows)
+    assert {r["state"] for r in rows} <= {"ok", "drift", "unknown"} and rows[-1]["state"] == "drift"
+    assert summary["state"] == "drift" and summary["exit_code"] == 3
+    assert (out / "monitor.jsonl").read_text().count("\n") == len(rows)
+    assert "<svg" in (out / "report.html").read_text()
+    with open(out / "monitor.mcap", "rb") as fh:
+        topics = {c.topic: s.name for s, c, _ in make_reader(fh).iter_messages()}
+    assert topics == {"/diagnostics": "diagnostic_msgs/msg/DiagnosticArray", "/tf": "foxglove.FrameTransforms"}
+    # no drift (the frames before the change) -> 0; a stream with no objects -> 1 (could not tell)
+    assert main(["monitor", str(src), "--frames", "0:50", "--calibration", str(cal), "--out", str(tmp_path / "w0")]) == 0
+    empty = [replace(f, bboxes_2d=np.zeros((0, 4), np.float32), bboxes_3d=np.zeros((0, 7), np.float32),
+                     match_matrix=None) for f in frames[:25]]
+    src1, cal1 = _write_stream(tmp_path / "b", site, empty, 10**6, np.zeros(3))
+    assert main(["monitor", str(src1), "--calibration", str(cal1), "--out", str(tmp_path / "w1")]) == 1
+    capsys.readouterr()
+
+
+def test_cli_rejects_a_calibration_of_another_camera(tmp_path, stream, capsys):
+    from xcalib.cli import main
+
+    site, frames = stream
+    src, _ = _write_stream(tmp_path, site, frames[:25], 10**6, np.zeros(3))
+    other = _calibration(site)
+    other.camera_name = "cam_north"
+    other.save(tmp_path / "other.json")
+    rc = main(["monitor", str(src), "--calibration", str(tmp_path / "other.json"), "--out", str(tmp_path / "w")])
+    assert rc == 1
+    assert "cam_north" in capsys.readouterr().err
+
+
+def test_site_calibration_monitors_each_camera(tmp_path, stream):
+    from xcalib.monitor import load_calibration
+    from xcalib.site.calibration import CameraCalibration, SiteCalibration
+
+    site, frames = stream
+    a, b = _calibration(site), _calibration(site)
+    a.camera_name, b.camera_name = "cam_a", "cam_b"
+    path = SiteCalibration((CameraCalibration("cam_a", a, 10), CameraCalibration("cam_b", b, 10))).save(
+        tmp_path / "site_calibration.json")
+    cals = load_calibration(path)
+    assert sorted(cals) == ["cam_a", "cam_b"]
+    mon = Monitor(path)
+    out = []
+    for i, f in enumerate(frames[:40]):
+        out += mon.update(replace(f, camera_name="cam_a"), i)
+        out += mon.update(replace(f, camera_name="cam_b"), i)
+    assert {s.camera for s in out} == {"cam_a", "cam_b"}
+    assert mon.cameras["cam_a"].n_seen == mon.cameras["cam_b"].n_seen == 40
+    with pytest.raises(ValueError, match="none of the calibrated cameras"):
+        mon.update(replace(frames[41], camera_name="cam_c"), 41)
