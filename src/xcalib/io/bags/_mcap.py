@@ -110,7 +110,7 @@ class McapReader:
             self._file.seek(0)
             it = NonSeekingReader(self._file).iter_messages(topics=topics, log_time_order=False)
         else:
-            it = self._reader.iter_messages(topics=topics, log_time_order=True, start_time=start, end_time=stop)
+            it = self._reader.iter_messages(topics=topics, log_time_order=True, starting_at=start, ending_before=stop)
         from mcap.exceptions import EndOfFile
 
         try:
