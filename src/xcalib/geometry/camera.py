@@ -126,6 +126,8 @@ class CameraIntrinsics:
 
         if not isinstance(d, dict):
             raise FormatError(path, f"expected a JSON object, got {type(d).__name__}")
+        if d.get("model") is not None:
+            _check_pinhole_model(d["model"], path)
         missing = [k for k in ("fx", "fy", "cx", "cy") if k not in d]
         if missing and "K" not in d:
             raise FormatError(path, f"missing key; expected fx, fy, cx, cy (pixels) or K [3,3], found {sorted(d)}",
@@ -164,3 +166,19 @@ class CameraIntrinsics:
 
     def __hash__(self) -> int:
         return hash((self.fx, self.fy, self.cx, self.cy))
+
+
+def _check_pinhole_model(model, path) -> None:
+    """A ``model`` other than pinhole (+ OpenCV distortion) given to a pinhole-only reader is a
+    FormatError naming the field; its other parameters are never silently dropped."""
+    from ..errors import FormatError
+    from .camera_models import canonical_name
+
+    try:
+        name = canonical_name(model) if isinstance(model, str) else None
+    except ValueError as exc:
+        raise FormatError(path, str(exc), "model") from None
+    if name not in ("pinhole", "pinhole_radtan"):
+        raise FormatError(path, f"a {model!r} camera cannot be read as pinhole intrinsics (CameraIntrinsics is "
+                                "pinhole + OpenCV distortion); read it with xcalib.formats.cameras.read_camera",
+                          "model")
