@@ -95,7 +95,10 @@ class CameraIntrinsics:
 
     @classmethod
     def from_dict(cls, d: dict, *, source: str = "intrinsics") -> "CameraIntrinsics":
-        """From ``{fx, fy, cx, cy[, distortion][, width, height]}`` (also accepts ``K``)."""
+        """From ``{fx, fy, cx, cy[, distortion][, width, height]}`` (also accepts ``K``); a
+        ``model`` other than pinhole / pinhole_radtan is a ValueError (never read as pinhole)."""
+        if isinstance(d, dict) and d.get("model") is not None:
+            _check_pinhole_model(d["model"], source)
         if "K" in d and not all(k in d for k in ("fx", "fy", "cx", "cy")):
             return cls.from_matrix(np.asarray(d["K"], dtype=np.float64).reshape(3, 3),
                                    d.get("distortion"), width=d.get("width"), height=d.get("height"))
@@ -170,7 +173,7 @@ class CameraIntrinsics:
 
 def _check_pinhole_model(model, path) -> None:
     """A ``model`` other than pinhole (+ OpenCV distortion) given to a pinhole-only reader is a
-    FormatError naming the field; its other parameters are never silently dropped."""
+    FormatError (a ValueError) naming the field; its other parameters are never silently dropped."""
     from ..errors import FormatError
     from .camera_models import canonical_name
 

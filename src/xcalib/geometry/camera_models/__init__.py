@@ -13,11 +13,14 @@ True
 from .base import CameraModel
 from .double_sphere import DoubleSphere
 from .kannala_brandt import KannalaBrandt
+from .outline import densify_box_edges, pixels_per_metre, project_outline_rects
 from .pinhole import Pinhole, PinholeRadtan
-from .registry import (ALIASES, ENTRY_POINT_GROUP, as_camera_model, available_models, canonical_name,
-                       get_model, model_from_dict)
+from .registry import (ALIASES, ENTRY_POINT_GROUP, as_calibration_camera, as_camera_model, available_models,
+                       calibration_camera_from_dict, canonical_name, get_model, model_from_dict)
 from .unified import EUCM, UCM, Unified
 
 __all__ = ["CameraModel", "Pinhole", "PinholeRadtan", "KannalaBrandt", "Unified", "UCM", "EUCM",
-           "DoubleSphere", "ALIASES", "ENTRY_POINT_GROUP", "as_camera_model", "available_models",
-           "canonical_name", "get_model", "model_from_dict"]
+           "DoubleSphere", "ALIASES", "ENTRY_POINT_GROUP", "as_camera_model", "as_calibration_camera",
+           "calibration_camera_from_dict", "available_models",
+           "canonical_name", "get_model", "model_from_dict", "densify_box_edges", "pixels_per_metre",
+           "project_outline_rects"]

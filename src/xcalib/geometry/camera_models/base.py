@@ -167,6 +167,14 @@ class CameraModel:
         ang = np.degrees(np.arccos(np.clip(rays[:, 2], -1, 1)))
         return float(ang[0] + ang[1]), float(ang[2] + ang[3])
 
+    def check_image_size(self, width: int, height: int) -> None:
+        """Raise ValueError when the principal point lies far outside a width x height image."""
+        if not (-0.25 * width <= self.cx <= 1.25 * width and -0.25 * height <= self.cy <= 1.25 * height):
+            raise ValueError(
+                f"{type(self).__name__}: principal point ({self.cx:.1f}, {self.cy:.1f}) px lies far outside "
+                f"the {width}x{height} image; expected roughly 0..{width} x 0..{height}"
+            )
+
     def scaled(self, focal_scale: float) -> "CameraModel":
         """The same model with fx, fy multiplied by ``focal_scale`` (self-calibration)."""
         return self.replace(fx=self.fx * focal_scale, fy=self.fy * focal_scale)

@@ -15,7 +15,7 @@ from typing import Any
 from .base import CameraModel
 
 __all__ = ["ENTRY_POINT_GROUP", "ALIASES", "available_models", "get_model", "model_from_dict",
-           "canonical_name", "as_camera_model"]
+           "canonical_name", "as_camera_model", "as_calibration_camera", "calibration_camera_from_dict"]
 
 ENTRY_POINT_GROUP = "xcalib.camera_models"
 
@@ -128,3 +128,26 @@ def as_camera_model(camera) -> CameraModel:
     if isinstance(camera, CameraIntrinsics):
         return PinholeRadtan.from_intrinsics(camera)
     raise TypeError(f"expected a CameraModel or CameraIntrinsics, got {type(camera).__name__}")
+
+
+def as_calibration_camera(camera):
+    """What the calibration projects with: a :class:`CameraIntrinsics` for the pinhole models
+    (today's path, results unchanged) and the model itself for every other one."""
+    from ..camera import CameraIntrinsics
+
+    if isinstance(camera, CameraModel) and camera.name in ("pinhole", "pinhole_radtan"):
+        return camera.to_intrinsics()
+    if isinstance(camera, (CameraModel, CameraIntrinsics)):
+        return camera
+    raise TypeError(f"expected a CameraModel or CameraIntrinsics, got {type(camera).__name__}")
+
+
+def calibration_camera_from_dict(d: dict, *, source: str = "intrinsics"):
+    """:func:`as_calibration_camera` of an intrinsics object: ``CameraIntrinsics.from_dict`` when it
+    has no ``model`` (or a pinhole one), :func:`model_from_dict` otherwise."""
+    from ..camera import CameraIntrinsics
+
+    name = d.get("model") if isinstance(d, dict) else None
+    if name is None or canonical_name(name) in ("pinhole", "pinhole_radtan"):
+        return CameraIntrinsics.from_dict(d, source=source)
+    return model_from_dict(d, source=source)
