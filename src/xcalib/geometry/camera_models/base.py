@@ -213,7 +213,8 @@ class CameraModel:
             raise ValueError(f"{type(self).__name__}.project: expected points [N,3], got shape {P.shape}")
         P = P[:, :3]
         finite = np.all(np.isfinite(P), axis=1)
-        P = np.where(finite[:, None], P, [0.0, 0.0, 1.0])
+        if not finite.all():
+            P = np.where(finite[:, None], P, [0.0, 0.0, 1.0])
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             m, dm, ok_n = self._normalise(P, jac)
             md, dd, ok_d = self._distort(m, jac)

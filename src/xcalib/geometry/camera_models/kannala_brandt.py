@@ -70,14 +70,15 @@ class KannalaBrandt(CameraModel):
         rho2 = X * X + Y * Y
         rho = np.sqrt(rho2)
         th = np.arctan2(rho, Z)
-        valid = (th <= self._tmax) & (rho2 + Z * Z > 0)
+        valid = th <= self._tmax
         td = self._poly(th)
-        small = rho < 1e-12 * np.maximum(np.abs(Z), 1e-300)
-        valid &= ~(small & (Z <= 0))  # straight behind: no direction in the image
-        rho_s = np.where(small, 1.0, rho)
-        # scale s = theta_d / rho; on the axis its limit is 1/Z
-        s = np.where(small, 1.0 / np.where(Z > 0, Z, 1.0), td / rho_s)
-        m = np.stack([s * X, s * Y], axis=1)
+        small = rho < 1e-12 * np.abs(Z)
+        s = td / rho  # scale theta_d / rho; on the axis its limit is 1/Z
+        if small.any():
+            valid &= ~(small & (Z <= 0))  # straight behind (or the origin): no direction in the image
+            s[small] = 1.0 / np.where(Z[small] > 0, Z[small], 1.0)
+        rho_s = np.where(small, 1.0, rho) if jac else None
+        m = P[:, :2] * s[:, None]
         if not jac:
             return m, None, valid
         n2 = rho2 + Z * Z
