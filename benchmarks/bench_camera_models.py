@@ -166,15 +166,18 @@ def main(argv=None) -> int:
     recs: list[dict] = []
     if not a.no_calibration:
         seeds = range(a.first_seed, a.first_seed + a.sites)
+        models = [m for m in a.models.split(",") if m]
+        fovs = [float(f) for f in a.fovs.split(",") if f]
         cases = [("pinhole", 90.0, s, False) for s in seeds]
-        for m in [m for m in a.models.split(",") if m]:
-            for fov in [float(f) for f in a.fovs.split(",") if f]:
+        if not a.no_pinhole_check:  # the refusal check first: it is the one that must never fail
+            cases += [(m, max(fovs), s, True) for m in models[:1] for s in seeds]
+        for fov in sorted(fovs, reverse=True):  # the widest first
+            for m in models:
                 cases += [(m, fov, s, False) for s in seeds]
-        if not a.no_pinhole_check:
-            cases += [(m, 150.0, s, True) for m in a.models.split(",")[:1] if m for s in seeds]
         for i, (m, fov, s, asp) in enumerate(cases):
             rec = calibrate_case(m, fov, s, a.frames, asp)
             recs.append(rec)
+            _save(a, tp, summarise(recs), recs)  # after every case: a cut-short run keeps its rows
             print(f"[{i + 1}/{len(cases)}] {rec['row']} seed {s}: success={rec['success']} "
                   f"rot={_fmt(rec.get('rot_deg'), '.3f')} deg trans={_fmt(rec.get('trans_m'), '.3f')} m "
                   f"({rec['time_s']:.0f} s) {'' if rec['success'] else rec['message'][:120]}", flush=True)
@@ -186,13 +189,17 @@ def main(argv=None) -> int:
                   f"{_fmt(r['trans_m_median'], '8.3f')} {_fmt(r['coverage_2sigma'], '8.0%')} {r['time_s_median']:7.0f}")
     else:
         table = []
+    _save(a, tp, table, recs)
+    print(f"wrote {OUT} [{a.label}]")
+    return 0
+
+
+def _save(a, tp, table, recs) -> None:
     data = json.loads(OUT.read_text()) if OUT.is_file() else {}
     data[a.label] = {"machine": machine_info(), "args": vars(a), "throughput": tp, "calibration": table,
                      "records": recs}
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(data, indent=1))
-    print(f"wrote {OUT} [{a.label}]")
-    return 0
 
 
 if __name__ == "__main__":

@@ -141,7 +141,8 @@ class CameraModel:
         valid = finite & ok_d & ok_l & np.all(np.isfinite(rays), axis=1)
         if np.any(valid):
             # a ray the forward model cannot take (outside its valid region) is not a valid ray
-            _, back = self._normalise(np.where(valid[:, None], rays, [0.0, 0.0, 1.0]), False)[::2]
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                _, _, back = self._normalise(np.where(valid[:, None], rays, [0.0, 0.0, 1.0]), False)
             valid &= back
         rays[~valid] = np.nan
         return rays, valid
