@@ -196,3 +196,18 @@ def test_convert_cli_keeps_the_model(tmp_path, capsys):
     assert rc == 2  # a usage error: ROS CameraInfo cannot express a double-sphere camera
     assert "cannot express a double_sphere camera" in capsys.readouterr().err
     assert not (tmp_path / "ds.yaml").exists()
+
+
+def test_intrinsics_option_reads_every_model(tmp_path):
+    """``--intrinsics FILE`` (io.frames.read_intrinsics_json): a wide-angle model is kept, a
+    pinhole one stays CameraIntrinsics, a bad one names its field."""
+    from xcalib.io.frames import read_intrinsics_json
+
+    p = tmp_path / "intrinsics.json"
+    p.write_text(json.dumps({"name": "cam0", **CAMS["double_sphere"].to_dict()}))
+    assert read_intrinsics_json(p) == CAMS["double_sphere"]
+    p.write_text(json.dumps(CAMS["plumb_bob"].to_dict()))
+    assert read_intrinsics_json(p) == CAMS["plumb_bob"].to_intrinsics()
+    p.write_text(json.dumps({**CAMS["double_sphere"].to_dict(), "xi": 3}))
+    with pytest.raises(FormatError, match=r"\[xi\].*\[-1, 1\]"):
+        read_intrinsics_json(p)
