@@ -155,3 +155,22 @@ def test_synthetic_site_rejects_bad_lens_settings():
     assert pin.intrinsics.fx == pytest.approx(640.0)
     assert isinstance(DoubleSphere(fx=1, fy=1, cx=0, cy=0, xi=0.0, alpha=0.5), DoubleSphere)
     assert math.isfinite(pin.intrinsics.fy)
+
+
+def test_bag_equidistant_camera_can_stay_a_fisheye():
+    """io.bags: an equidistant CameraInfo is the kannala_brandt model itself (``fisheye="keep"``)."""
+    import cv2
+
+    from xcalib.io.bags import _convert as cv
+    from xcalib.io.bags.reader import BagFrames
+
+    K = np.array([[300.0, 0, 320], [0, 301.0, 240], [0, 0, 1]])
+    D = np.array([0.08, -0.02, 0.004, -0.001])
+    fe = cv.Fisheye(K, D, (640, 480), K)
+    cam = fe.camera_model
+    assert cam.name == "kannala_brandt" and (cam.width, cam.height) == (640, 480)
+    P = np.array([[0.5, -0.2, 1.0], [1.5, 0.7, 1.0]])
+    ref, _ = cv2.fisheye.projectPoints(P.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, D)
+    np.testing.assert_allclose(cam.project(P)[0], ref.reshape(-1, 2), atol=1e-8)
+    with pytest.raises(ValueError, match="fisheye must be 'rectify' or 'keep'"):
+        BagFrames("missing.bag", fisheye="undistort")
