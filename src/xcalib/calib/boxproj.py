@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera_models import project_outline_rects
 from ..geometry.projection import distort_normalized
 
 __all__ = ["project_rects", "iou_batched", "MIN_DEPTH_M"]
@@ -28,7 +29,12 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
     Returns:
         rects [H,M,4] (x1,y1,x2,y2 px; NaN where invalid), valid [H,M] bool: every corner in
         front of the camera and a non-empty clipped rectangle.
+
+    ``intr`` may also be any camera model (:mod:`xcalib.geometry.camera_models`): the outline
+    is then projected through it (box edges densely for a wide-angle model).
     """
+    if not isinstance(intr, CameraIntrinsics):  # camera-model dispatch (CameraIntrinsics: below, unchanged)
+        return project_outline_rects(corners, R, t, intr, size, clip=clip, min_distance=MIN_DEPTH_M)
     single = np.ndim(R) == 2
     R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
     t = np.asarray(t, dtype=np.float64).reshape(-1, 3)

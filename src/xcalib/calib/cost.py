@@ -29,6 +29,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera_models import pixels_per_metre as camera_pixels_per_metre
 from .boxproj import project_rects
 from .diagnostics import NoiseModel
 from .pose import Pose
@@ -92,6 +93,8 @@ def _pair_features(obs: np.ndarray, outlines: np.ndarray, intr: CameraIntrinsics
     """Per pair: 2D box size s (px, sqrt of its area) and f/Z (px per metre at the box centre)."""
     s = np.sqrt(np.clip((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]), 0, None))
     ctr = outlines.mean(1) @ pose.R.T + pose.t
+    if not isinstance(intr, CameraIntrinsics):  # camera-model dispatch: the model's local scale
+        return s, camera_pixels_per_metre(intr, ctr)
     z = np.maximum(ctr[:, 2], 1.0)
     return s, np.sqrt(intr.fx * intr.fy) / z
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..geometry.boxes import box2d_centers, box2d_sizes
 from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera_models import pixels_per_metre as camera_pixels_per_metre
 from ..geometry.projection import undistort_pixels
 from .boxproj import iou_batched, project_rects
 from .inputs import CalibFrame
@@ -72,6 +73,9 @@ def kabsch(A: np.ndarray, B: np.ndarray, w: np.ndarray | None = None):
 
 def bearings(intr: CameraIntrinsics, uv: np.ndarray) -> np.ndarray:
     """Unit camera-frame rays [N,3] of pixels [N,2] (distortion removed)."""
+    if not isinstance(intr, CameraIntrinsics):  # camera-model dispatch: the model's own rays
+        rays, ok = intr.unproject(uv)
+        return np.where(ok[:, None], rays, np.array([0.0, 0.0, 1.0]))
     uv = undistort_pixels(uv, intr.K, intr.distortion) if intr.distortion is not None else np.asarray(uv, float)
     x = np.stack([(uv[:, 0] - intr.cx) / intr.fx, (uv[:, 1] - intr.cy) / intr.fy, np.ones(len(uv))], 1)
     return x / np.linalg.norm(x, axis=1, keepdims=True)
@@ -127,6 +131,8 @@ def _candidate_pairs(fr: CalibFrame, intr: CameraIntrinsics, prior_sim, top_k: i
              | (fr.boxes2d[:, 3] > Hh - 2))
     b = bearings(intr, c2)
     f = np.sqrt(intr.fx * intr.fy)
+    if not isinstance(intr, CameraIntrinsics):  # camera-model dispatch: the scale along each ray
+        f = np.nan_to_num(camera_pixels_per_metre(intr, b), nan=f)[:, None]
     lam0 = f * _size3(fr.boxes3d)[None, :] / s2[:, None]  # [K,M] metres along the ray
     ii, jj = np.meshgrid(np.arange(K), np.arange(M), indexing="ij")
     ii, jj = ii.ravel(), jj.ravel()
@@ -344,9 +350,15 @@ def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nd
                                for s in range(0, len(R), chunk)])
     Xc = np.einsum("hij,mj->hmi", R, fr.boxes3d[:, :3]) + t[:, None, :]
     z = Xc[..., 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.where(z > 0.5, Xc[..., 0] / z * intr.fx + intr.cx, np.nan)
-        v = np.where(z > 0.5, Xc[..., 1] / z * intr.fy + intr.cy, np.nan)
+    if not isinstance(intr, CameraIntrinsics):  # camera-model dispatch
+        uv, ok = intr.project(Xc.reshape(-1, 3))
+        ok &= np.linalg.norm(Xc.reshape(-1, 3), axis=1) > 0.5
+        u = np.where(ok, uv[:, 0], np.nan).reshape(z.shape)
+        v = np.where(ok, uv[:, 1], np.nan).reshape(z.shape)
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.where(z > 0.5, Xc[..., 0] / z * intr.fx + intr.cx, np.nan)
+            v = np.where(z > 0.5, Xc[..., 1] / z * intr.fy + intr.cy, np.nan)
     hits = np.zeros(len(R), dtype=np.int64)
     for x0, y0, x1, y1 in np.asarray(fr.boxes2d, dtype=np.float64).tolist():  # box by box: [H,M] masks stay in cache
         hits += ((u >= x0) & (u <= x1) & (v >= y0) & (v <= y1)).any(1)

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..geometry.boxes import as_box7, box7_corners, check_boxes2d, check_boxes3d, valid_boxes2d
 from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera_models import CameraModel, as_calibration_camera, calibration_camera_from_dict
 from .boxmodel import fit_yaw_to_points, lidar_angular_step, shapes_from_points
 
 __all__ = ["CalibFrame", "as_intrinsics", "prepare_frames", "with_corner_outlines", "YAW_OPEN_SIGMA"]
@@ -64,9 +65,15 @@ class CalibFrame:
 
 
 def as_intrinsics(intrinsics) -> CameraIntrinsics:
-    """Accept ``CameraIntrinsics``, a 3x3 K, or a dict; raise ValueError otherwise."""
+    """Accept ``CameraIntrinsics``, a 3x3 K, or a dict; raise ValueError otherwise. A camera model
+    (``xcalib.geometry.camera_models``, or a dict with a ``model``) is kept as it is, except the
+    pinhole ones, which become ``CameraIntrinsics``."""
     if isinstance(intrinsics, CameraIntrinsics):
         return intrinsics
+    if isinstance(intrinsics, CameraModel):  # camera-model dispatch
+        return as_calibration_camera(intrinsics)
+    if isinstance(intrinsics, dict) and intrinsics.get("model") is not None:
+        return calibration_camera_from_dict(intrinsics)
     if isinstance(intrinsics, dict):
         return CameraIntrinsics.from_dict(intrinsics)
     if intrinsics is None:

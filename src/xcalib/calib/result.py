@@ -12,6 +12,7 @@ import numpy as np
 
 from ..errors import CalibrationFailedError
 from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera_models import calibration_camera_from_dict
 from ..geometry.projection import project_points, projection_matrix
 from ..geometry.transforms import make_transform, pose_error as _pose_error
 from .config import CalibConfig
@@ -112,7 +113,7 @@ class CalibrationResult:
         """The intrinsics passed in (``intrinsics`` are those used: estimated where refined)."""
         if self.diagnostics is None or self.diagnostics.selfcal.intrinsics_given is None:
             return self.intrinsics
-        return CameraIntrinsics.from_dict(self.diagnostics.selfcal.intrinsics_given)
+        return calibration_camera_from_dict(self.diagnostics.selfcal.intrinsics_given)
 
     @property
     def focal_scale(self) -> float:
@@ -179,7 +180,7 @@ class CalibrationResult:
         intr = d.get("intrinsics")
         return cls(
             success=bool(d["success"]),
-            intrinsics=None if intr is None else CameraIntrinsics.from_dict(intr),
+            intrinsics=None if intr is None else calibration_camera_from_dict(intr),
             rotation=None if d.get("rotation") is None else np.asarray(d["rotation"], dtype=np.float64),
             translation=None if d.get("translation") is None else np.asarray(d["translation"], dtype=np.float64),
             message=d.get("message", ""),
@@ -217,12 +218,16 @@ class CalibrationResult:
         if path.suffix == ".npz":
             buf = io.BytesIO()
             posed = self.rotation is not None and self.translation is not None
+            # a wide-angle camera model has no K + OpenCV distortion: NaN there (its model is in json)
+            nan5 = None if isinstance(self.intrinsics, (CameraIntrinsics, type(None))) else np.full(5, np.nan)
             np.savez(buf, rotation=self.rotation if posed else np.full((3, 3), np.nan),
                      translation=self.translation if posed else np.full(3, np.nan),
                      extrinsics=self.extrinsics if posed else np.full((4, 4), np.nan),
                      K=self.K if self.intrinsics is not None else np.full((3, 3), np.nan),
-                     dist_coeffs=self.intrinsics.dist_coeffs if self.intrinsics is not None else np.zeros(5),
-                     projection=self.projection if self.intrinsics is not None and posed else np.full((3, 4), np.nan),
+                     dist_coeffs=nan5 if nan5 is not None else (self.intrinsics.dist_coeffs if self.intrinsics is not None
+                                                                  else np.zeros(5)),
+                     projection=self.projection if self.intrinsics is not None and posed and nan5 is None
+                     else np.full((3, 4), np.nan),
                      reproj_error_px=np.float64(self.reproj_error_px), n_inliers=np.int64(self.n_inliers),
                      n_correspondences=np.int64(self.n_correspondences), success=np.bool_(self.success),
                      json=np.frombuffer(json.dumps(self.to_dict()).encode(), dtype=np.uint8))

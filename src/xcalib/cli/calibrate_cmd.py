@@ -47,6 +47,9 @@ def register(app: typer.Typer) -> None:
         max_overlays: int = typer.Option(8, "--max-overlays", help="Overlay PNGs to draw per camera (0: none)."),
         limit: int = typer.Option(0, "--limit", help="Use only the first N frames (0: all)."),
         tolerance: float = typer.Option(0.05, "--tolerance", help="Bags: largest LiDAR/image stamp difference (s)."),
+        fisheye: str = typer.Option("rectify", "--fisheye", help="Bags with an equidistant CameraInfo: rectify "
+                                                                 "(to pinhole) | keep (calibrate in the fisheye "
+                                                                 "image, kannala_brandt model)."),
         seed: int = typer.Option(0, "--seed", help="Random seed of the hypothesis sampling."),
         refine_intrinsics: str = typer.Option("auto", "--refine-intrinsics",
                                               help="auto | none | focal | focal+center: estimate the focal length "
@@ -105,7 +108,9 @@ def register(app: typer.Typer) -> None:
             if prior is not None and len(cams) > 1:
                 raise typer.BadParameter("--prior applies to one camera; give one --camera", param_hint="--prior")
             intr = read_intrinsics_json(intrinsics) if intrinsics is not None else None
-            views = _open_views(frames, cams, frame_range, limit, intr, tolerance, detect)
+            if fisheye not in ("rectify", "keep"):
+                raise typer.BadParameter(f"expected rectify or keep, got {fisheye!r}", param_hint="--fisheye")
+            views = _open_views(frames, cams, frame_range, limit, intr, (tolerance, fisheye, detect))
             name0 = next(iter(views))
             if len(views) == 1 and intr is None and getattr(views[name0], "intrinsics", None) is None and len(views[name0]) \
                     and views[name0][0].intrinsics is None:
@@ -165,19 +170,21 @@ def _check_camera_names(cameras) -> None:
         seen.add(c)
 
 
-def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, tolerance: float,
-                detect: bool = False) -> dict:
+def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, bag_options: tuple) -> dict:
     """camera name -> its frames (lazy), for each ``--camera`` (or the source's default camera);
-    ``detect``: a bag is read without its detection topics (they are made by xcalib.detect)."""
+    ``bag_options`` = (tolerance_s, fisheye, detect) for a bag (``detect``: read without its
+    detection topics, which xcalib.detect makes)."""
     from ..io.sources import find_source, open_source
 
     if frame_range is None and limit > 0:
         frame_range = f"0:{limit}"
     options = {}
     if find_source(source).name == "bag":
-        options["tolerance_s"] = tolerance
+        options["tolerance_s"], fisheye, detect = bag_options
         if detect:
             options["detections"] = False
+        if fisheye != "rectify":
+            options["fisheye"] = fisheye
         if intr is not None:
             options["intrinsics"] = intr
     views = {}

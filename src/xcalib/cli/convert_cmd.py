@@ -12,7 +12,10 @@ _EX = ("Example: xcalib convert cam03/lucid_calib.json --to calib_json --out cal
        "Formats: kitti, calib_json, lucid, calib_txt, opencalib, openlabel, ros, urdf, tf_static, nuscenes, json, npz "
        "(waymo .tfrecord and mmdetection3d KITTI .pkl as input only). Every reader returns and every "
        "writer takes T_cam_lidar (LiDAR -> OpenCV camera); each format's own direction is documented "
-       "in xcalib.formats.")
+       "in xcalib.formats.\n\n"
+       "Camera files (intrinsics only, the camera model kept): --to camera_info | kalibr | opencv_yaml | "
+       "opencv_json | intrinsics_json, from any of them, e.g. xcalib convert camchain.yaml --to camera_info "
+       "--camera cam0 --out fisheye.yaml; a model the target cannot express is refused.")
 
 
 def register(app: typer.Typer) -> None:
@@ -29,7 +32,14 @@ def register(app: typer.Typer) -> None:
                                                                    "store it (ros CameraInfo) when the input has none."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
         force: bool = typer.Option(False, "--force", help="Replace existing output file(s)."),
+        camera: str = typer.Option(None, "--camera", help="Camera files: which camera of a Kalibr camchain "
+                                                          "(cam0, cam1, ...)."),
     ) -> None:
+        from ..formats.cameras import CAMERA_FORMATS
+
+        if to in CAMERA_FORMATS:
+            _convert_camera(src, to, out, src_format, camera, as_json=as_json, force=force)
+            return
         from ..formats.export import FORMATS, default_filename, detect_format, export_calibration, read_calibration
 
         if to not in FORMATS or FORMATS[to].write is None:
@@ -67,3 +77,28 @@ def _size(text: str) -> tuple[int, int]:
     if len(parts) != 2 or w <= 0 or h <= 0:
         raise typer.BadParameter(f"{text!r}: expected WIDTHxHEIGHT, e.g. 1920x1200", param_hint="--image-size")
     return w, h
+
+
+def _convert_camera(src: Path, to: str, out: Path | None, src_format: str | None, camera: str | None, *,
+                    as_json: bool, force: bool) -> None:
+    from ..formats.cameras import CAMERA_FORMATS, UnsupportedModelError, detect_camera_format, read_camera, write_camera
+
+    if src_format is not None and src_format not in CAMERA_FORMATS:
+        raise typer.BadParameter(f"a camera file converts from {', '.join(CAMERA_FORMATS)}, not {src_format!r}",
+                                 param_hint="--from")
+    fmt_in = src_format or detect_camera_format(src)
+    cam = read_camera(src, fmt_in, camera=camera)
+    if out is None:
+        out = src.with_name(f"{src.stem}_{to}{'.json' if to.endswith('json') else '.yaml'}")
+    if out.exists() and src.exists() and out.resolve() == src.resolve():
+        raise typer.BadParameter(f"output {out} would overwrite the input; give --out", param_hint="--out")
+    try:
+        write_camera(cam, out, to, camera_name=camera or "camera", overwrite=force)
+    except UnsupportedModelError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--to") from None
+    if as_json:
+        typer.echo(json.dumps({"input": str(src), "from": fmt_in, "to": to, "written": [str(out)],
+                               "camera": cam.to_dict()}))
+        return
+    typer.echo(f"{src} ({fmt_in}) -> {to}: {cam.name} camera")
+    typer.echo(f"  wrote {out}")

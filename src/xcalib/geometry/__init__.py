@@ -11,6 +11,10 @@ The convention, stated once and used everywhere in xcalib:
 * **Projection** ``P = K [R|t]`` ([3,4]) maps LiDAR-frame points to pixels (u right, v down,
   origin at the top-left corner of the image), with OpenCV distortion applied to the
   normalised coordinates when the intrinsics carry it.
+* **Camera models** (:mod:`xcalib.geometry.camera_models`): ``CameraIntrinsics`` is the
+  pinhole (+ OpenCV distortion) case; ``get_model(name)`` gives the others (Kannala-Brandt,
+  unified/Mei, UCM, EUCM, double sphere) with ``project``/``unproject``/``project_jacobian`` on
+  camera-frame points, and points outside a model's valid region flagged, never wrapped.
 * **Pixels** for 2D boxes (x1, y1, x2, y2); **radians** for angles unless an argument says
   ``degrees``; quaternions (x, y, z, w) unless ``order="wxyz"``.
 """
@@ -18,6 +22,7 @@ The convention, stated once and used everywhere in xcalib:
 from .boxes import *  # noqa: F401,F403
 from .boxes import __all__ as _boxes_all
 from .camera import CameraIntrinsics
+from .camera_models import CameraModel, as_camera_model, available_models, get_model, model_from_dict
 from .projection import *  # noqa: F401,F403
 from .projection import __all__ as _proj_all
 from .rotations import *  # noqa: F401,F403
@@ -25,4 +30,5 @@ from .rotations import __all__ as _rot_all
 from .transforms import *  # noqa: F401,F403
 from .transforms import __all__ as _tf_all
 
-__all__ = ["CameraIntrinsics", *_boxes_all, *_proj_all, *_rot_all, *_tf_all]
+__all__ = ["CameraIntrinsics", "CameraModel", "as_camera_model", "available_models", "get_model",
+           "model_from_dict", *_boxes_all, *_proj_all, *_rot_all, *_tf_all]

@@ -155,7 +155,10 @@ class CameraIntrinsics:
 
     @classmethod
     def from_dict(cls, d: dict, *, source: str = "intrinsics") -> "CameraIntrinsics":
-        """From ``{fx, fy, cx, cy[, distortion][, width, height]}`` (also accepts ``K``)."""
+        """From ``{fx, fy, cx, cy[, distortion][, width, height]}`` (also accepts ``K``); a
+        ``model`` other than pinhole / pinhole_radtan is a ValueError (never read as pinhole)."""
+        if isinstance(d, dict) and d.get("model") is not None:
+            _check_pinhole_model(d["model"], source)
         if "K" in d and not all(k in d for k in ("fx", "fy", "cx", "cy")):
             return cls.from_matrix(np.asarray(d["K"], dtype=np.float64).reshape(3, 3),
                                    d.get("distortion"), width=d.get("width"), height=d.get("height"))
@@ -196,6 +199,8 @@ class CameraIntrinsics:
 
         if not isinstance(d, dict):
             raise FormatError(path, f"expected a JSON object, got {type(d).__name__}")
+        if d.get("model") is not None:
+            _check_pinhole_model(d["model"], path)
         missing = [k for k in ("fx", "fy", "cx", "cy") if k not in d]
         if missing and "K" not in d:
             raise FormatError(path, f"missing key; expected fx, fy, cx, cy (pixels) or K [3,3], found {sorted(d)}",
@@ -242,3 +247,19 @@ class CameraIntrinsics:
 
     def __hash__(self) -> int:
         return hash((self.fx, self.fy, self.cx, self.cy))
+
+
+def _check_pinhole_model(model, path) -> None:
+    """A ``model`` other than pinhole (+ OpenCV distortion) given to a pinhole-only reader is a
+    FormatError (a ValueError) naming the field; its other parameters are never silently dropped."""
+    from ..errors import FormatError
+    from .camera_models import canonical_name
+
+    try:
+        name = canonical_name(model) if isinstance(model, str) else None
+    except ValueError as exc:
+        raise FormatError(path, str(exc), "model") from None
+    if name not in ("pinhole", "pinhole_radtan"):
+        raise FormatError(path, f"a {model!r} camera cannot be read as pinhole intrinsics (CameraIntrinsics is "
+                                "pinhole + OpenCV distortion); read it with xcalib.formats.cameras.read_camera",
+                          "model")

@@ -48,13 +48,24 @@ def project_points(points, K, R=None, t=None, dist=None, *, min_depth: float = 1
     Args:
         points: [N, >=3] metres, in the frame of the 3D boxes (LiDAR frame).
         K: [3,3] camera matrix (or a ``CameraIntrinsics``; then its distortion is used
-           unless ``dist`` is given).
+           unless ``dist`` is given; or any ``CameraModel``: its projection, NaN outside its
+           valid region, which for a wide-angle model includes points with Z <= 0).
         R, t: LiDAR->camera rotation [3,3] and translation [3] (identity/zero if omitted).
         dist: OpenCV distortion coefficients or None.
     Returns:
         ``(uv [N,2] float64 pixels, depth [N] camera-frame Z in metres)``. Points with
         depth <= ``min_depth`` get uv = NaN.
     """
+    from .camera_models.base import CameraModel
+
+    if isinstance(K, CameraModel):  # any camera model: its own projection and valid region
+        if dist is not None:
+            raise ValueError(f"project_points: a {K.name} camera model carries its own distortion; got dist too")
+        pc = points_to_camera(points, np.eye(3) if R is None else R, np.zeros(3) if t is None else t)
+        uv, valid = K.project(pc)
+        if K.is_pinhole:
+            uv[~(pc[:, 2] > min_depth)] = np.nan
+        return uv, pc[:, 2]
     if hasattr(K, "K"):
         if dist is None:
             dist = K.distortion

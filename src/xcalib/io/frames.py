@@ -74,8 +74,20 @@ def _box_array(path: Path, key: str, value, widths: tuple[int, ...]) -> np.ndarr
 
 def read_intrinsics_json(path) -> CameraIntrinsics:
     """``{"fx", "fy", "cx", "cy", "distortion"?, "width"?, "height"?}`` (pixels) -> intrinsics
-    (:meth:`CameraIntrinsics.from_json`)."""
-    return CameraIntrinsics.from_json_object(load_json(path, what="intrinsics file"), path)
+    (:meth:`CameraIntrinsics.from_json`); with a wide-angle ``"model"`` (``docs/camera-models.md``)
+    -> that camera model (``xcalib.geometry.camera_models``)."""
+    d = load_json(path, what="intrinsics file")
+    if isinstance(d, dict) and d.get("model") is not None:
+        from ..geometry.camera_models import canonical_name, model_from_dict
+
+        try:
+            if canonical_name(d["model"]) not in ("pinhole", "pinhole_radtan"):
+                return model_from_dict({k: v for k, v in d.items() if k != "name"}, source="intrinsics")
+        except (TypeError, ValueError) as exc:
+            head = str(exc).split(":", 1)[0]
+            field = head.rpartition(".")[2] if "." in head and " " not in head else "model"
+            raise FormatError(path, str(exc), field) from None
+    return CameraIntrinsics.from_json_object(d, path)
 
 
 def read_detections(path, *, default_key: str = "", default_camera: str = "",

@@ -136,8 +136,17 @@ def _annotations(ns: int, frame, result, max_points: int) -> dict:
     return {"circles": [], "points": pts, "texts": []}
 
 
-def _calibration(ns: int, cam: str, result, frame) -> dict:  # cam: the camera's optical frame name
+def _calibration(ns: int, cam: str, result, frame) -> dict | None:
+    """foxglove.CameraCalibration (plumb_bob / rational_polynomial) in the optical frame ``cam``, or
+    None for a camera model it cannot express (a wide-angle model): no message rather than a wrong
+    pinhole one."""
     intr = result.intrinsics if result.intrinsics is not None else frame.intrinsics
+    if not hasattr(intr, "dist_coeffs"):  # a CameraModel other than CameraIntrinsics
+        import logging
+
+        logging.getLogger("xcalib.viz.review").warning(
+            "%s: no foxglove.CameraCalibration message: it cannot express a %s camera", cam, intr.name)
+        return None
     d = [] if intr.distortion is None else [float(v) for v in intr.distortion]
     K = np.asarray(intr.K, dtype=np.float64)
     h, w = frame.image.shape[:2]
@@ -230,9 +239,10 @@ def write_review_mcap(path, site, frames_by_camera: dict[str, Sequence], *, max_
                              "data": base64.b64encode(encode_jpeg(frame.image, 85)).decode()})
                     out.add(f"{topic}/annotations", "foxglove.ImageAnnotations", cs,
                             _annotations(cs, frame, res, 5000))
-                    if res.intrinsics is not None or frame.intrinsics is not None:
-                        out.add(f"{topic}/calibration", "foxglove.CameraCalibration", cs,
-                                _calibration(cs, optical, res, frame))
+                    calib = (_calibration(cs, optical, res, frame)
+                             if res.intrinsics is not None or frame.intrinsics is not None else None)
+                    if calib is not None:
+                        out.add(f"{topic}/calibration", "foxglove.CameraCalibration", cs, calib)
             w.finish()
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)

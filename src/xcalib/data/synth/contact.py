@@ -29,7 +29,7 @@ def draw_frame(frame: Frame, *, max_points: int = 40000) -> np.ndarray:
             pts = pts[np.random.default_rng(0).choice(len(pts), max_points, replace=False)]
         uv, depth = project_points(pts, frame.intrinsics, T[:3, :3], T[:3, 3])
         ok = np.isfinite(uv[:, 0]) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
-        if frame.intrinsics.has_distortion:  # beyond the image's field the distortion polynomial folds back
+        if getattr(frame.intrinsics, "has_distortion", False):  # beyond the image's field the distortion polynomial folds back
             from ...geometry.projection import undistort_pixels
 
             Km = frame.intrinsics.K

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...geometry.boxes import box7_corners, box7_to_extents, extents_to_center_size
+from ...geometry.camera_models import CameraModel, densify_box_edges
 from ...geometry.projection import project_points, undistort_pixels
 from .scene import CLASSES, SceneObjects, sample_sizes
 from .site import Site
@@ -83,10 +84,13 @@ def camera_view(site: Site, objs: SceneObjects) -> CameraView:
     W, H = site.width, site.height
     N = len(objs)
     corners = box7_corners(objs.box7) if N else np.zeros((0, 8, 3))
-    uv, depth = _project(site, corners)
-    uv, depth = uv.reshape(N, 8, 2), depth.reshape(N, 8)
-    in_view = np.all(depth > _NEAR, axis=1)
-    if site.intrinsics.has_distortion and N:
+    if isinstance(site.intrinsics, CameraModel):
+        uv, depth, in_view = _model_view(site, corners)
+    else:
+        uv, depth = _project(site, corners)
+        uv, depth = uv.reshape(N, 8, 2), depth.reshape(N, 8)
+        in_view = np.all(depth > _NEAR, axis=1)
+    if getattr(site.intrinsics, "has_distortion", False) and N:
         pc = (corners.reshape(-1, 3) @ site.T_cam_world[:3, :3].T + site.T_cam_world[:3, 3]).reshape(N, 8, 3)
         with np.errstate(all="ignore"):
             r = np.linalg.norm(pc[..., :2] / np.maximum(pc[..., 2:3], 1e-9), axis=-1)
@@ -111,6 +115,21 @@ def camera_view(site: Site, objs: SceneObjects) -> CameraView:
     else:
         order = np.zeros(0, dtype=np.int64)
     return CameraView(uv=uv, depth=depth, in_view=in_view, order=order, mask=mask, hulls=hulls)
+
+
+def _model_view(site: Site, corners: np.ndarray):
+    """Under a camera model (wide-angle): the box edges projected densely (straight edges curve),
+    uv [N,S,2], distance [N,S] (m) and in_view [N] (every point in the model's valid region and
+    farther than ``_NEAR``)."""
+    N = len(corners)
+    dense = densify_box_edges(corners)
+    S = dense.shape[1]
+    T = site.T_cam_world
+    pc = dense.reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+    uv, ok = site.intrinsics.project(pc)
+    dist = np.linalg.norm(pc, axis=1)
+    in_view = np.all((ok & (dist > _NEAR)).reshape(N, S), axis=1)
+    return uv.reshape(N, S, 2), dist.reshape(N, S), in_view
 
 
 def _visible_boxes(site: Site, view: CameraView):
@@ -174,9 +193,12 @@ def box7_to_protocol(box7: np.ndarray, convention: str = "extents") -> np.ndarra
 
 def _ground_point(site: Site, uv: np.ndarray) -> np.ndarray:
     """World ground points [n,3] seen at pixels uv [n,2] (NaN where the ray misses the ground)."""
-    K = site.intrinsics.K
-    und = undistort_pixels(uv, K, site.intrinsics.distortion)
-    rays_c = np.column_stack([(und - K[:2, 2]) / np.array([K[0, 0], K[1, 1]]), np.ones(len(uv))])
+    if isinstance(site.intrinsics, CameraModel):
+        rays_c, _ = site.intrinsics.unproject(uv)
+    else:
+        K = site.intrinsics.K
+        und = undistort_pixels(uv, K, site.intrinsics.distortion)
+        rays_c = np.column_stack([(und - K[:2, 2]) / np.array([K[0, 0], K[1, 1]]), np.ones(len(uv))])
     R, C = site.T_world_cam[:3, :3], site.camera_position
     d = rays_c @ R.T
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -50,6 +50,11 @@ class SiteConfig:
     k1: Range = (-0.15, 0.05)
     k2: Range = (-0.03, 0.05)
     tangential: Range = (-5e-4, 5e-4)
+    camera_model: str = "pinhole"            # or kannala_brandt, unified, ucm, eucm, double_sphere
+                                             # (xcalib.geometry.camera_models; images and boxes
+                                             # through it, typical lens parameters, see site.py)
+    hfov_deg: Range | None = None            # horizontal field of view: sets the focal length
+                                             # (None: focal_px; a wide-angle model needs it)
     # ---- road layout (metres)
     lanes_per_direction: tuple[int, int] | int = (1, 3)
     lane_width: float = 3.5

@@ -127,9 +127,13 @@ def _pixel_rays(site: Site) -> np.ndarray:
     from ...geometry.projection import undistort_pixels
 
     W, H = site.width, site.height
-    K = site.intrinsics.K
     u, v = np.meshgrid(np.arange(W, dtype=np.float64) + 0.5, np.arange(H, dtype=np.float64) + 0.5)
     uv = np.stack([u.ravel(), v.ravel()], axis=1) - 0.5
+    if not hasattr(site.intrinsics, "has_distortion"):  # a camera model: its own rays (NaN: no ray)
+        rays_c, ok = site.intrinsics.unproject(uv)
+        rays_w = np.where(ok[:, None], rays_c @ site.T_world_cam[:3, :3].T, [0.0, 0.0, 1.0])  # no ray: sky
+        return rays_w.reshape(H, W, 3)
+    K = site.intrinsics.K
     if site.intrinsics.has_distortion:
         uv = undistort_pixels(uv, K, site.intrinsics.distortion)
     x = (uv[:, 0] - K[0, 2]) / K[0, 0]

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...geometry.camera import CameraIntrinsics
+from ...geometry.camera_models import CameraModel, canonical_name, get_model
 from ...geometry.rotations import euler_to_matrix
 from ...geometry.transforms import invert_transform, make_transform
 from .presets import SiteConfig, preset_config
@@ -47,7 +48,7 @@ class Site:
 
     config: SiteConfig
     seed: int
-    intrinsics: CameraIntrinsics
+    intrinsics: CameraIntrinsics | CameraModel   # a CameraModel for a wide-angle camera_model
     T_world_cam: np.ndarray
     T_world_lidar: np.ndarray
     R_lidar_sensor: np.ndarray          # physical scanner orientation in the levelled LiDAR frame
@@ -85,6 +86,8 @@ class Site:
         s, (dx, dy) = float(c.given_focal_scale), c.given_principal_offset_px
         if s == 1.0 and dx == 0.0 and dy == 0.0:
             return k
+        if isinstance(k, CameraModel):
+            return k.replace(fx=k.fx * s, fy=k.fy * s, cx=k.cx + float(dx), cy=k.cy + float(dy))
         return CameraIntrinsics(k.fx * s, k.fy * s, k.cx + float(dx), k.cy + float(dy), k.distortion, k.width, k.height)
 
     @property
@@ -162,6 +165,8 @@ def sample_site(seed: int, preset: str = "roadside", **overrides) -> Site:
                          _draw(rng, cfg.tangential), 0.0])
         v["distortion"] = dist.tolist()
     intr = CameraIntrinsics(fx, fx * cfg.aspect, cx, cy, dist, W, H)
+    if cfg.camera_model != "pinhole" or cfg.hfov_deg is not None:
+        intr = _camera_with_fov(cfg, rng, intr, v)
     # roads
     na = v["lanes_a"] = _draw(rng, cfg.lanes_per_direction, integer=True)
     nb = v["lanes_b"] = _draw(rng, cfg.lanes_per_direction, integer=True)
@@ -207,3 +212,43 @@ def sample_site(seed: int, preset: str = "roadside", **overrides) -> Site:
     return Site(config=cfg, seed=int(seed), intrinsics=intr, T_world_cam=T_world_cam,
                 T_world_lidar=T_world_lidar, R_lidar_sensor=R_tilt, lanes_a=na, lanes_b=nb, mount=mount,
                 sun_dir=sun, values=v)
+
+
+#: typical lens parameters of each wide-angle model (fisheye lenses of 120-200 degrees)
+WIDE_ANGLE_PARAMS: dict[str, dict] = {
+    "kannala_brandt": {"k": (0.03, -0.006, 0.001, -0.0002)},
+    "unified": {"xi": 1.1, "distortion": (-0.05, 0.01, 0.0002, -0.0002)},
+    "ucm": {"alpha": 0.6},
+    "eucm": {"alpha": 0.62, "beta": 1.05},
+    "double_sphere": {"xi": -0.2, "alpha": 0.6},
+}
+
+
+def _camera_with_fov(cfg: SiteConfig, rng: np.random.Generator, intr: CameraIntrinsics, v: dict):
+    """The site's camera for ``camera_model`` / ``hfov_deg``: the focal length that spans the
+    drawn horizontal field of view over the image width (``v`` records the values)."""
+    name = canonical_name(cfg.camera_model)
+    if name in ("pinhole", "pinhole_radtan"):
+        name = "pinhole"
+    if name != "pinhole" and name not in WIDE_ANGLE_PARAMS:
+        raise ValueError(f"SiteConfig.camera_model: no synthetic lens for {cfg.camera_model!r}; expected pinhole or "
+                         f"one of {', '.join(WIDE_ANGLE_PARAMS)}")
+    if cfg.hfov_deg is None:
+        raise ValueError(f"SiteConfig.hfov_deg: a {name} camera needs the horizontal field of view (degrees)")
+    hfov = v["hfov_deg"] = _draw(rng, cfg.hfov_deg)
+    limit = 179.0 if name == "pinhole" else 200.0
+    if not 10.0 <= hfov <= limit:
+        raise ValueError(f"SiteConfig.hfov_deg: expected 10..{limit:g} degrees for a {name} camera, got {hfov:g}")
+    half = math.radians(hfov / 2.0)
+    if name == "pinhole":
+        f = (intr.width / 2.0) / math.tan(half)
+        v["focal_px"] = f
+        return CameraIntrinsics(f, f * cfg.aspect, intr.cx, intr.cy, intr.distortion, intr.width, intr.height)
+    unit = get_model(name)(fx=1.0, fy=1.0, cx=0.0, cy=0.0, **WIDE_ANGLE_PARAMS[name])
+    r, ok = unit.project(np.array([[math.sin(half), 0.0, math.cos(half)]]))
+    if not ok[0]:
+        raise ValueError(f"SiteConfig.hfov_deg: {hfov:g} degrees is beyond the {name} lens's field of view")
+    f = (intr.width / 2.0) / float(r[0, 0])
+    v["focal_px"], v["camera_model"] = f, name
+    return get_model(name)(fx=f, fy=f * cfg.aspect, cx=intr.cx, cy=intr.cy, width=intr.width, height=intr.height,
+                           **WIDE_ANGLE_PARAMS[name])

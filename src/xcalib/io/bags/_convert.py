@@ -247,6 +247,14 @@ class Fisheye:
         k = self.K_new
         return CameraIntrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], None, *self.size)
 
+    @property
+    def camera_model(self):
+        """The fisheye camera itself (``kannala_brandt``), to calibrate in the fisheye image."""
+        from ...geometry.camera_models import KannalaBrandt
+
+        k = self.K
+        return KannalaBrandt(k[0, 0], k[1, 1], k[0, 2], k[1, 2], *self.size, tuple(float(v) for v in self.D))
+
     def rectify_image(self, rgb: np.ndarray) -> np.ndarray:
         import cv2
 

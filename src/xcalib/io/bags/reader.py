@@ -388,9 +388,12 @@ class BagFrames(Sequence):
     def __init__(self, path, camera: str | None = None, *, lidar: str | None = None,
                  camera_info: str | None = None, detections_2d: str | None = None,
                  detections_3d: str | None = None, tolerance_s: float = 0.05,
-                 intrinsics: CameraIntrinsics | None = None, detections: bool = True):
+                 intrinsics: CameraIntrinsics | None = None, detections: bool = True, fisheye: str = "rectify"):
         self.path = Path(path)
         self.with_detections = bool(detections)
+        if fisheye not in ("rectify", "keep"):
+            raise ValueError(f"fisheye must be 'rectify' or 'keep', got {fisheye!r}")
+        self._fisheye_mode = fisheye  # an equidistant CameraInfo: rectify to pinhole, or keep the fisheye
         if not self.path.exists():
             raise FileNotFoundError(f"bag not found: {self.path}")
         if not tolerance_s > 0:
@@ -750,6 +753,9 @@ class BagFrames(Sequence):
             pass
 
     def _intrinsics(self, info) -> CameraIntrinsics:
+        if self._fisheye_mode == "keep":  # an equidistant camera stays a kannala_brandt camera model
+            m = cv.camera_model_from_msg(info[1], self._where(self.topics["camera_info"], info[2]))
+            return m.camera_model if isinstance(m, cv.Fisheye) else m
         return cv.intrinsics_from_msg(info[1], self._where(self.topics["camera_info"], info[2]))
 
     def _fisheye(self, e: _Entry):
@@ -802,7 +808,7 @@ class BagFrames(Sequence):
                             "to their heading (refused beyond %g deg)", self.path, tp["detections_3d"],
                             e.lidar[0] / 1e9, det.flattened, det.max_tilt_deg, MAX_TILT_DEG)
         intr = self._fixed_intrinsics or self._intrinsics(e.info)
-        fisheye = self._fisheye(e)
+        fisheye = self._fisheye(e) if self._fisheye_mode == "rectify" else None
         if fisheye is not None:  # equidistant: image and 2D boxes rectified to the pinhole ``intr``
             if image.shape[1::-1] != fisheye.size:
                 raise FormatError(self.path, f"CameraInfo is for {fisheye.size[0]}x{fisheye.size[1]} but the image "

@@ -1,0 +1,206 @@
+"""Camera models (issue 26): projection throughput of every model, and calibration of synthetic
+wide-angle sites in the model's own image.
+
+**Throughput**: ``project`` (and ``project_jacobian``, ``unproject``) of ``--points`` random
+camera-frame points within each model's field of view, best of 5, in million points per second;
+the reference is pinhole-radtan (5 coefficients) through ``CameraIntrinsics`` and
+``xcalib.geometry.project_points`` (today's path) and through the ``pinhole_radtan`` model.
+
+**Calibration**: for every ``--models`` x ``--fovs`` a synthetic roadside site
+(``sample_site(seed, camera_model=..., hfov_deg=..., width=1280, height=800, box_noise_px=1)``,
+``--frames`` frames, images not rendered) is calibrated with the public call
+``xcalib.calibrate(frames, site.intrinsics)``: no initial guess, default options; the pinhole
+rows use a 90-degree lens. Columns as in ``bench_calibration_realism.py``: success, wrong
+(rotation error > 1 deg or translation error > 0.5 m), median errors of the successes, 2-sigma
+coverage, median time. The row ``<model> as pinhole`` calibrates the same fisheye frames with a
+pinhole ``CameraIntrinsics`` of the same fx, fy, cx, cy (a user who hands a fisheye camera to a
+pinhole-only path): it must be refused, never a wrong success.
+
+Results go to ``benchmarks/results/camera_models.json`` under ``--label``.
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_camera_models.py [--points 200000]
+        [--sites 1] [--models kannala_brandt,double_sphere] [--fovs 120,150,185] [--frames 20]
+        [--no-calibration] [--label run]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "benchmarks" / "results" / "camera_models.json"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_calibration import machine_info  # noqa: E402
+
+WRONG_ROT_DEG, WRONG_TRANS_M = 1.0, 0.5
+ALL_MODELS = ("kannala_brandt", "unified", "ucm", "eucm", "double_sphere")
+
+
+def _cameras():
+    from xcalib.data.synth.site import WIDE_ANGLE_PARAMS
+    from xcalib.geometry.camera_models import PinholeRadtan, get_model
+
+    cams = {"pinhole_radtan (model)": (PinholeRadtan(fx=640, fy=640, cx=640, cy=400,
+                                                     distortion=(-0.1, 0.02, 1e-4, -1e-4, 0.001)), 60.0)}
+    for name, params in WIDE_ANGLE_PARAMS.items():
+        cams[name] = (get_model(name)(fx=400, fy=400, cx=640, cy=400, **params), 90.0)
+    return cams
+
+
+def _rays(n: int, max_deg: float, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    th = np.radians(rng.uniform(0, max_deg, n))
+    ph = rng.uniform(0, 2 * np.pi, n)
+    return np.column_stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)]) * rng.uniform(2, 50, n)[:, None]
+
+
+def _best(fn, reps: int = 5) -> float:
+    best = math.inf
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def throughput(n: int) -> list[dict]:
+    from xcalib.geometry import CameraIntrinsics, project_points
+
+    rows = []
+    intr = CameraIntrinsics(640, 640, 640, 400, [-0.1, 0.02, 1e-4, -1e-4, 0.001])
+    P = _rays(n, 60.0)
+    t = _best(lambda: project_points(P, intr))
+    rows.append({"model": "pinhole_radtan (CameraIntrinsics)", "project_mpts_s": n / t / 1e6})
+    for name, (cam, max_deg) in _cameras().items():
+        P = _rays(n, max_deg)
+        uv, ok = cam.project(P)
+        row = {"model": name, "project_mpts_s": n / _best(lambda: cam.project(P)) / 1e6,
+               "jacobian_mpts_s": n / _best(lambda: cam.project_jacobian(P)) / 1e6,
+               "unproject_mpts_s": n / _best(lambda: cam.unproject(uv[ok])) / 1e6, "max_angle_deg": max_deg}
+        rows.append(row)
+    ref = rows[0]["project_mpts_s"]
+    for r in rows:
+        r["project_vs_pinhole_radtan"] = r["project_mpts_s"] / ref
+    return rows
+
+
+def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole: bool = False) -> dict:
+    import xcalib
+    from xcalib.data.synth import generate_frames, sample_site
+    from xcalib.geometry import CameraIntrinsics
+
+    site = sample_site(seed, camera_model=model, hfov_deg=fov, width=1280, height=800, box_noise_px=1.0)
+    frames = generate_frames(site, n_frames, seed=seed, render_images=False)
+    cam = site.intrinsics
+    if as_pinhole:
+        cam = CameraIntrinsics(cam.fx, cam.fy, cam.cx, cam.cy, None, cam.width, cam.height)
+    row = f"{model} {fov:g} deg" + (" as pinhole" if as_pinhole else "")
+    t0 = time.perf_counter()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = xcalib.calibrate(frames, cam)
+    except Exception as exc:  # noqa: BLE001 - an exception is a finding too
+        return {"row": row, "seed": seed, "success": False, "message": f"exception: {exc!r}",
+                "time_s": time.perf_counter() - t0}
+    rec = {"row": row, "model": model, "hfov_deg": fov, "seed": seed, "success": bool(res.success),
+           "message": res.message[:300], "time_s": time.perf_counter() - t0, "n_pairs": res.n_pairs,
+           "n_2d_boxes": int(sum(len(f.bboxes_2d) for f in frames))}
+    if res.success:
+        rot, tr = res.pose_error(site.T_cam_lidar)
+        rs, ts = float(np.linalg.norm(res.rotation_std_deg)), float(np.linalg.norm(res.translation_std_m))
+        rec.update(rot_deg=rot, trans_m=tr, rot_sigma_deg=rs, trans_sigma_m=ts,
+                   wrong=bool(rot > WRONG_ROT_DEG or tr > WRONG_TRANS_M),
+                   within_2sigma=bool(rot <= 2 * rs and tr <= 2 * ts))
+    return rec
+
+
+def summarise(recs: list[dict]) -> list[dict]:
+    rows: dict[str, list[dict]] = {}
+    for r in recs:
+        rows.setdefault(r["row"], []).append(r)
+    out = []
+    for name, rs in rows.items():
+        ok = [r for r in rs if r["success"]]
+        med = (lambda k: float(np.median([r[k] for r in ok])) if ok else None)
+        out.append({"row": name, "n": len(rs), "success": len(ok) / len(rs), "wrong": sum(r["wrong"] for r in ok),
+                    "rot_deg_median": med("rot_deg"), "trans_m_median": med("trans_m"),
+                    "coverage_2sigma": (sum(r["within_2sigma"] for r in ok) / len(ok)) if ok else None,
+                    "time_s_median": float(np.median([r["time_s"] for r in rs]))})
+    return out
+
+
+def _fmt(v, spec):
+    return "-" if v is None else format(v, spec)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--points", type=int, default=200_000)
+    ap.add_argument("--sites", type=int, default=1)
+    ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--models", default=",".join(ALL_MODELS))
+    ap.add_argument("--fovs", default="120,150,185")
+    ap.add_argument("--frames", type=int, default=20)
+    ap.add_argument("--no-calibration", action="store_true")
+    ap.add_argument("--no-pinhole-check", action="store_true", help="skip the '<model> as pinhole' rows")
+    ap.add_argument("--label", default="run")
+    a = ap.parse_args(argv)
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+    tp = throughput(a.points)
+    print(f"Projection throughput, {a.points} points (million points / s; best of 5)")
+    print(f"{'model':36s} {'project':>8s} {'vs radtan':>9s} {'jacobian':>9s} {'unproject':>9s}")
+    for r in tp:
+        print(f"{r['model']:36s} {r['project_mpts_s']:8.2f} {r['project_vs_pinhole_radtan']:9.2f} "
+              f"{_fmt(r.get('jacobian_mpts_s'), '9.2f'):>9s} {_fmt(r.get('unproject_mpts_s'), '9.2f'):>9s}")
+    recs: list[dict] = []
+    if not a.no_calibration:
+        seeds = range(a.first_seed, a.first_seed + a.sites)
+        models = [m for m in a.models.split(",") if m]
+        fovs = [float(f) for f in a.fovs.split(",") if f]
+        cases = [("pinhole", 90.0, s, False) for s in seeds]
+        if not a.no_pinhole_check:  # the refusal check first: it is the one that must never fail
+            cases += [(m, max(fovs), s, True) for m in models[:1] for s in seeds]
+        for fov in sorted(fovs, reverse=True):  # the widest first
+            for m in models:
+                cases += [(m, fov, s, False) for s in seeds]
+        for i, (m, fov, s, asp) in enumerate(cases):
+            rec = calibrate_case(m, fov, s, a.frames, asp)
+            recs.append(rec)
+            _save(a, tp, summarise(recs), recs)  # after every case: a cut-short run keeps its rows
+            print(f"[{i + 1}/{len(cases)}] {rec['row']} seed {s}: success={rec['success']} "
+                  f"rot={_fmt(rec.get('rot_deg'), '.3f')} deg trans={_fmt(rec.get('trans_m'), '.3f')} m "
+                  f"({rec['time_s']:.0f} s) {'' if rec['success'] else rec['message'][:120]}", flush=True)
+        table = summarise(recs)
+        print(f"\n{'row':32s} {'n':>3s} {'success':>7s} {'wrong':>5s} {'rot deg':>8s} {'trans m':>8s} "
+              f"{'2sig cov':>8s} {'time s':>7s}")
+        for r in table:
+            print(f"{r['row']:32s} {r['n']:3d} {r['success']:7.0%} {r['wrong']:5d} {_fmt(r['rot_deg_median'], '8.3f')} "
+                  f"{_fmt(r['trans_m_median'], '8.3f')} {_fmt(r['coverage_2sigma'], '8.0%')} {r['time_s_median']:7.0f}")
+    else:
+        table = []
+    _save(a, tp, table, recs)
+    print(f"wrote {OUT} [{a.label}]")
+    return 0
+
+
+def _save(a, tp, table, recs) -> None:
+    data = json.loads(OUT.read_text()) if OUT.is_file() else {}
+    data[a.label] = {"machine": machine_info(), "args": vars(a), "throughput": tp, "calibration": table,
+                     "records": recs}
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(json.dumps(data, indent=1))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
