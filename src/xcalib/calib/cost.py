@@ -167,12 +167,25 @@ class BoxEdgeTerm(CostTerm):
         self.occlusion = occlusion
         # an edge that cannot be projected (behind the camera) costs the box's own size
         self.fallback = np.sqrt((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]))[:, None]
+        self._last = None  # the last projection (see _projection)
 
     def edges(self, state: PoseState) -> np.ndarray:
         """Unweighted, unshaped residuals [n,4] (px): projected rectangle - 2D box."""
-        outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
-        rects, valid = project_rects(outlines, state.pose.R, state.pose.t, state.intr, self.size)
+        rects, valid, _, _ = self._projection(state)
         return np.where(valid[:, None], rects - self.obs, self.fallback)
+
+    def _projection(self, state: PoseState):
+        """``project_rects`` of the outlines at ``state`` (rects, valid, corner u, v), the last one
+        kept: least squares asks for the residuals and then the Jacobian at the same point, and the
+        Jacobian needs the corners' pixels. Keyed by everything the projection depends on."""
+        key = (state.pose.R.tobytes(), state.pose.t.tobytes(), state.intr.fx, state.intr.fy, state.intr.cx,
+               state.intr.cy, None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
+        out = project_rects(outlines, state.pose.R, state.pose.t, state.intr, self.size, corner_uv=True)
+        self._last = (key, out)
+        return out
 
     def residuals(self, state: PoseState) -> np.ndarray:
         r = self.edges(state) * self.w
@@ -192,29 +205,24 @@ class BoxEdgeTerm(CostTerm):
         n, P = len(self.obs), 6 + len(extra)
         if n == 0:
             return np.zeros((0, P))
-        outl = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
         R, t, intr = state.pose.R, state.pose.t, state.intr
-        S = outl.shape[1]
-        Y = (outl.reshape(-1, 3) @ R.T).reshape(n, S, 3)  # rotated outline
-        Z = Y[..., 2] + t[2]
-        ahead = Z > MIN_DEPTH_M
-        iz = 1.0 / np.where(ahead, Z, 1.0)
-        xn, yn = (Y[..., 0] + t[0]) * iz, (Y[..., 1] + t[1]) * iz
-        dist = _distortion(intr)
-        xd, yd = (xn, yn) if dist is None else _distort_with_jacobian(xn, yn, dist)[:2]
-        uu = np.where(ahead, intr.fx * xd + intr.cx, 0.0)
-        vv = np.where(ahead, intr.fy * yd + intr.cy, 0.0)
+        rects, valid, u, v = self._projection(state)
         rows = np.arange(n)[:, None]
+        uu, vv = np.where(valid[:, None], u, 0.0), np.where(valid[:, None], v, 0.0)  # (an invalid row has no derivative)
         idx = np.column_stack([uu.argmin(1), vv.argmin(1), uu.argmax(1), vv.argmax(1)])  # [n,4] defining corners
         ext = np.column_stack([uu[rows[:, 0], idx[:, 0]], vv[rows[:, 0], idx[:, 1]], uu[rows[:, 0], idx[:, 2]],
                                vv[rows[:, 0], idx[:, 3]]])
         W, H = self.size
         lim = np.array([W, H, W, H], dtype=np.float64)
         inside = (ext > 0.0) & (ext < lim)  # an edge clipped to the image does not move
-        clipped = np.clip(ext, 0.0, lim)
-        valid = ahead.all(1) & (clipped[:, 2] - clipped[:, 0] > 1.0) & (clipped[:, 3] - clipped[:, 1] > 1.0)
         # derivatives at the defining corners only [n,4,...]
-        Ys, xs, ys, izs = Y[rows, idx], xn[rows, idx], yn[rows, idx], iz[rows, idx]
+        sel = self.outlines[rows, idx]
+        if state.shift_m is not None:
+            sel = sel + np.asarray(state.shift_m)[:, None, :]
+        Ys = sel @ R.T
+        izs = 1.0 / np.where(valid[:, None], Ys[..., 2] + t[2], 1.0)
+        xs, ys = (Ys[..., 0] + t[0]) * izs, (Ys[..., 1] + t[1]) * izs
+        dist = _distortion(intr)
         if dist is None:
             xds, yds, a11, a12, a21, a22 = xs, ys, 1.0, 0.0, 0.0, 1.0
         else:
@@ -235,7 +243,7 @@ class BoxEdgeTerm(CostTerm):
             D[..., 6 + k] = col
         D *= ((inside & valid[:, None]) * self.w)[..., None]
         if self.occlusion is not None:
-            r = np.where(valid[:, None], clipped - self.obs, self.fallback) * self.w
+            r = np.where(valid[:, None], rects - self.obs, self.fallback) * self.w
             D = np.where((r * INWARD > self.occlusion.tau)[..., None], self.occlusion.slope * D, D)
         return D.reshape(4 * n, P)
 
