@@ -7,7 +7,8 @@ its inputs (and any random seed) from the item itself, never from a shared gener
 
 ``workers``: an int (1: in this process) or "auto": the CPUs this process may run on, but 1
 inside a worker process of a pool (a batch of calibrations already uses the cores; nested pools
-would only oversubscribe them) and where ``fork`` is unavailable.
+would only oversubscribe them), where ``fork`` is unavailable, and once torch is loaded (forking
+a process whose torch thread pools have started can hang the child).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import gc
 import multiprocessing as mp
 import os
+import sys
 from concurrent.futures import ProcessPoolExecutor
 from typing import Callable, Iterable, Literal, TypeVar, Union
 
@@ -40,7 +42,7 @@ def _fork_ok() -> bool:
 def resolve_workers(workers: Workers) -> int:
     """The number of processes ``workers`` stands for here (>= 1)."""
     if workers == "auto":
-        if mp.parent_process() is not None or mp.current_process().daemon or not _fork_ok():
+        if mp.parent_process() is not None or mp.current_process().daemon or not _fork_ok() or "torch" in sys.modules:
             return 1
         return available_cpus()
     n = int(workers)
