@@ -24,7 +24,7 @@ app = typer.Typer(
 
 # Order = order in --help.
 _COMMAND_MODULES = [
-    "demo", "match", "calibrate", "bootstrap", "train", "validate", "export", "synth", "cache",
+    "demo", "match", "calibrate", "calibrate_many", "bootstrap", "train", "validate", "export", "synth", "cache",
     "convert", "bag", "version", "reference",
 ]
 
