@@ -61,16 +61,64 @@ def _match_projected(fr: CalibFrame, rects: np.ndarray, valid: np.ndarray, gate_
     c_pred = np.stack([(rects[:, 0] + rects[:, 2]) / 2, (rects[:, 1] + rects[:, 3]) / 2], 1)
     diag = np.hypot(fr.boxes2d[:, 2] - fr.boxes2d[:, 0], fr.boxes2d[:, 3] - fr.boxes2d[:, 1])
     dist = np.linalg.norm(c_obs[:, None] - c_pred[None], axis=2) / diag[:, None]
+    pairs, ious = _assign(iou, dist, valid, gate_iou, gate_dist)
+    return pairs, ious, rects
+
+
+def _assign(iou: np.ndarray, dist: np.ndarray, valid: np.ndarray, gate_iou: float, gate_dist: float):
+    """Hungarian matching of one frame from its IoU [K,M] and centre distance [K,M] (diagonals)."""
     dist = np.where(valid[None], dist, np.inf)
     allowed = (iou >= gate_iou) if gate_dist <= 0 else ((iou >= gate_iou) | (dist <= gate_dist))
     allowed &= valid[None]
     if not np.any(allowed):
-        return np.zeros((0, 2), dtype=np.int64), np.zeros(0), rects
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
     cost = np.where(allowed, (1 - iou) + np.minimum(dist, 10.0), 1e6)
     r, c = linear_sum_assignment(cost)
     keep = allowed[r, c]
     pairs = np.column_stack([r[keep], c[keep]]).astype(np.int64)
-    return pairs, iou[r[keep], c[keep]], rects
+    return pairs, iou[r[keep], c[keep]]
+
+
+def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_dist: float) -> list[np.ndarray]:
+    """The pairs of every frame, the IoU and centre distances of all frames in one padded
+    [F,K,M] computation (the same element-wise operations as ``iou_batched`` / ``_match_projected``,
+    so the same values); the assignment frame by frame."""
+    out = [np.zeros((0, 2), dtype=np.int64) for _ in frames]
+    live = [k for k, fr in enumerate(frames) if fr.n2 and fr.n3 and np.any(proj[k][1])]
+    if not live:
+        return out
+    L, K, M = len(live), max(frames[k].n2 for k in live), max(frames[k].n3 for k in live)
+    rects = np.zeros((L, M, 4))
+    boxes = np.tile(np.array([0.0, 0.0, 1.0, 1.0]), (L, K, 1))  # padding: a unit box (no zero diagonal)
+    for i, k in enumerate(live):
+        rects[i, :frames[k].n3] = proj[k][0]
+        boxes[i, :frames[k].n2] = frames[k].boxes2d
+    r = np.nan_to_num(rects, nan=0.0)
+    rx0, ry0, rx1, ry1 = (np.ascontiguousarray(r[..., j])[:, None, :] for j in range(4))
+    bx0, by0, bx1, by1 = (boxes[..., j][:, :, None] for j in range(4))
+    tmp = np.maximum(rx0, bx0)
+    inter = np.minimum(rx1, bx1)
+    inter -= tmp
+    np.clip(inter, 0, None, out=inter)
+    ih = np.minimum(ry1, by1)
+    np.maximum(ry0, by0, out=tmp)
+    ih -= tmp
+    np.clip(ih, 0, None, out=ih)
+    inter *= ih
+    union = np.add((rx1 - rx0) * (ry1 - ry0), (bx1 - bx0) * (by1 - by0), out=ih)
+    union -= inter
+    pos = union > 0
+    np.divide(inter, union, out=inter, where=pos)
+    np.copyto(inter, 0.0, where=~pos)
+    iou = inter  # [L,K,M]
+    c_obs = np.stack([(boxes[..., 0] + boxes[..., 2]) / 2, (boxes[..., 1] + boxes[..., 3]) / 2], -1)
+    c_pred = np.stack([(rects[..., 0] + rects[..., 2]) / 2, (rects[..., 1] + rects[..., 3]) / 2], -1)
+    diag = np.hypot(boxes[..., 2] - boxes[..., 0], boxes[..., 3] - boxes[..., 1])
+    dist = np.linalg.norm(c_obs[:, :, None] - c_pred[:, None], axis=3) / diag[..., None]
+    for i, k in enumerate(live):
+        n2, n3 = frames[k].n2, frames[k].n3
+        out[k] = _assign(iou[i, :n2, :n3], dist[i, :n2, :n3], proj[k][1], gate_iou, gate_dist)[0]
+    return out
 
 
 def project_frames(frames: list[CalibFrame], intr: CameraIntrinsics, R, t) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -96,8 +144,7 @@ def project_frames(frames: list[CalibFrame], intr: CameraIntrinsics, R, t) -> li
 def match_all(frames, intr, R, t, *, gate_iou: float = 0.3, gate_dist: float = 0.0) -> list[np.ndarray]:
     """``match_frame`` of every frame (pairs only), the projection of all frames in one call."""
     frames = list(frames)
-    return [_match_projected(fr, rects, valid, gate_iou, gate_dist)[0]
-            for fr, (rects, valid) in zip(frames, project_frames(frames, intr, R, t))]
+    return _match_frames(frames, project_frames(frames, intr, R, t), gate_iou, gate_dist)
 
 
 def _stack(frames: list[CalibFrame], pairs: list[np.ndarray]):
