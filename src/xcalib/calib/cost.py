@@ -178,8 +178,10 @@ class BoxEdgeTerm(CostTerm):
         """``project_rects`` of the outlines at ``state`` (rects, valid, corner u, v), the last one
         kept: least squares asks for the residuals and then the Jacobian at the same point, and the
         Jacobian needs the corners' pixels. Keyed by everything the projection depends on."""
-        key = (state.pose.R.tobytes(), state.pose.t.tobytes(), state.intr.fx, state.intr.fy, state.intr.cx,
-               state.intr.cy, None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
+        intr = state.intr
+        key = (state.pose.R.tobytes(), state.pose.t.tobytes(), intr.fx, intr.fy, intr.cx, intr.cy,
+               None if intr.distortion is None else np.asarray(intr.distortion, dtype=np.float64).tobytes(),
+               None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
         if self._last is not None and self._last[0] == key:
             return self._last[1]
         outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
