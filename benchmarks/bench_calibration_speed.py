@@ -263,6 +263,7 @@ def main(argv=None) -> int:
             rows.append(compare(case, old, new))
             print(f"{case}: 0.5.0 {old.get('cpu_s', float('nan')):.2f} s CPU, now {new.get('cpu_s', float('nan')):.2f} s",
                   flush=True)
+            _write(args, argv, rows, [], t0, partial=True)  # what is done so far survives an interrupted run
     par = []
     for case in [c for c in args.parallel if c in cases and c != "consensus_a9"]:
         one = run_child(REPO / "src", case, args.frames_long, False, args.timeout, workers=1)
@@ -279,11 +280,20 @@ def main(argv=None) -> int:
             print(f"\nworkers=2 vs 1, {r['case']}: wall {o['wall_s']:.2f} -> {t['wall_s']:.2f} s (x{r['wall_speedup']:.2f}); "
                   f"CPU parent {t['cpu_s']:.2f} + children {t['children_cpu_s']:.2f} s vs {o['cpu_s']:.2f} s; "
                   f"{'same result' if r['same_pose'] else 'RESULT DIFFERS'}")
-    write_result(args.out, {"benchmark": "calibration_speed", "base_commit": args.base, "machine": machine_info(),
-                            "command": "benchmarks/bench_calibration_speed.py " + " ".join(argv if argv is not None
-                                                                                           else sys.argv[1:]),
-                            "wall_s": time.perf_counter() - t0, "cases": rows, "parallel": par})
+    _write(args, argv, rows, par, t0)
     return 0
+
+
+def _write(args, argv, rows: list, par: list, t0: float, partial: bool = False) -> None:
+    result = {"benchmark": "calibration_speed", "base_commit": args.base, "machine": machine_info(),
+              "command": "benchmarks/bench_calibration_speed.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+              "wall_s": time.perf_counter() - t0, "cases": rows, "parallel": par}
+    if partial:
+        result["partial"] = True
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(result, indent=2, default=float))
+    else:
+        write_result(args.out, result)
 
 
 if __name__ == "__main__":
