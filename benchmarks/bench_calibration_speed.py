@@ -17,7 +17,9 @@ Cases:
 * ``dense``: 10 frames with 100 2D and 100 3D boxes each (``bench_calibration_memory``'s
   ``100x100``: a 360-degree LiDAR at a busy junction);
 * ``consensus_a9``: ``consensus_matches`` on each A9 frame (no site weights): CPU ms per frame
-  and whether the matches are the same.
+  and whether the matches are the same;
+* ``realism:CONDITION:SEED``: one realism-suite site (``xcalib.data.synth.realism``), for the
+  same-verdict check across conditions.
 
 With ``--profile`` the current code's calibration of ``a9`` and ``synth20`` is also split by
 stage (CPU seconds and share: search, refinement, misfit checks, uncertainty, ...). With
@@ -77,6 +79,12 @@ def _case_frames(case: str, frames_long: int):
         frames = generate_frames(site, frames_long, seed=0, render_images=False, lidar=False, miss_rate_2d=0.1,
                                  false_positive_rate_2d=0.05, box_noise_px=1.0, **NOISE_3D_OFF)
         return frames, site.intrinsics, site.T_cam_lidar
+    if case.startswith("realism:"):  # realism:CONDITION:SEED, e.g. realism:mirrored:2
+        from xcalib.data.synth.realism import make_realism_case
+
+        _, cond, seed = case.split(":")
+        c = make_realism_case(cond, int(seed), 20)
+        return list(c.frames), c.intrinsics_given, c.T_cam_lidar
     if case == "dense":
         from bench_calibration_memory import crowded_frames
 
@@ -237,7 +245,8 @@ def print_table(rows: list[dict]) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES)
+    ap.add_argument("--cases", nargs="+", default=list(CASES),
+                    help=f"{', '.join(CASES)} or realism:CONDITION:SEED (same verdict and pose on a realism site)")
     ap.add_argument("--base", default=BASE_COMMIT, help="commit to compare with (default: 0.5.0 as landed)")
     ap.add_argument("--frames-long", type=int, default=1000, help="frames of the synth1000 case")
     ap.add_argument("--profile", action="store_true", help="split the current code's a9 / synth20 time by stage")
@@ -248,6 +257,9 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1, help=argparse.SUPPRESS)
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    bad = [c for c in args.cases if c not in CASES and not (c.startswith("realism:") and c.count(":") == 2)]
+    if bad:
+        ap.error(f"unknown case(s) {bad}")
     if args.child:
         print(json.dumps(child(args.child, args.frames_long, args.profile, args.workers), default=float))
         return 0
