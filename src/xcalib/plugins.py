@@ -36,8 +36,8 @@ GROUPS = ("xcalib.sources", "xcalib.commands", "xcalib.camera_models", "xcalib.f
 BUILTIN: dict[str, dict[str, str]] = {
     "xcalib.sources": {"frames": "xcalib.io.frames", "hdf5": "xcalib.io.hdf5", "bags": "xcalib.io.bags",
                        "formats": "xcalib.formats"},
-    "xcalib.commands": {n: f"xcalib.cli.{n}_cmd" for n in (
-        "demo", "match", "calibrate", "detect", "bootstrap", "train", "validate", "export", "synth", "cache", "convert",
+    "xcalib.commands": {n: f"xcalib.cli.{n.replace('-', '_')}_cmd" for n in (
+        "demo", "match", "calibrate", "calibrate-many", "detect", "bootstrap", "train", "validate", "export", "synth", "cache", "convert",
         "bag", "monitor", "version", "reference")},
 }
 

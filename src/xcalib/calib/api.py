@@ -31,9 +31,10 @@ from .cost import Occlusion
 from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, matched_places, precheck, verdict
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
 from .hypotheses import Hypotheses
-from .inputs import CalibFrame, prepare_frames, with_corner_outlines
+from .inputs import CalibFrame, lean_frames, prepare_frames, with_corner_outlines
 from .misfit import box_frame_check, flipped_frames, focal_fit, focal_scale_check, focal_width_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
+from .parallel import Deferred, Workers, parallel_map, resolve_workers
 from .pose import Pose
 from .refine import RefineResult, match_all, pair_metrics, refine_pose
 from .result import CalibrationResult
@@ -68,15 +69,23 @@ def _score(cframes, intr, rr: RefineResult) -> float:
     return float(np.sum(pair_metrics(cframes, intr, rr.R, rr.t, rr.pairs)[1]))
 
 
+def _quick_refine(args) -> tuple[float, RefineResult]:
+    """One candidate's quick refinement and its score (a task of ``_refine_candidates``)."""
+    cframes, intr, R, t, occlusion = args
+    rr = refine_pose(cframes, intr, R, t, gates=((0.1, 1.0), (0.2, 0.5), (0.3, 0.0)), max_nfev=15, max_outer=3,
+                     occlusion=occlusion)
+    return _score(cframes, intr, rr), rr
+
+
 def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
-                       progress: Progress | None) -> _Refined:
-    """A quick refinement of every candidate, then a full one of the best and the best distinct runner-up."""
-    quick = []
-    short = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0))
-    for k in range(len(cand)):
-        rr = refine_pose(cframes, intr, cand.R[k], cand.t[k], gates=short, max_nfev=15, max_outer=3, occlusion=occlusion)
-        quick.append((_score(cframes, intr, rr), rr))
-        if progress:
+                       progress: Progress | None, workers: Workers = 1) -> _Refined:
+    """A quick refinement of every candidate (on up to ``workers`` processes), then a full one of
+    the best and the best distinct runner-up."""
+    lean = lean_frames(cframes) if resolve_workers(workers) > 1 else cframes
+    quick = parallel_map(_quick_refine, [(lean, intr, cand.R[k], cand.t[k], occlusion) for k in range(len(cand))],
+                         workers)
+    if progress:
+        for k in range(len(cand)):
             progress("refine", k + 1, len(cand) + 1)
     quick.sort(key=lambda x: -x[0])
     best0 = Pose(quick[0][1].R, quick[0][1].t)
@@ -119,7 +128,7 @@ def _choose_box_model(cframes, intr, cand: Hypotheses, ref: _Refined, occlusion:
         diag.box_model = _outline_kind(cframes)
         return cframes, ref
     diag.box_model = _outline_kind(alt)
-    return alt, _refine_candidates(alt, intr, cand, occlusion, progress)
+    return alt, _refine_candidates(alt, intr, cand, occlusion, progress, config.workers)
 
 
 def _runner_up(ref: _Refined, max_baseline_m: float | None, r2: float = 1.0, t2: float = 0.3) -> float:
@@ -227,9 +236,18 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
     """Run the model-misfit checks (``misfit``); the first that flags becomes the refusal. A given
     focal length the matches cannot check refuses only a pose that ``refusal`` (the verdict's)
     and every misfit check let through."""
+    lean, one = lean_frames(cframes), config.replace(workers=1)
+    with Deferred([(_mirror_score, (lean, intr, one, occlusion)), (_second_pose, (lean, pairs, intr, pose, one, occlusion))],
+                  config.workers) as searches:  # (on other cores while the checks below run)
+        return _misfit_checks(cframes, pairs, intr, pose, noise, f_scale, occlusion, best_score, config, diag,
+                              frames_in, refusal, searches)
+
+
+def _misfit_checks(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_score: float, config: CalibConfig,
+                   diag: CalibDiagnostics, frames_in, refusal: Refusal | None, searches: Deferred) -> Refusal | None:
     found = []
     # a mirrored image first: it also bends the focal / principal-point fits, but is the cause to name
-    chk, msg = mirror_check(best_score, _mirror_score(cframes, intr, config, occlusion), pose)
+    chk, msg = mirror_check(best_score, searches.result(0), pose)
     found.append((chk, msg, "misfit_mirrored"))
     chk, msg = unexplained_frames_check(cframes, pairs)
     found.append((chk, msg, "misfit_mixed_cameras"))
@@ -249,8 +267,7 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
         chk, msg = time_offset_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, times, unit,
                                      seed=config.seed)
         found.append((chk, msg, "misfit_time_offset"))
-    chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)),
-                                 *_second_pose(cframes, pairs, intr, pose, config, occlusion))
+    chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)), *searches.result(1))
     found.append((chk, msg, "misfit_mixed_cameras"))
     diag.misfit = diag.misfit + [c for c, _, _ in found] + ([] if width is None else [width[0]])
     named = next((Refusal(code, m) for _, m, code in found if m), None)  # a misfit names the cause first
@@ -316,7 +333,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     cand = distinct_best(hyps, config.max_refine * 2 if diag.sparse_search else config.max_refine)
     diag.bringup_T = Pose(cand.R[0], cand.t[0]).T.tolist()
     occlusion = Occlusion(config.occlusion_tau, config.occlusion_slope)
-    ref = _refine_candidates(cframes, intr, cand, occlusion, progress)
+    ref = _refine_candidates(cframes, intr, cand, occlusion, progress, config.workers)
     cframes, ref = _choose_box_model(cframes, intr, cand, ref, occlusion, config, diag, progress)
     inflation = None
     if wants_selfcal(config):
@@ -328,7 +345,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
             # every candidate again with the estimated intrinsics / moved 3D boxes (a fair runner-up)
             cframes, intr, inflation = choice.frames, choice.intr, choice.inflation
             joint = Hypotheses(choice.pose.R[None], choice.pose.t[None], np.zeros(1), np.zeros(1, dtype=np.int64))
-            ref = _refine_candidates(cframes, intr, Hypotheses.concat([joint, cand]), occlusion, progress)
+            ref = _refine_candidates(cframes, intr, Hypotheses.concat([joint, cand]), occlusion, progress, config.workers)
     best, pose = ref.best, Pose(ref.best.R, ref.best.t)
     diag.score, diag.runner_up_score = ref.best_score, _runner_up(ref, config.max_baseline_m)
     diag.refine_history, diag.noise_model = list(best.history), best.noise

@@ -19,7 +19,7 @@ MIN_DEPTH_M = 0.3
 
 
 def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: CameraIntrinsics,
-                  size: tuple[int, int], *, clip: bool = True):
+                  size: tuple[int, int], *, clip: bool = True, corner_uv: bool = False):
     """Project box corners for H poses.
 
     Args:
@@ -28,12 +28,16 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
         size: (width, height) px used for clipping.
     Returns:
         rects [H,M,4] (x1,y1,x2,y2 px; NaN where invalid), valid [H,M] bool: every corner in
-        front of the camera and a non-empty clipped rectangle.
+        front of the camera and a non-empty clipped rectangle. With ``corner_uv`` also the pixel
+        coordinates u, v [H,M,S] of every corner (NaN behind the camera; for the Jacobian;
+        ``CameraIntrinsics`` only).
 
     ``intr`` may also be any camera model (:mod:`xcalib.geometry.camera_models`): the outline
     is then projected through it (box edges densely for a wide-angle model).
     """
     if not isinstance(intr, CameraIntrinsics):  # camera-model dispatch (CameraIntrinsics: below, unchanged)
+        if corner_uv:
+            raise TypeError("project_rects(corner_uv=True) is for CameraIntrinsics; other camera models give rects only")
         return project_outline_rects(corners, R, t, intr, size, clip=clip, min_distance=MIN_DEPTH_M)
     single = np.ndim(R) == 2
     R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
@@ -42,7 +46,8 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
     H, M = len(R), len(c)
     if M == 0:
         out = np.zeros((H, 0, 4)), np.zeros((H, 0), dtype=bool)
-        return (out[0][0], out[1][0]) if single else out
+        out = (out[0][0], out[1][0]) if single else out
+        return out + (np.zeros((0, 0)),) * 2 if corner_uv else out
     S = c.shape[1]
     X = np.matmul(R, c.reshape(-1, 3).T)  # [H,3,M*S] (batched BLAS)
     X += t[:, :, None]  # the arithmetic below runs in place on X (same operations, same values)
@@ -70,6 +75,8 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
     with np.errstate(invalid="ignore"):
         valid = front & (rect[..., 2] - rect[..., 0] > 1.0) & (rect[..., 3] - rect[..., 1] > 1.0)
     rect[~valid] = np.nan
+    if corner_uv:
+        return (rect[0], valid[0], u[0], v[0]) if single else (rect, valid, u, v)
     return (rect[0], valid[0]) if single else (rect, valid)
 
 

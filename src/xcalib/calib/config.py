@@ -96,6 +96,11 @@ class CalibConfig:
     Cost:
         occlusion_tau / occlusion_slope: inward edge residuals beyond tau (sigma units) are
             compressed by slope (occlusion only ever shrinks a 2D box).
+    Speed:
+        workers: processes for the independent parts of one calibration (the quick refinement of
+            each candidate, the mirrored-image and second-pose searches of the misfit checks):
+            "auto" (the CPUs this process may use; 1 inside a worker of a pool, e.g. a batch of
+            calibrations) or an int >= 1. The result is the same for every value.
     seed: seeds every random choice.
     """
 
@@ -121,6 +126,7 @@ class CalibConfig:
     time_offset_max_std_s: float = 0.02
     occlusion_tau: float = 1.5
     occlusion_slope: float = 0.2
+    workers: int | Literal["auto"] = "auto"
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -138,6 +144,9 @@ class CalibConfig:
         for name in ("min_pairs", "max_hyp_frames", "max_refine", "max_candidates"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"CalibConfig.{name}: expected >= 1, got {getattr(self, name)}")
+        if not (self.workers == "auto" or (isinstance(self.workers, int) and not isinstance(self.workers, bool)
+                                           and self.workers >= 1)):
+            raise ValueError(f"CalibConfig.workers: expected 'auto' or an int >= 1, got {self.workers!r}")
         if self.max_baseline_m is not None and not self.max_baseline_m > 0:
             raise ValueError(f"CalibConfig.max_baseline_m: expected > 0 or None, got {self.max_baseline_m}")
 

@@ -30,12 +30,13 @@ from scipy.optimize import least_squares
 
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import pixels_per_metre as camera_pixels_per_metre
-from .boxproj import project_rects
+from ..geometry.rotations import so3_left_jacobian
+from .boxproj import MIN_DEPTH_M, project_rects
 from .diagnostics import NoiseModel
 from .pose import Pose
 
 __all__ = ["shift_principal_point", "PoseState", "CostTerm", "Occlusion", "BoxEdgeTerm", "PosePriorTerm", "FocalScaleTerm",
-           "PrincipalPointTerm", "TimeOffsetTerm", "CostModel", "CostFit", "edge_sigma", "INWARD", "POSE_X_SCALE"]
+           "PrincipalPointTerm", "TimeOffsetTerm", "CostModel", "Tangent", "CostFit", "edge_sigma", "INWARD", "POSE_X_SCALE"]
 
 INWARD = np.array([-1.0, -1.0, 1.0, 1.0])  # sign of (pred - obs) per edge when the 2D box lies inside
 POSE_X_SCALE = (1e-3, 1e-3, 1e-3, 0.05, 0.05, 0.05)  # typical step: rad, rad, rad, m, m, m
@@ -72,6 +73,28 @@ class CostTerm:
     def clusters(self) -> np.ndarray | None:
         """Cluster index per residual (residuals sharing an error source, for the sandwich); None: none."""
         return None
+
+    def tangents(self, state: PoseState, x: np.ndarray, base: CameraIntrinsics) -> list["Tangent"] | None:
+        """Per parameter, how the state moves with it (for the analytic Jacobian); None: unknown
+        (the model then falls back to finite differences). ``base``: the model's intrinsics."""
+        return [] if not self.n_params else None
+
+    def own_jacobian(self, state: PoseState, n_params: int, col: int) -> np.ndarray | None:
+        """d residuals / d x [n, n_params] of a term whose residuals depend on its own parameters
+        only (``col``: where they start); None: not known (finite differences)."""
+        return None
+
+
+@dataclass(frozen=True)
+class Tangent:
+    """The derivative of the state with respect to one parameter: of fx, fy, cx, cy (px) and of
+    the outline shift (LiDAR frame, m, [n,3] or None)."""
+
+    fx: float = 0.0
+    fy: float = 0.0
+    cx: float = 0.0
+    cy: float = 0.0
+    shift: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -111,6 +134,30 @@ def edge_sigma(obs: np.ndarray, outlines: np.ndarray, intr: CameraIntrinsics, po
     return np.sqrt(var)
 
 
+def _distort_with_jacobian(x: np.ndarray, y: np.ndarray, d: np.ndarray):
+    """OpenCV distortion of normalised coordinates (clamped to +-1.5 as ``boxproj.project_rects``)
+    and its Jacobian: (xd, yd, dxd/dx, dxd/dy, dyd/dx, dyd/dy), zero across a clamped coordinate."""
+    if np.any(d[12:14]):
+        raise NotImplementedError("tilted-sensor distortion (tauX, tauY) is not supported")
+    k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = d[:12]
+    mx, my = (np.abs(x) < 1.5).astype(np.float64), (np.abs(y) < 1.5).astype(np.float64)
+    x, y = np.clip(x, -1.5, 1.5), np.clip(y, -1.5, 1.5)
+    r2 = x * x + y * y
+    r4 = r2 * r2
+    a = 1 + k1 * r2 + k2 * r4 + k3 * r4 * r2
+    b = 1 + k4 * r2 + k5 * r4 + k6 * r4 * r2
+    radial = a / b
+    drad = ((k1 + 2 * k2 * r2 + 3 * k3 * r4) * b - a * (k4 + 2 * k5 * r2 + 3 * k6 * r4)) / (b * b)  # d radial / d r2
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + s1 * r2 + s2 * r4
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + s3 * r2 + s4 * r4
+    tx, ty = s1 + 2 * s2 * r2, s3 + 2 * s4 * r2  # thin prism, per d r2
+    a11 = radial + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x + 2 * x * tx
+    a12 = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y + 2 * y * tx
+    a21 = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y + 2 * x * ty
+    a22 = radial + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x + 2 * y * ty
+    return xd, yd, a11 * mx, a12 * my, a21 * mx, a22 * my
+
+
 class BoxEdgeTerm(CostTerm):
     """Edges of projected 3D outlines [n,S,3] (LiDAR frame, m) vs matched 2D boxes [n,4] (px)."""
 
@@ -123,12 +170,30 @@ class BoxEdgeTerm(CostTerm):
         self.occlusion = occlusion
         # an edge that cannot be projected (behind the camera) costs the box's own size
         self.fallback = np.sqrt((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]))[:, None]
+        self._last = None  # the last projection (see _projection)
 
     def edges(self, state: PoseState) -> np.ndarray:
         """Unweighted, unshaped residuals [n,4] (px): projected rectangle - 2D box."""
-        outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
-        rects, valid = project_rects(outlines, state.pose.R, state.pose.t, state.intr, self.size)
+        rects, valid, _, _ = self._projection(state)
         return np.where(valid[:, None], rects - self.obs, self.fallback)
+
+    def _projection(self, state: PoseState):
+        """``project_rects`` of the outlines at ``state`` (rects, valid, corner u, v), the last one
+        kept: least squares asks for the residuals and then the Jacobian at the same point, and the
+        Jacobian needs the corners' pixels. Keyed by everything the projection depends on."""
+        intr = state.intr
+        outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
+        if not isinstance(intr, CameraIntrinsics):  # another camera model: rects only (its Jacobian is numeric)
+            rect, valid = project_rects(outlines, state.pose.R, state.pose.t, intr, self.size)
+            return rect, valid, None, None
+        key = (state.pose.R.tobytes(), state.pose.t.tobytes(), intr.fx, intr.fy, intr.cx, intr.cy,
+               None if intr.distortion is None else np.asarray(intr.distortion, dtype=np.float64).tobytes(),
+               None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        out = project_rects(outlines, state.pose.R, state.pose.t, state.intr, self.size, corner_uv=True)
+        self._last = (key, out)
+        return out
 
     def residuals(self, state: PoseState) -> np.ndarray:
         r = self.edges(state) * self.w
@@ -138,6 +203,71 @@ class BoxEdgeTerm(CostTerm):
 
     def clusters(self) -> np.ndarray:
         return np.repeat(np.arange(len(self.obs)), 4)
+
+    def jacobian(self, state: PoseState, rotvec: np.ndarray, extra: list[Tangent]) -> np.ndarray:
+        """d residuals / d (rotvec, dt, extra parameters) [4n, 6 + len(extra)], analytic: the
+        derivative of each rectangle edge is that of the corner defining it (zero where the edge
+        is clipped to the image or the box cannot be projected), through the distortion model and
+        the occlusion shaping. ``rotvec``: the rotation part of x (the pose is exp([w]x) R0).
+        Only the (at most 4) extreme corners of each outline are differentiated."""
+        n, P = len(self.obs), 6 + len(extra)
+        if n == 0:
+            return np.zeros((0, P))
+        R, t, intr = state.pose.R, state.pose.t, state.intr
+        rects, valid, u, v = self._projection(state)
+        rows = np.arange(n)[:, None]
+        uu, vv = np.where(valid[:, None], u, 0.0), np.where(valid[:, None], v, 0.0)  # (an invalid row has no derivative)
+        idx = np.column_stack([uu.argmin(1), vv.argmin(1), uu.argmax(1), vv.argmax(1)])  # [n,4] defining corners
+        ext = np.column_stack([uu[rows[:, 0], idx[:, 0]], vv[rows[:, 0], idx[:, 1]], uu[rows[:, 0], idx[:, 2]],
+                               vv[rows[:, 0], idx[:, 3]]])
+        W, H = self.size
+        lim = np.array([W, H, W, H], dtype=np.float64)
+        inside = (ext > 0.0) & (ext < lim)  # an edge clipped to the image does not move
+        # derivatives at the defining corners only [n,4,...]
+        sel = self.outlines[rows, idx]
+        if state.shift_m is not None:
+            sel = sel + np.asarray(state.shift_m)[:, None, :]
+        Ys = sel @ R.T
+        izs = 1.0 / np.where(valid[:, None], Ys[..., 2] + t[2], 1.0)
+        xs, ys = (Ys[..., 0] + t[0]) * izs, (Ys[..., 1] + t[1]) * izs
+        dist = _distortion(intr)
+        if dist is None:
+            xds, yds, a11, a12, a21, a22 = xs, ys, 1.0, 0.0, 0.0, 1.0
+        else:
+            xds, yds, a11, a12, a21, a22 = _distort_with_jacobian(xs, ys, dist)
+        is_u = np.array([True, False, True, False])
+        f = np.where(is_u, intr.fx, intr.fy)
+        c1 = f * np.where(is_u, a11, a21)  # d edge / d xn
+        c2 = f * np.where(is_u, a12, a22)  # d edge / d yn
+        a = np.stack([c1 * izs, c2 * izs, -(c1 * xs + c2 * ys) * izs], -1)  # d edge / d X_cam [n,4,3]
+        D = np.empty((n, 4, P))
+        cr = np.empty_like(a)  # R c x a (np.cross costs more than the arithmetic at these sizes)
+        cr[..., 0] = Ys[..., 1] * a[..., 2] - Ys[..., 2] * a[..., 1]
+        cr[..., 1] = Ys[..., 2] * a[..., 0] - Ys[..., 0] * a[..., 2]
+        cr[..., 2] = Ys[..., 0] * a[..., 1] - Ys[..., 1] * a[..., 0]
+        D[..., :3] = cr @ so3_left_jacobian(rotvec)  # rotation: (R c x a) J_l
+        D[..., 3:6] = a
+        dn = np.where(is_u, xds, yds)
+        for k, tg in enumerate(extra):
+            col = np.where(is_u, tg.fx, tg.fy) * dn + np.where(is_u, tg.cx, tg.cy)
+            if tg.shift is not None:
+                col = col + np.einsum("nek,nk->ne", a, tg.shift @ R.T)
+            D[..., 6 + k] = col
+        D *= ((inside & valid[:, None]) * self.w)[..., None]
+        if self.occlusion is not None:
+            r = np.where(valid[:, None], rects - self.obs, self.fallback) * self.w
+            D = np.where((r * INWARD > self.occlusion.tau)[..., None], self.occlusion.slope * D, D)
+        return D.reshape(4 * n, P)
+
+
+def _distortion(intr: CameraIntrinsics) -> np.ndarray | None:
+    """The 14 OpenCV coefficients of ``intr`` (None when there is no distortion)."""
+    if intr.distortion is None:
+        return None
+    d = np.zeros(14)
+    v = np.asarray(intr.distortion, dtype=np.float64).reshape(-1)
+    d[: v.size] = v
+    return d if np.any(d) else None
 
 
 class PosePriorTerm(CostTerm):
@@ -174,6 +304,15 @@ class FocalScaleTerm(CostTerm):
             return np.zeros(0)
         return np.asarray(state.params[self.name], dtype=np.float64) / self.sigma_log
 
+    def tangents(self, state: PoseState, x: np.ndarray, base: CameraIntrinsics) -> list[Tangent]:
+        return [Tangent(fx=state.intr.fx, fy=state.intr.fy)]  # d (f e^x) / dx = f e^x
+
+    def own_jacobian(self, state: PoseState, n_params: int, col: int) -> np.ndarray:
+        J = np.zeros((0 if self.sigma_log is None else 1, n_params))
+        if self.sigma_log is not None:
+            J[0, col] = 1.0 / self.sigma_log
+        return J
+
 
 def shift_principal_point(intr: CameraIntrinsics, dx_px: float, dy_px: float) -> CameraIntrinsics:
     """``intr`` with (cx, cy) moved by (dx, dy) px; with a known image size held within 20 % of it
@@ -206,6 +345,19 @@ class PrincipalPointTerm(CostTerm):
             return np.zeros(0)
         return np.asarray(state.params[self.name], dtype=np.float64) / self.sigma_px
 
+    def tangents(self, state: PoseState, x: np.ndarray, base: CameraIntrinsics) -> list[Tangent]:
+        W, H = base.width, base.height
+        cx, cy = base.cx + float(x[0]), base.cy + float(x[1])  # held within the image (20 %): no derivative there
+        inx = 1.0 if W is None or H is None or -0.2 * W < cx < 1.2 * W else 0.0
+        iny = 1.0 if W is None or H is None or -0.2 * H < cy < 1.2 * H else 0.0
+        return [Tangent(cx=inx), Tangent(cy=iny)]
+
+    def own_jacobian(self, state: PoseState, n_params: int, col: int) -> np.ndarray:
+        J = np.zeros((0 if self.sigma_px is None else 2, n_params))
+        if self.sigma_px is not None:
+            J[0, col], J[1, col + 1] = 1.0 / self.sigma_px, 1.0 / self.sigma_px
+        return J
+
 
 class TimeOffsetTerm(CostTerm):
     """One parameter: dt = camera time - LiDAR time (s). Each matched 3D outline moves by
@@ -227,6 +379,12 @@ class TimeOffsetTerm(CostTerm):
 
     def residuals(self, state: PoseState) -> np.ndarray:
         return np.zeros(0)
+
+    def tangents(self, state: PoseState, x: np.ndarray, base: CameraIntrinsics) -> list[Tangent]:
+        return [Tangent(shift=self.v)]
+
+    def own_jacobian(self, state: PoseState, n_params: int, col: int) -> np.ndarray:
+        return np.zeros((0, n_params))
 
 
 @dataclass
@@ -279,15 +437,64 @@ class CostModel:
         return np.concatenate([POSE_X_SCALE, *[t.x_scale for t in self.terms if t.n_params]])
 
     def fit(self, *, f_scale: float, max_nfev: int, loss: str = "soft_l1") -> CostFit:
-        res = least_squares(self.residuals, np.zeros(self.n_params), loss=loss, f_scale=f_scale, method="trf",
-                            x_scale=self.x_scale(), max_nfev=max_nfev)
+        jac = self.analytic_jacobian if self.has_analytic_jacobian() else "2-point"
+        res = least_squares(self.residuals, np.zeros(self.n_params), jac=jac, loss=loss, f_scale=f_scale,
+                            method="trf", x_scale=self.x_scale(), max_nfev=max_nfev)
         st = self.state(res.x)
         return CostFit(pose=st.pose, params=dict(st.params), cost=float(res.cost), residuals=res.fun, x=res.x)
 
+    _TANGENT_TERMS = (FocalScaleTerm, PrincipalPointTerm, TimeOffsetTerm)
+
+    def has_analytic_jacobian(self) -> bool:
+        """True when every parameterised term is one whose effect on the projection is known (each
+        at most once): focal scale, principal point, time offset."""
+        kinds = [type(t) for t in self.terms if t.n_params]
+        return (isinstance(self.intr, CameraIntrinsics)  # the derivative is the pinhole-radtan model's
+                and all(k in self._TANGENT_TERMS for k in kinds) and len(set(kinds)) == len(kinds))
+
+    def analytic_jacobian(self, x: np.ndarray) -> np.ndarray:
+        """d residuals / d x [len(residuals), n_params]: the box-edge terms analytically
+        (``BoxEdgeTerm.jacobian``), the others from their own derivative or, where a term gives
+        none (a pose prior), by central differences of that term alone (no projection)."""
+        x = np.asarray(x, dtype=np.float64)
+        st = self.state(x)
+        n = self.n_params
+        tangents: list[Tangent] = []
+        cols, k = [], 6
+        for term in self.terms:
+            if term.n_params:
+                tangents += term.tangents(st, x[k:k + term.n_params], self.intr)
+                cols.append(k)
+                k += term.n_params
+            else:
+                cols.append(-1)
+        blocks = []
+        for term, col in zip(self.terms, cols):
+            if type(term) is BoxEdgeTerm:
+                blocks.append(term.jacobian(st, x[:3], tangents))
+                continue
+            J = term.own_jacobian(st, n, col) if term.n_params else None
+            if J is None:
+                J = self._term_differences(term, x)
+            blocks.append(J)
+        return np.concatenate(blocks) if blocks else np.zeros((0, n))
+
+    def _term_differences(self, term: CostTerm, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+        r0 = term.residuals(self.state(x))
+        J = np.zeros((len(r0), self.n_params))
+        for k in range(self.n_params):
+            dx = np.zeros(self.n_params)
+            dx[k] = eps
+            J[:, k] = (term.residuals(self.state(x + dx)) - term.residuals(self.state(x - dx))) / (2 * eps)
+        return J
+
     def jacobian(self, x: np.ndarray | None = None, eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
-        """(residuals r0, numeric Jacobian J [len(r0), n_params]) at ``x`` (default 0)."""
+        """(residuals r0, Jacobian J [len(r0), n_params]) at ``x`` (default 0): analytic where
+        ``has_analytic_jacobian`` (pinhole-radtan cameras), else central differences with step ``eps``."""
         x = np.zeros(self.n_params) if x is None else np.asarray(x, float)
         r0 = self.residuals(x)
+        if self.has_analytic_jacobian():
+            return r0, self.analytic_jacobian(x)
         J = np.zeros((len(r0), self.n_params))
         for k in range(self.n_params):
             dx = np.zeros(self.n_params)

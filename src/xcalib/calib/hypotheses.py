@@ -99,9 +99,8 @@ def _p3p_newton(lam: np.ndarray, cosang: np.ndarray, d2: np.ndarray, iters: int 
         J[:, rows, a_idx] = 2 * la - 2 * lb * cosang
         J[:, rows, b_idx] = 2 * lb - 2 * la * cosang
         J += np.eye(3)[None] * 1e-6
-        try:
-            step = np.linalg.solve(J, f[..., None])[..., 0]
-        except np.linalg.LinAlgError:
+        step = _solve3(J, f)
+        if step is None:  # a singular system (np.linalg.solve would raise)
             break
         # damp: never move a depth by more than half its value per step
         scale = np.minimum(1.0, 0.5 * lam.min(1) / np.maximum(np.abs(step).max(1), 1e-12))
@@ -111,6 +110,27 @@ def _p3p_newton(lam: np.ndarray, cosang: np.ndarray, d2: np.ndarray, iters: int 
     f = la * la + lb * lb - 2 * la * lb * cosang - d2
     rel = np.abs(f) / np.maximum(d2, 1e-6)
     return lam, rel.max(1)
+
+
+def _solve3(A: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """Solutions of the 3x3 systems A [T,3,3] x = b [T,3] by the adjugate (vectorised; a batched
+    LAPACK solve pays a call per matrix); None when one is exactly singular."""
+    c00 = A[:, 1, 1] * A[:, 2, 2] - A[:, 1, 2] * A[:, 2, 1]
+    c01 = A[:, 1, 2] * A[:, 2, 0] - A[:, 1, 0] * A[:, 2, 2]
+    c02 = A[:, 1, 0] * A[:, 2, 1] - A[:, 1, 1] * A[:, 2, 0]
+    det = A[:, 0, 0] * c00 + A[:, 0, 1] * c01 + A[:, 0, 2] * c02
+    if not np.all(np.isfinite(det)) or np.any(det == 0):
+        return None
+    c10 = A[:, 0, 2] * A[:, 2, 1] - A[:, 0, 1] * A[:, 2, 2]
+    c11 = A[:, 0, 0] * A[:, 2, 2] - A[:, 0, 2] * A[:, 2, 0]
+    c12 = A[:, 0, 1] * A[:, 2, 0] - A[:, 0, 0] * A[:, 2, 1]
+    c20 = A[:, 0, 1] * A[:, 1, 2] - A[:, 0, 2] * A[:, 1, 1]
+    c21 = A[:, 0, 2] * A[:, 1, 0] - A[:, 0, 0] * A[:, 1, 2]
+    c22 = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+    x0 = c00 * b[:, 0] + c10 * b[:, 1] + c20 * b[:, 2]
+    x1 = c01 * b[:, 0] + c11 * b[:, 1] + c21 * b[:, 2]
+    x2 = c02 * b[:, 0] + c12 * b[:, 1] + c22 * b[:, 2]
+    return np.stack([x0, x1, x2], 1) / det[:, None]
 
 
 def _candidate_pairs(fr: CalibFrame, intr: CameraIntrinsics, prior_sim, top_k: int = 3,
@@ -348,7 +368,8 @@ def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nd
     if len(R) > chunk:
         return np.concatenate([_centre_hits(fr, intr, R[s:s + chunk], t[s:s + chunk], max_elems=max_elems)
                                for s in range(0, len(R), chunk)])
-    Xc = np.einsum("hij,mj->hmi", R, fr.boxes3d[:, :3]) + t[:, None, :]
+    Xc = np.matmul(fr.boxes3d[:, :3], np.transpose(R, (0, 2, 1)))  # [H,M,3] (BLAS, not einsum)
+    Xc += t[:, None, :]
     z = Xc[..., 2]
     if not isinstance(intr, CameraIntrinsics):  # camera-model dispatch
         uv, ok = intr.project(Xc.reshape(-1, 3))

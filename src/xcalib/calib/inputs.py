@@ -17,7 +17,7 @@ from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import CameraModel, as_calibration_camera, calibration_camera_from_dict
 from .boxmodel import fit_yaw_to_points, lidar_angular_step, shapes_from_points
 
-__all__ = ["CalibFrame", "as_intrinsics", "prepare_frames", "with_corner_outlines", "YAW_OPEN_SIGMA"]
+__all__ = ["CalibFrame", "as_intrinsics", "prepare_frames", "with_corner_outlines", "YAW_OPEN_SIGMA", "lean_frames"]
 
 #: 1-sigma of a box outline whose yaw the points leave open, as a fraction of |length - width|
 YAW_OPEN_SIGMA = 0.25
@@ -221,3 +221,11 @@ def with_corner_outlines(frames: Sequence[CalibFrame]) -> list[CalibFrame] | Non
                        0.0 if f.outline_sigma_m is None else f.outline_sigma_m)
         out.append(replace(f, corners=shapes, from_points=hull, outline_sigma_m=sig))
     return out
+
+
+def lean_frames(frames: list[CalibFrame]) -> list[CalibFrame]:
+    """The frames without their point cloud and image (the geometry the search and refinement
+    use, pickled in kilobytes instead of megabytes for a worker process)."""
+    from dataclasses import replace
+
+    return [f if f.points is None and f.image is None else replace(f, points=None, image=None) for f in frames]

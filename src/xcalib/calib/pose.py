@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..geometry.rotations import so3_exp
+
 __all__ = ["Pose"]
 
 
@@ -68,4 +70,4 @@ class Pose:
 
     def moved(self, rotvec: np.ndarray, dt: np.ndarray) -> "Pose":
         """``R <- exp([w]x) R``, ``t <- t + dt`` (camera frame; rotvec in radians)."""
-        return Pose(Rotation.from_rotvec(np.asarray(rotvec, float)).as_matrix() @ self.R, self.t + np.asarray(dt, float))
+        return Pose(so3_exp(rotvec) @ self.R, self.t + np.asarray(dt, float))

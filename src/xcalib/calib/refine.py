@@ -22,7 +22,7 @@ from .diagnostics import NoiseModel
 from .inputs import CalibFrame
 from .pose import Pose
 
-__all__ = ["RefineResult", "match_frame", "match_all", "refine_pose", "pair_metrics", "estimate_noise", "lsq",
+__all__ = ["RefineResult", "match_frame", "match_all", "project_frames", "refine_pose", "pair_metrics", "estimate_noise", "lsq",
            "edge_term", "DEFAULT_NOISE", "F_SCALE"]
 
 
@@ -49,6 +49,11 @@ def match_frame(fr: CalibFrame, intr: CameraIntrinsics, R, t, *, gate_iou: float
     cost = (1 - IoU) + normalised centre distance. Returns (pairs [n,2] rows, IoU [n], rects [M,4]).
     """
     rects, valid = project_rects(fr.corners, R, t, intr, fr.size)
+    return _match_projected(fr, rects, valid, gate_iou, gate_dist)
+
+
+def _match_projected(fr: CalibFrame, rects: np.ndarray, valid: np.ndarray, gate_iou: float, gate_dist: float):
+    """``match_frame`` given the frame's projected rectangles [M,4] and their validity [M]."""
     if fr.n2 == 0 or fr.n3 == 0 or not np.any(valid):
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0), rects
     iou = iou_batched(rects[None], fr.boxes2d)[0]
@@ -56,20 +61,90 @@ def match_frame(fr: CalibFrame, intr: CameraIntrinsics, R, t, *, gate_iou: float
     c_pred = np.stack([(rects[:, 0] + rects[:, 2]) / 2, (rects[:, 1] + rects[:, 3]) / 2], 1)
     diag = np.hypot(fr.boxes2d[:, 2] - fr.boxes2d[:, 0], fr.boxes2d[:, 3] - fr.boxes2d[:, 1])
     dist = np.linalg.norm(c_obs[:, None] - c_pred[None], axis=2) / diag[:, None]
+    pairs, ious = _assign(iou, dist, valid, gate_iou, gate_dist)
+    return pairs, ious, rects
+
+
+def _assign(iou: np.ndarray, dist: np.ndarray, valid: np.ndarray, gate_iou: float, gate_dist: float):
+    """Hungarian matching of one frame from its IoU [K,M] and centre distance [K,M] (diagonals)."""
     dist = np.where(valid[None], dist, np.inf)
     allowed = (iou >= gate_iou) if gate_dist <= 0 else ((iou >= gate_iou) | (dist <= gate_dist))
     allowed &= valid[None]
     if not np.any(allowed):
-        return np.zeros((0, 2), dtype=np.int64), np.zeros(0), rects
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
     cost = np.where(allowed, (1 - iou) + np.minimum(dist, 10.0), 1e6)
     r, c = linear_sum_assignment(cost)
     keep = allowed[r, c]
     pairs = np.column_stack([r[keep], c[keep]]).astype(np.int64)
-    return pairs, iou[r[keep], c[keep]], rects
+    return pairs, iou[r[keep], c[keep]]
 
 
-def match_all(frames, intr, R, t, **kw) -> list[np.ndarray]:
-    return [match_frame(fr, intr, R, t, **kw)[0] for fr in frames]
+def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_dist: float) -> list[np.ndarray]:
+    """The pairs of every frame, the IoU and centre distances of all frames in one padded
+    [F,K,M] computation (the same element-wise operations as ``iou_batched`` / ``_match_projected``,
+    so the same values); the assignment frame by frame."""
+    out = [np.zeros((0, 2), dtype=np.int64) for _ in frames]
+    live = [k for k, fr in enumerate(frames) if fr.n2 and fr.n3 and np.any(proj[k][1])]
+    if not live:
+        return out
+    L, K, M = len(live), max(frames[k].n2 for k in live), max(frames[k].n3 for k in live)
+    rects = np.zeros((L, M, 4))
+    boxes = np.tile(np.array([0.0, 0.0, 1.0, 1.0]), (L, K, 1))  # padding: a unit box (no zero diagonal)
+    for i, k in enumerate(live):
+        rects[i, :frames[k].n3] = proj[k][0]
+        boxes[i, :frames[k].n2] = frames[k].boxes2d
+    r = np.nan_to_num(rects, nan=0.0)
+    rx0, ry0, rx1, ry1 = (np.ascontiguousarray(r[..., j])[:, None, :] for j in range(4))
+    bx0, by0, bx1, by1 = (boxes[..., j][:, :, None] for j in range(4))
+    tmp = np.maximum(rx0, bx0)
+    inter = np.minimum(rx1, bx1)
+    inter -= tmp
+    np.clip(inter, 0, None, out=inter)
+    ih = np.minimum(ry1, by1)
+    np.maximum(ry0, by0, out=tmp)
+    ih -= tmp
+    np.clip(ih, 0, None, out=ih)
+    inter *= ih
+    union = np.add((rx1 - rx0) * (ry1 - ry0), (bx1 - bx0) * (by1 - by0), out=ih)
+    union -= inter
+    pos = union > 0
+    np.divide(inter, union, out=inter, where=pos)
+    np.copyto(inter, 0.0, where=~pos)
+    iou = inter  # [L,K,M]
+    c_obs = np.stack([(boxes[..., 0] + boxes[..., 2]) / 2, (boxes[..., 1] + boxes[..., 3]) / 2], -1)
+    c_pred = np.stack([(rects[..., 0] + rects[..., 2]) / 2, (rects[..., 1] + rects[..., 3]) / 2], -1)
+    diag = np.hypot(boxes[..., 2] - boxes[..., 0], boxes[..., 3] - boxes[..., 1])
+    dist = np.linalg.norm(c_obs[:, :, None] - c_pred[:, None], axis=3) / diag[..., None]
+    for i, k in enumerate(live):
+        n2, n3 = frames[k].n2, frames[k].n3
+        out[k] = _assign(iou[i, :n2, :n3], dist[i, :n2, :n3], proj[k][1], gate_iou, gate_dist)[0]
+    return out
+
+
+def project_frames(frames: list[CalibFrame], intr: CameraIntrinsics, R, t) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(rects [M,4], valid [M]) of every frame's 3D outlines at one pose: the frames of one image
+    size projected in one call (outlines of different lengths padded with their first vertex,
+    which changes no rectangle)."""
+    out: list = [None] * len(frames)
+    by_size: dict = {}
+    for k, fr in enumerate(frames):
+        by_size.setdefault(tuple(fr.size), []).append(k)
+    for size, ks in by_size.items():
+        corners = [frames[k].corners for k in ks]
+        S = max(c.shape[1] for c in corners)
+        corners = [c if c.shape[1] == S else np.concatenate([c, np.repeat(c[:, :1], S - c.shape[1], 1)], 1)
+                   if len(c) else np.zeros((0, S, 3)) for c in corners]
+        rects, valid = project_rects(np.concatenate(corners), R, t, intr, size)
+        offs = np.cumsum([0] + [len(c) for c in corners])
+        for i, k in enumerate(ks):
+            out[k] = (rects[offs[i]:offs[i + 1]], valid[offs[i]:offs[i + 1]])
+    return out
+
+
+def match_all(frames, intr, R, t, *, gate_iou: float = 0.3, gate_dist: float = 0.0) -> list[np.ndarray]:
+    """``match_frame`` of every frame (pairs only), the projection of all frames in one call."""
+    frames = list(frames)
+    return _match_frames(frames, project_frames(frames, intr, R, t), gate_iou, gate_dist)
 
 
 def _stack(frames: list[CalibFrame], pairs: list[np.ndarray]):
@@ -194,15 +269,31 @@ def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *,
 
 
 def pair_metrics(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, pairs: list[np.ndarray]):
-    """Per matched pair: mean absolute edge residual (px) and IoU, concatenated over frames."""
-    px, ious = [], []
-    for fr, p in zip(frames, pairs):
-        if len(p) == 0:
-            continue
-        rects, _ = project_rects(fr.corners[p[:, 1]], R, t, intr, fr.size)
-        obs = fr.boxes2d[p[:, 0]]
-        px.append(np.nanmean(np.abs(rects - obs), axis=1))
-        ious.append(np.diagonal(iou_batched(rects[None], obs)[0]))
-    if not px:
+    """Per matched pair: mean absolute edge residual (px) and IoU, concatenated over frames (the
+    matched outlines of frames of one image size projected in one call)."""
+    sizes = {tuple(fr.size) for fr, p in zip(frames, pairs) if len(p)}
+    if not sizes:
         return np.zeros(0), np.zeros(0)
-    return np.concatenate(px), np.concatenate(ious)
+    if len(sizes) > 1:  # frames of several image sizes: frame by frame
+        parts = [pair_metrics([fr], intr, R, t, [p]) for fr, p in zip(frames, pairs) if len(p)]
+        return np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts])
+    corners, obs = _stack(frames, pairs)
+    rects, _ = project_rects(corners, R, t, intr, next(iter(sizes)))
+    return np.nanmean(np.abs(rects - obs), axis=1), _paired_iou(rects, obs)
+
+
+def _paired_iou(rects: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """IoU of rects[i] with boxes[i] [n] (NaN rect -> 0): ``iou_batched``'s diagonal, the same operations."""
+    r = np.nan_to_num(rects, nan=0.0)
+    b = np.asarray(boxes, dtype=np.float64)
+    w = np.minimum(r[:, 2], b[:, 2]) - np.maximum(r[:, 0], b[:, 0])
+    np.clip(w, 0, None, out=w)
+    h = np.minimum(r[:, 3], b[:, 3]) - np.maximum(r[:, 1], b[:, 1])
+    np.clip(h, 0, None, out=h)
+    inter = w * h
+    union = (r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1]) + (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    union -= inter
+    pos = union > 0
+    out = np.zeros(len(r))
+    np.divide(inter, union, out=out, where=pos)
+    return out

@@ -128,7 +128,7 @@ def object_sandwich(frames, pairs, intr, R, t, groups: np.ndarray, *, noise: Noi
     An object without which the pose is undetermined gives an infinite sigma. None with fewer than
     ``min_objects`` objects (the spread of so few is no estimate; the frame halves / jackknife over
     pairs judge such recordings)."""
-    from scipy.stats import t as student_t
+    from scipy.special import stdtrit  # t.ppf without importing scipy.stats (seconds)
 
     min_objects = MIN_OBJECTS if min_objects is None else min_objects
     sc = _scores(frames, pairs, intr, R, t, noise=noise)
@@ -155,7 +155,7 @@ def object_sandwich(frames, pairs, intr, R, t, groups: np.ndarray, *, noise: Noi
     d = _exact_moves(frames, pairs, intr, Pose(R, t), groups, used, d, noise, f_scale, occlusion,
                      EXACT_OBJECTS if exact is None else exact)
     cov = (G - 1) / G * (d - d.mean(0)).T @ (d - d.mean(0))
-    return _sd6(cov) * float(student_t.ppf(0.975, G - 1) / 1.959964)
+    return _sd6(cov) * float(stdtrit(G - 1, 0.975) / 1.959964)
 
 
 def _exact_moves(frames, pairs, intr, pose: Pose, groups, used, d, noise, f_scale, occlusion, k: int) -> np.ndarray:

@@ -24,7 +24,7 @@ app = typer.Typer(
 
 #: Where xcalib's own commands come first in --help (an ordering only: every declared command is
 #: registered, listed here or not).
-_HELP_ORDER = ["demo", "match", "calibrate", "detect", "bootstrap", "train", "validate", "export", "synth", "cache",
+_HELP_ORDER = ["demo", "match", "calibrate", "calibrate-many", "detect", "bootstrap", "train", "validate", "export", "synth", "cache",
                "convert", "bag", "monitor", "version", "reference"]
 
 

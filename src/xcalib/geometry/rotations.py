@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 __all__ = [
     "euler_to_matrix", "matrix_to_euler", "quaternion_to_matrix", "matrix_to_quaternion",
     "rotvec_to_matrix", "matrix_to_rotvec", "is_rotation_matrix", "orthonormalize",
-    "rotation_angle", "check_rotation_matrix", "orthonormality_error",
+    "rotation_angle", "check_rotation_matrix", "orthonormality_error", "so3_exp", "so3_left_jacobian",
 ]
 
 
@@ -58,6 +58,37 @@ def matrix_to_quaternion(R, order: str = "xyzw", canonical: bool = True) -> np.n
 def rotvec_to_matrix(rotvec) -> np.ndarray:
     """Axis-angle vector (radians) -> rotation matrix."""
     return Rotation.from_rotvec(np.asarray(rotvec, dtype=np.float64)).as_matrix()
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def so3_exp(rotvec) -> np.ndarray:
+    """Axis-angle vector (radians, one [3]) -> rotation matrix by Rodrigues' formula (the same
+    matrix as ``rotvec_to_matrix`` to rounding, without scipy's per-call overhead; series near 0)."""
+    w = np.asarray(rotvec, dtype=np.float64).reshape(3)
+    th2 = float(w @ w)
+    K = _skew(w)
+    if th2 < 1e-12:  # Taylor: sin(th)/th = 1 - th^2/6, (1 - cos th)/th^2 = 1/2 - th^2/24
+        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+    else:
+        th = np.sqrt(th2)
+        a, b = np.sin(th) / th, (1.0 - np.cos(th)) / th2
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+def so3_left_jacobian(rotvec) -> np.ndarray:
+    """Left Jacobian of SO(3) at ``rotvec``: d(exp([w + d]x) y) = -[exp([w]x) y]x J_l(w) d (first order)."""
+    w = np.asarray(rotvec, dtype=np.float64).reshape(3)
+    th2 = float(w @ w)
+    K = _skew(w)
+    if th2 < 1e-12:
+        b, c = 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        th = np.sqrt(th2)
+        b, c = (1.0 - np.cos(th)) / th2, (th - np.sin(th)) / (th2 * th)
+    return np.eye(3) + b * K + c * (K @ K)
 
 
 def matrix_to_rotvec(R) -> np.ndarray:

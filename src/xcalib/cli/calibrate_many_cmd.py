@@ -1,0 +1,73 @@
+"""``xcalib calibrate-many``: many recordings calibrated on a process pool or a Ray cluster, one table."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+_HELP = """Calibrate many recordings (sites, cameras, days) and collect the results in one table.
+
+RECORDINGS are frame sources (any `xcalib calibrate` SOURCE), glob patterns ("runs/*/frames"),
+folders whose sub-folders are recordings, or list files (.txt/.lst/.list: one path per line,
+relative to the list's folder). Each is calibrated on its own (defaults; --camera / --intrinsics
+apply to all) on a local process pool (--executor process, --jobs N) or a Ray cluster
+(--executor ray [--ray-address ADDR]; pip install 'xcalib[ray]'). Writes DIR/<name>/calibration.json
+per recording and DIR/results.csv, DIR/results.json and DIR/index.html (a recording that cannot
+be opened is a row with its error). Exit code 1 when any recording was refused or failed.
+
+Example: xcalib calibrate-many "recordings/*" --out runs/batch --jobs 2
+Example: xcalib calibrate-many recordings.txt --out runs/batch --executor ray
+"""
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("calibrate-many", help=_HELP)
+    def calibrate_many_command(
+        recordings: list[str] = typer.Argument(..., metavar="LIST_OR_GLOB...", help="Recordings, globs, folders or list files."),
+        out: Path = typer.Option(..., "--out", "-o", help="Output folder (tables, index, one folder per recording)."),
+        executor: str = typer.Option("process", "--executor", "-e", help="process | ray | serial."),
+        jobs: int = typer.Option(0, "--jobs", "-j", help="Worker processes / local Ray CPUs (0: the CPUs)."),
+        ray_address: str = typer.Option(None, "--ray-address", help="Ray cluster to join (default: a local one)."),
+        camera: str = typer.Option(None, "--camera", "-c", help="Camera to calibrate in every recording."),
+        intrinsics: Path = typer.Option(None, "--intrinsics", "-k", help="Intrinsics JSON for every recording."),
+        seed: int = typer.Option(0, "--seed", help="Random seed of the hypothesis sampling."),
+        as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
+        force: bool = typer.Option(False, "--force", help="Write into an existing, non-empty folder."),
+    ) -> None:
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        from ..batch import calibrate_many
+        from ..calib.config import CalibConfig
+
+        if executor not in ("process", "ray", "serial"):
+            raise typer.BadParameter("expected process, ray or serial", param_hint="--executor")
+        if jobs < 0:
+            raise typer.BadParameter("expected >= 0", param_hint="--jobs")
+        if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
+            raise FileExistsError(f"{out} already exists; pass --force to write into it")
+        console = Console(stderr=True)
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=console, disable=as_json) as bar:
+            task = bar.add_task("calibrate", total=None)
+
+            def progress(done: int, total: int, rec) -> None:
+                bar.update(task, completed=done, total=total, description=f"calibrate ({rec.name})")
+
+            summary = calibrate_many(recordings, out, config=CalibConfig(seed=seed), executor=executor,
+                                     jobs=jobs or None, camera=camera, intrinsics=intrinsics, ray_address=ray_address,
+                                     progress=progress)
+        if as_json:
+            typer.echo(json.dumps(json.loads(summary.json.read_text()), indent=1))
+        else:
+            for r in summary.records:
+                verdict = "ok" if r.success else ("ERROR" if r.error else f"refused ({r.refusal})")
+                sig = f"  1-sigma {r.rot_sigma_deg:.3f} deg / {r.trans_sigma_m:.3f} m" if r.rot_sigma_deg is not None else ""
+                typer.echo(f"{r.name}: {verdict}{sig}  [{r.time_s:.1f} s]" + (f"  {r.error}" if r.error else ""))
+            n = len(summary.records)
+            typer.echo(f"{summary.n_success} of {n} calibrated, {summary.n_error} error(s); wrote {summary.csv}, "
+                       f"{summary.json} and {summary.html}")
+        if summary.n_success < len(summary.records):
+            raise typer.Exit(1)
