@@ -29,6 +29,7 @@ import argparse
 import dataclasses
 import json
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -69,6 +70,35 @@ def _pose_of(res):
 
     T = res.extrinsics if res.rotation is not None else getattr(res.diagnostics, "refused_T", None)
     return None if T is None else Pose.parse(np.asarray(T))
+
+
+ADVICE = re.compile(r"(refine_intrinsics|time_offset)='([a-z+]+)'")
+
+
+def advice_of(message: str) -> dict:
+    """The options a refusal's message advises (``refine_intrinsics='focal'`` etc.; the last wins)."""
+    return {k: v for k, v in ADVICE.findall(message or "")}
+
+
+def follow_advice(frames, intr, truths, rec: dict, steps: int = 3) -> list[dict]:
+    """Follow a refusal's advice up to ``steps`` times (issue 25 item 2): each step calibrates
+    again with the advised options added. A loop -- the same refusal under options already tried
+    -- is marked ``loop``."""
+    from xcalib.calib.config import CalibConfig
+
+    chain, opts, seen = [], {}, {(rec["refusal"], ())}
+    while not rec["success"] and len(chain) < steps:
+        adv = advice_of(rec["message"])
+        new = {k: v for k, v in adv.items() if opts.get(k) != v}
+        if not new:
+            break
+        opts = {**opts, **new}
+        rec = run_case(f"  advice {opts}", frames, intr, truths, CalibConfig(**opts))
+        key = (rec["refusal"], tuple(sorted(opts.items())))
+        rec["loop"] = bool(not rec["success"] and any(r == rec["refusal"] for r, _ in seen))
+        seen.add(key)
+        chain.append({k: v for k, v in rec.items() if k != "T"})
+    return chain
 
 
 def run_case(name: str, frames, intr, truths, config=None) -> dict:
@@ -117,11 +147,13 @@ def a9_cases() -> list[dict]:
     for size, smin in (("1280", 0.3), ("1280", 0.5), ("416", 0.3)):
         det = [with_detections(f, DETS / f"yolox_nano_{size}" / "a9" / f"{folder[f.frame_key]}.json", smin)
                for f in frames]
-        out.append(run_case(f"A9 detector {size} score>={smin}", det, intr, None if ref_pose is None else [ref_pose]))
+        rec = run_case(f"A9 detector {size} score>={smin}", det, intr, None if ref_pose is None else [ref_pose])
+        rec["advice_chain"] = follow_advice(det, intr, None if ref_pose is None else [ref_pose], rec)
+        out.append(rec)
     return out
 
 
-def pandaset_cases() -> list[dict]:
+def pandaset_cases(follow: bool = True) -> list[dict]:
     root = SHARED / "pandaset_002"
     if not root.exists() or not DETS.exists():
         return [{"case": "pandaset", "skipped": f"data not found: {root} / {DETS}"}]
@@ -136,8 +168,12 @@ def pandaset_cases() -> list[dict]:
     det = [with_detections(f, DETS / "yolox_nano_1280" / "pandaset" / f"{f.frame_key[-2:]}.json", 0.3) for f in seen]
     proj = [dataclasses.replace(synthetic_2d_boxes(f, seed=i), extrinsics=None, match_matrix=None)
             for i, f in enumerate(frames)]
-    return [run_case("PandaSet detector 1280 score>=0.3", det, seq.intrinsics, truths),
-            run_case("PandaSet projected cuboids", proj, seq.intrinsics, truths)]
+    out = []
+    for name, fr in (("PandaSet detector 1280 score>=0.3", det), ("PandaSet projected cuboids", proj)):
+        rec = run_case(name, fr, seq.intrinsics, truths)
+        rec["advice_chain"] = follow_advice(fr, seq.intrinsics, truths, rec) if follow else []
+        out.append(rec)
+    return out
 
 
 def _print(rows: list[dict]) -> None:
@@ -155,6 +191,10 @@ def _print(rows: list[dict]) -> None:
             print(f"{'':38s} box model: {r['box_fit']}")
         if not r["success"]:
             print(f"{'':38s} {r['message'][:150]}")
+        for c in r.get("advice_chain", []):
+            print(f"{'':38s} -> {c['case'].strip()}: {'success' if c['success'] else c['refusal']}"
+                  f"{' (LOOP)' if c.get('loop') else ''} err {c.get('err_deg', float('nan')):.3f} deg / "
+                  f"{c.get('err_m', float('nan')):.3f} m")
 
 
 def main(argv=None) -> int:

@@ -33,7 +33,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, match
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, prepare_frames, with_corner_outlines, with_point_outlines
-from .misfit import box_frame_check, flipped_frames, focal_fit, focal_scale_check, focal_width_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, unexplained_frames_check
+from .misfit import box_frame_check, flipped_frames, focal_fit, focal_scale_check, focal_width_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, time_shifted_frames, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .pose import Pose
 from .refine import RefineResult, match_all, pair_metrics, refine_pose
@@ -259,15 +259,22 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
         chk, msg = focal_scale_check(fit, intr, n_matches=int(sum(len(p) for p in pairs)), places=places)
         found.append((chk, msg, "misfit_focal_length"))
         width = focal_width_check(fit, cframes, pairs, pose)
-    if config.refine_intrinsics != "focal+center":
-        chk, msg = principal_point_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed,
-                                         places=places)
-        found.append((chk, msg, "misfit_principal_point"))
+    time_chk = None
     if config.time_offset is None:  # a fixed or estimated offset is already in the model
         times, unit = _frame_times(frames_in)
-        chk, msg = time_offset_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, times, unit,
+        time_chk = time_offset_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, times, unit,
                                      seed=config.seed)
-        found.append((chk, msg, "misfit_time_offset"))
+    if config.refine_intrinsics != "focal+center":
+        pp_frames = cframes
+        if time_chk is not None and time_chk[1]:
+            # a time offset that fits is tested first: the principal point is judged with it applied
+            pp_frames = time_shifted_frames(cframes, pairs, intr, pose, noise, f_scale, occlusion, times, unit) \
+                or cframes
+        chk, msg = principal_point_check(pp_frames, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed,
+                                         places=places)
+        found.append((chk, msg, "misfit_principal_point"))
+    if time_chk is not None:
+        found.append((*time_chk, "misfit_time_offset"))
     chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)),
                                  *_second_pose(cframes, pairs, intr, pose, config, occlusion))
     found.append((chk, msg, "misfit_mixed_cameras"))
