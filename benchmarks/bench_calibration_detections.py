@@ -18,7 +18,10 @@ Columns: success, refusal code, pairs, the error (of the refused pose too, from
 ``diagnostics.refused_T``), the reported 1-sigma (norm over the axes), whether the error lies
 within the reported 2-sigma, and what the box observation model fitted (``diagnostics.box_fit``).
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration_detections.py [--only a9|pandaset]
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration_detections.py [--only a9|pandaset] [--subsets 20]
+
+``--subsets N`` adds N random A9 subsets each: labelled boxes, 8 frames, and detector boxes (1280,
+score >= 0.3), 12 frames, against the labelled all-frame pose (issue 25's "Done when").
 
 Prints a table and writes ``benchmarks/results/calibration_detections.json``.
 """
@@ -153,6 +156,44 @@ def a9_cases() -> list[dict]:
     return out
 
 
+def a9_subsets(n_random: int) -> list[dict]:
+    """Random subsets (``bench_calibration_a9.subsets``, same seeds): labelled boxes 8 frames and
+    detector boxes (1280, score >= 0.3) 12 frames, against the labelled all-frame pose. 'wrong':
+    a success > 1 deg or > 0.5 m off; coverage: the gap within the reported 2-sigma."""
+    root = SHARED / "a9_sample"
+    if not root.exists() or not DETS.exists():
+        return [{"case": "a9 subsets", "skipped": f"data not found: {root} / {DETS}"}]
+    from bench_calibration_a9 import subsets
+
+    from xcalib.calib.pose import Pose
+    from xcalib.io.frames import read_frames
+
+    seq = read_frames(root)
+    frames = [seq[i] for i in range(len(seq))]
+    intr = seq.intrinsics
+    ref = run_case("ref", frames, intr, None)
+    ref_pose = Pose.parse(np.asarray(ref["T"]))
+    folder = a9_folders(root)
+    det = [with_detections(f, DETS / "yolox_nano_1280" / "a9" / f"{folder[f.frame_key]}.json", 0.3) for f in frames]
+    sets = subsets(len(frames), n_random)
+    rows = []
+    for name, fr, key in (("A9 labelled, random 8 frames", frames, "random 8"),
+                          ("A9 detector 1280>=0.3, random 12 frames", det, "random 12")):
+        recs = [run_case(name, [fr[i] for i in idx], intr, [ref_pose]) for idx in sets[key]]
+        ok = [r for r in recs if r["success"]]
+        rows.append({"case": name, "runs": len(recs), "success": len(ok),
+                     "wrong": sum(r["err_deg"] > 1.0 or r["err_m"] > 0.5 for r in ok),
+                     "coverage_2sigma": (sum(r["covered_2sigma"] for r in ok) / len(ok)) if ok else None,
+                     "err_deg_max": max((r["err_deg"] for r in ok), default=None),
+                     "err_m_max": max((r["err_m"] for r in ok), default=None),
+                     "refusals": sorted({r["refusal"] for r in recs if not r["success"]}),
+                     "records": [{k: v for k, v in r.items() if k != "T"} for r in recs]})
+        print(f"{name}: {len(ok)}/{len(recs)} accepted, wrong {rows[-1]['wrong']}, 2-sigma coverage "
+              f"{rows[-1]['coverage_2sigma']}, max err {rows[-1]['err_deg_max']} deg / {rows[-1]['err_m_max']} m",
+              flush=True)
+    return rows
+
+
 def pandaset_cases(follow: bool = True) -> list[dict]:
     root = SHARED / "pandaset_002"
     if not root.exists() or not DETS.exists():
@@ -201,6 +242,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--only", choices=("a9", "pandaset"), default=None)
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--subsets", type=int, default=0, help="also N random A9 subsets (labelled 8, detector 12 frames)")
     args = ap.parse_args(argv)
     rows: list[dict] = []
     if args.only in (None, "a9"):
@@ -208,9 +250,10 @@ def main(argv=None) -> int:
     if args.only in (None, "pandaset"):
         rows += pandaset_cases()
     _print(rows)
+    subs = a9_subsets(args.subsets) if args.subsets else []
     if args.only is None or args.out != OUT:
-        write_result(args.out, {"machine": machine_info(), "rows": [{k: v for k, v in r.items() if k != "T"}
-                                                                      for r in rows]})
+        write_result(args.out, {"machine": machine_info(), "command": " ".join(sys.argv),
+                                "rows": [{k: v for k, v in r.items() if k != "T"} for r in rows], "a9_subsets": subs})
     return 0
 
 

@@ -104,3 +104,14 @@ def test_yawed_boxes_with_a_cloud_get_point_hulls_for_the_boxes_in_view():
     c = alt[0].corners[j] - cframes[0].boxes3d[j, :3]
     assert np.abs(c[:, :2]).max() < np.abs(cframes[0].box_corners[j] - cframes[0].boxes3d[j, :3])[:, :2].max() + 1e-6
     assert with_point_outlines([dataclasses.replace(cframes[0], points=None)], [view]) is None
+
+
+def test_box_fit_and_floor_weights_survive_the_diagnostics_round_trip():
+    from xcalib.calib.diagnostics import CalibDiagnostics, UncertaintyParts
+
+    d = CalibDiagnostics(box_fit={"outline": "corners+points", "sides": 0.05, "top": 0.09, "bottom": 0.0,
+                                  "sd": [0.01, 0.01, 0.01], "pose_shift": [0.1, 0.05], "n_pairs": 40},
+                         uncertainty=UncertaintyParts(box_model={"weight_corners": 0.07, "shift": [0.0] * 6}))
+    back = CalibDiagnostics.from_dict(d.to_dict())
+    assert back.box_fit["top"] == 0.09 and back.uncertainty.box_model["weight_corners"] == 0.07
+    assert CalibDiagnostics.from_dict({}).box_fit == {}  # results written before: no box fit
