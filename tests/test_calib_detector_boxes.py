@@ -115,3 +115,41 @@ def test_box_fit_and_floor_weights_survive_the_diagnostics_round_trip():
     back = CalibDiagnostics.from_dict(d.to_dict())
     assert back.box_fit["top"] == 0.09 and back.uncertainty.box_model["weight_corners"] == 0.07
     assert CalibDiagnostics.from_dict({}).box_fit == {}  # results written before: no box fit
+
+
+def _advice(message: str) -> dict:
+    import re
+
+    return dict(re.findall(r"(refine_intrinsics|time_offset)='([a-z+]+)'", message or ""))
+
+
+def _follow(frames, intr, steps: int = 3):
+    """Calibrate, then follow each refusal's advice (the options it names) up to ``steps`` times;
+    the chain of (options, success, refusal code)."""
+    from xcalib.calib.api import calibrate
+    from xcalib.calib.config import CalibConfig
+
+    opts, chain = {}, []
+    res = calibrate(frames, intr)
+    chain.append(({}, res.success, res.diagnostics.refusal))
+    while not res.success and len(chain) <= steps:
+        new = {k: v for k, v in _advice(res.message).items() if opts.get(k) != v}
+        if not new:
+            break
+        opts = {**opts, **new}
+        res = calibrate(frames, intr, CalibConfig(**opts))
+        chain.append((dict(opts), res.success, res.diagnostics.refusal))
+    return chain
+
+
+def test_following_a_refusals_advice_never_leads_back_to_the_same_refusal():
+    """Issue 25 item 2, on the realism conditions whose refusals advise an option (a cropped image:
+    principal point; unsynchronised sensors: time offset)."""
+    from xcalib.data.synth.realism import make_realism_case
+
+    for cond, seed in (("principal_point+3%W", 2), ("time_offset_0.1s", 2)):
+        case = make_realism_case(cond, seed, n_frames=12)
+        chain = _follow(list(case.frames), case.intrinsics_given)
+        codes = [c for _, ok, c in chain if not ok]
+        assert len(codes) == len(set(codes)), (cond, chain)  # no refusal comes back
+        assert not chain[0][1], (cond, chain)  # the bent site is refused first
