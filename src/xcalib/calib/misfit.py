@@ -472,7 +472,8 @@ def principal_point_check(frames: list[CalibFrame], pairs: list[np.ndarray], int
     sd, shift = float(np.linalg.norm(sd_xy)), float(np.linalg.norm(d))
     flagged = _pp_flagged(d, sd_xy, W)
     box_note = ""
-    if flagged:
+    x_alone = bool(abs(d[0]) > PP_TOL_FRAC * W and abs(d[0]) > PP_X_SIGMAS * sd_xy[0])
+    if flagged and not x_alone:  # a horizontal shift no outline offset can mimic stays flagged
         # the box model first: with the outline offsets free, is the shift still asked for? Its x part
         # by its own sigma (the symmetric side offset cannot mimic it); the whole shift by how much
         # it lowers the robust cost, counted once per object (a vertical shift and a pitch of the
@@ -481,15 +482,19 @@ def principal_point_check(frames: list[CalibFrame], pairs: list[np.ndarray], int
         d2, sd2 = _pp_boot(frames, pairs, intr, pose, noise, f_scale, occlusion, draws, seed, True)
         _, c_pp = _pp_outline_fits(frames, pairs, intr, pose, noise, f_scale, occlusion, True)
         _, c_box = _pp_outline_fits(frames, pairs, intr, pose, noise, f_scale, occlusion, False)
+        *_, pp_only = lsq(frames, pairs, intr, pose.R, pose.t, f_scale, 60, noise, occlusion, extra=(PrincipalPointTerm(),))
         n = sum(len(p) for p in pairs)
         per_obj = max(n / max(places or n / 4.0, 1.0), 1.0)
         gain = (c_box - c_pp) / per_obj
         x_flag = abs(d2[0]) > PP_TOL_FRAC * W and abs(d2[0]) > PP_X_SIGMAS * sd2[0]
-        if not x_flag and gain <= PP_MIN_GAIN:
+        # the outline must explain the boxes better than the principal point does (alternative
+        # models, each alone), and the shift must add little to it
+        if not x_flag and c_box < pp_only.cost and gain <= PP_MIN_GAIN:
             flagged = False
             box_note = (f"; with the 2D outline offsets fitted (box model) it is ({d2[0]:+.1f}, {d2[1]:+.1f}) px, "
                         f"x sigma {sd2[0]:.1f} px, and lowers the cost by {gain:.1f} per object (limit "
-                        f"{PP_MIN_GAIN:g}): the box model explains it")
+                        f"{PP_MIN_GAIN:g}); cost with the outline offsets alone {c_box:.1f}, with the principal "
+                        f"point alone {pp_only.cost:.1f}: the box model explains it")
     detail = (f"fitted principal point shift ({d[0]:+.1f}, {d[1]:+.1f}) px (bootstrap sigma {sd:.1f} px; "
               f"x alone {sd_xy[0]:.1f} px){box_note}")
     msg = None
