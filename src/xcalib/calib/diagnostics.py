@@ -68,7 +68,9 @@ class UncertaintyParts:
     model; floor: the model-misfit floor; selfcal: the pose spread that estimating the intrinsics /
     time offset adds (marginal minus conditional sigma, ``selfcal``); clusters: the sandwich sigma clustered by object
     (every object's pairs over all frames share one error); frames: the leave-frames-out jackknife
-    sigma (what the verdict judges the pose by, in place of the halves); n_objects: distinct objects."""
+    sigma (what the verdict judges the pose by, in place of the halves); n_objects: distinct objects;
+    box_model: how the floor was weighed (robust costs of the outlines in use and of the box corners,
+    the corners' posterior weight, the pose shift to them; ``uncertainty.box_model_floor``)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -80,6 +82,7 @@ class UncertaintyParts:
     clusters: list[float] | None = None
     frames: list[float] | None = None
     n_objects: int = 0
+    box_model: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -149,6 +152,7 @@ class CalibDiagnostics:
     selfcal: SelfCalDiagnostics = field(default_factory=SelfCalDiagnostics)
     box_model: str = ""                    # outlines used: "corners" | "points" | "corners+points" ("": 3D boxes with yaw, corners)
     box_model_px: list[float] | None = None  # median edge residual (px) of the [point-hull, corner] outline fits compared
+    box_fit: dict = field(default_factory=dict)  # the box observation model fitted to the data (``boxmodel.fit_outline``)
     refusal: str = ""                      # short code of the refusal reason ("" on success)
     refused_T: list | None = None          # [4,4] the refined pose that was refused (a failed result has none)
     frames: list[FrameSummary] = field(default_factory=list)

@@ -83,6 +83,11 @@ def _summary_text(result: CalibrationResult, rows: list[dict]) -> str:
             lines += [f"  misfit check {c.name}: {c.statistic:.3g} (limit {c.limit:.3g}){' FLAGGED' if c.flagged else ''}"
                       f"{'; ' + c.detail if c.detail else ''}" for c in d.misfit]
         lines.append("")
+    if d is not None and getattr(d, "box_fit", None) and not result.success and "sides" in d.box_fit:
+        bf = d.box_fit
+        lines += [f"  box model: {bf.get('outline') or 'corners'} outlines; 2D boxes inside them by "
+                  f"{100 * bf['sides']:+.1f} % (sides), {100 * bf['top']:+.1f} % (top), {100 * bf['bottom']:+.1f} % "
+                  "(bottom) of their size", ""]
     if d is not None and d.selfcal.notes:
         lines += [f"  self-calibration: {n}" for n in d.selfcal.notes] + [""]
     lines.append(f"{'frame':>12} {'2D':>4} {'3D':>4} {'pairs':>5} {'px med':>7} {'IoU med':>7}")

@@ -302,6 +302,11 @@ class CalibrationResult:
         if sc is not None and sc.time_offset_s is not None:
             sd = "" if sc.time_offset_std_s is None else f", 1-sigma {1e3 * sc.time_offset_std_s:.1f} ms"
             lines.append(f"  time offset   = {1e3 * sc.time_offset_s:+.1f} ms camera - LiDAR ({sc.time_offset_source}{sd})")
+        bf = None if self.diagnostics is None else getattr(self.diagnostics, "box_fit", None)
+        if bf and "sides" in bf:
+            lines.append(f"  box model     = {bf.get('outline') or 'corners'} outlines; 2D boxes inside them by "
+                         f"{100 * bf['sides']:+.1f} % (sides), {100 * bf['top']:+.1f} % (top), "
+                         f"{100 * bf['bottom']:+.1f} % (bottom) of their size")
         if self.message:
             lines.append(f"  note: {self.message}")
         return "\n".join(lines)

@@ -384,15 +384,9 @@ class Uncertainty:
             self.rot_sd_data, self.tr_sd_data = self.rot_sd, self.tr_sd
 
 
-def box_model_shift(frames, pairs, intr, pose: Pose, noise: NoiseModel | None = None, *, f_scale: float = F_SCALE,
-                    max_nfev: int = 40, occlusion=None) -> np.ndarray | None:
-    """Pose shift (6-vector, deg / m) when every matched 3D box is outlined by its 8 box corners
-    instead of the hull of the LiDAR points inside it (``inputs``: yaw-less boxes, re-estimated
-    yaw). Where the box outline explains the 2D boxes about as well (robust cost within
-    ``BOX_MODEL_MAX_COST_RATIO`` of the hull's), the two are equally plausible models of the same
-    objects and the shift is a systematic error the Jacobian cannot see (on synthetic yaw-less
-    sites it is what covers the translation bias). None when every outline is its box, or when the
-    box outline fits clearly worse (not a plausible alternative)."""
+def _box_model_fits(frames, pairs, intr, pose: Pose, noise, f_scale: float, max_nfev: int, occlusion):
+    """(shift 6-vector deg / m, robust cost of the outlines in use, robust cost of the box corners)
+    of a refit with every matched 3D box outlined by its 8 corners; None when every outline is its box."""
     import dataclasses
 
     def same(f: CalibFrame) -> bool:
@@ -404,9 +398,52 @@ def box_model_shift(frames, pairs, intr, pose: Pose, noise: NoiseModel | None = 
     occl = Occlusion() if occlusion is None else occlusion
     _, _, cost_hull, _, _ = lsq(frames, pairs, intr, pose.R, pose.t, f_scale, max_nfev, noise, occl)
     R, t, cost_box, _, _ = lsq(alt, pairs, intr, pose.R, pose.t, f_scale, max_nfev, noise, occl)
-    if not cost_box <= BOX_MODEL_MAX_COST_RATIO * max(cost_hull, 1e-12):
+    return Pose(R, t).delta(pose), float(cost_hull), float(cost_box)
+
+
+def box_model_shift(frames, pairs, intr, pose: Pose, noise: NoiseModel | None = None, *, f_scale: float = F_SCALE,
+                    max_nfev: int = 40, occlusion=None) -> np.ndarray | None:
+    """Pose shift (6-vector, deg / m) when every matched 3D box is outlined by its 8 box corners
+    instead of the hull of the LiDAR points inside it (``inputs``: yaw-less boxes, re-estimated
+    yaw). Where the box outline explains the 2D boxes about as well (robust cost within
+    ``BOX_MODEL_MAX_COST_RATIO`` of the hull's), the two are equally plausible models of the same
+    objects and the shift is a systematic error the Jacobian cannot see (on synthetic yaw-less
+    sites it is what covers the translation bias). None when every outline is its box, or when the
+    box outline fits clearly worse (not a plausible alternative)."""
+    fits = _box_model_fits(frames, pairs, intr, pose, noise, f_scale, max_nfev, occlusion)
+    if fits is None or not fits[2] <= BOX_MODEL_MAX_COST_RATIO * max(fits[1], 1e-12):
         return None
-    return Pose(R, t).delta(pose)
+    return fits[0]
+
+
+def box_model_odds(cost_used: float, cost_alt: float, n_pairs: int, n_objects: int) -> float:
+    """Posterior weight (0-1) of the alternative outline (box corners) against the one in use, from
+    the difference of their robust costs (a log-likelihood ratio: the residuals are in sigma units),
+    counted once per object: an object's pairs over the frames share one outline error, so the
+    evidence is divided by the pairs per object (``n_pairs / n_objects``)."""
+    per_obj = max(n_pairs, 1) / max(n_objects, 1)
+    d = float(np.clip((cost_alt - cost_used) / max(per_obj, 1.0), -50.0, 50.0))
+    return float(1.0 / (1.0 + np.exp(d)))
+
+
+def box_model_floor(frames, pairs, intr, pose: Pose, noise: NoiseModel | None, *, f_scale: float, occlusion,
+                    n_objects: int, max_nfev: int = 40) -> tuple[np.ndarray | None, dict]:
+    """The box-model floor (6-vector, deg / m) and what it was computed from.
+
+    The pose shift to the box-corner outline counts in proportion to how plausible the corners
+    are, given the data: ``BOX_MODEL_WEIGHT`` x |shift| x sqrt(2 w) with ``w`` the alternative's
+    posterior weight (:func:`box_model_odds`, at most 1/2 counted). Two outlines that fit equally
+    well (w = 1/2) give half the shift, as before; a detector's tight boxes, which the point hulls
+    fit far better than the corners, give almost none. None when every outline is its box."""
+    fits = _box_model_fits(frames, pairs, intr, pose, noise, f_scale, max_nfev, occlusion)
+    if fits is None:
+        return None, {}
+    shift, c_used, c_alt = fits
+    n = int(sum(len(p) for p in pairs))
+    w = box_model_odds(c_used, c_alt, n, n_objects)
+    info = {"cost_used": c_used, "cost_corners": c_alt, "weight_corners": w,
+            "shift": [float(x) for x in shift]}
+    return BOX_MODEL_WEIGHT * np.abs(shift) * np.sqrt(2.0 * min(w, 0.5)), info
 
 
 def _lst(v):
@@ -425,14 +462,14 @@ def estimate(frames, pairs, intr, pose: Pose, noise: NoiseModel, f_scale: float,
     halves, occl = pose_spread(frames, pairs, intr, pose.R, pose.t, noise=noise, f_scale=f_scale, occlusion=occlusion)
     jack = pose_jackknife(frames, pairs, intr, pose.R, pose.t, noise=noise, f_scale=f_scale, occlusion=occlusion) \
         if halves is None else None
-    obj, clus, n_obj, misfit = None, None, 0, None
+    obj, clus, n_obj, misfit, box_info = None, None, 0, None, {}
     if mode in ("clusters", "objects"):
         groups = object_groups(frames, pairs, track_ids=track_ids)
         n_obj = int(groups.max()) + 1 if len(groups) else 0
         clus = object_sandwich(frames, pairs, intr, pose.R, pose.t, groups, noise=noise, f_scale=f_scale,
                                occlusion=occlusion)
-        shift = box_model_shift(frames, pairs, intr, pose, noise, f_scale=f_scale, occlusion=occlusion)
-        misfit = None if shift is None else BOX_MODEL_WEIGHT * np.abs(shift)
+        misfit, box_info = box_model_floor(frames, pairs, intr, pose, noise, f_scale=f_scale, occlusion=occlusion,
+                                           n_objects=n_obj)
     if mode == "objects" and halves is not None:
         obj = pose_object_bootstrap(frames, pairs, intr, pose.R, pose.t, groups, noise=noise, f_scale=f_scale,
                                     seed=seed, occlusion=occlusion)
@@ -447,5 +484,5 @@ def estimate(frames, pairs, intr, pose: Pose, noise: NoiseModel, f_scale: float,
         r_data, t_data = combine(jac, halves, occl, jack, None, floor)
     parts = UncertaintyParts(jacobian=_lst(jac), halves=_lst(halves), jackknife=_lst(jack), objects=_lst(obj),
                              occlusion=_lst(occl), floor=_lst(misfit), selfcal=_lst(floor), clusters=_lst(clus),
-                             frames=_lst(frames_sd), n_objects=n_obj)
+                             frames=_lst(frames_sd), n_objects=n_obj, box_model=box_info)
     return Uncertainty(r, t, parts, halves is not None, r_data, t_data)

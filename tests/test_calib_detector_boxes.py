@@ -1,0 +1,155 @@
+"""The box observation model for real detectors (issue 25 item 1-2).
+
+Seeded box-level scenes (``test_calib_support``), matches from the truth, no search:
+
+* the detector-outline offsets (``boxmodel.outline_edge_term``) recover a detector's tight boxes
+  (2D boxes shrunk by a share of their size) and keep the pose;
+* the box-model floor counts the corner outline by its posterior weight (``box_model_odds``);
+* the principal-point check tests the box model before it blames the intrinsics: 2D boxes whose
+  tops sit inside the projected outline are no principal-point misfit, a shifted cx still is;
+* yawed 3D boxes with a cloud get point-hull outlines for the boxes in view (``with_point_outlines``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from test_calib_support import sim_frames
+from test_calib_uncertainty import _truth_pairs
+
+from xcalib.calib.boxmodel import fit_outline
+from xcalib.calib.cost import Occlusion
+from xcalib.calib.inputs import prepare_frames, with_point_outlines
+from xcalib.calib.misfit import principal_point_check
+from xcalib.calib.pose import Pose
+from xcalib.calib.refine import estimate_noise, lsq
+from xcalib.calib.uncertainty import box_model_odds
+
+
+def _shrunk(frames, sides: float, top: float, bottom: float, dx_px: float = 0.0):
+    """The frames with each 2D box moved in by shares of its size (a detector's visible outline)
+    and shifted right by ``dx_px`` (a principal point off by that much)."""
+    out = []
+    for f in frames:
+        b = np.asarray(f.bboxes_2d, dtype=np.float64).copy()
+        w, h = b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]
+        b += np.column_stack([sides * w, top * h, -sides * w, -bottom * h]) + np.array([dx_px, 0, dx_px, 0])
+        out.append(dataclasses.replace(f, bboxes_2d=b.astype(np.float32)))
+    return out
+
+
+def _setup(frames, T):
+    cframes, intr, _ = prepare_frames(frames, frames[0].intrinsics)
+    pairs = _truth_pairs(frames, cframes)
+    noise = estimate_noise(cframes, pairs, intr, T[:3, :3], T[:3, 3])
+    return cframes, pairs, intr, noise
+
+
+def test_outline_offsets_recover_a_detectors_tight_boxes_and_keep_the_pose():
+    frames, T = sim_frames(seed=3, n_frames=6, noise_px=1.0, miss=0.0, false_pos=0.0, extra_3d=0)
+    det = _shrunk(frames, 0.06, 0.08, 0.02)
+    cframes, pairs, intr, noise = _setup(det, T)
+    truth = Pose(T[:3, :3], T[:3, 3])
+    fit = fit_outline(cframes, pairs, intr, truth, noise, 2.0, Occlusion())
+    assert abs(fit["sides"] - 0.06) < 0.02 and abs(fit["top"] - 0.08) < 0.03 and abs(fit["bottom"] - 0.02) < 0.03
+    assert fit["pose_shift"][0] < 0.2 and fit["pose_shift"][1] < 0.2
+    assert all(s > 0 for s in fit["sd"])
+    clean = fit_outline(*_setup(frames, T)[:3], truth, noise, 2.0, Occlusion())
+    assert max(abs(clean[k]) for k in ("sides", "top", "bottom")) < 0.02  # exact boxes: nothing to fit
+
+
+def test_box_model_odds_weigh_the_corner_outline_by_the_evidence_per_object():
+    assert box_model_odds(100.0, 100.0, 120, 30) == 0.5  # equally good: half the shift counts, as before
+    assert box_model_odds(100.0, 300.0, 120, 30) < 1e-6  # corners far worse: the floor vanishes
+    # the same cost difference spread over few objects is weaker evidence
+    assert box_model_odds(100.0, 110.0, 120, 30) < box_model_odds(100.0, 110.0, 120, 4) < 0.5
+    assert box_model_odds(110.0, 100.0, 120, 30) > 0.5
+
+
+def test_principal_point_check_tests_the_box_model_before_blaming_the_intrinsics():
+    frames, T = sim_frames(seed=5, n_frames=6, noise_px=1.0, miss=0.0, false_pos=0.0, extra_3d=0)
+    truth = Pose(T[:3, :3], T[:3, 3])
+    W = frames[0].intrinsics.width
+    tops = _shrunk(frames, 0.05, 0.15, 0.0)  # roofs inset: a vertical bias a principal point can mimic
+    cframes, pairs, intr, noise = _setup(tops, T)
+    R, t, *_ = lsq(cframes, pairs, intr, truth.R, truth.t, 2.0, 60, noise)
+    chk, msg = principal_point_check(cframes, pairs, intr, Pose(R, t), noise, 2.0, Occlusion())
+    assert msg is None and not chk.flagged, chk.detail
+    cropped = _shrunk(frames, 0.0, 0.0, 0.0, dx_px=0.08 * W)  # a principal point 8 % W off stays a misfit
+    cframes, pairs, intr, noise = _setup(cropped, T)
+    R, t, *_ = lsq(cframes, pairs, intr, truth.R, truth.t, 2.0, 60, noise)
+    chk, msg = principal_point_check(cframes, pairs, intr, Pose(R, t), noise, 2.0, Occlusion())
+    assert chk.flagged and "principal point" in msg
+
+
+def test_yawed_boxes_with_a_cloud_get_point_hulls_for_the_boxes_in_view():
+    frames, T = sim_frames(seed=2, n_frames=1, noise_px=0.0, miss=0.0, false_pos=0.0, extra_3d=0)
+    f = frames[0]
+    from xcalib.geometry.boxes import as_box7
+
+    b7 = as_box7(f.bboxes_3d)
+    rng = np.random.default_rng(0)
+    # points on each box's sides (a LiDAR sees the outline), inset 10 % from the corners
+    pts = np.concatenate([b[:3] + (rng.uniform(-0.45, 0.45, (200, 3)) * b[3:6]) @ np.array(
+        [[np.cos(b[6]), np.sin(b[6]), 0], [-np.sin(b[6]), np.cos(b[6]), 0], [0, 0, 1]]) for b in b7])
+    cframes, intr, _ = prepare_frames([dataclasses.replace(f, point_cloud=pts.astype(np.float32))], f.intrinsics)
+    assert not cframes[0].from_points.any()  # boxes with a yaw: corners first
+    view = np.zeros(cframes[0].n3, dtype=bool)
+    view[:3] = True
+    alt = with_point_outlines(cframes, [view])
+    assert alt is not None and alt[0].from_points[:3].all() and not alt[0].from_points[3:].any()
+    # a hull of points inside the box lies within its corners' extent
+    j = 0
+    c = alt[0].corners[j] - cframes[0].boxes3d[j, :3]
+    assert np.abs(c[:, :2]).max() < np.abs(cframes[0].box_corners[j] - cframes[0].boxes3d[j, :3])[:, :2].max() + 1e-6
+    assert with_point_outlines([dataclasses.replace(cframes[0], points=None)], [view]) is None
+
+
+def test_box_fit_and_floor_weights_survive_the_diagnostics_round_trip():
+    from xcalib.calib.diagnostics import CalibDiagnostics, UncertaintyParts
+
+    d = CalibDiagnostics(box_fit={"outline": "corners+points", "sides": 0.05, "top": 0.09, "bottom": 0.0,
+                                  "sd": [0.01, 0.01, 0.01], "pose_shift": [0.1, 0.05], "n_pairs": 40},
+                         uncertainty=UncertaintyParts(box_model={"weight_corners": 0.07, "shift": [0.0] * 6}))
+    back = CalibDiagnostics.from_dict(d.to_dict())
+    assert back.box_fit["top"] == 0.09 and back.uncertainty.box_model["weight_corners"] == 0.07
+    assert CalibDiagnostics.from_dict({}).box_fit == {}  # results written before: no box fit
+
+
+def _advice(message: str) -> dict:
+    import re
+
+    return dict(re.findall(r"(refine_intrinsics|time_offset)='([a-z+]+)'", message or ""))
+
+
+def _follow(frames, intr, steps: int = 3):
+    """Calibrate, then follow each refusal's advice (the options it names) up to ``steps`` times;
+    the chain of (options, success, refusal code)."""
+    from xcalib.calib.api import calibrate
+    from xcalib.calib.config import CalibConfig
+
+    opts, chain = {}, []
+    res = calibrate(frames, intr)
+    chain.append(({}, res.success, res.diagnostics.refusal))
+    while not res.success and len(chain) <= steps:
+        new = {k: v for k, v in _advice(res.message).items() if opts.get(k) != v}
+        if not new:
+            break
+        opts = {**opts, **new}
+        res = calibrate(frames, intr, CalibConfig(**opts))
+        chain.append((dict(opts), res.success, res.diagnostics.refusal))
+    return chain
+
+
+def test_following_a_refusals_advice_never_leads_back_to_the_same_refusal():
+    """Issue 25 item 2, on the realism conditions whose refusals advise an option (a cropped image:
+    principal point; unsynchronised sensors: time offset)."""
+    from xcalib.data.synth.realism import make_realism_case
+
+    for cond, seed in (("principal_point+3%W", 2), ("time_offset_0.1s", 2)):
+        case = make_realism_case(cond, seed, n_frames=12)
+        chain = _follow(list(case.frames), case.intrinsics_given)
+        codes = [c for _, ok, c in chain if not ok]
+        assert len(codes) == len(set(codes)), (cond, chain)  # no refusal comes back
+        assert not chain[0][1], (cond, chain)  # the bent site is refused first
