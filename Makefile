@@ -14,7 +14,7 @@ $(PY):
 $(STAMP): pyproject.toml | $(PY)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet "torch==2.13.0"
-	$(PY) -m pip install --quiet -e ".[onnx,dev]"
+	$(PY) -m pip install --quiet -e ".[onnx,dev,ray]"
 	touch $(STAMP)
 
 venv: $(STAMP)
