@@ -105,6 +105,16 @@ def iou_batched(rects: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     b = np.asarray(boxes, dtype=np.float64)
     rx0, ry0, rx1, ry1 = (np.ascontiguousarray(r[..., k]).reshape(H, 1, M) for k in range(4))
     bx0, by0, bx1, by1 = (b[:, k].reshape(1, -1, 1) for k in range(4))
+    return iou_planes((rx0, ry0, rx1, ry1), (bx0, by0, bx1, by1))
+
+
+def iou_planes(rect_edges: tuple, box_edges: tuple) -> np.ndarray:
+    """IoU of rectangles given as broadcastable edge arrays (x0, y0, x1, y1) of predicted rects
+    and of observed boxes (no NaN) -> the broadcast shape; 0 where the union is empty. Runs in
+    place on three buffers of that shape (shared by :func:`iou_batched` and
+    ``refine._match_frames``)."""
+    rx0, ry0, rx1, ry1 = rect_edges
+    bx0, by0, bx1, by1 = box_edges
     tmp = np.maximum(rx0, bx0)
     inter = np.minimum(rx1, bx1)
     inter -= tmp

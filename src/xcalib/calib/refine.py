@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from ..geometry.boxes import box2d_centers
 from ..geometry.camera import CameraIntrinsics
-from .boxproj import iou_batched, project_rects
+from .boxproj import iou_batched, iou_planes, project_rects
 from .cost import INWARD, BoxEdgeTerm, CostModel, Occlusion, _pair_features, edge_sigma
 from .diagnostics import NoiseModel
 from .inputs import CalibFrame
@@ -96,21 +96,7 @@ def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_di
     r = np.nan_to_num(rects, nan=0.0)
     rx0, ry0, rx1, ry1 = (np.ascontiguousarray(r[..., j])[:, None, :] for j in range(4))
     bx0, by0, bx1, by1 = (boxes[..., j][:, :, None] for j in range(4))
-    tmp = np.maximum(rx0, bx0)
-    inter = np.minimum(rx1, bx1)
-    inter -= tmp
-    np.clip(inter, 0, None, out=inter)
-    ih = np.minimum(ry1, by1)
-    np.maximum(ry0, by0, out=tmp)
-    ih -= tmp
-    np.clip(ih, 0, None, out=ih)
-    inter *= ih
-    union = np.add((rx1 - rx0) * (ry1 - ry0), (bx1 - bx0) * (by1 - by0), out=ih)
-    union -= inter
-    pos = union > 0
-    np.divide(inter, union, out=inter, where=pos)
-    np.copyto(inter, 0.0, where=~pos)
-    iou = inter  # [L,K,M]
+    iou = iou_planes((rx0, ry0, rx1, ry1), (bx0, by0, bx1, by1))  # [L,K,M]
     c_obs = np.stack([(boxes[..., 0] + boxes[..., 2]) / 2, (boxes[..., 1] + boxes[..., 3]) / 2], -1)
     c_pred = np.stack([(rects[..., 0] + rects[..., 2]) / 2, (rects[..., 1] + rects[..., 3]) / 2], -1)
     diag = np.hypot(boxes[..., 2] - boxes[..., 0], boxes[..., 3] - boxes[..., 1])
