@@ -122,3 +122,96 @@ def test_a_broken_plugin_is_reported_by_name_and_the_rest_still_loads(tmp_path):
     assert "'ghostsrc'" in run.stderr
     assert "'calibrate'" in run.stdout and "'bag'" in run.stdout  # the built-ins still load
     assert "xcalib.commands:ghost" in run.stdout and "xcalib.sources:ghostsrc" in run.stdout
+
+
+COST_TERM = textwrap.dedent('''
+    """A camera-height prior: the camera centre's height in the LiDAR frame (m) near a known value."""
+    import inspect
+
+    import numpy as np
+
+    from xcalib.calib.cost import CostTerm
+
+
+    class CameraHeightTerm(CostTerm):
+        name = "camera_height"
+
+        def __init__(self, height_m, sigma_m):
+            self.height_m, self.sigma_m = float(height_m), float(sigma_m)
+
+        def residuals(self, state):
+            centre = -state.pose.R.T @ state.pose.t  # camera centre, LiDAR frame
+            return np.array([(centre[2] - self.height_m) / self.sigma_m])
+
+
+    def camera_height(ctx, *, height_m, sigma_m=0.05, log=""):
+        if log:  # which stage of the calibration built the term (the test reads it)
+            with open(log, "a") as f:
+                f.write(" ".join(fr.function for fr in inspect.stack()[1:6]) + "\\n")
+        return CameraHeightTerm(height_m, sigma_m)
+''')
+
+
+def test_a_third_party_cost_term_is_named_in_the_config_and_every_stage_uses_it(tmp_path):
+    root = _package(tmp_path / "site", "xcalib_height_prior", {"height_term": COST_TERM}, """
+        [xcalib.cost_terms]
+        camera_height = height_term:camera_height
+    """)
+    log = tmp_path / "stages.txt"
+    run = _run(root, f"""
+        import json
+        import numpy as np
+        from xcalib.calib.api import calibrate
+        from xcalib.calib.config import CalibConfig
+        from xcalib.calib.cost import Occlusion
+        from xcalib.calib.inputs import prepare_frames
+        from xcalib.calib.refine import lsq, match_all
+        from xcalib.calib.terms import CostSpec
+        from xcalib.data.synth import generate_frames, sample_site
+
+        site = sample_site(0, "roadside")
+        frames = generate_frames(site, 8, seed=5, render_images=False)
+        T = np.asarray(site.T_cam_lidar)
+        height = lambda R, t: float((-np.asarray(R).T @ np.asarray(t))[2])
+        h0 = height(T[:3, :3], T[:3, 3])
+        cfg = CalibConfig(workers=1, cost_terms=(f"camera_height:height_m={{h0}},sigma_m=0.02,log={str(log)}",))
+        assert CalibConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+        res = calibrate(frames, config=cfg, prior=T)
+        print("calibrated", res.success, res.config.cost_terms[0].name)
+
+        # the term moves the fit: a prior 0.3 m below the truth with 1 mm pulls the camera down to it
+        cframes = prepare_frames(frames, site.intrinsics)[0]
+        pairs = match_all(cframes, site.intrinsics, T[:3, :3], T[:3, 3])
+        spec = CostSpec(Occlusion(), CalibConfig(cost_terms=(f"camera_height:height_m={{h0 - 0.3}},sigma_m=0.001",)).cost_terms)
+        R0, t0, *_ = lsq(cframes, pairs, site.intrinsics, T[:3, :3], T[:3, 3], 2.0, 60)
+        R1, t1, *_ = lsq(cframes, pairs, site.intrinsics, T[:3, :3], T[:3, 3], 2.0, 60, None, spec)
+        print("pulled", round(h0 - height(R1, t1), 3), abs(height(R0, t0) - h0 + 0.3) > 0.2)
+        try:
+            CalibConfig(cost_terms=("camera_heigth",))
+        except ValueError as exc:
+            print("typo", exc)
+    """)
+    assert run.returncode == 0, run.stderr
+    assert "calibrated True camera_height" in run.stdout
+    pulled = run.stdout.split("pulled ")[1].split()
+    assert abs(float(pulled[0]) - 0.3) < 0.02 and pulled[1] == "True"
+    assert "no cost term named 'camera_heigth'" in run.stdout and "camera_height" in run.stdout.split("typo")[1]
+    stages = log.read_text()
+    for stage in ("refine_pose", "_focal_agrees", "_refit", "_scores", "fit_outline", "_time_fit", "_pp_fit"):
+        assert stage in stages, stage  # refinement, self-calibration, uncertainty, misfit refits
+
+
+def test_cost_terms_are_registered_and_checked_by_name():
+    from xcalib.calib.config import CalibConfig, TermSpec
+    from xcalib.calib.terms import cost_terms
+
+    assert {"box_edges", "pose_prior", "focal_scale", "principal_point", "time_offset"} <= set(cost_terms())
+    cfg = CalibConfig(cost_terms=("pose_prior:sigma_deg=2,t_m=[0,0,1]",))
+    assert cfg.cost_terms == (TermSpec("pose_prior", (("sigma_deg", 2), ("t_m", (0, 0, 1)))),)
+    assert CalibConfig.from_dict(cfg.to_dict()) == cfg and CalibConfig().cost_terms == ()
+    with pytest.raises(ValueError, match="refine_intrinsics"):
+        CalibConfig(cost_terms=("focal_scale",))
+    with pytest.raises(ValueError, match="sigmaa"):
+        CalibConfig(cost_terms=("pose_prior:sigmaa=1",))
+    with pytest.raises(ValueError, match="named twice"):
+        CalibConfig(cost_terms=("pose_prior", "pose_prior"))

@@ -9,8 +9,8 @@ standard: a third-party package adds a frame source, a command, ... by declaring
     hello = "my_pkg.hello_cmd"             # a module with register(app: typer.Typer)
 
 xcalib registers its own extensions the same way (``pyproject.toml``), so the built-ins are no
-special case. When xcalib runs from a source tree without installed metadata, the built-in
-entries below (:data:`BUILTIN`) stand in for its own. A plugin that fails to load is reported by
+special case. The built-in entries below (:data:`BUILTIN`) are the base of every group, so a source
+tree without (or newer than) its installed metadata still has them. A plugin that fails to load is reported by
 name (a :class:`PluginWarning` and :func:`plugin_errors`), never dropped silently.
 
 Layer: bottom (standard library only); each registry (``io.sources``, ``cli``) calls
@@ -31,14 +31,16 @@ __all__ = ["GROUPS", "BUILTIN", "PluginEntry", "PluginWarning", "entries", "load
 GROUPS = ("xcalib.sources", "xcalib.commands", "xcalib.camera_models", "xcalib.formats", "xcalib.models",
           "xcalib.cost_terms", "xcalib.executors")
 
-#: xcalib's own entries, used only when its distribution metadata is absent (a source checkout on
-#: sys.path); an installed xcalib declares the same in pyproject.toml.
+#: xcalib's own entries: the base of every group (so a source checkout on sys.path, or one newer than
+#: its installed metadata, has them); an installed xcalib declares the same in pyproject.toml.
 BUILTIN: dict[str, dict[str, str]] = {
     "xcalib.sources": {"frames": "xcalib.io.frames", "hdf5": "xcalib.io.hdf5", "bags": "xcalib.io.bags",
                        "formats": "xcalib.formats"},
     "xcalib.commands": {n: f"xcalib.cli.{n.replace('-', '_')}_cmd" for n in (
         "demo", "match", "calibrate", "calibrate-many", "detect", "bootstrap", "train", "validate", "export", "synth", "cache", "convert",
         "bag", "monitor", "version", "reference")},
+    "xcalib.cost_terms": {n: f"xcalib.calib.terms:{n}" for n in (
+        "box_edges", "pose_prior", "focal_scale", "principal_point", "time_offset")},
 }
 
 
@@ -60,22 +62,16 @@ class PluginEntry:
 _ERRORS: dict[tuple[str, str], str] = {}  # (group, name) -> why it failed (the registry's bookkeeping)
 
 
-def _own_declared() -> bool:
-    try:
-        return any(ep.group in GROUPS for ep in metadata.distribution("xcalib").entry_points)
-    except metadata.PackageNotFoundError:
-        return False
-
-
 def entries(group: str) -> list[PluginEntry]:
     """Every extension declared for ``group``: xcalib's own first, then other distributions',
     sorted by name within each; a later declaration of a name replaces an earlier one."""
     if group not in GROUPS:
         raise ValueError(f"unknown plugin group {group!r}; groups: {', '.join(GROUPS)}")
     found: dict[str, PluginEntry] = {}
-    if not _own_declared():
-        for name, value in BUILTIN.get(group, {}).items():
-            found[name] = PluginEntry(group, name, value, "xcalib")
+    # the built-ins first (a source checkout may be newer than the metadata of its install), then
+    # every distribution's declarations (xcalib's own, then the others') on top
+    for name, value in BUILTIN.get(group, {}).items():
+        found[name] = PluginEntry(group, name, value, "xcalib")
     eps = metadata.entry_points(group=group)
     for ep in sorted(eps, key=lambda e: (_dist_name(e) != "xcalib", e.name)):
         found[ep.name] = PluginEntry(group, ep.name, ep.value, _dist_name(ep))

@@ -30,6 +30,7 @@ from .boxmodel import fit_outline
 from .bringup import distinct_best, matcher_similarities, pose_hypotheses
 from .config import CalibConfig
 from .cost import Occlusion
+from .terms import CostSpec
 from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, matched_places, precheck, verdict
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
 from .hypotheses import Hypotheses
@@ -372,7 +373,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     diag.n_hypotheses = int(len(hyps))
     cand = distinct_best(hyps, config.max_refine * 2 if diag.sparse_search else config.max_refine)
     diag.bringup_T = Pose(cand.R[0], cand.t[0]).T.tolist()
-    occlusion = Occlusion(config.occlusion_tau, config.occlusion_slope)
+    occlusion = CostSpec.from_config(config)  # the box-edge shaping and the config's cost terms, for every fit
     ref = _refine_candidates(cframes, intr, cand, occlusion, progress, config.workers)
     cframes, ref = _choose_box_model(cframes, intr, cand, ref, occlusion, config, diag, progress)
     inflation = None

@@ -279,14 +279,12 @@ def fit_outline(frames, pairs, intr, pose, noise, f_scale: float, occlusion) -> 
     Returns {"sides", "top", "bottom": shares of the projected box size (positive: the 2D box lies
     inside), "sd": their 1-sigma (Jacobian), "pose_shift": [deg, m] the pose moves when they are
     freed, "n_pairs"}; {} with fewer than 12 pairs."""
-    from .cost import CostModel
-    from .refine import edge_term
+    from .refine import build_cost
 
     n = int(sum(len(p) for p in pairs))
     if n < 12:
         return {}
-    base = edge_term(frames, pairs, intr, pose, noise, occlusion)
-    model = CostModel([outline_edge_term(base)], pose, intr)
+    model = build_cost(frames, pairs, intr, pose, noise, occlusion, edge=outline_edge_term)
     fit = model.fit(f_scale=f_scale, max_nfev=60)
     a = np.asarray(fit.params["box_outline"], dtype=np.float64)
     out = {k: float(v) for k, v in zip(OUTLINE_PARAMS, a)}

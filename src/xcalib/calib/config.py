@@ -11,7 +11,7 @@ import dataclasses
 from dataclasses import dataclass, fields
 from typing import Any, Literal, get_args
 
-__all__ = ["CalibConfig", "YawMode", "BoxModel", "UncertaintyMode", "IntrinsicsMode", "TimeOffsetMode",
+__all__ = ["CalibConfig", "TermSpec", "YawMode", "BoxModel", "UncertaintyMode", "IntrinsicsMode", "TimeOffsetMode",
            "parse_time_offset"]
 
 YawMode = Literal["auto", "always", "never"]
@@ -42,6 +42,90 @@ def parse_time_offset(value: "str | float | None") -> "str | float | None":
         return parse_time_offset(float(text))
     except ValueError:
         raise ValueError(f"CalibConfig.time_offset: expected 'auto', 'estimate', seconds or None, got {value!r}") from None
+
+def _frozen(value: Any) -> Any:
+    """``value`` with lists (JSON arrays) as tuples, so a term's options stay hashable."""
+    if isinstance(value, (list, tuple)):
+        return tuple(_frozen(v) for v in value)
+    if isinstance(value, dict):
+        raise ValueError(f"a cost-term option must be a number, string, bool or list, got a mapping {value!r}")
+    return value
+
+
+def _option_value(text: str) -> Any:
+    """A value of ``name:key=value`` from the command line: JSON (numbers, lists, true/false) or a string."""
+    import json
+
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+def _split_top(text: str) -> list[str]:
+    """``text`` split at the commas outside brackets (``a=1,b=[1,2]`` -> ``a=1``, ``b=[1,2]``)."""
+    out, depth, cur = [], 0, ""
+    for ch in text:
+        depth += (ch in "[(") - (ch in "])")
+        if ch == "," and depth == 0:
+            out.append(cur)
+            cur = ""
+        else:
+            cur += ch
+    return out + [cur]
+
+
+@dataclass(frozen=True)
+class TermSpec:
+    """One extra cost term of ``CalibConfig.cost_terms``: the name it is registered under (entry-point
+    group ``xcalib.cost_terms``, see :mod:`xcalib.calib.terms`) and its options (keyword arguments of
+    its factory, as sorted (key, value) pairs)."""
+
+    name: str
+    options: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise ValueError(f"CalibConfig.cost_terms: a term needs a name (a string), got {self.name!r}")
+        opts = self.options.items() if isinstance(self.options, dict) else self.options
+        object.__setattr__(self, "name", self.name.strip())
+        object.__setattr__(self, "options", tuple(sorted((str(k), _frozen(v)) for k, v in opts)))
+
+    @classmethod
+    def parse(cls, value: "TermSpec | str | dict[str, Any]") -> "TermSpec":
+        """A term from a ``TermSpec``, a name (``"camera_height"``), ``"name:key=value,key=value"``
+        (the command line's form; values JSON where they parse) or a mapping ``{"name": ..., "options":
+        {...}}`` (the form ``to_dict`` writes) or ``{"name": ..., key: value, ...}``."""
+        if isinstance(value, TermSpec):
+            return value
+        if isinstance(value, str):
+            name, _, rest = value.partition(":")
+            opts = {}
+            for item in filter(None, (x.strip() for x in _split_top(rest))):
+                key, eq, text = item.partition("=")
+                if not eq:
+                    raise ValueError(f"CalibConfig.cost_terms: {value!r}: expected name:key=value,..., got {item!r}")
+                opts[key.strip()] = _option_value(text.strip())
+            return cls(name, tuple(opts.items()))
+        if isinstance(value, dict):
+            d = dict(value)
+            if "name" not in d:
+                raise ValueError(f"CalibConfig.cost_terms: a term mapping needs a 'name', got keys {sorted(d)}")
+            name, opts = d.pop("name"), d.pop("options", None)
+            if opts is None:
+                opts = d
+            elif d:
+                raise ValueError(f"CalibConfig.cost_terms: term {name!r}: unknown keys {sorted(d)} beside 'options'")
+            return cls(name, tuple(dict(opts).items()) if isinstance(opts, dict) else tuple(map(tuple, opts)))
+        raise ValueError(f"CalibConfig.cost_terms: expected a term name, mapping or TermSpec, got {value!r}")
+
+    @property
+    def kwargs(self) -> dict[str, Any]:
+        return dict(self.options)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "options": {k: list(v) if isinstance(v, tuple) else v for k, v in self.options}}
+
 
 # older keyword names -> config fields
 _ALIASES = {"gate": "gate_iou"}
@@ -96,6 +180,11 @@ class CalibConfig:
     Cost:
         occlusion_tau / occlusion_slope: inward edge residuals beyond tau (sigma units) are
             compressed by slope (occlusion only ever shrinks a 2D box).
+        cost_terms: extra cost terms added to every fit of the calibration (refinement,
+            self-calibration, misfit refits, uncertainty), each a :class:`TermSpec` (or its name,
+            ``"name:key=value"`` or mapping): a term registered in the entry-point group
+            ``xcalib.cost_terms`` (built in: ``pose_prior``; a plugin adds its own). Empty: the
+            box-edge term alone.
     Speed:
         workers: processes for the independent parts of one calibration (the quick refinement of
             each candidate, the mirrored-image and second-pose searches of the misfit checks):
@@ -126,11 +215,19 @@ class CalibConfig:
     time_offset_max_std_s: float = 0.02
     occlusion_tau: float = 1.5
     occlusion_slope: float = 0.2
+    cost_terms: tuple[TermSpec, ...] = ()
     workers: int | Literal["auto"] = "auto"
     seed: int = 0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "time_offset", parse_time_offset(self.time_offset))
+        terms = self.cost_terms
+        terms = (terms,) if isinstance(terms, (str, dict, TermSpec)) else tuple(terms or ())
+        object.__setattr__(self, "cost_terms", tuple(TermSpec.parse(v) for v in terms))
+        if self.cost_terms:  # names and options checked against the registry (loads xcalib.cost_terms)
+            from .terms import check_terms
+
+            check_terms(self.cost_terms)
         for name, allowed in (("reestimate_yaw", YawMode), ("box_model", BoxModel), ("uncertainty", UncertaintyMode),
                               ("refine_intrinsics", IntrinsicsMode)):
             if getattr(self, name) not in get_args(allowed):
@@ -178,7 +275,9 @@ class CalibConfig:
         return dataclasses.replace(base or cls(), **changes)
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        d = dataclasses.asdict(self)
+        d["cost_terms"] = [t.to_dict() for t in self.cost_terms]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "CalibConfig":

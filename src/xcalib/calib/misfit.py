@@ -42,8 +42,7 @@ from .diagnostics import MisfitCheck, NoiseModel
 from .inputs import CalibFrame
 from .pose import Pose
 from .boxmodel import outline_edge_term
-from .cost import CostModel
-from .refine import edge_term, lsq
+from .refine import build_cost, lsq
 from .uncertainty import jackknife_sd, leave_frames_out
 
 __all__ = ["MisfitVerdict", "FocalFit", "focal_fit", "focal_width_check", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "time_offset_check", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
@@ -418,9 +417,9 @@ def _pp_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion, outline:
 
 def _pp_outline_fits(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion, with_pp: bool):
     """(principal-point shift [2] px or None, robust cost) of the fit with the outline offsets free."""
-    base = edge_term(frames, pairs, intr, pose, noise, occlusion)
-    terms = [outline_edge_term(base)] + ([PrincipalPointTerm()] if with_pp else [])
-    fit = CostModel(terms, pose, intr).fit(f_scale=f_scale, max_nfev=60)
+    model = build_cost(frames, pairs, intr, pose, noise, occlusion, (PrincipalPointTerm(),) if with_pp else (),
+                       edge=outline_edge_term)
+    fit = model.fit(f_scale=f_scale, max_nfev=60)
     d = np.asarray(fit.params[PrincipalPointTerm.name], dtype=np.float64) if with_pp else None
     return d, float(fit.cost)
 

@@ -21,8 +21,9 @@ from .cost import INWARD, BoxEdgeTerm, CostModel, Occlusion, _pair_features, edg
 from .diagnostics import NoiseModel
 from .inputs import CalibFrame
 from .pose import Pose
+from .terms import CostSpec, TermContext, occlusion_of
 
-__all__ = ["RefineResult", "match_frame", "match_all", "project_frames", "refine_pose", "pair_metrics", "estimate_noise", "lsq",
+__all__ = ["build_cost", "RefineResult", "match_frame", "match_all", "project_frames", "refine_pose", "pair_metrics", "estimate_noise", "lsq",
            "edge_term", "DEFAULT_NOISE", "F_SCALE"]
 
 
@@ -150,8 +151,10 @@ F_SCALE = 2.0
 
 
 def edge_term(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
-              noise: NoiseModel | None = None, occlusion: Occlusion | None = Occlusion()) -> BoxEdgeTerm:
-    """The box-edge term of the matched ``pairs``, weighted by ``noise`` at ``pose``."""
+              noise: NoiseModel | None = None, occlusion: "Occlusion | CostSpec | None" = Occlusion()) -> BoxEdgeTerm:
+    """The box-edge term of the matched ``pairs``, weighted by ``noise`` at ``pose`` (``occlusion``:
+    its shaping, or a ``terms.CostSpec`` whose shaping it takes)."""
+    occlusion = occlusion_of(occlusion)
     outlines, obs = _stack(frames, pairs)
     sigma = edge_sigma(obs, outlines, intr, pose, DEFAULT_NOISE if noise is None else noise,
                        _outline_sigma(frames, pairs))
@@ -202,12 +205,26 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
     return NoiseModel(*(float(v) for v in np.sqrt(coef)))
 
 
+def build_cost(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
+               noise: NoiseModel | None = None, cost: "CostSpec | Occlusion | None" = Occlusion(), extra: tuple = (),
+               edge=None) -> CostModel:
+    """The one place a fit's ``CostModel`` is assembled: the box-edge term of the matched ``pairs``
+    (weighted by ``noise`` at ``pose``, shaped by the spec's occlusion; ``edge``: a function that
+    replaces it by a variant of it, e.g. ``boxmodel.outline_edge_term``), then the terms the stage
+    adds (``extra``: self-calibration, misfit refits), then the terms the config names
+    (``cost``: a ``terms.CostSpec``; an ``Occlusion`` or None: none), built by their factories."""
+    spec = CostSpec.of(cost)
+    base = edge_term(frames, pairs, intr, pose, noise, spec.occlusion)
+    named = spec.extra_terms(TermContext(frames, pairs, intr, pose, noise)) if spec.terms else []
+    return CostModel([base if edge is None else edge(base), *extra, *named], pose, intr)
+
+
 def lsq(frames, pairs, intr, R, t, f_scale, max_nfev, noise: NoiseModel | None = None,
-        occlusion: Occlusion | None = Occlusion(), extra: tuple = ()):
-    """Robust (soft-L1) fit of the box-edge term (plus ``extra`` terms) from (R, t), matches fixed.
-    Returns (R, t, cost, residuals, CostFit)."""
+        occlusion: "Occlusion | CostSpec | None" = Occlusion(), extra: tuple = ()):
+    """Robust (soft-L1) fit of the box-edge term (plus ``extra`` terms and those ``occlusion``, a
+    ``terms.CostSpec``, names) from (R, t), matches fixed. Returns (R, t, cost, residuals, CostFit)."""
     pose = Pose(R, t)
-    model = CostModel([edge_term(frames, pairs, intr, pose, noise, occlusion), *extra], pose, intr)
+    model = build_cost(frames, pairs, intr, pose, noise, occlusion, extra)
     fit = model.fit(f_scale=f_scale, max_nfev=max_nfev)
     return fit.pose.R, fit.pose.t, fit.cost, fit.residuals, fit
 
@@ -215,7 +232,7 @@ def lsq(frames, pairs, intr, R, t, f_scale, max_nfev, noise: NoiseModel | None =
 def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *,
                 gates: tuple = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0)),
                 min_pairs: int = 3, max_nfev: int = 60, tol: float = 1e-3, max_outer: int | None = None,
-                adapt_noise: bool = True, occlusion: Occlusion | None = Occlusion()) -> RefineResult:
+                adapt_noise: bool = True, occlusion: "Occlusion | CostSpec | None" = Occlusion()) -> RefineResult:
     """Alternate matching and robust least squares from the pose (R, t) until the cost settles.
 
     ``gates`` is the schedule of (IoU gate, centre-distance gate) per outer iteration; the last

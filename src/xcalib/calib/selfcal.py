@@ -28,7 +28,7 @@ from .diagnostics import SelfCalDiagnostics
 from .inputs import CalibFrame
 from .motion import MOVING_MPS, BoxMotion, shift_frames
 from .pose import Pose
-from .refine import F_SCALE, edge_term, estimate_noise, match_all
+from .refine import F_SCALE, build_cost, estimate_noise, match_all
 
 __all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "MIN_MOVING_PAIRS"]
 
@@ -105,6 +105,7 @@ def _covariance(model: CostModel, r0_J: tuple | None = None) -> np.ndarray | Non
     """Covariance of all parameters at x = 0: the classic or the per-pair sandwich, whichever is larger."""
     r0, J = model.jacobian() if r0_J is None else r0_J
     n_edges = len(model.terms[0].obs) * 4
+    rest = J[n_edges:]  # the residuals of other terms (priors a config names): information, each its own cluster
     r0, J = r0[:n_edges], J[:n_edges]
     informative = np.any(J != 0, axis=1)
     if informative.sum() <= J.shape[1]:
@@ -112,8 +113,11 @@ def _covariance(model: CostModel, r0_J: tuple | None = None) -> np.ndarray | Non
     sigma = 1.4826 * np.median(np.abs(r0[informative]))
     inl = informative & (np.abs(r0) <= 3 * max(sigma, 1e-9))
     dof = max(int(inl.sum()) - J.shape[1], 1)
+    info = J[inl].T @ J[inl]
+    if len(rest):
+        info = info + rest.T @ rest
     try:
-        A = np.linalg.inv(J[inl].T @ J[inl])
+        A = np.linalg.inv(info)
     except np.linalg.LinAlgError:
         return None
     cov = A * (np.sum(r0[inl] ** 2) / dof)
@@ -147,7 +151,7 @@ def joint_refine(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, 
         if it >= 1:
             noise = estimate_noise(frames, pairs, cur_intr, cur_pose.R, cur_pose.t)
         extra, names = _terms(config, motion, frames, pairs, estimate_dt)
-        model = CostModel([edge_term(frames, pairs, cur_intr, cur_pose, noise, occlusion), *extra], cur_pose, cur_intr)
+        model = build_cost(frames, pairs, cur_intr, cur_pose, noise, occlusion, tuple(extra))
         fit = model.fit(f_scale=f_scale, max_nfev=max_nfev)
         f_scale = max(0.5, 1.5 * float(np.median(np.abs(fit.residuals)))) if len(fit.residuals) else F_SCALE
         x = dict(zip(names, fit.x[6:]))
@@ -165,7 +169,7 @@ def joint_refine(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, 
     if sum(len(p) for p in pairs) < 6:
         return None
     extra, names = _terms(config, motion, frames, pairs, estimate_dt)
-    model = CostModel([edge_term(frames, pairs, cur_intr, cur_pose, noise, occlusion), *extra], cur_pose, cur_intr)
+    model = build_cost(frames, pairs, cur_intr, cur_pose, noise, occlusion, tuple(extra))
     cov = _covariance(model)
     sd = {n: float(np.sqrt(cov[6 + k, 6 + k])) if cov is not None else float("inf") for k, n in enumerate(names)}
     n_moving = 0
@@ -257,7 +261,7 @@ def _focal_agrees(cframes, intr, pose: Pose, config: CalibConfig, diag: SelfCalD
     if sum(len(p) for p in pairs) < 6:
         return True
     noise = estimate_noise(cframes, pairs, intr, pose.R, pose.t)
-    model = CostModel([edge_term(cframes, pairs, intr, pose, noise, occlusion), FocalScaleTerm()], pose, intr)
+    model = build_cost(cframes, pairs, intr, pose, noise, occlusion, (FocalScaleTerm(),))
     r0, J = model.jacobian()
     cov = _covariance(model, (r0, J))
     if cov is None:

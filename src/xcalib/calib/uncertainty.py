@@ -26,11 +26,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .cost import CostModel, Occlusion
+from .cost import Occlusion
 from .diagnostics import NoiseModel, UncertaintyParts
 from .inputs import CalibFrame
 from .pose import Pose
-from .refine import F_SCALE, edge_term, lsq
+from .refine import F_SCALE, build_cost, lsq
+from .terms import CostSpec, pose_block
 
 __all__ = ["pose_covariance", "object_sandwich", "pose_spread", "pose_jackknife", "frame_jackknife", "object_groups", "pose_object_bootstrap",
            "combine", "box_model_shift", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "Uncertainty", "estimate"]
@@ -68,19 +69,25 @@ class _Scores:
     M_pair: np.ndarray  # [n_pairs, 6, 6]: J^T J over each pair's inlier edges
 
 
-def _scores(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel | None = None) -> _Scores | None:
+def _scores(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel | None = None,
+            occlusion=None) -> _Scores | None:
     if sum(len(p) for p in pairs) < 2:
         return None
     pose = Pose(R, t)
-    model = CostModel([edge_term(frames, pairs, intr, pose, noise)], pose, intr)
+    # the config's cost terms (``occlusion``: a terms.CostSpec) with the default edge shaping
+    model = build_cost(frames, pairs, intr, pose, noise, CostSpec.of(occlusion).with_occlusion(Occlusion()))
     r0, J = model.jacobian(eps=eps)
+    r0, J, info_rest = pose_block(r0, J, 4 * int(sum(len(p) for p in pairs)))  # other terms: profiled out
     # edges clipped at the image border carry no information (zero derivative) -> drop them
     informative = np.any(J != 0, axis=1)
     sigma = 1.4826 * np.median(np.abs(r0[informative])) if np.any(informative) else np.nan
     inl = informative & (np.abs(r0) <= 3 * max(sigma, 1e-9))
     dof = max(int(inl.sum()) - 6, 1)
+    info = J[inl].T @ J[inl]
+    if info_rest is not None:
+        info = info + info_rest
     try:
-        A = np.linalg.inv(J[inl].T @ J[inl])
+        A = np.linalg.inv(info)
     except np.linalg.LinAlgError:
         return None
     g = ((J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 6)).sum(1)  # [n_pairs, 6]
@@ -93,13 +100,14 @@ def _sd6(cov: np.ndarray) -> np.ndarray:
     return np.concatenate([np.degrees(d[:3]), d[3:]])
 
 
-def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel | None = None):
+def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel | None = None,
+                    occlusion=None):
     """1-sigma (rotation deg about camera x,y,z; translation m along camera x,y,z) from the
     Jacobian at the optimum: the larger (per parameter) of the classic (J^T J)^-1 * sigma^2
     (sigma from the inlier residuals) and the cluster-robust sandwich with one cluster per
     matched pair (its 4 edges share the box-model error)."""
     nan3 = np.full(3, np.nan)
-    sc = _scores(frames, pairs, intr, R, t, eps=eps, noise=noise)
+    sc = _scores(frames, pairs, intr, R, t, eps=eps, noise=noise, occlusion=occlusion)
     if sc is None:
         return nan3, nan3, np.full((6, 6), np.nan)
     cov = sc.A * sc.sigma2
@@ -131,7 +139,7 @@ def object_sandwich(frames, pairs, intr, R, t, groups: np.ndarray, *, noise: Noi
     from scipy.special import stdtrit  # t.ppf without importing scipy.stats (seconds)
 
     min_objects = MIN_OBJECTS if min_objects is None else min_objects
-    sc = _scores(frames, pairs, intr, R, t, noise=noise)
+    sc = _scores(frames, pairs, intr, R, t, noise=noise, occlusion=occlusion)
     groups = np.asarray(groups, dtype=np.int64)
     if sc is None or len(groups) != len(sc.g_pair):
         return None
@@ -202,7 +210,7 @@ def pose_spread(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f
         pe = _refit(frames, ev, intr, pose, noise, f_scale, max_nfev, occl)
         po = _refit(frames, od, intr, pose, noise, f_scale, max_nfev, occl)
         halves = pe.delta(po)
-    free = _refit(frames, pairs, intr, pose, noise, f_scale, max_nfev, None)
+    free = _refit(frames, pairs, intr, pose, noise, f_scale, max_nfev, CostSpec.of(occl).with_occlusion(None))
     return halves, free.delta(pose)
 
 
@@ -457,7 +465,7 @@ def estimate(frames, pairs, intr, pose: Pose, noise: NoiseModel, f_scale: float,
     ``mode``: "frames" (Jacobian, frame halves, occlusion), "clusters" (also the object-clustered
     sandwich and the misfit floor), "objects" (also the object bootstrap). ``floor``: an extra
     systematic 6-vector added in quadrature (the spread estimated intrinsics add, ``selfcal``)."""
-    rot_sd, tr_sd, _ = pose_covariance(frames, pairs, intr, pose.R, pose.t, noise=noise)
+    rot_sd, tr_sd, _ = pose_covariance(frames, pairs, intr, pose.R, pose.t, noise=noise, occlusion=occlusion)
     jac = np.concatenate([rot_sd, tr_sd])
     halves, occl = pose_spread(frames, pairs, intr, pose.R, pose.t, noise=noise, f_scale=f_scale, occlusion=occlusion)
     jack = pose_jackknife(frames, pairs, intr, pose.R, pose.t, noise=noise, f_scale=f_scale, occlusion=occlusion) \
