@@ -215,3 +215,57 @@ def test_cost_terms_are_registered_and_checked_by_name():
         CalibConfig(cost_terms=("pose_prior:sigmaa=1",))
     with pytest.raises(ValueError, match="named twice"):
         CalibConfig(cost_terms=("pose_prior", "pose_prior"))
+
+
+FORMAT = textwrap.dedent('''
+    """A rig-pose YAML (``rigpose: 1`` then ``T_cam_lidar``: 16 numbers, row major)."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from xcalib.calib.result import CalibrationResult
+    from xcalib.formats.export import CalibFormat
+
+
+    def write(result, path):
+        path = Path(path)
+        path.write_text("rigpose: 1\\nT_cam_lidar: [" + ", ".join(repr(float(v)) for v in result.extrinsics.ravel()) + "]\\n")
+        return [path]
+
+
+    def read(path, repair=False):
+        line = [l for l in Path(path).read_text().splitlines() if l.startswith("T_cam_lidar:")][0]
+        T = np.array([float(v) for v in line.split("[", 1)[1].rstrip("]").split(",")]).reshape(4, 4)
+        return CalibrationResult(success=True, rotation=T[:3, :3], translation=T[:3, 3], message="rigpose")
+
+
+    def sniff(path):
+        return path.suffix in (".yaml", ".yml") and path.read_text().startswith("rigpose:")
+
+
+    FORMAT = CalibFormat("rigpose", "rig pose YAML (plugin)", "rig.yaml", write, read, sniff)
+''')
+
+
+def test_a_third_party_calibration_format_converts_and_is_detected_on_read(tmp_path):
+    root = _package(tmp_path / "site", "xcalib_rigpose", {"rigpose_fmt": FORMAT}, """
+        [xcalib.formats]
+        rigpose = rigpose_fmt:FORMAT
+    """)
+    src = tmp_path / "calib.txt"
+    src.write_text("P2: 700.0 0 600.0 0 0 700.0 180.0 0 0 0 1 0\nR0_rect: 1 0 0 0 1 0 0 0 1\n"
+                   "Tr_velo_to_cam: 0 -1 0 0.1 0 0 -1 -0.2 1 0 0 -0.3\n")
+    run = _run(root, f"""
+        import json
+        from xcalib.cli import main
+        from xcalib.formats.export import detect_format, read_calibration
+        assert main(["convert", {str(src)!r}, "--to", "rigpose", "--out", {str(tmp_path / "rig.yaml")!r}]) == 0
+        print("detected", detect_format({str(tmp_path / "rig.yaml")!r}))
+        assert main(["convert", {str(tmp_path / "rig.yaml")!r}, "--to", "json", "--out", {str(tmp_path / "back.json")!r},
+                     "--json"]) == 0
+        a, b = read_calibration({str(src)!r}), read_calibration({str(tmp_path / "back.json")!r})
+        print("same", abs(a.extrinsics - b.extrinsics).max() < 1e-12)
+        raise SystemExit(main(["convert", {str(src)!r}, "--to", "rigpos"]))
+    """)
+    assert "detected rigpose" in run.stdout and '"from": "rigpose"' in run.stdout and "same True" in run.stdout
+    assert run.returncode != 0 and "rigpose" in run.stderr  # a typo lists the plugin among the writable formats

@@ -41,8 +41,8 @@ def register(app: typer.Typer) -> None:
                                         help="Intrinsics JSON {fx, fy, cx, cy, distortion} (one camera); "
                                              "default: the source's."),
         out: Path = typer.Option(Path("calibration_report"), "--out", "-o", help="Report folder."),
-        prior: Path = typer.Option(None, "--prior", help="Initial guess: a calibration .json/.npz (skips bring-up; "
-                                                         "one camera)."),
+        prior: Path = typer.Option(None, "--prior", help="Initial guess: a calibration file of any "
+                                                         "format xcalib convert reads (skips bring-up; one camera)."),
         box_model: str = typer.Option("auto", "--box-model", help="auto | corners | points (3D box outline)."),
         max_overlays: int = typer.Option(8, "--max-overlays", help="Overlay PNGs to draw per camera (0: none)."),
         limit: int = typer.Option(0, "--limit", help="Use only the first N frames (0: all)."),
@@ -83,7 +83,7 @@ def register(app: typer.Typer) -> None:
 
         from ..calib.api import calibrate
         from ..calib.config import CalibConfig
-        from ..calib.result import CalibrationResult
+        from ..formats.export import read_calibration
         from ..io._files import atomic_dir, claim_output
         from ..io.frames import read_intrinsics_json
         from ..site import calibrate_site
@@ -115,7 +115,7 @@ def register(app: typer.Typer) -> None:
             if len(views) == 1 and intr is None and getattr(views[name0], "intrinsics", None) is None and len(views[name0]) \
                     and views[name0][0].intrinsics is None:
                 raise typer.BadParameter(f"{frames} has no intrinsics; pass --intrinsics K.json", param_hint="--intrinsics")
-            prior_res = CalibrationResult.load(prior) if prior is not None else None
+            prior_res = read_calibration(prior) if prior is not None else None  # any format, plugins' too
             if tf_prior and prior is not None:
                 raise typer.BadParameter("give --prior or --tf-prior, not both", param_hint="--tf-prior")
             priors = _tf_priors(views, frames) if tf_prior else {}

@@ -15,7 +15,9 @@ _EX = ("Example: xcalib convert cam03/lucid_calib.json --to calib_json --out cal
        "in xcalib.formats.\n\n"
        "Camera files (intrinsics only, the camera model kept): --to camera_info | kalibr | opencv_yaml | "
        "opencv_json | intrinsics_json, from any of them, e.g. xcalib convert camchain.yaml --to camera_info "
-       "--camera cam0 --out fisheye.yaml; a model the target cannot express is refused.")
+       "--camera cam0 --out fisheye.yaml; a model the target cannot express is refused.\n\n"
+       "Installed packages add formats through the entry-point group xcalib.formats (detected on read by "
+       "their sniff()).")
 
 
 def register(app: typer.Typer) -> None:
@@ -40,10 +42,11 @@ def register(app: typer.Typer) -> None:
         if to in CAMERA_FORMATS:
             _convert_camera(src, to, out, src_format, camera, as_json=as_json, force=force)
             return
-        from ..formats.export import FORMATS, default_filename, detect_format, export_calibration, read_calibration
+        from ..formats.export import calib_formats, default_filename, detect_format, export_calibration, read_calibration
 
-        if to not in FORMATS or FORMATS[to].write is None:
-            writable = ", ".join(n for n, f in FORMATS.items() if f.write is not None)
+        formats = calib_formats()  # xcalib's own and the installed plugins' (xcalib.formats)
+        if to not in formats or formats[to].write is None:
+            writable = ", ".join(n for n, f in formats.items() if f.write is not None)
             raise typer.BadParameter(f"unknown or read-only output format {to!r}; choose one of: {writable}",
                                      param_hint="--to")
         fmt_in = src_format or detect_format(src)

@@ -1,5 +1,16 @@
 """One registry of calibration file formats: name -> writer + reader (+ content sniffing).
 
+xcalib's own formats are :data:`FORMATS`; a third-party package adds one through the entry-point
+group ``xcalib.formats`` (:mod:`xcalib.plugins`) with a :class:`CalibFormat` object::
+
+    [project.entry-points."xcalib.formats"]
+    kalibr_camchain = "my_pkg.camchain:FORMAT"   # CalibFormat(name, description, filename, write, read, sniff)
+
+:func:`calib_formats` is every format, built-in and plugin; ``xcalib convert --to NAME`` writes
+any of them and :func:`detect_format` asks each plugin's ``sniff(path) -> bool`` before the
+generic guesses (any YAML is ROS, any text KITTI), so ``xcalib convert FILE`` and
+``xcalib calibrate --prior FILE`` read a plugin's files too.
+
 Every writer takes a :class:`~xcalib.calib.result.CalibrationResult` (``T_cam_lidar``: LiDAR ->
 OpenCV camera) and returns the files it wrote; every reader returns a ``CalibrationResult`` with
 the same direction, whatever the file's own convention (see each format module's docstring).
@@ -15,20 +26,23 @@ from ..calib.result import CalibrationResult
 from ..errors import FormatError
 from ..io._files import MAX_TEXT_BYTES, load_json, read_bytes
 
-__all__ = ["CalibFormat", "FORMATS", "format_names", "export_calibration", "read_calibration",
+__all__ = ["CalibFormat", "FORMATS", "calib_formats", "format_names", "export_calibration", "read_calibration",
            "detect_format", "default_filename"]
 
 
 @dataclass(frozen=True)
 class CalibFormat:
     """A calibration format: ``write(result, path) -> [paths]`` (None: read-only) and
-    ``read(path, repair) -> CalibrationResult``; ``filename`` is the default output name."""
+    ``read(path, repair) -> CalibrationResult``; ``filename`` is the default output name;
+    ``sniff(path) -> bool``: whether a file is of this format (detection on read; None: detected
+    by :func:`detect_format`'s own rules, or only when named with ``--from``)."""
 
     name: str
     description: str
     filename: str
     write: Callable[..., list[Path]] | None
     read: Callable[..., CalibrationResult]
+    sniff: Callable[[Path], bool] | None = None
 
 
 # ----------------------------------------------------------------------------- adapters
@@ -214,8 +228,42 @@ FORMATS: dict[str, CalibFormat] = {f.name: f for f in [
 ]}
 
 
+_PLUGINS: dict[str, CalibFormat] = {}  # loaded xcalib.formats entries (the registry's own bookkeeping)
+
+
+def _plugin_formats() -> dict[str, CalibFormat]:
+    """The formats of the ``xcalib.formats`` entry points (by entry name); one that fails to load or
+    is no ``CalibFormat`` is reported (``xcalib.plugins.PluginWarning``) and left out."""
+    import warnings
+
+    from ..plugins import PluginWarning
+    from ..plugins import entries as plugin_entries
+    from ..plugins import load as load_plugin
+
+    out = {}
+    for entry in plugin_entries("xcalib.formats"):
+        key = f"{entry.name}={entry.value}"
+        if key not in _PLUGINS:
+            obj = load_plugin(entry)
+            if obj is None:
+                continue
+            if not isinstance(obj, CalibFormat):
+                warnings.warn(f"xcalib plugin {entry.name!r} (xcalib.formats = {entry.value!r}, from {entry.dist}) is "
+                              f"not a xcalib.formats.export.CalibFormat but {type(obj).__name__}", PluginWarning,
+                              stacklevel=2)
+                continue
+            _PLUGINS[key] = obj
+        out[entry.name] = _PLUGINS[key]
+    return out
+
+
+def calib_formats() -> dict[str, CalibFormat]:
+    """Every calibration format by name: xcalib's own (:data:`FORMATS`), then the installed plugins'."""
+    return {**FORMATS, **_plugin_formats()}
+
+
 def format_names(writable: bool = False) -> list[str]:
-    return [n for n, f in FORMATS.items() if f.write is not None or not writable]
+    return [n for n, f in calib_formats().items() if f.write is not None or not writable]
 
 
 def default_filename(fmt: str) -> str:
@@ -223,9 +271,10 @@ def default_filename(fmt: str) -> str:
 
 
 def _get(fmt: str) -> CalibFormat:
-    if fmt not in FORMATS:
-        raise ValueError(f"unknown calibration format {fmt!r}; known: {', '.join(FORMATS)}")
-    return FORMATS[fmt]
+    formats = calib_formats()
+    if fmt not in formats:
+        raise ValueError(f"unknown calibration format {fmt!r}; known: {', '.join(formats)}")
+    return formats[fmt]
 
 
 def export_calibration(result: CalibrationResult, fmt: str, path, *, overwrite: bool = True) -> list[Path]:
@@ -264,16 +313,42 @@ def export_calibration(result: CalibrationResult, fmt: str, path, *, overwrite: 
 
 
 def detect_format(path) -> str:
-    """Guess a calibration file's format from its name and content."""
+    """Guess a calibration file's format from its name and content: xcalib's specific rules, then
+    each plugin format's ``sniff``, then the generic guesses (a YAML is ROS, a text file KITTI)."""
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"calibration file not found: {p}")
+    found = _detect_specific(p)
+    if found is not None:
+        return found
+    for name, fmt in _plugin_formats().items():
+        if fmt.sniff is not None and _sniffs(name, fmt, p):
+            return name
+    return _detect_generic(p)
+
+
+def _sniffs(name: str, fmt: CalibFormat, p: Path) -> bool:
+    """A plugin's ``sniff(p)``; one that raises is reported (PluginWarning) and taken as False."""
+    import warnings
+
+    from ..plugins import PluginWarning
+
+    try:
+        return bool(fmt.sniff(p))
+    except Exception as exc:  # noqa: BLE001 - a broken plugin must not stop the detection of other formats
+        warnings.warn(f"xcalib format plugin {name!r}: sniff({p}) failed: {type(exc).__name__}: {exc}", PluginWarning,
+                      stacklevel=3)
+        return False
+
+
+def _detect_specific(p: Path) -> str | None:
+    """The built-in formats a file's name or content identifies; None where only a generic guess is left."""
     if p.is_dir():
         if (p / "calibrated_sensor.json").is_file():
             return "nuscenes"
         if any(p.glob("*-extrinsic.json")):
             return "opencalib"
-        raise FormatError(p, "folder is neither a nuScenes table folder nor an OpenCalib folder")
+        return None
     name = p.name.lower()
     if name.endswith(".npz"):
         return "npz"
@@ -281,7 +356,7 @@ def detect_format(path) -> str:
         return "urdf"
     if name.endswith((".yaml", ".yml")):
         head = p.read_text(errors="replace")
-        return "tf_static" if any(line.startswith("transforms:") for line in head.splitlines()) else "ros"
+        return "tf_static" if any(line.startswith("transforms:") for line in head.splitlines()) else None
     if ".tfrecord" in name:
         return "waymo"
     if name.endswith(".pkl"):
@@ -301,12 +376,24 @@ def detect_format(path) -> str:
                 return "calib_json"
             if len(d) == 1 and str(next(iter(d))).endswith("-extrinsic"):
                 return "opencalib"
-        raise FormatError(p, "unrecognised calibration JSON (expected xcalib, lucid_calib, calib.json, "
-                             "OpenLABEL, OpenCalib or calibrated_sensor)")
+        return None
     text = read_bytes(p, max_bytes=MAX_TEXT_BYTES, what="calibration file").decode("utf-8", errors="replace")
     keys = {line.split(":", 1)[0].strip() for line in text.splitlines() if ":" in line}
     if {"K", "T"} <= keys:
         return "calib_txt"
+    return None
+
+
+def _detect_generic(p: Path) -> str:
+    """The guess for a file no specific rule nor plugin claimed (or the FormatError naming it)."""
+    if p.is_dir():
+        raise FormatError(p, "folder is neither a nuScenes table folder nor an OpenCalib folder")
+    name = p.name.lower()
+    if name.endswith((".yaml", ".yml")):
+        return "ros"
+    if name.endswith(".json"):
+        raise FormatError(p, "unrecognised calibration JSON (expected xcalib, lucid_calib, calib.json, "
+                             "OpenLABEL, OpenCalib or calibrated_sensor)")
     return "kitti"
 
 
