@@ -269,3 +269,75 @@ def test_a_third_party_calibration_format_converts_and_is_detected_on_read(tmp_p
     """)
     assert "detected rigpose" in run.stdout and '"from": "rigpose"' in run.stdout and "same True" in run.stdout
     assert run.returncode != 0 and "rigpose" in run.stderr  # a typo lists the plugin among the writable formats
+
+
+MODEL = textwrap.dedent('''
+    """A tiny matching model: mean colour of each crop and mean point of each 3D crop, one linear layer each."""
+    from dataclasses import dataclass
+
+    from torch import nn
+
+    from xcalib.models.base import Embeddings, MatchingModel
+    from xcalib.models.registry import ModelConfig
+
+
+    @dataclass(frozen=True)
+    class MeanMatchConfig(ModelConfig):
+        point_cloud_size: int = 16
+        embed_dim: int = 8
+
+
+    class MeanMatch(MatchingModel):
+        config_class = MeanMatchConfig
+
+        def __init__(self, config):
+            super().__init__(config)
+            e = int(self.config["embed_dim"])
+            self.img, self.lid = nn.Linear(3, e), nn.Linear(3, e)
+
+        def embed(self, batch):
+            return Embeddings(self.img(batch.crops_2d.mean((2, 3))), self.lid(batch.crops_3d.mean(1)))
+''')
+
+
+def test_a_third_party_model_is_created_by_name_with_a_typed_config_and_trains_one_step(tmp_path):
+    root = _package(tmp_path / "site", "xcalib_meanmatch", {"meanmatch": MODEL}, """
+        [xcalib.models]
+        meanmatch = meanmatch:MeanMatch
+    """)
+    tests = Path(__file__).resolve().parent
+    run = _run(root, f"""
+        import json, sys
+        sys.path.insert(0, {str(tests)!r})
+        import torch
+        from _matching_frames import make_frames
+        from xcalib.engine.trainer import XCALIB_RECIPE, train
+        from xcalib.models import create_model, default_config, list_models
+
+        m = create_model("meanmatch", embed_dim=4)
+        print("created", type(m).__name__, m.typed_config.embed_dim, "meanmatch" in list_models(),
+              default_config("meanmatch")["point_cloud_size"])
+        for bad in ({{"embed_dimm": 4}}, {{"embed_dim": "4"}}):
+            try:
+                create_model("meanmatch", **bad)
+            except ValueError as exc:
+                print("refused", exc)
+        try:
+            create_model("fastmatch", embed_dimm=32)  # xcalib's own models: the same check
+        except ValueError as exc:
+            print("refused", exc)
+        torch.manual_seed(0)
+        tr = make_frames(2, 1)
+        best = train("meanmatch", tr, tr, **XCALIB_RECIPE.kwargs(epochs=1, warmup_epochs=0, lr=1e-2),
+                     output_dir={str(tmp_path / "run")!r}, progress=False, seed=0, frames_per_batch=2)
+        hist = json.loads(open({str(tmp_path / "run" / "history.json")!r}).read())
+        from xcalib.engine.matcher import Matcher
+        back = Matcher.from_pretrained("meanmatch", weights=best, device="cpu")  # the typed config travelled with it
+        print("trained", best.name, len(hist), hist[0]["train_loss_mean"] > 0, back.model.typed_config.embed_dim)
+    """)
+    assert run.returncode == 0, run.stderr
+    assert "created MeanMatch 4 True 16" in run.stdout
+    assert "unknown config key(s) 'embed_dimm' (did you mean 'embed_dim'?)" in run.stdout
+    assert "'embed_dim' expects a int" in run.stdout
+    assert run.stdout.count("did you mean 'embed_dim'") == 2  # fastmatch refuses the typo too
+    assert "trained best.pth 1 True 8" in run.stdout
