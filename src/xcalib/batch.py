@@ -38,7 +38,7 @@ import numpy as np
 
 from .calib.config import CalibConfig
 from .errors import FormatError
-from .io._files import atomic_write, inside, read_text, safe_name
+from .io.files import atomic_write, inside, read_text, safe_name
 
 __all__ = ["BatchRecord", "BatchSummary", "calibrate_many", "expand_recordings", "write_tables", "Executor",
            "LIST_SUFFIXES"]

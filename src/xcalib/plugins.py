@@ -39,8 +39,9 @@ BUILTIN: dict[str, dict[str, str]] = {
     "xcalib.commands": {n: f"xcalib.cli.{n.replace('-', '_')}_cmd" for n in (
         "demo", "match", "calibrate", "calibrate-many", "detect", "bootstrap", "train", "validate", "export", "synth", "cache", "convert",
         "bag", "monitor", "version", "reference")},
-    "xcalib.cost_terms": {n: f"xcalib.calib.terms:{n}" for n in (
-        "box_edges", "pose_prior", "focal_scale", "principal_point", "time_offset")},
+    "xcalib.cost_terms": {"box_edges": "xcalib.calib.refine:box_edges",
+                          **{n: f"xcalib.calib.terms:{n}" for n in ("pose_prior", "focal_scale", "principal_point",
+                                                                   "time_offset")}},
 }
 
 

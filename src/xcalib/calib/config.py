@@ -11,6 +11,8 @@ import dataclasses
 from dataclasses import dataclass, fields
 from typing import Any, Literal, get_args
 
+from .term_registry import check_terms
+
 __all__ = ["CalibConfig", "TermSpec", "YawMode", "BoxModel", "UncertaintyMode", "IntrinsicsMode", "TimeOffsetMode",
            "parse_time_offset"]
 
@@ -225,8 +227,6 @@ class CalibConfig:
         terms = (terms,) if isinstance(terms, (str, dict, TermSpec)) else tuple(terms or ())
         object.__setattr__(self, "cost_terms", tuple(TermSpec.parse(v) for v in terms))
         if self.cost_terms:  # names and options checked against the registry (loads xcalib.cost_terms)
-            from .terms import check_terms
-
             check_terms(self.cost_terms)
         for name, allowed in (("reestimate_yaw", YawMode), ("box_model", BoxModel), ("uncertainty", UncertaintyMode),
                               ("refine_intrinsics", IntrinsicsMode)):

@@ -15,7 +15,7 @@ import numpy as np
 from ..geometry.boxes import as_box7, box7_corners, check_boxes2d, check_boxes3d, valid_boxes2d
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import CameraModel, as_calibration_camera, calibration_camera_from_dict
-from .boxmodel import fit_yaw_to_points, lidar_angular_step, shapes_from_points
+from .boxshape import fit_yaw_to_points, lidar_angular_step, shapes_from_points
 
 __all__ = ["CalibFrame", "as_intrinsics", "prepare_frames", "with_corner_outlines", "with_point_outlines",
            "YAW_OPEN_SIGMA", "lean_frames"]

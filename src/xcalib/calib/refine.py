@@ -23,7 +23,7 @@ from .inputs import CalibFrame
 from .pose import Pose
 from .terms import CostSpec, TermContext, occlusion_of
 
-__all__ = ["build_cost", "RefineResult", "match_frame", "match_all", "project_frames", "refine_pose", "pair_metrics", "estimate_noise", "lsq",
+__all__ = ["build_cost", "box_edges", "RefineResult", "match_frame", "match_all", "project_frames", "refine_pose", "pair_metrics", "estimate_noise", "lsq",
            "edge_term", "DEFAULT_NOISE", "F_SCALE"]
 
 
@@ -203,6 +203,11 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
         coef = np.maximum(c, floor)
         use = out.ravel() & (y <= 8.0 * 2.0 * (X @ coef))
     return NoiseModel(*(float(v) for v in np.sqrt(coef)))
+
+
+def box_edges(ctx: TermContext, *, occlusion_tau: float = 1.5, occlusion_slope: float = 0.2) -> BoxEdgeTerm:
+    """The ``xcalib.cost_terms`` factory of the box-edge term of the matched pairs (``cost.BoxEdgeTerm``)."""
+    return edge_term(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, Occlusion(occlusion_tau, occlusion_slope))
 
 
 def build_cost(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,

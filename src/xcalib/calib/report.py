@@ -17,7 +17,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..io._files import atomic_write, safe_name
+from ..io.files import atomic_write, safe_name
 from ..io.images import encode_image
 from .inputs import prepare_frames
 from .refine import pair_metrics

@@ -212,7 +212,7 @@ class CalibrationResult:
         ``overwrite=False`` refuses an existing file."""
         import io
 
-        from ..io._files import atomic_write
+        from ..io.files import atomic_write
 
         path = Path(path)
         if path.suffix == ".npz":
@@ -242,7 +242,7 @@ class CalibrationResult:
         orthonormal (det +1), every number finite, the translation within ``MAX_TRANSLATION_M``, and
         an npz's arrays must agree with its JSON. Anything else is a FormatError naming the field."""
         from ..errors import FormatError
-        from ..io._files import MAX_TEXT_BYTES, read_text
+        from ..io.files import MAX_TEXT_BYTES, read_text
 
         path = Path(path)
         if not path.is_file():
@@ -322,7 +322,7 @@ _NPZ_MAX_BYTES = 64 << 20
 def _read_npz(path: Path) -> tuple[dict, dict]:
     """(JSON dict, {name: array}) of a calibration npz; member sizes are checked before inflating."""
     from ..errors import FormatError
-    from ..io._files import open_regular
+    from ..io.files import open_regular
 
     with open_regular(path, what="calibration npz") as fh:
         with np.load(fh, allow_pickle=False) as z:

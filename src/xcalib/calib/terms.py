@@ -16,36 +16,27 @@ covariance with the term's residuals and parameters). Each of them builds its co
 shaping + the named terms), which the calibration makes once from the config
 (:meth:`CostSpec.from_config`).
 
-Built-in factories (registered the same way): ``box_edges`` (always the first term; its settings
-are ``occlusion_tau`` / ``occlusion_slope``), ``pose_prior`` (a known pose and its 1-sigma),
+Built-in factories (registered the same way): ``box_edges`` (``refine.box_edges``, always the
+first term; its settings are ``occlusion_tau`` / ``occlusion_slope``), ``pose_prior`` (a known pose and its 1-sigma),
 ``focal_scale``, ``principal_point`` and ``time_offset`` (the self-calibration adds these from
 ``refine_intrinsics`` / ``time_offset``; they cannot be named in ``cost_terms``).
 """
 
 from __future__ import annotations
 
-import inspect
 from dataclasses import dataclass, replace
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from ..plugins import entries as plugin_entries
-from ..plugins import load as load_plugin
 from .config import CalibConfig, TermSpec
 from .cost import CostTerm, FocalScaleTerm, Occlusion, PosePriorTerm, PrincipalPointTerm
 from .diagnostics import NoiseModel
 from .pose import Pose
+from .term_registry import GROUP, STAGE_TERMS, check_terms, cost_terms, term_factory
 
-__all__ = ["TermContext", "CostSpec", "cost_terms", "term_factory", "check_terms", "pose_block",
-           "box_edges", "pose_prior", "focal_scale", "principal_point", "time_offset", "STAGE_TERMS", "GROUP"]
-
-GROUP = "xcalib.cost_terms"
-#: terms the stages add themselves (from refine_intrinsics / time_offset) or always (box_edges)
-STAGE_TERMS = {"box_edges": "it is always the first term (set occlusion_tau / occlusion_slope)",
-               "focal_scale": "set refine_intrinsics='focal' (or 'auto')",
-               "principal_point": "set refine_intrinsics='focal+center'",
-               "time_offset": "set time_offset='estimate' (or 'auto', or seconds)"}
+__all__ = ["TermContext", "CostSpec", "cost_terms", "term_factory", "check_terms", "pose_block", "occlusion_of",
+           "pose_prior", "focal_scale", "principal_point", "time_offset", "STAGE_TERMS", "GROUP"]
 
 
 @dataclass(frozen=True)
@@ -62,13 +53,6 @@ class TermContext:
 
 
 # --- built-in factories ---------------------------------------------------------------------------
-
-def box_edges(ctx: TermContext, *, occlusion_tau: float = 1.5, occlusion_slope: float = 0.2) -> CostTerm:
-    """The box-edge term of the matched pairs (``cost.BoxEdgeTerm``)."""
-    from .refine import edge_term
-
-    return edge_term(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, Occlusion(occlusion_tau, occlusion_slope))
-
 
 def pose_prior(ctx: TermContext, *, rotvec_deg: tuple = (0.0, 0.0, 0.0), t_m: tuple = (0.0, 0.0, 0.0),
                sigma_deg: float = 1.0, sigma_m: float = 0.1) -> CostTerm:
@@ -98,64 +82,6 @@ def time_offset(ctx: TermContext, *, velocity_mps: Any = None, dt0: float = 0.0)
     n = int(sum(len(p) for p in ctx.pairs))
     v = np.zeros((n, 3)) if velocity_mps is None else np.asarray(velocity_mps, dtype=np.float64)
     return TimeOffsetTerm(v, dt0)
-
-
-# --- the registry ---------------------------------------------------------------------------------
-
-_FACTORIES: dict[str, Callable[..., CostTerm]] = {}  # loaded entries (the registry's own bookkeeping)
-
-
-def cost_terms() -> dict[str, Callable[..., CostTerm]]:
-    """Every registered term factory by name (xcalib's own and every installed plugin's); a plugin
-    that fails to load is reported (``xcalib.plugins.PluginWarning``) and left out."""
-    out = {}
-    for entry in plugin_entries(GROUP):
-        key = f"{entry.name}={entry.value}"
-        if key not in _FACTORIES:
-            obj = load_plugin(entry)
-            if obj is None:
-                continue
-            if not callable(obj):
-                import warnings
-
-                from ..plugins import PluginWarning
-
-                warnings.warn(f"xcalib plugin {entry.name!r} ({GROUP} = {entry.value!r}, from {entry.dist}) is not "
-                              f"a callable factory(ctx, **options) -> CostTerm", PluginWarning, stacklevel=2)
-                continue
-            _FACTORIES[key] = obj
-        out[entry.name] = _FACTORIES[key]
-    return out
-
-
-def term_factory(name: str) -> Callable[..., CostTerm]:
-    """The factory registered as ``name``; ValueError naming the registered ones otherwise."""
-    found = cost_terms()
-    if name not in found:
-        raise ValueError(f"CalibConfig.cost_terms: no cost term named {name!r}; registered ({GROUP}): "
-                         f"{', '.join(sorted(found))}")
-    return found[name]
-
-
-def check_terms(specs: tuple[TermSpec, ...]) -> None:
-    """ValueError for a name that is not registered, a term the stages add themselves, a term named
-    twice or an option its factory does not take (named)."""
-    seen = set()
-    for spec in specs:
-        if spec.name in STAGE_TERMS:
-            raise ValueError(f"CalibConfig.cost_terms: {spec.name!r} is added by the calibration itself: "
-                             f"{STAGE_TERMS[spec.name]}")
-        if spec.name in seen:
-            raise ValueError(f"CalibConfig.cost_terms: {spec.name!r} is named twice")
-        seen.add(spec.name)
-        factory = term_factory(spec.name)
-        try:
-            inspect.signature(factory).bind(None, **spec.kwargs)
-        except TypeError as exc:
-            raise ValueError(f"CalibConfig.cost_terms: term {spec.name!r}: options {spec.kwargs} do not fit "
-                             f"{getattr(factory, '__name__', factory)}{inspect.signature(factory)}: {exc}") from None
-        except ValueError:  # a builtin without a signature: checked when built
-            pass
 
 
 @dataclass(frozen=True)

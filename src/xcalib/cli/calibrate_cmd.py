@@ -84,7 +84,7 @@ def register(app: typer.Typer) -> None:
         from ..calib.api import calibrate
         from ..calib.config import CalibConfig
         from ..formats.export import read_calibration
-        from ..io._files import atomic_dir, claim_output
+        from ..io.files import atomic_dir, claim_output
         from ..io.frames import read_intrinsics_json
         from ..site import calibrate_site
         from ..site.calibration import is_frame_id

@@ -123,7 +123,7 @@ figure {{ display: inline-block; margin: 8px; width: 45%; }} img {{ width: 100%;
 <p>Total time {summary.get('seconds', 0):.1f} s. Numbers: <a href="summary.json">summary.json</a>.</p>
 {''.join(thumbs)}</body></html>
 """
-    from ..io._files import atomic_write
+    from ..io.files import atomic_write
 
     atomic_write(out / "index.html", [page.encode()])
     return out / "index.html"
@@ -240,7 +240,7 @@ def register(app: typer.Typer) -> None:
         summary["seconds"] = round(time.perf_counter() - t_start, 2)
         index = _write_index(out, summary)
         summary["index"] = str(index)
-        from ..io._files import atomic_write
+        from ..io.files import atomic_write
 
         atomic_write(out / "summary.json", [(json.dumps(summary, indent=1) + "\n").encode()])
 

@@ -46,7 +46,7 @@ def register(app: typer.Typer) -> None:
         import torch.distributed as dist
 
         from ..engine.checkpoint import read_config, site_dirs, write_checksum
-        from ..io._files import atomic_dir, claim_output
+        from ..io.files import atomic_dir, claim_output
         from ..engine.trainer import shutdown_distributed, train
 
         if not resume and not force:  # a previous run's best/last checkpoints are not silently replaced

@@ -63,7 +63,7 @@ def register(app: typer.Typer) -> None:
         report = {"_schema": REPORT_SCHEMA, "site": site, "hdf5": portable_path(hdf5), "device": dev,
                   "runtime": runtime, "results": results}
         if output is not None:
-            from ..io._files import atomic_write
+            from ..io.files import atomic_write
 
             atomic_write(output, [json.dumps(report, indent=2).encode()])
         if as_json:

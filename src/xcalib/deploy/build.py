@@ -17,60 +17,25 @@ from __future__ import annotations
 
 import hashlib
 import logging
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 import torch
 
-from .._version import __version__
+from .. import __version__
 from ..data.crops import CropConfig, FrameInputs
 from .errors import OnnxFolderError, RandomWeightsError, StaleOnnxError
 from .manifest import MANIFEST, Manifest, folder_name, read_manifest, write_manifest
 from .onnx_export import EXPORTER, OPSET, cpu_copy, export_plan, make_plan, run_torch
 from .onnx_feeds import frame_feeds, pair_feeds
+from .result import PARITY_TOLERANCE, BuildResult
 
 __all__ = ["BuildResult", "build", "state_hash", "random_inputs", "synthetic_inputs", "resolve_site",
            "PARITY_TOLERANCE"]
 
 log = logging.getLogger("xcalib.deploy")
-PARITY_TOLERANCE = 1e-4
 TRT_TARGETS = ("trt", "tensorrt", "engine")
-
-
-@dataclass
-class BuildResult:
-    """Outcome of ``Matcher.build``. ``parity``: "<graph>/<output>[<case>]" and
-    "similarity[<case>]" -> max |torch - onnx|; ``parity_ok`` is True only when parity was
-    checked and every value is <= ``tolerance``. ``logs``: trtexec logs (TensorRT builds)."""
-
-    target: str
-    model: str
-    output_dir: Path
-    artifacts: list[Path] = field(default_factory=list)
-    parity: dict[str, float] = field(default_factory=dict)
-    logs: list[Path] = field(default_factory=list)
-    site: str = ""
-    parity_checked: bool = False
-    tolerance: float = PARITY_TOLERANCE
-    notes: list[str] = field(default_factory=list)
-    precision: str | None = None
-
-    @property
-    def parity_ok(self) -> bool:
-        return bool(self.parity_checked and self.parity and all(v <= self.tolerance for v in self.parity.values()))
-
-    @property
-    def max_parity_error(self) -> float:
-        return max(self.parity.values()) if self.parity else float("nan")
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"target": self.target, "model": self.model, "site": self.site, "output_dir": str(self.output_dir),
-                "artifacts": [str(a) for a in self.artifacts], "parity": self.parity,
-                "parity_checked": self.parity_checked, "parity_ok": self.parity_ok, "tolerance": self.tolerance,
-                "max_parity_error": self.max_parity_error if self.parity else None,
-                "logs": [str(p) for p in self.logs], "notes": self.notes, "precision": self.precision}
 
 
 # ---------------------------------------------------------------------------------- inputs
@@ -160,7 +125,7 @@ def export_onnx(matcher, folder: Path, *, site: str, weights_sha: str, opset: in
     """Export ``matcher`` into ``folder`` and check parity. The graphs and manifest are written
     into a temporary folder beside it and swapped in whole (``atomic_dir``): a killed export
     leaves the previous folder intact, never a mix of old graphs and a new manifest."""
-    from ..io._files import atomic_dir
+    from ..io.files import atomic_dir
 
     folder = Path(folder)
     if folder.is_dir() and any(folder.iterdir()) and not (folder / MANIFEST).is_file():

@@ -107,7 +107,7 @@ class Manifest:
 
 
 def write_manifest(folder: Path, manifest: Manifest) -> Path:
-    from ..io._files import atomic_write
+    from ..io.files import atomic_write
 
     return atomic_write(Path(folder) / MANIFEST, [json.dumps(manifest.to_dict(), indent=2, default=str).encode()])
 
@@ -121,7 +121,7 @@ def read_manifest(folder: Path, *, verify_files: bool = True) -> Manifest:
         raise OnnxFolderError(path, "no manifest.json: not an ONNX folder written by Matcher.build('onnx') / "
                                     "`xcalib export --format onnx`")
     from ..errors import FormatError
-    from ..io._files import load_json
+    from ..io.files import load_json
 
     try:
         d = load_json(path, what="manifest")

@@ -21,6 +21,7 @@ from typing import Sequence
 from .chunking import PROTOCOL_ENVELOPE, Envelope
 from .errors import TrtBuildError, TrtexecNotFoundError
 from .manifest import GraphInfo, Manifest
+from .result import BuildResult
 
 __all__ = ["SEARCH_DIRS", "PRECISIONS", "find_trtexec", "check_precision", "shapes_arg", "trtexec_command",
            "build_engines"]
@@ -82,8 +83,6 @@ def trtexec_command(trtexec: str | Path, onnx_path: Path, engine_path: Path, gra
 def build_engines(onnx_folder: Path, engine_dir: Path, manifest: Manifest, trtexec: Path, *, precision: str = "fp16",
                   extra_args: Sequence[str] = (), envelope: Envelope | None = None, timeout_s: float | None = None):
     """Run trtexec for every graph of ``manifest``; returns a ``BuildResult`` (target "trt")."""
-    from .build import BuildResult
-
     onnx_folder, engine_dir = Path(onnx_folder), Path(engine_dir)
     engine_dir.mkdir(parents=True, exist_ok=True)
     res = BuildResult("trt", manifest.model, engine_dir, site=manifest.site, precision=precision)

@@ -33,9 +33,9 @@ from typing import Any
 import torch
 import yaml
 
-from .._version import __version__
+from .. import __version__
 from ..errors import FormatError, XcalibError
-from ..io._files import MAX_TEXT_BYTES, atomic_write, open_regular, read_text
+from ..io.files import MAX_TEXT_BYTES, atomic_write, open_regular, read_text
 
 __all__ = ["FORMAT", "WeightsMismatchError", "WeightsNotFoundError", "xcalib_home", "site_dirs",
            "find_site_weights", "save_weights", "read_checkpoint", "load_state_strict", "write_config",

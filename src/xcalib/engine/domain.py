@@ -97,7 +97,7 @@ def site_geometry_result(m, image, point_cloud, bboxes_2d, bboxes_3d, *, box7=No
     IoU >= ``POSE_IOU_GATE``) over **all** boxes (the projection needs no LiDAR points inside a
     box, unlike the model's crops), the same matches as ``derive_matches``."""
     from .fusion import POSE_IOU_GATE, geometric_iou
-    from .host import assign
+    from .assign import assign
 
     t0 = time.perf_counter() if t0 is None else t0
     k2 = np.arange(len(np.asarray(bboxes_2d).reshape(-1, 4)), dtype=np.int64)

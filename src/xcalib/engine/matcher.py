@@ -223,7 +223,7 @@ class Matcher:
         are replaced only with ``overwrite=True``. ``extra_files`` (file name -> bytes) are written
         in the same swap (a one-shot session's ``oneshot.json``); ``drop`` names files of the old
         folder the new set supersedes (not carried over)."""
-        from ..io._files import atomic_dir, safe_name
+        from ..io.files import atomic_dir, safe_name
 
         d = Path(save_dir)
         name = self.model_name

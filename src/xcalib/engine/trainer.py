@@ -39,7 +39,7 @@ import torch.distributed as dist
 
 from ..data.crops import CropConfig, FrameInputs, crop_images, crop_points, gather_box_points, resample_points
 from ..types import Frame, as_frame
-from ..io._files import atomic_write
+from ..io.files import atomic_write
 from .checkpoint import (WeightsMismatchError, checksum_path, load_resume_state, load_state_strict, read_checkpoint,
                          save_resume_state, save_weights, write_config)
 from .fit import Schedule, fit, make_optimizer

@@ -21,7 +21,7 @@ def load_rgb(path) -> np.ndarray:
 
 def image_size(path) -> tuple[int, int]:
     """(width, height) in pixels read from a PNG/JPEG header (full decode only as a fallback)."""
-    from ..io._files import open_regular
+    from ..io.files import open_regular
 
     p = Path(path)
     with open_regular(p, what="image file") as fh:

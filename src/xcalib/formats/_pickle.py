@@ -46,7 +46,7 @@ def load_pickle_restricted(path, max_bytes: int = MAX_PICKLE_BYTES) -> Any:
     holds (reading from a file object, ``read(n)`` reserves the ``n`` bytes a length claims)."""
     import io
 
-    from ..io._files import read_bytes
+    from ..io.files import read_bytes
 
     path = Path(path)
     if not path.exists():

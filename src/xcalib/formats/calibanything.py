@@ -40,8 +40,8 @@ from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.rotations import matrix_to_quaternion, rotation_angle
 from ..geometry.transforms import invert_transform, make_transform
-from ..io._files import atomic_write, read_text
-from ..io._files import load_json as _load_json_file
+from ..io.files import atomic_write, read_text
+from ..io.files import load_json as _load_json_file
 from ._checks import as_float, as_matrix, checked_quaternion, checked_rotation, require
 from ._result import calibration_record, opencv_distortion, require_intrinsics, split_opencv_distortion
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..calib.result import CalibrationResult
 from ..errors import FormatError
-from ..io._files import inside
+from ..io.files import inside
 from ..types import Frame
 from ._media import IMAGE_EXTS, image_size, load_cloud, load_rgb
 from .calibanything import read_calib_json, read_calib_txt, read_lucid_calib, read_opencalib

@@ -33,7 +33,7 @@ import numpy as np
 from ..errors import FormatError
 from ..geometry.camera_models import (EUCM, UCM, CameraModel, DoubleSphere, KannalaBrandt, Pinhole,
                                       PinholeRadtan, Unified, as_camera_model, model_from_dict)
-from ..io._files import MAX_TEXT_BYTES, atomic_write, read_text
+from ..io.files import MAX_TEXT_BYTES, atomic_write, read_text
 
 __all__ = ["CAMERA_FORMATS", "UnsupportedModelError", "read_camera", "write_camera", "camera_text",
            "detect_camera_format", "formats_for", "read_kalibr_camchain"]

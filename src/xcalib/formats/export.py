@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ..calib.result import CalibrationResult
 from ..errors import FormatError
-from ..io._files import MAX_TEXT_BYTES, load_json, read_bytes
+from ..io.files import MAX_TEXT_BYTES, load_json, read_bytes
 
 __all__ = ["CalibFormat", "FORMATS", "calib_formats", "format_names", "export_calibration", "read_calibration",
            "detect_format", "default_filename"]
@@ -287,7 +287,7 @@ def export_calibration(result: CalibrationResult, fmt: str, path, *, overwrite: 
     import shutil
     import tempfile
 
-    from ..io._files import tmp_prefix, check_overwrite, sweep_stale
+    from ..io.files import tmp_prefix, check_overwrite, sweep_stale
 
     f = _get(fmt)
     if f.write is None:

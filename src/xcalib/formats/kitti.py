@@ -30,7 +30,7 @@ from ..geometry.camera import CameraIntrinsics
 from ..geometry.projection import project_points
 from ..geometry.transforms import invert_transform, make_transform
 from ..types import Frame
-from ..io._files import atomic_write, read_text
+from ..io.files import atomic_write, read_text
 from ._checks import as_matrix, checked_rotation
 from ._media import image_size, load_rgb
 

@@ -25,7 +25,7 @@ from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.rotations import matrix_to_quaternion
 from ..geometry.transforms import invert_transform, make_transform
-from ..io._files import atomic_write
+from ..io.files import atomic_write
 from ._checks import as_matrix, checked_quaternion, checked_rotation, require
 from ._result import calibration_record, require_intrinsics
 from .calibanything import load_json

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
-from ..io._files import load_json
+from ..io.files import load_json
 from ..types import Frame
 from ._checks import as_float, as_matrix, require
 from ._media import load_cloud, load_rgb

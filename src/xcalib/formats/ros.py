@@ -29,7 +29,7 @@ from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.rotations import matrix_to_quaternion
 from ..geometry.transforms import invert_transform, make_transform
-from ..io._files import MAX_TEXT_BYTES, atomic_write, read_text
+from ..io.files import MAX_TEXT_BYTES, atomic_write, read_text
 from ._checks import as_float, as_matrix, checked_quaternion, require, require_numbers
 from ._result import calibration_record, require_intrinsics
 
@@ -211,7 +211,7 @@ def urdf_joints(T_cam_lidar, lidar_link: str, camera: str, optical: str | None =
 
 def write_urdf(result: CalibrationResult, path, *, lidar_link: str = "lidar") -> Path:
     """A URDF file (``<robot>`` with the LiDAR link and the camera's body and optical joints)."""
-    from ..io._files import atomic_write
+    from ..io.files import atomic_write
 
     name = ros_name(result.camera_name or "camera", "camera")
     text = (f'<?xml version="1.0"?>\n<robot name="xcalib_{name}">\n  <link name="{ros_name(lidar_link, "lidar")}"/>\n'
@@ -283,7 +283,7 @@ def tf_static_dict(edges) -> dict:
 
 def write_tf_static(result: CalibrationResult, path, *, parent_frame: str = "lidar") -> Path:
     """One-transform tf_static YAML: LiDAR -> ``<camera>_optical_frame``."""
-    from ..io._files import atomic_write
+    from ..io.files import atomic_write
 
     child = f"{ros_name(result.camera_name or 'camera', 'camera')}_optical_frame"
     d = tf_static_dict([(ros_name(parent_frame, "lidar"), child, invert_transform(result.extrinsics))])

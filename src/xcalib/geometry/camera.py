@@ -180,7 +180,7 @@ class CameraIntrinsics:
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"intrinsics file not found: {path}")
-        st = os.stat(path)  # the geometry layer cannot use io._files: the same checks, inline
+        st = os.stat(path)  # the geometry layer cannot use io.files: the same checks, inline
         if not stat.S_ISREG(st.st_mode):
             raise FormatError(path, "refusing to read a FIFO, device or folder; expected a regular intrinsics file")
         if st.st_size > 1 << 20:

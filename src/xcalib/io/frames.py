@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..types import Frame
-from ._files import atomic_dir, atomic_write, inside, load_json
+from .files import atomic_dir, atomic_write, inside, load_json
 from .images import read_image, write_image
 from ._validate import check_boxes_2d, check_boxes_3d, check_rigid
 from .pointcloud import read_point_cloud, write_pcd

@@ -46,7 +46,7 @@ import numpy as np
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..types import DatasetFrame, Frame
-from ._files import tmp_prefix, open_regular, sweep_stale
+from .files import tmp_prefix, open_regular, sweep_stale
 from ._validate import check_boxes_2d, check_boxes_3d, check_count, check_rigid
 from .timing import checked_timing, timing_of
 

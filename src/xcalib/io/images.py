@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError
-from ._files import atomic_write, read_bytes
+from .files import atomic_write, read_bytes
 
 __all__ = ["read_image", "decode_image", "encode_image", "encode_jpeg", "write_image", "image_header_size",
            "MAX_IMAGE_PIXELS"]

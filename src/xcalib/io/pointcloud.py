@@ -25,7 +25,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import FormatError
-from ._files import MAX_FILE_BYTES, atomic_write, open_regular, read_bytes
+from .files import MAX_FILE_BYTES, atomic_write, open_regular, read_bytes
 
 __all__ = ["PointCloud", "read_point_cloud", "load_points", "write_pcd", "write_points",
            "PCD_ENCODINGS", "default_field_names"]

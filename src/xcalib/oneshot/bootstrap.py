@@ -28,7 +28,7 @@ from typing import Callable, Iterable
 
 from ..calib.config import CalibConfig
 from ..calib.result import CalibrationResult
-from ..io._files import claim_output
+from ..io.files import claim_output
 from .heldout import HELDOUT_SHARE, MIN_HELDOUT_FRAMES, HeldoutCheck, check_heldout
 from .site_default import SiteDefault, choose_site_default
 from .threshold import ThresholdChoice, choose_threshold

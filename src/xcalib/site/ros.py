@@ -14,7 +14,7 @@ from pathlib import Path
 from ..formats.ros import (camera_info_dict, printable, ros_name, static_transform_args, static_transform_command,
                            static_transform_ros1_args, static_transform_ros1_command, tf_static_dict, urdf_joints)
 from ..geometry.transforms import invert_transform
-from ..io._files import atomic_write
+from ..io.files import atomic_write
 from .calibration import SiteCalibration, camera_folders
 
 __all__ = ["write_site_ros"]

@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..io._files import atomic_write, safe_name
+from ..io.files import atomic_write, safe_name
 
 __all__ = ["ReportFigure", "CalibrationReport", "write_calibration_report", "frame_arrays"]
 

@@ -28,7 +28,7 @@ from ..geometry.boxes import as_box7, box7_corners
 from ..geometry.rotations import matrix_to_quaternion
 from ..geometry.transforms import invert_transform
 from ..formats.ros import ros_name
-from ..io._files import sweep_stale, tmp_prefix
+from ..io.files import sweep_stale, tmp_prefix
 from ..io.images import encode_jpeg
 from ..site.calibration import optical_frame
 

@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..io._files import atomic_write
+from ..io.files import atomic_write
 
 __all__ = ["SiteReportPaths", "write_site_report", "site_table"]
 

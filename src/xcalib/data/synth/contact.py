@@ -89,7 +89,7 @@ def contact_sheet(frames: Sequence[Frame], path, *, cols: int = 3, tile_width: i
         row += [np.zeros((th, tile_width, 3), np.uint8)] * (cols - len(row))
         rows.append(np.hstack(row))
     sheet = np.vstack(rows)
-    from ...io._files import atomic_write
+    from ...io.files import atomic_write
     from ...io.images import encode_image
 
     return atomic_write(path, [encode_image(sheet, ".png")])

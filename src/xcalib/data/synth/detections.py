@@ -11,13 +11,17 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ...geometry.boxes import box7_corners, box7_to_extents, extents_to_center_size
 from ...geometry.camera_models import CameraModel, densify_box_edges
 from ...geometry.projection import project_points, undistort_pixels
 from .scene import CLASSES, SceneObjects, sample_sizes
-from .site import Site
+
+if TYPE_CHECKING:  # annotations only: the site module renders with this one (no import cycle)
+    from .site import Site
 
 __all__ = ["Detections", "CameraView", "camera_view", "detect", "world_to_lidar_box7", "box7_to_protocol",
            "mirror_boxes"]

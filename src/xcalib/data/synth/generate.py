@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...io._files import atomic_write
+from ...io.files import atomic_write
 from ...types import Frame
 from .detections import camera_view, detect, mirror_boxes
 from .presets import NOISE_FIELDS
@@ -123,7 +123,7 @@ def write_site(out_dir, n_train: int, n_val: int, n_test: int, seed: int = 0, pr
     The site is written into a temporary folder and swapped in whole (the caches and ``site.json``
     always belong to the same run); an existing non-empty ``out_dir`` needs ``overwrite=True``.
     """
-    from ...io._files import atomic_dir, claim_output
+    from ...io.files import atomic_dir, claim_output
 
     out = Path(out_dir)
     site = sample_site(seed, preset, **overrides)

@@ -11,6 +11,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+import numpy as np
+
 __all__ = ["SiteConfig", "PRESETS", "preset_config", "NOISE_FIELDS", "zero_noise", "CLASS_SIZES"]
 
 Range = float | tuple[float, float]
@@ -147,3 +149,11 @@ def preset_config(preset: str = "roadside", **overrides) -> SiteConfig:
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; expected one of {sorted(PRESETS)}")
     return SiteConfig().replace(**PRESETS[preset]).replace(**overrides)
+
+
+def _draw(rng: np.random.Generator, v, integer: bool = False):
+    """Scalar -> itself; (lo, hi) -> uniform draw (inclusive ints when ``integer``)."""
+    if isinstance(v, (tuple, list)):
+        lo, hi = v
+        return int(rng.integers(int(lo), int(hi) + 1)) if integer else float(rng.uniform(lo, hi))
+    return int(v) if integer else float(v)

@@ -11,12 +11,16 @@ from __future__ import annotations
 
 import math
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ...geometry.boxes import box7_corners
 from .detections import CameraView, _project
 from .scene import SceneObjects
-from .site import Site
+
+if TYPE_CHECKING:  # annotations only: the site module renders with this one (no import cycle)
+    from .site import Site
 
 __all__ = ["render_background", "render_frame", "ground_texture"]
 

@@ -10,10 +10,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from .presets import CLASS_SIZES
-from .site import Site, _draw
+from .presets import CLASS_SIZES, _draw
+
+if TYPE_CHECKING:  # annotations only: the site module renders with this one (no import cycle)
+    from .site import Site
 
 __all__ = ["Tracks", "SceneObjects", "simulate_traffic", "CLASSES", "sample_sizes"]
 

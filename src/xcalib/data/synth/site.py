@@ -17,17 +17,9 @@ from ...geometry.camera import CameraIntrinsics
 from ...geometry.camera_models import CameraModel, canonical_name, get_model
 from ...geometry.rotations import euler_to_matrix
 from ...geometry.transforms import invert_transform, make_transform
-from .presets import SiteConfig, preset_config
+from .presets import SiteConfig, _draw, preset_config  # noqa: F401  (_draw: re-exported for old imports)
 
 __all__ = ["Site", "sample_site", "camera_rotation"]
-
-
-def _draw(rng: np.random.Generator, v, integer: bool = False):
-    """Scalar -> itself; (lo, hi) -> uniform draw (inclusive ints when ``integer``)."""
-    if isinstance(v, (tuple, list)):
-        lo, hi = v
-        return int(rng.integers(int(lo), int(hi) + 1)) if integer else float(rng.uniform(lo, hi))
-    return int(v) if integer else float(v)
 
 
 def camera_rotation(yaw_deg: float, pitch_down_deg: float, roll_deg: float) -> np.ndarray:

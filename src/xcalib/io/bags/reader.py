@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import FormatError
-from .._files import open_regular
+from ..files import open_regular
 from .._validate import check_rigid
 from ...geometry.camera import CameraIntrinsics
 from ...geometry.transforms import invert_transform

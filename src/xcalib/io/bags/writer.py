@@ -29,7 +29,7 @@ import numpy as np
 
 from ...geometry.boxes import detect_box3d_convention
 from ...geometry.transforms import invert_transform
-from .._files import sweep_stale, tmp_prefix
+from ..files import sweep_stale, tmp_prefix
 from ...types import Frame
 from . import _convert as cv
 from ._msgs import CAMERA_INFO, COMPRESSED, DET2D, DET3D, IMAGE, POINTCLOUD2, STRING, TF, typestore
