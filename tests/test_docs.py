@@ -1,7 +1,8 @@
 """Every code block in README.md and docs/*.md runs as written.
 
 Rules (checked here):
-* ```python fences are executed, per document in order, in one namespace, in a temporary folder;
+* ```python fences are executed, per document in order, in one namespace, in a temporary folder
+  (```python norun: a module of a plug-in package, shown and not run);
 * ```bash / ```console fences are executed when every command starts with ``xcalib`` (console:
   lines starting with ``$ ``; others are output) — through the CLI entry point, in the same
   folder, each must exit 0;
@@ -86,7 +87,7 @@ def shipped_weights_present() -> bool:
 
 
 def runnable(block: Block) -> bool:
-    return block.lang == "python" or (block.lang in SHELL and "norun" not in block.flags)
+    return (block.lang == "python" or block.lang in SHELL) and "norun" not in block.flags
 
 
 @pytest.mark.parametrize("path", DOCS, ids=lambda p: p.relative_to(REPO).as_posix())

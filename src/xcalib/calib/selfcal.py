@@ -136,9 +136,11 @@ def _inflation(cov: np.ndarray) -> np.ndarray:
 
 
 def joint_refine(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config: CalibConfig,
-                 motion: BoxMotion | None, estimate_dt: bool, occlusion: Occlusion, *,
+                 motion: BoxMotion | None, occlusion: Occlusion, *,
                  max_outer: int = 8, max_nfev: int = 60) -> SelfCalFit | None:
-    """Pose + requested extra parameters from ``pose`` (see the module docstring); None without matches."""
+    """Pose + requested extra parameters from ``pose`` (see the module docstring); None without matches.
+    ``motion``: the boxes' motion when the time offset is estimated (None: it is not)."""
+    estimate_dt = motion is not None
     dt, scale, pp = 0.0, 1.0, np.zeros(2)
     cur_intr, cur_pose, noise, f_scale = intr, pose, None, F_SCALE
     cov, names, pairs = None, [], []
@@ -216,7 +218,7 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
         if not est_dt:
             _fill_used(diag, intr)
             return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag)
-    fit = joint_refine(cframes, intr, pose, cfg, motion, est_dt, occlusion)
+    fit = joint_refine(cframes, intr, pose, cfg, motion if est_dt else None, occlusion)
     if fit is None and (cfg.refine_intrinsics in ("focal", "focal+center") or config.time_offset == "estimate"):
         refusals.append("self-calibration asked for but too few matched pairs (< 6) to estimate it")
     for _ in range(3):  # drop what the data does not constrain (or what agrees with the given), refit
@@ -232,7 +234,7 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
             est_dt, changed = False, True
         if not changed:
             break
-        fit = joint_refine(cframes, intr, pose, cfg, motion, est_dt, occlusion) \
+        fit = joint_refine(cframes, intr, pose, cfg, motion if est_dt else None, occlusion) \
             if (cfg.refine_intrinsics != "none" or est_dt) else None
     if fit is None:
         _fill_used(diag, intr)

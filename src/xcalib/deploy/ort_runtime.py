@@ -27,7 +27,7 @@ import numpy as np
 
 from ..data.crops import CropConfig, FrameInputs, prepare_frame
 from ..engine.fusion import FUSION_WEIGHT, GEO_EPS
-from ..engine.host import frame_match_args, run_match
+from ..engine.host import MatchInputs, MatchOptions, frame_match_args, run_match
 from ..protocol import WarningRegistry
 from ..types import Frame, MatchResult
 from .chunking import PROTOCOL_ENVELOPE, Envelope, run_chunked
@@ -214,10 +214,11 @@ class OnnxMatcher:
               camera_per_det=None, use_calibration: str | bool = "auto", box7=None, intrinsics=None,
               geometry: str = "auto") -> MatchResult:
         """Match one frame (see ``Matcher.match``). ``latency_ms`` = crop + graphs + host scoring."""
-        return run_match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k=top_k, match_threshold=match_threshold,
-                         validate=validate, assignment=assignment, images=images, camera_per_det=camera_per_det,
-                         return_latency=return_latency, intrinsics=intrinsics, geometry=geometry,
-                         use_calibration=use_calibration, box7=box7, score_range=self.score_range,
+        return run_match(self, MatchInputs(image, point_cloud, bboxes_2d, bboxes_3d, images, camera_per_det, box7,
+                                           intrinsics),
+                         MatchOptions(top_k, match_threshold, validate, assignment, use_calibration, geometry,
+                                      return_latency),
+                         score_range=self.score_range,
                          fill_value=self.fill_value)
 
     pair = match

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -17,7 +19,8 @@ from .domain import (BOOTSTRAP_HINT, SHIPPED_SITES, check_geometry_mode, geometr
                      site_geometry_result)
 from .fusion import fuse_scores, geometric_iou, is_multi_camera, resolve_use_calibration
 
-__all__ = ["ASSIGNMENTS", "assign", "validate_match_inputs", "run_match", "frame_match_args"]
+__all__ = ["ASSIGNMENTS", "assign", "validate_match_inputs", "run_match", "frame_match_args", "MatchInputs",
+           "MatchOptions"]
 
 log = logging.getLogger("xcalib.matcher")
 
@@ -37,17 +40,52 @@ def validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, mode: str, *
     enforce(violations, mode, registry=registry)
 
 
-def run_match(m, image, point_cloud, bboxes_2d, bboxes_3d, *, top_k: int, match_threshold: float | None, validate: str,
-              assignment: str, images, camera_per_det, use_calibration, box7, score_range,
-              fill_value: float | None, return_latency: bool = False, intrinsics=None,
-              geometry: str = "auto") -> MatchResult:
+@dataclass(frozen=True)
+class MatchInputs:
+    """One frame as ``match`` takes it: image, point cloud [P,3+], 2D boxes [N,4] px, 3D boxes [M,6]
+    extents (or [M,7] box7); for multi-camera frames the per-camera ``images`` and the camera of
+    each 2D box (``camera_per_det``); ``box7`` [M,7] (the yaw of the 3D boxes); the camera's
+    ``intrinsics`` (geometric consensus)."""
+
+    image: Any
+    point_cloud: Any
+    bboxes_2d: Any
+    bboxes_3d: Any
+    images: Any = None
+    camera_per_det: Any = None
+    box7: Any = None
+    intrinsics: Any = None
+
+
+@dataclass(frozen=True)
+class MatchOptions:
+    """How ``match`` turns a frame into matches, the same for the torch and the ONNX Runtime matcher
+    (``Matcher.match`` / ``OnnxMatcher.match`` document each): ``top_k``, ``match_threshold`` (None:
+    the site's), ``validate``, ``assignment``, ``use_calibration``, ``geometry``, ``return_latency``."""
+
+    top_k: int = 1
+    match_threshold: float | None = None
+    validate: str = "warn"
+    assignment: str = "argmax"
+    use_calibration: str | bool = "auto"
+    geometry: str = "auto"
+    return_latency: bool = False
+
+
+def run_match(m, frame: MatchInputs, options: MatchOptions, *, score_range, fill_value: float | None) -> MatchResult:
     """One frame through matcher ``m`` (``Matcher`` or ``OnnxMatcher``: ``crop_config``,
     ``warning_registry``, ``prepare``, ``similarity`` -> numpy [K',M'], ``calibration``,
     ``fusion_weight``, ``fusion_eps``, ``model_name``, ``device``). ``latency_ms`` = crop + model
     (+ projection and fusion) wall time, validation excluded (``return_latency``: the model's
     ``similarity`` call alone); matches in the caller's numbering. ``geometry`` / ``intrinsics``:
     geometric consensus instead of the model (:mod:`xcalib.engine.domain`). ``match_threshold``
-    None: the site threshold in the model config (``xcalib.oneshot.threshold``), else 0."""
+    None: the site threshold in the model config (``xcalib.oneshot.threshold``), else 0.
+    ``score_range`` / ``fill_value``: the model's."""
+    image, point_cloud, bboxes_2d, bboxes_3d = frame.image, frame.point_cloud, frame.bboxes_2d, frame.bboxes_3d
+    images, camera_per_det, box7, intrinsics = frame.images, frame.camera_per_det, frame.box7, frame.intrinsics
+    top_k, match_threshold, validate, assignment = options.top_k, options.match_threshold, options.validate, \
+        options.assignment
+    use_calibration, geometry, return_latency = options.use_calibration, options.geometry, options.return_latency
     if assignment not in ASSIGNMENTS:
         raise ValueError(f"assignment must be one of {ASSIGNMENTS}, got {assignment!r}")
     check_geometry_mode(geometry)

@@ -32,7 +32,8 @@ import torch
 from ..data.crops import CropConfig, FrameInputs, prepare_frame
 from ..protocol import WarningRegistry
 from ..types import DatasetFrame, Frame, MatchResult, as_frame
-from .host import assign, frame_match_args, run_match, validate_match_inputs  # torch-free, shared with ONNX Runtime
+from .host import (MatchInputs, MatchOptions, assign, frame_match_args, run_match,  # torch-free, shared with ONNX Runtime
+                   validate_match_inputs)
 from .domain import BOOTSTRAP_HINT
 from .fusion import FUSION_WEIGHT, GEO_EPS
 from ..errors import FormatError
@@ -296,10 +297,10 @@ class Matcher:
         never; ``intrinsics`` (``CameraIntrinsics`` or 3x3 K) help it, else they are searched.
         ``match_threshold`` None: the site's threshold (chosen label-free by ``xcalib bootstrap``,
         saved in the model config as ``match_threshold``), else 0."""
-        return run_match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k=top_k, match_threshold=match_threshold,
-                         validate=validate, assignment=assignment, images=images, camera_per_det=camera_per_det,
-                         return_latency=return_latency, intrinsics=intrinsics, geometry=geometry,
-                         use_calibration=use_calibration, box7=box7,
+        return run_match(self, MatchInputs(image, point_cloud, bboxes_2d, bboxes_3d, images, camera_per_det, box7,
+                                           intrinsics),
+                         MatchOptions(top_k, match_threshold, validate, assignment, use_calibration, geometry,
+                                      return_latency),
                          score_range=getattr(self.model, "score_range", (-1.0, 1.0)),
                          fill_value=getattr(self.model, "fill_value", None))
 

@@ -128,15 +128,16 @@ def write_site(out_dir, n_train: int, n_val: int, n_test: int, seed: int = 0, pr
     out = Path(out_dir)
     site = sample_site(seed, preset, **overrides)
     with claim_output(out, "output folder"), atomic_dir(out, overwrite=overwrite) as tmp:
-        _write_site_files(tmp, site, n_train, n_val, n_test, seed, progress, render_images, lidar, image_format)
+        counts = {"train": int(n_train), "val": int(n_val), "test": int(n_test)}
+        _write_site_files(tmp, site, counts, seed, progress, render_images, lidar, image_format)
     return out
 
 
-def _write_site_files(out: Path, site: Site, n_train: int, n_val: int, n_test: int, seed: int, progress,
-                      render_images: bool, lidar: bool, image_format: str) -> None:
+def _write_site_files(out: Path, site: Site, counts: dict[str, int], seed: int, progress, render_images: bool,
+                      lidar: bool, image_format: str) -> None:
+    """The caches and ``site.json`` of ``site`` in ``out``; ``counts``: frames per split (train, val, test)."""
     from ...io.hdf5 import CacheWriter
 
-    counts = {"train": int(n_train), "val": int(n_val), "test": int(n_test)}
     for split, n in counts.items():
         if n < 0:
             raise ValueError(f"write_site: n_{split} must be >= 0, got {n}")
