@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .boxshape import (YawFit, estimate_yaw_from_points, expand_by_scan_gap, fit_yaw_to_points,  # noqa: F401
-                       lidar_angular_step, shapes_from_points)
+from .boxshape import (YawFit, YawFitSettings, estimate_yaw_from_points, expand_by_scan_gap,  # noqa: F401
+                       fit_yaw_to_points, lidar_angular_step, shapes_from_points)
 
 __all__ = ["YawFit", "fit_yaw_to_points", "estimate_yaw_from_points", "lidar_angular_step", "expand_by_scan_gap",
            "outline_edge_term", "fit_outline", "OUTLINE_PRIOR", "OUTLINE_PARAMS",

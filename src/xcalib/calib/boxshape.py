@@ -9,11 +9,12 @@ is biased: 11.6 deg median error on the synthetic no-yaw sites against 0.2 deg f
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
-__all__ = ["YawFit", "fit_yaw_to_points", "estimate_yaw_from_points", "lidar_angular_step", "expand_by_scan_gap",
+__all__ = ["YawFit", "YawFitSettings", "fit_yaw_to_points", "estimate_yaw_from_points", "lidar_angular_step", "expand_by_scan_gap",
            "shapes_from_points"]
 
 # fixed, well-spread unit directions (Fibonacci sphere) for picking hull extremes
@@ -53,11 +54,30 @@ def _rect_cost(dx: np.ndarray, dy: np.ndarray, half_l: float, half_w: float, cos
     return (np.minimum(d, band_m) ** 2).sum(1)
 
 
-def fit_yaw_to_points(boxes7: np.ndarray, points: np.ndarray, *, min_points: int = 8,
-                      ground_clearance_m: float = 0.3, side_top: float = 0.7, band_m: float = 0.3, margin_m: float = 0.3,
-                      step_deg: float = 1.0, ambiguity_deg: float = 20.0, min_contrast: float = 1.5,
-                      min_aspect: float = 1.3) -> YawFit:
+@dataclass(frozen=True)
+class YawFitSettings:
+    """The settings of :func:`fit_yaw_to_points` (m, deg; see there): the fewest side points a fit
+    needs, which points count as the sides (``ground_clearance_m`` above the bottom up to
+    ``side_top`` of the height, within the half diagonal + ``margin_m``), the distance cap
+    ``band_m``, the heading grid ``step_deg``, and when a fit is ambiguous (``ambiguity_deg``,
+    ``min_contrast``, ``min_aspect``)."""
+
+    min_points: int = 8
+    ground_clearance_m: float = 0.3
+    side_top: float = 0.7
+    band_m: float = 0.3
+    margin_m: float = 0.3
+    step_deg: float = 1.0
+    ambiguity_deg: float = 20.0
+    min_contrast: float = 1.5
+    min_aspect: float = 1.3
+
+
+def fit_yaw_to_points(boxes7: np.ndarray, points: np.ndarray, settings: YawFitSettings | None = None,
+                      **changes: Any) -> YawFit:
     """Fit the yaw of each box7 [M,7] (LiDAR frame, m) to the LiDAR points [P,>=3] around it.
+    ``settings`` (default: :class:`YawFitSettings`) with ``changes`` (its field names, e.g.
+    ``min_points=5``) applied.
 
     The box keeps its centre and its size (x-y extent ``dx`` becomes the length along the fitted
     heading). A LiDAR sees the faces turned to it (an L or a single face), so the points lie on
@@ -68,6 +88,10 @@ def fit_yaw_to_points(boxes7: np.ndarray, points: np.ndarray, *, min_points: int
     the roof (roof returns fill the footprint and pull a side onto them; a car's greenhouse is
     inset from its footprint). Boxes with fewer than ``min_points`` such points keep their yaw.
     """
+    st = replace(settings or YawFitSettings(), **changes)
+    min_points, ground_clearance_m, side_top, band_m = st.min_points, st.ground_clearance_m, st.side_top, st.band_m
+    margin_m, step_deg, ambiguity_deg, min_contrast, min_aspect = st.margin_m, st.step_deg, st.ambiguity_deg, \
+        st.min_contrast, st.min_aspect
     b = np.asarray(boxes7, dtype=np.float64).copy()
     M = len(b)
     fitted, n_used = np.zeros(M, dtype=bool), np.zeros(M, dtype=np.int64)

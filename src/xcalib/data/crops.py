@@ -158,7 +158,7 @@ def crop_images(image: np.ndarray, bboxes_2d, crop_size: int = 32, *, keep_aspec
     scale = _image_float_scale(image)
     fill = IMAGENET_MEAN / scale if normalize else np.zeros(3, np.float32)
     if image.dtype == np.uint8:
-        return _crop_uint8(image, win, dst, step, shrink, S, fill, scale, normalize), kept
+        return _crop_uint8(image, CropWindows(win, dst, step, shrink), S, fill, scale, normalize), kept
     out = np.empty((len(kept), S, S, 3), dtype=np.float32)
     out[:] = fill
     _cut_and_resize(image, out, win, dst, step, shrink)
@@ -193,11 +193,23 @@ def _cut_and_resize(image: np.ndarray, out: np.ndarray, win, dst, step, shrink) 
         out[n, v0:v1, u0:u1] = patch.reshape(v1 - v0, u1 - u0, 3)
 
 
-def _crop_uint8(image, win, dst, step, shrink, S: int, fill: np.ndarray, scale: float,
-                normalize: bool) -> np.ndarray:
+@dataclass(frozen=True)
+class CropWindows:
+    """Where each kept 2D box's crop comes from and goes (``_crop_windows``): the image window
+    ``win`` [n,4] and the crop window ``dst`` [n,4] (x0, y0, x1, y1 px), the subsampling ``step``
+    [n] and whether the patch shrinks (``shrink`` [n], area interpolation)."""
+
+    win: np.ndarray
+    dst: np.ndarray
+    step: np.ndarray
+    shrink: np.ndarray
+
+
+def _crop_uint8(image, windows: CropWindows, S: int, fill: np.ndarray, scale: float, normalize: bool) -> np.ndarray:
     """The crops of a uint8 image: resized in uint8 (as OpenCV does for uint8 input anyway),
     then every value mapped through its channel's table (exactly ``_normalized_chw`` of the
     value), the parts of a crop outside the image set to the normalised fill."""
+    win, dst, step, shrink = windows.win, windows.dst, windows.step, windows.shrink
     N = len(win)
     buf = np.empty((N, S, S, 3), dtype=np.uint8)
     _cut_and_resize(image, buf, win, dst, step, shrink)

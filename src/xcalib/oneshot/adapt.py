@@ -28,7 +28,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
@@ -300,15 +300,16 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
         gains = gains[:1]
     tr_obs, tr_t = [observations[k] for k in tr], [targets[k] for k in tr]
     best: tuple | None = None  # (key, trial index, state, losses, gain)
+    plan = _TrainPlan(steps=steps, n_points=n_points, device=device, lr=lr, frames_per_batch=frames_per_batch,
+                      anchor=anchor, grad_clip=grad_clip, seed=seed, augment=augment, p_augment=p_augment,
+                      box_weight=box_weight)
     for k, g in enumerate(gains):
         if k:
             model.load_state_dict(start)
         gain = old_gain if g is None else g
         if can_gain and gain is not None:
             model.set_box_gain(float(gain), rescale=False)
-        losses = _train(model, named, tr_obs, tr_t, steps=steps, n_points=n_points, device=device, lr=lr,
-                        frames_per_batch=frames_per_batch, anchor=anchor, grad_clip=grad_clip, seed=seed,
-                        augment=augment, p_augment=p_augment, box_weight=box_weight,
+        losses = _train(model, named, tr_obs, tr_t, plan,
                         progress=None if progress is None else
                         (lambda i, n, v, k=k: progress(k * steps + i, len(gains) * steps, v)))
         trial = GainTrial(box_gain=float("nan") if gain is None else float(gain),
@@ -360,11 +361,31 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
     return rep
 
 
-def _train(model, named, observations, targets, *, steps, n_points, device, lr, frames_per_batch, anchor,
-           grad_clip, seed, augment, p_augment, box_weight, progress) -> list[float]:
-    """``steps`` Adam steps (:func:`xcalib.engine.fit.fit`, cosine decay to 5% of ``lr``) on
+@dataclass(frozen=True)
+class _TrainPlan:
+    """The settings of one adaptation run (``adapt_model`` documents each)."""
+
+    steps: int
+    n_points: int
+    device: Any
+    lr: float
+    frames_per_batch: int
+    anchor: float
+    grad_clip: float
+    seed: int
+    augment: Any
+    p_augment: float
+    box_weight: float
+
+
+def _train(model, named, observations, targets, plan: _TrainPlan, *, progress) -> list[float]:
+    """``plan.steps`` Adam steps (:func:`xcalib.engine.fit.fit`, cosine decay to 5% of ``lr``) on
     ``named`` parameters (the rest frozen, model in eval mode); the batches and augmentations
-    depend on ``seed`` only. Returns the per-step losses."""
+    depend on ``plan.seed`` only. Returns the per-step losses."""
+    steps, n_points, device, lr, frames_per_batch = plan.steps, plan.n_points, plan.device, plan.lr, \
+        plan.frames_per_batch
+    anchor, grad_clip, seed, augment, p_augment, box_weight = plan.anchor, plan.grad_clip, plan.seed, plan.augment, \
+        plan.p_augment, plan.box_weight
     from ..models.inputs import ModelBatch
 
     anchors = [p.detach().clone() for _, p in named]
