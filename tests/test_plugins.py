@@ -105,15 +105,24 @@ def test_a_broken_plugin_is_reported_by_name_and_the_rest_still_loads(tmp_path):
 
         [xcalib.sources]
         ghostsrc = no_such_source_module
+
+        [xcalib.cost_terms]
+        ghostterm = no_such_term_module:factory
+
+        [xcalib.formats]
+        ghostfmt = nohook_cmd:X
     """)
     run = _run(root, """
         import warnings
         warnings.simplefilter("always")
         from xcalib.cli import COMMANDS
         from xcalib.io.sources import frame_sources
+        from xcalib.calib.terms import cost_terms
+        from xcalib.formats.export import calib_formats
         from xcalib.plugins import plugin_errors
         print("commands", sorted(COMMANDS))
         print("sources", sorted(s.name for s in frame_sources()))
+        print("terms", sorted(cost_terms()), "formats", sorted(calib_formats()))
         print("errors", sorted(plugin_errors()))
     """)
     assert run.returncode == 0, run.stderr
@@ -122,6 +131,9 @@ def test_a_broken_plugin_is_reported_by_name_and_the_rest_still_loads(tmp_path):
     assert "'ghostsrc'" in run.stderr
     assert "'calibrate'" in run.stdout and "'bag'" in run.stdout  # the built-ins still load
     assert "xcalib.commands:ghost" in run.stdout and "xcalib.sources:ghostsrc" in run.stdout
+    assert "xcalib.cost_terms:ghostterm" in run.stdout and "'pose_prior'" in run.stdout  # reported; built-ins kept
+    assert "'ghostfmt'" in run.stderr and "not a xcalib.formats.export.CalibFormat" in run.stderr
+    assert "'kitti'" in run.stdout and "'ghostfmt'" not in run.stdout
 
 
 COST_TERM = textwrap.dedent('''
@@ -190,12 +202,15 @@ def test_a_third_party_cost_term_is_named_in_the_config_and_every_stage_uses_it(
             CalibConfig(cost_terms=("camera_heigth",))
         except ValueError as exc:
             print("typo", exc)
+        from xcalib.cli import main
+        print("cli rc", main(["calibrate", ".", "--cost-term", "camera_height:height_mm=1"]))
     """)
     assert run.returncode == 0, run.stderr
     assert "calibrated True camera_height" in run.stdout
     pulled = run.stdout.split("pulled ")[1].split()
     assert abs(float(pulled[0]) - 0.3) < 0.02 and pulled[1] == "True"
     assert "no cost term named 'camera_heigth'" in run.stdout and "camera_height" in run.stdout.split("typo")[1]
+    assert "cli rc 2" in run.stdout and "height_mm" in run.stderr  # the command line names the bad option
     stages = log.read_text()
     for stage in ("refine_pose", "_focal_agrees", "_refit", "_scores", "fit_outline", "_time_fit", "_pp_fit"):
         assert stage in stages, stage  # refinement, self-calibration, uncertainty, misfit refits

@@ -77,6 +77,10 @@ def register(app: typer.Typer) -> None:
                                                             "the source has; see `xcalib detect`."),
         detector_2d: Path = typer.Option(None, "--detector-2d", help="With --detect: your ONNX 2D detector."),
         lidar_mode: str = typer.Option("auto", "--lidar-mode", help="With --detect: auto | static | moving."),
+        cost_term: list[str] = typer.Option(None, "--cost-term",
+                                            help="An extra cost term for every fit: NAME or NAME:KEY=VALUE,... "
+                                                 "(repeat), registered in the xcalib.cost_terms entry-point group "
+                                                 "(built in: pose_prior; see docs/contributing.md)."),
     ) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -91,9 +95,10 @@ def register(app: typer.Typer) -> None:
         from ..viz.site_report import site_table, write_site_report
 
         try:
-            selfcal = CalibConfig(refine_intrinsics=refine_intrinsics, time_offset=time_offset)
+            selfcal = CalibConfig(refine_intrinsics=refine_intrinsics, time_offset=time_offset,
+                                  cost_terms=tuple(cost_term or ()))
         except ValueError as exc:
-            raise typer.BadParameter(str(exc), param_hint="--refine-intrinsics / --time-offset") from None
+            raise typer.BadParameter(str(exc), param_hint="--refine-intrinsics / --time-offset / --cost-term") from None
         if lidar_frame is not None and not is_frame_id(lidar_frame):
             raise typer.BadParameter(f"{lidar_frame!r} is not a tf frame name (letters, digits, _ . / -)",
                                      param_hint="--lidar-frame")
