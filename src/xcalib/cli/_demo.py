@@ -165,11 +165,21 @@ def pair_accuracy(result, frames: list) -> tuple[float, float]:
     return (n_ok / n_pred if n_pred else float("nan")), (n_ok / n_true if n_true else float("nan"))
 
 
+@dataclass(frozen=True)
+class ReportStyle:
+    """How a demo calibration's report looks: its ``title``, ``extra`` rows (label -> value) and
+    how many frames it draws (``max_frames``)."""
+
+    title: str = "xcalib calibration"
+    extra: dict | None = None
+    max_frames: int = 4
+
+
 def calibrate_frames(frames: list, intrinsics, out_dir: Path, *, truth=None, matcher=None, matches=None,
-                     title: str = "xcalib calibration", extra: dict | None = None,
-                     progress: Optional[Callable[[str, int, int], None]] = None,
-                     max_frames: int = 4) -> CalibrationOutcome:
+                     style: ReportStyle = ReportStyle(),
+                     progress: Optional[Callable[[str, int, int], None]] = None) -> CalibrationOutcome:
     """``xcalib.calibrate(frames, intrinsics)`` (no labels, no prior), save it and write the report."""
+    title, extra, max_frames = style.title, style.extra, style.max_frames
     from ..calib.api import calibrate
     from ..viz.report import write_calibration_report
 

@@ -204,9 +204,10 @@ def register(app: typer.Typer) -> None:
             syn = _demo.calibrate_frames(
                 data.frames, site.intrinsics, out / "synthetic", truth=data.truth,
                 matcher=mo.matcher if seed_with_matcher else None,
-                matches=mo.results or None, title=f"xcalib demo: synthetic roadside site {site_seed} (traffic seed {seed})",
-                extra=({"matcher": f"{mo.model} ({weights or 'shipped weights'})", "matcher Top-1": mo.top1,
-                        "matcher Top-3": mo.top3, "matcher MRR": mo.mrr} if mo.ok else None),
+                matches=mo.results or None, style=_demo.ReportStyle(
+                    title=f"xcalib demo: synthetic roadside site {site_seed} (traffic seed {seed})",
+                    extra=({"matcher": f"{mo.model} ({weights or 'shipped weights'})", "matcher Top-1": mo.top1,
+                            "matcher Top-3": mo.top3, "matcher MRR": mo.mrr} if mo.ok else None)),
                 progress=stage)
             summary["calibrations"] = {"synthetic": syn.to_dict()}
             # 4. real frames
@@ -223,9 +224,10 @@ def register(app: typer.Typer) -> None:
                         frames.append(fr)
                         cb(k + 1, len(seq))
                     intr = getattr(seq, "intrinsics", None)
-                    real_out = _demo.calibrate_frames(frames, intr, out / real_dir.name,
-                                                      title=f"xcalib demo: real frames {real_dir.name}",
-                                                      progress=stage, max_frames=3)
+                    real_out = _demo.calibrate_frames(
+                        frames, intr, out / real_dir.name,
+                        style=_demo.ReportStyle(title=f"xcalib demo: real frames {real_dir.name}", max_frames=3),
+                        progress=stage)
                     summary["calibrations"][real_dir.name] = real_out.to_dict()
                     if mo.matcher is not None and real_out.result is not None and real_out.result.success:
                         agree, n_cmp = _demo.matcher_agreement(mo.matcher, frames, real_out.result)
