@@ -4,7 +4,7 @@ field; writers build messages of a given rosbags typestore."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -12,7 +12,7 @@ from ...errors import FormatError
 from ...geometry.camera import CameraIntrinsics
 from ..images import decode_image, encode_image
 
-__all__ = ["cloud_from_msg", "make_pointcloud2", "image_from_msg", "make_image", "make_compressed",
+__all__ = ["cloud_from_msg", "make_pointcloud2", "CloudLayout", "image_from_msg", "make_image", "make_compressed",
            "intrinsics_from_msg", "camera_model_from_msg", "Fisheye", "make_camera_info", "boxes2d_from_msg", "make_detection2d_array",
            "boxes3d_from_msg", "make_detection3d_array", "transforms_from_msg", "make_tf_message",
            "make_header", "stamp_ns"]
@@ -145,10 +145,25 @@ def cloud_from_msg(msg, where) -> tuple[np.ndarray, tuple[str, ...], int]:
     return np.ascontiguousarray(pts), tuple(names), int((~finite).sum())
 
 
-def make_pointcloud2(store, points, fields, stamp: int, frame_id: str, *, datatypes=None, big_endian: bool = False,
-                     height: int = 1, point_padding: int = 0, row_padding: int = 0):
-    """A PointCloud2 of ``points`` [N, C] (fields named ``fields``; ``datatypes`` numpy codes per
-    field, default float32); ``height`` > 1 makes an organised cloud (N divisible by height)."""
+@dataclass(frozen=True)
+class CloudLayout:
+    """How a PointCloud2 lays out its points: ``datatypes`` (numpy codes per field; None: float32),
+    byte order, ``height`` (> 1: an organised cloud), padding bytes after each point and each row."""
+
+    datatypes: tuple | list | None = None
+    big_endian: bool = False
+    height: int = 1
+    point_padding: int = 0
+    row_padding: int = 0
+
+
+def make_pointcloud2(store, points, fields, stamp: int, frame_id: str, layout: CloudLayout | None = None, **changes):
+    """A PointCloud2 of ``points`` [N, C] (fields named ``fields``) laid out as ``layout`` (default:
+    :class:`CloudLayout`) with ``changes`` (its field names, e.g. ``height=4``) applied; an
+    organised cloud needs N divisible by its height."""
+    lay = replace(layout or CloudLayout(), **changes)
+    datatypes, big_endian, height, point_padding, row_padding = lay.datatypes, lay.big_endian, lay.height, \
+        lay.point_padding, lay.row_padding
     pts = np.asarray(points)
     codes = list(datatypes or ["f4"] * pts.shape[1])
     endian = ">" if big_endian else "<"
