@@ -9,7 +9,9 @@ chooses, in time linear in the frames (plus a sort), the frames that cover those
 1. **Objects.** Each 3D box gets an object id: the frames' ``track_ids_3d`` where every frame
    has them, else boxes of consecutive frames are associated by 3D position (greedy nearest
    neighbour under a gate that grows with the time since the track was last seen, with a
-   constant-velocity prediction; a track survives ``MAX_GAP_S`` of misses), in the world frame
+   constant-velocity prediction; a track survives ``MAX_GAP_S`` of misses, one seen once
+   ``FIRST_GAP_S``; where most boxes are in tracks of ``MIN_TRACK_FRAMES`` frames, a box in
+   none is clutter and belongs to no object), in the world frame
    when every frame carries its ego pose (``meta["T_world_lidar"]``), else in the LiDAR frame.
 2. **What a frame shows**, as keys with a weight and a decay per repeat: each object (high
    weight, steep decay: one observation of every object first), each object at a place (3 m
@@ -43,6 +45,8 @@ __all__ = ["FrameBoxes", "FrameSelection", "frame_boxes", "scan_frames", "associ
 MAX_GAP_S = 1.0
 #: frame period assumed when frames carry no LiDAR timestamps (s)
 DEFAULT_DT_S = 0.1
+#: a track seen once (no velocity yet) is continued only this soon (s): clutter does not chain up
+FIRST_GAP_S = 0.25
 #: association gate (m): GATE_M + speed x time since the track was last seen
 GATE_M = 1.0
 #: speed (m/s) allowed for a track seen once (its velocity is not known yet) / for the error of a
@@ -176,7 +180,7 @@ def associate_objects(boxes: Sequence[FrameBoxes]) -> tuple[list[np.ndarray], in
     last_t, seen, tid = np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64)
     out, n = [], 0
     for k, c in enumerate(centres):
-        alive = times[k] - last_t <= MAX_GAP_S + 1e-9
+        alive = times[k] - last_t <= np.where(seen > 1, MAX_GAP_S, FIRST_GAP_S) + 1e-9
         pos, vel, last_t, seen, tid = pos[alive], vel[alive], last_t[alive], seen[alive], tid[alive]
         ids = np.full(len(c), -1, np.int64)
         if len(c) and len(pos):
