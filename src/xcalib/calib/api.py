@@ -2,6 +2,8 @@
 
 One static rig, one pose for all frames. ``calibrate`` is a composition of the stages:
 
+0. frame selection (``selection``): a recording longer than ``CalibConfig.max_frames`` is reduced
+   to its informative frames (distinct objects, places, depths, bearings), linear in the frames;
 1. inputs (``inputs.prepare_frames``; yaw re-estimated for yaw-less 3D boxes) and
    ``decision.precheck``;
 2. bring-up (``bringup.pose_hypotheses``) -- or the ``prior`` pose;
@@ -455,7 +457,10 @@ def calibrate(frames, intrinsics=None, config: CalibConfig | None = None, *args,
 
     Args:
         frames: ``xcalib.types.Frame``s or (image, point_cloud, bboxes_2d, bboxes_3d) tuples
-            (LiDAR frame, metres; pixels). The reference's single-frame form
+            (LiDAR frame, metres; pixels): a list, an iterable, or an indexable sequence read
+            lazily (only the frames used are kept). More than ``config.max_frames`` frames: the
+            informative ones are used (``selection``; ``diagnostics.selection`` says which and
+            how many objects; ``pairs`` still has one entry per given frame). The reference's single-frame form
             ``calibrate(image, point_cloud, bboxes_2d, bboxes_3d, intrinsics)`` is accepted too.
         intrinsics: ``CameraIntrinsics`` / 3x3 K (None: taken from the frames).
         config: :class:`CalibConfig` (None: the defaults). The older keyword arguments
