@@ -158,3 +158,17 @@ def test_config_max_frames_is_checked():
         with pytest.raises(ValueError, match="max_frames"):
             CalibConfig(max_frames=bad)
     assert CalibConfig.from_dict({**CalibConfig().to_dict(), "max_frames": None}).max_frames is None
+
+
+def test_with_a_time_offset_each_chosen_frame_comes_with_its_successor():
+    from xcalib.calib.api import _selected_frames
+
+    frames, _ = sim_frames(seed=4, n_frames=60, n_objects=(3, 6))
+    for k, f in enumerate(frames):
+        f.lidar_time_s, f.track_ids_3d = 0.1 * k, np.arange(len(f.bboxes_3d)) + 10 * k
+    used, sel = _selected_frames(frames, INTR, CalibConfig(max_frames=20, time_offset="auto"), None)
+    idx = sel.indices
+    assert len(used) == len(idx) <= 20 and sel.max_frames == 20
+    assert all(i + 1 in idx or i - 1 in idx for i in idx)  # pairs of consecutive frames
+    used, sel = _selected_frames(frames, INTR, CalibConfig(max_frames=20), None)
+    assert sel.n_used == 20
