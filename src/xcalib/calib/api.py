@@ -498,6 +498,8 @@ def _selected_frames(frames, intrinsics, config: CalibConfig, progress: Progress
     and the selection. An indexable sequence (a recording read lazily) is read one frame at a time
     and only the chosen frames are kept; anything else is listed first."""
     seq = frames if _indexable(frames) else list(frames)
+    if not isinstance(seq, list) and (config.max_frames is None or len(seq) <= config.max_frames):
+        seq = [seq[i] for i in range(len(seq))]  # every frame is used: read each once
     if len(seq) == 0:
         raise ValueError("frames: expected at least one frame, got an empty sequence")
     size = (getattr(intrinsics, "width", None), getattr(intrinsics, "height", None))
@@ -512,7 +514,7 @@ def _selected_frames(frames, intrinsics, config: CalibConfig, progress: Progress
         sel = dataclasses.replace(sel, indices=idx, max_frames=config.max_frames)
     if sel.all_used:
         return (seq if isinstance(seq, list) else [seq[i] for i in range(len(seq))]), sel
-    return [seq[int(i)] for i in sel.indices], sel
+    return [seq[int(i)] for i in sel.indices], sel  # a lazy sequence: only the chosen frames read again
 
 
 def _with_selection(res: CalibrationResult, sel: FrameSelection) -> CalibrationResult:
