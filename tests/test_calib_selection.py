@@ -135,19 +135,19 @@ def test_recording_calibrates_from_the_chosen_frames_and_says_so():
                              size_noise_frac=0.0, yaw_noise_deg=0.0)
     lazy = _Lazy(frames)
     stages = []
-    res = calibrate(lazy, site.intrinsics, CalibConfig(max_frames=30, workers=1),
+    res = calibrate(lazy, site.intrinsics, CalibConfig(max_frames=24, workers=1),
                     progress=lambda s, d, t: stages.append((s, d, t)))
     assert res.success, res.message
     rot, trans = res.pose_error(site.T_cam_lidar)
     assert rot < 0.1 and trans < 0.1
     s = res.diagnostics.selection
-    assert (s.n_frames_given, s.n_frames_used, s.object_identity) == (300, 30, "tracks")
-    assert s.n_objects > 30 and s.n_objects_used == s.n_objects  # every object of the recording is used
-    assert len(s.used_indices) == 30 and lazy.reads == 300 + 30  # scanned once, the chosen read again
+    assert (s.n_frames_given, s.n_frames_used, s.object_identity) == (300, 24, "tracks")
+    assert s.n_objects > 24 and s.n_objects_used == s.n_objects  # every object of the recording is used
+    assert len(s.used_indices) == 24 and lazy.reads == 300 + 24  # scanned once, the chosen read again
     assert ("frames", 300, 300) in stages  # the progress bar over the frames
     # pairs line up with the given frames; frames not used have none
     assert len(res.pairs) == 300 and sum(len(res.pairs[i]) for i in s.used_indices) == res.n_pairs
-    assert "30 of 300 used" in res.summary() and f"{s.n_objects} of {s.n_objects} distinct objects" in res.summary()
+    assert "24 of 300 used" in res.summary() and f"{s.n_objects} of {s.n_objects} distinct objects" in res.summary()
     d = CalibDiagnostics.from_dict(res.diagnostics.to_dict())
     assert d.selection == s
 
