@@ -110,6 +110,12 @@ def test_frame_boxes_reads_frames_and_tuples_and_names_bad_input():
     assert t.track_ids is None and np.allclose(t.centres_3d, fb.centres_3d)
     with pytest.raises(ValueError, match=r"frames\[4\].bboxes_3d"):
         frame_boxes((f.image, f.point_cloud, f.bboxes_2d, np.zeros((3, 5))), 4)
+    bad = np.asarray(f.bboxes_3d, dtype=float).copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(ValueError, match=r"frames\[2\].bboxes_3d: NaN"):
+        frame_boxes((f.image, f.point_cloud, f.bboxes_2d, bad), 2)
+    with pytest.raises(TypeError, match=r"frames\[3\]"):
+        frame_boxes("not a frame", 3)
 
 
 class _Lazy:

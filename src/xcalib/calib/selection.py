@@ -136,14 +136,15 @@ def frame_boxes(item: Any, i: int, size: tuple[int, int] | None = None) -> Frame
     b3 = check_boxes3d(b3, f"frames[{i}].bboxes_3d")
     ok2 = np.all(np.isfinite(b2), axis=1) & (b2[:, 2] > b2[:, 0]) & (b2[:, 3] > b2[:, 1])
     b2 = b2[ok2]
+    if not np.all(np.isfinite(b3)):
+        raise ValueError(f"frames[{i}].bboxes_3d: NaN/Inf values")
     c3 = as_box7(b3)[:, :3] if len(b3) else np.zeros((0, 3))
-    ok3 = np.all(np.isfinite(c3), axis=1)
     if ids is not None:
         ids = np.asarray(ids).reshape(-1)
-        ids = ids[ok3].astype(np.int64) if len(ids) == len(c3) else None
+        ids = ids.astype(np.int64) if len(ids) == len(c3) else None
     T = meta.get("T_world_lidar")
     T = None if T is None or np.shape(T) != (4, 4) else np.asarray(T, dtype=np.float64)
-    return FrameBoxes(c3[ok3], ids, np.column_stack([(b2[:, 0] + b2[:, 2]) / 2, (b2[:, 1] + b2[:, 3]) / 2]),
+    return FrameBoxes(c3, ids, np.column_stack([(b2[:, 0] + b2[:, 2]) / 2, (b2[:, 1] + b2[:, 3]) / 2]),
                       b2[:, 3] - b2[:, 1], _size_of(image, meta, size),
                       None if t is None or not np.isfinite(t) else float(t), T)
 
