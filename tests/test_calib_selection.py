@@ -94,11 +94,15 @@ def test_moving_objects_are_tracked_by_position_and_clutter_is_no_object():
     for k in range(200):
         c = [[-30.0 + 1.2 * k, 2.0, 0.8], [50.0 - 1.5 * k, -2.0, 0.8]]  # two cars passing, 12 and 15 m/s
         c = [x for x in c if rng.random() > 0.15]  # 15 % misses
-        c += [[rng.uniform(-60, 60), rng.uniform(-60, 60), 0.8]]  # one random false box per frame
-        boxes.append(_fb(np.asarray(c) + rng.normal(0, 0.1, (len(c), 3)), t=0.1 * k))
+        if k % 8 == 0:  # a random false box now and then (6 % of the boxes)
+            c += [[rng.uniform(-60, 60), rng.uniform(-60, 60), 0.8]]
+        boxes.append(_fb(np.asarray(c, dtype=float).reshape(-1, 3) + rng.normal(0, 0.1, (len(c), 3)), t=0.1 * k))
     ids, n, _ = associate_objects(boxes)
     assert n == 2
-    assert sum(int(np.sum(i < 0)) for i in ids) >= 190  # the false boxes belong to no object
+    assert sum(int(np.sum(i < 0)) for i in ids) >= 24  # the false boxes (25) belong to no object
+    # frames far apart in time (no tracks): every box is an object of its own, none is clutter
+    sparse = [_fb([[10.0 * k, 0.0, 0.8], [-5.0, 10.0 * k, 0.8]], t=1.0 * k) for k in range(20)]
+    assert associate_objects(sparse)[1] == 40
 
 
 def test_frame_boxes_reads_frames_and_tuples_and_names_bad_input():

@@ -10,8 +10,8 @@ chooses, in time linear in the frames (plus a sort), the frames that cover those
    has them, else boxes of consecutive frames are associated by 3D position (greedy nearest
    neighbour under a gate that grows with the time since the track was last seen, with a
    constant-velocity prediction; a track survives ``MAX_GAP_S`` of misses, one seen once
-   ``FIRST_GAP_S``; where most boxes are in tracks of ``MIN_TRACK_FRAMES`` frames, a box in
-   none is clutter and belongs to no object), in the world frame
+   ``FIRST_GAP_S``; where few boxes (``CLUTTER_SHARE``) are in tracks shorter than
+   ``MIN_TRACK_FRAMES`` frames, those are clutter and belong to no object), in the world frame
    when every frame carries its ego pose (``meta["T_world_lidar"]``), else in the LiDAR frame.
 2. **What a frame shows**, as keys with a weight and a decay per repeat: each object (high
    weight, steep decay: one observation of every object first), each object at a place (3 m
@@ -52,8 +52,9 @@ GATE_M = 1.0
 #: speed (m/s) allowed for a track seen once (its velocity is not known yet) / for the error of a
 #: constant-velocity prediction of a track seen twice or more
 FIRST_SPEED_MPS, PREDICTION_MPS = 15.0, 5.0
-#: fewest frames of a track by position that make an object (where most boxes are in such tracks)
-MIN_TRACK_FRAMES = 3
+#: fewest frames of a track by position that make an object, where the boxes in shorter tracks
+#: are at most CLUTTER_SHARE of all boxes (else every track is an object)
+MIN_TRACK_FRAMES, CLUTTER_SHARE = 3, 0.1
 #: size of the place cells (m) of an object's position
 PLACE_CELL_M = 3.0
 _RANGE_EDGES = np.array([8.0, 15.0, 25.0, 40.0, 60.0])
@@ -166,7 +167,7 @@ def associate_objects(boxes: Sequence[FrameBoxes]) -> tuple[list[np.ndarray], in
     """(per frame [M] object ids 0..N-1 or -1, N, identity): the frames' track ids when every
     frame has them (a box with track id -1 belongs to no object: -1, not counted), else an
     association of the 3D boxes by position over consecutive frames (see the module doc; where
-    most boxes continue over frames, a box seen in one frame only is clutter: -1)."""
+    few boxes are in short tracks, those are clutter: -1)."""
     if not boxes or sum(len(b.centres_3d) for b in boxes) == 0:
         return [np.zeros(0, np.int64) for _ in boxes], 0, "none"
     if all(b.track_ids is not None for b in boxes):
@@ -205,11 +206,12 @@ def associate_objects(boxes: Sequence[FrameBoxes]) -> tuple[list[np.ndarray], in
         last_t = np.r_[last_t, np.full(len(new), times[k])]
         seen, tid = np.r_[seen, np.ones(len(new), np.int64)], np.r_[tid, ids[new]]
         out.append(ids)
-    # a box that no track of MIN_TRACK_FRAMES continues is clutter (a false detection) where most
-    # boxes belong to such tracks; in a recording too sparse in time for tracks, every box is an
-    # object of its own
+    # boxes in tracks shorter than MIN_TRACK_FRAMES are clutter (false detections) where they are
+    # few (at most CLUTTER_SHARE of the boxes: a detector's false-positive rate); where they are
+    # many, the frames are too far apart in time for tracks (A9's 16 frames: 21 % of the boxes)
+    # and each is an object of its own
     life = np.bincount(np.concatenate(out), minlength=n)
-    if np.sum(life[life >= MIN_TRACK_FRAMES]) >= 0.5 * np.sum(life):
+    if np.sum(life[life < MIN_TRACK_FRAMES]) <= CLUTTER_SHARE * np.sum(life):
         keep = life >= MIN_TRACK_FRAMES
         dense = np.where(keep, np.cumsum(keep) - 1, -1)
         out, n = [dense[o] for o in out], int(np.sum(keep))
