@@ -182,3 +182,12 @@ def test_with_a_time_offset_each_chosen_frame_comes_with_its_successor():
     assert all(i + 1 in idx or i - 1 in idx for i in idx)  # pairs of consecutive frames
     used, sel = _selected_frames(frames, INTR, CalibConfig(max_frames=20), None)
     assert sel.n_used == 20
+
+
+def test_a_mix_of_cameras_is_refused_with_selection_as_without():
+    frames, _ = sim_frames(seed=5, n_frames=40, n_objects=(3, 6))
+    for k, f in enumerate(frames):
+        f.camera_name = "front" if k != 33 else "rear"  # one frame of another camera
+    res = calibrate(frames, INTR, CalibConfig(max_frames=8, workers=1))
+    assert not res.success and res.diagnostics.refusal == "mixed_cameras"
+    assert 33 in res.diagnostics.selection.used_indices

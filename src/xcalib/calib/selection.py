@@ -20,7 +20,8 @@ chooses, in time linear in the frames (plus a sort), the frames that cover those
    recording (a spread in time).
 3. **Greedy coverage** (lazy, with a heap): the frame whose keys add the most, until the budget
    or nothing adds. Frames without 2D or without 3D boxes add nothing. The chosen frames keep
-   their recording order.
+   their recording order. The first frame of every other camera (name or intrinsics) is kept too:
+   a mix of cameras is then refused as it is without selection.
 
 Below the budget nothing is chosen: every frame is used (the calibration is the same as without
 selection); the objects are still counted for the result. ``FrameSelection`` says how many
@@ -71,7 +72,8 @@ _DECAY = np.array([0.25, 0.5, 0.7, 0.7, 0.5])
 class FrameBoxes:
     """What selection reads of one frame: 3D box centres [M,3] (LiDAR frame), their track ids [M]
     (None: not given), 2D box centres [K,2] and heights [K] (px), image size (W, H) or None, LiDAR
-    time (s) or None, ego pose ``T_world_lidar`` [4,4] or None."""
+    time (s) or None, ego pose ``T_world_lidar`` [4,4] or None, the frame's camera name and
+    intrinsics (None: not given; frames of other cameras are kept, see :func:`select_frames`)."""
 
     centres_3d: np.ndarray
     track_ids: np.ndarray | None
@@ -80,6 +82,8 @@ class FrameBoxes:
     size: tuple[int, int] | None = None
     time_s: float | None = None
     T_world_lidar: np.ndarray | None = None
+    camera: str = ""
+    intrinsics: Any = None
 
 
 @dataclass(frozen=True)
@@ -127,9 +131,10 @@ def frame_boxes(item: Any, i: int, size: tuple[int, int] | None = None) -> Frame
         image, b2, b3 = getattr(item, "image", None), item.bboxes_2d, item.bboxes_3d
         ids, t = getattr(item, "track_ids_3d", None), getattr(item, "lidar_time_s", None)
         meta = dict(getattr(item, "meta", None) or {})
+        camera, intr = str(getattr(item, "camera_name", "") or ""), getattr(item, "intrinsics", None)
     elif isinstance(item, (tuple, list)) and len(item) == 4:
         image, _, b2, b3 = item
-        ids, t, meta = None, None, {}
+        ids, t, meta, camera, intr = None, None, {}, "", None
     else:
         raise TypeError(f"frames[{i}]: expected an xcalib.types.Frame or an (image, point_cloud, bboxes_2d, "
                         f"bboxes_3d) tuple, got {type(item).__name__}")
@@ -147,7 +152,7 @@ def frame_boxes(item: Any, i: int, size: tuple[int, int] | None = None) -> Frame
     T = None if T is None or np.shape(T) != (4, 4) else np.asarray(T, dtype=np.float64)
     return FrameBoxes(c3, ids, np.column_stack([(b2[:, 0] + b2[:, 2]) / 2, (b2[:, 1] + b2[:, 3]) / 2]),
                       b2[:, 3] - b2[:, 1], _size_of(image, meta, size),
-                      None if t is None or not np.isfinite(t) else float(t), T)
+                      None if t is None or not np.isfinite(t) else float(t), T, camera, intr)
 
 
 def _times(boxes: Sequence[FrameBoxes]) -> np.ndarray:
@@ -281,6 +286,29 @@ def _greedy(frame_of: np.ndarray, codes: np.ndarray, n_frames: int, budget: int)
     return np.sort(np.asarray(chosen, dtype=np.int64))
 
 
+def _other_cameras(boxes: Sequence[FrameBoxes]) -> np.ndarray:
+    """The first frame of each camera (name, or intrinsics) other than the first frame's: kept
+    beside the chosen ones, so that a mix of cameras is still refused as one (``prepare_frames``)."""
+    seen_cam, seen_intr, out = set(), [], []
+    for k, b in enumerate(boxes):
+        new = bool(b.camera) and b.camera not in seen_cam
+        if b.intrinsics is not None and not any(b.intrinsics is x or _same(b.intrinsics, x) for x in seen_intr):
+            seen_intr.append(b.intrinsics)
+            new = True
+        if b.camera:
+            seen_cam.add(b.camera)
+        if new and k > 0 and (len(seen_cam) > 1 or len(seen_intr) > 1):
+            out.append(k)
+    return np.asarray(out, dtype=np.int64)
+
+
+def _same(a, b) -> bool:
+    try:
+        return bool(a == b)
+    except Exception:  # noqa: BLE001 - arrays and the like: compare the values
+        return bool(np.array_equal(np.asarray(a), np.asarray(b)))
+
+
 def select_frames(boxes: Sequence[FrameBoxes], max_frames: int | None) -> FrameSelection:
     """Choose up to ``max_frames`` informative frames of ``boxes`` (one :class:`FrameBoxes` per
     frame; see the module doc). ``max_frames`` None or at least the frames: every frame."""
@@ -294,6 +322,7 @@ def select_frames(boxes: Sequence[FrameBoxes], max_frames: int | None) -> FrameS
     chosen = _greedy(frame_of, codes, F, int(max_frames))
     if len(chosen) == 0:  # nothing shows both sensors' boxes: keep the frames spread over the recording
         chosen = np.unique(np.linspace(0, F - 1, int(max_frames)).round().astype(np.int64))
+    chosen = np.union1d(chosen, _other_cameras(boxes))
     used = np.unique(np.concatenate([ids[i] for i in chosen])) if len(chosen) else np.zeros(0, np.int64)
     return FrameSelection(chosen, F, n_obj, int(np.sum(used >= 0)), identity, max_frames, time.perf_counter() - t0)
 
