@@ -136,7 +136,7 @@ class _Lazy:
         return self.frames[i]
 
 
-def test_recording_calibrates_from_the_chosen_frames_and_says_so():
+def test_recording_calibrates_from_the_chosen_frames_and_says_so(tmp_path):
     from xcalib.data.synth import generate_frames, sample_site
 
     site = sample_site(0, preset="roadside")
@@ -160,6 +160,16 @@ def test_recording_calibrates_from_the_chosen_frames_and_says_so():
     assert "24 of 300 used" in res.summary() and f"{s.n_objects} of {s.n_objects} distinct objects" in res.summary()
     d = CalibDiagnostics.from_dict(res.diagnostics.to_dict())
     assert d.selection == s
+    # the report's frame table and overlays are of the used frames
+    from xcalib.calib.report import write_report
+
+    paths = write_report(res, frames, tmp_path, max_overlays=2, bringup_overlays=False)
+    text = paths.summary.read_text()
+    assert "frames: 24 of 300 used" in text
+    used_keys = {frames[i].frame_key for i in s.used_indices}
+    rows = [ln.split()[0] for ln in text.splitlines() if ln.strip() and ln.split()[0] in {f.frame_key for f in frames}]
+    assert set(rows) == used_keys and len(rows) == 24
+    assert {p.stem for p in paths.overlays} <= used_keys and len(paths.overlays) == 2
 
 
 def test_config_max_frames_is_checked():
