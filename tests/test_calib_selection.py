@@ -201,3 +201,13 @@ def test_a_mix_of_cameras_is_refused_with_selection_as_without():
     res = calibrate(frames, INTR, CalibConfig(max_frames=8, workers=1))
     assert not res.success and res.diagnostics.refusal == "mixed_cameras"
     assert 33 in res.diagnostics.selection.used_indices
+
+
+@pytest.mark.parametrize("value", ["1", "-3"])
+def test_cli_max_frames_rejects_bad_values(tmp_path, capsys, value):
+    from xcalib.cli import main
+
+    rc = main(["calibrate", str(tmp_path / "none"), "--out", str(tmp_path / "c"), "--max-frames", value])
+    assert rc == 2 and not (tmp_path / "c").exists()
+    out = capsys.readouterr()
+    assert "max_frames" in out.err + out.out
