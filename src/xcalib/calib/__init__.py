@@ -8,7 +8,8 @@ Modules: ``config`` (settings), ``pose`` (the one pose type and parser), ``input
 (normalisation), ``boxmodel`` (yaw / point outlines), ``boxproj`` (batched projection),
 ``hypotheses`` + ``bringup`` (pose search without a guess), ``cost`` (the cost model and its
 terms), ``refine`` (matching + robust fit), ``uncertainty``, ``decision`` (the verdict, incl.
-model-misfit checks), ``diagnostics``, ``result``, ``matching``, ``report``, ``api``
+model-misfit checks), ``selection`` (the informative frames of a long recording),
+``diagnostics``, ``result``, ``matching``, ``report``, ``api``
 (``calibrate``: the composition). Heavy modules load lazily.
 """
 

@@ -2,6 +2,8 @@
 
 One static rig, one pose for all frames. ``calibrate`` is a composition of the stages:
 
+0. frame selection (``selection``): a recording longer than ``CalibConfig.max_frames`` is reduced
+   to its informative frames (distinct objects, places, depths, bearings), linear in the frames;
 1. inputs (``inputs.prepare_frames``; yaw re-estimated for yaw-less 3D boxes) and
    ``decision.precheck``;
 2. bring-up (``bringup.pose_hypotheses``) -- or the ``prior`` pose;
@@ -32,7 +34,7 @@ from .config import CalibConfig
 from .cost import Occlusion
 from .terms import CostSpec
 from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, matched_places, precheck, verdict
-from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSummary
+from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSelectionSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, lean_frames, prepare_frames, with_corner_outlines, with_point_outlines
 from .misfit import box_frame_check, flipped_frames, focal_fit, focal_scale_check, focal_width_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, time_shifted_frames, unexplained_frames_check
@@ -41,6 +43,7 @@ from .parallel import Deferred, Workers, parallel_map, resolve_workers
 from .pose import Pose
 from .refine import RefineResult, match_all, pair_metrics, refine_pose
 from .result import CalibrationResult
+from .selection import FrameSelection, scan_frames, select_frames
 from .selfcal import decide as decide_selfcal, wants_selfcal
 from .uncertainty import estimate as estimate_uncertainty
 
@@ -455,7 +458,10 @@ def calibrate(frames, intrinsics=None, config: CalibConfig | None = None, *args,
 
     Args:
         frames: ``xcalib.types.Frame``s or (image, point_cloud, bboxes_2d, bboxes_3d) tuples
-            (LiDAR frame, metres; pixels). The reference's single-frame form
+            (LiDAR frame, metres; pixels): a list, an iterable, or an indexable sequence read
+            lazily (only the frames used are kept). More than ``config.max_frames`` frames: the
+            informative ones are used (``selection``; ``diagnostics.selection`` says which and
+            how many objects; ``pairs`` still has one entry per given frame). The reference's single-frame form
             ``calibrate(image, point_cloud, bboxes_2d, bboxes_3d, intrinsics)`` is accepted too.
         intrinsics: ``CameraIntrinsics`` / 3x3 K (None: taken from the frames).
         config: :class:`CalibConfig` (None: the defaults). The older keyword arguments
@@ -479,8 +485,58 @@ def calibrate(frames, intrinsics=None, config: CalibConfig | None = None, *args,
     if config is not None and not isinstance(config, CalibConfig):
         raise TypeError(f"calibrate: config must be a CalibConfig, got {type(config).__name__}")
     config = CalibConfig.from_kwargs(config, **legacy_kwargs) if legacy_kwargs else (config or CalibConfig())
-    frames_in = list(frames)
     prior_pose = None if prior is None else Pose.parse(prior, "prior")
+    frames_in, selection = _selected_frames(frames, intrinsics, config, progress)
+    return _with_selection(_calibrate_retry(frames_in, intrinsics, config, matcher, prior_pose, progress), selection)
+
+
+def _indexable(frames) -> bool:
+    return hasattr(frames, "__len__") and hasattr(frames, "__getitem__") and not isinstance(frames, (dict, str))
+
+
+def _selected_frames(frames, intrinsics, config: CalibConfig, progress: Progress | None) -> tuple[list, FrameSelection]:
+    """The frames the calibration uses (``selection``: up to ``config.max_frames`` informative ones)
+    and the selection. An indexable sequence (a recording read lazily) is read one frame at a time
+    and only the chosen frames are kept; anything else is listed first."""
+    seq = frames if _indexable(frames) else list(frames)
+    if not isinstance(seq, list) and (config.max_frames is None or len(seq) <= config.max_frames):
+        seq = [seq[i] for i in range(len(seq))]  # every frame is used: read each once
+    if len(seq) == 0:
+        raise ValueError("frames: expected at least one frame, got an empty sequence")
+    size = (getattr(intrinsics, "width", None), getattr(intrinsics, "height", None))
+    boxes = scan_frames(seq, size if None not in size else None,
+                        progress if progress is not None and len(seq) > (config.max_frames or len(seq)) else None)
+    budget = config.max_frames
+    if budget is not None and config.time_offset is not None and len(seq) > budget:
+        budget = max(1, budget // 2)  # each chosen frame with its successor: object velocities from tracks
+    sel = select_frames(boxes, budget)
+    if budget != config.max_frames and not sel.all_used:
+        idx = np.unique(np.r_[sel.indices, np.minimum(sel.indices + 1, len(seq) - 1)])
+        sel = dataclasses.replace(sel, indices=idx, max_frames=config.max_frames)
+    if sel.all_used:
+        return (seq if isinstance(seq, list) else [seq[i] for i in range(len(seq))]), sel
+    return [seq[int(i)] for i in sel.indices], sel  # a lazy sequence: only the chosen frames read again
+
+
+def _with_selection(res: CalibrationResult, sel: FrameSelection) -> CalibrationResult:
+    """The selection in the result: ``diagnostics.selection``, and ``pairs`` one entry per *given*
+    frame (frames not used: none), so they line up with the caller's frames."""
+    if res.diagnostics is not None:
+        res.diagnostics.selection = FrameSelectionSummary(
+            n_frames_given=sel.n_given, n_frames_used=sel.n_used, n_objects=sel.n_objects,
+            n_objects_used=sel.n_objects_used, object_identity=sel.identity, max_frames=sel.max_frames,
+            used_indices=[int(i) for i in sel.indices] if not sel.all_used else [], elapsed_s=sel.elapsed_s)
+    if not sel.all_used and len(res.pairs) == sel.n_used:
+        full = [np.zeros((0, 2), np.int64) for _ in range(sel.n_given)]
+        for j, i in enumerate(sel.indices):
+            full[int(i)] = res.pairs[j]
+        res.pairs = full
+    return res
+
+
+def _calibrate_retry(frames_in: list, intrinsics, config: CalibConfig, matcher, prior_pose: Pose | None,
+                     progress: Progress | None) -> CalibrationResult:
+    """``_calibrate``, and once more without ``max_baseline_m`` when that assumption may be what failed."""
     res = _calibrate(frames_in, intrinsics, config, matcher, prior_pose, progress)
     if not res.success and config.max_baseline_m is not None and prior_pose is None \
             and res.diagnostics.refusal not in ("mixed_cameras", "too_few_detections", "collinear_3d", "collinear_2d") \

@@ -8,6 +8,7 @@ onto it by :meth:`CalibConfig.from_kwargs`, which names any keyword it does not 
 from __future__ import annotations
 
 import dataclasses
+import operator
 from dataclasses import dataclass, fields
 from typing import Any, Literal, get_args
 
@@ -187,6 +188,11 @@ class CalibConfig:
             ``"name:key=value"`` or mapping): a term registered in the entry-point group
             ``xcalib.cost_terms`` (built in: ``pose_prior``; a plugin adds its own). Empty: the
             box-edge term alone.
+    Whole recordings:
+        max_frames: the most frames one calibration uses. A recording with more is reduced to
+            that many informative frames (``selection``: every distinct object first, then new
+            places, image cells, depths and bearings, spread over time); with fewer, every frame
+            is used (no selection). None: always every frame.
     Speed:
         workers: processes for the independent parts of one calibration (the quick refinement of
             each candidate, the mirrored-image and second-pose searches of the misfit checks):
@@ -219,6 +225,7 @@ class CalibConfig:
     occlusion_slope: float = 0.2
     cost_terms: tuple[TermSpec, ...] = ()
     workers: int | Literal["auto"] = "auto"
+    max_frames: int | None = 200
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -244,6 +251,14 @@ class CalibConfig:
         if not (self.workers == "auto" or (isinstance(self.workers, int) and not isinstance(self.workers, bool)
                                            and self.workers >= 1)):
             raise ValueError(f"CalibConfig.workers: expected 'auto' or an int >= 1, got {self.workers!r}")
+        if self.max_frames is not None:
+            try:
+                n = operator.index(self.max_frames)
+            except TypeError:
+                n = None
+            if n is None or isinstance(self.max_frames, bool) or n < 2:
+                raise ValueError(f"CalibConfig.max_frames: expected an int >= 2 or None, got {self.max_frames!r}")
+            object.__setattr__(self, "max_frames", int(n))
         if self.max_baseline_m is not None and not self.max_baseline_m > 0:
             raise ValueError(f"CalibConfig.max_baseline_m: expected > 0 or None, got {self.max_baseline_m}")
 

@@ -11,7 +11,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-__all__ = ["NoiseModel", "CandidateSummary", "FrameSummary", "MisfitCheck", "UncertaintyParts", "SelfCalDiagnostics",
+__all__ = ["NoiseModel", "CandidateSummary", "FrameSummary", "FrameSelectionSummary", "MisfitCheck", "UncertaintyParts", "SelfCalDiagnostics",
            "CalibDiagnostics"]
 
 
@@ -45,6 +45,23 @@ class FrameSummary:
     pairs: int
     px_median: float | None
     iou_median: float | None
+
+
+@dataclass
+class FrameSelectionSummary:
+    """Which frames of the recording the calibration used (``selection``): frames given and used,
+    distinct objects (3D tracks) in all frames and in the used ones, how objects were told apart
+    ("tracks" | "positions" | "none"), the budget (``CalibConfig.max_frames``), the used frames'
+    indices among those given, and the selection's time (s)."""
+
+    n_frames_given: int = 0
+    n_frames_used: int = 0
+    n_objects: int = 0
+    n_objects_used: int = 0
+    object_identity: str = ""
+    max_frames: int | None = None
+    used_indices: list[int] = field(default_factory=list)
+    elapsed_s: float = 0.0
 
 
 @dataclass
@@ -155,7 +172,8 @@ class CalibDiagnostics:
     box_fit: dict = field(default_factory=dict)  # the box observation model fitted to the data (``boxmodel.fit_outline``)
     refusal: str = ""                      # short code of the refusal reason ("" on success)
     refused_T: list | None = None          # [4,4] the refined pose that was refused (a failed result has none)
-    frames: list[FrameSummary] = field(default_factory=list)
+    frames: list[FrameSummary] = field(default_factory=list)  # the used frames (see ``selection``)
+    selection: FrameSelectionSummary = field(default_factory=FrameSelectionSummary)
     elapsed_s: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
@@ -175,6 +193,8 @@ class CalibDiagnostics:
         sc = {k: v for k, v in dict(d.get("selfcal") or {}).items() if k in {f.name for f in fields(SelfCalDiagnostics)}}
         d["selfcal"] = SelfCalDiagnostics(**sc)
         d["frames"] = [FrameSummary(**c) for c in d.get("frames", [])]
+        known = {f.name for f in fields(FrameSelectionSummary)}
+        d["selection"] = FrameSelectionSummary(**{k: v for k, v in dict(d.get("selection") or {}).items() if k in known})
         if d.get("score") is None:
             d["score"] = float("nan")
         return cls(**d)

@@ -47,6 +47,12 @@ def frame_table(result: CalibrationResult, frames: Sequence) -> list[dict]:
     """Per frame: key, 2D/3D counts, matched pairs, median edge residual (px) and IoU -- as the
     calibration computed them (``result.diagnostics.frames``), else recomputed at its pose."""
     diag = result.diagnostics
+    used = [] if diag is None else list(getattr(diag.selection, "used_indices", []) or [])
+    if used and len(diag.frames) == len(used) and max(used) < len(frames):  # a selection: the used frames
+        return [{"frame": r.key, "n_2d": int(len(np.asarray(frames[i].bboxes_2d))),
+                 "n_3d": int(len(np.asarray(frames[i].bboxes_3d))), "pairs": r.pairs,
+                 "px_median": r.px_median if result.success else None,
+                 "iou_median": r.iou_median if result.success else None} for r, i in zip(diag.frames, used)]
     if diag is not None and len(diag.frames) == len(frames):
         return [{"frame": r.key, "n_2d": int(len(np.asarray(f.bboxes_2d))), "n_3d": int(len(np.asarray(f.bboxes_3d))),
                  "pairs": r.pairs, "px_median": r.px_median if result.success else None,
@@ -90,6 +96,9 @@ def _summary_text(result: CalibrationResult, rows: list[dict]) -> str:
                   "(bottom) of their size", ""]
     if d is not None and d.selfcal.notes:
         lines += [f"  self-calibration: {n}" for n in d.selfcal.notes] + [""]
+    line = result.frames_line()
+    if line:
+        lines += [f"  frames: {line}", ""]
     lines.append(f"{'frame':>12} {'2D':>4} {'3D':>4} {'pairs':>5} {'px med':>7} {'IoU med':>7}")
     for r in rows:
         px = "-" if r["px_median"] is None else f"{r['px_median']:.2f}"
@@ -120,8 +129,11 @@ def write_report(result: CalibrationResult, frames: Sequence, out_dir, *, max_ov
     atomic_write(paths.summary, [_summary_text(result, rows).encode()])
     if not result.success or max_overlays <= 0:
         return paths
-    n = len(frames)
-    pick = np.unique(np.linspace(0, n - 1, min(max_overlays, n)).round().astype(int))
+    sel = None if result.diagnostics is None else result.diagnostics.selection
+    pool = np.asarray(sel.used_indices if sel is not None and sel.used_indices else range(len(frames)), dtype=int)
+    pool = pool[pool < len(frames)]  # draw the frames the calibration used
+    n = len(pool)
+    pick = pool[np.unique(np.linspace(0, n - 1, min(max_overlays, n)).round().astype(int))]
     bring = None if result.diagnostics is None else result.diagnostics.bringup_T
     (out / "overlays").mkdir(exist_ok=True)
     used: set[str] = set()

@@ -277,6 +277,22 @@ class CalibrationResult:
             _check_npz_agrees(res, arrays, path)
         return res
 
+    def _n_used(self) -> int:
+        sel = None if self.diagnostics is None else getattr(self.diagnostics, "selection", None)
+        return sel.n_frames_used if sel is not None and sel.n_frames_given else len(self.pairs)
+
+    def frames_line(self) -> str:
+        """"N of M used (K of L distinct objects ...)": which frames of the recording the
+        calibration used (``diagnostics.selection``); "" when not recorded."""
+        sel = None if self.diagnostics is None else getattr(self.diagnostics, "selection", None)
+        if sel is None or not sel.n_frames_given:
+            return ""
+        how = {"tracks": "by track id", "positions": "tracked by 3D position"}.get(sel.object_identity, "")
+        chosen = "" if sel.n_frames_used == sel.n_frames_given else \
+            f"; the informative frames, up to max_frames={sel.max_frames}"
+        return (f"{sel.n_frames_used} of {sel.n_frames_given} used ({sel.n_objects_used} of {sel.n_objects} distinct "
+                f"objects{', ' + how if how else ''}{chosen})")
+
     def summary(self) -> str:
         """A few human-readable lines."""
         if not self.success:
@@ -285,7 +301,7 @@ class CalibrationResult:
 
         rpy = matrix_to_euler(self.rotation, "xyz", degrees=True)
         lines = [
-            f"calibration OK ({self.method or 'xcalib'}): {self.n_pairs} matched pairs over {len(self.pairs)} frame(s)",
+            f"calibration OK ({self.method or 'xcalib'}): {self.n_pairs} matched pairs over {self._n_used()} frame(s)",
             f"  t (m)         = [{self.translation[0]:+.3f}, {self.translation[1]:+.3f}, {self.translation[2]:+.3f}]",
             f"  R (xyz deg)   = [{rpy[0]:+.2f}, {rpy[1]:+.2f}, {rpy[2]:+.2f}]",
             f"  residual      = {self.residual_px_median:.2f} px median, IoU median {self.iou_median:.3f}",
@@ -302,6 +318,9 @@ class CalibrationResult:
         if sc is not None and sc.time_offset_s is not None:
             sd = "" if sc.time_offset_std_s is None else f", 1-sigma {1e3 * sc.time_offset_std_s:.1f} ms"
             lines.append(f"  time offset   = {1e3 * sc.time_offset_s:+.1f} ms camera - LiDAR ({sc.time_offset_source}{sd})")
+        line = self.frames_line()
+        if line:
+            lines.append(f"  frames        = {line}")
         bf = None if self.diagnostics is None else getattr(self.diagnostics, "box_fit", None)
         if bf and "sides" in bf:
             lines.append(f"  box model     = {bf.get('outline') or 'corners'} outlines; 2D boxes inside them by "

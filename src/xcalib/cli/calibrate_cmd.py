@@ -46,6 +46,9 @@ def register(app: typer.Typer) -> None:
         box_model: str = typer.Option("auto", "--box-model", help="auto | corners | points (3D box outline)."),
         max_overlays: int = typer.Option(8, "--max-overlays", help="Overlay PNGs to draw per camera (0: none)."),
         limit: int = typer.Option(0, "--limit", help="Use only the first N frames (0: all)."),
+        max_frames: int = typer.Option(None, "--max-frames", help="Most frames one calibration uses (default 200): a "
+                                                                 "longer recording is reduced to its informative "
+                                                                 "frames (distinct objects, places, depths); 0: all."),
         tolerance: float = typer.Option(0.05, "--tolerance", help="Bags: largest LiDAR/image stamp difference (s)."),
         fisheye: str = typer.Option("rectify", "--fisheye", help="Bags with an equidistant CameraInfo: rectify "
                                                                  "(to pinhole) | keep (calibrate in the fisheye "
@@ -99,6 +102,11 @@ def register(app: typer.Typer) -> None:
                                   cost_terms=tuple(cost_term or ()))
         except ValueError as exc:
             raise typer.BadParameter(str(exc), param_hint="--refine-intrinsics / --time-offset / --cost-term") from None
+        if max_frames is not None:
+            try:
+                selfcal = selfcal.replace(max_frames=max_frames or None)
+            except ValueError as exc:
+                raise typer.BadParameter(str(exc), param_hint="--max-frames") from None
         if lidar_frame is not None and not is_frame_id(lidar_frame):
             raise typer.BadParameter(f"{lidar_frame!r} is not a tf frame name (letters, digits, _ . / -)",
                                      param_hint="--lidar-frame")

@@ -133,11 +133,12 @@ def result_numbers(result, ground_truth=None) -> dict[str, Any]:
 
     diag = getattr(result, "diagnostics", None)
     co = None if diag is None else diag.centre_offset_px_median
+    frames_line = getattr(result, "frames_line", None)
     nums: dict[str, Any] = {
         "success": bool(result.success),
         "message": result.message or "-",
         "method": result.method or "-",
-        "frames": len(result.frame_keys),
+        "frames": (frames_line() if frames_line else "") or len(result.frame_keys),  # "N of M used (...)"
         "matched pairs": int(result.n_pairs),
         "pairs with IoU >= 0.5": int(result.n_inliers),
         "residual median (px)": float(result.residual_px_median),
