@@ -41,7 +41,7 @@ class _Counting:
 def test_streamed_frames_calibrate_as_the_whole_ones(yawless):
     from xcalib.calib.api import calibrate
 
-    rec = LongRecording(5, 40_000, seed=3, yawless=yawless)
+    rec = LongRecording(4, 20_000, seed=3, yawless=yawless)
     whole = [rec[i] for i in range(len(rec))]
     src = _Counting(rec)
     slim = stream_views({"cam": src}, StreamConfig())["cam"]
