@@ -101,7 +101,7 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter(str(exc), param_hint="--refine-intrinsics / --time-offset") from None
         try:
             offset = selfcal.time_offset if isinstance(selfcal.time_offset, float) else 0.0
-            stream_cfg = StreamConfig(max_memory_mb=parse_memory(max_memory), margin_m=1.0 + 40.0 * abs(offset))
+            stream_cfg = StreamConfig(max_memory_mb=parse_memory(max_memory), margin_m=0.25 + 40.0 * abs(offset))
         except ValueError as exc:
             raise typer.BadParameter(str(exc), param_hint="--max-memory") from None
         if lidar_frame is not None and not is_frame_id(lidar_frame):

@@ -13,7 +13,8 @@ ones (same poses and verdicts). The report re-reads the few frames it draws
 
 Memory: :class:`StreamConfig.max_memory_mb` bounds the frames held (the slimmed frames of every
 camera plus the frame being read); the need is estimated up front from the frame count and the
-first frame of each camera (its points and image, and what slimming keeps of it), and an input
+first, middle and last frame of each camera (their points and images, and what slimming keeps
+of them), and an input
 over the limit is refused then (:class:`~xcalib.errors.MemoryLimitError` naming the input, the
 estimate and the limit), or as soon as the frames read exceed it.
 
@@ -51,8 +52,8 @@ READ_FACTOR_IMAGE = 2.0
 #: frames with a cloud and 3D boxes whose whole cloud is searched for the LiDAR's scan step before
 #: it is taken as not found for the recording (the search takes seconds on a cloud of millions)
 STEP_TRIES = 3
-#: grid cell (m) of the point selection (a point is kept when its cell touches a box's cylinder)
-CELL_M = 0.5
+#: grid cell (m) of the point selection (the points of the cells a box's cylinder touches are tested)
+CELL_M = 1.0
 
 
 @dataclass(frozen=True)
@@ -63,12 +64,12 @@ class StreamConfig:
         frames plus the frame being read; 0: no limit. The process adds the interpreter and the
         libraries (about 150-250 MB) and the calibration's own arrays.
     margin_m: points kept up to this far (m, horizontally) beyond the largest region the yaw fit
-        and the point hulls read around a 3D box (for boxes a fixed time offset moves: ``1 +
+        and the point hulls read around a 3D box (for boxes a fixed time offset moves: ``0.25 m +
         40 m/s x |offset|`` is what ``xcalib calibrate`` asks).
     """
 
     max_memory_mb: float = 1536.0
-    margin_m: float = 1.0
+    margin_m: float = 0.25
 
     def __post_init__(self):
         if not (np.isfinite(self.max_memory_mb) and self.max_memory_mb >= 0):
@@ -132,7 +133,7 @@ def _regions(frame: Frame, margin_m: float) -> np.ndarray:
         size = np.abs(b7[:, 3:6])
         r = 0.55 * np.hypot(size[:, 0], size[:, 1]) + 0.3 + margin_m
         bottom = b7[:, 2] - size[:, 2] / 2
-        zm = 0.05 + 0.1 * margin_m  # vertical slack: boxes a time offset moves move a little in z too
+        zm = 0.05 + 0.1 * margin_m  # vertical slack (m): boxes a time offset moves move a little in z too
         z_lo = bottom + 0.2 - zm
         z_hi = np.maximum(b7[:, 2] + size[:, 2] / 2 + 0.1, bottom + np.maximum(0.7 * size[:, 2], 0.6)) + zm
         rows.append(np.column_stack([b7[:, 0], b7[:, 1], r, z_lo, z_hi]))
@@ -140,16 +141,16 @@ def _regions(frame: Frame, margin_m: float) -> np.ndarray:
 
 
 def keep_mask(points: np.ndarray, regions: np.ndarray) -> np.ndarray:
-    """[P] bool: the points (LiDAR frame [P,>=3]) inside the cylinders ``regions`` [B,5] (cx, cy,
-    radius, z_lo, z_hi), or in a grid cell (``CELL_M``) that touches one within its z range: a
-    superset of the points inside, found in a few passes over the cloud."""
+    """[P] bool: the points (LiDAR frame [P,>=3]) inside any of the cylinders ``regions`` [B,5]
+    (cx, cy, radius, z_lo, z_hi; m). A grid (``CELL_M``) finds the points near a cylinder in a few
+    passes over the cloud; only those are tested against the cylinders touching their cell."""
     P = len(points)
     keep = np.zeros(P, dtype=bool)
     if P == 0 or not len(regions):
         return keep
     x, y, z = (np.asarray(points[:, k]) for k in range(3))
     cx, cy, r, zl, zh = regions.T
-    small = (2 * r / CELL_M + 2) ** 2 <= 40_000  # few cells: hashed; a huge cylinder is tested directly
+    small = (2 * r / CELL_M + 2) ** 2 <= 40_000  # few cells: gridded; a huge cylinder is tested directly
     for k in np.flatnonzero(~small):
         keep |= ((x - cx[k]) ** 2 + (y - cy[k]) ** 2 <= r[k] ** 2) & (z >= zl[k]) & (z <= zh[k])
     if not small.any():
@@ -158,36 +159,39 @@ def keep_mask(points: np.ndarray, regions: np.ndarray) -> np.ndarray:
     cx, cy, r, zl, zh = reg.T
     lo_x, lo_y = np.floor((cx - r) / CELL_M).astype(np.int64), np.floor((cy - r) / CELL_M).astype(np.int64)
     hi_x, hi_y = np.floor((cx + r) / CELL_M).astype(np.int64), np.floor((cy + r) / CELL_M).astype(np.int64)
-    keys, zlo, zhi = [], [], []
-    for k in range(len(reg)):
+    keys, owner = [], []
+    for k in range(len(reg)):  # (cell, cylinder) pairs: the cells of each cylinder's bounding square
         gx, gy = np.meshgrid(np.arange(lo_x[k], hi_x[k] + 1), np.arange(lo_y[k], hi_y[k] + 1), indexing="ij")
         keys.append((gx.ravel() << 32) + (gy.ravel() & 0xFFFFFFFF))
-        zlo.append(np.full(gx.size, zl[k]))
-        zhi.append(np.full(gx.size, zh[k]))
-    keys_a, zlo_a, zhi_a = np.concatenate(keys), np.concatenate(zlo), np.concatenate(zhi)
-    ukeys, inv = np.unique(keys_a, return_inverse=True)
-    cell_lo, cell_hi = np.full(len(ukeys), np.inf), np.full(len(ukeys), -np.inf)
-    np.minimum.at(cell_lo, inv, zlo_a)
-    np.maximum.at(cell_hi, inv, zhi_a)
-    # cheap prefilter: inside the cells' bounding box and z range
+        owner.append(np.full(gx.size, k))
+    keys_a, owner_a = np.concatenate(keys), np.concatenate(owner)
+    order = np.argsort(keys_a, kind="stable")
+    keys_a, owner_a = keys_a[order], owner_a[order]
+    # cheap prefilter: inside the cells' bounding box and the cylinders' z range
     cand = (x >= lo_x.min() * CELL_M) & (x < (hi_x.max() + 1) * CELL_M) & (y >= lo_y.min() * CELL_M) \
-        & (y < (hi_y.max() + 1) * CELL_M) & (z >= cell_lo.min()) & (z <= cell_hi.max())
+        & (y < (hi_y.max() + 1) * CELL_M) & (z >= zl.min()) & (z <= zh.max())
     idx = np.flatnonzero(cand)
     if not len(idx):
         return keep
-    ix = np.floor(x[idx] / CELL_M).astype(np.int64)
-    iy = np.floor(y[idx] / CELL_M).astype(np.int64)
-    pk = (ix << 32) + (iy & 0xFFFFFFFF)
-    pos = np.clip(np.searchsorted(ukeys, pk), 0, len(ukeys) - 1)
-    hit = (ukeys[pos] == pk) & (z[idx] >= cell_lo[pos]) & (z[idx] <= cell_hi[pos])
-    keep[idx[hit]] = True
+    pk = (np.floor(x[idx] / CELL_M).astype(np.int64) << 32) + (np.floor(y[idx] / CELL_M).astype(np.int64) & 0xFFFFFFFF)
+    start, stop = np.searchsorted(keys_a, pk, "left"), np.searchsorted(keys_a, pk, "right")
+    n = stop - start
+    idx, start, n = idx[n > 0], start[n > 0], n[n > 0]
+    if not len(idx):
+        return keep
+    # every (point, cylinder of its cell) pair, tested exactly
+    pt = np.repeat(idx, n)
+    first = np.repeat(np.cumsum(n) - n, n)
+    cyl = owner_a[np.repeat(start, n) + (np.arange(len(pt)) - first)]
+    inside = ((x[pt] - cx[cyl]) ** 2 + (y[pt] - cy[cyl]) ** 2 <= r[cyl] ** 2) & (z[pt] >= zl[cyl]) & (z[pt] <= zh[cyl])
+    keep[pt[inside]] = True
     return keep
 
 
 _EMPTY_IMAGE = np.zeros((0, 0, 3), dtype=np.uint8)
 
 
-def slim_frame(frame: Frame, margin_m: float = 1.0, scan_step=...) -> Frame:
+def slim_frame(frame: Frame, margin_m: float = 0.25, scan_step=...) -> Frame:
     """``frame`` with only what calibration reads: the points near its 3D boxes (:func:`keep_mask`;
     x, y, z only; one point kept where none is near, so a frame with a cloud keeps one), its image
     replaced by an empty placeholder and its size in ``meta["image_size"]``, the images of other
@@ -227,7 +231,8 @@ def _read_bytes(frame: Frame) -> int:
 @dataclass(frozen=True)
 class MemoryEstimate:
     """The up-front estimate of one camera's frames: ``frames`` to read, ``points`` and
-    ``image_bytes`` of its first frame, ``slim_bytes`` it keeps of it, ``read_bytes`` to read one."""
+    ``image_bytes`` of its largest sampled frame, ``slim_bytes`` slimming keeps of a frame (their
+    mean), ``read_bytes`` to read one."""
 
     camera: str
     frames: int
@@ -247,8 +252,9 @@ def estimate_memory(estimates: Sequence[MemoryEstimate]) -> int:
 
 
 def _describe(estimates: Sequence[MemoryEstimate]) -> str:
-    parts = [f"camera {e.camera}: {e.frames} frame(s) x {e.slim_bytes / 1024:.0f} kB kept of each (its first frame: "
-             f"{e.points} points, {e.image_bytes / MB:.1f} MB of image)" for e in estimates]
+    parts = [f"camera {e.camera}: {e.frames} frame(s) x {e.slim_bytes / 1024:.0f} kB kept of each (its first, "
+             f"middle and last frame: up to {e.points} points and {e.image_bytes / MB:.1f} MB of image)"
+             for e in estimates]
     read = max((e.read_bytes for e in estimates), default=0)
     return "; ".join(parts) + f"; + {read / MB:.0f} MB to read one frame"
 
@@ -320,16 +326,21 @@ class ReportFrames(Sequence):
 
 
 def _first_estimate(name: str, seq: Sequence[Frame], config: StreamConfig) -> MemoryEstimate:
-    """The estimate of one camera's frames from its first frame (read, measured, let go)."""
+    """The estimate of one camera's frames from its first, middle and last frame (read, measured,
+    let go): the mean of what slimming keeps of them, the most it takes to read one."""
     n = len(seq)
     if n == 0:
         return MemoryEstimate(name, 0, 0, 0, 0, 0)
-    f0 = seq[0]
-    pts = f0.point_cloud
-    n_pts = len(pts) if isinstance(pts, np.ndarray) and pts.ndim == 2 else 0
-    img = sum(v.nbytes for v in [f0.image, *(f0.images or {}).values()] if isinstance(v, np.ndarray))
-    slim = frame_nbytes(slim_frame(f0, config.margin_m))
-    return MemoryEstimate(name, n, n_pts, int(img), slim, _read_bytes(f0))
+    pts, img, slim, read = [], [], [], []
+    for i in sorted({0, n // 2, n - 1}):
+        f = seq[i]
+        p = f.point_cloud
+        pts.append(len(p) if isinstance(p, np.ndarray) and p.ndim == 2 else 0)
+        img.append(sum(v.nbytes for v in [f.image, *(f.images or {}).values()] if isinstance(v, np.ndarray)))
+        slim.append(frame_nbytes(slim_frame(f, config.margin_m)))
+        read.append(_read_bytes(f))
+        del f
+    return MemoryEstimate(name, n, max(pts), int(max(img)), int(np.mean(slim)), max(read))
 
 
 def stream_views(views: dict[str, Sequence[Frame]], config: StreamConfig | None = None, *, source: str = "",
@@ -337,7 +348,7 @@ def stream_views(views: dict[str, Sequence[Frame]], config: StreamConfig | None 
     """Read each camera's frames once, slimmed (:func:`slim_frame`), within ``config.max_memory_mb``.
 
     Up front, the memory the slimmed frames of every camera will hold is estimated from the frame
-    counts and each camera's first frame; over the limit -> :class:`MemoryLimitError` before the
+    counts and each camera's first, middle and last frame; over the limit -> :class:`MemoryLimitError` before the
     rest is read (naming ``source``, the estimate and the limit). While reading, the frames held
     are counted; over the limit -> the same error, at that frame. ``progress(stage, done, total)``
     per frame read. The whole cloud's scan step (``lidar_angular_step``) is computed frame by
@@ -379,7 +390,7 @@ def stream_views(views: dict[str, Sequence[Frame]], config: StreamConfig | None 
                                               f"{(held_before + held) / MB:.0f} MB (+ {read_peak / MB:.0f} MB to read "
                                               f"one; estimated up front: {need / MB:.0f} MB); the limit is "
                                               f"{limit / MB:.0f} MB (--max-memory); their 3D boxes hold more points "
-                                              "than the first frame's: calibrate fewer frames (--frames, --limit) or "
+                                              "than the frames sampled for the estimate: calibrate fewer frames (--frames, --limit) or "
                                               "raise the limit", total, limit)
             if progress:
                 progress(stage, i + 1, n)
