@@ -348,8 +348,8 @@ def stream_views(views: dict[str, Sequence[Frame]], config: StreamConfig | None 
     """Read each camera's frames once, slimmed (:func:`slim_frame`), within ``config.max_memory_mb``.
 
     Up front, the memory the slimmed frames of every camera will hold is estimated from the frame
-    counts and each camera's first, middle and last frame; over the limit -> :class:`MemoryLimitError` before the
-    rest is read (naming ``source``, the estimate and the limit). While reading, the frames held
+    counts and each camera's first, middle and last frame; over the limit ->
+    :class:`MemoryLimitError` before the rest is read (naming ``source``, the estimate and the limit). While reading, the frames held
     are counted; over the limit -> the same error, at that frame. ``progress(stage, done, total)``
     per frame read. The whole cloud's scan step (``lidar_angular_step``) is computed frame by
     frame until a frame with 3D boxes gives one (or ``STEP_TRIES`` such frames gave none); later
@@ -390,8 +390,8 @@ def stream_views(views: dict[str, Sequence[Frame]], config: StreamConfig | None 
                                               f"{(held_before + held) / MB:.0f} MB (+ {read_peak / MB:.0f} MB to read "
                                               f"one; estimated up front: {need / MB:.0f} MB); the limit is "
                                               f"{limit / MB:.0f} MB (--max-memory); their 3D boxes hold more points "
-                                              "than the frames sampled for the estimate: calibrate fewer frames (--frames, --limit) or "
-                                              "raise the limit", total, limit)
+                                              "than the frames sampled for the estimate: calibrate fewer frames "
+                                              "(--frames, --limit) or raise the limit", total, limit)
             if progress:
                 progress(stage, i + 1, n)
         out[name] = StreamedFrames(seq, frames, held, name)
