@@ -15,6 +15,15 @@ quadratic blow-up shows as a MemoryError instead of swapping. Targets: within 2 
 32x270 case within 60 s. Prints a table and writes ``benchmarks/results/calibration_memory.json``.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration_memory.py [--seeds 0 1 2] [--cases 32x270 200x200]
+
+Long recordings (issue 31, item 5; ``--long``): ``xcalib calibrate`` (the command, in a child
+process) on a synthetic recording of FRAMES x POINTS (``tests/_long_recording.py``: the boxes of a
+synthetic site, a POINTS cloud and a 1920x1200 image made per frame when read, nothing on disk),
+once with the default ``--max-memory`` and once with ``--max-memory 512M`` (refused up front);
+the child's peak RSS (``ru_maxrss``), wall time, exit code and verdict or refusal are reported
+(target: under 2 GB). Results go to the ``long`` key of the same JSON (the other rows are kept).
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration_memory.py --long 500 2000000
 """
 
 from __future__ import annotations
@@ -126,13 +135,93 @@ def run_case(case: str, seed: int, limit_gb: float) -> dict:
     return rec
 
 
+_LONG_CHILD = r"""
+import json, resource, sys
+from pathlib import Path
+sys.path.insert(0, "tests")
+from _long_recording import LongRecording
+from xcalib.io.sources import register_source
+
+def _open(path, camera=None, **options):
+    spec = json.loads(Path(path).read_text())
+    return LongRecording(spec["frames"], spec["points"], spec["seed"], yawless=spec["yawless"])
+
+register_source("long-synthetic", lambda p: p.suffix == ".long", _open, priority=0)
+from xcalib.cli import main
+rc = main(sys.argv[1:])
+print("@@" + json.dumps({"rc": rc, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+
+
+def run_long(n_frames: int, n_points: int, max_memory: str | None, yawless: bool, timeout: float) -> dict:
+    """``xcalib calibrate`` on a synthetic FRAMES x POINTS recording in a child process."""
+    import json
+    import os
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="xcalib-long-") as tmp:
+        spec = Path(tmp) / "rec.long"
+        spec.write_text(json.dumps({"frames": n_frames, "points": n_points, "seed": 0, "yawless": yawless}))
+        out = Path(tmp) / "out"
+        args = ["calibrate", str(spec), "--out", str(out), "--max-overlays", "4", "--review-max-points", "100000"]
+        if max_memory is not None:
+            args += ["--max-memory", max_memory]
+        env = dict(os.environ, PYTHONPATH=str(REPO / "src"), OMP_NUM_THREADS="1")
+        t0 = time.perf_counter()
+        try:
+            p = subprocess.run([sys.executable, "-c", _LONG_CHILD, *args], cwd=REPO, env=env, capture_output=True,
+                               text=True, timeout=timeout)
+            stdout, stderr, rc = p.stdout, p.stderr, p.returncode
+        except subprocess.TimeoutExpired as exc:
+            stdout, stderr, rc = str(exc.stdout or ""), str(exc.stderr or ""), None
+        wall = time.perf_counter() - t0
+        tail = [ln for ln in stdout.splitlines() if ln.startswith("@@")]
+        rec = {"frames": n_frames, "points": n_points, "yawless": yawless, "max_memory": max_memory or "default",
+               "wall_s": wall, "rc": rc}
+        rec.update(json.loads(tail[-1][2:]) if tail else {"error": "no result (killed or timed out)"})
+        errors = [ln for ln in stderr.splitlines() if ln.startswith("error:")]
+        rec["refusal"] = errors[-1][len("error: "):] if errors else None
+        cal = out / "calibration.json"
+        if cal.exists():
+            d = json.loads(cal.read_text())
+            rec.update(success=bool(d.get("success")), message=d.get("message", ""))
+    return rec
+
+
+def main_long(args) -> int:
+    import json
+
+    n_frames, n_points = args.long
+    recs = [run_long(n_frames, n_points, None, args.yawless, args.timeout),
+            run_long(n_frames, n_points, "512M", args.yawless, args.timeout)]
+    print(f"\nLong recording: xcalib calibrate on {n_frames} frames x {n_points} points (+ a 1920x1200 image each); "
+          "peak RSS of the command's process")
+    print(f"{'--max-memory':>12} {'exit':>4} {'peak RSS MB':>11} {'wall s':>7}  outcome")
+    for r in recs:
+        outcome = (r.get("refusal") or ("calibrated" if r.get("success") else f"refused: {r.get('message', '')}")
+                   or r.get("error", ""))
+        print(f"{r['max_memory']:>12} {str(r['rc']):>4} {r.get('peak_rss_mb', float('nan')):>11.0f} "
+              f"{r['wall_s']:>7.0f}  {outcome[:160]}")
+    data = json.loads(args.out.read_text()) if args.out.exists() else {}
+    data["long"] = {"machine": machine_info(), "runs": recs}
+    write_result(args.out, data)
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", nargs="+", default=["dense", "32x270", "100x100", "200x200"], choices=list(CASES))
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--limit-gb", type=float, default=6.0, help="address-space limit of each child (0: none)")
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--long", type=int, nargs=2, metavar=("FRAMES", "POINTS"), default=None,
+                    help="only the long-recording case: xcalib calibrate on FRAMES x POINTS (e.g. 500 2000000)")
+    ap.add_argument("--yawless", action="store_true", help="--long: 3D boxes without yaw (fitted to the points)")
+    ap.add_argument("--timeout", type=float, default=3600.0, help="--long: seconds per run")
     args = ap.parse_args(argv)
+    if args.long:
+        return main_long(args)
     recs = []
     for case in args.cases:
         for seed in args.seeds:
@@ -161,7 +250,11 @@ def main(argv=None) -> int:
         print(f"{case:>8} {nf:>6} {n2 or '~':>6} {n3 or '~':>6} {row['runs']:>4} {row['success']:>7} {row['wrong']:>5} "
               f"{row['refused']:>7} {row['errors']:>6} {row['time_s_max']:>7.1f}s {row['cpu_s_max']:>7.1f}s "
               f"{row['peak_rss_mb_max']:>10.0f}")
-    write_result(args.out, {"machine": machine_info(), "limit_gb": args.limit_gb, "rows": rows, "runs": recs})
+    import json
+
+    kept = json.loads(args.out.read_text()).get("long") if args.out.exists() else None  # the --long runs stay
+    write_result(args.out, {"machine": machine_info(), "limit_gb": args.limit_gb, "rows": rows, "runs": recs,
+                            **({"long": kept} if kept else {})})
     return 0
 
 

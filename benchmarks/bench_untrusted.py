@@ -451,7 +451,8 @@ def main() -> None:
         rec = recordings(args.bag_cases, args.file_cases, max(args.timeout, 30.0), args.max_rss_mb)
         _print_recordings(rec)
         doc["recordings"] = {"command": "PYTHONPATH=src python benchmarks/bench_untrusted.py --part recordings "
-                                        f"--bag-cases {args.bag_cases} --file-cases {args.file_cases}",
+                                        f"--bag-cases {args.bag_cases} --file-cases {args.file_cases}"
+                                        + (f" --timeout {args.timeout:g}" if args.timeout != 20.0 else ""),
                              "wall_s": round(time.perf_counter() - t0, 1), **rec}
     doc.setdefault("benchmark", "untrusted")
     doc["machine"] = {"python": platform.python_version(), "platform": platform.platform(), "cpus": os.cpu_count()}

@@ -125,3 +125,22 @@ def test_a_five_percent_focal_error_under_noisy_boxes_is_refused():
     res = calibrate(list(case.frames), case.intrinsics_given)
     assert not res.success and res.diagnostics.refusal == "misfit_focal_length"
     assert "focal length about 0.95x" in res.message
+
+
+def test_mirror_is_named_only_when_the_flipped_boxes_are_explained():
+    """Issue 31: among many unmatched boxes (random 2D distractors, hundreds of 3D boxes) the
+    flipped boxes' chance alignment can score above the given boxes' and the chance pose be upside
+    down; that is no mirror: the flipped boxes' pose explains no more boxes than the given one."""
+    import numpy as np
+
+    from xcalib.calib.misfit import mirror_check
+    from xcalib.calib.pose import Pose
+
+    upside_down = Pose(np.diag([1.0, -1.0, -1.0]) @ np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], float), np.zeros(3))
+    assert upside_down.R[1, 2] > 0.5
+    chk, msg = mirror_check(127.1, 130.3, upside_down)  # as before: flagged on the scores alone
+    assert chk.flagged and "mirrored" in msg
+    chk, msg = mirror_check(127.1, 130.3, upside_down, explained=(190, 600))  # 190 of the 600 needed
+    assert not chk.flagged and msg is None and "not explained" in chk.detail
+    chk, msg = mirror_check(20.0, 90.0, upside_down, explained=(140, 60))  # a mirrored image: explained
+    assert chk.flagged and "mirrored" in msg

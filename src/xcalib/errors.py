@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["XcalibError", "FormatError", "CalibrationFailedError"]
+__all__ = ["XcalibError", "FormatError", "CalibrationFailedError", "MemoryLimitError"]
 
 
 class XcalibError(Exception):
@@ -35,3 +35,13 @@ class FormatError(XcalibError, ValueError):
 class CalibrationFailedError(XcalibError, RuntimeError, ValueError):
     """A pose was asked of a failed ``CalibrationResult`` (``success=False``: there is none).
     A ``RuntimeError`` as in the reference, and a ``ValueError`` as xcalib raised before."""
+
+
+class MemoryLimitError(XcalibError, MemoryError):
+    """An input whose frames would not fit the stated memory limit (refused up front, or as soon as
+    the frames read so far exceed it). Attributes: ``source`` (the input), ``estimate_bytes`` and
+    ``limit_bytes``; the message says how the estimate was made and what to do."""
+
+    def __init__(self, source, problem: str, estimate_bytes: int, limit_bytes: int):
+        self.source, self.estimate_bytes, self.limit_bytes = str(source), int(estimate_bytes), int(limit_bytes)
+        super().__init__(f"{self.source}: {problem}")

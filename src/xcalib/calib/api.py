@@ -227,15 +227,18 @@ def _search(cframes, frames_in, intr, config: CalibConfig, matcher, prior: Pose 
 _MISFIT_CAN_EXPLAIN = ("poorly_constrained", "ambiguous", "few_explained", "uncertain")
 
 
-def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion) -> float:
-    """Best score of the search (a few frames, few candidates) on the left-right flipped 2D boxes."""
+def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion) -> tuple[float, int]:
+    """(best score, 2D boxes its pose matches) of the search (a few frames, few candidates) on the
+    left-right flipped 2D boxes."""
     flipped = flipped_frames(cframes)
     small = config.replace(max_hyp_frames=min(config.max_hyp_frames, 4), max_refine=min(config.max_refine, 3))
     bu = pose_hypotheses(flipped, intr, small, max_baseline_m=config.max_baseline_m,
                          rng=np.random.default_rng(config.seed))
     if len(bu.hyps) == 0:
-        return 0.0
-    return _refine_candidates(flipped, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None).best_score
+        return 0.0, 0
+    ref = _refine_candidates(flipped, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None)
+    matched = match_all(flipped, intr, ref.best.R, ref.best.t, gate_iou=config.gate_iou)
+    return ref.best_score, int(sum(len(p) for p in matched))
 
 
 def _second_pose(cframes, pairs, intr, pose: Pose, config: CalibConfig, occlusion: Occlusion):
@@ -280,7 +283,9 @@ def _misfit_checks(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, 
                    diag: CalibDiagnostics, frames_in, refusal: Refusal | None, searches: Deferred) -> Refusal | None:
     found = []
     # a mirrored image first: it also bends the focal / principal-point fits, but is the cause to name
-    chk, msg = mirror_check(best_score, searches.result(0), pose)
+    flipped_score, flipped_matched = searches.result(0)
+    need = max(config.min_pairs, 3, int(np.ceil(config.min_explained * sum(f.n2 for f in cframes))))
+    chk, msg = mirror_check(best_score, flipped_score, pose, (flipped_matched, need))
     found.append((chk, msg, "misfit_mirrored"))
     chk, msg = unexplained_frames_check(cframes, pairs)
     found.append((chk, msg, "misfit_mixed_cameras"))

@@ -18,7 +18,22 @@ from ..geometry.camera_models import CameraModel, as_calibration_camera, calibra
 from .boxshape import fit_yaw_to_points, lidar_angular_step, shapes_from_points
 
 __all__ = ["CalibFrame", "as_intrinsics", "prepare_frames", "with_corner_outlines", "with_point_outlines",
-           "YAW_OPEN_SIGMA", "lean_frames"]
+           "YAW_OPEN_SIGMA", "lean_frames", "SCAN_STEP_KEY", "scan_step_of"]
+
+#: ``Frame.meta`` key of the LiDAR scan step (:func:`~.boxmodel.lidar_angular_step`) of the frame's
+#: whole cloud, set where the frame carries only part of its cloud (``xcalib.site.stream``: the
+#: points near the 3D boxes); absent: the step is computed from the frame's points.
+SCAN_STEP_KEY = "lidar_scan_step"
+
+
+def scan_step_of(points, meta: dict | None) -> tuple[float, float] | None:
+    """The scan step of a frame's cloud: ``meta[SCAN_STEP_KEY]`` when the frame carries it (the
+    step of its whole cloud, which ``points`` may only be part of), else computed from ``points``."""
+    if meta and SCAN_STEP_KEY in meta:
+        s = meta[SCAN_STEP_KEY]
+        return None if s is None else (float(s[0]), float(s[1]))
+    return lidar_angular_step(points)
+
 
 #: 1-sigma of a box outline whose yaw the points leave open, as a fraction of |length - width|
 YAW_OPEN_SIGMA = 0.25
@@ -192,7 +207,7 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
         use_pts = box_model == "points" or (box_model == "auto" and not had_yaw)
         if use_pts and p is not None and len(p) and len(box7):
             if scan_step is None:  # one LiDAR for all frames: its scan pattern once
-                scan_step = lidar_angular_step(p)
+                scan_step = scan_step_of(p, meta)
             shapes, from_pts = shapes_from_points(box7, corners8, p, scan_step_rad=scan_step)
             meta = {**meta, "boxes_from_points": int(from_pts.sum())}
         out.append(CalibFrame(
@@ -249,7 +264,7 @@ def with_point_outlines(frames: Sequence[CalibFrame], in_view: Sequence[np.ndarr
     box got a hull."""
     if not any(f.points is not None and len(f.points) for f in frames):
         return None
-    scan_step = next((s for s in (lidar_angular_step(f.points) for f in frames if f.points is not None
+    scan_step = next((s for s in (scan_step_of(f.points, f.meta) for f in frames if f.points is not None
                                   and len(f.points)) if s is not None), None)
     out, any_hull = [], False
     for f, view in zip(frames, in_view):

@@ -257,16 +257,26 @@ def flipped_frames(frames: list[CalibFrame]) -> list[CalibFrame]:
     return out
 
 
-def mirror_check(best_score: float, flipped_score: float, pose: Pose) -> tuple[MisfitCheck, str | None]:
+def mirror_check(best_score: float, flipped_score: float, pose: Pose,
+                 explained: tuple[int, int] | None = None) -> tuple[MisfitCheck, str | None]:
     """Flag when the left-right flipped boxes are explained clearly better than the boxes as given
     (by ``MIRROR_GAIN``), or better at all while the pose for the boxes as given is upside down
     (the LiDAR's up axis, z, pointing down the image: a mirrored image is fitted best by a camera
-    rolled 180 deg)."""
+    rolled 180 deg). ``explained`` = (2D boxes the flipped boxes' pose matches, the matches a pose
+    needs to explain the 2D boxes): a mirror is named only when the flipped boxes are explained --
+    among many unmatched boxes (distractors, crowded frames) both scores are chance alignments,
+    and the one of the flipped boxes may come out ahead (issue 31: 32 + 270 boxes per frame)."""
     ratio = flipped_score / max(best_score, 1e-9)
     upside_down = bool(pose.R[1, 2] > 0.5)
     flagged = bool(ratio > MIRROR_GAIN or (ratio > 1.0 and upside_down))
+    unexplained = explained is not None and explained[0] < explained[1]
     detail = (f"score of the flipped boxes {flipped_score:.1f} vs {best_score:.1f} as given"
-              f"{'; the pose for the boxes as given is upside down' if upside_down else ''}")
+              f"{'; the pose for the boxes as given is upside down' if upside_down else ''}"
+              + (f"; the flipped boxes' pose matches {explained[0]} 2D boxes (a pose that explains them: "
+                 f"{explained[1]}+)" if explained is not None else ""))
+    if flagged and unexplained:  # no pose explains the flipped boxes either: not a mirror
+        flagged = False
+        detail += "; not a mirror: the flipped boxes are not explained either"
     msg = None
     if flagged:
         msg = (f"model misfit: the 2D boxes fit a left-right mirrored image much better ({detail}); the image (or the "

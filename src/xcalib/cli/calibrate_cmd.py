@@ -84,6 +84,10 @@ def register(app: typer.Typer) -> None:
                                             help="An extra cost term for every fit: NAME or NAME:KEY=VALUE,... "
                                                  "(repeat), registered in the xcalib.cost_terms entry-point group "
                                                  "(built in: pose_prior; see docs/contributing.md)."),
+        max_memory: str = typer.Option("1536M", "--max-memory",
+                                       help="Most memory the frames may take (e.g. 2G, 1500M; 0: no limit): each "
+                                            "frame is read once and only its boxes and the points near them are "
+                                            "kept; an input that would need more is refused up front."),
     ) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -95,6 +99,7 @@ def register(app: typer.Typer) -> None:
         from ..io.frames import read_intrinsics_json
         from ..site import calibrate_site
         from ..site.calibration import is_frame_id
+        from ..site.stream import StreamConfig, parse_memory, stream_views
         from ..viz.site_report import site_table, write_site_report
 
         try:
@@ -107,6 +112,11 @@ def register(app: typer.Typer) -> None:
                 selfcal = selfcal.replace(max_frames=max_frames or None)
             except ValueError as exc:
                 raise typer.BadParameter(str(exc), param_hint="--max-frames") from None
+        try:
+            offset = selfcal.time_offset if isinstance(selfcal.time_offset, float) else 0.0
+            stream_cfg = StreamConfig(max_memory_mb=parse_memory(max_memory), margin_m=0.25 + 40.0 * abs(offset))
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc), param_hint="--max-memory") from None
         if lidar_frame is not None and not is_frame_id(lidar_frame):
             raise typer.BadParameter(f"{lidar_frame!r} is not a tf frame name (letters, digits, _ . / -)",
                                      param_hint="--lidar-frame")
@@ -154,6 +164,9 @@ def register(app: typer.Typer) -> None:
                             console.print(f"--detect: {k}: the source's own detections in {v.replaced} frame(s) "
                                           "were replaced by xcalib's", markup=False)
 
+                # each frame read once, slimmed to its boxes and the points near them (bounded memory)
+                views = stream_views(views, stream_cfg, source=str(frames), progress=progress)
+
                 def run(items, k, stage, prior=None):
                     return calibrate(items, k, selfcal, prior=prior_res if prior is None else prior, box_model=box_model,
                                      seed=seed, progress=stage)
@@ -162,7 +175,8 @@ def register(app: typer.Typer) -> None:
                                               calibrate=run, progress=progress, lidar_frame=lidar_frame,
                                               camera_frames=cam_frames, priors=priors)
                 with atomic_dir(out, overwrite=force) as tmp:  # the whole folder is swapped in at once
-                    paths = write_site_report(tmp, site, loaded, max_overlays=max_overlays, progress=progress,
+                    drawn = {k: views[k].for_report(max_overlays) for k in loaded}  # drawn frames re-read whole
+                    paths = write_site_report(tmp, site, drawn, max_overlays=max_overlays, progress=progress,
                                               title=f"xcalib calibrate: {frames}",
                                               review_max_points=review_max_points or None)
                 paths = paths.relocated(tmp, out)

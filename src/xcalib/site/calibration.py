@@ -335,6 +335,9 @@ def calibrate_site(views: dict[str, Sequence[Frame]], intrinsics: dict[str, Came
             res.camera_name = res.camera_name or name
         size = next((f.image.shape[1::-1] for f in frames if np.asarray(f.image).ndim == 3
                      and f.image.shape[0] > 1), None)
+        if size is None:  # streamed frames (xcalib.site.stream): the image's size is kept, not the image
+            size = next((tuple(f.meta["image_size"]) for f in frames if np.asarray(f.image).size == 0
+                         and (f.meta or {}).get("image_size") is not None), None)
         own = (camera_frames or {}).get(name) or _recorded_frame(getattr(seq, "camera_frame_id", None), name)
         rec = getattr(seq, "tf_T_cam_lidar", None)
         cams.append(CameraCalibration(name, res, len(frames), _common_truth(frames), frame=str(own),

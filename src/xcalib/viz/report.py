@@ -188,7 +188,7 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
 
     out = Path(out_dir)
     (out / "img").mkdir(parents=True, exist_ok=True)
-    frames = list(frames)
+    frames = frames if isinstance(frames, Sequence) else list(frames)  # a lazy sequence stays lazy
     figures: list[ReportFigure] = []
     initial = _initial_pose(result, before)
     existing: dict[str, list[tuple[Path, bool]]] = {}
