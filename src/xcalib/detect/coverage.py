@@ -17,7 +17,7 @@ import numpy as np
 
 from ..geometry.boxes import as_box7, box7_corners, iou_matrix
 
-__all__ = ["DetectionCoverage", "detection_coverage", "COVERAGE_MIN"]
+__all__ = ["DetectionCoverage", "detection_coverage", "explain_refusal", "COVERAGE_MIN"]
 
 COVERAGE_MIN = 0.5  # below this share of 2D boxes with a LiDAR box, the LiDAR detections are named as the cause
 _IOU_MIN = 0.3
@@ -109,3 +109,22 @@ def detection_coverage(frames: Sequence, T_cam_lidar=None, intrinsics=None) -> D
             cov += int((iou_matrix(b2, rects).max(1) >= _IOU_MIN).sum())
     have_pose = T is not None
     return DetectionCoverage(len(frames), n2, n3, view if have_pose else None, cov if have_pose else None)
+
+
+def explain_refusal(result, frames: Sequence, intrinsics=None):
+    """A refused calibration ``result`` (a :class:`xcalib.calib.CalibrationResult`) made from
+    xcalib's own detections, with what is missing named first when the LiDAR boxes cover too
+    few of the camera's boxes at the refused pose (``diagnostics.refused_T``; the counts alone
+    without one): ``"too few LiDAR objects detected: ... (the calibration's verdict: ...)"``.
+    The coverage is kept in ``meta["detection_coverage"]``; a success, or a refusal with enough
+    coverage, is returned with only that added."""
+    import dataclasses
+
+    T = getattr(getattr(result, "diagnostics", None), "refused_T", None) if not result.success else None
+    if result.success:
+        T = result.extrinsics
+    cov = detection_coverage(frames, T, intrinsics)
+    meta = {**(result.meta or {}), "detection_coverage": dataclasses.asdict(cov) | {"share": cov.share}}
+    if result.success or not cov.too_few():
+        return dataclasses.replace(result, meta=meta)
+    return dataclasses.replace(result, meta=meta, message=f"{cov.refusal()} (the calibration's verdict: {result.message})")

@@ -301,22 +301,34 @@ def _radial_link(r: np.ndarray, step: float, height: float, config: LidarDetectC
     return np.clip(r ** 2 * step / h_eff, config.cell_m, max(config.cell_m, config.max_link_m))
 
 
-def _stretched(xy: np.ndarray, link) -> np.ndarray:
-    """x-y coordinates in which a grid of ``cell_m`` links points ``_radial_link`` apart along
-    the line of sight: (s(r), r * phi), s the integral of cell / link(r); phi measured from the
-    widest empty sector of the points (no object is cut at the +-pi seam)."""
-    r = np.hypot(xy[:, 0], xy[:, 1])
-    grid = np.linspace(0.0, max(float(r.max()), 1.0) + 1.0, 2048)
-    dens = link(grid).min() / link(grid)
+def _polar_clusters(xy: np.ndarray, link, cell: float, min_points) -> tuple[np.ndarray, np.ndarray]:
+    """As :func:`_clusters`, with points linked when within ``1.5 * cell`` across the line of
+    sight and ``1.5 * link(r)`` along it (``link`` the radial link distance at range r): pairs
+    from a k-d tree on the points moved radially to s(r) (the integral of cell / link, so a
+    radial gap of ``link`` becomes ``cell``), kept by that criterion, then connected components."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    r = np.maximum(np.hypot(xy[:, 0], xy[:, 1]), 1e-6)
+    grid = np.linspace(0.0, float(r.max()) + 1.0, 2048)
+    dens = cell / link(grid)
     s_grid = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(grid))])
     s = np.interp(r, grid, s_grid)
-    phi = np.arctan2(xy[:, 1], xy[:, 0])
-    ph = np.sort(phi)
-    gaps = np.diff(np.append(ph, ph[0] + 2 * np.pi))
-    k = int(np.argmax(gaps))
-    cut = ph[k] + gaps[k] / 2  # middle of the widest empty sector
-    phi = (phi - cut) % (2 * np.pi)
-    return np.column_stack([s, r * phi])
+    p = xy / r[:, None] * s[:, None]  # across the line of sight shrunk by s/r <= 1: a superset of the pairs
+    pairs = cKDTree(p).query_pairs(1.5 * cell * np.sqrt(2.0), output_type="ndarray")
+    i, j = pairs[:, 0], pairs[:, 1]
+    cross = np.abs(xy[i, 0] * xy[j, 1] - xy[i, 1] * xy[j, 0]) / np.maximum(r[i], r[j])  # ~ r * dphi
+    keep = (np.abs(s[i] - s[j]) <= 1.5 * cell) & (cross <= 1.5 * cell)
+    n = len(xy)
+    g = coo_matrix((np.ones(int(keep.sum())), (i[keep], j[keep])), shape=(n, n))
+    _, pl = connected_components(g, directed=False)
+    cnt = np.bincount(pl)
+    ok = cnt[pl] >= (min_points if np.isscalar(min_points) else min_points(pl, cnt))
+    idx = np.nonzero(ok)[0]
+    order = idx[np.argsort(pl[idx], kind="stable")]
+    _, starts = np.unique(pl[order], return_index=True)
+    return order, np.append(starts, len(order))
 
 
 def _min_points(r: np.ndarray, config: LidarDetectConfig) -> np.ndarray:
@@ -428,7 +440,10 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
     def enough(pl, cnt):
         return need(np.bincount(pl, weights=rng, minlength=len(cnt))[pl] / cnt[pl])
 
-    order, starts = _clusters(_stretched(xyz[:, :2], link), config.cell_m, enough)
+    if high:
+        order, starts = _polar_clusters(xyz[:, :2], link, config.cell_m, enough)
+    else:
+        order, starts = _clusters(xyz[:, :2], config.cell_m, enough)
     pieces = []
     for a, b in zip(starts[:-1], starts[1:]):
         idx = order[a:b]
