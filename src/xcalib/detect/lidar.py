@@ -43,8 +43,9 @@ class LidarDetectConfig:
     ``mode``: static (roadside: background model over the recording), moving (ground removal
     and clustering only) or auto (static when the clouds of the recording overlap).
     ``complete_vehicles``: a LiDAR sees one or two faces of a vehicle; a vehicle-sized cluster
-    (top >= 1.2 m, footprint >= 1.4 m) seen along one side only gets ``vehicle_width_m``, seen
-    at one end only ``vehicle_length_m``, the hidden part placed away from the sensor.
+    (top >= ``vehicle_min_top_m``, footprint >= 1.4 m) seen along one side only gets
+    ``vehicle_width_m``, seen at one end only ``vehicle_length_m``, the hidden part placed away
+    from the sensor; ``"auto"``: for a high LiDAR (below), whose side views of vehicles are lines.
 
     Range-adaptive (for high, sparse LiDARs such as roadside ones): from above, a LiDAR's rings
     cross a roof or bonnet ``r**2 * beam_step / (sensor height - roof_height_m)`` metres apart
@@ -53,7 +54,10 @@ class LidarDetectConfig:
     elevation histogram, see :func:`beam_step`; a sensor less than 1 m above ``roof_height_m``
     links over ``cell_m`` only); an object needs ``min_points`` points up to
     ``min_points_range_m`` and fewer beyond, as its points thin with 1/r**2, never fewer than
-    ``min_points_far``."""
+    ``min_points_far``; a vehicle side seen as a line is completed rather than dropped as thin;
+    a cluster over ``tall_min_m`` shorter than ``tall_min_length_m`` is dropped (from above, a
+    bus or truck shows its long footprint: this is a tree crown, a sign or a gantry).
+    """
 
     mode: Literal["auto", "static", "moving"] = "auto"
     max_range_m: float = 90.0
@@ -78,6 +82,8 @@ class LidarDetectConfig:
     min_points_far: int = 4
     complete_vehicles: bool | Literal["auto"] = "auto"
     vehicle_min_top_m: float = 0.8
+    tall_min_m: float = 2.6
+    tall_min_length_m: float = 4.5
     vehicle_width_m: float = 1.8
     vehicle_length_m: float = 4.4
     seed: int = 0
@@ -472,6 +478,8 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
             continue
         if length < 1.2 and top > 2.3:  # poles, trunks, posts, signs
             continue
+        if high and top > config.tall_min_m and length < config.tall_min_length_m:
+            continue  # seen from above a tall vehicle (bus, truck) shows its long footprint: tree crowns, signs
         if complete:
             cx, cy, length, width, yaw = _complete_vehicle(cx, cy, length, width, yaw, top, config)
         zg = float(ground.z_at(np.array([[cx, cy]]))[0])
