@@ -54,7 +54,9 @@ class LidarDetectConfig:
     elevation histogram, see :func:`beam_step`; a sensor less than 1 m above ``roof_height_m``
     links over ``cell_m`` only); an object needs ``min_points`` points up to
     ``min_points_range_m`` and fewer beyond, as its points thin with 1/r**2, never fewer than
-    ``min_points_far``; a vehicle side seen as a line is completed rather than dropped as thin;
+    ``min_points_far``; objects from ``min_object_height_high_m`` tall (glass and dark roofs
+    return little from above); ground cells where no ground is seen (the blind ring, shadows)
+    take their neighbours' heights; a vehicle side seen as a line is completed rather than dropped as thin;
     a cluster over ``tall_min_m`` shorter than ``tall_min_length_m`` is dropped (from above, a
     bus or truck shows its long footprint: this is a tree crown, a sign or a gantry).
     """
@@ -70,7 +72,8 @@ class LidarDetectConfig:
     background_voxel_m: float = 0.5
     background_fraction: float = 0.7
     background_frames: int = 60
-    min_object_height_m: float = 0.6
+    min_object_height_m: float = 0.9
+    min_object_height_high_m: float = 0.6
     max_length_m: float = 14.0
     max_width_m: float = 3.2
     max_gap_to_ground_m: float = 0.8
@@ -179,7 +182,9 @@ def fit_ground(xyz: np.ndarray, config: LidarDetectConfig = LidarDetectConfig(),
         q = start + (0.05 * (counts - 1)).astype(np.int64)
         ok = counts >= 5
         off[keys[ok]] = h[near][order][q[ok]]
-    off = _fill_nan(_nan_median3(off.reshape(shape)))
+    off = _nan_median3(off.reshape(shape))
+    if dd - config.roof_height_m >= 1.0:  # a high LiDAR's blind ring and shadows: neighbours, not the plane
+        off = _fill_nan(off)
     return GroundPlane(nrm, dd, lo, config.ground_cell_m, np.clip(np.nan_to_num(off, nan=0.0), -3.0, 3.0))
 
 
@@ -441,7 +446,8 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
     complete = high if config.complete_vehicles == "auto" else bool(config.complete_vehicles)
     link = functools.partial(_radial_link, step=beam_step(points) if high else 0.0,
                              height=height, config=config)
-    need = functools.partial(_min_points, config=config)
+    need = functools.partial(_min_points, config=config) if high else (lambda r: np.full(len(r), config.min_points))
+    min_top = config.min_object_height_high_m if high else config.min_object_height_m
 
     def enough(pl, cnt):
         return need(np.bincount(pl, weights=rng, minlength=len(cnt))[pl] / cnt[pl])
@@ -467,7 +473,7 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
         if bg_share is not None and bg_share[idx].mean() >= 0.5:  # mostly where something usually is
             continue
         top = float(hc.max())
-        if not config.min_object_height_m <= top <= config.max_height_m or float(hc.min()) > config.max_gap_to_ground_m:
+        if not min_top <= top <= config.max_height_m or float(hc.min()) > config.max_gap_to_ground_m:
             continue
         cx, cy, length, width, yaw = _min_area_rect(xyz[idx, :2])
         if complete and length >= 2.5:  # a vehicle's side seen as a line: completed, not dropped as thin
@@ -484,6 +490,6 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
             cx, cy, length, width, yaw = _complete_vehicle(cx, cy, length, width, yaw, top, config)
         zg = float(ground.z_at(np.array([[cx, cy]]))[0])
         z_top = float(xyz[idx, 2].max())
-        height = max(z_top - zg, config.min_object_height_m)
+        height = max(z_top - zg, min_top)
         boxes.append((cx, cy, zg + height / 2, length, width, height, yaw))
     return np.asarray(boxes, dtype=np.float32).reshape(-1, 7)
