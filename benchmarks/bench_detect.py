@@ -18,6 +18,9 @@ without truth, from the labelled pose), detection counts and times.
   with the true calibration (``synthetic_2d_boxes``: the labelled run is optimistic).
 * windows: the detected frames of A9 (moving; 2 x 8 frames) and PandaSet (3 x 10 frames)
   calibrated on their own, to count wrong successes over more runs.
+* refusals of the detected rows go through ``xcalib.detect.explain_refusal`` as with
+  ``calibrate --detect`` (named "too few LiDAR objects detected" when the LiDAR boxes cover
+  under half of the camera's boxes at the refused pose); ``coverage_2d``: that share.
 * KITTI (openpcdet_pr653 training 000001-000005 (one drive; 000000 is another), truth): labelled = KITTI label_2 boxes.
 
 Prints a table and writes ``benchmarks/results/detect.json``.
@@ -53,16 +56,21 @@ def _gap(T, ref) -> tuple[float, float] | tuple[None, None]:
     return tuple(float(x) for x in pose_error(np.asarray(T), np.asarray(ref)))
 
 
-def _calibrate(frames, intr, labelled_T=None, truth_T=None) -> dict:
+def _calibrate(frames, intr, labelled_T=None, truth_T=None, detected=True) -> dict:
     from xcalib.calib.api import calibrate
+    from xcalib.detect import explain_refusal
 
     t0 = time.perf_counter()
     res = calibrate(frames, intr)
+    if detected:  # as calibrate --detect does: a refusal names weak detections where they are the cause
+        res = explain_refusal(res, frames, intr)
     rec = {"success": bool(res.success), "message": res.message, "calib_s": time.perf_counter() - t0,
            "n_pairs": res.n_pairs, "n_2d": int(sum(f.num_2d for f in frames)),
            "n_3d": int(sum(f.num_3d for f in frames)), "frames": len(frames)}
     T = res.extrinsics if res.success else getattr(res.diagnostics, "refused_T", None)
     rec["T"] = None if T is None else np.asarray(T).tolist()
+    if "detection_coverage" in res.meta:
+        rec["coverage_2d"] = res.meta["detection_coverage"]["share"]
     if res.success:
         rec["sigma_deg"] = float(np.linalg.norm(res.rotation_std_deg))
         rec["sigma_m"] = float(np.linalg.norm(res.translation_std_m))
@@ -100,7 +108,7 @@ def _a9(detector, log) -> list[dict]:
         return []
     seq = read_frames(root)
     frames = [seq[i] for i in range(len(seq))]
-    lab = _calibrate(frames, seq.intrinsics)
+    lab = _calibrate(frames, seq.intrinsics, detected=False)
     rows = [{"dataset": "A9", "detections": "labelled", **lab}]
     log(rows[-1])
     ref = lab["T"]
@@ -132,7 +140,7 @@ def _pandaset(detector, log) -> list[dict]:
     seq = PandaSetFrames(root)
     truth = seq[0].extrinsics
     lab = [dataclasses.replace(synthetic_2d_boxes(seq[i], seed=i), match_matrix=None) for i in range(len(seq))]
-    rl = _calibrate(lab, seq.intrinsics, None, truth)
+    rl = _calibrate(lab, seq.intrinsics, None, truth, detected=False)
     rows = [{"dataset": "PandaSet 002", "detections": "labelled (cuboids, 2D projected)", **rl}]
     log(rows[-1])
     det, dt = _detected(seq, "auto", detector)
@@ -161,7 +169,7 @@ def _kitti(detector, log) -> list[dict]:
     seq = kitti_frames(root, ids=[1, 2, 3, 4, 5])  # 000000 has other intrinsics (another drive)
     frames = [seq[i] for i in range(len(seq))]
     truth = frames[0].extrinsics
-    rl = _calibrate(frames, frames[0].intrinsics, None, truth)
+    rl = _calibrate(frames, frames[0].intrinsics, None, truth, detected=False)
     rows = [{"dataset": "KITTI 5 frames", "detections": "labelled (label_2)", **rl}]
     log(rows[-1])
     det, dt = _detected(seq, "auto", detector)
@@ -184,7 +192,8 @@ def _print(rows: list[dict]) -> None:
               f"{_fmt(r['gap_truth_deg'], r['gap_truth_m']):>11} {sig:>11} {cov:>5} {r['n_2d']:>5} {r['n_3d']:>5} "
               f"{r['n_pairs']:>5} {r.get('detect_s', 0):>8.1f} {r['calib_s']:>7.1f}")
         if not r["success"]:
-            print(f"{'':<15} refusal: {r['message'][:150]}")
+            cov = "" if r.get("coverage_2d") is None else f" [LiDAR boxes cover {100 * r['coverage_2d']:.0f} % of the 2D boxes]"
+            print(f"{'':<15} refusal{cov}: {r['message'][:150]}")
 
 
 def _fmt(a, b) -> str:

@@ -129,8 +129,11 @@ def _covariance(model: CostModel, r0_J: tuple | None = None) -> np.ndarray | Non
 
 def _inflation(cov: np.ndarray) -> np.ndarray:
     """Extra pose 1-sigma (deg, m) from freeing the extra parameters: marginal minus conditional variance."""
-    P = np.linalg.inv(cov)
-    cond = np.diag(np.linalg.inv(P[:6, :6]))
+    try:
+        P = np.linalg.inv(cov)
+        cond = np.diag(np.linalg.inv(P[:6, :6]))
+    except np.linalg.LinAlgError:  # the extra parameters are not constrained at all (one frame, few boxes)
+        return np.full(6, np.inf)
     extra = np.sqrt(np.clip(np.diag(cov)[:6] - cond, 0, None))
     return np.concatenate([np.degrees(extra[:3]), extra[3:]])
 

@@ -168,8 +168,13 @@ def register(app: typer.Typer) -> None:
                 views = stream_views(views, stream_cfg, source=str(frames), progress=progress)
 
                 def run(items, k, stage, prior=None):
-                    return calibrate(items, k, selfcal, prior=prior_res if prior is None else prior, box_model=box_model,
-                                     seed=seed, progress=stage)
+                    res = calibrate(items, k, selfcal, prior=prior_res if prior is None else prior, box_model=box_model,
+                                    seed=seed, progress=stage)
+                    if detect:  # a refusal names the weak detections where they are the cause
+                        from ..detect import explain_refusal
+
+                        res = explain_refusal(res, items, k)
+                    return res
 
                 site, loaded = calibrate_site(views, {name0: intr} if intr is not None else None, source=str(frames),
                                               calibrate=run, progress=progress, lidar_frame=lidar_frame,

@@ -23,6 +23,7 @@ radians); see :mod:`xcalib.geometry.boxes`.
 
 from __future__ import annotations
 
+import functools
 import logging
 from dataclasses import dataclass
 from typing import Literal
@@ -42,8 +43,23 @@ class LidarDetectConfig:
     ``mode``: static (roadside: background model over the recording), moving (ground removal
     and clustering only) or auto (static when the clouds of the recording overlap).
     ``complete_vehicles``: a LiDAR sees one or two faces of a vehicle; a vehicle-sized cluster
-    (top >= 1.2 m, footprint >= 1.4 m) seen along one side only gets ``vehicle_width_m``, seen
-    at one end only ``vehicle_length_m``, the hidden part placed away from the sensor."""
+    (top >= ``vehicle_min_top_m``, footprint >= 1.4 m) seen along one side only gets
+    ``vehicle_width_m``, seen at one end only ``vehicle_length_m``, the hidden part placed away
+    from the sensor; ``"auto"``: for a high LiDAR (below), whose side views of vehicles are lines.
+
+    Range-adaptive (for high, sparse LiDARs such as roadside ones): from above, a LiDAR's rings
+    cross a roof or bonnet ``r**2 * beam_step / (sensor height - roof_height_m)`` metres apart
+    along the line of sight, so points at range ``r`` are linked over that radial distance
+    (at least ``cell_m``, at most ``max_link_m``; the beam step is measured from the cloud's
+    elevation histogram, see :func:`beam_step`; a sensor less than 1 m above ``roof_height_m``
+    links over ``cell_m`` only); an object needs ``min_points`` points up to
+    ``min_points_range_m`` and fewer beyond, as its points thin with 1/r**2, never fewer than
+    ``min_points_far``; objects from ``min_object_height_high_m`` tall (glass and dark roofs
+    return little from above); ground cells where no ground is seen (the blind ring, shadows)
+    take their neighbours' heights; a vehicle side seen as a line is completed rather than dropped as thin;
+    a cluster over ``tall_min_m`` shorter than ``tall_min_length_m`` is dropped (from above, a
+    bus or truck shows its long footprint: this is a tree crown, a sign or a gantry).
+    """
 
     mode: Literal["auto", "static", "moving"] = "auto"
     max_range_m: float = 90.0
@@ -57,12 +73,20 @@ class LidarDetectConfig:
     background_fraction: float = 0.7
     background_frames: int = 60
     min_object_height_m: float = 0.9
+    min_object_height_high_m: float = 0.6
     max_length_m: float = 14.0
     max_width_m: float = 3.2
     max_gap_to_ground_m: float = 0.8
     min_width_m: float = 0.3
     split_gap_m: float = 0.3
-    complete_vehicles: bool = False
+    max_link_m: float = 2.0
+    roof_height_m: float = 1.5
+    min_points_range_m: float = 25.0
+    min_points_far: int = 4
+    complete_vehicles: bool | Literal["auto"] = "auto"
+    vehicle_min_top_m: float = 0.8
+    tall_min_m: float = 2.6
+    tall_min_length_m: float = 4.5
     vehicle_width_m: float = 1.8
     vehicle_length_m: float = 4.4
     seed: int = 0
@@ -159,7 +183,23 @@ def fit_ground(xyz: np.ndarray, config: LidarDetectConfig = LidarDetectConfig(),
         ok = counts >= 5
         off[keys[ok]] = h[near][order][q[ok]]
     off = _nan_median3(off.reshape(shape))
+    if dd - config.roof_height_m >= 1.0:  # a high LiDAR's blind ring and shadows: neighbours, not the plane
+        off = _fill_nan(off)
     return GroundPlane(nrm, dd, lo, config.ground_cell_m, np.clip(np.nan_to_num(off, nan=0.0), -3.0, 3.0))
+
+
+def _fill_nan(a: np.ndarray, rounds: int = 3) -> np.ndarray:
+    """Cells with no ground seen (the blind ring under a high sensor, shadows behind vehicles)
+    take the median of their measured neighbours, grown outwards ring by ring, instead of the
+    plane: a plane fitted to a whole junction is off by a metre on a local slope."""
+    a = a.copy()
+    for _ in range(rounds):
+        miss = np.isnan(a)
+        if not miss.any() or miss.all():
+            break
+        grown = _nan_median3(a)
+        a[miss] = grown[miss]
+    return a
 
 
 def _nan_median3(a: np.ndarray) -> np.ndarray:
@@ -246,9 +286,72 @@ def is_static_recording(clouds, config: LidarDetectConfig = LidarDetectConfig())
     return inter / max(1, len(np.union1d(sets[0], sets[1]))) >= 0.5
 
 
-def _clusters(xy: np.ndarray, cell: float, min_points: int) -> tuple[np.ndarray, np.ndarray]:
+def beam_step(xyz: np.ndarray) -> float:
+    """A spinning LiDAR's vertical beam spacing (radians) from one cloud: the median gap between
+    adjacent peaks of the points' elevation histogram (0.05 deg bins, points beyond 3 m);
+    0.0 when the cloud shows no ring structure (fewer than 8 peaks)."""
+    p = np.asarray(xyz, dtype=np.float64)[:, :3]
+    r = np.hypot(p[:, 0], p[:, 1])
+    ok = np.isfinite(r) & (r > 3.0) & np.isfinite(p[:, 2])
+    if ok.sum() < 1000:
+        return 0.0
+    el = np.degrees(np.arctan2(p[ok, 2], r[ok]))
+    hist, edges = np.histogram(el, bins=np.arange(-60.0, 30.0, 0.05))
+    floor = max(20, 0.2 * np.percentile(hist[hist > 0], 90))
+    pk = np.nonzero((hist[1:-1] >= hist[:-2]) & (hist[1:-1] > hist[2:]) & (hist[1:-1] > floor))[0] + 1
+    if len(pk) < 8:
+        return 0.0
+    return float(np.radians(np.median(np.diff(edges[pk]))))
+
+
+def _radial_link(r: np.ndarray, step: float, height: float, config: LidarDetectConfig) -> np.ndarray:
+    """Radial link distance (m) at ranges ``r``: the gap between rings on a roof seen from above."""
+    h_eff = height - config.roof_height_m
+    if step <= 0 or h_eff < 1.0:
+        return np.full(len(r), config.cell_m)
+    return np.clip(r ** 2 * step / h_eff, config.cell_m, max(config.cell_m, config.max_link_m))
+
+
+def _polar_clusters(xy: np.ndarray, link, cell: float, min_points) -> tuple[np.ndarray, np.ndarray]:
+    """As :func:`_clusters`, with points linked when within ``1.5 * cell`` across the line of
+    sight and ``1.5 * link(r)`` along it (``link`` the radial link distance at range r): pairs
+    from a k-d tree on the points moved radially to s(r) (the integral of cell / link, so a
+    radial gap of ``link`` becomes ``cell``), kept by that criterion, then connected components."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    r = np.maximum(np.hypot(xy[:, 0], xy[:, 1]), 1e-6)
+    grid = np.linspace(0.0, float(r.max()) + 1.0, 2048)
+    dens = cell / link(grid)
+    s_grid = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(grid))])
+    s = np.interp(r, grid, s_grid)
+    p = xy / r[:, None] * s[:, None]  # across the line of sight shrunk by s/r <= 1: a superset of the pairs
+    pairs = cKDTree(p).query_pairs(1.5 * cell * np.sqrt(2.0), output_type="ndarray")
+    i, j = pairs[:, 0], pairs[:, 1]
+    cross = np.abs(xy[i, 0] * xy[j, 1] - xy[i, 1] * xy[j, 0]) / np.maximum(r[i], r[j])  # ~ r * dphi
+    keep = (np.abs(s[i] - s[j]) <= 1.5 * cell) & (cross <= 1.5 * cell)
+    n = len(xy)
+    g = coo_matrix((np.ones(int(keep.sum())), (i[keep], j[keep])), shape=(n, n))
+    _, pl = connected_components(g, directed=False)
+    cnt = np.bincount(pl)
+    ok = cnt[pl] >= (min_points if np.isscalar(min_points) else min_points(pl, cnt))
+    idx = np.nonzero(ok)[0]
+    order = idx[np.argsort(pl[idx], kind="stable")]
+    _, starts = np.unique(pl[order], return_index=True)
+    return order, np.append(starts, len(order))
+
+
+def _min_points(r: np.ndarray, config: LidarDetectConfig) -> np.ndarray:
+    """Points an object needs at range ``r``: ``min_points`` up to ``min_points_range_m``, then
+    falling as 1/r**2 (as its points do), never below ``min_points_far``."""
+    scale = np.minimum(1.0, (config.min_points_range_m / np.maximum(r, 1e-6)) ** 2)
+    return np.maximum(config.min_points_far, np.ceil(config.min_points * scale))
+
+
+def _clusters(xy: np.ndarray, cell: float, min_points) -> tuple[np.ndarray, np.ndarray]:
     """(order of points sorted by cluster, start offsets [C+1]) of 8-connected grid components
-    with at least ``min_points`` points."""
+    with at least ``min_points`` points (a number, or a function of the cluster's points)."""
     from scipy import ndimage
 
     lo = xy.min(0)
@@ -259,7 +362,7 @@ def _clusters(xy: np.ndarray, cell: float, min_points: int) -> tuple[np.ndarray,
     lab, _ = ndimage.label(occ, structure=np.ones((3, 3), dtype=bool))
     pl = lab[ij[:, 0], ij[:, 1]]
     cnt = np.bincount(pl)
-    keep = cnt[pl] >= min_points
+    keep = cnt[pl] >= (min_points if np.isscalar(min_points) else min_points(pl, cnt))
     idx = np.nonzero(keep)[0]
     order = idx[np.argsort(pl[idx], kind="stable")]
     _, starts = np.unique(pl[order], return_index=True)
@@ -279,12 +382,16 @@ def _min_area_rect(xy: np.ndarray) -> tuple[float, float, float, float, float]:
     return float(cx), float(cy), float(w), float(h), float(yaw)
 
 
-def _split_at_gaps(xy: np.ndarray, idx: np.ndarray, gap: float, min_points: int) -> list[np.ndarray]:
+def _split_at_gaps(xy: np.ndarray, idx: np.ndarray, gap: float, sight: np.ndarray, ring_gap: float,
+                   min_points: int) -> list[np.ndarray]:
     """A long cluster (a row of parked cars merged by the grid) cut where its points leave a gap
-    of at least ``gap`` metres along its long axis; pieces under ``min_points`` are dropped."""
+    of at least ``gap`` metres along its long axis, plus ``ring_gap`` (the extra radial link)
+    times the axis's share along the line of sight ``sight`` [2] (unit); pieces under
+    ``min_points`` are dropped."""
     p = xy[idx]
     c = p - p.mean(0)
     axis = np.linalg.svd(c, full_matrices=False)[2][0]
+    gap = gap + max(0.0, ring_gap) * abs(float(axis @ sight))
     t = c @ axis
     order = np.argsort(t)
     cuts = np.nonzero(np.diff(t[order]) >= gap)[0] + 1
@@ -293,7 +400,7 @@ def _split_at_gaps(xy: np.ndarray, idx: np.ndarray, gap: float, min_points: int)
 
 def _complete_vehicle(cx, cy, length, width, yaw, top, config: LidarDetectConfig):
     """The footprint of a vehicle seen from one side or one end, completed away from the sensor."""
-    if top < 1.2 or length < 1.4:
+    if top < config.vehicle_min_top_m or length < 1.4:
         return cx, cy, length, width, yaw
     u = np.array([np.cos(yaw), np.sin(yaw)])  # length axis
     v = np.array([-u[1], u[0]])               # width axis
@@ -331,15 +438,33 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
         obj &= ~background.mask(xyz)
     xyz, h = xyz[obj], h[obj]
     bg_share = None if background is None else background.fraction_of(xyz) >= background.threshold / 2
-    if len(xyz) < config.min_points:
+    if len(xyz) < config.min_points_far:
         return np.zeros((0, 7), np.float32)
-    order, starts = _clusters(xyz[:, :2], config.cell_m, config.min_points)
+    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+    height = float(ground.height(np.zeros((1, 3)))[0])  # the sensor over the ground below it
+    high = height - config.roof_height_m >= 1.0
+    complete = high if config.complete_vehicles == "auto" else bool(config.complete_vehicles)
+    link = functools.partial(_radial_link, step=beam_step(points) if high else 0.0,
+                             height=height, config=config)
+    need = functools.partial(_min_points, config=config) if high else (lambda r: np.full(len(r), config.min_points))
+    min_top = config.min_object_height_high_m if high else config.min_object_height_m
+
+    def enough(pl, cnt):
+        return need(np.bincount(pl, weights=rng, minlength=len(cnt))[pl] / cnt[pl])
+
+    if high:
+        order, starts = _polar_clusters(xyz[:, :2], link, config.cell_m, enough)
+    else:
+        order, starts = _clusters(xyz[:, :2], config.cell_m, enough)
     pieces = []
     for a, b in zip(starts[:-1], starts[1:]):
         idx = order[a:b]
         ext = np.ptp(xyz[idx, :2], axis=0)
         if ext.max() > 6.0 and config.split_gap_m > 0:
-            pieces += _split_at_gaps(xyz[:, :2], idx, config.split_gap_m, config.min_points)
+            c = xyz[idx, :2].mean(0)
+            r0 = float(np.hypot(*c))
+            pieces += _split_at_gaps(xyz[:, :2], idx, config.split_gap_m, c / max(r0, 1e-6),
+                                     float(link(np.array([r0]))[0]) - config.cell_m, int(need(np.array([r0]))[0]))
         else:
             pieces.append(idx)
     boxes = []
@@ -348,19 +473,23 @@ def lidar_boxes(points, config: LidarDetectConfig = LidarDetectConfig(), *, grou
         if bg_share is not None and bg_share[idx].mean() >= 0.5:  # mostly where something usually is
             continue
         top = float(hc.max())
-        if not config.min_object_height_m <= top <= config.max_height_m or float(hc.min()) > config.max_gap_to_ground_m:
+        if not min_top <= top <= config.max_height_m or float(hc.min()) > config.max_gap_to_ground_m:
             continue
         cx, cy, length, width, yaw = _min_area_rect(xyz[idx, :2])
+        if complete and length >= 2.5:  # a vehicle's side seen as a line: completed, not dropped as thin
+            cx, cy, length, width, yaw = _complete_vehicle(cx, cy, length, width, yaw, top, config)
         if length > config.max_length_m or width > config.max_width_m or width < config.min_width_m:
             continue  # too long or wide for traffic; too thin: fences, walls, kerbs, posts
         if length > 5.0 and width < 0.5:  # fences, walls
             continue
         if length < 1.2 and top > 2.3:  # poles, trunks, posts, signs
             continue
-        if config.complete_vehicles:
+        if high and top > config.tall_min_m and length < config.tall_min_length_m:
+            continue  # seen from above a tall vehicle (bus, truck) shows its long footprint: tree crowns, signs
+        if complete:
             cx, cy, length, width, yaw = _complete_vehicle(cx, cy, length, width, yaw, top, config)
         zg = float(ground.z_at(np.array([[cx, cy]]))[0])
         z_top = float(xyz[idx, 2].max())
-        height = max(z_top - zg, config.min_object_height_m)
+        height = max(z_top - zg, min_top)
         boxes.append((cx, cy, zg + height / 2, length, width, height, yaw))
     return np.asarray(boxes, dtype=np.float32).reshape(-1, 7)
