@@ -32,13 +32,15 @@ import numpy as np
 
 from ..calib.cost import CostModel, Occlusion
 from ..calib.diagnostics import NoiseModel
-from ..calib.inputs import CalibFrame, prepare_frames
+from ..calib.inputs import YAW_OPEN_SIGMA, CalibFrame, prepare_frames
 from ..calib.pose import Pose
 from ..calib.boxproj import project_rects
 from ..calib.refine import DEFAULT_NOISE, F_SCALE, edge_term, match_frame
 from ..calib.result import CalibrationResult
+from ..geometry.boxes import as_box7, check_boxes3d
 from ..geometry.camera import CameraIntrinsics
 from . import stats
+from .fastyaw import fit_yaw_batch
 
 __all__ = ["MonitorConfig", "MonitorStatus", "DriftEvent", "CameraMonitor", "Monitor", "State", "load_calibration",
            "JSON_FIELDS"]
@@ -417,6 +419,34 @@ class CameraMonitor:
         JW = J * w[:, None]
         return _Rec(0, 0.0, J.T @ JW, JW.T @ rr, float(np.sum(w * rr * rr)), int(info.sum()), cf.n2, int(len(pairs)))
 
+    def _prepare(self, frame) -> CalibFrame:
+        """The frame's boxes as the cost's outlines. Yaw-less [M,6] 3D boxes with a point cloud get
+        their yaw from the points cheaply (``fastyaw.fit_yaw_batch``: ``fit_yaw_to_points``'s cost
+        for all boxes at once on a 4 deg heading grid refined by a parabola) and their 8 corners as the
+        outline (a heading the points leave ambiguous weighs as an open-yaw outline, as in
+        ``prepare_frames``): one consistent box model for every frame, whatever the calibration
+        used, at a few ms per frame instead of the yaw fit, scan pattern and point hulls of
+        ``prepare_frames`` (~60 ms at A9 density)."""
+        b3 = np.asarray(frame.bboxes_3d)
+        meta = getattr(frame, "meta", None) or {}
+        m7 = meta.get("box7")
+        pts = getattr(frame, "point_cloud", None)
+        yawless = (b3.ndim == 2 and b3.shape[1] == 6 and len(b3) > 0
+                   and not (m7 is not None and np.shape(m7) == (len(b3), 7))
+                   and self._prep["reestimate_yaw"] not in ("never", False))
+        if yawless and pts is not None and np.ndim(pts) == 2 and len(pts):
+            box7 = as_box7(check_boxes3d(b3, "bboxes_3d"))
+            if np.all(np.isfinite(box7)):
+                b7, ambiguous = fit_yaw_batch(box7, pts)
+                f2 = replace(frame, bboxes_3d=b7, point_cloud=np.zeros((0, 3), np.float32),
+                             meta={k: v for k, v in meta.items() if k != "box7"})
+                cf = prepare_frames([f2], self.intr, reestimate_yaw="never", box_model="corners")[0][0]
+                amb = ambiguous[cf.idx3d]
+                sig = np.where(amb, YAW_OPEN_SIGMA * np.abs(cf.boxes3d[:, 3] - cf.boxes3d[:, 4]), 0.0)
+                return replace(cf, yaw_ambiguous=amb, outline_sigma_m=sig, points=None, image=None)
+        cfs, _, _ = prepare_frames([frame], self.intr, **self._prep)
+        return replace(cfs[0], points=None, image=None)
+
     def update(self, frame, index: int | None = None) -> MonitorStatus | None:
         """Add one frame (an ``xcalib.types.Frame`` of this camera); returns the decision when one
         is due (every ``stride`` frames once ``window`` frames are in), else None."""
@@ -427,8 +457,7 @@ class CameraMonitor:
             raise ValueError(f"frame {getattr(frame, 'frame_key', index)!r}: time {t:.3f} s is before the previous "
                              f"frame's {self.last_time:.3f} s; frames must arrive in time order")
         self.last_time = t
-        cfs, _, _ = prepare_frames([frame], self.intr, **self._prep)
-        cf = replace(cfs[0], points=None, image=None)
+        cf = self._prepare(frame)
         rec = self._linearise(cf)
         rec.index, rec.time_s, rec.cf = index, t, cf
         ids = getattr(frame, "track_ids_3d", None)
