@@ -50,7 +50,8 @@ State = Literal["ok", "drift", "unknown"]
 #: keys of every JSON line (``MonitorStatus.to_dict``)
 JSON_FIELDS = ("frame", "time_s", "camera", "state", "rotation_change_deg", "translation_change_m",
                "rotation_sigma_deg", "translation_sigma_m", "detectable_rotation_deg", "detectable_translation_m",
-               "change_frame", "change_time_s", "n_frames", "n_pairs", "statistic", "threshold", "message")
+               "change_frame", "change_time_s", "n_frames", "n_pairs", "statistic", "threshold", "weak_axes",
+               "message")
 
 
 @dataclass(frozen=True)
@@ -63,7 +64,9 @@ class MonitorConfig:
     frame (default 1 per 10,000); fps: frame rate where frames carry no time; min_pairs:
     matched pairs a segment needs; min_objects: distinct matched objects it needs (where frames carry
     track ids); max_detectable_deg / _m: a decision is ``unknown`` when the
-    change it could detect (95 % power) exceeds these on any axis; calibration_sigma_deg / _m:
+    change it could detect (95 % power) exceeds these on any axis; target_deg / _m: the change
+    an operator wants seen (the issue's 0.25 deg / 10 cm): axes whose detectable change exceeds
+    it are named in ``weak_axes`` (not observable at that size from this traffic); calibration_sigma_deg / _m:
     the calibration's 1-sigma where the result has none; gate_iou / gate_dist: matching gates
     (``refine.match_frame``); latch: a drift stays (and the estimate follows the frames since
     the change); False: the monitor starts afresh after each alarm (benchmarks).
@@ -79,6 +82,8 @@ class MonitorConfig:
     min_objects: int = 3
     max_detectable_deg: float = 1.0
     max_detectable_m: float = 0.5
+    target_deg: float = 0.25
+    target_m: float = 0.10
     calibration_sigma_deg: float = 0.1
     calibration_sigma_m: float = 0.05
     gate_iou: float = 0.2
@@ -173,6 +178,7 @@ class MonitorStatus:
     change_frame: int | None = None
     change_time_s: float | None = None
     reason: str = ""
+    weak_axes: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
         d = {k: getattr(self, k) for k in JSON_FIELDS}
@@ -181,6 +187,7 @@ class MonitorStatus:
                 d[k] = _l(v)
             elif isinstance(v, float):
                 d[k] = _f(v)
+        d["weak_axes"] = list(self.weak_axes)
         d["reason"] = self.reason
         return d
 
@@ -332,6 +339,7 @@ class CameraMonitor:
         self.reset()
         self.events: list[DriftEvent] = []
         self.statuses_seen = {"ok": 0, "drift": 0, "unknown": 0}
+        self.weak_seen = dict.fromkeys(AXIS_NAMES, 0)
         self.n_seen = 0
         self.last_time: float | None = None
         self.last_status: MonitorStatus | None = None
@@ -477,6 +485,8 @@ class CameraMonitor:
         self._since_decision = 0
         st = self._decide()
         self.statuses_seen[st.state] += 1
+        for a in st.weak_axes:
+            self.weak_seen[a] += 1
         self.last_status = st
         return st
 
@@ -487,6 +497,9 @@ class CameraMonitor:
         x = _to_units(fit.x) if fit is not None else np.full(6, np.nan)
         sd = fit.sd6 if fit is not None else np.full(6, np.nan)
         det = np.full(6, np.nan) if det is None else det
+        weak = self.weak_axes(det)
+        if weak and state == "ok":
+            message += f"; {_weak_message(weak, det, n_frames)}"
         ev = self.drift
         return MonitorStatus(frame=last.index, time_s=last.time_s, camera=self.camera, state=state,
                              rotation_change_deg=x[:3], translation_change_m=x[3:], rotation_sigma_deg=sd[:3],
@@ -495,7 +508,15 @@ class CameraMonitor:
                              n_frames=n_frames, n_pairs=fit.n_pairs if fit is not None else 0,
                              statistic=float(stat), threshold=self.h,
                              change_frame=None if ev is None else ev.change_frame,
-                             change_time_s=None if ev is None else ev.change_time_s, reason=reason)
+                             change_time_s=None if ev is None else ev.change_time_s, reason=reason,
+                             weak_axes=weak)
+
+    def weak_axes(self, det: np.ndarray) -> tuple[str, ...]:
+        """Axes ("rx" .. "tz") whose detectable change ``det`` (deg / m, 95 % power) exceeds the
+        configured target change (NaN: no decision, none named)."""
+        tgt = np.array([self.config.target_deg] * 3 + [self.config.target_m] * 3)
+        with np.errstate(invalid="ignore"):
+            return tuple(a for a, v, t in zip(AXIS_NAMES, det, tgt) if v > t)
 
     def _evidence(self, recs: list[_Rec]) -> tuple[str, str] | None:
         """(reason code, message) when the segment has too few matched objects, else None."""
@@ -655,11 +676,22 @@ class CameraMonitor:
                 "threshold": self.h, "false_alarm_rate_per_frame": self.config.false_alarm_rate,
                 "detectable_rotation_deg": None if last is None else _l(last.detectable_rotation_deg),
                 "detectable_translation_m": None if last is None else _l(last.detectable_translation_m),
+                "weak_axes": [] if last is None else list(last.weak_axes),
+                "weak_axes_share": {a: v / max(sum(self.statuses_seen.values()), 1) for a, v in self.weak_seen.items()
+                                    if v},
+                "target_change": {"rotation_deg": self.config.target_deg, "translation_m": self.config.target_m},
                 "events": [e.to_dict() for e in self.events],
                 "message": "no decision yet (fewer frames than one window)" if last is None else last.message}
 
 
 _AXES = ("x", "y", "z")
+AXIS_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
+
+
+def _weak_message(weak: tuple[str, ...], det: np.ndarray, n_frames: int) -> str:
+    parts = [f"{'turns about' if a[0] == 'r' else 'shifts along'} {a[1]} below "
+             f"{det[AXIS_NAMES.index(a)]:.2f} {'deg' if a[0] == 'r' else 'm'}" for a in weak]
+    return (f"not observable from this traffic within {n_frames} frames (95 % power): " + ", ".join(parts))
 RELIN_ITERS = 2  # re-linearisations of the frames after a detected change
 MIN_DIFFS = 5  # adjacent window pairs before the measured inflation replaces the prior
 INFLATION_PRIOR = 2.0
