@@ -272,10 +272,12 @@ class _Sums:
         return _Fit(x, Hinv * s2 * inflation, n_pairs, b - a, s2)
 
 
-def _scan(sums: _Sums, n: int, min_pairs: int) -> tuple[int, float]:
-    """Most likely change point among n frames (index of the first frame after it) and its
-    two-sample statistic (classic covariances)."""
-    k = np.arange(1, n)
+def _scan(sums: _Sums, n: int, min_pairs: int, lo: int = 1, hi: int | None = None) -> tuple[int, float]:
+    """Most likely change point among n frames (index of the first frame after it, searched in
+    [lo, hi)) and its two-sample statistic (classic covariances)."""
+    k = np.arange(max(lo, 1), n if hi is None else min(hi, n))
+    if not len(k):
+        return n // 2, 0.0
     ok = (sums.p[k] >= min_pairs) & (sums.p[n] - sums.p[k] >= min_pairs)
     if not np.any(ok):
         return n // 2, 0.0
@@ -624,11 +626,8 @@ class CameraMonitor:
         self.events.append(ev)
         self.drift = ev
         st = self._status("drift", fa, _drift_message(ev), "change", stat, det, n - k)
-        if cfg.latch:
-            self.x_lin = np.array(fa.x, dtype=np.float64)  # new frames are matched / linearised at the moved pose
-            keep = list(self.recs)[k:]  # the frames since the change are the new segment's evidence
-            self.recs.clear()
-            self.recs.extend(keep)
+        if cfg.latch:  # new frames are matched / linearised at the moved pose; the history stays (the
+            self.x_lin = np.array(fa.x, dtype=np.float64)  # change point is refined as frames come in)
         else:
             self.reset()
         return st
@@ -658,16 +657,31 @@ class CameraMonitor:
         return fa
 
     def _decide_latched(self, recs: list[_Rec], sums: _Sums) -> MonitorStatus:
+        """A latched drift: while the frames before the change are in the history, the change point
+        is searched again near the one found (within ``2 window`` frames: every new frame sharpens
+        it, and a change point found early would mix frames from before the change into the
+        estimate), the frames before it refitted; the change is the fit of the frames since."""
         ev = self.drift
+        cfg = self.config
         n = len(recs)
-        fit = sums.fit(0, n, self.inflation) if sums.pairs(0, n) >= self.config.min_pairs else None
+        k = next((j for j, q in enumerate(recs) if q.index >= ev.change_frame), n)
+        if 0 < k < n:
+            W2 = 2 * cfg.window
+            k, _ = _scan(sums, n, cfg.min_pairs, k - W2, k + W2 + 1)
+            fb = sums.fit(0, k, self.inflation) if sums.pairs(0, k) >= cfg.min_pairs else None
+            if fb is not None:
+                ev.before_x, ev.before_cov = fb.x, fb.cov
+                ev.change_frame, ev.change_time_s = recs[k].index, recs[k].time_s
+        else:
+            k = 0
+        fit = sums.fit(k, n, self.inflation) if sums.pairs(k, n) >= cfg.min_pairs else None
         det, s = None, 0.0
         if fit is not None:
             ev.update(fit)
             self.x_lin = np.array(fit.x, dtype=np.float64)
             det = _to_units(stats.detectable_change(fit.cov + self.cov_cal, self.lam))
             s = stats.chi2_stat(fit.x, fit.cov + self.cov_cal)
-        return self._status("drift", fit, _drift_message(ev), "change", s, det, n)
+        return self._status("drift", fit, _drift_message(ev), "change", s, det, n - k)
 
     def summary(self) -> dict:
         last = self.last_status
