@@ -216,6 +216,8 @@ class _Rec:
     n_pairs: int
     cf: CalibFrame | None = None  # kept for the recent frames only: re-linearised at a detected change
     objects: np.ndarray | None = None  # track ids of the matched 3D boxes (None: the frame has none)
+    x_lin: np.ndarray | None = None  # the pose it was linearised at (None: the calibration)
+    lin: tuple | None = None  # (H, g, c) of the residuals without occlusion shaping (the estimate's)
 
 
 @dataclass
@@ -240,13 +242,15 @@ def _to_units(x: np.ndarray) -> np.ndarray:
 class _Sums:
     """Cumulative sums of the frames' normal equations: any run of frames is one subtraction."""
 
-    def __init__(self, recs: list[_Rec]):
+    def __init__(self, recs: list[_Rec], linear: bool = False):
+        """``linear``: the residuals without occlusion shaping (``_Rec.lin``), else the shaped ones."""
         n = len(recs)
         z = np.zeros(1)
-        self.H = np.concatenate([np.zeros((1, 6, 6)), np.cumsum(np.stack([q.H for q in recs]), 0)]) if n else \
+        hgc = [(q.lin if linear and q.lin is not None else (q.H, q.g, q.c)) for q in recs]
+        self.H = np.concatenate([np.zeros((1, 6, 6)), np.cumsum(np.stack([x[0] for x in hgc]), 0)]) if n else \
             np.zeros((1, 6, 6))
-        self.g = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([q.g for q in recs]), 0)]) if n else np.zeros((1, 6))
-        self.c = np.concatenate([z, np.cumsum([q.c for q in recs])])
+        self.g = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([x[1] for x in hgc]), 0)]) if n else np.zeros((1, 6))
+        self.c = np.concatenate([z, np.cumsum([x[2] for x in hgc])])
         self.n = np.concatenate([z, np.cumsum([q.n_res for q in recs])])
         self.p = np.concatenate([z, np.cumsum([q.n_pairs for q in recs])])
         self.n2 = np.concatenate([z, np.cumsum([q.n2 for q in recs])])
@@ -416,18 +420,23 @@ class CameraMonitor:
             self._steps = (key, *_perturbations(pose))
         _, Rs, ts = self._steps
         rects, valid = project_rects(term.outlines, Rs, ts, self.intr, term.size)
-        e = np.where(valid[..., None], rects - term.obs[None], term.fallback[None]) * term.w[None]
-        if term.occlusion is not None:
-            e = term.occlusion.shape(e)
-        e = e.reshape(13, -1)
-        r = e[0]
-        J = ((e[1::2] - e[2::2]) / (2 * _EPS)).T  # [4n, 6]
-        info = np.any(J != 0, axis=1) & np.isfinite(r)  # edges clipped at the border carry no information
-        r, J = r[info], J[info]
-        w = 1.0 / np.sqrt(1.0 + (r / F_SCALE) ** 2)
-        rr = r - J @ self.x_lin  # x relative to the calibration
-        JW = J * w[:, None]
-        return _Rec(0, 0.0, J.T @ JW, JW.T @ rr, float(np.sum(w * rr * rr)), int(info.sum()), cf.n2, int(len(pairs)))
+        e_lin = np.where(valid[..., None], rects - term.obs[None], term.fallback[None]) * term.w[None]
+        e = term.occlusion.shape(e_lin) if term.occlusion is not None else e_lin
+        info = None
+        out = []
+        for ee in (e, e_lin):  # shaped (the tests) and linear (the estimate of a change)
+            ee = ee.reshape(13, -1)
+            r = ee[0]
+            J = ((ee[1::2] - ee[2::2]) / (2 * _EPS)).T  # [4n, 6]
+            if info is None:  # edges clipped at the border carry no information
+                info = np.any(J != 0, axis=1) & np.isfinite(r)
+            r, J = r[info], J[info]
+            w = 1.0 / np.sqrt(1.0 + (r / F_SCALE) ** 2)
+            rr = r - J @ self.x_lin  # x relative to the calibration
+            JW = J * w[:, None]
+            out.append((J.T @ JW, JW.T @ rr, float(np.sum(w * rr * rr))))
+        (H, g, c), lin = out
+        return _Rec(0, 0.0, H, g, c, int(info.sum()), cf.n2, int(len(pairs)), x_lin=self.x_lin.copy(), lin=lin)
 
     def _prepare(self, frame) -> CalibFrame:
         """The frame's boxes as the cost's outlines. Yaw-less [M,6] 3D boxes with a point cloud get
@@ -617,7 +626,7 @@ class CameraMonitor:
         k, _ = _scan(sums, n, cfg.min_pairs)
         if length == 0 and k < n // 4:  # an offset from the calibration with no change point inside the history
             k = 0
-        fb = sums.fit(0, k, phi) if k > 0 else None
+        fb = _Sums(recs, linear=True).fit(0, k, phi) if k > 0 else None
         fa = self._refit_after(recs, k, phi)
         ev = DriftEvent(self.camera, recs[-1].index, recs[-1].time_s, recs[k].index, recs[k].time_s, np.zeros(6),
                         np.zeros(6), np.zeros(6), np.zeros(6), "", float(stat),
@@ -633,28 +642,39 @@ class CameraMonitor:
         return st
 
     def _refit_after(self, recs: list[_Rec], k: int, phi: float) -> _Fit:
-        """The pose since the change point: frames that still have their boxes are matched and
-        linearised again at the estimate (RELIN_ITERS times; the occlusion shaping of the cost is
-        not linear over a change of several pixels), the rest keep their linearisation."""
+        """The pose since the change point (``_relinearised``), the monitor's state restored after."""
         n = len(recs)
-        fa = _Sums(recs).fit(k, n, phi) or _Sums(recs).fit(n - self.config.window, n, phi)
-        for _ in range(RELIN_ITERS):
-            if fa is None:
-                break
-            self.x_lin = np.array(fa.x, dtype=np.float64)
-            for j in range(k, n):
-                q = recs[j]
-                if q.cf is not None:
-                    new = self._linearise(q.cf)
-                    new.index, new.time_s, new.cf, new.objects = q.index, q.time_s, q.cf, q.objects
-                    recs[j] = new
-            fa = _Sums(recs).fit(k, n, phi) or fa
+        lin = _Sums(recs, linear=True)
+        fa = lin.fit(k, n, phi) or lin.fit(n - self.config.window, n, phi)
+        if fa is not None:
+            fa = self._relinearised(recs, k, fa, phi)
         if not self.config.latch:
             self.x_lin = np.zeros(6)
-        else:  # the deque holds the re-linearised records too
-            self.recs.clear()
-            self.recs.extend(recs)
         return fa
+
+    def _relinearised(self, recs: list[_Rec], k: int, fit: _Fit, phi: float) -> _Fit:
+        """The fit of frames [k, n) after matching and linearising again, at the estimate, every frame
+        that still has its boxes and was linearised more than RELIN_TOL sigma away from it (at most
+        RELIN_ITERS rounds): the occlusion shaping of the cost bends at 1.5 sigma, so a linearisation
+        far from the answer (the calibration, for the frames of a change) pulls the estimate towards
+        itself. ``recs`` and the history are updated."""
+        n = len(recs)
+        sd = np.sqrt(np.clip(np.diag(fit.cov), 1e-18, None))
+        for _ in range(RELIN_ITERS):
+            todo = [j for j in range(k, n) if recs[j].cf is not None and
+                    (recs[j].x_lin is None or np.max(np.abs(recs[j].x_lin - fit.x) / sd) > RELIN_TOL)]
+            if not todo:
+                break
+            self.x_lin = np.array(fit.x, dtype=np.float64)
+            for j in todo:
+                q = recs[j]
+                new = self._linearise(q.cf)
+                new.index, new.time_s, new.cf, new.objects = q.index, q.time_s, q.cf, q.objects
+                recs[j] = new
+            fit = _Sums(recs, linear=True).fit(k, n, phi) or fit
+        self.recs.clear()  # the deque holds the re-linearised records too
+        self.recs.extend(recs)
+        return fit
 
     def _decide_latched(self, recs: list[_Rec], sums: _Sums) -> MonitorStatus:
         """A latched drift: while the frames before the change are in the history, the change point
@@ -664,19 +684,21 @@ class CameraMonitor:
         ev = self.drift
         cfg = self.config
         n = len(recs)
+        lin = _Sums(recs, linear=True)
         k = next((j for j, q in enumerate(recs) if q.index >= ev.change_frame), n)
         if 0 < k < n:
             W2 = 2 * cfg.window
             k, _ = _scan(sums, n, cfg.min_pairs, k - W2, k + W2 + 1)
-            fb = sums.fit(0, k, self.inflation) if sums.pairs(0, k) >= cfg.min_pairs else None
+            fb = lin.fit(0, k, self.inflation) if sums.pairs(0, k) >= cfg.min_pairs else None
             if fb is not None:
                 ev.before_x, ev.before_cov = fb.x, fb.cov
                 ev.change_frame, ev.change_time_s = recs[k].index, recs[k].time_s
         else:
             k = 0
-        fit = sums.fit(k, n, self.inflation) if sums.pairs(k, n) >= cfg.min_pairs else None
+        fit = lin.fit(k, n, self.inflation) if sums.pairs(k, n) >= cfg.min_pairs else None
         det, s = None, 0.0
         if fit is not None:
+            fit = self._relinearised(recs, k, fit, self.inflation)
             ev.update(fit)
             self.x_lin = np.array(fit.x, dtype=np.float64)
             det = _to_units(stats.detectable_change(fit.cov + self.cov_cal, self.lam))
@@ -706,7 +728,8 @@ def _weak_message(weak: tuple[str, ...], det: np.ndarray, n_frames: int) -> str:
     parts = [f"{'turns about' if a[0] == 'r' else 'shifts along'} {a[1]} below "
              f"{det[AXIS_NAMES.index(a)]:.2f} {'deg' if a[0] == 'r' else 'm'}" for a in weak]
     return (f"not observable from this traffic within {n_frames} frames (95 % power): " + ", ".join(parts))
-RELIN_ITERS = 2  # re-linearisations of the frames after a detected change
+RELIN_ITERS = 3  # rounds of re-linearisation of the frames after a detected change
+RELIN_TOL = 0.5  # a frame linearised farther than this (sigma, any axis) from the estimate is re-linearised
 MIN_DIFFS = 5  # adjacent window pairs before the measured inflation replaces the prior
 INFLATION_PRIOR = 2.0
 CHI2_6_Q75_OVER_6 = 1.3068  # 75th percentile of chi-square(6) / 6
