@@ -231,37 +231,62 @@ def test_site_calibration_monitors_each_camera(tmp_path, stream):
         mon.update(replace(frames[41], camera_name="cam_c"), 41)
 
 
-def test_batch_yaw_fit_agrees_with_the_calibration_yaw_fit():
-    """The monitor's vectorised yaw fit finds the heading of L-shaped LiDAR returns as
-    ``fit_yaw_to_points`` does (within the 4 deg grid's parabola refinement), and flags a box with
-    too few points as ambiguous."""
-    from xcalib.calib.boxmodel import fit_yaw_to_points
-    from xcalib.monitor.fastyaw import fit_yaw_batch
-
-    rng = np.random.default_rng(4)
+def _l_shaped_boxes(seed: int = 4):
+    """Boxes [5,7] (yaw 0: as a yaw-less export gives them; the last one without points), their true
+    yaws [4] and a cloud [P,3]: L-shaped returns on a long and a short side, and a sparse ground."""
+    rng = np.random.default_rng(seed)
     yaws = np.radians([10.0, 37.0, 81.0, 133.0])
     boxes, pts = [], []
     for j, yaw in enumerate(yaws):
         c = np.array([12.0 + 9 * j, -4.0 + 3 * j, -1.0])
         L, Wd, H = 4.5, 1.9, 1.6
         s = rng.uniform(-0.5, 0.5, 120)
-        side = np.column_stack([s * L, np.full(120, Wd / 2)])           # a long side
-        end = np.column_stack([np.full(60, -L / 2), s[:60] * Wd])       # and a short one: an L
+        side = np.column_stack([s * L, np.full(120, Wd / 2)])
+        end = np.column_stack([np.full(60, -L / 2), s[:60] * Wd])
         local = np.vstack([side, end]) + rng.normal(0, 0.03, (180, 2))
         R = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
         xy = local @ R.T + c[:2]
         z = rng.uniform(c[2] - H / 2 + 0.4, c[2] + 0.2 * H, len(xy))
         pts.append(np.column_stack([xy, z]))
         boxes.append([*c, L, Wd, H, 0.0])
-    boxes.append([60.0, 30.0, -1.0, 4.5, 1.9, 1.6, 0.0])  # no points
-    boxes, pts = np.array(boxes), np.vstack(pts + [rng.uniform(-80, 80, (3000, 3)) * [1, 1, 0.01] - [0, 0, 1.7]])
+    boxes.append([60.0, 30.0, -1.0, 4.5, 1.9, 1.6, 0.0])
+    ground = rng.uniform(-80, 80, (3000, 3)) * [1, 1, 0.01] - [0, 0, 1.7]
+    return np.array(boxes), yaws, np.vstack(pts + [ground])
+
+
+def _yaw_diff_deg(a, b):
+    return np.degrees((np.asarray(a) - b + np.pi / 2) % np.pi - np.pi / 2)
+
+
+def test_batch_yaw_fit_agrees_with_the_calibration_yaw_fit():
+    """The monitor's vectorised yaw fit finds the heading of L-shaped LiDAR returns as
+    ``fit_yaw_to_points`` does (within the 4 deg grid's parabola refinement), and flags a box with
+    no points as ambiguous."""
+    from xcalib.calib.boxmodel import fit_yaw_to_points
+    from xcalib.monitor.fastyaw import fit_yaw_batch
+
+    boxes, yaws, pts = _l_shaped_boxes()
     got, amb = fit_yaw_batch(boxes, pts)
     ref = fit_yaw_to_points(boxes, pts)
-    d = np.degrees((got[:4, 6] - yaws + np.pi / 2) % np.pi - np.pi / 2)
-    assert np.all(np.abs(d) < 1.5), d
-    dref = np.degrees((got[:, 6] - ref.boxes7[:, 6] + np.pi / 2) % np.pi - np.pi / 2)
-    assert np.all(np.abs(dref) < 1.5)
+    assert np.all(np.abs(_yaw_diff_deg(got[:4, 6], yaws)) < 1.5)
+    assert np.all(np.abs(_yaw_diff_deg(got[:, 6], ref.boxes7[:, 6])) < 1.5)
     assert amb[4] and not amb[:4].any()
+
+
+def test_yawless_boxes_get_their_yaw_from_the_points_in_the_monitor(stream):
+    """A frame with yaw-less [M,6] boxes and a cloud: the monitor's outlines are the 8 corners of the
+    boxes turned to the fitted heading; the box without points is an open-yaw outline."""
+    from xcalib.geometry.boxes import box7_to_extents
+
+    site, frames = stream
+    boxes, yaws, pts = _l_shaped_boxes()
+    f = replace(frames[0], bboxes_3d=box7_to_extents(boxes).astype(np.float32), point_cloud=pts.astype(np.float32),
+                match_matrix=None, meta={k: v for k, v in frames[0].meta.items() if k != "box7"})
+    cm = Monitor(_calibration(site)).cameras[site.camera_name]
+    cf = cm._prepare(f)
+    assert cf.corners.shape == (5, 8, 3) and cf.points is None
+    assert np.all(np.abs(_yaw_diff_deg(cf.boxes3d[:4, 6], yaws)) < 1.5)
+    assert cf.yaw_ambiguous.tolist() == [False] * 4 + [True] and cf.outline_sigma_m[4] > 0
 
 
 def _detect(mon, frames, k0=None, change=(np.zeros(3), np.zeros(3)), cal=None):
