@@ -66,7 +66,8 @@ class MonitorConfig:
     track ids); max_detectable_deg / _m: a decision is ``unknown`` when the
     change it could detect (95 % power) exceeds these on any axis; target_deg / _m: the change
     an operator wants seen (the issue's 0.25 deg / 10 cm): axes whose detectable change exceeds
-    it are named in ``weak_axes`` (not observable at that size from this traffic); calibration_sigma_deg / _m:
+    it are named in ``weak_axes`` (not observable at that size from this traffic within
+    target_frames: judged on the longest window the decisions test within that many frames); calibration_sigma_deg / _m:
     the calibration's 1-sigma where the result has none; gate_iou / gate_dist: matching gates
     (``refine.match_frame``); latch: a drift stays (and the estimate follows the frames since
     the change); False: the monitor starts afresh after each alarm (benchmarks).
@@ -84,6 +85,7 @@ class MonitorConfig:
     max_detectable_m: float = 0.5
     target_deg: float = 0.25
     target_m: float = 0.10
+    target_frames: int = 50
     calibration_sigma_deg: float = 0.1
     calibration_sigma_m: float = 0.05
     gate_iou: float = 0.2
@@ -179,6 +181,8 @@ class MonitorStatus:
     change_time_s: float | None = None
     reason: str = ""
     weak_axes: tuple[str, ...] = ()
+    weak_detectable: np.ndarray | None = None  # [6] deg / m: the detectable change weak_axes is judged on
+    weak_frames: int = 0  # ... by the test of a window this long (decided within weak_frames + stride)
 
     def to_dict(self) -> dict:
         d = {k: getattr(self, k) for k in JSON_FIELDS}
@@ -188,6 +192,8 @@ class MonitorStatus:
             elif isinstance(v, float):
                 d[k] = _f(v)
         d["weak_axes"] = list(self.weak_axes)
+        d["weak_axes_detectable"] = None if self.weak_detectable is None else _l(self.weak_detectable)
+        d["weak_axes_window"] = self.weak_frames
         d["reason"] = self.reason
         return d
 
@@ -503,14 +509,18 @@ class CameraMonitor:
 
     # ---------------------------------------------------------------- decisions
     def _status(self, state: State, fit: _Fit | None, message: str, reason: str, stat: float = 0.0,
-                det: np.ndarray | None = None, n_frames: int = 0) -> MonitorStatus:
+                det: np.ndarray | None = None, n_frames: int = 0,
+                weak_det: tuple[np.ndarray, int] | None = None) -> MonitorStatus:
+        """``weak_det``: (detectable change [6] deg / m, window frames) that ``weak_axes`` is judged
+        on (default: ``det`` over ``n_frames``)."""
         last = self.recs[-1]
         x = _to_units(fit.x) if fit is not None else np.full(6, np.nan)
         sd = fit.sd6 if fit is not None else np.full(6, np.nan)
         det = np.full(6, np.nan) if det is None else det
-        weak = self.weak_axes(det)
+        wdet, wframes = weak_det if weak_det is not None else (det, n_frames)
+        weak = self.weak_axes(wdet)
         if weak and state == "ok":
-            message += f"; {_weak_message(weak, det, n_frames)}"
+            message += f"; {_weak_message(weak, wdet, wframes + self.config.stride)}"
         ev = self.drift
         return MonitorStatus(frame=last.index, time_s=last.time_s, camera=self.camera, state=state,
                              rotation_change_deg=x[:3], translation_change_m=x[3:], rotation_sigma_deg=sd[:3],
@@ -520,7 +530,7 @@ class CameraMonitor:
                              statistic=float(stat), threshold=self.h,
                              change_frame=None if ev is None else ev.change_frame,
                              change_time_s=None if ev is None else ev.change_time_s, reason=reason,
-                             weak_axes=weak)
+                             weak_axes=weak, weak_detectable=wdet, weak_frames=int(wframes))
 
     def weak_axes(self, det: np.ndarray) -> tuple[str, ...]:
         """Axes ("rx" .. "tz") whose detectable change ``det`` (deg / m, 95 % power) exceeds the
@@ -590,7 +600,9 @@ class CameraMonitor:
         if fit_r is None:
             return self._status("unknown", None, "the matched boxes do not determine the pose (degenerate geometry)",
                                 "degenerate", n_frames=longest)
-        best_stat, best_len, det = 0.0, longest, None
+        best_stat, best_len, det, det_t = 0.0, longest, None, None
+        # weak axes are judged on the longest window tested within target_frames of a change
+        L_t = max([L for L in lengths if L + cfg.stride <= cfg.target_frames] or [lengths[0]])
         for L in lengths:  # the change-point tests: each recent segment against the frames before it
             if sums.pairs(0, n - L) < cfg.min_pairs or sums.pairs(n - L, n) < cfg.min_pairs:
                 continue
@@ -601,12 +613,15 @@ class CameraMonitor:
             s = stats.chi2_stat(fa.x - fb.x, C)
             if L == longest:
                 det = stats.detectable_change(C, self.lam)
+            if L == L_t:
+                det_t = stats.detectable_change(C, self.lam)
             if s > best_stat:
                 best_stat, best_len = s, L
         s0 = stats.chi2_stat(fit_r.x, fit_r.cov + self.cov_cal)  # the offset from the calibration itself
         if s0 > best_stat:
             best_stat, best_len = s0, 0
         det = _to_units(det if det is not None else stats.detectable_change(fit_r.cov, self.lam))
+        weak_det = (_to_units(det_t), L_t) if det_t is not None else None
         if best_stat > self.h:
             return self._alarm(recs, sums, best_stat, best_len, det)
         if np.any(det[:3] > cfg.max_detectable_deg) or np.any(det[3:] > cfg.max_detectable_m):
@@ -615,9 +630,9 @@ class CameraMonitor:
                     if v > (cfg.max_detectable_deg if i < 3 else cfg.max_detectable_m)]
             return self._status("unknown", fit_r, "the matched boxes constrain the pose too weakly to rule out a "
                                 f"change: detectable {', '.join(axes)} (limit {cfg.max_detectable_deg:g} deg / "
-                                f"{cfg.max_detectable_m:g} m)", "weak_geometry", best_stat, det, longest)
+                                f"{cfg.max_detectable_m:g} m)", "weak_geometry", best_stat, det, longest, weak_det)
         return self._status("ok", fit_r, f"no change (statistic {best_stat:.1f} < threshold {self.h:.1f})", "",
-                            best_stat, det, longest)
+                            best_stat, det, longest, weak_det)
 
     def _alarm(self, recs: list[_Rec], sums: _Sums, stat: float, length: int, det: np.ndarray) -> MonitorStatus:
         cfg = self.config
@@ -715,7 +730,8 @@ class CameraMonitor:
                 "weak_axes": [] if last is None else list(last.weak_axes),
                 "weak_axes_share": {a: v / max(sum(self.statuses_seen.values()), 1) for a, v in self.weak_seen.items()
                                     if v},
-                "target_change": {"rotation_deg": self.config.target_deg, "translation_m": self.config.target_m},
+                "target_change": {"rotation_deg": self.config.target_deg, "translation_m": self.config.target_m,
+                                  "within_frames": self.config.target_frames},
                 "events": [e.to_dict() for e in self.events],
                 "message": "no decision yet (fewer frames than one window)" if last is None else last.message}
 
@@ -727,7 +743,8 @@ AXIS_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
 def _weak_message(weak: tuple[str, ...], det: np.ndarray, n_frames: int) -> str:
     parts = [f"{'turns about' if a[0] == 'r' else 'shifts along'} {a[1]} below "
              f"{det[AXIS_NAMES.index(a)]:.2f} {'deg' if a[0] == 'r' else 'm'}" for a in weak]
-    return (f"not observable from this traffic within {n_frames} frames (95 % power): " + ", ".join(parts))
+    return (f"not observable from this traffic within {n_frames} frames of a change (95 % power): "
+            + ", ".join(parts))
 RELIN_ITERS = 3  # rounds of re-linearisation of the frames after a detected change
 RELIN_TOL = 0.5  # a frame linearised farther than this (sigma, any axis) from the estimate is re-linearised
 MIN_DIFFS = 5  # adjacent window pairs before the measured inflation replaces the prior
