@@ -426,6 +426,7 @@ def main() -> None:
                     help="--part null: which detection noise (two processes can share the work)")
     ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak"), default="all",
                     help="run one part; its keys are merged into an existing results file")
+    ap.add_argument("--steps-only", action="store_true", help="--part synth: the steps only (no null streams, ramps)")
     ap.add_argument("--real-null", type=int, default=1600, help="real sequences: drift-free frames (looped)")
     ap.add_argument("--real-frames", type=int, default=320, help="real sequences: step streams (change at the middle)")
     args = ap.parse_args()
@@ -447,7 +448,7 @@ def main() -> None:
             result["null_long_noisy"] = _null_replay("4 px box noise, 10 % missed", nseeds, args.null_base, n_null,
                                                      log, box_noise_px=4.0, miss_rate_2d=0.1)
     elif args.part in ("all", "synth"):
-        _synthetic(result, seeds, n_null, args.runs, log)
+        _synthetic(result, seeds, n_null, args.runs, log, nulls=not args.steps_only)
     elif args.part == "weak":  # does the monitor say which changes it cannot see within 50 frames?
         log("== the weak-axes statement: z steps at the size the issue asks for, x as the control")
         streams = {s: _synth_stream(s, n_null) for s in seeds}
@@ -469,9 +470,13 @@ def main() -> None:
     write_result(out, result)
 
 
-def _synthetic(result: dict, seeds: list[int], n_null: int, runs: int, log) -> None:
-    log(f"== synthetic null streams ({n_null} frames per site, sites {seeds})")
+def _synthetic(result: dict, seeds: list[int], n_null: int, runs: int, log, nulls: bool = True) -> None:
     clean = {s: _synth_stream(s, n_null) for s in seeds}
+    if not nulls:
+        log("\n== synthetic steps (change at frame 250 of 350)")
+        result["steps"] = _steps(clean, runs, log)
+        return
+    log(f"== synthetic null streams ({n_null} frames per site, sites {seeds})")
     noisy = {s: _synth_stream(s, n_null, box_noise_px=4.0, miss_rate_2d=0.1) for s in seeds}
     sparse = {s: _synth_stream(s, min(n_null, 1500), n_objects=(2, 5)) for s in seeds[:2]}
     result["null"] = [_null("default noise", clean, log), _null("4 px box noise, 10 % missed", noisy, log),

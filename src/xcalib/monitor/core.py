@@ -223,7 +223,6 @@ class _Rec:
     cf: CalibFrame | None = None  # kept for the recent frames only: re-linearised at a detected change
     objects: np.ndarray | None = None  # track ids of the matched 3D boxes (None: the frame has none)
     x_lin: np.ndarray | None = None  # the pose it was linearised at (None: the calibration)
-    lin: tuple | None = None  # (H, g, c) of the residuals without occlusion shaping (the estimate's)
 
 
 @dataclass
@@ -248,11 +247,10 @@ def _to_units(x: np.ndarray) -> np.ndarray:
 class _Sums:
     """Cumulative sums of the frames' normal equations: any run of frames is one subtraction."""
 
-    def __init__(self, recs: list[_Rec], linear: bool = False):
-        """``linear``: the residuals without occlusion shaping (``_Rec.lin``), else the shaped ones."""
+    def __init__(self, recs: list[_Rec]):
         n = len(recs)
         z = np.zeros(1)
-        hgc = [(q.lin if linear and q.lin is not None else (q.H, q.g, q.c)) for q in recs]
+        hgc = [(q.H, q.g, q.c) for q in recs]
         self.H = np.concatenate([np.zeros((1, 6, 6)), np.cumsum(np.stack([x[0] for x in hgc]), 0)]) if n else \
             np.zeros((1, 6, 6))
         self.g = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([x[1] for x in hgc]), 0)]) if n else np.zeros((1, 6))
@@ -426,23 +424,19 @@ class CameraMonitor:
             self._steps = (key, *_perturbations(pose))
         _, Rs, ts = self._steps
         rects, valid = project_rects(term.outlines, Rs, ts, self.intr, term.size)
-        e_lin = np.where(valid[..., None], rects - term.obs[None], term.fallback[None]) * term.w[None]
-        e = term.occlusion.shape(e_lin) if term.occlusion is not None else e_lin
-        info = None
-        out = []
-        for ee in (e, e_lin):  # shaped (the tests) and linear (the estimate of a change)
-            ee = ee.reshape(13, -1)
-            r = ee[0]
-            J = ((ee[1::2] - ee[2::2]) / (2 * _EPS)).T  # [4n, 6]
-            if info is None:  # edges clipped at the border carry no information
-                info = np.any(J != 0, axis=1) & np.isfinite(r)
-            r, J = r[info], J[info]
-            w = 1.0 / np.sqrt(1.0 + (r / F_SCALE) ** 2)
-            rr = r - J @ self.x_lin  # x relative to the calibration
-            JW = J * w[:, None]
-            out.append((J.T @ JW, JW.T @ rr, float(np.sum(w * rr * rr))))
-        (H, g, c), lin = out
-        return _Rec(0, 0.0, H, g, c, int(info.sum()), cf.n2, int(len(pairs)), x_lin=self.x_lin.copy(), lin=lin)
+        e = np.where(valid[..., None], rects - term.obs[None], term.fallback[None]) * term.w[None]
+        if term.occlusion is not None:
+            e = term.occlusion.shape(e)
+        e = e.reshape(13, -1)
+        r = e[0]
+        J = ((e[1::2] - e[2::2]) / (2 * _EPS)).T  # [4n, 6]
+        info = np.any(J != 0, axis=1) & np.isfinite(r)  # edges clipped at the border carry no information
+        r, J = r[info], J[info]
+        w = 1.0 / np.sqrt(1.0 + (r / F_SCALE) ** 2)
+        rr = r - J @ self.x_lin  # x relative to the calibration
+        JW = J * w[:, None]
+        H, g, c = J.T @ JW, JW.T @ rr, float(np.sum(w * rr * rr))
+        return _Rec(0, 0.0, H, g, c, int(info.sum()), cf.n2, int(len(pairs)), x_lin=self.x_lin.copy())
 
     def _prepare(self, frame) -> CalibFrame:
         """The frame's boxes as the cost's outlines. Yaw-less [M,6] 3D boxes with a point cloud get
@@ -641,7 +635,7 @@ class CameraMonitor:
         k, _ = _scan(sums, n, cfg.min_pairs)
         if length == 0 and k < n // 4:  # an offset from the calibration with no change point inside the history
             k = 0
-        fb = _Sums(recs, linear=True).fit(0, k, phi) if k > 0 else None
+        fb = _Sums(recs).fit(0, k, phi) if k > 0 else None
         fa = self._refit_after(recs, k, phi)
         ev = DriftEvent(self.camera, recs[-1].index, recs[-1].time_s, recs[k].index, recs[k].time_s, np.zeros(6),
                         np.zeros(6), np.zeros(6), np.zeros(6), "", float(stat),
@@ -659,7 +653,7 @@ class CameraMonitor:
     def _refit_after(self, recs: list[_Rec], k: int, phi: float) -> _Fit:
         """The pose since the change point (``_relinearised``), the monitor's state restored after."""
         n = len(recs)
-        lin = _Sums(recs, linear=True)
+        lin = _Sums(recs)
         fa = lin.fit(k, n, phi) or lin.fit(n - self.config.window, n, phi)
         if fa is not None:
             fa = self._relinearised(recs, k, fa, phi)
@@ -686,7 +680,7 @@ class CameraMonitor:
                 new = self._linearise(q.cf)
                 new.index, new.time_s, new.cf, new.objects = q.index, q.time_s, q.cf, q.objects
                 recs[j] = new
-            fit = _Sums(recs, linear=True).fit(k, n, phi) or fit
+            fit = _Sums(recs).fit(k, n, phi) or fit
         self.recs.clear()  # the deque holds the re-linearised records too
         self.recs.extend(recs)
         return fit
@@ -699,7 +693,7 @@ class CameraMonitor:
         ev = self.drift
         cfg = self.config
         n = len(recs)
-        lin = _Sums(recs, linear=True)
+        lin = _Sums(recs)
         k = next((j for j, q in enumerate(recs) if q.index >= ev.change_frame), n)
         if 0 < k < n:
             W2 = 2 * cfg.window
