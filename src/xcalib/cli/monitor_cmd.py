@@ -15,7 +15,8 @@ calibrated camera is watched; --camera picks some). Over sliding windows of fram
 relative to the calibration is estimated with its uncertainty, and each window is ok, drift (with
 the change per axis and since when) or unknown (too few objects, and why). The change-point test
 keeps false alarms below --false-alarm-rate per frame; the change it can detect at the stream's
-traffic is printed. Writes DIR/monitor.jsonl, DIR/summary.json, DIR/report.html (the change over
+traffic is printed, and the axes along which a change of the target size (0.25 deg / 10 cm) is
+not observable from that traffic (weak_axes: typically the view axis z). Writes DIR/monitor.jsonl, DIR/summary.json, DIR/report.html (the change over
 time) and DIR/monitor.mcap (diagnostic_msgs/DiagnosticArray on /diagnostics, the estimated pose
 on /tf, for Foxglove). --recalibrate runs calibrate on the frames after a change point
 (DIR/recalibration/<camera>.json). Exit code 0 ok, 3 drift, 1 could not tell.
@@ -116,6 +117,11 @@ def register(app: typer.Typer) -> None:
                 if dr is not None:
                     typer.echo(f"  detectable change (95 % power, last window): rotation x/y/z "
                                f"{_fmt3(dr)} deg, translation x/y/z {_fmt3(dt, 100)} cm")
+                if cs.get("weak_axes"):
+                    tgt = cs["target_change"]
+                    typer.echo(f"  not observable at {tgt['rotation_deg']:g} deg / {100 * tgt['translation_m']:g} cm "
+                               f"from this traffic: {', '.join(cs['weak_axes'])} (r: rotation about, t: translation "
+                               "along the camera axis)")
             typer.echo(f"state: {summary['state']} (exit code {summary['exit_code']}); wrote {out}/monitor.jsonl, "
                        f"summary.json, report.html, monitor.mcap")
         raise typer.Exit(monitor.exit_code)

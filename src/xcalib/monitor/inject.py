@@ -20,7 +20,7 @@ from ..geometry.boxes import extents_to_center_size
 from ..geometry.transforms import invert_transform
 from ..types import Frame
 
-__all__ = ["moved_pose", "inject_change"]
+__all__ = ["moved_pose", "inject_change", "move_frame"]
 
 
 def moved_pose(pose, rotation_deg, translation_m) -> Pose:
@@ -42,7 +42,14 @@ def inject_change(frame: Frame, calibration, rotation_deg, translation_m) -> Fra
     if not np.any(rotation_deg) and not np.any(translation_m):
         return frame
     T = Pose.parse(calibration).T
-    M = invert_transform(moved_pose(calibration, rotation_deg, translation_m).T) @ T
+    return move_frame(frame, invert_transform(moved_pose(calibration, rotation_deg, translation_m).T) @ T)
+
+
+def move_frame(frame: Frame, M: np.ndarray) -> Frame:
+    """``frame`` with its 3D boxes and point cloud moved by the rigid transform ``M`` [4,4] in the
+    LiDAR frame (e.g. ``T0^-1 T_i``: a frame whose ground-truth pose is ``T_i`` as the pose ``T0``
+    sees it)."""
+    M = np.asarray(M, dtype=np.float64)
     b3 = np.asarray(frame.bboxes_3d, dtype=np.float64)
     if b3.size == 0:
         new3 = b3

@@ -85,7 +85,8 @@ class MonitorMcap:
         ns, stamp = _stamp(st.time_s)
         vals = {"frame": st.frame, "state": st.state, "n_pairs": st.n_pairs,
                 "change_frame": "" if st.change_frame is None else st.change_frame,
-                "statistic": f"{st.statistic:.2f}", "threshold": f"{st.threshold:.2f}"}
+                "statistic": f"{st.statistic:.2f}", "threshold": f"{st.threshold:.2f}",
+                "weak_axes": " ".join(st.weak_axes)}
         for name, arr, unit in (("rotation_change", st.rotation_change_deg, "deg"),
                                 ("translation_change", st.translation_change_m, "m"),
                                 ("rotation_sigma", st.rotation_sigma_deg, "deg"),
