@@ -51,7 +51,7 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from ..io._files import atomic_dir, atomic_write
+        from ..io.files import atomic_dir, atomic_write
         from ..monitor import Monitor, MonitorConfig, load_calibration
         from ..monitor.output import MonitorLog, MonitorMcap, write_monitor_html
 

@@ -767,7 +767,7 @@ def load_calibration(path) -> dict[str, CalibrationResult]:
     import json
 
     from ..errors import FormatError
-    from ..io._files import MAX_TEXT_BYTES, read_text
+    from ..io.files import MAX_TEXT_BYTES, read_text
     from ..site.calibration import SITE_FORMAT, SiteCalibration
 
     p = Path(path)

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..geometry.rotations import matrix_to_quaternion
 from ..geometry.transforms import invert_transform
-from ..io._files import atomic_write
+from ..io.files import atomic_write
 from ..viz.review import REVIEW_SCHEMAS
 from .core import Monitor, MonitorStatus
 

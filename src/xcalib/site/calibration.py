@@ -28,7 +28,7 @@ from ..geometry.projection import project_points
 from ..geometry.rotations import rotation_angle
 from ..geometry.transforms import invert_transform
 from ..formats.ros import ros_name
-from ..io._files import atomic_write, safe_name
+from ..io.files import atomic_write, safe_name
 from ..types import Frame
 
 __all__ = ["SITE_FORMAT", "CameraCalibration", "CameraAgreement", "SiteCalibration", "calibrate_site",
@@ -46,7 +46,7 @@ def optical_frame(camera: str) -> str:
 def camera_folders(cameras: Sequence[str]) -> dict[str, str]:
     """camera name -> a file-name component for its outputs (folders, ``<x>_camera_info.yaml``):
     safe for the file system whatever the name holds (``/``, ``..``, newlines, controls; see
-    :func:`xcalib.io._files.safe_name`), and distinct for distinct cameras (``-2``, ``-3``, ...
+    :func:`xcalib.io.files.safe_name`), and distinct for distinct cameras (``-2``, ``-3``, ...
     where two names map to one token), so no output leaves its folder or replaces another's."""
     out: dict[str, str] = {}
     used: set[str] = set()
