@@ -368,18 +368,19 @@ class WideLensTerm(CostTerm):
     is ``f (1 + xi)``: the same scale at the image centre, ever more compressed towards the rim
     (``xi = 0``: the given pinhole; ~1.75: close to an equidistant fisheye over 180 degrees).
     ``fixed``: hold ``xi`` at this value (the pinhole alternative, projected the same way). Put a
-    ``FocalScaleTerm`` after it to free the focal length too. No analytic Jacobian (numeric)."""
+    ``FocalScaleTerm`` after it to free the focal length too. ``start``: the fit's first ``xi``
+    (its parameter is the step from there). No analytic Jacobian (numeric)."""
 
     name = "wide_lens_xi"
     n_params = 1
     x_scale = (0.05,)
     MAX_XI = 4.0
 
-    def __init__(self, base: CameraIntrinsics, fixed: float | None = None):
+    def __init__(self, base: CameraIntrinsics, fixed: float | None = None, start: float = 0.0):
         d = np.zeros(0) if base.distortion is None else np.asarray(base.distortion, dtype=np.float64)
         if np.any(d[4:]):
             raise ValueError("WideLensTerm: only k1, k2, p1, p2 distortion can be widened")
-        self.base, self.fixed = base, fixed
+        self.base, self.fixed, self.start = base, fixed, float(start)
         self.d4 = tuple(float(v) for v in np.pad(d[:4], (0, 4 - len(d[:4])))) if np.any(d) else ()
 
     @staticmethod
@@ -395,7 +396,7 @@ class WideLensTerm(CostTerm):
                        xi=xi, distortion=self.d4)
 
     def apply(self, state: PoseState, x: np.ndarray) -> PoseState:
-        xi = float(np.clip(x[0], 0.0, self.MAX_XI)) if self.fixed is None else float(self.fixed)
+        xi = float(np.clip(self.start + x[0], 0.0, self.MAX_XI)) if self.fixed is None else float(self.fixed)
         state.params[self.name] = np.array([xi])
         state.intr = self.camera(xi)
         return state

@@ -75,6 +75,7 @@ BOX_FRAME_MAX_TILT_DEG = 30.0  # a direction the 3D boxes spread along may leave
 BOX_FRAME_MIN_SPREAD_M = 2.0   # ... counting directions with at least this 1-sigma spread (m)
 LENS_MIN_XI = 0.25        # the widened lens must bend this much (xi; 0.25 compresses 45 deg off axis by ~5 %)
 LENS_MIN_GAIN = 10.0      # ... and lower the robust cost by this per object (~4.5 sigmas for 1 parameter)
+LENS_START_XI = 1.0       # the widened fit starts from the pinhole and from this xi (a fisheye's range)
 
 
 @dataclass
@@ -536,12 +537,21 @@ class LensFit:
     gain_per_object: float
 
 
-def _wide_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion, fixed: float | None):
-    """(xi, focal scale, robust cost, pose) of the unified-lens fit (``fixed``: xi held there)."""
+def _wide_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion, fixed: float | None, start: float = 0.0):
+    """(xi, focal scale, robust cost, pose) of the unified-lens fit (``fixed``: xi held there).
+    Free, it starts from xi 0 and from ``start`` (a fisheye's xi); the lower cost wins (from 0
+    alone, the truth pose of a double-sphere 150-degree site with pinhole intrinsics fit worse
+    than the pinhole itself: the focal length ran off to x1.21)."""
     base = edge_term(frames, pairs, intr, pose, noise, occlusion)
-    fit = CostModel([base, WideLensTerm(intr, fixed), FocalScaleTerm()], pose, intr).fit(f_scale=f_scale, max_nfev=60)
-    return (float(fit.params[WideLensTerm.name][0]), float(np.exp(fit.params[FocalScaleTerm.name][0])), float(fit.cost),
-            fit.pose)
+    starts = (0.0,) if fixed is not None else tuple(dict.fromkeys((0.0, float(start))))
+    best = None
+    for s0 in starts:
+        fit = CostModel([base, WideLensTerm(intr, fixed, s0), FocalScaleTerm()], pose, intr).fit(f_scale=f_scale,
+                                                                                                 max_nfev=60)
+        if best is None or fit.cost < best.cost:
+            best = fit
+    return (float(best.params[WideLensTerm.name][0]), float(np.exp(best.params[FocalScaleTerm.name][0])),
+            float(best.cost), best.pose)
 
 
 def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
@@ -558,8 +568,8 @@ def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntr
     matches. A pinhole site fits xi ~0 and is never rematched."""
     n = sum(len(p) for p in pairs)
     per_obj = max(n / max(places or n / 4.0, 1.0), 1.0)
-    _, _, c0, _ = _wide_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, 0.0)
-    xi, scale, c1, pose1 = _wide_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, None)
+    _, _, c0, pose0 = _wide_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, 0.0)
+    xi, scale, c1, pose1 = _wide_fit(frames, pairs, intr, pose0, noise, f_scale, occlusion, None, LENS_START_XI)
     best = LensFit(xi, scale, c0, c1, (c0 - c1) / per_obj)
     if xi >= LENS_MIN_XI:
         cam = WideLensTerm(intr).camera(xi)
@@ -568,7 +578,7 @@ def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntr
         n2 = sum(len(p) for p in pairs2)
         if n2 >= 12:
             _, _, c0b, _ = _wide_fit(frames, pairs2, intr, pose, noise, f_scale, occlusion, 0.0)
-            xib, scaleb, c1b, _ = _wide_fit(frames, pairs2, intr, pose1, noise, f_scale, occlusion, None)
+            xib, scaleb, c1b, _ = _wide_fit(frames, pairs2, intr, pose1, noise, f_scale, occlusion, None, xi)
             gain = (c0b - c1b) / max(n2 / max(places or n2 / 4.0, 1.0), 1.0)
             if gain > best.gain_per_object:
                 best = LensFit(xib, scaleb, c0b, c1b, gain)
