@@ -70,3 +70,20 @@ def test_wide_lens_term_at_zero_is_the_pinhole_and_widens_the_rim():
     assert isinstance(term.camera(1.5), Unified) and 0 < LENS_MIN_XI < 1
     assert not WideLensTerm.applies(CameraIntrinsics(600, 600, 640, 400, [0, 0, 0, 0, 0.1]))
     assert FocalScaleTerm.name != WideLensTerm.name
+
+
+def test_consensus_searches_fisheye_lenses_when_asked():
+    from xcalib.calib.consensus import ConsensusConfig, consensus_matches, searched_intrinsics
+    from xcalib.geometry.camera_models import KannalaBrandt
+
+    kb = searched_intrinsics(1280, 800, 180.0, "equidistant")
+    assert isinstance(kb, KannalaBrandt) and abs(kb.fx - 640 / (np.pi / 2)) < 1e-9
+    with pytest.raises(ValueError, match="fisheye_fov_deg"):
+        ConsensusConfig(fisheye_fov_deg=(300.0,))
+    site = sample_site(0, camera_model="kannala_brandt", hfov_deg=185.0, width=1280, height=800, box_noise_px=1.0)
+    frame = generate_frames(site, 1, seed=0, render_images=False, lidar=False)[0]
+    cm = consensus_matches(frame, None, ConsensusConfig(fov_deg=(90.0,), fisheye_fov_deg=(185.0,)))
+    assert isinstance(cm.intrinsics, KannalaBrandt)  # the fisheye guess explains the frame best
+    M = np.asarray(frame.match_matrix)
+    correct = sum(M[i, j] > 0 for i, j in cm.pairs)
+    assert len(cm.pairs) >= 8 and correct >= 0.8 * len(cm.pairs)
