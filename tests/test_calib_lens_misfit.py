@@ -87,3 +87,33 @@ def test_consensus_searches_fisheye_lenses_when_asked():
     M = np.asarray(frame.match_matrix)
     correct = sum(M[i, j] > 0 for i, j in cm.pairs)
     assert len(cm.pairs) >= 8 and correct >= 0.8 * len(cm.pairs)
+
+
+def test_wide_renderer_draws_faces_beside_the_optical_plane_with_curved_sides():
+    from xcalib.data.synth.render import _fill_wide
+
+    site = sample_site(0, camera_model="kannala_brandt", hfov_deg=185.0, width=640, height=400)
+    T_world_cam = np.linalg.inv(site.T_cam_world)
+    # a face 8 m away towards the image corner, 93-103 degrees off the optical axis (behind the
+    # image plane: Z < 0), 1 m each side of that diagonal
+    phi = np.arctan2(200.0, 320.0)
+    d, n = np.array([np.cos(phi), np.sin(phi)]), np.array([-np.sin(phi), np.cos(phi)])
+
+    def at(deg, side):
+        th = np.radians(deg)
+        return np.array([*(8 * np.sin(th) * d + side * n), 8 * np.cos(th)])
+
+    cam = np.array([at(93, -1), at(103, -1), at(103, 1), at(93, 1)])
+    assert np.all(cam[:, 2] <= 0)
+    world = cam @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
+    img = np.zeros((400, 640, 3), np.uint8)
+    out = _fill_wide(img, site, world[None], [np.array([200.0, 200.0, 200.0])], [(0, 1)])
+    drawn = out.sum(-1) > 0
+    assert drawn.sum() > 20  # drawn, not dropped for Z <= 0
+    uv, ok = site.intrinsics.project(cam)
+    assert ok.all()
+    ys, xs = np.nonzero(drawn)
+    # the drawn face reaches its projected corners' box (curved sides bulge past it, never short of it)
+    lo, hi = np.clip(uv.min(0), 0, [639, 399]), np.clip(uv.max(0), 0, [639, 399])
+    assert xs.min() <= lo[0] + 1.5 and xs.max() >= hi[0] - 1.5
+    assert ys.min() <= lo[1] + 1.5 and ys.max() >= hi[1] - 1.5
