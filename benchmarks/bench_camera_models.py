@@ -21,7 +21,7 @@ Results go to ``benchmarks/results/camera_models.json`` under ``--label``.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_camera_models.py [--points 200000]
         [--sites 1] [--models kannala_brandt,double_sphere] [--fovs 120,150,185] [--frames 20]
-        [--no-calibration] [--label run]
+        [--no-calibration] [--pinhole-check-only] [--label run]
 """
 
 from __future__ import annotations
@@ -157,6 +157,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--no-calibration", action="store_true")
     ap.add_argument("--no-pinhole-check", action="store_true", help="skip the '<model> as pinhole' rows")
+    ap.add_argument("--pinhole-check-only", action="store_true",
+                    help="only the '<model> as pinhole' rows (of every --models at the widest --fovs)")
     ap.add_argument("--label", default="run")
     a = ap.parse_args(argv)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -172,10 +174,12 @@ def main(argv=None) -> int:
         seeds = range(a.first_seed, a.first_seed + a.sites)
         models = [m for m in a.models.split(",") if m]
         fovs = [float(f) for f in a.fovs.split(",") if f]
-        cases = [("pinhole", 90.0, s, False) for s in seeds]
-        if not a.no_pinhole_check:  # the refusal check first: it is the one that must never fail
+        cases = [] if a.pinhole_check_only else [("pinhole", 90.0, s, False) for s in seeds]
+        if a.pinhole_check_only:
+            cases += [(m, max(fovs), s, True) for m in models for s in seeds]
+        elif not a.no_pinhole_check:  # the refusal check first: it is the one that must never fail
             cases += [(m, max(fovs), s, True) for m in models[:1] for s in seeds]
-        for fov in sorted(fovs, reverse=True):  # the widest first
+        for fov in ([] if a.pinhole_check_only else sorted(fovs, reverse=True)):  # the widest first
             for m in models:
                 cases += [(m, fov, s, False) for s in seeds]
         for i, (m, fov, s, asp) in enumerate(cases):

@@ -537,20 +537,24 @@ class LensFit:
     gain_per_object: float
 
 
-def _wide_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion, fixed: float | None, start: float = 0.0):
-    """(xi, focal scale, robust cost, pose) of the unified-lens fit (``fixed``: xi held there).
-    Free, it starts from xi 0 and from ``start`` (a fisheye's xi); the lower cost wins (from 0
-    alone, the truth pose of a double-sphere 150-degree site with pinhole intrinsics fit worse
-    than the pinhole itself: the focal length ran off to x1.21)."""
+def _wide_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion,
+              lens: tuple[float | None, tuple[float, ...], float]):
+    """(xi, focal scale, robust cost, pose) of the unified-lens fit. ``lens``: (xi held at this
+    value, or None: free from each start xi in turn, the lowest cost wins; the focal scale it
+    starts from). The residuals are weighted as at ``intr`` whatever the lens, so costs compare.
+    Several starts and the pinhole fit's focal length as the start: from xi 0 and the given focal
+    alone, a 185-degree fisheye given as pinhole that fit the pinhole with the focal x1.41 ended at
+    xi 0 and a cost above the pinhole's (22.5 -> 25.2)."""
+    fixed, starts, s0 = lens
     base = edge_term(frames, pairs, intr, pose, noise, occlusion)
-    starts = (0.0,) if fixed is not None else tuple(dict.fromkeys((0.0, float(start))))
+    lens_base = replace(intr, fx=intr.fx * s0, fy=intr.fy * s0)
     best = None
-    for s0 in starts:
-        fit = CostModel([base, WideLensTerm(intr, fixed, s0), FocalScaleTerm()], pose, intr).fit(f_scale=f_scale,
-                                                                                                 max_nfev=60)
+    for x0 in ((0.0,) if fixed is not None else starts):
+        fit = CostModel([base, WideLensTerm(lens_base, fixed, x0), FocalScaleTerm()], pose, intr).fit(
+            f_scale=f_scale, max_nfev=60)
         if best is None or fit.cost < best.cost:
             best = fit
-    return (float(best.params[WideLensTerm.name][0]), float(np.exp(best.params[FocalScaleTerm.name][0])),
+    return (float(best.params[WideLensTerm.name][0]), s0 * float(np.exp(best.params[FocalScaleTerm.name][0])),
             float(best.cost), best.pose)
 
 
@@ -559,7 +563,8 @@ def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntr
     """Refit the matches (fixed) with the pinhole widened into Mei's unified model (one parameter
     ``xi``, ``cost.WideLensTerm``) and the focal length free, against ``xi`` held at 0. The cost
     drop is counted per object (``places``: distinct places of the matched 3D boxes; the pairs of
-    one object share its outline error), as the principal-point check does.
+    one object share its outline error), as the principal-point check does. The widened fit
+    starts where the pinhole fit ended (pose, focal length), from xi 0 and ``LENS_START_XI``.
 
     When the lens bends (``xi >= LENS_MIN_XI``) the boxes are matched once more through the fitted
     lens at its pose and both fits are repeated on those matches; the larger gain counts. A pose
@@ -568,8 +573,9 @@ def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntr
     matches. A pinhole site fits xi ~0 and is never rematched."""
     n = sum(len(p) for p in pairs)
     per_obj = max(n / max(places or n / 4.0, 1.0), 1.0)
-    _, _, c0, pose0 = _wide_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, 0.0)
-    xi, scale, c1, pose1 = _wide_fit(frames, pairs, intr, pose0, noise, f_scale, occlusion, None, LENS_START_XI)
+    _, s0, c0, pose0 = _wide_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, (0.0, (), 1.0))
+    xi, scale, c1, pose1 = _wide_fit(frames, pairs, intr, pose0, noise, f_scale, occlusion,
+                                     (None, (0.0, LENS_START_XI), s0))
     best = LensFit(xi, scale, c0, c1, (c0 - c1) / per_obj)
     if xi >= LENS_MIN_XI:
         cam = WideLensTerm(intr).camera(xi)
@@ -577,8 +583,8 @@ def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntr
         pairs2 = match_all(frames, cam, pose1.R, pose1.t)
         n2 = sum(len(p) for p in pairs2)
         if n2 >= 12:
-            _, _, c0b, _ = _wide_fit(frames, pairs2, intr, pose, noise, f_scale, occlusion, 0.0)
-            xib, scaleb, c1b, _ = _wide_fit(frames, pairs2, intr, pose1, noise, f_scale, occlusion, None, xi)
+            _, _, c0b, _ = _wide_fit(frames, pairs2, intr, pose, noise, f_scale, occlusion, (0.0, (), 1.0))
+            xib, scaleb, c1b, _ = _wide_fit(frames, pairs2, intr, pose1, noise, f_scale, occlusion, (None, (xi,), scale))
             gain = (c0b - c1b) / max(n2 / max(places or n2 / 4.0, 1.0), 1.0)
             if gain > best.gain_per_object:
                 best = LensFit(xib, scaleb, c0b, c1b, gain)
