@@ -21,7 +21,7 @@ Results go to ``benchmarks/results/camera_models.json`` under ``--label``.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_camera_models.py [--points 200000]
         [--sites 1] [--models kannala_brandt,double_sphere] [--fovs 120,150,185] [--frames 20]
-        [--no-calibration] [--pinhole-check-only] [--label run]
+        [--no-calibration] [--pinhole-check-only] [--no-pinhole-rows] [--label run]
 """
 
 from __future__ import annotations
@@ -157,6 +157,7 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--no-calibration", action="store_true")
     ap.add_argument("--no-pinhole-check", action="store_true", help="skip the '<model> as pinhole' rows")
+    ap.add_argument("--no-pinhole-rows", action="store_true", help="skip the 90-degree pinhole baseline rows")
     ap.add_argument("--pinhole-check-only", action="store_true",
                     help="only the '<model> as pinhole' rows (of every --models at the widest --fovs)")
     ap.add_argument("--label", default="run")
@@ -174,7 +175,7 @@ def main(argv=None) -> int:
         seeds = range(a.first_seed, a.first_seed + a.sites)
         models = [m for m in a.models.split(",") if m]
         fovs = [float(f) for f in a.fovs.split(",") if f]
-        cases = [] if a.pinhole_check_only else [("pinhole", 90.0, s, False) for s in seeds]
+        cases = [] if a.pinhole_check_only or a.no_pinhole_rows else [("pinhole", 90.0, s, False) for s in seeds]
         if a.pinhole_check_only:
             cases += [(m, max(fovs), s, True) for m in models for s in seeds]
         elif not a.no_pinhole_check:  # the refusal check first: it is the one that must never fail
