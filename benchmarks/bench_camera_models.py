@@ -14,13 +14,14 @@ rows use a 90-degree lens. Columns as in ``bench_calibration_realism.py``: succe
 (rotation error > 1 deg or translation error > 0.5 m), median errors of the successes, 2-sigma
 coverage, median time. The row ``<model> as pinhole`` calibrates the same fisheye frames with a
 pinhole ``CameraIntrinsics`` of the same fx, fy, cx, cy (a user who hands a fisheye camera to a
-pinhole-only path): it must be refused, never a wrong success.
+pinhole-only path): it must be refused, never a wrong success, with the cause named (column
+``lens``: runs refused as ``misfit_lens``, the lens-misfit check of ``xcalib.calib.misfit``).
 
 Results go to ``benchmarks/results/camera_models.json`` under ``--label``.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_camera_models.py [--points 200000]
         [--sites 1] [--models kannala_brandt,double_sphere] [--fovs 120,150,185] [--frames 20]
-        [--no-calibration] [--label run]
+        [--no-calibration] [--pinhole-check-only] [--no-pinhole-rows] [--label run]
 """
 
 from __future__ import annotations
@@ -112,8 +113,10 @@ def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole:
     except Exception as exc:  # noqa: BLE001 - an exception is a finding too
         return {"row": row, "seed": seed, "success": False, "message": f"exception: {exc!r}",
                 "time_s": time.perf_counter() - t0}
+    lens = [c for c in res.diagnostics.misfit if c.name == "lens"]
     rec = {"row": row, "model": model, "hfov_deg": fov, "seed": seed, "success": bool(res.success),
-           "message": res.message[:300], "time_s": time.perf_counter() - t0, "n_pairs": res.n_pairs,
+           "message": res.message[:300], "refusal": res.diagnostics.refusal,
+           "lens_check": lens[0].detail if lens else None, "time_s": time.perf_counter() - t0, "n_pairs": res.n_pairs,
            "n_2d_boxes": int(sum(len(f.bboxes_2d) for f in frames))}
     if res.success:
         rot, tr = res.pose_error(site.T_cam_lidar)
@@ -135,6 +138,7 @@ def summarise(recs: list[dict]) -> list[dict]:
         out.append({"row": name, "n": len(rs), "success": len(ok) / len(rs), "wrong": sum(r["wrong"] for r in ok),
                     "rot_deg_median": med("rot_deg"), "trans_m_median": med("trans_m"),
                     "coverage_2sigma": (sum(r["within_2sigma"] for r in ok) / len(ok)) if ok else None,
+                    "refused_misfit_lens": sum(r.get("refusal") == "misfit_lens" for r in rs),
                     "time_s_median": float(np.median([r["time_s"] for r in rs]))})
     return out
 
@@ -153,6 +157,9 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--no-calibration", action="store_true")
     ap.add_argument("--no-pinhole-check", action="store_true", help="skip the '<model> as pinhole' rows")
+    ap.add_argument("--no-pinhole-rows", action="store_true", help="skip the 90-degree pinhole baseline rows")
+    ap.add_argument("--pinhole-check-only", action="store_true",
+                    help="only the '<model> as pinhole' rows (of every --models at the widest --fovs)")
     ap.add_argument("--label", default="run")
     a = ap.parse_args(argv)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -168,10 +175,12 @@ def main(argv=None) -> int:
         seeds = range(a.first_seed, a.first_seed + a.sites)
         models = [m for m in a.models.split(",") if m]
         fovs = [float(f) for f in a.fovs.split(",") if f]
-        cases = [("pinhole", 90.0, s, False) for s in seeds]
-        if not a.no_pinhole_check:  # the refusal check first: it is the one that must never fail
+        cases = [] if a.pinhole_check_only or a.no_pinhole_rows else [("pinhole", 90.0, s, False) for s in seeds]
+        if a.pinhole_check_only:
+            cases += [(m, max(fovs), s, True) for m in models for s in seeds]
+        elif not a.no_pinhole_check:  # the refusal check first: it is the one that must never fail
             cases += [(m, max(fovs), s, True) for m in models[:1] for s in seeds]
-        for fov in sorted(fovs, reverse=True):  # the widest first
+        for fov in ([] if a.pinhole_check_only else sorted(fovs, reverse=True)):  # the widest first
             for m in models:
                 cases += [(m, fov, s, False) for s in seeds]
         for i, (m, fov, s, asp) in enumerate(cases):
@@ -183,10 +192,11 @@ def main(argv=None) -> int:
                   f"({rec['time_s']:.0f} s) {'' if rec['success'] else rec['message'][:120]}", flush=True)
         table = summarise(recs)
         print(f"\n{'row':32s} {'n':>3s} {'success':>7s} {'wrong':>5s} {'rot deg':>8s} {'trans m':>8s} "
-              f"{'2sig cov':>8s} {'time s':>7s}")
+              f"{'2sig cov':>8s} {'time s':>7s} {'lens':>4s}")
         for r in table:
             print(f"{r['row']:32s} {r['n']:3d} {r['success']:7.0%} {r['wrong']:5d} {_fmt(r['rot_deg_median'], '8.3f')} "
-                  f"{_fmt(r['trans_m_median'], '8.3f')} {_fmt(r['coverage_2sigma'], '8.0%')} {r['time_s_median']:7.0f}")
+                  f"{_fmt(r['trans_m_median'], '8.3f')} {_fmt(r['coverage_2sigma'], '8.0%')} {r['time_s_median']:7.0f} "
+                  f"{r['refused_misfit_lens']:4d}")
     else:
         table = []
     _save(a, tp, table, recs)
@@ -199,7 +209,9 @@ def _save(a, tp, table, recs) -> None:
     data[a.label] = {"machine": machine_info(), "args": vars(a), "throughput": tp, "calibration": table,
                      "records": recs}
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(data, indent=1))
+    tmp = OUT.with_name(f".{OUT.name}.{os.getpid()}.tmp")  # atomic: runs under other labels may save meanwhile
+    tmp.write_text(json.dumps(data, indent=1))
+    os.replace(tmp, OUT)
 
 
 if __name__ == "__main__":

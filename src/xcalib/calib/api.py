@@ -37,7 +37,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, match
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSelectionSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, lean_frames, prepare_frames, with_corner_outlines, with_point_outlines
-from .misfit import box_frame_check, flipped_frames, focal_fit, focal_scale_check, focal_width_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, time_shifted_frames, unexplained_frames_check
+from .misfit import box_frame_check, flipped_frames, lens_check, focal_fit, focal_scale_check, focal_width_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, time_shifted_frames, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .parallel import Deferred, Workers, parallel_map, resolve_workers
 from .pose import Pose
@@ -290,6 +290,9 @@ def _misfit_checks(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, 
     chk, msg = unexplained_frames_check(cframes, pairs)
     found.append((chk, msg, "misfit_mixed_cameras"))
     places = len(matched_places(cframes, pairs)[0])
+    # a fisheye given as pinhole bends the focal / principal-point fits too: the lens is the cause to name
+    chk, msg = lens_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, places=places)
+    found.append((chk, msg, "misfit_lens"))
     width = None
     if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
         fit = focal_fit(cframes, pairs, intr, pose, noise, f_scale, occlusion)

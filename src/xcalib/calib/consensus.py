@@ -16,7 +16,9 @@ Intrinsics: given (a ``CameraIntrinsics`` / 3x3 K), or, when unknown, searched: 
 camera with the principal point at the image centre and the horizontal field of view in
 ``ConsensusConfig.fov_deg``; the field of view whose best pose hypothesis explains the boxes
 best is kept (the matches need a pose that projects boxes onto their partners, not the exact
-lens). On the 16 real A9 frames (judged against the matches of the all-frame calibration):
+lens). ``ConsensusConfig.fisheye_fov_deg`` adds equidistant (Kannala-Brandt, k = 0) lenses of
+those fields of view to the search, for a fisheye camera whose intrinsics are unknown (a pinhole
+cannot image past 90 degrees off axis). On the 16 real A9 frames (judged against the matches of the all-frame calibration):
 recall 0.98 / precision 0.97 with the intrinsics, 0.96 / 0.94 with the searched ones
 (``benchmarks/bench_matching_sites.py``).
 
@@ -33,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera_models import KannalaBrandt
 from ..geometry.rotations import rotation_angle
 from .boxproj import iou_batched
 from .hypotheses import frame_hypotheses
@@ -48,7 +51,8 @@ SEARCH_KEEP = 2  # searched intrinsics: fields of view whose poses are refined (
 class ConsensusConfig:
     """``gate``: IoU gate of a match; ``max_baseline_m``: first search with the camera within this
     distance of the LiDAR-frame origin (then without); ``n_refine``: distinct poses refined;
-    ``fov_deg``: horizontal fields of view tried when the intrinsics are unknown; ``min_altitude_m``:
+    ``fov_deg``: horizontal fields of view tried when the intrinsics are unknown (pinhole lenses);
+    ``fisheye_fov_deg``: the same for equidistant fisheye lenses (none by default); ``min_altitude_m``:
     thinnest box triangle (m) the pose search accepts; ``score_budget``: IoU entries (2D x 3D boxes
     x poses) the search scores, so small frames keep more hypotheses than ``keep`` (a true pose
     that puts only 3 box centres into their boxes is not lost behind poses that hit more);
@@ -62,6 +66,7 @@ class ConsensusConfig:
     keep: int = 40
     max_triples: int = 20000  # box triples tried (crowded frames, e.g. 70+ 3D boxes around a car, need many)
     fov_deg: tuple[float, ...] = (30.0, 45.0, 60.0, 80.0, 100.0)
+    fisheye_fov_deg: tuple[float, ...] = ()
     min_altitude_m: float = 0.3  # one frame: thin triangles too (refinement fixes the roll); calibrate uses 0.8
     min_margin: float = 0.3  # one match at the IoU gate
     score_budget: int = 300_000
@@ -76,6 +81,9 @@ class ConsensusConfig:
             raise ValueError("ConsensusConfig.n_refine and keep must be >= 1")
         if not self.fov_deg or not all(0.0 < f < 180.0 for f in self.fov_deg):
             raise ValueError(f"ConsensusConfig.fov_deg: fields of view in (0, 180) degrees, got {self.fov_deg}")
+        if not all(0.0 < f <= 270.0 for f in self.fisheye_fov_deg):
+            raise ValueError(f"ConsensusConfig.fisheye_fov_deg: fields of view in (0, 270] degrees, got "
+                             f"{self.fisheye_fov_deg}")
 
 
 @dataclass
@@ -112,10 +120,18 @@ class ConsensusMatches:
         return self.T_cam_lidar is not None
 
 
-def searched_intrinsics(width: int, height: int, fov_deg: float) -> CameraIntrinsics:
-    """Pinhole intrinsics with the principal point at the image centre and horizontal field of view
-    ``fov_deg`` (square pixels)."""
-    f = width / 2.0 / np.tan(np.radians(fov_deg) / 2.0)
+def searched_intrinsics(width: int, height: int, fov_deg: float, lens: str = "pinhole"):
+    """Intrinsics with the principal point at the image centre and horizontal field of view
+    ``fov_deg`` (square pixels): a pinhole ``CameraIntrinsics`` (``lens="pinhole"``, fov < 180)
+    or an equidistant ``KannalaBrandt`` with k = 0 (``lens="equidistant"``: r = f theta)."""
+    half = np.radians(fov_deg) / 2.0
+    if lens == "equidistant":
+        f = width / 2.0 / half
+        return KannalaBrandt(fx=f, fy=f, cx=width / 2.0, cy=height / 2.0, width=int(width), height=int(height),
+                             k=(0.0, 0.0, 0.0, 0.0))
+    if lens != "pinhole":
+        raise ValueError(f"searched_intrinsics: lens must be 'pinhole' or 'equidistant', got {lens!r}")
+    f = width / 2.0 / np.tan(half)
     return CameraIntrinsics(fx=f, fy=f, cx=width / 2.0, cy=height / 2.0, width=int(width), height=int(height))
 
 
@@ -176,8 +192,9 @@ def _candidates(frame, intrinsics, cfg: ConsensusConfig):
     image = frame.image if hasattr(frame, "image") else frame[0]
     H, W = int(image.shape[0]), int(image.shape[1])
     found = []
-    for fov in cfg.fov_deg:
-        cfs, intr, problem = prepare_frames([frame], searched_intrinsics(W, H, fov))
+    lenses = [(fov, "pinhole") for fov in cfg.fov_deg] + [(fov, "equidistant") for fov in cfg.fisheye_fov_deg]
+    for fov, lens in lenses:
+        cfs, intr, problem = prepare_frames([frame], searched_intrinsics(W, H, fov, lens))
         if problem:
             return [], "searched", problem, cfs[0], intr
         h = _hypotheses(cfs[0], intr, cfg)

@@ -19,6 +19,8 @@ Terms here:
 * ``PrincipalPointTerm``: a shift of (cx, cy) in pixels (optional prior).
 * ``TimeOffsetTerm``: the camera-minus-LiDAR time offset dt (s); every matched 3D outline is moved
   by its velocity times dt before projection (``PoseState.shift_m``).
+* ``WideLensTerm``: a pinhole camera widened into Mei's unified model by one parameter ``xi``
+  (0: the given pinhole); used by the lens-misfit check (``misfit.lens_check``).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera_models import Unified
 from ..geometry.camera_models import pixels_per_metre as camera_pixels_per_metre
 from ..geometry.rotations import so3_left_jacobian
 from .boxproj import MIN_DEPTH_M, project_rects
@@ -36,7 +39,7 @@ from .diagnostics import NoiseModel
 from .pose import Pose
 
 __all__ = ["shift_principal_point", "PoseState", "CostTerm", "Occlusion", "BoxEdgeTerm", "PosePriorTerm", "FocalScaleTerm",
-           "PrincipalPointTerm", "TimeOffsetTerm", "CostModel", "Tangent", "CostFit", "edge_sigma", "INWARD", "POSE_X_SCALE"]
+           "PrincipalPointTerm", "TimeOffsetTerm", "WideLensTerm", "CostModel", "Tangent", "CostFit", "edge_sigma", "INWARD", "POSE_X_SCALE"]
 
 INWARD = np.array([-1.0, -1.0, 1.0, 1.0])  # sign of (pred - obs) per edge when the 2D box lies inside
 POSE_X_SCALE = (1e-3, 1e-3, 1e-3, 0.05, 0.05, 0.05)  # typical step: rad, rad, rad, m, m, m
@@ -357,6 +360,49 @@ class PrincipalPointTerm(CostTerm):
         if self.sigma_px is not None:
             J[0, col], J[1, col + 1] = 1.0 / self.sigma_px, 1.0 / self.sigma_px
         return J
+
+
+class WideLensTerm(CostTerm):
+    """One parameter ``xi`` >= 0 that widens a pinhole ``CameraIntrinsics`` (with at most the
+    radial-tangential k1, k2, p1, p2) into Mei's unified model ``Unified(xi)`` whose focal length
+    is ``f (1 + xi)``: the same scale at the image centre, ever more compressed towards the rim
+    (``xi = 0``: the given pinhole; ~1.75: close to an equidistant fisheye over 180 degrees).
+    ``fixed``: hold ``xi`` at this value (the pinhole alternative, projected the same way). Put a
+    ``FocalScaleTerm`` after it to free the focal length too. ``start``: the fit's first ``xi``
+    (its parameter is the step from there). No analytic Jacobian (numeric)."""
+
+    name = "wide_lens_xi"
+    n_params = 1
+    x_scale = (0.05,)
+    MAX_XI = 4.0
+
+    def __init__(self, base: CameraIntrinsics, fixed: float | None = None, start: float = 0.0):
+        d = np.zeros(0) if base.distortion is None else np.asarray(base.distortion, dtype=np.float64)
+        if np.any(d[4:]):
+            raise ValueError("WideLensTerm: only k1, k2, p1, p2 distortion can be widened")
+        self.base, self.fixed, self.start = base, fixed, float(start)
+        self.d4 = tuple(float(v) for v in np.pad(d[:4], (0, 4 - len(d[:4])))) if np.any(d) else ()
+
+    @staticmethod
+    def applies(intr) -> bool:
+        """True for a pinhole ``CameraIntrinsics`` whose distortion the unified model carries."""
+        if not isinstance(intr, CameraIntrinsics):
+            return False
+        return intr.distortion is None or not np.any(np.asarray(intr.distortion, dtype=np.float64)[4:])
+
+    def camera(self, xi: float) -> Unified:
+        b = self.base
+        return Unified(fx=b.fx * (1 + xi), fy=b.fy * (1 + xi), cx=b.cx, cy=b.cy, width=b.width, height=b.height,
+                       xi=xi, distortion=self.d4)
+
+    def apply(self, state: PoseState, x: np.ndarray) -> PoseState:
+        xi = float(np.clip(self.start + x[0], 0.0, self.MAX_XI)) if self.fixed is None else float(self.fixed)
+        state.params[self.name] = np.array([xi])
+        state.intr = self.camera(xi)
+        return state
+
+    def residuals(self, state: PoseState) -> np.ndarray:
+        return np.zeros(0)
 
 
 class TimeOffsetTerm(CostTerm):

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ...geometry.boxes import box7_corners
+from ...geometry.camera_models import CameraModel
 from .detections import CameraView, _project
 from .scene import SceneObjects
 
@@ -285,6 +286,8 @@ def render_frame(site: Site, objs: SceneObjects, view: CameraView) -> np.ndarray
     g = pts - sun[None] * (pts[:, 2:3] / max(sun[2], 0.2))
     g[:, 2] = 0.01
     uv, dep = _project(site, g)
+    if _wide(site):  # a wide-angle lens images points beside and behind its optical plane (Z <= 0)
+        dep = np.where(np.isfinite(uv).all(axis=1), np.linalg.norm(_to_camera(site, g), axis=1), -1.0)
     uv, dep = uv.reshape(-1, 8, 2), dep.reshape(-1, 8)
     for k in range(len(view.order)):
         if np.all(dep[k] > 0.3):
@@ -321,6 +324,8 @@ def render_frame(site: Site, objs: SceneObjects, view: CameraView) -> np.ndarray
                 polys.append(pq)
                 cols.append(np.asarray(rgb, np.float32) * shade)
                 owners.append((i, 0))
+    if _wide(site):
+        return _fill_wide(img, site, np.asarray(polys), cols, owners)
     P = np.asarray(polys).reshape(-1, 3)
     uvp, _ = _project(site, P)
     uvp = np.round(uvp.reshape(-1, 4, 2) * 16).astype(np.int32)
@@ -330,4 +335,42 @@ def render_frame(site: Site, objs: SceneObjects, view: CameraView) -> np.ndarray
         if owners[k][1]:
             edge = tuple(int(v * 0.6) for v in col)
             cv2.polylines(img, [uvp[k]], True, edge, 1, cv2.LINE_AA, _SHIFT)
+    return img
+
+
+#: points per side of a face drawn through a wide-angle lens (its straight sides curve)
+WIDE_FACE_SAMPLES = 8
+
+
+def _wide(site: Site) -> bool:
+    return isinstance(site.intrinsics, CameraModel) and not site.intrinsics.is_pinhole
+
+
+def _to_camera(site: Site, pts_world: np.ndarray) -> np.ndarray:
+    T = site.T_cam_world
+    return pts_world.reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+
+
+def _fill_wide(img: np.ndarray, site: Site, polys: np.ndarray, cols: list, owners: list) -> np.ndarray:
+    """Faces [K,4,3] (world) through a wide-angle lens: each side sampled ``WIDE_FACE_SAMPLES``
+    times, so that the drawn face curves as the box outlines (the 2D boxes) do, and faces beside
+    or behind the optical plane are drawn too; a face with a point outside the lens's valid
+    region is skipped (never a wrapped polygon)."""
+    import cv2
+
+    if not len(polys):
+        return img
+    w = (np.arange(WIDE_FACE_SAMPLES) / WIDE_FACE_SAMPLES)[None, None, :, None]
+    a, b = polys[:, :, None, :], np.roll(polys, -1, axis=1)[:, :, None, :]
+    dense = (a + (b - a) * w).reshape(len(polys), -1, 3)  # [K, 4 * samples, 3] around the face
+    pc = _to_camera(site, dense)
+    uv, ok = site.intrinsics.project(pc)
+    ok &= np.linalg.norm(pc, axis=1) > 0.3
+    uv, ok = uv.reshape(len(polys), -1, 2), ok.reshape(len(polys), -1).all(axis=1)
+    for k in np.flatnonzero(ok):
+        pts = np.round(uv[k] * 16).astype(np.int32)
+        col = tuple(int(v) for v in np.clip(cols[k], 0, 255))
+        cv2.fillPoly(img, [pts], col, cv2.LINE_AA, _SHIFT)
+        if owners[k][1]:
+            cv2.polylines(img, [pts], True, tuple(int(v * 0.6) for v in col), 1, cv2.LINE_AA, _SHIFT)
     return img
