@@ -64,7 +64,7 @@ def run(name: str, frames, intr, truths, config=None, ref_sd=None) -> dict:
     if ref_sd is not None:
         sd = np.hypot(sd, ref_sd)
     z = np.abs(delta) / np.maximum(sd, 1e-12)
-    rec.update(delta=delta.tolist(), sigma=sd.tolist(), z=z.tolist(),
+    rec.update(delta=delta.tolist(), sigma=sd.tolist(), z=z.tolist(), parts=dict(d.uncertainty.__dict__),
                err_deg=float(np.linalg.norm(delta[:3])), err_m=float(np.linalg.norm(delta[3:])),
                covered_norm=bool(np.linalg.norm(delta[:3]) <= 2 * np.linalg.norm(sd[:3])
                                  and np.linalg.norm(delta[3:]) <= 2 * np.linalg.norm(sd[3:])))
