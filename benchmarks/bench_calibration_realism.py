@@ -100,11 +100,20 @@ def run_case(task: tuple) -> dict:
         delta = Pose.parse(res.extrinsics).delta(Pose.parse(case.T_cam_lidar))
         sd = np.concatenate([res.rotation_std_deg, res.translation_std_m])
         rec["z_axes"] = [float(v) for v in np.abs(delta) / np.maximum(sd, 1e-12)]
+        rec["sigma_axes"] = [float(v) for v in sd]
+        rec["sigma_parts"] = {k: v for k, v in res.diagnostics.uncertainty.__dict__.items() if k != "box_model"}
         rec["within_95"] = bool(rot <= bound95(res.rotation_std_deg) and tr <= bound95(res.translation_std_m))
         rec.update(rot_deg=rot, trans_m=tr, rot_sigma_deg=rs, trans_sigma_m=ts,
                    wrong=bool(rot > WRONG_ROT_DEG or tr > WRONG_TRANS_M),
                    rot_within_2sigma=bool(rot <= 2 * rs), trans_within_2sigma=bool(tr <= 2 * ts))
         rec["within_2sigma"] = rec["rot_within_2sigma"] and rec["trans_within_2sigma"]
+    if not res.success and res.diagnostics.refused_T is not None:  # what a refused pose would have promised
+        from xcalib.calib.pose import Pose
+
+        delta = Pose.parse(np.asarray(res.diagnostics.refused_T)).delta(Pose.parse(case.T_cam_lidar))
+        rec.update(refusal=res.diagnostics.refusal, refused_delta=[float(v) for v in delta],
+                   sigma_axes=[float(v) for v in np.concatenate([res.rotation_std_deg, res.translation_std_m])],
+                   sigma_parts={k: v for k, v in res.diagnostics.uncertainty.__dict__.items() if k != "box_model"})
     intr = getattr(res, "intrinsics", None)
     if opts is not None:
         sc = res.diagnostics.selfcal
