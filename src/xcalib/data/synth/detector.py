@@ -144,7 +144,8 @@ def detector_frame(frame: Frame, style: DetectorStyle, size: tuple[int, int], si
                 kept.append(it)
         items = kept
     if style.merge_prob > 0 and len(items) > 1:  # overlapping objects of one kind -> one box
-        order = sorted(range(len(items)), key=lambda i: -(items[i][0][2] - items[i][0][0]) * (items[i][0][3] - items[i][0][1]))
+        area = [(b[2] - b[0]) * (b[3] - b[1]) for b, *_ in items]
+        order = sorted(range(len(items)), key=lambda i: -area[i])
         gone: set[int] = set()
         for a_i, a in enumerate(order):
             if a in gone:
@@ -152,7 +153,8 @@ def detector_frame(frame: Frame, style: DetectorStyle, size: tuple[int, int], si
             for b in order[a_i + 1:]:
                 if b in gone or _kind(items[a][2]) != _kind(items[b][2]):
                     continue
-                if _overlap_small(items[a][0], items[b][0]) >= style.merge_min_overlap and rng.uniform() < style.merge_prob:
+                near = _overlap_small(items[a][0], items[b][0]) >= style.merge_min_overlap
+                if near and rng.uniform() < style.merge_prob:
                     A, B = items[a][0], items[b][0]
                     u = np.array([min(A[0], B[0]), min(A[1], B[1]), max(A[2], B[2]), max(A[3], B[3])])
                     items[a] = (u, items[a][1], items[a][2], min(items[a][3], items[b][3]), items[a][4])
@@ -169,6 +171,14 @@ def detector_frame(frame: Frame, style: DetectorStyle, size: tuple[int, int], si
     out_cls = [it[2] for it in items]
     vis_l = [it[3] for it in items]
     tr_l = [it[4] for it in items]
+    def add(box, cls: str, v: float) -> None:  # a false box (no object, no corner box)
+        boxes.append(box)
+        corner.append(np.full(4, np.nan))
+        out_ids.append(-1)
+        out_cls.append(cls)
+        vis_l.append(v)
+        tr_l.append(0.0)
+
     if style.part_boxes:  # a large vehicle's cab as its own box; duplicates slightly off
         for k in range(len(items)):
             b, cls = boxes[k], out_cls[k]
@@ -178,19 +188,11 @@ def detector_frame(frame: Frame, style: DetectorStyle, size: tuple[int, int], si
                 cut = float(rng.uniform(0.3, 0.45)) * w
                 part = np.array([b[0], b[1] + 0.1 * h, b[0] + cut, b[3]]) if left else \
                     np.array([b[2] - cut, b[1] + 0.1 * h, b[2], b[3]])
-                boxes.append(part)
-                corner.append(np.full(4, np.nan))
-                out_ids.append(-1), out_cls.append("car"), vis_l.append(0.5), tr_l.append(0.0)
+                add(part, "car", 0.5)
             if rng.uniform() < style.duplicate_rate:
-                d = b + rng.normal(0, 0.12, 4) * np.array([w, h, w, h])
-                boxes.append(d)
-                corner.append(np.full(4, np.nan))
-                out_ids.append(-1), out_cls.append(cls), vis_l.append(0.4), tr_l.append(0.0)
-    for b, _, c, v, t in false_boxes:
-        boxes.append(b)
-        corner.append(np.full(4, np.nan))
-        out_ids.append(-1), out_cls.append(c if c != "false_positive" else str(rng.choice(_VEHICLES))), \
-            vis_l.append(0.3), tr_l.append(0.0)
+                add(b + rng.normal(0, 0.12, 4) * np.array([w, h, w, h]), cls, 0.4)
+    for b, _, c, _v, _t in false_boxes:
+        add(b, c if c != "false_positive" else str(rng.choice(_VEHICLES)), 0.3)
     n = len(boxes)
     B = np.asarray(boxes, dtype=np.float64).reshape(n, 4)
     ids_o = np.asarray(out_ids, dtype=np.int64)
