@@ -146,10 +146,10 @@ class CalibConfig:
         max_rot_std_deg / max_trans_std_m: fail when the norm of the 1-sigma vector that the frames
             verify (Jacobian, frame halves, occlusion; the 0.4 sigma) exceeds these (2 sigma within
             1 deg / 0.5 m by default): the pose is not determined by the data.
-        max_rot_bound_deg / max_trans_bound_m: fail when 2x the norm of the reported 1-sigma (which
-            also counts each object once and the 3D box model, see ``uncertainty``) exceeds these:
-            the pose is determined but too uncertain to be of use. A success promises the pose
-            within the reported 2 sigma.
+        max_rot_bound_deg / max_trans_bound_m: fail when the 95 % bound of the reported per-axis
+            1-sigma (``uncertainty.bound95``; it also counts each object once and the 3D box model,
+            see ``uncertainty``) exceeds these: the pose is determined but too uncertain to be of
+            use. A success promises the pose within that bound.
         misfit_check: refuse a pose whose residuals show the model does not fit (wrong focal
             length, sensors out of time, mixed cameras, mirrored image) or cannot check the given
             focal length (``focal_unverifiable``); see ``misfit``. False turns both off.

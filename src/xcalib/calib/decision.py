@@ -20,7 +20,7 @@ import numpy as np
 from ..geometry.boxes import box2d_centers
 from .config import CalibConfig
 from .inputs import CalibFrame
-from .uncertainty import HALF_MIN_MATCHES, HALVES_MIN_MATCHES, MIN_OBJECTS
+from .uncertainty import HALF_MIN_MATCHES, HALVES_MIN_MATCHES, MIN_OBJECTS, bound95
 
 __all__ = ["Refusal", "precheck", "verdict", "crowded_check", "matched_places", "POOLED_MIN_PLACES", "POOLED_SEP_M",
            "POOLED_OFF_LINE_M"]
@@ -176,17 +176,19 @@ def _objects_check(ev: Evidence) -> Refusal | None:
 
 
 def _bound_check(ev: Evidence, config: CalibConfig) -> Refusal | None:
-    """Refuse a determined pose whose reported 2-sigma bound (each object counted once, the 3D box
-    model included) exceeds the config's limits: a success promises the pose within 2 sigma."""
+    """Refuse a determined pose whose reported 95 % bound (each object counted once, the 3D box
+    model included; ``uncertainty.bound95`` of the per-axis 1-sigma: 1.96 sigma for one dominant
+    axis, 2.80 for three equal ones) exceeds the config's limits: a success promises the pose
+    within it. (Until 0.6 the bound was 2 x the norm of the 1-sigma vector, a 96-99 % bound.)"""
     if ev.rot_sd_total is None:
         return None
-    r, t = 2 * float(np.linalg.norm(ev.rot_sd_total)), 2 * float(np.linalg.norm(ev.tr_sd_total))
+    r, t = bound95(ev.rot_sd_total), bound95(ev.tr_sd_total)
     if np.isfinite(r) and np.isfinite(t) and r <= config.max_rot_bound_deg and t <= config.max_trans_bound_m:
         return None
     bound = "unbounded (one object alone fixes part of the pose)" if not (np.isfinite(r) and np.isfinite(t)) \
         else f"{r:.2f} deg / {t:.2f} m"
     return Refusal("uncertain", f"too uncertain: the frames agree on the pose, but counting each object once (the same "
-                   f"vehicles repeat over the frames) and the 3D box model, its 2-sigma bound is {bound} (limit "
+                   f"vehicles repeat over the frames) and the 3D box model, its 95 % bound is {bound} (limit "
                    f"{config.max_rot_bound_deg:g} deg / {config.max_trans_bound_m:g} m); add recordings with other "
                    "objects at other places")
 

@@ -100,6 +100,7 @@ class UncertaintyParts:
     frames: list[float] | None = None
     n_objects: int = 0
     box_model: dict = field(default_factory=dict)
+    outline: list[float] | None = None
 
 
 @dataclass

@@ -28,6 +28,7 @@ import numpy as np
 from ...geometry.camera import CameraIntrinsics
 from ...geometry.rotations import euler_to_matrix
 from ...types import Frame
+from .detector import DetectorStyle, detector_frame
 from .generate import generate_frames
 from .presets import preset_config
 from .site import Site, sample_site
@@ -60,6 +61,10 @@ class RealismCondition:
     lidar_points: generate the LiDAR sweep (needed where the calibrator uses points).
     box3d_frame: "camera" gives the 3D boxes (centres moved by the true ``T_cam_lidar``, size and
     yaw kept, as a converter that moves centres only) and the points in the camera frame.
+    detector: the 2D boxes as a real detector draws them (``xcalib.data.synth.detector``: visible
+    outline, merges, class-dependent misses and false boxes, score-dependent noise; None: exact
+    boxes with ``box_noise_px``). max_truncation: share of an object's box outside the image up to
+    which it is still detected (None: the site's 0.6).
     """
 
     name: str
@@ -85,6 +90,8 @@ class RealismCondition:
     yaw_noise_deg: float = 0.0
     lidar_points: bool = False
     box3d_frame: Literal["lidar", "camera"] = "lidar"
+    detector: DetectorStyle | None = None
+    max_truncation: float | None = None
 
     def __post_init__(self) -> None:
         for name, allowed in (("second_camera", get_args(SecondCamera)), ("box3d_yaw", ("kept", "dropped")),
@@ -104,6 +111,8 @@ class RealismCondition:
                  queue_share=self.queue_share, queue_max=self.queue_max, image_mirrored=self.mirrored)
         if self.vehicle_speed_mps is not None:
             o["vehicle_speed"] = tuple(self.vehicle_speed_mps)
+        if self.max_truncation is not None:
+            o["max_truncation"] = float(self.max_truncation)
         return o
 
     def noise(self) -> dict[str, float]:
@@ -160,6 +169,32 @@ def _builtin() -> None:
                          "(x right, y down, z forward) instead of the LiDAR frame", box3d_frame="camera"))
     register_condition(C("dropout", "detection dropout: 35 % of 2D and 35 % of 3D detections missed",
                          miss_rate_2d=0.35, miss_rate_3d=0.35))
+    _detector_conditions()
+
+
+def _detector_conditions() -> None:
+    """2D boxes as a real detector draws them (issue 25 item 5; ``xcalib.data.synth.detector``).
+    Each isolates one habit on top of exact, 1 px boxes; ``detector_all`` has all of them."""
+    C, D = RealismCondition, DetectorStyle
+    off = dict(outline=False, merge_prob=0.0, class_misses=False, part_boxes=False, score_noise=False)
+    base = dict(miss_rate_2d=0.0)  # the detector's own (class-dependent) misses, or none
+    register_condition(C("detector_outline", "2D boxes are the visible outline of vehicle-shaped objects (a car "
+                         "~10 % narrower, ~12 % lower than its cuboid's corner box; per object and per box jitter; "
+                         "persons' boxes wider)", detector=D(**{**off, "outline": True}), **base))
+    register_condition(C("detector_truncation", "objects cut by the image border up to 90 % are detected, their "
+                         "boxes end at the border; visible outline", detector=D(**{**off, "outline": True}),
+                         max_truncation=0.9, **base))
+    register_condition(C("detector_merge", "two overlapping vehicles (or persons) drawn as one box with "
+                         "probability 0.5", detector=D(**{**off, "merge_prob": 0.5}), **base))
+    register_condition(C("detector_misses", "class-dependent misses (persons 15 %, cars 4 %; more for small and "
+                         "occluded objects), truck cabs as false car boxes, duplicate boxes",
+                         detector=D(**{**off, "class_misses": True, "part_boxes": True}), **base))
+    register_condition(C("detector_scores", "score-dependent box noise: 1 px + 6 % of the size x (1 - score), "
+                         "scores lower for small, occluded, truncated objects; boxes below 0.3 dropped",
+                         detector=D(**{**off, "score_noise": True}), **base))
+    register_condition(C("detector_all", "a real detector: visible outline, truncation up to 90 %, merges, "
+                         "class-dependent misses and false boxes, score-dependent noise",
+                         detector=D(), max_truncation=0.9, **base))
 
 
 _builtin()
@@ -265,6 +300,8 @@ def make_realism_case(condition: RealismCondition | str, site_seed: int, n_frame
     noise = cond.noise()
     frames = generate_frames(site, n_frames, seed=site_seed, render_images=False, lidar=cond.lidar_points, **noise)
     n_obj, n_true = _truth_counts(frames)
+    if cond.detector is not None:
+        frames = [detector_frame(f, cond.detector, (site.width, site.height), site.seed) for f in frames]
     if cond.second_camera != "none":
         frames = _mix_second_camera(cond, site, frames, site_seed, noise)
     T_true = site.T_cam_lidar.copy()
