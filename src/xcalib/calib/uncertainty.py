@@ -495,13 +495,13 @@ def outline_shift(frames, pairs, intr, pose: Pose, noise: NoiseModel | None, *, 
     the shift is the data's estimate of the pose's bias from the outline model, an error common to
     all objects that no resampling of objects or frames can see. None with fewer than 12 matches."""
     from .boxmodel import outline_edge_term
-    from .cost import CostModel
 
     if int(sum(len(p) for p in pairs)) < 12:
         return None
-    base = edge_term(frames, pairs, intr, pose, noise, Occlusion() if occlusion is None else occlusion)
+    model = build_cost(frames, pairs, intr, pose, noise, Occlusion() if occlusion is None else occlusion,
+                       edge=outline_edge_term)
     try:
-        fit = CostModel([outline_edge_term(base)], pose, intr).fit(f_scale=f_scale, max_nfev=max_nfev)
+        fit = model.fit(f_scale=f_scale, max_nfev=max_nfev)
     except (np.linalg.LinAlgError, ValueError):
         return None
     return fit.pose.delta(pose)
