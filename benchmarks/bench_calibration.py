@@ -35,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("XCALIB_SHARED_DATA", REPO.parent / "shared" / "data"))
 OUT = REPO / "benchmarks" / "results" / "calibration.json"
@@ -65,16 +67,48 @@ def machine_info() -> dict:
 
 
 def write_result(out: Path, result: dict) -> None:
-    """Write ``result`` as JSON to ``out`` (folders created) and say where."""
+    """Write ``result`` as JSON to ``out`` (folders created; atomically: a temporary file renamed)
+    with a ``provenance`` stamp (xcalib version, git commit, command; ``_provenance.provenance``)
+    and say where."""
+    from _provenance import provenance
+
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2, default=float))
+    result = {**result, "provenance": result.get("provenance") or provenance()}
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(result, indent=2, default=float))
+    os.replace(tmp, out)
     print(f"\nwrote {out}")
 
 
-def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
+def synthetic_record(seed: int, noise: dict, n_frames: int) -> dict:
+    """One synthetic roadside site (``seed``, 2D/3D ``noise``, ``n_frames`` frames) calibrated: the
+    per-site record of the synthetic table (also recomputed by tests/test_results_fresh.py)."""
     from xcalib.calib.api import calibrate
     from xcalib.data.synth import generate_frames, sample_site
 
+    site = sample_site(seed, preset="roadside")
+    frames = generate_frames(site, n_frames, seed=seed, render_images=False, lidar=False,
+                             miss_rate_2d=0.1, false_positive_rate_2d=0.05, **noise)
+    ident, n_obj, n_true = _identifiable(frames)
+    t0 = time.perf_counter()
+    res = calibrate(frames, frames[0].intrinsics)
+    dt = time.perf_counter() - t0
+    rec = {"seed": seed, "identifiable": ident, "objects": n_obj, "true_pairs": n_true,
+           "success": bool(res.success), "time_s": dt, "message": res.message,
+           "n_pairs": res.n_pairs, "n_2d": int(sum(f.num_2d for f in frames))}
+    if res.success:
+        rec["rot_deg"], rec["trans_m"] = res.pose_error(frames[0].extrinsics)
+        rec["rot_std_deg"] = float(np.max(res.rotation_std_deg))
+        rec["trans_std_m"] = float(np.max(res.translation_std_m))
+        # 1-sigma length of the error vector (norm of the per-axis sigmas)
+        rec["rot_sigma_deg"] = float(np.linalg.norm(res.rotation_std_deg))
+        rec["trans_sigma_m"] = float(np.linalg.norm(res.translation_std_m))
+        rec["rot_within_2sigma"] = bool(rec["rot_deg"] <= 2 * rec["rot_sigma_deg"])
+        rec["trans_within_2sigma"] = bool(rec["trans_m"] <= 2 * rec["trans_sigma_m"])
+    return rec
+
+
+def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
     rows = []
     configs = [(f"{px:g} px, 3D exact", dict(box_noise_px=px, **NOISE_3D_OFF)) for px in levels]
     configs.append(("1 px, synth default 3D noise", dict(box_noise_px=1.0)))
@@ -82,29 +116,12 @@ def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
         recs = []
         seed = 0
         while sum(r["identifiable"] for r in recs) < n_sites:
-            site = sample_site(seed, preset="roadside")
-            frames = generate_frames(site, n_frames, seed=seed, render_images=False, lidar=False,
-                                     miss_rate_2d=0.1, false_positive_rate_2d=0.05, **noise)
-            ident, n_obj, n_true = _identifiable(frames)
-            t0 = time.perf_counter()
-            res = calibrate(frames, frames[0].intrinsics)
-            dt = time.perf_counter() - t0
-            rec = {"seed": seed, "identifiable": ident, "objects": n_obj, "true_pairs": n_true,
-                   "success": bool(res.success), "time_s": dt, "message": res.message,
-                   "n_pairs": res.n_pairs, "n_2d": int(sum(f.num_2d for f in frames))}
-            if res.success:
-                rec["rot_deg"], rec["trans_m"] = res.pose_error(frames[0].extrinsics)
-                rec["rot_std_deg"] = float(np.max(res.rotation_std_deg))
-                rec["trans_std_m"] = float(np.max(res.translation_std_m))
-                # 1-sigma length of the error vector (norm of the per-axis sigmas)
-                rec["rot_sigma_deg"] = float(np.linalg.norm(res.rotation_std_deg))
-                rec["trans_sigma_m"] = float(np.linalg.norm(res.translation_std_m))
-                rec["rot_within_2sigma"] = bool(rec["rot_deg"] <= 2 * rec["rot_sigma_deg"])
-                rec["trans_within_2sigma"] = bool(rec["trans_m"] <= 2 * rec["trans_sigma_m"])
+            rec = synthetic_record(seed, noise, n_frames)
             recs.append(rec)
+            ident, dt = rec["identifiable"], rec["time_s"]
             log(f"  {name:>30} site {seed:3d}{'' if ident else ' (not identifiable)'}: "
-                f"{'ok ' if res.success else 'FAIL'} "
-                + (f"{rec['rot_deg']:.4f} deg {rec['trans_m']:.4f} m" if res.success else res.message[:60])
+                f"{'ok ' if rec['success'] else 'FAIL'} "
+                + (f"{rec['rot_deg']:.4f} deg {rec['trans_m']:.4f} m" if rec["success"] else rec["message"][:60])
                 + f"  ({dt:.1f} s)")
             seed += 1
         idr = [r for r in recs if r["identifiable"]]
@@ -143,7 +160,7 @@ def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
     return rows
 
 
-def _kitti() -> dict | None:
+def kitti_row() -> dict | None:
     root = SHARED / "kitti" / "openpcdet_pr653" / "training"
     if not root.exists():
         return None
@@ -169,7 +186,7 @@ def _kitti() -> dict | None:
     return out
 
 
-def _a9(repeat: int) -> dict | None:
+def a9_row(repeat: int) -> dict | None:
     root = SHARED / "a9_sample"
     if not root.exists():
         return None
@@ -213,8 +230,8 @@ def main(argv=None) -> int:
     log = (lambda s: print(s, flush=True)) if args.verbose else (lambda s: None)
 
     result = {"machine": machine_info()}
-    result["a9"] = _a9(args.repeat)
-    result["kitti"] = _kitti()
+    result["a9"] = a9_row(args.repeat)
+    result["kitti"] = kitti_row()
     result["synthetic"] = [] if args.skip_synth else _synthetic(n_sites, args.levels, args.frames, log)
 
     print("\nSynthetic roadside sites (20 frames, 10% missed + 5% false 2D boxes, no initial guess; "

@@ -53,7 +53,7 @@ def _gap(T, ref) -> tuple[float, float] | tuple[None, None]:
     return tuple(float(x) for x in pose_error(np.asarray(T), np.asarray(ref)))
 
 
-def _calibrate(frames, intr, labelled_T=None, truth_T=None) -> dict:
+def calibrate_row(frames, intr, labelled_T=None, truth_T=None) -> dict:
     from xcalib.calib.api import calibrate
 
     t0 = time.perf_counter()
@@ -100,14 +100,14 @@ def _a9(detector, log) -> list[dict]:
         return []
     seq = read_frames(root)
     frames = [seq[i] for i in range(len(seq))]
-    lab = _calibrate(frames, seq.intrinsics)
+    lab = calibrate_row(frames, seq.intrinsics)
     rows = [{"dataset": "A9", "detections": "labelled", **lab}]
     log(rows[-1])
     ref = lab["T"]
     for mode in ("moving", "static"):
         det, dt = _detected(seq, mode, detector)
         rows.append({"dataset": "A9", "detections": f"detected ({mode})", "detect_s": dt,
-                     **_calibrate(det, seq.intrinsics, ref)})
+                     **calibrate_row(det, seq.intrinsics, ref)})
         log(rows[-1])
         if mode == "moving":
             rows += _windows("A9", det, seq.intrinsics, 8, ref, None, log)
@@ -117,7 +117,7 @@ def _a9(detector, log) -> list[dict]:
         bf = BagFrames(bag, detections=False)
         det, dt = _detected(bf, "auto", detector)
         rows.append({"dataset": "A9", "detections": "detected (sensors-only MCAP, auto)",
-                     "detect_s": time.perf_counter() - t0, **_calibrate(det, bf.intrinsics, ref)})
+                     "detect_s": time.perf_counter() - t0, **calibrate_row(det, bf.intrinsics, ref)})
         log(rows[-1])
     return rows
 
@@ -132,12 +132,12 @@ def _pandaset(detector, log) -> list[dict]:
     seq = PandaSetFrames(root)
     truth = seq[0].extrinsics
     lab = [dataclasses.replace(synthetic_2d_boxes(seq[i], seed=i), match_matrix=None) for i in range(len(seq))]
-    rl = _calibrate(lab, seq.intrinsics, None, truth)
+    rl = calibrate_row(lab, seq.intrinsics, None, truth)
     rows = [{"dataset": "PandaSet 002", "detections": "labelled (cuboids, 2D projected)", **rl}]
     log(rows[-1])
     det, dt = _detected(seq, "auto", detector)
     rows.append({"dataset": "PandaSet 002", "detections": "detected (auto)", "detect_s": dt,
-                 **_calibrate(det, seq.intrinsics, rl["T"], truth)})
+                 **calibrate_row(det, seq.intrinsics, rl["T"], truth)})
     log(rows[-1])
     return rows + _windows("PandaSet 002", det, seq.intrinsics, 10, rl["T"], truth, log)
 
@@ -147,7 +147,7 @@ def _windows(name, frames, intr, size, labelled_T, truth_T, log) -> list[dict]:
     rows = []
     for a in range(0, len(frames) - size + 1, size):
         rows.append({"dataset": name, "detections": f"detected, frames {a}-{a + size - 1}",
-                     **_calibrate(frames[a:a + size], intr, labelled_T, truth_T)})
+                     **calibrate_row(frames[a:a + size], intr, labelled_T, truth_T)})
         log(rows[-1])
     return rows
 
@@ -161,12 +161,12 @@ def _kitti(detector, log) -> list[dict]:
     seq = kitti_frames(root, ids=[1, 2, 3, 4, 5])  # 000000 has other intrinsics (another drive)
     frames = [seq[i] for i in range(len(seq))]
     truth = frames[0].extrinsics
-    rl = _calibrate(frames, frames[0].intrinsics, None, truth)
+    rl = calibrate_row(frames, frames[0].intrinsics, None, truth)
     rows = [{"dataset": "KITTI 5 frames", "detections": "labelled (label_2)", **rl}]
     log(rows[-1])
     det, dt = _detected(seq, "auto", detector)
     rows.append({"dataset": "KITTI 5 frames", "detections": "detected (auto)", "detect_s": dt,
-                 **_calibrate(det, frames[0].intrinsics, rl["T"], truth)})
+                 **calibrate_row(det, frames[0].intrinsics, rl["T"], truth)})
     log(rows[-1])
     return rows
 
