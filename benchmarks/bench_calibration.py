@@ -19,7 +19,7 @@
 
 Prints tables and writes ``benchmarks/results/calibration.json``.
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration.py [--sites 50] [--quick]
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration.py [--sites 50] [--quick] [--parts a9,kitti]
 """
 
 from __future__ import annotations
@@ -186,6 +186,14 @@ def kitti_row() -> dict | None:
     return out
 
 
+def _cpu_s() -> float:
+    """CPU seconds of this process and its finished children (a calibration's fork pool)."""
+    import resource
+
+    me, ch = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + ch.ru_utime + ch.ru_stime
+
+
 def a9_row(repeat: int) -> dict | None:
     root = SHARED / "a9_sample"
     if not root.exists():
@@ -197,15 +205,19 @@ def a9_row(repeat: int) -> dict | None:
     t0 = time.perf_counter()
     frames = [seq[i] for i in range(len(seq))]
     t_read = time.perf_counter() - t0
-    times = []
+    times, cpu = [], []
     res = None
+    load = os.getloadavg()[0]
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), _cpu_s()
         res = calibrate(frames, seq.intrinsics)
         times.append(time.perf_counter() - t0)
+        cpu.append(_cpu_s() - c0)
     return {"frames": len(frames), "success": bool(res.success), "message": res.message,
             "read_s": t_read, "calibrate_s_median": statistics.median(times), "calibrate_s_min": min(times),
-            "calibrate_s_all": times, "n_pairs": res.n_pairs, "n_inliers_iou50": res.n_inliers,
+            "calibrate_s_all": times, "calibrate_cpu_s_median": statistics.median(cpu),
+            "load_average_1min": [load, os.getloadavg()[0]],
+            "n_pairs": res.n_pairs, "n_inliers_iou50": res.n_inliers,
             "n_2d": res.diagnostics.n_2d, "n_3d": res.diagnostics.n_3d,
             "residual_px_median": res.residual_px_median, "residual_px_mean": res.reproj_error_px,
             "iou_median": res.iou_median, "iou_mean": res.iou_mean,
@@ -225,14 +237,30 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-synth", action="store_true")
     ap.add_argument("--verbose", action="store_true")
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--parts", default="a9,kitti,synthetic",
+                    help="parts to run (comma-separated); the others are kept from --out, each part with "
+                         "the provenance of the run that made it (parts_provenance)")
     args = ap.parse_args(argv)
     n_sites = 5 if args.quick else args.sites
     log = (lambda s: print(s, flush=True)) if args.verbose else (lambda s: None)
+    parts = {p.strip() for p in args.parts.split(",") if p.strip()}
+    if args.skip_synth:
+        parts.discard("synthetic")
+    if unknown := parts - {"a9", "kitti", "synthetic"}:
+        ap.error(f"unknown part(s) {sorted(unknown)}: a9, kitti, synthetic")
 
-    result = {"machine": machine_info()}
-    result["a9"] = a9_row(args.repeat)
-    result["kitti"] = kitti_row()
-    result["synthetic"] = [] if args.skip_synth else _synthetic(n_sites, args.levels, args.frames, log)
+    from _provenance import provenance
+
+    old = json.loads(args.out.read_text()) if args.out.is_file() and parts != {"a9", "kitti", "synthetic"} else {}
+    now = provenance(argv)
+    result = {"machine": machine_info(), "provenance": now,
+              "parts_provenance": {p: (now if p in parts else (old.get("parts_provenance") or {}).get(p,
+                                                                old.get("provenance", "before provenance stamps")))
+                                   for p in ("a9", "kitti", "synthetic")}}
+    result["a9"] = a9_row(args.repeat) if "a9" in parts else old.get("a9")
+    result["kitti"] = kitti_row() if "kitti" in parts else old.get("kitti")
+    result["synthetic"] = (_synthetic(n_sites, args.levels, args.frames, log) if "synthetic" in parts
+                           else old.get("synthetic", []))
 
     print("\nSynthetic roadside sites (20 frames, 10% missed + 5% false 2D boxes, no initial guess; "
           "rot in deg, trans in m;\n'wrong' = successes off by > 1 deg or > 0.5 m; non-identifiable sites "
@@ -259,7 +287,8 @@ def main(argv=None) -> int:
     if a:
         print("\nA9 sample (16 real frames, no labels):", "OK" if a["success"] else f"FAILED ({a['message']})")
         print(f"  calibrate: {a['calibrate_s_median']:.2f} s median of {len(a['calibrate_s_all'])} "
-              f"(min {a['calibrate_s_min']:.2f} s; reading the frames {a['read_s']:.2f} s)")
+              f"(min {a['calibrate_s_min']:.2f} s; reading the frames {a['read_s']:.2f} s); CPU "
+              f"{a.get('calibrate_cpu_s_median', float('nan')):.2f} s median; load average {a.get('load_average_1min')}")
         print(f"  pairs {a['n_pairs']} ({a['n_inliers_iou50']} with IoU>=0.5) of {a['n_2d']} 2D / {a['n_3d']} 3D boxes")
         print(f"  edge residual {a['residual_px_median']:.2f} px median ({a['residual_px_mean']:.2f} mean), "
               f"IoU {a['iou_median']:.3f} median; box-centre offset {a['centre_offset_px_median']:.1f} px median "

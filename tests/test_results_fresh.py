@@ -38,12 +38,10 @@ REL_TOL = 1e-6  # sigmas, scores and other floats
 # then reports XPASS(strict) as a failure, and the entry goes. A crash still fails (only the
 # staleness failure is expected).
 KNOWN_STALE: dict[str, str] = {
-    "calibration.json": "A9 row's sigma predates the box-model floor (0.5.0 figures); the full run is ~10 min CPU",
     "selfcal.json": "synthetic tables 1-3 are 0.5.0's (sigmas moved); ~10 min CPU",
     "detect.json": "A9 labelled row's sigma predates the box model; ~7 min CPU with the detector runs",
     "monitor.json": "the A9 calibration it starts from predates the box model; --part a9 is ~4 min CPU",
     "calibrate_many.json": "written before per-recording records were stored",
-    "synth_cache.json": "written before generate_full.points_per_frame was stored",
 }
 
 
@@ -144,7 +142,7 @@ def test_calibration_json(a9_result):
     import bench_calibration as b
 
     doc = load("calibration.json")
-    cmd = f"{RUN} benchmarks/bench_calibration.py"
+    cmd = f"{RUN} benchmarks/bench_calibration.py --parts a9,kitti"
     shared_path("kitti")
     k = b.kitti_row()
     ck = doc["kitti"]
@@ -173,7 +171,7 @@ def test_calibration_synthetic_site():
     assert_fresh("calibration.json", f"synthetic {row['config']!r} seed {rec['seed']}", rec, fresh,
                  exact=("success", "identifiable", "objects", "true_pairs", "n_pairs", "n_2d"), verdicts=("message",),
                  close=("rot_deg", "trans_m", "rot_sigma_deg", "trans_sigma_m"),
-                 command=f"{RUN} benchmarks/bench_calibration.py")
+                 command=f"{RUN} benchmarks/bench_calibration.py --parts synthetic")
 
 
 @stale_ok("calibration_a9.json")
