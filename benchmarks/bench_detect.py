@@ -23,6 +23,8 @@ without truth, from the labelled pose), detection counts and times.
 Prints a table and writes ``benchmarks/results/detect.json``.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_detect.py [--datasets a9,pandaset,kitti]
+
+``--datasets a9`` re-runs one dataset and keeps the others' rows (``datasets_provenance``).
 """
 
 from __future__ import annotations
@@ -210,13 +212,26 @@ def main(argv=None) -> int:
     detector = load_detector()
     log = (lambda r: print(f"  {r['dataset']}: {r['detections']}: {'ok' if r['success'] else 'refused'} "
                            f"{r['message'][:120]}", flush=True))
+    import json
+
+    from _provenance import provenance
+
     rows = []
+    chosen = [d.strip() for d in args.datasets.split(",") if d.strip()]
+    names = {"a9": "A9", "pandaset": "PandaSet 002", "kitti": "KITTI 5 frames"}  # the rows' "dataset"
     for name, fn in (("a9", _a9), ("pandaset", _pandaset), ("kitti", _kitti)):
-        if name in args.datasets.split(","):
+        if name in chosen:
             rows += fn(detector, log)
     _print(rows)
+    # a subset of the datasets keeps the other datasets' rows of --out, each with its provenance
+    old = json.loads(args.out.read_text()) if args.out.is_file() and set(chosen) != set(names) else {}
+    now = provenance(argv)
+    kept = [r for r in old.get("rows", []) if r["dataset"] not in {names[c] for c in chosen}]
+    prov = {d: (now if d in chosen else (old.get("datasets_provenance") or {}).get(
+        d, old.get("provenance", "before provenance stamps"))) for d in names}
     write_result(args.out, {"machine": machine_info(), "detector": "yolox_nano.onnx (shipped), 1280 px, score >= 0.3",
-                            "rows": rows})
+                            "provenance": now, "datasets_provenance": prov,
+                            "rows": sorted(rows + kept, key=lambda r: list(names.values()).index(r["dataset"]))})
     return 0
 
 

@@ -80,8 +80,10 @@ def _same(a, b, tol: float) -> bool:
 
 
 def assert_fresh(file: str, row: str, committed: dict, fresh: dict, *, exact=(), close=(), verdicts=(),
-                 command: str) -> None:
-    """Fail naming ``file``, ``row``, every field that differs and the command to re-run."""
+                 command: str, part: str | None = None) -> None:
+    """Fail naming ``file``, ``row``, every field that differs and the command to re-run (and the
+    provenance of the run that wrote the row: the file's, or its ``part``'s where parts of the file
+    are re-run separately)."""
     diffs = []
     for k in exact:
         if committed.get(k) != fresh.get(k):
@@ -93,8 +95,11 @@ def assert_fresh(file: str, row: str, committed: dict, fresh: dict, *, exact=(),
         if verdict(committed.get(k)) != verdict(fresh.get(k)):
             diffs.append(f"{k}: committed {committed.get(k)!r}, now {fresh.get(k)!r}")
     if diffs:
-        prov = committed.get("provenance") or (load(file).get("provenance") if (RESULTS / file).is_file() else None)
-        made = f" (written by {prov.get('command')} at {prov.get('git_commit')})" if isinstance(prov, dict) else ""
+        doc = load(file) if (RESULTS / file).is_file() else {}
+        parts = doc.get("parts_provenance") or doc.get("datasets_provenance") or {}
+        prov = committed.get("provenance") or (parts.get(part) if part else None) or doc.get("provenance")
+        made = (f" (written by {prov['command']} at {prov.get('git_commit')})"
+                if isinstance(prov, dict) and "command" in prov else "")
         pytest.fail(f"benchmarks/results/{file} is stale{made}: row {row!r} does not reproduce with the current "
                     f"code:\n  " + "\n  ".join(diffs) + f"\nRe-run it and commit the JSON:\n  {command}", pytrace=False)
 
@@ -142,20 +147,22 @@ def test_calibration_json(a9_result):
     import bench_calibration as b
 
     doc = load("calibration.json")
-    cmd = f"{RUN} benchmarks/bench_calibration.py --parts a9,kitti"
+    cmd = f"{RUN} benchmarks/bench_calibration.py --parts kitti"
     shared_path("kitti")
     k = b.kitti_row()
     ck = doc["kitti"]
     assert_fresh("calibration.json", "kitti", ck, k, exact=("success", "n_pairs", "n_2d"), verdicts=("message",),
-                 command=cmd)
+                 command=cmd, part="kitti")
     for key in ("Tr_velo_to_cam_error", "T_cam2_lidar_error"):
         assert_fresh("calibration.json", f"kitti.{key}", ck.get(key) or {}, k.get(key) or {},
-                     close=("rot_deg", "trans_m"), command=cmd)
-    assert_fresh("calibration.json", "kitti", ck, k, close=("rotation_std_deg", "translation_std_m"), command=cmd)
+                     close=("rot_deg", "trans_m"), command=cmd, part="kitti")
+    assert_fresh("calibration.json", "kitti", ck, k, close=("rotation_std_deg", "translation_std_m"), command=cmd,
+                 part="kitti")
     fresh = _a9_row(a9_result)
     fresh["T_cam_lidar"] = fresh["T"]
     assert_fresh("calibration.json", "a9", doc["a9"], fresh, exact=("success", "n_pairs"), verdicts=("message",),
-                 close=("T_cam_lidar", "rotation_std_deg", "translation_std_m"), command=cmd)
+                 close=("T_cam_lidar", "rotation_std_deg", "translation_std_m"),
+                 command=f"{RUN} benchmarks/bench_calibration.py --parts a9", part="a9")
 
 
 @stale_ok("calibration.json synthetic")
@@ -171,7 +178,7 @@ def test_calibration_synthetic_site():
     assert_fresh("calibration.json", f"synthetic {row['config']!r} seed {rec['seed']}", rec, fresh,
                  exact=("success", "identifiable", "objects", "true_pairs", "n_pairs", "n_2d"), verdicts=("message",),
                  close=("rot_deg", "trans_m", "rot_sigma_deg", "trans_sigma_m"),
-                 command=f"{RUN} benchmarks/bench_calibration.py --parts synthetic")
+                 command=f"{RUN} benchmarks/bench_calibration.py --parts synthetic", part="synthetic")
 
 
 @stale_ok("calibration_a9.json")
@@ -381,17 +388,18 @@ def test_detect_json(a9_result):
     from xcalib.formats.kitti import kitti_frames
 
     doc = load("detect.json")
-    cmd = f"{RUN} benchmarks/bench_detect.py"
     seq = kitti_frames(shared_path("kitti", "openpcdet_pr653", "training"), ids=[1, 2, 3, 4, 5])
     frames = [seq[i] for i in range(len(seq))]
     fresh = b.calibrate_row(frames, frames[0].intrinsics, None, frames[0].extrinsics)
     rec = next(r for r in doc["rows"] if r["dataset"].startswith("KITTI") and r["detections"].startswith("labelled"))
     assert_fresh("detect.json", "KITTI labelled", rec, fresh, exact=("success", "n_pairs", "n_2d", "n_3d", "wrong",
                                                                      "covered"),
-                 verdicts=("message",), close=("T", "sigma_deg", "sigma_m", "gap_truth_deg", "gap_truth_m"), command=cmd)
+                 verdicts=("message",), close=("T", "sigma_deg", "sigma_m", "gap_truth_deg", "gap_truth_m"),
+                 command=f"{RUN} benchmarks/bench_detect.py --datasets kitti", part="kitti")
     rec = next(r for r in doc["rows"] if r["dataset"] == "A9" and r["detections"] == "labelled")
     assert_fresh("detect.json", "A9 labelled", rec, _a9_row(a9_result), exact=("success", "n_pairs"),
-                 verdicts=("message",), close=("T", "sigma_deg", "sigma_m"), command=cmd)
+                 verdicts=("message",), close=("T", "sigma_deg", "sigma_m"),
+                 command=f"{RUN} benchmarks/bench_detect.py --datasets a9", part="a9")
 
 
 @stale_ok("monitor.json")
