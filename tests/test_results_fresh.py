@@ -39,7 +39,6 @@ REL_TOL = 1e-6  # sigmas, scores and other floats
 # staleness failure is expected).
 KNOWN_STALE: dict[str, str] = {
     "selfcal.json": "synthetic tables 1-3 are 0.5.0's (sigmas moved); ~10 min CPU",
-    "detect.json": "A9 labelled row's sigma predates the box model; ~7 min CPU with the detector runs",
     "monitor.json": "the A9 calibration it starts from predates the box model; --part a9 is ~4 min CPU",
     "calibrate_many.json": "written before per-recording records were stored",
 }
