@@ -279,6 +279,9 @@ def main() -> None:
     result = {"machine": machine_info(), "config": "MonitorConfig() defaults"}
     out = REPO / "benchmarks" / "results" / "monitor.json"
     result[f"command_{args.part}"] = " ".join(sys.argv)
+    from _provenance import provenance
+
+    result[f"provenance_{args.part}"] = provenance()  # parts are merged: each keeps the run that made it
     if args.part == "null":  # longer drift-free streams only (the false-alarm rate)
         log(f"== long synthetic null streams ({n_null} frames per site, sites {seeds})")
         result["null_long"] = [_null("default noise", {s: _synth_stream(s, n_null) for s in seeds}, log),

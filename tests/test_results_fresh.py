@@ -39,7 +39,6 @@ REL_TOL = 1e-6  # sigmas, scores and other floats
 # staleness failure is expected).
 KNOWN_STALE: dict[str, str] = {
     "selfcal.json": "synthetic tables 1-3 are 0.5.0's (sigmas moved); ~10 min CPU",
-    "monitor.json": "the A9 calibration it starts from predates the box model; --part a9 is ~4 min CPU",
     "calibrate_many.json": "written before per-recording records were stored",
 }
 
@@ -96,7 +95,8 @@ def assert_fresh(file: str, row: str, committed: dict, fresh: dict, *, exact=(),
     if diffs:
         doc = load(file) if (RESULTS / file).is_file() else {}
         parts = doc.get("parts_provenance") or doc.get("datasets_provenance") or {}
-        prov = committed.get("provenance") or (parts.get(part) if part else None) or doc.get("provenance")
+        prov = (committed.get("provenance") or (parts.get(part) or doc.get(f"provenance_{part}") if part else None)
+                or doc.get("provenance"))
         made = (f" (written by {prov['command']} at {prov.get('git_commit')})"
                 if isinstance(prov, dict) and "command" in prov else "")
         pytest.fail(f"benchmarks/results/{file} is stale{made}: row {row!r} does not reproduce with the current "
@@ -411,7 +411,7 @@ def test_monitor_json(a9, a9_result):
              "frames_2d_mean": float(np.mean([f.num_2d for f in frames])),
              "frames_3d_mean": float(np.mean([f.num_3d for f in frames]))}
     assert_fresh("monitor.json", "a9", a, fresh, close=("calibration_sigma", "frames_2d_mean", "frames_3d_mean"),
-                 command=f"{RUN} {doc['command_a9']}")
+                 command=f"{RUN} {doc['command_a9']}", part="a9")
 
 
 # ----------------------------------------------------------------------------------- matching
