@@ -94,7 +94,7 @@ def assert_fresh(file: str, row: str, committed: dict, fresh: dict, *, exact=(),
             diffs.append(f"{k}: committed {committed.get(k)!r}, now {fresh.get(k)!r}")
     if diffs:
         doc = load(file) if (RESULTS / file).is_file() else {}
-        parts = doc.get("parts_provenance") or doc.get("datasets_provenance") or {}
+        parts = doc.get("parts_provenance") or doc.get("datasets_provenance") or doc.get("tables_provenance") or {}
         prov = (committed.get("provenance") or (parts.get(part) or doc.get(f"provenance_{part}") if part else None)
                 or doc.get("provenance"))
         made = (f" (written by {prov['command']} at {prov.get('git_commit')})"
@@ -314,7 +314,8 @@ def test_selfcal_json():
     assert_fresh("selfcal.json", f"synthetic_focal 'clean [given]' seed {rec['seed']}", rec, fresh,
                  exact=("success", "focal_estimated", "time_offset_source"), verdicts=("message",),
                  close=("rot_deg", "trans_m", "rot_sigma_deg", "trans_sigma_m", "fx"),
-                 command=f"{RUN} benchmarks/bench_selfcal.py --sites {doc['sites']}")
+                 command=f"{RUN} benchmarks/bench_selfcal.py --sites {doc['sites']} --tables 1",
+                 part="synthetic_focal")
 
 
 @stale_ok("camera_models.json")
