@@ -38,7 +38,6 @@ REL_TOL = 1e-6  # sigmas, scores and other floats
 # then reports XPASS(strict) as a failure, and the entry goes. A crash still fails (only the
 # staleness failure is expected).
 KNOWN_STALE: dict[str, str] = {
-    "selfcal.json": "synthetic tables 1-3 are 0.5.0's (sigmas moved); ~10 min CPU",
     "calibrate_many.json": "written before per-recording records were stored",
 }
 
