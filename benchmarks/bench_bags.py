@@ -168,6 +168,19 @@ def _timings(tmp: Path, log) -> dict:
     return out
 
 
+KITTI = DATA / "kitti" / "openpcdet_pr653"
+KITTI_DAYS = (("kitti 0", "0"), ("kitti 1:6", "1:6"))
+
+
+def kitti_rows(name: str, frames: str) -> list[dict]:
+    """The KITTI rows of one calibration day (``frames``: "0" or "1:6"), straight from the folder."""
+    from xcalib.site import calibrate_site
+
+    t = time.perf_counter()
+    site, _ = calibrate_site(_views(KITTI, ["image_2"], frames=frames), source=str(KITTI))
+    return _site_rows(name, site, time.perf_counter() - t)
+
+
 def _print_table(rows: list[dict]) -> None:
     print(f"\n{'dataset':<9} {'camera':<19} {'frm':>3} {'pairs':>5} {'verdict':<10} {'rot err':>8} {'trans err':>9}"
           f"  message")
@@ -207,14 +220,9 @@ def main() -> None:
             stats.append(info["stats"])
             if name == "nuscenes":
                 agreements = [a.to_dict() for a in info["site"].agreements]
-        kitti = DATA / "kitti" / "openpcdet_pr653"
-        if kitti.is_dir():  # two calibration days in one folder: frame 000000 vs 000001-000005
-            from xcalib.site import calibrate_site
-
-            for name, rng_ in (("kitti 0", "0"), ("kitti 1:6", "1:6")):
-                t = time.perf_counter()
-                site, _ = calibrate_site(_views(kitti, ["image_2"], frames=rng_), source=str(kitti))
-                rows += _site_rows(name, site, time.perf_counter() - t)
+        if KITTI.is_dir():  # two calibration days in one folder: frame 000000 vs 000001-000005
+            for name, rng_ in KITTI_DAYS:
+                rows += kitti_rows(name, rng_)
         timings = _timings(tmp, log)
     _print_table(rows)
     ok = [r for r in rows if r["verdict"] == "calibrated"]

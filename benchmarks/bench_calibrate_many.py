@@ -48,6 +48,20 @@ def _key(r) -> tuple:
     return (r.name, r.success, r.refusal, r.n_pairs, r.T, bool(r.error))
 
 
+def record_row(r, truth: dict) -> dict:
+    """The JSON row of one recording's ``BatchRecord`` (verdict, refusal, matches, pose, error vs
+    the truth); tests/test_results_fresh.py recomputes one of them."""
+    from xcalib.calib.pose import Pose
+
+    row = {"name": r.name, "success": bool(r.success), "refusal": r.refusal, "n_pairs": int(r.n_pairs),
+           "frames": int(r.frames), "error": r.error, "T": None if r.T is None else np.asarray(r.T, float).tolist(),
+           "rot_sigma_deg": r.rot_sigma_deg, "trans_sigma_m": r.trans_sigma_m, "time_s": round(float(r.time_s), 2)}
+    if r.T is not None and r.name in truth:
+        row["rot_deg"], row["trans_m"] = (float(v) for v in Pose.parse(np.asarray(r.T)).error(Pose.parse(truth[r.name])))
+        row["wrong"] = bool(r.success and (row["rot_deg"] > 1.0 or row["trans_m"] > 0.5))
+    return row
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--recordings", type=int, default=50)
@@ -72,25 +86,23 @@ def main(argv=None) -> int:
             t0 = time.perf_counter()
             s = calibrate_many([str(root / "recs" / "rec*")], root / f"out_{name}", executor=name, **kw)
             wall = time.perf_counter() - t0
-            wrong = 0
-            for r in s.records:
-                if r.success:
-                    from xcalib.calib.pose import Pose
-
-                    rot, tr = Pose.parse(np.asarray(r.T)).error(Pose.parse(truth[r.name]))
-                    wrong += int(rot > 1.0 or tr > 0.5)
+            records = [record_row(r, truth) for r in s.records]
+            wrong = sum(bool(r.get("wrong")) for r in records)
             tables = all(p.is_file() for p in (s.csv, s.json, s.html))
             runs[name] = {"wall_s": wall, "success": s.n_success, "errors": s.n_error, "wrong": wrong,
-                          "tables_written": tables, "rows": [_key(r) for r in s.records]}
+                          "tables_written": tables, "rows": [_key(r) for r in s.records], "records": records}
             print(f"{name:8s} {len(s.records)} recordings: {s.n_success} calibrated ({wrong} wrong), {s.n_error} errors, "
                   f"wall {wall:.1f} s, tables {'written' if tables else 'MISSING'}", flush=True)
     first = next(iter(runs))
     same = all(runs[k]["rows"] == runs[first]["rows"] for k in runs)
     print(f"same rows for {', '.join(runs)}: {same}")
+    records = runs[first]["records"]
     for v in runs.values():
         v.pop("rows")
+        v.pop("records")
     write_result(args.out, {"benchmark": "calibrate_many", "machine": machine_info(), "recordings": args.recordings,
                             "frames": args.frames, "jobs": args.jobs, "runs": runs, "same_rows": same,
+                            "records": records, "records_from": first,
                             "command": "benchmarks/bench_calibrate_many.py " + " ".join(argv if argv is not None
                                                                                        else sys.argv[1:])})
     return 0

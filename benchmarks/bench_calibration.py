@@ -19,7 +19,7 @@
 
 Prints tables and writes ``benchmarks/results/calibration.json``.
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration.py [--sites 50] [--quick]
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration.py [--sites 50] [--quick] [--parts a9,kitti]
 """
 
 from __future__ import annotations
@@ -34,6 +34,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("XCALIB_SHARED_DATA", REPO.parent / "shared" / "data"))
@@ -65,16 +67,48 @@ def machine_info() -> dict:
 
 
 def write_result(out: Path, result: dict) -> None:
-    """Write ``result`` as JSON to ``out`` (folders created) and say where."""
+    """Write ``result`` as JSON to ``out`` (folders created; atomically: a temporary file renamed)
+    with a ``provenance`` stamp (xcalib version, git commit, command; ``_provenance.provenance``)
+    and say where."""
+    from _provenance import provenance
+
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2, default=float))
+    result = {**result, "provenance": result.get("provenance") or provenance()}
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(result, indent=2, default=float))
+    os.replace(tmp, out)
     print(f"\nwrote {out}")
 
 
-def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
+def synthetic_record(seed: int, noise: dict, n_frames: int) -> dict:
+    """One synthetic roadside site (``seed``, 2D/3D ``noise``, ``n_frames`` frames) calibrated: the
+    per-site record of the synthetic table (also recomputed by tests/test_results_fresh.py)."""
     from xcalib.calib.api import calibrate
     from xcalib.data.synth import generate_frames, sample_site
 
+    site = sample_site(seed, preset="roadside")
+    frames = generate_frames(site, n_frames, seed=seed, render_images=False, lidar=False,
+                             miss_rate_2d=0.1, false_positive_rate_2d=0.05, **noise)
+    ident, n_obj, n_true = _identifiable(frames)
+    t0 = time.perf_counter()
+    res = calibrate(frames, frames[0].intrinsics)
+    dt = time.perf_counter() - t0
+    rec = {"seed": seed, "identifiable": ident, "objects": n_obj, "true_pairs": n_true,
+           "success": bool(res.success), "time_s": dt, "message": res.message,
+           "n_pairs": res.n_pairs, "n_2d": int(sum(f.num_2d for f in frames))}
+    if res.success:
+        rec["rot_deg"], rec["trans_m"] = res.pose_error(frames[0].extrinsics)
+        rec["rot_std_deg"] = float(np.max(res.rotation_std_deg))
+        rec["trans_std_m"] = float(np.max(res.translation_std_m))
+        # 1-sigma length of the error vector (norm of the per-axis sigmas)
+        rec["rot_sigma_deg"] = float(np.linalg.norm(res.rotation_std_deg))
+        rec["trans_sigma_m"] = float(np.linalg.norm(res.translation_std_m))
+        rec["rot_within_2sigma"] = bool(rec["rot_deg"] <= 2 * rec["rot_sigma_deg"])
+        rec["trans_within_2sigma"] = bool(rec["trans_m"] <= 2 * rec["trans_sigma_m"])
+    return rec
+
+
+def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
     rows = []
     configs = [(f"{px:g} px, 3D exact", dict(box_noise_px=px, **NOISE_3D_OFF)) for px in levels]
     configs.append(("1 px, synth default 3D noise", dict(box_noise_px=1.0)))
@@ -82,29 +116,12 @@ def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
         recs = []
         seed = 0
         while sum(r["identifiable"] for r in recs) < n_sites:
-            site = sample_site(seed, preset="roadside")
-            frames = generate_frames(site, n_frames, seed=seed, render_images=False, lidar=False,
-                                     miss_rate_2d=0.1, false_positive_rate_2d=0.05, **noise)
-            ident, n_obj, n_true = _identifiable(frames)
-            t0 = time.perf_counter()
-            res = calibrate(frames, frames[0].intrinsics)
-            dt = time.perf_counter() - t0
-            rec = {"seed": seed, "identifiable": ident, "objects": n_obj, "true_pairs": n_true,
-                   "success": bool(res.success), "time_s": dt, "message": res.message,
-                   "n_pairs": res.n_pairs, "n_2d": int(sum(f.num_2d for f in frames))}
-            if res.success:
-                rec["rot_deg"], rec["trans_m"] = res.pose_error(frames[0].extrinsics)
-                rec["rot_std_deg"] = float(np.max(res.rotation_std_deg))
-                rec["trans_std_m"] = float(np.max(res.translation_std_m))
-                # 1-sigma length of the error vector (norm of the per-axis sigmas)
-                rec["rot_sigma_deg"] = float(np.linalg.norm(res.rotation_std_deg))
-                rec["trans_sigma_m"] = float(np.linalg.norm(res.translation_std_m))
-                rec["rot_within_2sigma"] = bool(rec["rot_deg"] <= 2 * rec["rot_sigma_deg"])
-                rec["trans_within_2sigma"] = bool(rec["trans_m"] <= 2 * rec["trans_sigma_m"])
+            rec = synthetic_record(seed, noise, n_frames)
             recs.append(rec)
+            ident, dt = rec["identifiable"], rec["time_s"]
             log(f"  {name:>30} site {seed:3d}{'' if ident else ' (not identifiable)'}: "
-                f"{'ok ' if res.success else 'FAIL'} "
-                + (f"{rec['rot_deg']:.4f} deg {rec['trans_m']:.4f} m" if res.success else res.message[:60])
+                f"{'ok ' if rec['success'] else 'FAIL'} "
+                + (f"{rec['rot_deg']:.4f} deg {rec['trans_m']:.4f} m" if rec["success"] else rec["message"][:60])
                 + f"  ({dt:.1f} s)")
             seed += 1
         idr = [r for r in recs if r["identifiable"]]
@@ -143,7 +160,7 @@ def _synthetic(n_sites: int, levels, n_frames: int, log) -> list[dict]:
     return rows
 
 
-def _kitti() -> dict | None:
+def kitti_row() -> dict | None:
     root = SHARED / "kitti" / "openpcdet_pr653" / "training"
     if not root.exists():
         return None
@@ -169,7 +186,15 @@ def _kitti() -> dict | None:
     return out
 
 
-def _a9(repeat: int) -> dict | None:
+def _cpu_s() -> float:
+    """CPU seconds of this process and its finished children (a calibration's fork pool)."""
+    import resource
+
+    me, ch = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + ch.ru_utime + ch.ru_stime
+
+
+def a9_row(repeat: int) -> dict | None:
     root = SHARED / "a9_sample"
     if not root.exists():
         return None
@@ -180,15 +205,19 @@ def _a9(repeat: int) -> dict | None:
     t0 = time.perf_counter()
     frames = [seq[i] for i in range(len(seq))]
     t_read = time.perf_counter() - t0
-    times = []
+    times, cpu = [], []
     res = None
+    load = os.getloadavg()[0]
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), _cpu_s()
         res = calibrate(frames, seq.intrinsics)
         times.append(time.perf_counter() - t0)
+        cpu.append(_cpu_s() - c0)
     return {"frames": len(frames), "success": bool(res.success), "message": res.message,
             "read_s": t_read, "calibrate_s_median": statistics.median(times), "calibrate_s_min": min(times),
-            "calibrate_s_all": times, "n_pairs": res.n_pairs, "n_inliers_iou50": res.n_inliers,
+            "calibrate_s_all": times, "calibrate_cpu_s_median": statistics.median(cpu),
+            "load_average_1min": [load, os.getloadavg()[0]],
+            "n_pairs": res.n_pairs, "n_inliers_iou50": res.n_inliers,
             "n_2d": res.diagnostics.n_2d, "n_3d": res.diagnostics.n_3d,
             "residual_px_median": res.residual_px_median, "residual_px_mean": res.reproj_error_px,
             "iou_median": res.iou_median, "iou_mean": res.iou_mean,
@@ -208,14 +237,30 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-synth", action="store_true")
     ap.add_argument("--verbose", action="store_true")
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--parts", default="a9,kitti,synthetic",
+                    help="parts to run (comma-separated); the others are kept from --out, each part with "
+                         "the provenance of the run that made it (parts_provenance)")
     args = ap.parse_args(argv)
     n_sites = 5 if args.quick else args.sites
     log = (lambda s: print(s, flush=True)) if args.verbose else (lambda s: None)
+    parts = {p.strip() for p in args.parts.split(",") if p.strip()}
+    if args.skip_synth:
+        parts.discard("synthetic")
+    if unknown := parts - {"a9", "kitti", "synthetic"}:
+        ap.error(f"unknown part(s) {sorted(unknown)}: a9, kitti, synthetic")
 
-    result = {"machine": machine_info()}
-    result["a9"] = _a9(args.repeat)
-    result["kitti"] = _kitti()
-    result["synthetic"] = [] if args.skip_synth else _synthetic(n_sites, args.levels, args.frames, log)
+    from _provenance import provenance
+
+    old = json.loads(args.out.read_text()) if args.out.is_file() and parts != {"a9", "kitti", "synthetic"} else {}
+    now = provenance(argv)
+    result = {"machine": machine_info(), "provenance": now,
+              "parts_provenance": {p: (now if p in parts else (old.get("parts_provenance") or {}).get(p,
+                                                                old.get("provenance", "before provenance stamps")))
+                                   for p in ("a9", "kitti", "synthetic")}}
+    result["a9"] = a9_row(args.repeat) if "a9" in parts else old.get("a9")
+    result["kitti"] = kitti_row() if "kitti" in parts else old.get("kitti")
+    result["synthetic"] = (_synthetic(n_sites, args.levels, args.frames, log) if "synthetic" in parts
+                           else old.get("synthetic", []))
 
     print("\nSynthetic roadside sites (20 frames, 10% missed + 5% false 2D boxes, no initial guess; "
           "rot in deg, trans in m;\n'wrong' = successes off by > 1 deg or > 0.5 m; non-identifiable sites "
@@ -242,7 +287,8 @@ def main(argv=None) -> int:
     if a:
         print("\nA9 sample (16 real frames, no labels):", "OK" if a["success"] else f"FAILED ({a['message']})")
         print(f"  calibrate: {a['calibrate_s_median']:.2f} s median of {len(a['calibrate_s_all'])} "
-              f"(min {a['calibrate_s_min']:.2f} s; reading the frames {a['read_s']:.2f} s)")
+              f"(min {a['calibrate_s_min']:.2f} s; reading the frames {a['read_s']:.2f} s); CPU "
+              f"{a.get('calibrate_cpu_s_median', float('nan')):.2f} s median; load average {a.get('load_average_1min')}")
         print(f"  pairs {a['n_pairs']} ({a['n_inliers_iou50']} with IoU>=0.5) of {a['n_2d']} 2D / {a['n_3d']} 3D boxes")
         print(f"  edge residual {a['residual_px_median']:.2f} px median ({a['residual_px_mean']:.2f} mean), "
               f"IoU {a['iou_median']:.3f} median; box-centre offset {a['centre_offset_px_median']:.1f} px median "

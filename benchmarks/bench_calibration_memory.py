@@ -99,6 +99,14 @@ def _child(case: str, seed: int, limit_gb: float, q) -> None:
     if limit_gb > 0:
         lim = int(limit_gb * 2 ** 30)
         resource.setrlimit(resource.RLIMIT_AS, (lim, lim))
+    q.put(calibrate_case(case, seed))
+
+
+def calibrate_case(case: str, seed: int) -> dict:
+    """One (case, seed) calibrated in this process: the record of the JSON's ``runs`` (peak RSS of
+    this process; tests/test_results_fresh.py recomputes the cheapest one)."""
+    import resource
+
     from xcalib.calib.api import calibrate
 
     n_frames, n2, n3 = CASES[case]
@@ -118,7 +126,7 @@ def _child(case: str, seed: int, limit_gb: float, q) -> None:
     rec["time_s"] = time.perf_counter() - t0
     rec["cpu_s"] = time.process_time() - c0  # CPU time of the calibration (the wall time depends on the load)
     rec["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 10
-    q.put(rec)
+    return rec
 
 
 def run_case(case: str, seed: int, limit_gb: float) -> dict:

@@ -231,7 +231,9 @@ def main(argv=None) -> int:
           f"xcalib.calibrate(frames, given intrinsics), no initial guess.\nwrong = success off by > 1 deg or "
           f"> 0.5 m; 2sig cov = share of successes with rot err <= 2|rot sigma| and trans err <= 2|trans sigma|")
     print_table(rows)
-    run = {"label": args.label, "git_head": _git_head(), "machine": machine_info(), "jobs": args.jobs,
+    from _provenance import provenance
+
+    run = {"label": args.label, "git_head": _git_head(), "provenance": provenance(argv), "machine": machine_info(), "jobs": args.jobs,
            "frames": args.frames, "box_noise_px": args.box_noise_px, "site_seeds": seeds, "wall_s": time.perf_counter() - t0,
            "command": "benchmarks/bench_calibration_realism.py " + " ".join(argv if argv is not None else sys.argv[1:]),
            "conditions": rows}

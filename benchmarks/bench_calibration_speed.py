@@ -1,6 +1,6 @@
 """Calibration speed against 0.5.0, as ratios measured in one run (issue 29).
 
-The current tree (``src/``) and 0.5.0 as landed (commit ``4d6cc5d``, exported with ``git archive``
+The current tree (``src/``) and 0.5.0 as released (tag ``v0.5.0`` = commit ``4d6cc5d``, exported with ``git archive``
 into a temporary folder -- nothing in the repository changes) each calibrate the same cases, one
 fresh child process per (case, version) with ``PYTHONPATH`` pointing at that version's ``src``
 and ``OMP_NUM_THREADS=1``; the two versions of a case run back to back, so both see the same
@@ -28,7 +28,7 @@ stage (CPU seconds and share: search, refinement, misfit checks, uncertainty, ..
 Prints a table and writes ``benchmarks/results/calibration_speed.json``.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration_speed.py \
-        [--cases a9 synth20 synth1000 dense consensus_a9] [--base 4d6cc5d] [--profile] [--frames-long 1000]
+        [--cases a9 synth20 synth1000 dense consensus_a9] [--base v0.5.0] [--profile] [--frames-long 1000]
 """
 
 from __future__ import annotations
@@ -45,12 +45,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _provenance import base_050  # noqa: E402
 from bench_calibration import machine_info, write_result  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("XCALIB_SHARED_DATA", REPO.parent / "shared" / "data"))
 OUT = REPO / "benchmarks" / "results" / "calibration_speed.json"
-BASE_COMMIT = "4d6cc5d"  # 0.5.0 as landed
+BASE_COMMIT = base_050()  # 0.5.0 as released: the v0.5.0 tag (= 4d6cc5d)
 CASES = ("a9", "synth20", "synth1000", "dense", "consensus_a9")
 STAGES = ("prepare_frames", "_search", "_refine_candidates", "_choose_box_model", "decide_selfcal",
           "estimate_uncertainty", "_misfit", "_mirror_score", "_second_pose", "focal_fit", "principal_point_check",

@@ -206,8 +206,10 @@ def main(argv=None) -> int:
 
 def _save(a, tp, table, recs) -> None:
     data = json.loads(OUT.read_text()) if OUT.is_file() else {}
+    from _provenance import provenance
+
     data[a.label] = {"machine": machine_info(), "args": vars(a), "throughput": tp, "calibration": table,
-                     "records": recs}
+                     "records": recs, "provenance": provenance()}
     OUT.parent.mkdir(parents=True, exist_ok=True)
     tmp = OUT.with_name(f".{OUT.name}.{os.getpid()}.tmp")  # atomic: runs under other labels may save meanwhile
     tmp.write_text(json.dumps(data, indent=1))

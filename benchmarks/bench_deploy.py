@@ -44,7 +44,7 @@ def _p50(fn, repeat: int, budget_s: float, warmup: int = 2) -> dict:
     return {"p50_ms": float(np.percentile(ts, 50)), "min_ms": float(min(ts)), "n": len(ts)}
 
 
-def _matcher(name: str, tmp: Path, seed: int = 0):
+def matcher_for(name: str, tmp: Path, seed: int = 0):
     import torch
 
     from xcalib.engine.checkpoint import WeightsNotFoundError
@@ -98,7 +98,7 @@ def main(argv=None) -> int:
             write_site(tmp / "site", 0, 0, args.cache_frames, seed=0)
             cache = tmp / "site" / "test.h5"
         for name in args.models:
-            m, weights = _matcher(name, tmp)
+            m, weights = matcher_for(name, tmp)
             t0 = time.perf_counter()
             res = m.build("onnx", tmp / "onnx", site="bench")
             export_s = time.perf_counter() - t0
@@ -117,8 +117,8 @@ def main(argv=None) -> int:
                      "max_parity_error": res.max_parity_error, "export_s": export_s, "latency": lat}
             if cache is not None:
                 with CacheReader(cache) as reader:
-                    mt, _ = evaluate_matcher(m, reader)
-                    mo, _ = evaluate_matcher(om, reader)
+                    mt, _ = evaluatematcher_for(m, reader)
+                    mo, _ = evaluatematcher_for(om, reader)
                 entry["metrics"] = {
                     "torch": {k: getattr(mt, k) for k in ("top1", "top3", "mrr", "n_cameras_with_match")},
                     "onnx": {k: getattr(mo, k) for k in ("top1", "top3", "mrr", "n_cameras_with_match")}}
@@ -141,7 +141,9 @@ def main(argv=None) -> int:
         print("  ".join(c.ljust(w) for c, w in zip(r, widths)))
     import onnxruntime
 
-    report = {"benchmark": "deploy", "a9_source": a9_source, "threads": args.threads,
+    from _provenance import provenance
+
+    report = {"benchmark": "deploy", "provenance": provenance(argv), "a9_source": a9_source, "threads": args.threads,
               "cache": (f"synthetic roadside site seed 0 (the shipped 'synthetic' site), {args.cache_frames} held-out "
                         "test frames") if args.cache_frames else None,
               "gpu": "not measured (no GPU lent to this run)", "python": sys.version.split()[0],

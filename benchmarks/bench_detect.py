@@ -26,6 +26,8 @@ without truth, from the labelled pose), detection counts and times.
 Prints a table and writes ``benchmarks/results/detect.json``.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_detect.py [--datasets a9,pandaset,kitti]
+
+``--datasets a9`` re-runs one dataset and keeps the others' rows (``datasets_provenance``).
 """
 
 from __future__ import annotations
@@ -56,7 +58,7 @@ def _gap(T, ref) -> tuple[float, float] | tuple[None, None]:
     return tuple(float(x) for x in pose_error(np.asarray(T), np.asarray(ref)))
 
 
-def _calibrate(frames, intr, labelled_T=None, truth_T=None, detected=True) -> dict:
+def calibrate_row(frames, intr, labelled_T=None, truth_T=None, detected=True) -> dict:
     from xcalib.calib.api import calibrate
     from xcalib.detect import explain_refusal
 
@@ -108,14 +110,14 @@ def _a9(detector, log) -> list[dict]:
         return []
     seq = read_frames(root)
     frames = [seq[i] for i in range(len(seq))]
-    lab = _calibrate(frames, seq.intrinsics, detected=False)
+    lab = calibrate_row(frames, seq.intrinsics, detected=False)
     rows = [{"dataset": "A9", "detections": "labelled", **lab}]
     log(rows[-1])
     ref = lab["T"]
     for mode in ("moving", "static"):
         det, dt = _detected(seq, mode, detector)
         rows.append({"dataset": "A9", "detections": f"detected ({mode})", "detect_s": dt,
-                     **_calibrate(det, seq.intrinsics, ref)})
+                     **calibrate_row(det, seq.intrinsics, ref)})
         log(rows[-1])
         if mode == "moving":
             rows += _windows("A9", det, seq.intrinsics, 8, ref, None, log)
@@ -125,7 +127,7 @@ def _a9(detector, log) -> list[dict]:
         bf = BagFrames(bag, detections=False)
         det, dt = _detected(bf, "auto", detector)
         rows.append({"dataset": "A9", "detections": "detected (sensors-only MCAP, auto)",
-                     "detect_s": time.perf_counter() - t0, **_calibrate(det, bf.intrinsics, ref)})
+                     "detect_s": time.perf_counter() - t0, **calibrate_row(det, bf.intrinsics, ref)})
         log(rows[-1])
     return rows
 
@@ -140,12 +142,12 @@ def _pandaset(detector, log) -> list[dict]:
     seq = PandaSetFrames(root)
     truth = seq[0].extrinsics
     lab = [dataclasses.replace(synthetic_2d_boxes(seq[i], seed=i), match_matrix=None) for i in range(len(seq))]
-    rl = _calibrate(lab, seq.intrinsics, None, truth, detected=False)
+    rl = calibrate_row(lab, seq.intrinsics, None, truth, detected=False)
     rows = [{"dataset": "PandaSet 002", "detections": "labelled (cuboids, 2D projected)", **rl}]
     log(rows[-1])
     det, dt = _detected(seq, "auto", detector)
     rows.append({"dataset": "PandaSet 002", "detections": "detected (auto)", "detect_s": dt,
-                 **_calibrate(det, seq.intrinsics, rl["T"], truth)})
+                 **calibrate_row(det, seq.intrinsics, rl["T"], truth)})
     log(rows[-1])
     return rows + _windows("PandaSet 002", det, seq.intrinsics, 10, rl["T"], truth, log)
 
@@ -155,7 +157,7 @@ def _windows(name, frames, intr, size, labelled_T, truth_T, log) -> list[dict]:
     rows = []
     for a in range(0, len(frames) - size + 1, size):
         rows.append({"dataset": name, "detections": f"detected, frames {a}-{a + size - 1}",
-                     **_calibrate(frames[a:a + size], intr, labelled_T, truth_T)})
+                     **calibrate_row(frames[a:a + size], intr, labelled_T, truth_T)})
         log(rows[-1])
     return rows
 
@@ -169,12 +171,12 @@ def _kitti(detector, log) -> list[dict]:
     seq = kitti_frames(root, ids=[1, 2, 3, 4, 5])  # 000000 has other intrinsics (another drive)
     frames = [seq[i] for i in range(len(seq))]
     truth = frames[0].extrinsics
-    rl = _calibrate(frames, frames[0].intrinsics, None, truth, detected=False)
+    rl = calibrate_row(frames, frames[0].intrinsics, None, truth, detected=False)
     rows = [{"dataset": "KITTI 5 frames", "detections": "labelled (label_2)", **rl}]
     log(rows[-1])
     det, dt = _detected(seq, "auto", detector)
     rows.append({"dataset": "KITTI 5 frames", "detections": "detected (auto)", "detect_s": dt,
-                 **_calibrate(det, frames[0].intrinsics, rl["T"], truth)})
+                 **calibrate_row(det, frames[0].intrinsics, rl["T"], truth)})
     log(rows[-1])
     return rows
 
@@ -219,13 +221,26 @@ def main(argv=None) -> int:
     detector = load_detector()
     log = (lambda r: print(f"  {r['dataset']}: {r['detections']}: {'ok' if r['success'] else 'refused'} "
                            f"{r['message'][:120]}", flush=True))
+    import json
+
+    from _provenance import provenance
+
     rows = []
+    chosen = [d.strip() for d in args.datasets.split(",") if d.strip()]
+    names = {"a9": "A9", "pandaset": "PandaSet 002", "kitti": "KITTI 5 frames"}  # the rows' "dataset"
     for name, fn in (("a9", _a9), ("pandaset", _pandaset), ("kitti", _kitti)):
-        if name in args.datasets.split(","):
+        if name in chosen:
             rows += fn(detector, log)
     _print(rows)
+    # a subset of the datasets keeps the other datasets' rows of --out, each with its provenance
+    old = json.loads(args.out.read_text()) if args.out.is_file() and set(chosen) != set(names) else {}
+    now = provenance(argv)
+    kept = [r for r in old.get("rows", []) if r["dataset"] not in {names[c] for c in chosen}]
+    prov = {d: (now if d in chosen else (old.get("datasets_provenance") or {}).get(
+        d, old.get("provenance", "before provenance stamps"))) for d in names}
     write_result(args.out, {"machine": machine_info(), "detector": "yolox_nano.onnx (shipped), 1280 px, score >= 0.3",
-                            "rows": rows})
+                            "provenance": now, "datasets_provenance": prov,
+                            "rows": sorted(rows + kept, key=lambda r: list(names.values()).index(r["dataset"]))})
     return 0
 
 

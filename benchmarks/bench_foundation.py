@@ -88,8 +88,10 @@ def main(argv=None) -> int:
         "binary_vs_ascii_speedup": {"value": speedup, "target": ">= 20", "met": bool(speedup >= 20)},
         "points_in_boxes_ms": {"value": pib, "target": "<= 5", "met": bool(pib <= 5.0)},
     }
+    from _provenance import provenance
+
     result = {
-        "benchmark": "foundation", "source": source, "num_points": cloud.num_points,
+        "benchmark": "foundation", "source": source, "num_points": cloud.num_points, "provenance": provenance(argv),
         "timings": rows, "targets": targets,
         "env": {"python": platform.python_version(), "numpy": np.__version__, "machine": platform.machine(),
                 "cpu_count": os.cpu_count(), "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),

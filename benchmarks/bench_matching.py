@@ -110,7 +110,9 @@ def main() -> None:
               f"{r.get('speedup_vs_crlite_default', float('nan')):.1f} |")
     out = OUT.with_name(f"matching_{args.tag}.json") if args.tag else OUT
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"threads": args.threads, "torch": torch.__version__, "cpu": platform.processor() or
+    from _provenance import provenance
+
+    out.write_text(json.dumps({"provenance": provenance(), "threads": args.threads, "torch": torch.__version__, "cpu": platform.processor() or
                                platform.machine(), "a9_source": a9_source, "loadavg_1_5_15": list(os.getloadavg()),
                                "rows": rows}, indent=1))
     print(f"wrote {out}")

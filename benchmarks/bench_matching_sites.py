@@ -336,7 +336,10 @@ def main(argv=None) -> int:
                 table[name]["after bootstrap"] = {"failed": f"{type(exc).__name__}: {exc}", "note": spec[2]}
                 print(f"{name}: after bootstrap: failed ({exc})", flush=True)
     print_table(table)
-    report = {"benchmark": "matching_sites", "cells": "Top-1, precision and recall of the default matches",
+    from _provenance import provenance
+
+    report = {"benchmark": "matching_sites", "provenance": provenance(argv),
+              "cells": "Top-1, precision and recall of the default matches",
               "loadavg": list(os.getloadavg()), "results": table}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(f".{os.getpid()}.tmp")

@@ -178,7 +178,10 @@ def main(argv=None) -> int:
           f"{crl_s['cpu_p90_ms']:.1f} ({crl_s['p90_ms']:.1f}) | | | | | | 1 | |")
     print(f"preprocessing CPU p50 {res['prepare']['cpu_p50_ms']:.3f} ms (before {res['prepare_before']['cpu_p50_ms']:.3f}, "
           f"paired ratio {ratio['prepare']:.2f}); outputs identical: {same}")
-    report = {"benchmark": "matching_speed", "frame": str(root / "frame_0000"), "K": f0.num_2d, "M": f0.num_3d,
+    from _provenance import provenance
+
+    report = {"benchmark": "matching_speed", "provenance": provenance(argv), "frame": str(root / "frame_0000"),
+              "K": f0.num_2d, "M": f0.num_3d,
               "points": int(len(f0.point_cloud)), "threads": 1, "rounds": args.rounds,
               "loadavg_start": load_start, "loadavg_end": load_end, "cpu_count": os.cpu_count(),
               "machine": platform.machine(), "python": sys.version.split()[0], "torch": torch.__version__,

@@ -439,6 +439,9 @@ def main() -> None:
     result = {"machine": machine_info(), "config": "MonitorConfig() defaults"}
     out = REPO / "benchmarks" / "results" / "monitor.json"
     result[f"command_{args.part}" + (f"_{args.null_noise}" if args.part == "null" else "")] = " ".join(sys.argv)
+    from _provenance import provenance
+
+    result[f"provenance_{args.part}"] = provenance()  # parts are merged: each keeps the run that made it
     if args.part == "null":  # long drift-free streams (the false-alarm rate), looped with jitter
         nseeds = [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites]
         log(f"== long synthetic null streams ({n_null} frames per site from {args.null_base} generated, sites {nseeds})")

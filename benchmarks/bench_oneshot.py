@@ -349,6 +349,9 @@ def main(argv=None) -> int:
     w = max(len(r[0]) for r in rows) if rows else 0
     for k, v in rows:
         print(f"{k:<{w}}  {v}")
+    from _provenance import provenance
+
+    res["provenance"] = provenance(argv)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(res, indent=1, default=float))
     print(f"wrote {args.out}")

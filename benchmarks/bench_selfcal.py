@@ -24,6 +24,8 @@ implemented". Rows "[given]" use ``CalibConfig(refine_intrinsics="none")`` and n
 calibrator before issue 13 (its default is now ``refine_intrinsics="auto"``).
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_selfcal.py [--sites 20] [--tables 1,2,3,4]
+
+``--tables`` a subset re-runs those tables and keeps the others of ``--out`` (``tables_provenance``).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import inspect
+import json
 import os
 import sys
 import time
@@ -241,7 +244,20 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args(argv)
     tables = {t.strip() for t in args.tables.split(",")}
-    result: dict = {"machine": machine_info(), "sites": args.sites}
+    keys = {"1": "synthetic_focal", "2": "synthetic_time_offset", "3": "a9_focal", "4": "pandaset"}
+    from _provenance import provenance
+
+    now = provenance(argv)
+    # a subset of the tables keeps the others from --out, each with the provenance of its run
+    old = json.loads(args.out.read_text()) if args.out.is_file() and tables != set(keys) else {}
+    if old and old.get("sites") != args.sites and tables & {"1", "2"}:
+        ap.error(f"--sites {args.sites} differs from the {old.get('sites')} sites of {args.out}: run every table")
+    result: dict = {"machine": machine_info(), "sites": old.get("sites", args.sites) if old else args.sites,
+                    "provenance": now,
+                    "tables_provenance": {k: (now if t in tables else (old.get("tables_provenance") or {}).get(
+                        k, old.get("provenance", "before provenance stamps"))) for t, k in keys.items()}}
+    result.update({k: old[k] for t, k in keys.items() if t not in tables and k in old})
+    result.update({k: v for k, v in old.items() if k.endswith("_command") and k not in result})
     if "1" in tables:
         result["synthetic_focal"] = _synthetic("focal", args.sites)
         _print("1. synthetic, focal error (estimated focal within 1 % wanted)", result["synthetic_focal"])

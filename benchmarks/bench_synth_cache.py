@@ -65,7 +65,8 @@ def main(argv=None) -> int:
         res["generate_full"] = {"frames": args.frames, "width": site.width, "height": site.height,
                                 "seconds": t_full, "cpu_seconds": c_full, "site_and_background_s": t_site,
                                 "frames_per_s": args.frames / t_full, "mean_points": float(np.mean(n_pts)),
-                                "cache_mb": size_mb, "target_s": 60.0, "ok": t_full <= 60.0}
+                                "cache_mb": size_mb, "target_s": 60.0, "ok": t_full <= 60.0,
+                                "points_per_frame": [int(n) for n in n_pts]}
         rows.append((f"generate {args.frames} frames 1920x1200 + LiDAR + JPEG -> cache",
                      f"{t_full:.1f} s (cpu {c_full:.1f} s)",
                      "<= 60 s", t_full <= 60.0))
@@ -150,6 +151,9 @@ def main(argv=None) -> int:
     res["machine"]["load_average_at_end"] = os.getloadavg()[0]
     print(f"load average {res['machine']['load_average_at_start']:.1f} -> {res['machine']['load_average_at_end']:.1f} "
           f"on {os.cpu_count()} cores (wall figures shrink when the machine is shared; cpu = process time)")
+    from _provenance import provenance
+
+    res["provenance"] = provenance(argv)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(res, indent=2))
     print(f"wrote {args.out}")
