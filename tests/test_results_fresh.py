@@ -611,6 +611,49 @@ def test_untrusted_json():
                  command=f"{RUN} benchmarks/bench_untrusted.py --part readers")
 
 
+@stale_ok("coverage_real.json")
+def test_coverage_real_json():
+    """coverage_real.json: the KITTI row of the newest run (frames 1-5, one calibration)."""
+    _bench()
+    import bench_coverage_real as b
+
+    shared_path("kitti", "openpcdet_pr653", "training")
+    doc = load("coverage_real.json")
+    label = list(doc["runs"])[-1]
+    rec = next(r for r in doc["runs"][label]["records"] if r["case"].startswith("KITTI"))
+    fresh = b.kitti()[0]
+    assert_fresh("coverage_real.json", f"{label}: {rec['case']}", rec, fresh,
+                 exact=("success", "refusal", "n_pairs", "frames", "covered_norm"),
+                 close=("delta", "sigma", "err_deg", "err_m"),
+                 command=f"{RUN} benchmarks/bench_coverage_real.py --only kitti,nuscenes,pandaset,a9 --subsets 8 "
+                         f"--label {label}")
+
+
+class _Box:
+    """A queue stand-in for the benchmark's child function (run in this process)."""
+
+    def put(self, rec):
+        self.rec = rec
+
+
+@stale_ok("calibration_recording.json")
+def test_calibration_recording_json():
+    """calibration_recording.json: the 100-frame case (below the frame budget: every frame used)."""
+    _bench()
+    import bench_calibration_recording as b
+
+    doc = load("calibration_recording.json")
+    rec = next(r for r in doc["runs"] if r["case"] == "100")
+    box = _Box()
+    b._child("100", rec["seed"], box)
+    assert_fresh("calibration_recording.json", "case 100", rec, box.rec,
+                 exact=("success", "refusal", "n_pairs", "n_2d", "n_3d", "frames_used", "objects", "objects_used",
+                        "object_identity", "within_2sigma", "wrong"),
+                 close=("rot_deg", "trans_m", "rot_sigma_deg", "trans_sigma_m"),
+                 command=f"{RUN} benchmarks/bench_calibration_recording.py --cases 100 1000 2000 5000 "
+                         "1000:positions 1000:all --scaling")
+
+
 def test_every_results_file_has_a_test():
     """A new results file needs its freshness test here (the module's docstring says how)."""
     names = {p.name for p in RESULTS.glob("*.json")}
