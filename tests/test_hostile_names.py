@@ -84,7 +84,9 @@ def test_static_transforms_script_runs_no_injected_command(tmp_path):
     bindir.mkdir()
     log = tmp_path / "calls.txt"
     for tool in ("ros2", "rosrun"):
-        (bindir / tool).write_text(f'#!/bin/sh\nprintf "%s|" "$@" >> {shlex.quote(str(log))}\necho >> '
+        # one write per call: the script starts its publishers in the background, so two appends per
+        # call (arguments, then the newline) interleave between concurrent stand-ins
+        (bindir / tool).write_text(f'#!/bin/sh\nline=$(printf "%s|" "$@")\nprintf "%s\\n" "$line" >> '
                                    f'{shlex.quote(str(log))}\n')
         (bindir / tool).chmod(0o755)
     env = {"PATH": f"{bindir}:/usr/bin:/bin"}
