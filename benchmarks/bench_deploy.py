@@ -117,8 +117,8 @@ def main(argv=None) -> int:
                      "max_parity_error": res.max_parity_error, "export_s": export_s, "latency": lat}
             if cache is not None:
                 with CacheReader(cache) as reader:
-                    mt, _ = evaluatematcher_for(m, reader)
-                    mo, _ = evaluatematcher_for(om, reader)
+                    mt, _ = evaluate_matcher(m, reader)
+                    mo, _ = evaluate_matcher(om, reader)
                 entry["metrics"] = {
                     "torch": {k: getattr(mt, k) for k in ("top1", "top3", "mrr", "n_cameras_with_match")},
                     "onnx": {k: getattr(mo, k) for k in ("top1", "top3", "mrr", "n_cameras_with_match")}}
