@@ -23,7 +23,7 @@ from xcalib.calib.cost import Occlusion
 from xcalib.calib.inputs import prepare_frames, with_point_outlines
 from xcalib.calib.misfit import principal_point_check
 from xcalib.calib.pose import Pose
-from xcalib.calib.refine import estimate_noise, lsq
+from xcalib.calib.refine import FitContext, estimate_noise, lsq
 from xcalib.calib.uncertainty import box_model_odds
 
 
@@ -73,13 +73,13 @@ def test_principal_point_check_tests_the_box_model_before_blaming_the_intrinsics
     W = frames[0].intrinsics.width
     tops = _shrunk(frames, 0.05, 0.15, 0.0)  # roofs inset: a vertical bias a principal point can mimic
     cframes, pairs, intr, noise = _setup(tops, T)
-    R, t, *_ = lsq(cframes, pairs, intr, truth.R, truth.t, 2.0, 60, noise)
-    chk, msg = principal_point_check(cframes, pairs, intr, Pose(R, t), noise, 2.0, Occlusion())
+    R, t, *_ = lsq(FitContext(cframes, pairs, intr, truth, noise, 2.0), 60)
+    chk, msg = principal_point_check(FitContext(cframes, pairs, intr, Pose(R, t), noise, 2.0, Occlusion()))
     assert msg is None and not chk.flagged, chk.detail
     cropped = _shrunk(frames, 0.0, 0.0, 0.0, dx_px=0.08 * W)  # a principal point 8 % W off stays a misfit
     cframes, pairs, intr, noise = _setup(cropped, T)
-    R, t, *_ = lsq(cframes, pairs, intr, truth.R, truth.t, 2.0, 60, noise)
-    chk, msg = principal_point_check(cframes, pairs, intr, Pose(R, t), noise, 2.0, Occlusion())
+    R, t, *_ = lsq(FitContext(cframes, pairs, intr, truth, noise, 2.0), 60)
+    chk, msg = principal_point_check(FitContext(cframes, pairs, intr, Pose(R, t), noise, 2.0, Occlusion()))
     assert chk.flagged and "principal point" in msg
 
 

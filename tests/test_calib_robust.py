@@ -9,7 +9,8 @@ from test_calib_support import INTR, sim_frames
 
 from xcalib.calib.api import calibrate
 from xcalib.calib.inputs import prepare_frames
-from xcalib.calib.refine import DEFAULT_NOISE, estimate_noise, match_all
+from xcalib.calib.pose import Pose
+from xcalib.calib.refine import DEFAULT_NOISE, FitContext, estimate_noise, match_all
 from xcalib.calib.uncertainty import pose_spread
 from xcalib.types import Frame
 
@@ -93,7 +94,7 @@ def test_pose_spread_is_small_for_exact_boxes(site):
     frames, T = site
     cf, intr, _ = prepare_frames(frames, INTR)
     pairs = match_all(cf, intr, T[:3, :3], T[:3, 3], gate_iou=0.3)
-    halves, occl = pose_spread(cf, pairs, intr, T[:3, :3], T[:3, 3])
+    halves, occl = pose_spread(FitContext(cf, pairs, intr, Pose(T[:3, :3], T[:3, 3])))
     assert halves is not None and halves.shape == (6,) and occl.shape == (6,)
     assert np.all(np.abs(halves[:3]) < 0.2) and np.all(np.abs(halves[3:]) < 0.1)
     assert np.all(np.abs(occl[:3]) < 0.1) and np.all(np.abs(occl[3:]) < 0.05)

@@ -16,7 +16,7 @@ from test_calib_support import sim_frames
 
 from xcalib.calib.inputs import prepare_frames
 from xcalib.calib.pose import Pose
-from xcalib.calib.refine import lsq
+from xcalib.calib.refine import FitContext, lsq
 from xcalib.calib.uncertainty import box_model_shift, combine, object_groups, object_sandwich, pose_covariance
 from xcalib.types import Frame
 
@@ -48,7 +48,7 @@ def _repeated_scene(seed: int, n_frames: int, bias_px: float):
 def _fit(frames, T):
     cframes, intr, _ = prepare_frames(frames, frames[0].intrinsics)
     pairs = _truth_pairs(frames, cframes)
-    R, t, _, _, _ = lsq(cframes, pairs, intr, T[:3, :3], T[:3, 3], 2.0, 60)
+    R, t, _, _, _ = lsq(FitContext(cframes, pairs, intr, Pose(T[:3, :3], T[:3, 3]), f_scale=2.0), 60)
     return cframes, pairs, intr, Pose(R, t)
 
 
@@ -59,7 +59,7 @@ def test_objects_repeated_over_frames_widen_the_sigma():
     n_objects = len(pairs[0])
     assert int(groups.max()) + 1 == n_objects  # each object's 8 views are one cluster
     rot, tr, _ = pose_covariance(cframes, pairs, intr, pose.R, pose.t)
-    clus = object_sandwich(cframes, pairs, intr, pose.R, pose.t, groups)
+    clus = object_sandwich(FitContext(cframes, pairs, intr, pose), groups)
     # 8 views of one error count once: about sqrt(8) wider than counting every pair
     assert np.linalg.norm(clus[:3]) > 1.8 * np.linalg.norm(rot)
     assert np.linalg.norm(clus[3:]) > 1.8 * np.linalg.norm(tr)
@@ -74,7 +74,7 @@ def test_independent_objects_keep_the_pair_sigma():
     cframes, pairs, intr, pose = _fit(frames, T)
     groups = object_groups(cframes, pairs, radius_m=0.05)  # every object is new in every frame
     rot, _, _ = pose_covariance(cframes, pairs, intr, pose.R, pose.t)
-    clus = object_sandwich(cframes, pairs, intr, pose.R, pose.t, groups)
+    clus = object_sandwich(FitContext(cframes, pairs, intr, pose), groups)
     assert int(groups.max()) + 1 == sum(len(p) for p in pairs)
     assert 0.5 < np.linalg.norm(clus[:3]) / np.linalg.norm(rot) < 1.6
 
@@ -83,12 +83,12 @@ def test_object_sandwich_needs_four_objects_and_each_object_must_not_fix_the_pos
     frames, T = _repeated_scene(seed=1, n_frames=4, bias_px=1.0)
     cframes, pairs, intr, pose = _fit(frames, T)
     three = [p[:3] for p in pairs]
-    assert object_sandwich(cframes, three, intr, pose.R, pose.t, object_groups(cframes, three)) is None
+    assert object_sandwich(FitContext(cframes, three, intr, pose), object_groups(cframes, three)) is None
     four = [p[:4] for p in pairs]
-    assert np.all(np.isfinite(object_sandwich(cframes, four, intr, pose.R, pose.t, object_groups(cframes, four))))
+    assert np.all(np.isfinite(object_sandwich(FitContext(cframes, four, intr, pose), object_groups(cframes, four))))
     # one frame of 4 objects: without any one of them 3 boxes remain -> still determined (finite)
     one = [p[:4] if k == 0 else p[:0] for k, p in enumerate(pairs)]
-    assert np.all(np.isfinite(object_sandwich(cframes, one, intr, pose.R, pose.t, object_groups(cframes, one))))
+    assert np.all(np.isfinite(object_sandwich(FitContext(cframes, one, intr, pose), object_groups(cframes, one))))
 
 
 def test_box_model_shift_is_zero_for_box_outlines_and_seen_otherwise():
@@ -97,7 +97,7 @@ def test_box_model_shift_is_zero_for_box_outlines_and_seen_otherwise():
     assert box_model_shift(cframes, pairs, intr, pose) is None  # outlines are the box corners
     # a point-hull outline that sits lower than the box (as a LiDAR sees the near, lower side)
     lowered = [dataclasses.replace(f, corners=f.box_corners - np.array([0.0, 0.0, 0.3])) for f in cframes]
-    R, t, _, _, _ = lsq(lowered, pairs, intr, pose.R, pose.t, 2.0, 60)
+    R, t, _, _, _ = lsq(FitContext(lowered, pairs, intr, pose, f_scale=2.0), 60)
     fitted = Pose(R, t)  # fitted to the lowered outlines: the box corners pull it back towards the truth
     shift = box_model_shift(lowered, pairs, intr, fitted)
     assert shift is not None and np.linalg.norm(shift[3:]) > 0.05
@@ -130,8 +130,8 @@ def test_exact_refits_replace_the_largest_linearised_moves():
     frames, T = _repeated_scene(seed=1, n_frames=8, bias_px=4.0)
     cframes, pairs, intr, pose = _fit(frames, T)
     groups = object_groups(cframes, pairs)
-    lin = object_sandwich(cframes, pairs, intr, pose.R, pose.t, groups, exact=0)
-    ref = object_sandwich(cframes, pairs, intr, pose.R, pose.t, groups, exact=3)
+    lin = object_sandwich(FitContext(cframes, pairs, intr, pose), groups, exact=0)
+    ref = object_sandwich(FitContext(cframes, pairs, intr, pose), groups, exact=3)
     assert np.all(np.isfinite(ref)) and not np.allclose(lin, ref)
     # a benign scene (no pair dominates): the refits agree with the linearisation within a factor 1.5
     assert 1 / 1.5 < np.linalg.norm(ref[:3]) / np.linalg.norm(lin[:3]) < 1.5
@@ -144,8 +144,8 @@ def test_frame_jackknife_grows_with_the_noise_and_needs_four_frames():
     for noise_px in (0.5, 4.0):
         frames, T = sim_frames(seed=2, n_frames=6, noise_px=noise_px, miss=0.0, false_pos=0.0, extra_3d=0)
         cframes, pairs, intr, pose = _fit(frames, T)
-        assert frame_jackknife(cframes, [p if k < 3 else p[:0] for k, p in enumerate(pairs)], intr, pose) is None
-        sd = frame_jackknife(cframes, pairs, intr, pose)
+        assert frame_jackknife(FitContext(cframes, [p if k < 3 else p[:0] for k, p in enumerate(pairs)], intr, pose)) is None
+        sd = frame_jackknife(FitContext(cframes, pairs, intr, pose))
         assert sd is not None and sd.shape == (6,) and np.all(np.isfinite(sd))
         spread.append(np.linalg.norm(sd[:3]))
     assert spread[1] > 3 * spread[0]  # 8x the box noise: the frames disagree more
@@ -196,7 +196,7 @@ def test_sigma_coverage_on_seeded_scenes():
     for seed in range(8):
         frames, T = sim_frames(seed=seed, n_frames=5, noise_px=2.0, miss=0.0, false_pos=0.0, extra_3d=0)
         cframes, pairs, intr, pose = _fit(frames, T)
-        unc = estimate(cframes, pairs, intr, pose, NoiseModel(sigma_px=2.0), 2.0, occlusion=Occlusion())
+        unc = estimate(FitContext(cframes, pairs, intr, pose, NoiseModel(sigma_px=2.0), 2.0, Occlusion()))
         sd = np.concatenate([unc.rot_sd, unc.tr_sd])
         z.append(np.abs(pose.delta(Pose(T[:3, :3], T[:3, 3]))) / sd)
     z = np.asarray(z)

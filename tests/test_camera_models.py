@@ -9,10 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from xcalib.geometry import CameraIntrinsics, project_points
+from xcalib.geometry import CameraIntrinsics, camera_names, project_points
 from xcalib.geometry.camera_models import (EUCM, UCM, DoubleSphere, KannalaBrandt, Pinhole, PinholeRadtan,
                                            Unified, as_camera_model, available_models, get_model,
-                                           model_from_dict, registry)
+                                           model_from_dict)
 
 RADTAN = {
     4: (-0.21, 0.04, 0.001, -0.0015),
@@ -172,7 +172,7 @@ def test_registry_names_aliases_and_entry_point_fallback(monkeypatch):
     with pytest.raises(ValueError, match="unknown camera model 'scaramuzza'.*kannala_brandt"):
         get_model("scaramuzza")
     # no package metadata: the built-ins still resolve
-    monkeypatch.setattr(registry, "_entry_points", lambda: {})
+    monkeypatch.setattr(camera_names, "entry_points", lambda: {})
     assert get_model("eucm") is EUCM
 
 
@@ -190,7 +190,7 @@ def test_registry_loads_a_third_party_entry_point(monkeypatch):
     eps = {"my_pinhole": FakeEP("my_pinhole", "pkg:MyPinhole", MyPinhole),
            "broken": FakeEP("broken", "pkg:nothing", object),
            "pinhole": FakeEP("pinhole", "evil:Pinhole", object)}
-    monkeypatch.setattr(registry, "_entry_points", lambda: eps)
+    monkeypatch.setattr(camera_names, "entry_points", lambda: eps)
     assert get_model("my_pinhole") is MyPinhole
     assert get_model("pinhole") is Pinhole  # a plug-in never replaces a built-in
     with pytest.raises(ValueError, match="not a CameraModel subclass"):

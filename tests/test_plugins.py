@@ -177,7 +177,8 @@ def test_a_third_party_cost_term_is_named_in_the_config_and_every_stage_uses_it(
         from xcalib.calib.config import CalibConfig
         from xcalib.calib.cost import Occlusion
         from xcalib.calib.inputs import prepare_frames
-        from xcalib.calib.refine import lsq, match_all
+        from xcalib.calib.pose import Pose
+        from xcalib.calib.refine import FitContext, lsq, match_all
         from xcalib.calib.terms import CostSpec
         from xcalib.data.synth import generate_frames, sample_site
 
@@ -195,8 +196,8 @@ def test_a_third_party_cost_term_is_named_in_the_config_and_every_stage_uses_it(
         cframes = prepare_frames(frames, site.intrinsics)[0]
         pairs = match_all(cframes, site.intrinsics, T[:3, :3], T[:3, 3])
         spec = CostSpec(Occlusion(), CalibConfig(cost_terms=(f"camera_height:height_m={{h0 - 0.3}},sigma_m=0.001",)).cost_terms)
-        R0, t0, *_ = lsq(cframes, pairs, site.intrinsics, T[:3, :3], T[:3, 3], 2.0, 60)
-        R1, t1, *_ = lsq(cframes, pairs, site.intrinsics, T[:3, :3], T[:3, 3], 2.0, 60, None, spec)
+        R0, t0, *_ = lsq(FitContext(cframes, pairs, site.intrinsics, Pose(T[:3, :3], T[:3, 3]), None, 2.0), 60)
+        R1, t1, *_ = lsq(FitContext(cframes, pairs, site.intrinsics, Pose(T[:3, :3], T[:3, 3]), None, 2.0, spec), 60)
         print("pulled", round(h0 - height(R1, t1), 3), abs(height(R0, t0) - h0 + 0.3) > 0.2)
         try:
             CalibConfig(cost_terms=("camera_heigth",))

@@ -41,7 +41,7 @@ from .misfit import box_frame_check, flipped_frames, lens_check, focal_fit, foca
 from .motion import BoxMotion, box_motion, shift_frames
 from .parallel import Deferred, Workers, parallel_map, resolve_workers
 from .pose import Pose
-from .refine import RefineResult, match_all, pair_metrics, refine_pose
+from .refine import FitContext, RefineOptions, RefineResult, match_all, pair_metrics, refine_pose
 from .result import CalibrationResult
 from .selection import FrameSelection, scan_frames, select_frames
 from .selfcal import decide as decide_selfcal, wants_selfcal
@@ -78,8 +78,8 @@ def _score(cframes, intr, rr: RefineResult) -> float:
 def _quick_refine(args) -> tuple[float, RefineResult]:
     """One candidate's quick refinement and its score (a task of ``_refine_candidates``)."""
     cframes, intr, R, t, occlusion = args
-    rr = refine_pose(cframes, intr, R, t, gates=((0.1, 1.0), (0.2, 0.5), (0.3, 0.0)), max_nfev=15, max_outer=3,
-                     occlusion=occlusion)
+    rr = refine_pose(cframes, intr, R, t, options=RefineOptions(gates=((0.1, 1.0), (0.2, 0.5), (0.3, 0.0)), max_nfev=15,
+                                                            max_outer=3), occlusion=occlusion)
     return _score(cframes, intr, rr), rr
 
 
@@ -99,7 +99,8 @@ def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
     finals = [f for f in finals if f is not None]
     refined = []
     for k, (_, r0) in enumerate(finals):
-        rr = refine_pose(cframes, intr, r0.R, r0.t, gates=((0.2, 0.5), (0.3, 0.0), (0.3, 0.0)), occlusion=occlusion)
+        rr = refine_pose(cframes, intr, r0.R, r0.t, options=RefineOptions(gates=((0.2, 0.5), (0.3, 0.0), (0.3, 0.0))),
+                         occlusion=occlusion)
         refined.append((_score(cframes, intr, rr), rr))
         if progress:
             progress("refine", len(cand) + k + 1, len(cand) + len(finals))
@@ -148,7 +149,8 @@ def _choose_box_model(cframes, intr, cand: Hypotheses, ref: _Refined, occlusion:
     if alt is None:
         diag.box_model = _outline_kind(cframes)
         return cframes, ref
-    rr = refine_pose(alt, intr, best.R, best.t, gates=((0.2, 0.5), (0.3, 0.0), (0.3, 0.0)), occlusion=occlusion)
+    rr = refine_pose(alt, intr, best.R, best.t, options=RefineOptions(gates=((0.2, 0.5), (0.3, 0.0), (0.3, 0.0))),
+                     occlusion=occlusion)
     px_used, _ = pair_metrics(cframes, intr, best.R, best.t, best.pairs)
     px_alt, _ = pair_metrics(alt, intr, rr.R, rr.t, rr.pairs)
     med = [float(np.median(v)) if len(v) else float("inf") for v in (px_used, px_alt)]
@@ -267,20 +269,23 @@ def _frame_times(frames_in) -> tuple[np.ndarray, str]:
     return np.arange(len(frames_in), dtype=np.float64), "frames"
 
 
-def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_score: float, config: CalibConfig,
-            diag: CalibDiagnostics, frames_in, refusal: Refusal | None = None) -> Refusal | None:
+def _misfit(ctx: FitContext, best_score: float, config: CalibConfig, diag: CalibDiagnostics, frames_in,
+            refusal: Refusal | None = None) -> Refusal | None:
     """Run the model-misfit checks (``misfit``); the first that flags becomes the refusal. A given
     focal length the matches cannot check refuses only a pose that ``refusal`` (the verdict's)
     and every misfit check let through."""
+    cframes, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
+                                                             ctx.f_scale, ctx.occlusion)
     lean, one = lean_frames(cframes), config.replace(workers=1)
     with Deferred([(_mirror_score, (lean, intr, one, occlusion)), (_second_pose, (lean, pairs, intr, pose, one, occlusion))],
                   config.workers) as searches:  # (on other cores while the checks below run)
-        return _misfit_checks(cframes, pairs, intr, pose, noise, f_scale, occlusion, best_score, config, diag,
-                              frames_in, refusal, searches)
+        return _misfit_checks(ctx, best_score, config, diag, frames_in, refusal, searches)
 
 
-def _misfit_checks(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_score: float, config: CalibConfig,
-                   diag: CalibDiagnostics, frames_in, refusal: Refusal | None, searches: Deferred) -> Refusal | None:
+def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag: CalibDiagnostics, frames_in,
+                   refusal: Refusal | None, searches: Deferred) -> Refusal | None:
+    cframes, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
+                                                             ctx.f_scale, ctx.occlusion)
     found = []
     # a mirrored image first: it also bends the focal / principal-point fits, but is the cause to name
     flipped_score, flipped_matched = searches.result(0)
@@ -302,18 +307,16 @@ def _misfit_checks(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, 
     time_chk = None
     if config.time_offset is None:  # a fixed or estimated offset is already in the model
         times, unit = _frame_times(frames_in)
-        time_chk = time_offset_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, times, unit,
-                                     seed=config.seed)
+        time_chk = time_offset_check(ctx, times, unit, seed=config.seed)
     if config.refine_intrinsics != "focal+center":
-        chk, msg = principal_point_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, seed=config.seed,
-                                         places=places)
+        chk, msg = principal_point_check(ctx, seed=config.seed, places=places)
         if msg and time_chk is not None and time_chk[1]:
             # both fit: a shift that the fitted time offset, applied, leaves unflagged is the time
             # offset's doing (PandaSet's projected cuboids carry a real -0.05 s: 81 px otherwise). Only
             # ever clears the principal point -- the time-offset refusal stands
-            shifted = time_shifted_frames(cframes, pairs, intr, pose, noise, f_scale, occlusion, times, unit)
-            if shifted is not None and principal_point_check(shifted, pairs, intr, pose, noise, f_scale, occlusion,
-                                                             seed=config.seed, places=places)[1] is None:
+            shifted = time_shifted_frames(ctx, times, unit)
+            if shifted is not None and principal_point_check(ctx.with_frames(shifted), seed=config.seed,
+                                                             places=places)[1] is None:
                 chk, msg = dataclasses.replace(chk, flagged=False, detail=chk.detail + "; explained by the fitted "
                                                "time offset (not flagged with it applied)"), None
         found.append((chk, msg, "misfit_principal_point"))
@@ -408,7 +411,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=config.gate_iou)
     px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     f_scale = max(0.5, 1.5 * float(np.median(np.abs(best.residuals)))) if len(best.residuals) else 2.0
-    unc = estimate_uncertainty(cframes, pairs, intr, pose, best.noise, f_scale, occlusion=occlusion,
+    unc = estimate_uncertainty(FitContext(cframes, pairs, intr, pose, best.noise, f_scale, occlusion),
                                mode=config.uncertainty, track_ids=_track_ids(frames_in, cframes), seed=config.seed,
                                floor=inflation)
     diag.uncertainty = unc.parts  # its selfcal part: the pose spread the estimated intrinsics / offset add
@@ -438,8 +441,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         refusal = crowded_check(cframes, config)
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):
         # a refusal that a model misfit explains is replaced by the misfit's message (it names the cause)
-        refusal = _misfit(cframes, pairs, intr, pose, best.noise, f_scale, occlusion, ref.best_score, config, diag,
-                          frames_in, refusal) or refusal
+        refusal = _misfit(FitContext(cframes, pairs, intr, pose, best.noise, f_scale, occlusion), ref.best_score,
+                          config, diag, frames_in, refusal) or refusal
     if refusal is not None and inflation is not None:
         refusal = Refusal(refusal.code, refusal.message + _selfcal_note(diag))
     diag.refusal = "" if refusal is None else refusal.code

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import inspect
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
 import numpy as np
 
 from ..geometry.camera import CameraIntrinsics
 from .config import CalibConfig
-from .hypotheses import Hypotheses, frame_hypotheses, score_poses
+from .hypotheses import Hypotheses, TripleSearch, frame_hypotheses, score_poses
 from .inputs import CalibFrame
 from .pose import Pose
 
@@ -129,11 +129,11 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
     for k, g in enumerate(groups):
         gs = [sims[i] for i in g]
         big = (sparse_scene or k >= n_before) and len(g) > 1
-        kw = dict(rng=rng, max_baseline_m=max_baseline_m, max_candidates=config.max_candidates)
-        h = frame_hypotheses([cframes[i] for i in g], intr, g[0], prior_sims=gs,
-                             max_triples=20000 if big else 3000, keep=60 if big else 25, **kw)
+        search = TripleSearch(max_baseline_m=max_baseline_m, max_candidates=config.max_candidates)
+        h = frame_hypotheses([cframes[i] for i in g], intr, g[0], prior_sims=gs, rng=rng,
+                             search=replace(search, max_triples=20000 if big else 3000, keep=60 if big else 25))
         if any(x is not None for x in gs) and len(h) == 0:
-            h = frame_hypotheses([cframes[i] for i in g], intr, g[0], **kw)
+            h = frame_hypotheses([cframes[i] for i in g], intr, g[0], rng=rng, search=search)
         splits += int(getattr(h, "n_searches", 1) > 1)
         parts.append(h)
         if progress:

@@ -30,7 +30,7 @@ The pose found here is *not* a calibration: one frame rarely determines it to th
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -38,9 +38,9 @@ from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import KannalaBrandt
 from ..geometry.rotations import rotation_angle
 from .boxproj import iou_batched
-from .hypotheses import frame_hypotheses
+from .hypotheses import TripleSearch, frame_hypotheses
 from .inputs import CalibFrame, prepare_frames
-from .refine import match_frame, pair_metrics, refine_pose
+from .refine import RefineOptions, match_frame, pair_metrics, refine_pose
 
 __all__ = ["ConsensusConfig", "ConsensusMatches", "consensus_matches", "pair_margins", "searched_intrinsics"]
 
@@ -158,10 +158,10 @@ def _distinct(Ra, ta, Rb, tb, rot_deg: float, trans_m: float) -> bool:
 def _hypotheses(fr: CalibFrame, intr: CameraIntrinsics, cfg: ConsensusConfig):
     rng = np.random.default_rng(cfg.seed)
     keep = max(cfg.keep, cfg.score_budget // max(8 * fr.n2 * fr.n3, 1))  # frame_hypotheses IoU-scores 8 x keep
-    kw = {"keep": keep, "max_triples": cfg.max_triples, "min_altitude_m": cfg.min_altitude_m}
-    h = frame_hypotheses(fr, intr, 0, rng=rng, max_baseline_m=cfg.max_baseline_m, **kw)
+    search = TripleSearch(keep=keep, max_triples=cfg.max_triples, min_altitude_m=cfg.min_altitude_m)
+    h = frame_hypotheses(fr, intr, 0, rng=rng, search=replace(search, max_baseline_m=cfg.max_baseline_m))
     if len(h) == 0 and cfg.max_baseline_m is not None:
-        h = frame_hypotheses(fr, intr, 0, rng=np.random.default_rng(cfg.seed), **kw)
+        h = frame_hypotheses(fr, intr, 0, rng=np.random.default_rng(cfg.seed), search=search)
     return h
 
 
@@ -175,8 +175,8 @@ def _best_poses(fr: CalibFrame, intr: CameraIntrinsics, h, cfg: ConsensusConfig)
             break
     out = []
     for k in keep:
-        rr = refine_pose([fr], intr, h.R[k], h.t[k], gates=((0.1, 1.0), (0.2, 0.5), (cfg.gate, 0.0)),
-                         max_nfev=15, max_outer=3)
+        rr = refine_pose([fr], intr, h.R[k], h.t[k], options=RefineOptions(gates=((0.1, 1.0), (0.2, 0.5), (cfg.gate, 0.0)),
+                                                                           max_nfev=15, max_outer=3))
         _, ious = pair_metrics([fr], intr, rr.R, rr.t, rr.pairs)
         out.append((float(np.sum(ious)), rr))
     out.sort(key=lambda x: -x[0])

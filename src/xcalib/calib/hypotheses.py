@@ -20,7 +20,7 @@ from ..geometry.projection import undistort_pixels
 from .boxproj import iou_batched, project_rects
 from .inputs import CalibFrame
 
-__all__ = ["Hypotheses", "kabsch", "bearings", "frame_hypotheses", "score_poses"]
+__all__ = ["Hypotheses", "kabsch", "bearings", "frame_hypotheses", "TripleSearch", "score_poses"]
 
 
 @dataclass
@@ -212,15 +212,31 @@ def _azimuth_windows(X: np.ndarray, cap: int, rng: np.random.Generator, weight: 
     return out
 
 
+@dataclass(frozen=True)
+class TripleSearch:
+    """Settings of :func:`frame_hypotheses`: at most ``max_triples`` box triples per window, triangles
+    with an altitude of at least ``min_altitude_m`` (m), the ``keep`` best hypotheses kept, a camera
+    within ``max_baseline_m`` of the LiDAR (None: anywhere), at most ``max_candidates`` candidate
+    pairs per azimuth window."""
+
+    max_triples: int = 3000
+    min_altitude_m: float = 0.8
+    keep: int = 25
+    max_baseline_m: float | None = None
+    max_candidates: int = 1500
+
+
 def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, fi: int, *,
-                     prior_sims: list | None = None, max_triples: int = 3000,
-                     rng: np.random.Generator | None = None, min_altitude_m: float = 0.8,
-                     keep: int = 25, max_baseline_m: float | None = None, max_candidates: int = 1500) -> Hypotheses:
+                     prior_sims: list | None = None, rng: np.random.Generator | None = None,
+                     search: TripleSearch = TripleSearch()) -> Hypotheses:
     """Pose hypotheses from box triples of one frame (or a group of frames of the same static rig,
     whose pairs are rigidly consistent with each other too), scored on those frames; keep ``keep``.
 
     The search is quadratic in the candidate pairs; beyond ``max_candidates`` of them it runs on
-    azimuth windows of at most that many (see ``_azimuth_windows``), so memory stays bounded."""
+    azimuth windows of at most that many (see ``_azimuth_windows``), so memory stays bounded.
+    (``search``: these settings, :class:`TripleSearch`.)"""
+    max_triples, min_altitude_m, keep, max_baseline_m, max_candidates = (
+        search.max_triples, search.min_altitude_m, search.keep, search.max_baseline_m, search.max_candidates)
     rng = np.random.default_rng(0) if rng is None else rng
     frs = [frs] if isinstance(frs, CalibFrame) else list(frs)
     prior_sims = [None] * len(frs) if prior_sims is None else list(prior_sims)

@@ -49,6 +49,7 @@ from .diagnostics import MisfitCheck, NoiseModel
 from .inputs import CalibFrame
 from .pose import Pose
 from .boxmodel import outline_edge_term
+from .context import FitContext
 from .refine import build_cost, lsq, match_all
 from .uncertainty import jackknife_sd, leave_frames_out
 
@@ -87,7 +88,7 @@ class MisfitVerdict:
 
 
 def _focal_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion) -> float:
-    *_, fit = lsq(frames, pairs, intr, pose.R, pose.t, f_scale, 40, noise, occlusion, extra=(FocalScaleTerm(),))
+    *_, fit = lsq(FitContext(frames, pairs, intr, pose, noise, f_scale, occlusion), 40, extra=(FocalScaleTerm(),))
     return float(np.exp(fit.params[FocalScaleTerm.name][0]))
 
 
@@ -332,31 +333,30 @@ def pair_velocities(frames: list[CalibFrame], pairs: list[np.ndarray], times: np
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
-def _time_fit(frames, pairs, intr, pose: Pose, vel, noise, f_scale, occlusion,
-              starts: tuple[float, ...] = (0.0,)) -> tuple[float, Pose]:
+def _time_fit(ctx: FitContext, vel, starts: tuple[float, ...] = (0.0,)) -> tuple[float, Pose]:
     """Fitted offset (and pose) from each start offset; the lowest cost wins. Several starts: a fit
     started at exactly 0 can stay there (a stationary point of the robust cost; a 0.05 s offset
     left undetected on one realism site until started at -0.05 s)."""
     best = None
     for dt0 in starts:
-        *_, fit = lsq(frames, pairs, intr, pose.R, pose.t, f_scale, 40, noise, occlusion,
-                      extra=(TimeOffsetTerm(vel, dt0=dt0),))
+        *_, fit = lsq(ctx, 40, extra=(TimeOffsetTerm(vel, dt0=dt0),))
         if best is None or fit.cost < best[0]:
             best = (fit.cost, dt0 + float(fit.params[TimeOffsetTerm.name][0]), fit.pose)
     return best[1], best[2]
 
 
-def time_offset_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
-                      noise: NoiseModel, f_scale: float, occlusion: Occlusion, times: np.ndarray, unit: str, *,
-                      draws: int = 6, seed: int = 0) -> tuple[MisfitCheck, str | None]:
+def time_offset_check(ctx: FitContext, times: np.ndarray, unit: str, *, draws: int = 6,
+                      seed: int = 0) -> tuple[MisfitCheck, str | None]:
     """Fitted camera-LiDAR time offset (objects moved along their velocity from adjacent frames)."""
+    frames, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
+                                                            ctx.f_scale, ctx.occlusion)
     vel = pair_velocities(frames, pairs, times)
     speed = np.linalg.norm(vel, axis=1)
     moving = speed > 0.5 * (1.0 if unit == "s" else 0.1)
     if moving.sum() < 6:
         return MisfitCheck("time_offset", 0.0, TIME_SIGMAS, False, "too few moving matched objects"), None
     step = TIME_START_S if unit == "s" else TIME_START_S * 10.0
-    dt, _ = _time_fit(frames, pairs, intr, pose, vel, noise, f_scale, occlusion, (0.0, -step, step))
+    dt, _ = _time_fit(ctx, vel, (0.0, -step, step))
     rng = np.random.default_rng(seed)
     offs = np.cumsum([0] + [len(p) for p in pairs])
     nz = [k for k, p in enumerate(pairs) if len(p)]
@@ -368,7 +368,7 @@ def time_offset_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr: C
             sub[k] = np.repeat(pairs[k], c, axis=0)
         vs = np.concatenate([np.repeat(vel[offs[k]:offs[k + 1]], c if k in nz else 0, axis=0)
                              for k, c in zip(range(len(pairs)), [dict(zip(nz, w)).get(k, 0) for k in range(len(pairs))])])
-        boot.append(_time_fit(frames, sub, intr, pose, vs, noise, f_scale, occlusion, (dt,))[0])
+        boot.append(_time_fit(ctx.with_pairs(sub), vs, (dt,))[0])
     sd = float(np.std(boot, ddof=1))
     shift = float(np.median(speed[moving]) * abs(dt))
     z = abs(dt) / max(sd, 1e-9)
@@ -383,19 +383,19 @@ def time_offset_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr: C
     return MisfitCheck("time_offset", z, TIME_SIGMAS, flagged, detail), msg
 
 
-def time_shifted_frames(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
-                        noise: NoiseModel, f_scale: float, occlusion: Occlusion, times: np.ndarray,
-                        unit: str) -> list[CalibFrame] | None:
+def time_shifted_frames(ctx: FitContext, times: np.ndarray, unit: str) -> list[CalibFrame] | None:
     """The frames with each matched 3D outline moved along its motion by the fitted time offset
     (as ``time_offset_check`` fits it): the model in which a time offset is the cause, for testing
     the other checks against (a 0.05 s offset on PandaSet's projected cuboids also fits as a
     principal point 81 px off). None when too few matched objects move."""
+    frames, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
+                                                            ctx.f_scale, ctx.occlusion)
     vel = pair_velocities(frames, pairs, times)
     moving = np.linalg.norm(vel, axis=1) > 0.5 * (1.0 if unit == "s" else 0.1)
     if moving.sum() < 6:
         return None
     step = TIME_START_S if unit == "s" else TIME_START_S * 10.0
-    dt, _ = _time_fit(frames, pairs, intr, pose, vel, noise, f_scale, occlusion, (0.0, -step, step))
+    dt, _ = _time_fit(ctx, vel, (0.0, -step, step))
     out, k = [], 0
     for f, p in zip(frames, pairs):
         if not len(p):
@@ -430,7 +430,7 @@ def _pp_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion, outline:
     """Fitted principal-point shift (px); with ``outline`` the detector-outline offsets
     (``boxmodel.outline_edge_term``) are fitted with it as nuisance parameters."""
     if not outline:
-        *_, fit = lsq(frames, pairs, intr, pose.R, pose.t, f_scale, 40, noise, occlusion, extra=(PrincipalPointTerm(),))
+        *_, fit = lsq(FitContext(frames, pairs, intr, pose, noise, f_scale, occlusion), 40, extra=(PrincipalPointTerm(),))
         return np.asarray(fit.params[PrincipalPointTerm.name], dtype=np.float64)
     return _pp_outline_fits(frames, pairs, intr, pose, noise, f_scale, occlusion, with_pp=True)[0]
 
@@ -444,8 +444,10 @@ def _pp_outline_fits(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion,
     return d, float(fit.cost)
 
 
-def _pp_boot(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion, draws: int, seed: int, outline: bool):
+def _pp_boot(ctx: FitContext, draws: int, seed: int, outline: bool):
     """(shift [2] px, bootstrap sd [2] px over frames) of the principal-point fit."""
+    frames, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
+                                                            ctx.f_scale, ctx.occlusion)
     d = _pp_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, outline)
     rng = np.random.default_rng(seed)
     nz = [k for k, p in enumerate(pairs) if len(p)]
@@ -467,9 +469,8 @@ def _pp_flagged(d: np.ndarray, sd_xy: np.ndarray, W: int) -> bool:
                 or (abs(d[0]) > PP_TOL_FRAC * W and abs(d[0]) > PP_X_SIGMAS * sd_xy[0]))
 
 
-def principal_point_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
-                          noise: NoiseModel, f_scale: float, occlusion: Occlusion, *, draws: int = 5,
-                          seed: int = 0, places: int | None = None) -> tuple[MisfitCheck, str | None]:
+def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
+                          places: int | None = None) -> tuple[MisfitCheck, str | None]:
     """Fitted shift of the principal point (px; pose refitted, matches fixed) and its bootstrap
     spread over frames; flagged beyond ``PP_TOL_FRAC`` of the width and 4 sigma, or when its x part
     alone is beyond that share and ``PP_X_SIGMAS`` sigmas of x. ``places``:
@@ -482,12 +483,14 @@ def principal_point_check(frames: list[CalibFrame], pairs: list[np.ndarray], int
     the box size) free; when the shift is then no longer flagged, the 2D boxes' outline, not the
     principal point, explains it (PandaSet 002 with detector boxes: +108 px vertical, the tops and
     bottoms of vehicles' visible outlines against their point hulls) and nothing is flagged."""
+    frames, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
+                                                            ctx.f_scale, ctx.occlusion)
     W = frames[0].size[0]
     if sum(len(p) for p in pairs) < 12 or sum(len(p) > 0 for p in pairs) < 4:
         # a principal-point shift trades off against a small rotation; with fewer than 4 frames the
         # bootstrap over pairs understates that (one nuScenes frame, 47 pairs: a false 78 px)
         return MisfitCheck("principal_point", 0.0, PP_TOL_FRAC * W, False, "too few matches or frames"), None
-    d, sd_xy = _pp_boot(frames, pairs, intr, pose, noise, f_scale, occlusion, draws, seed, False)
+    d, sd_xy = _pp_boot(ctx, draws, seed, False)
     sd, shift = float(np.linalg.norm(sd_xy)), float(np.linalg.norm(d))
     flagged = _pp_flagged(d, sd_xy, W)
     box_note = ""
@@ -498,10 +501,10 @@ def principal_point_check(frames: list[CalibFrame], pairs: list[np.ndarray], int
         # it lowers the robust cost, counted once per object (a vertical shift and a pitch of the
         # pose nearly trade off, so its size and a bootstrap over frames that share one box bias
         # say little: PandaSet's detector boxes fit +108 px alone and +196 px with the offsets)
-        d2, sd2 = _pp_boot(frames, pairs, intr, pose, noise, f_scale, occlusion, draws, seed, True)
+        d2, sd2 = _pp_boot(ctx, draws, seed, True)
         _, c_pp = _pp_outline_fits(frames, pairs, intr, pose, noise, f_scale, occlusion, True)
         _, c_box = _pp_outline_fits(frames, pairs, intr, pose, noise, f_scale, occlusion, False)
-        *_, pp_only = lsq(frames, pairs, intr, pose.R, pose.t, f_scale, 60, noise, occlusion, extra=(PrincipalPointTerm(),))
+        *_, pp_only = lsq(ctx, 60, extra=(PrincipalPointTerm(),))
         n = sum(len(p) for p in pairs)
         per_obj = max(n / max(places or n / 4.0, 1.0), 1.0)
         gain = (c_box - c_pp) / per_obj

@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from ..geometry.boxes import box2d_centers
 from ..geometry.camera import CameraIntrinsics
 from .boxproj import iou_batched, iou_planes, project_rects
+from .context import F_SCALE, FitContext, RefineOptions
 from .cost import INWARD, BoxEdgeTerm, CostModel, Occlusion, _pair_features, edge_sigma
 from .diagnostics import NoiseModel
 from .inputs import CalibFrame
@@ -24,7 +25,7 @@ from .pose import Pose
 from .terms import CostSpec, TermContext, occlusion_of
 
 __all__ = ["build_cost", "box_edges", "RefineResult", "match_frame", "match_all", "project_frames", "refine_pose", "pair_metrics", "estimate_noise", "lsq",
-           "edge_term", "DEFAULT_NOISE", "F_SCALE"]
+           "edge_term", "DEFAULT_NOISE", "F_SCALE", "FitContext", "RefineOptions"]
 
 
 @dataclass
@@ -147,7 +148,6 @@ def _stack(frames: list[CalibFrame], pairs: list[np.ndarray]):
 
 
 DEFAULT_NOISE = NoiseModel()
-F_SCALE = 2.0
 
 
 def edge_term(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
@@ -224,28 +224,29 @@ def build_cost(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIn
     return CostModel([base if edge is None else edge(base), *extra, *named], pose, intr)
 
 
-def lsq(frames, pairs, intr, R, t, f_scale, max_nfev, noise: NoiseModel | None = None,
-        occlusion: "Occlusion | CostSpec | None" = Occlusion(), extra: tuple = ()):
+def lsq(ctx: FitContext, max_nfev: int, extra: tuple = ()):
     """Robust (soft-L1) fit of the box-edge term (plus ``extra`` terms and those ``occlusion``, a
     ``terms.CostSpec``, names) from (R, t), matches fixed. Returns (R, t, cost, residuals, CostFit)."""
+    frames, pairs, intr, R, t, f_scale, noise, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose.R, ctx.pose.t,
+                                                            ctx.f_scale, ctx.noise, ctx.occlusion)
     pose = Pose(R, t)
     model = build_cost(frames, pairs, intr, pose, noise, occlusion, extra)
     fit = model.fit(f_scale=f_scale, max_nfev=max_nfev)
     return fit.pose.R, fit.pose.t, fit.cost, fit.residuals, fit
 
 
-def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *,
-                gates: tuple = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0)),
-                min_pairs: int = 3, max_nfev: int = 60, tol: float = 1e-3, max_outer: int | None = None,
-                adapt_noise: bool = True, occlusion: "Occlusion | CostSpec | None" = Occlusion()) -> RefineResult:
+def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *, options: RefineOptions = RefineOptions(),
+                occlusion: "Occlusion | CostSpec | None" = Occlusion()) -> RefineResult:
     """Alternate matching and robust least squares from the pose (R, t) until the cost settles.
 
     ``gates`` is the schedule of (IoU gate, centre-distance gate) per outer iteration; the last
     entry repeats until the robust cost improves by less than ``tol`` (relative) or the pose stops
     moving (about 2e-6 rad / 0.2 mm), at most ``max_outer`` iterations. With ``adapt_noise`` the
     per-edge error model is re-fitted to the residuals (``estimate_noise``) from the second
-    iteration on, so noisy 3D boxes are weighted by their actual error.
+    iteration on, so noisy 3D boxes are weighted by their actual error. (``options``: these settings.)
     """
+    gates, min_pairs, max_nfev, tol, max_outer, adapt_noise = (options.gates, options.min_pairs, options.max_nfev,
+                                                               options.tol, options.max_outer, options.adapt_noise)
     noise = DEFAULT_NOISE
     R, t = np.asarray(R, float), np.asarray(t, float)
     history: list[float] = []
@@ -264,7 +265,7 @@ def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *,
         R_old, t_old = R, t
         if adapt_noise and it >= 1:
             noise = estimate_noise(frames, pairs, intr, R, t)
-        R, t, cost, resid, _ = lsq(frames, pairs, intr, R, t, f_scale, max_nfev, noise, occlusion)
+        R, t, cost, resid, _ = lsq(FitContext(frames, pairs, intr, Pose(R, t), noise, f_scale, occlusion), max_nfev)
         per = cost / max(n, 1)
         history.append(per)
         moved = np.linalg.norm(Rotation.from_matrix(R @ R_old.T).as_rotvec()) + np.linalg.norm(t - t_old) / 100.0

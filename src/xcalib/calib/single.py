@@ -20,7 +20,7 @@ import numpy as np
 
 from .result import CalibrationResult
 
-__all__ = ["calibrate_frame", "ThresholdedScores"]
+__all__ = ["calibrate_frame", "one_frame", "ThresholdedScores"]
 
 
 class ThresholdedScores:
@@ -57,10 +57,18 @@ def inlier_count(image, point_cloud, bboxes_2d, bboxes_3d, result: CalibrationRe
     return int(np.sum(px <= max_px))
 
 
-def calibrate_frame(matcher, image, point_cloud, bboxes_2d, bboxes_3d, intrinsics, *, match_threshold: float = 0.5,
-                    ransac_reproj_px: float = 8.0, validate: str = "warn", **calib_options) -> CalibrationResult:
-    """One frame -> ``CalibrationResult`` (see the module docstring); ``calib_options`` go to
+def one_frame(image, point_cloud, bboxes_2d, bboxes_3d, intrinsics, **options) -> tuple[tuple, object, dict]:
+    """The reference's one-frame arguments (positional or by name) as :func:`calibrate_frame` takes
+    them: ``((image, point_cloud, bboxes_2d, bboxes_3d), intrinsics, options)``."""
+    return (image, point_cloud, bboxes_2d, bboxes_3d), intrinsics, options
+
+
+def calibrate_frame(matcher, inputs: tuple, intrinsics, *, match_threshold: float = 0.5, ransac_reproj_px: float = 8.0,
+                    validate: str = "warn", **calib_options) -> CalibrationResult:
+    """One frame -> ``CalibrationResult`` (see the module docstring); ``inputs``: (image, point_cloud,
+    bboxes_2d, bboxes_3d) (:func:`one_frame` binds the reference's call); ``calib_options`` go to
     :func:`xcalib.calib.api.calibrate`."""
+    image, point_cloud, bboxes_2d, bboxes_3d = inputs
     from .api import calibrate
 
     if not ransac_reproj_px > 0:

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .context import FitContext
 from .cost import Occlusion
 from .diagnostics import NoiseModel, UncertaintyParts
 from .inputs import CalibFrame
@@ -119,8 +120,7 @@ def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: Nois
     return np.degrees(sd[:3]), sd[3:], cov
 
 
-def object_sandwich(frames, pairs, intr, R, t, groups: np.ndarray, *, noise: NoiseModel | None = None,
-                    min_objects: int | None = None, f_scale: float = F_SCALE, occlusion=None,
+def object_sandwich(ctx: FitContext, groups: np.ndarray, *, min_objects: int | None = None,
                     exact: int | None = None) -> np.ndarray | None:
     """1-sigma of the pose (6-vector, deg / m) clustered by object: every pair of one object (the
     same car seen in many frames) shares its 3D-box error (size, yaw, centre), so objects, not
@@ -136,6 +136,8 @@ def object_sandwich(frames, pairs, intr, R, t, groups: np.ndarray, *, noise: Noi
     An object without which the pose is undetermined gives an infinite sigma. None with fewer than
     ``min_objects`` objects (the spread of so few is no estimate; the frame halves / jackknife over
     pairs judge such recordings)."""
+    frames, pairs, intr, R, t, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose.R, ctx.pose.t,
+                                                            ctx.noise, ctx.f_scale, ctx.occlusion)
     from scipy.special import stdtrit  # t.ppf without importing scipy.stats (seconds)
 
     min_objects = MIN_OBJECTS if min_objects is None else min_objects
@@ -160,14 +162,15 @@ def object_sandwich(frames, pairs, intr, R, t, groups: np.ndarray, *, noise: Noi
             d[k] = np.linalg.solve(info - M[c], g[c])
         except np.linalg.LinAlgError:
             return np.full(6, np.inf)
-    d = _exact_moves(frames, pairs, intr, Pose(R, t), groups, used, d, noise, f_scale, occlusion,
-                     EXACT_OBJECTS if exact is None else exact)
+    d = _exact_moves(ctx, groups, used, d, EXACT_OBJECTS if exact is None else exact)
     cov = (G - 1) / G * (d - d.mean(0)).T @ (d - d.mean(0))
     return _sd6(cov) * float(stdtrit(G - 1, 0.975) / 1.959964)
 
 
-def _exact_moves(frames, pairs, intr, pose: Pose, groups, used, d, noise, f_scale, occlusion, k: int) -> np.ndarray:
+def _exact_moves(ctx: FitContext, groups, used, d, k: int) -> np.ndarray:
     """``d`` (linearised leave-one-object-out moves, rad / m) with the ``k`` largest replaced by refits."""
+    frames, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
+                                                            ctx.f_scale, ctx.occlusion)
     occl = Occlusion() if occlusion is None else occlusion
     offs = np.cumsum([0] + [len(p) for p in pairs])
     d = d.copy()
@@ -180,12 +183,11 @@ def _exact_moves(frames, pairs, intr, pose: Pose, groups, used, d, noise, f_scal
 
 def _refit(frames, pairs, intr, pose: Pose, noise, f_scale, max_nfev, occlusion="default") -> Pose:
     kw = {} if occlusion == "default" else {"occlusion": occlusion}
-    R, t, _, _, _ = lsq(frames, pairs, intr, pose.R, pose.t, f_scale, max_nfev, noise, **kw)
+    R, t, _, _, _ = lsq(FitContext(frames, pairs, intr, pose, noise, f_scale, **kw), max_nfev)
     return Pose(R, t)
 
 
-def pose_spread(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f_scale: float = F_SCALE,
-                max_nfev: int = 40, occlusion=None):
+def pose_spread(ctx: FitContext, *, max_nfev: int = 40):
     """Two checks of the pose beyond the Jacobian, both with the matches held fixed.
 
     * ``halves``: refit on the even and on the odd frames separately (or on alternate pairs when
@@ -196,6 +198,8 @@ def pose_spread(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f
     ``occlusion``: the ``cost.Occlusion`` of the fit (default: the default one).
     Returns (halves_delta [6] or None, occlusion_delta [6]).
     """
+    frames, pairs, intr, R, t, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose.R, ctx.pose.t,
+                                                            ctx.noise, ctx.f_scale, ctx.occlusion)
     pose = Pose(R, t)
     occl = Occlusion() if occlusion is None else occlusion
     halves = None
@@ -234,8 +238,7 @@ def leave_frames_out(pairs: list[np.ndarray], max_groups: int):
         yield [p[:0] if k in out else p for k, p in enumerate(pairs)]
 
 
-def pose_jackknife(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None, f_scale: float = F_SCALE,
-                   max_nfev: int = 40, max_groups: int = 24, occlusion=None) -> np.ndarray | None:
+def pose_jackknife(ctx: FitContext, *, max_nfev: int = 40, max_groups: int = 24) -> np.ndarray | None:
     """Leave-one-pair-out (jackknife) 1-sigma of the pose, 6-vector (deg about camera x,y,z; m).
 
     For recordings with too few matches for the frame-halves check: the pose is refitted (matches
@@ -245,6 +248,8 @@ def pose_jackknife(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None
     error model fitted to the residuals, stays honest with a handful of pairs. Beyond
     ``max_groups`` pairs, groups of pairs are left out instead. None with fewer than 4 pairs.
     """
+    frames, pairs, intr, R, t, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose.R, ctx.pose.t,
+                                                            ctx.noise, ctx.f_scale, ctx.occlusion)
     pose = Pose(R, t)
     occl = Occlusion() if occlusion is None else occlusion
     where = np.array([(k, i) for k, p in enumerate(pairs) for i in range(len(p))], dtype=np.int64).reshape(-1, 2)
@@ -259,13 +264,14 @@ def pose_jackknife(frames, pairs, intr, R, t, *, noise: NoiseModel | None = None
     return jackknife_sd(d)
 
 
-def frame_jackknife(frames, pairs, intr, pose: Pose, *, noise: NoiseModel | None = None, f_scale: float = F_SCALE,
-                    max_nfev: int = 40, occlusion=None, max_groups: int = FRAME_JACK_GROUPS) -> np.ndarray | None:
+def frame_jackknife(ctx: FitContext, *, max_nfev: int = 40, max_groups: int = FRAME_JACK_GROUPS) -> np.ndarray | None:
     """Leave-frames-out jackknife 1-sigma of the pose (6-vector, deg / m), matches held fixed.
 
     The frames with matches are split into ``G = min(n, max_groups)`` interleaved groups; the
     pose is refitted without each group and ``sqrt((G-1)/G * sum (p_g - p_mean)^2)`` is the
     spread. None with fewer than 4 frames with matches (the halves / pair jackknife decide)."""
+    frames, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
+                                                            ctx.f_scale, ctx.occlusion)
     occl = Occlusion() if occlusion is None else occlusion
     d = [_refit(frames, sub, intr, pose, noise, f_scale, max_nfev, occl).delta(pose)
          for sub in leave_frames_out(pairs, max_groups)]
@@ -321,11 +327,12 @@ def object_groups(frames: list[CalibFrame], pairs: list[np.ndarray], *, radius_m
     return np.unique(roots, return_inverse=True)[1]
 
 
-def pose_object_bootstrap(frames, pairs, intr, R, t, groups: np.ndarray, *, noise: NoiseModel | None = None,
-                          f_scale: float = F_SCALE, max_nfev: int = 25, draws: int = 16, seed: int = 0,
-                          occlusion=None) -> np.ndarray | None:
+def pose_object_bootstrap(ctx: FitContext, groups: np.ndarray, *, max_nfev: int = 25, draws: int = 16,
+                          seed: int = 0) -> np.ndarray | None:
     """1-sigma of the pose (6-vector) from refits on bootstrap draws of whole objects (matches
     fixed; an object drawn twice counts twice). None with fewer than 5 objects."""
+    frames, pairs, intr, R, t, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose.R, ctx.pose.t,
+                                                            ctx.noise, ctx.f_scale, ctx.occlusion)
     n_obj = int(groups.max()) + 1 if len(groups) else 0
     if n_obj < 5:
         return None
@@ -435,8 +442,8 @@ def _box_model_fits(frames, pairs, intr, pose: Pose, noise, f_scale: float, max_
         return None
     alt = [f if f.box_corners is None else dataclasses.replace(f, corners=f.box_corners) for f in frames]
     occl = Occlusion() if occlusion is None else occlusion
-    _, _, cost_hull, _, _ = lsq(frames, pairs, intr, pose.R, pose.t, f_scale, max_nfev, noise, occl)
-    R, t, cost_box, _, _ = lsq(alt, pairs, intr, pose.R, pose.t, f_scale, max_nfev, noise, occl)
+    _, _, cost_hull, _, _ = lsq(FitContext(frames, pairs, intr, pose, noise, f_scale, occl), max_nfev)
+    R, t, cost_box, _, _ = lsq(FitContext(alt, pairs, intr, pose, noise, f_scale, occl), max_nfev)
     return Pose(R, t).delta(pose), float(cost_hull), float(cost_box)
 
 
@@ -465,8 +472,7 @@ def box_model_odds(cost_used: float, cost_alt: float, n_pairs: int, n_objects: i
     return float(1.0 / (1.0 + np.exp(d)))
 
 
-def box_model_floor(frames, pairs, intr, pose: Pose, noise: NoiseModel | None, *, f_scale: float, occlusion,
-                    n_objects: int, max_nfev: int = 40) -> tuple[np.ndarray | None, dict]:
+def box_model_floor(ctx: FitContext, *, n_objects: int, max_nfev: int = 40) -> tuple[np.ndarray | None, dict]:
     """The box-model floor (6-vector, deg / m) and what it was computed from.
 
     The pose shift to the box-corner outline counts in proportion to how plausible the corners
@@ -474,6 +480,8 @@ def box_model_floor(frames, pairs, intr, pose: Pose, noise: NoiseModel | None, *
     posterior weight (:func:`box_model_odds`, at most 1/2 counted). Two outlines that fit equally
     well (w = 1/2) give half the shift, as before; a detector's tight boxes, which the point hulls
     fit far better than the corners, give almost none. None when every outline is its box."""
+    frames, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
+                                                            ctx.f_scale, ctx.occlusion)
     fits = _box_model_fits(frames, pairs, intr, pose, noise, f_scale, max_nfev, occlusion)
     if fits is None:
         return None, {}
@@ -511,35 +519,32 @@ def _lst(v):
     return None if v is None else [float(x) for x in np.asarray(v).ravel()]
 
 
-def estimate(frames, pairs, intr, pose: Pose, noise: NoiseModel, f_scale: float, *, occlusion, mode: str = "clusters",
-             track_ids: list | None = None, seed: int = 0, floor: np.ndarray | None = None) -> Uncertainty:
+def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None = None, seed: int = 0,
+             floor: np.ndarray | None = None) -> Uncertainty:
     """All parts at ``pose`` with the matches ``pairs`` held fixed, combined (see the module docstring).
 
     ``mode``: "frames" (Jacobian, frame halves, occlusion), "clusters" (also the object-clustered
     sandwich and the misfit floor), "objects" (also the object bootstrap). ``floor``: an extra
     systematic 6-vector added in quadrature (the spread estimated intrinsics add, ``selfcal``)."""
+    frames, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
+                                                            ctx.f_scale, ctx.occlusion)
     rot_sd, tr_sd, _ = pose_covariance(frames, pairs, intr, pose.R, pose.t, noise=noise, occlusion=occlusion)
     jac = np.concatenate([rot_sd, tr_sd])
-    halves, occl = pose_spread(frames, pairs, intr, pose.R, pose.t, noise=noise, f_scale=f_scale, occlusion=occlusion)
-    jack = pose_jackknife(frames, pairs, intr, pose.R, pose.t, noise=noise, f_scale=f_scale, occlusion=occlusion) \
-        if halves is None else None
+    halves, occl = pose_spread(ctx)
+    jack = pose_jackknife(ctx) if halves is None else None
     obj, clus, n_obj, misfit, box_info = None, None, 0, None, {}
     outl = outline_shift(frames, pairs, intr, pose, noise, f_scale=f_scale, occlusion=occlusion)
     if mode in ("clusters", "objects"):
         groups = object_groups(frames, pairs, track_ids=track_ids)
         n_obj = int(groups.max()) + 1 if len(groups) else 0
-        clus = object_sandwich(frames, pairs, intr, pose.R, pose.t, groups, noise=noise, f_scale=f_scale,
-                               occlusion=occlusion)
-        misfit, box_info = box_model_floor(frames, pairs, intr, pose, noise, f_scale=f_scale, occlusion=occlusion,
-                                           n_objects=n_obj)
+        clus = object_sandwich(ctx, groups)
+        misfit, box_info = box_model_floor(ctx, n_objects=n_obj)
     if mode == "objects" and halves is not None:
-        obj = pose_object_bootstrap(frames, pairs, intr, pose.R, pose.t, groups, noise=noise, f_scale=f_scale,
-                                    seed=seed, occlusion=occlusion)
+        obj = pose_object_bootstrap(ctx, groups, seed=seed)
     total_floor = None if floor is None and misfit is None else \
         np.sqrt((0.0 if floor is None else np.asarray(floor) ** 2) + (0.0 if misfit is None else misfit ** 2))
     r, t = combine(jac, halves, occl, jack, obj, total_floor, clus, outl)
-    frames_sd = frame_jackknife(frames, pairs, intr, pose, noise=noise, f_scale=f_scale, occlusion=occlusion) \
-        if halves is not None else None
+    frames_sd = frame_jackknife(ctx) if halves is not None else None
     if frames_sd is not None:  # the verdict's sigma: the frame jackknife, not the one-sample halves
         r_data, t_data = combine(jac, None, occl, frames_sd, None, floor)
     else:

@@ -325,9 +325,10 @@ class Matcher:
         (:func:`xcalib.calib.single.calibrate_frame`), or ``calibrate(frames, intrinsics, **kw)``
         = :func:`xcalib.calib.api.calibrate` with this matcher's scores seeding the hypotheses."""
         if args and isinstance(args[0], np.ndarray) and args[0].ndim == 3:
-            from ..calib.single import calibrate_frame
+            from ..calib.single import calibrate_frame, one_frame
 
-            return calibrate_frame(self, *args, **kw)
+            inputs, intrinsics, options = one_frame(*args, **kw)
+            return calibrate_frame(self, inputs, intrinsics, **options)
         from ..calib import api
 
         if args and isinstance(args[0], (Frame, DatasetFrame)):

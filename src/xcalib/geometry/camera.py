@@ -253,7 +253,7 @@ def _check_pinhole_model(model, path) -> None:
     """A ``model`` other than pinhole (+ OpenCV distortion) given to a pinhole-only reader is a
     FormatError (a ValueError) naming the field; its other parameters are never silently dropped."""
     from ..errors import FormatError
-    from .camera_models import canonical_name
+    from .camera_names import canonical_name
 
     try:
         name = canonical_name(model) if isinstance(model, str) else None

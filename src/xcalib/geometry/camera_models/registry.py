@@ -3,49 +3,20 @@
 xcalib's own models are declared as entry points of the group ``xcalib.camera_models`` in
 ``pyproject.toml``; another package adds a model by declaring one more entry point there
 (``mymodel = "mypkg.cams:MyModel"``, a :class:`~.base.CameraModel` subclass). When the package
-metadata is absent (a source checkout on ``PYTHONPATH``) the built-in table below is used; a
-third-party entry point never replaces a built-in name.
+metadata is absent (a source checkout on ``PYTHONPATH``) the built-in table of
+:mod:`xcalib.geometry.camera_names` is used; a third-party entry point never replaces a built-in name.
 """
 
 from __future__ import annotations
 
 import importlib
-from typing import Any
 
+from .. import camera_names
+from ..camera_names import ALIASES, ENTRY_POINT_GROUP, available_models, canonical_name
 from .base import CameraModel
 
 __all__ = ["ENTRY_POINT_GROUP", "ALIASES", "available_models", "get_model", "model_from_dict",
            "canonical_name", "as_camera_model", "as_calibration_camera", "calibration_camera_from_dict"]
-
-ENTRY_POINT_GROUP = "xcalib.camera_models"
-
-_BUILTIN = {
-    "pinhole": "xcalib.geometry.camera_models.pinhole:Pinhole",
-    "pinhole_radtan": "xcalib.geometry.camera_models.pinhole:PinholeRadtan",
-    "kannala_brandt": "xcalib.geometry.camera_models.kannala_brandt:KannalaBrandt",
-    "unified": "xcalib.geometry.camera_models.unified:Unified",
-    "ucm": "xcalib.geometry.camera_models.unified:UCM",
-    "eucm": "xcalib.geometry.camera_models.unified:EUCM",
-    "double_sphere": "xcalib.geometry.camera_models.double_sphere:DoubleSphere",
-}
-
-#: other names the formats use for the same models
-ALIASES = {
-    "radtan": "pinhole_radtan", "plumb_bob": "pinhole_radtan", "rational_polynomial": "pinhole_radtan",
-    "opencv": "pinhole_radtan", "equidistant": "kannala_brandt", "fisheye": "kannala_brandt",
-    "kb": "kannala_brandt", "kb4": "kannala_brandt", "mei": "unified", "omni": "unified",
-    "ds": "double_sphere",
-}
-
-
-def _entry_points() -> dict[str, Any]:
-    try:
-        from importlib.metadata import entry_points
-
-        eps = entry_points(group=ENTRY_POINT_GROUP)
-    except Exception:  # noqa: BLE001 - metadata absent or unreadable: the built-ins still work
-        return {}
-    return {ep.name: ep for ep in eps}
 
 
 def _load(target: str) -> type:
@@ -53,27 +24,12 @@ def _load(target: str) -> type:
     return getattr(importlib.import_module(module), attr)
 
 
-def available_models() -> list[str]:
-    """Every model name known: the built-ins and the entry points of ``xcalib.camera_models``."""
-    return sorted(set(_BUILTIN) | set(_entry_points()))
-
-
-def canonical_name(name: str) -> str:
-    """The registry name of ``name`` (aliases such as ``equidistant`` resolved); ValueError if unknown."""
-    key = str(name).strip().lower().replace("-", "_")
-    key = ALIASES.get(key, key)
-    if key in _BUILTIN or key in _entry_points():
-        return key
-    raise ValueError(f"unknown camera model {name!r}; expected one of {', '.join(available_models())} "
-                     f"(or an alias: {', '.join(sorted(ALIASES))})")
-
-
 def get_model(name: str) -> type[CameraModel]:
     """The :class:`CameraModel` subclass registered as ``name`` (or an alias of it)."""
     key = canonical_name(name)
-    if key in _BUILTIN:
-        return _load(_BUILTIN[key])
-    ep = _entry_points()[key]
+    if key in camera_names.BUILTIN:
+        return _load(camera_names.BUILTIN[key])
+    ep = camera_names.entry_points()[key]
     try:
         cls = ep.load()
     except Exception as exc:  # noqa: BLE001 - a broken plug-in names itself
