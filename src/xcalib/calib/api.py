@@ -83,10 +83,18 @@ def _quick_refine(args) -> tuple[float, RefineResult]:
     return _score(cframes, intr, rr), rr
 
 
+def _full_refine(args) -> tuple[float, RefineResult]:
+    """One finalist's full refinement and its score (a task of ``_refine_candidates``)."""
+    cframes, intr, R, t, occlusion = args
+    rr = refine_pose(cframes, intr, R, t, gates=((0.2, 0.5), (0.3, 0.0), (0.3, 0.0)), occlusion=occlusion)
+    return _score(cframes, intr, rr), rr
+
+
 def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
                        progress: Progress | None, workers: Workers = 1) -> _Refined:
-    """A quick refinement of every candidate (on up to ``workers`` processes), then a full one of
-    the best and the best distinct runner-up."""
+    """A quick refinement of every candidate, then a full one of the best and the best distinct
+    runner-up (each stage on up to ``workers`` processes; the results, in candidate order, are the
+    same whatever the number)."""
     lean = lean_frames(cframes) if resolve_workers(workers) > 1 else cframes
     quick = parallel_map(_quick_refine, [(lean, intr, cand.R[k], cand.t[k], occlusion) for k in range(len(cand))],
                          workers)
@@ -97,11 +105,9 @@ def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
     best0 = Pose(quick[0][1].R, quick[0][1].t)
     finals = [quick[0]] + [next((x for x in quick[1:] if Pose(x[1].R, x[1].t).distinct(best0, 1.0, 0.3)), None)]
     finals = [f for f in finals if f is not None]
-    refined = []
-    for k, (_, r0) in enumerate(finals):
-        rr = refine_pose(cframes, intr, r0.R, r0.t, gates=((0.2, 0.5), (0.3, 0.0), (0.3, 0.0)), occlusion=occlusion)
-        refined.append((_score(cframes, intr, rr), rr))
-        if progress:
+    refined = parallel_map(_full_refine, [(lean, intr, r0.R, r0.t, occlusion) for _, r0 in finals], workers)
+    if progress:
+        for k in range(len(finals)):
             progress("refine", len(cand) + k + 1, len(cand) + len(finals))
     refined.sort(key=lambda x: -x[0])
     return _Refined(refined[0][1], refined[0][0], refined[1:])
@@ -273,17 +279,27 @@ def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_sc
     focal length the matches cannot check refuses only a pose that ``refusal`` (the verdict's)
     and every misfit check let through."""
     lean, one = lean_frames(cframes), config.replace(workers=1)
-    with Deferred([(_mirror_score, (lean, intr, one, occlusion)), (_second_pose, (lean, pairs, intr, pose, one, occlusion))],
-                  config.workers) as searches:  # (on other cores while the checks below run)
+    places = len(matched_places(cframes, pairs)[0])
+    # on other cores while the checks below run, the longest first: the second-pose search on a few
+    # frames, the lens refit (numeric derivatives) on long recordings (a 200-frame selection: ~4.5 s
+    # of the checks' 5.5 s CPU, which kept two workers from being any faster than one)
+    with Deferred([(_second_pose, (lean, pairs, intr, pose, one, occlusion)),
+                   (_lens_check, (lean, pairs, intr, pose, noise, f_scale, occlusion, places)),
+                   (_mirror_score, (lean, intr, one, occlusion))], config.workers) as searches:
         return _misfit_checks(cframes, pairs, intr, pose, noise, f_scale, occlusion, best_score, config, diag,
                               frames_in, refusal, searches)
+
+
+def _lens_check(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, places: int):
+    """``misfit.lens_check`` (a task of ``_misfit``'s deferred calls)."""
+    return lens_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, places=places)
 
 
 def _misfit_checks(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_score: float, config: CalibConfig,
                    diag: CalibDiagnostics, frames_in, refusal: Refusal | None, searches: Deferred) -> Refusal | None:
     found = []
     # a mirrored image first: it also bends the focal / principal-point fits, but is the cause to name
-    flipped_score, flipped_matched = searches.result(0)
+    flipped_score, flipped_matched = searches.result(2)
     need = max(config.min_pairs, 3, int(np.ceil(config.min_explained * sum(f.n2 for f in cframes))))
     chk, msg = mirror_check(best_score, flipped_score, pose, (flipped_matched, need))
     found.append((chk, msg, "misfit_mirrored"))
@@ -291,7 +307,7 @@ def _misfit_checks(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, 
     found.append((chk, msg, "misfit_mixed_cameras"))
     places = len(matched_places(cframes, pairs)[0])
     # a fisheye given as pinhole bends the focal / principal-point fits too: the lens is the cause to name
-    chk, msg = lens_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, places=places)
+    chk, msg = searches.result(1)
     found.append((chk, msg, "misfit_lens"))
     width = None
     if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
@@ -319,7 +335,7 @@ def _misfit_checks(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, 
         found.append((chk, msg, "misfit_principal_point"))
     if time_chk is not None:
         found.append((*time_chk, "misfit_time_offset"))
-    chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)), *searches.result(1))
+    chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)), *searches.result(0))
     found.append((chk, msg, "misfit_mixed_cameras"))
     diag.misfit = diag.misfit + [c for c, _, _ in found] + ([] if width is None else [width[0]])
     named = next((Refusal(code, m) for _, m, code in found if m), None)  # a misfit names the cause first
