@@ -273,19 +273,30 @@ def _frame_times(frames_in) -> tuple[np.ndarray, str]:
     return np.arange(len(frames_in), dtype=np.float64), "frames"
 
 
-def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_score: float, config: CalibConfig,
-            diag: CalibDiagnostics, frames_in, refusal: Refusal | None = None) -> Refusal | None:
-    """Run the model-misfit checks (``misfit``); the first that flags becomes the refusal. A given
-    focal length the matches cannot check refuses only a pose that ``refusal`` (the verdict's)
-    and every misfit check let through."""
+def _misfit_searches(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, config: CalibConfig) -> Deferred:
+    """The misfit checks' searches and refits that need no other check (second pose, lens, mirror),
+    started now on up to ``config.workers`` processes, the longest first (the second-pose search on a
+    few frames; the lens refit, numeric derivatives, on long recordings: ~4.5 s of a 200-frame
+    selection's 5.5 s of checks). With one worker each runs here when its result is first asked for,
+    so the serial order of work is unchanged. Close it (or use it as a context manager)."""
     lean, one = lean_frames(cframes), config.replace(workers=1)
     places = len(matched_places(cframes, pairs)[0])
-    # on other cores while the checks below run, the longest first: the second-pose search on a few
-    # frames, the lens refit (numeric derivatives) on long recordings (a 200-frame selection: ~4.5 s
-    # of the checks' 5.5 s CPU, which kept two workers from being any faster than one)
-    with Deferred([(_second_pose, (lean, pairs, intr, pose, one, occlusion)),
-                   (_lens_check, (lean, pairs, intr, pose, noise, f_scale, occlusion, places)),
-                   (_mirror_score, (lean, intr, one, occlusion))], config.workers) as searches:
+    return Deferred([(_second_pose, (lean, pairs, intr, pose, one, occlusion)),
+                     (_lens_check, (lean, pairs, intr, pose, noise, f_scale, occlusion, places)),
+                     (_mirror_score, (lean, intr, one, occlusion))], config.workers)
+
+
+def _misfit(cframes, pairs, intr, pose: Pose, noise, f_scale, occlusion, best_score: float, config: CalibConfig,
+            diag: CalibDiagnostics, frames_in, refusal: Refusal | None = None,
+            searches: Deferred | None = None) -> Refusal | None:
+    """Run the model-misfit checks (``misfit``); the first that flags becomes the refusal. A given
+    focal length the matches cannot check refuses only a pose that ``refusal`` (the verdict's)
+    and every misfit check let through. ``searches``: ``_misfit_searches`` of these inputs, started
+    earlier by the caller (None: started here, while the other checks run)."""
+    if searches is not None:
+        return _misfit_checks(cframes, pairs, intr, pose, noise, f_scale, occlusion, best_score, config, diag,
+                              frames_in, refusal, searches)
+    with _misfit_searches(cframes, pairs, intr, pose, noise, f_scale, occlusion, config) as searches:
         return _misfit_checks(cframes, pairs, intr, pose, noise, f_scale, occlusion, best_score, config, diag,
                               frames_in, refusal, searches)
 
@@ -424,6 +435,10 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=config.gate_iou)
     px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     f_scale = max(0.5, 1.5 * float(np.median(np.abs(best.residuals)))) if len(best.residuals) else 2.0
+    # the misfit checks' searches start now on the other cores (workers > 1), beside the uncertainty and
+    # the verdict (one worker: they run only when the checks ask for them); closed before returning
+    searches = _misfit_searches(cframes, pairs, intr, pose, best.noise, f_scale, occlusion, config) \
+        if config.misfit_check else None
     unc = estimate_uncertainty(cframes, pairs, intr, pose, best.noise, f_scale, occlusion=occlusion,
                                mode=config.uncertainty, track_ids=_track_ids(frames_in, cframes), seed=config.seed,
                                floor=inflation)
@@ -455,7 +470,9 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):
         # a refusal that a model misfit explains is replaced by the misfit's message (it names the cause)
         refusal = _misfit(cframes, pairs, intr, pose, best.noise, f_scale, occlusion, ref.best_score, config, diag,
-                          frames_in, refusal) or refusal
+                          frames_in, refusal, searches) or refusal
+    if searches is not None:
+        searches.close()  # (not asked for: the searches still running are waited for, the others cancelled)
     if refusal is not None and inflation is not None:
         refusal = Refusal(refusal.code, refusal.message + _selfcal_note(diag))
     diag.refusal = "" if refusal is None else refusal.code
