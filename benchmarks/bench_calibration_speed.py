@@ -58,8 +58,8 @@ OUT = REPO / "benchmarks" / "results" / "calibration_speed.json"
 BASE_COMMIT = base_050()  # 0.5.0 as released: the v0.5.0 tag (= 4d6cc5d)
 CASES = ("a9", "synth20", "synth1000", "dense", "consensus_a9")
 STAGES = ("prepare_frames", "_search", "_refine_candidates", "_choose_box_model", "decide_selfcal",
-          "estimate_uncertainty", "_misfit", "_mirror_score", "_second_pose", "focal_fit", "principal_point_check",
-          "time_offset_check")
+          "estimate_uncertainty", "_misfit", "_mirror_score", "_second_pose", "_lens_check", "focal_fit",
+          "principal_point_check", "time_offset_check")
 
 
 # --------------------------------------------------------------------------- child side
