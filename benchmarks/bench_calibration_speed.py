@@ -28,7 +28,11 @@ stage (CPU seconds and share: search, refinement, misfit checks, uncertainty, ..
 Prints a table and writes ``benchmarks/results/calibration_speed.json``.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration_speed.py \
-        [--cases a9 synth20 synth1000 dense consensus_a9] [--base v0.5.0] [--profile] [--frames-long 1000]
+        [--cases a9 synth20 synth1000 dense consensus_a9] [--base v0.5.0] [--profile] [--frames-long 1000] [--merge]
+
+``--merge`` re-runs only the cases named and replaces their rows in the existing JSON (e.g. the
+``synth1000`` row after frame selection: ``--cases synth1000 --parallel synth1000 --merge``);
+every row records the command that produced it (``rerun``).
 """
 
 from __future__ import annotations
@@ -54,8 +58,8 @@ OUT = REPO / "benchmarks" / "results" / "calibration_speed.json"
 BASE_COMMIT = base_050()  # 0.5.0 as released: the v0.5.0 tag (= 4d6cc5d)
 CASES = ("a9", "synth20", "synth1000", "dense", "consensus_a9")
 STAGES = ("prepare_frames", "_search", "_refine_candidates", "_choose_box_model", "decide_selfcal",
-          "estimate_uncertainty", "_misfit", "_mirror_score", "_second_pose", "focal_fit", "principal_point_check",
-          "time_offset_check")
+          "estimate_uncertainty", "_misfit", "_mirror_score", "_second_pose", "_lens_check", "focal_fit",
+          "principal_point_check", "time_offset_check")
 
 
 # --------------------------------------------------------------------------- child side
@@ -255,6 +259,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--parallel", nargs="*", default=[], choices=CASES,
                     help="cases also run by the current code with workers=2: wall-clock speed-up over workers=1")
+    ap.add_argument("--merge", action="store_true",
+                    help="re-run only --cases (and --parallel) and replace their rows in the existing --out file; the "
+                         "other rows are kept as they are (each row keeps its own command in 'rerun')")
     ap.add_argument("--workers", type=int, default=1, help=argparse.SUPPRESS)
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -297,10 +304,27 @@ def main(argv=None) -> int:
     return 0
 
 
+def merged_rows(old: list[dict], new: list[dict]) -> list[dict]:
+    """``old`` rows with those of the cases in ``new`` replaced (in place of the old row; new cases appended)."""
+    fresh = {r["case"]: r for r in new}
+    out = [fresh.pop(r["case"], r) for r in old]
+    return out + [r for r in new if r["case"] in fresh]
+
+
 def _write(args, argv, rows: list, par: list, t0: float, partial: bool = False) -> None:
+    command = "benchmarks/bench_calibration_speed.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    for r in rows + par:
+        r.setdefault("rerun", command)
     result = {"benchmark": "calibration_speed", "base_commit": args.base, "machine": machine_info(),
-              "command": "benchmarks/bench_calibration_speed.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-              "wall_s": time.perf_counter() - t0, "cases": rows, "parallel": par}
+              "command": command, "wall_s": time.perf_counter() - t0, "cases": rows, "parallel": par}
+    if args.merge and args.out.exists():
+        # only the cases run now are replaced; the file's command stays the full run's (the freshness test re-runs it)
+        prev = json.loads(args.out.read_text())
+        result.update(command=prev.get("command", command), cases=merged_rows(prev.get("cases", []), rows),
+                      parallel=merged_rows(prev.get("parallel", []), par),
+                      merged=prev.get("merged", []) + [{"command": command, "cases": [r["case"] for r in rows + par]}])
+        if partial:  # the file is replaced only once the merge is complete (it keeps the other rows)
+            return
     if partial:
         result["partial"] = True
         args.out.parent.mkdir(parents=True, exist_ok=True)

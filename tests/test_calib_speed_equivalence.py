@@ -155,3 +155,40 @@ def test_centre_hits_equal_broadcast_form(seed):
     want = inside.any(2).sum(1).astype(np.float64)
     got = _centre_hits(fr, intr, R, t, max_elems=(5000, 10**7)[seed % 2])  # chunked and not
     assert 0 < want.max() and np.array_equal(got, want)
+
+
+def _third_members_060(Cs, pq, rng, pair_w, block=1024):  # xcalib 0.6.0, verbatim (argpartition + sort)
+    out = []
+    for s in range(0, len(pq), block):
+        p = pq[s:s + block]
+        both = Cs[p[:, 0]] & Cs[p[:, 1]]
+        keys = np.where(both, rng.random(both.shape), -1.0)
+        if pair_w is not None:
+            keys = np.where(both, keys + pair_w[None, :], -np.inf)
+        k = min(2, keys.shape[1])
+        third = np.argpartition(-keys, k - 1, axis=1)[:, :k]
+        third = np.take_along_axis(third, np.argsort(-np.take_along_axis(keys, third, 1), axis=1, kind="stable"), 1)
+        okr = np.take_along_axis(both, third, 1)
+        out.append(np.column_stack([np.repeat(p, k, axis=0), third.ravel()])[okr.ravel()])
+    return np.concatenate(out) if out else np.zeros((0, 3), dtype=np.int64)
+
+
+@pytest.mark.parametrize("seed", range(16))
+def test_third_members_same_triples_as_060(seed):
+    """``hypotheses._third_members`` (two arg-max passes, issue 29) draws the same third members in
+    the same order as the partition-and-sort of 0.6.0, with and without prior weights, on sparse
+    and dense compatibility (rows with 0, 1 and 2+ compatible members) and blocks of rows."""
+    from xcalib.calib.hypotheses import _third_members
+
+    r = np.random.default_rng(seed)
+    n = int(r.integers(3, 60))
+    C = r.random((n, n)) < (0.05 if seed % 3 == 0 else 0.4)
+    C = C | C.T
+    np.fill_diagonal(C, False)
+    pq = np.argwhere(np.triu(r.random((n, n)) < 0.5, 1))
+    w = r.normal(size=n) if seed % 2 else None
+    got = _third_members(C, pq, np.random.default_rng(seed), w, block=7 if seed % 4 == 1 else 1024)
+    want = _third_members_060(C, pq, np.random.default_rng(seed), w, block=7 if seed % 4 == 1 else 1024)
+    assert got.shape[1] == 3 and got.tobytes() == want.tobytes()
+    if len(got):
+        assert np.all(C[got[:, 0], got[:, 2]] & C[got[:, 1], got[:, 2]])

@@ -83,10 +83,19 @@ def _quick_refine(args) -> tuple[float, RefineResult]:
     return _score(cframes, intr, rr), rr
 
 
+def _full_refine(args) -> tuple[float, RefineResult]:
+    """One finalist's full refinement and its score (a task of ``_refine_candidates``)."""
+    cframes, intr, R, t, occlusion = args
+    rr = refine_pose(cframes, intr, R, t, options=RefineOptions(gates=((0.2, 0.5), (0.3, 0.0), (0.3, 0.0))),
+                     occlusion=occlusion)
+    return _score(cframes, intr, rr), rr
+
+
 def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
                        progress: Progress | None, workers: Workers = 1) -> _Refined:
-    """A quick refinement of every candidate (on up to ``workers`` processes), then a full one of
-    the best and the best distinct runner-up."""
+    """A quick refinement of every candidate, then a full one of the best and the best distinct
+    runner-up (each stage on up to ``workers`` processes; the results, in candidate order, are the
+    same whatever the number)."""
     lean = lean_frames(cframes) if resolve_workers(workers) > 1 else cframes
     quick = parallel_map(_quick_refine, [(lean, intr, cand.R[k], cand.t[k], occlusion) for k in range(len(cand))],
                          workers)
@@ -97,12 +106,9 @@ def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
     best0 = Pose(quick[0][1].R, quick[0][1].t)
     finals = [quick[0]] + [next((x for x in quick[1:] if Pose(x[1].R, x[1].t).distinct(best0, 1.0, 0.3)), None)]
     finals = [f for f in finals if f is not None]
-    refined = []
-    for k, (_, r0) in enumerate(finals):
-        rr = refine_pose(cframes, intr, r0.R, r0.t, options=RefineOptions(gates=((0.2, 0.5), (0.3, 0.0), (0.3, 0.0))),
-                         occlusion=occlusion)
-        refined.append((_score(cframes, intr, rr), rr))
-        if progress:
+    refined = parallel_map(_full_refine, [(lean, intr, r0.R, r0.t, occlusion) for _, r0 in finals], workers)
+    if progress:
+        for k in range(len(finals)):
             progress("refine", len(cand) + k + 1, len(cand) + len(finals))
     refined.sort(key=lambda x: -x[0])
     return _Refined(refined[0][1], refined[0][0], refined[1:])
@@ -269,17 +275,36 @@ def _frame_times(frames_in) -> tuple[np.ndarray, str]:
     return np.arange(len(frames_in), dtype=np.float64), "frames"
 
 
-def _misfit(ctx: FitContext, best_score: float, config: CalibConfig, diag: CalibDiagnostics, frames_in,
-            refusal: Refusal | None = None) -> Refusal | None:
-    """Run the model-misfit checks (``misfit``); the first that flags becomes the refusal. A given
-    focal length the matches cannot check refuses only a pose that ``refusal`` (the verdict's)
-    and every misfit check let through."""
+def _misfit_searches(ctx: FitContext, config: CalibConfig) -> Deferred:
+    """The misfit checks' searches and refits that need no other check (second pose, lens, mirror),
+    started now on up to ``config.workers`` processes, the longest first (the second-pose search on a
+    few frames; the lens refit, numeric derivatives, on long recordings: ~4.5 s of a 200-frame
+    selection's 5.5 s of checks). With one worker each runs here when its result is first asked for,
+    so the serial order of work is unchanged. Close it (or use it as a context manager)."""
     cframes, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
                                                              ctx.f_scale, ctx.occlusion)
     lean, one = lean_frames(cframes), config.replace(workers=1)
-    with Deferred([(_mirror_score, (lean, intr, one, occlusion)), (_second_pose, (lean, pairs, intr, pose, one, occlusion))],
-                  config.workers) as searches:  # (on other cores while the checks below run)
+    places = len(matched_places(cframes, pairs)[0])
+    return Deferred([(_second_pose, (lean, pairs, intr, pose, one, occlusion)),
+                     (_lens_check, (ctx.with_frames(lean), places)),
+                     (_mirror_score, (lean, intr, one, occlusion))], config.workers)
+
+
+def _misfit(ctx: FitContext, best_score: float, config: CalibConfig, diag: CalibDiagnostics, frames_in,
+            refusal: Refusal | None = None, searches: Deferred | None = None) -> Refusal | None:
+    """Run the model-misfit checks (``misfit``); the first that flags becomes the refusal. A given
+    focal length the matches cannot check refuses only a pose that ``refusal`` (the verdict's)
+    and every misfit check let through. ``searches``: ``_misfit_searches`` of these inputs, started
+    earlier by the caller (None: started here, while the other checks run)."""
+    if searches is not None:
         return _misfit_checks(ctx, best_score, config, diag, frames_in, refusal, searches)
+    with _misfit_searches(ctx, config) as searches:
+        return _misfit_checks(ctx, best_score, config, diag, frames_in, refusal, searches)
+
+
+def _lens_check(ctx: FitContext, places: int):
+    """``misfit.lens_check`` (a task of ``_misfit``'s deferred calls)."""
+    return lens_check(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, ctx.f_scale, ctx.occlusion, places=places)
 
 
 def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag: CalibDiagnostics, frames_in,
@@ -288,7 +313,7 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
                                                              ctx.f_scale, ctx.occlusion)
     found = []
     # a mirrored image first: it also bends the focal / principal-point fits, but is the cause to name
-    flipped_score, flipped_matched = searches.result(0)
+    flipped_score, flipped_matched = searches.result(2)
     need = max(config.min_pairs, 3, int(np.ceil(config.min_explained * sum(f.n2 for f in cframes))))
     chk, msg = mirror_check(best_score, flipped_score, pose, (flipped_matched, need))
     found.append((chk, msg, "misfit_mirrored"))
@@ -296,7 +321,7 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
     found.append((chk, msg, "misfit_mixed_cameras"))
     places = len(matched_places(cframes, pairs)[0])
     # a fisheye given as pinhole bends the focal / principal-point fits too: the lens is the cause to name
-    chk, msg = lens_check(cframes, pairs, intr, pose, noise, f_scale, occlusion, places=places)
+    chk, msg = searches.result(1)
     found.append((chk, msg, "misfit_lens"))
     width = None
     if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
@@ -322,7 +347,7 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
         found.append((chk, msg, "misfit_principal_point"))
     if time_chk is not None:
         found.append((*time_chk, "misfit_time_offset"))
-    chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)), *searches.result(1))
+    chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)), *searches.result(0))
     found.append((chk, msg, "misfit_mixed_cameras"))
     diag.misfit = diag.misfit + [c for c, _, _ in found] + ([] if width is None else [width[0]])
     named = next((Refusal(code, m) for _, m, code in found if m), None)  # a misfit names the cause first
@@ -411,7 +436,11 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=config.gate_iou)
     px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     f_scale = max(0.5, 1.5 * float(np.median(np.abs(best.residuals)))) if len(best.residuals) else 2.0
-    unc = estimate_uncertainty(FitContext(cframes, pairs, intr, pose, best.noise, f_scale, occlusion),
+    fit = FitContext(cframes, pairs, intr, pose, best.noise, f_scale, occlusion)
+    # the misfit checks' searches start now on the other cores (workers > 1), beside the uncertainty and
+    # the verdict (one worker: they run only when the checks ask for them); closed before returning
+    searches = _misfit_searches(fit, config) if config.misfit_check else None
+    unc = estimate_uncertainty(fit,
                                mode=config.uncertainty, track_ids=_track_ids(frames_in, cframes), seed=config.seed,
                                floor=inflation)
     diag.uncertainty = unc.parts  # its selfcal part: the pose spread the estimated intrinsics / offset add
@@ -441,8 +470,9 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         refusal = crowded_check(cframes, config)
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):
         # a refusal that a model misfit explains is replaced by the misfit's message (it names the cause)
-        refusal = _misfit(FitContext(cframes, pairs, intr, pose, best.noise, f_scale, occlusion), ref.best_score,
-                          config, diag, frames_in, refusal) or refusal
+        refusal = _misfit(fit, ref.best_score, config, diag, frames_in, refusal, searches) or refusal
+    if searches is not None:
+        searches.close()  # (not asked for: the searches still running are waited for, the others cancelled)
     if refusal is not None and inflation is not None:
         refusal = Refusal(refusal.code, refusal.message + _selfcal_note(diag))
     diag.refusal = "" if refusal is None else refusal.code

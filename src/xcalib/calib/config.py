@@ -195,7 +195,8 @@ class CalibConfig:
             is used (no selection). None: always every frame.
     Speed:
         workers: processes for the independent parts of one calibration (the quick refinement of
-            each candidate, the mirrored-image and second-pose searches of the misfit checks):
+            each candidate, the full one of the two finalists, the second-pose search, lens refit
+            and mirrored-image search of the misfit checks):
             "auto" (the CPUs this process may use; 1 inside a worker of a pool, e.g. a batch of
             calibrations) or an int >= 1. The result is the same for every value.
     seed: seeds every random choice.

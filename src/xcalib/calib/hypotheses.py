@@ -313,11 +313,23 @@ def _third_members(Cs: np.ndarray, pq: np.ndarray, rng: np.random.Generator, pai
         if pair_w is not None:
             keys = np.where(both, keys + pair_w[None, :], -np.inf)
         k = min(2, keys.shape[1])
-        third = np.argpartition(-keys, k - 1, axis=1)[:, :k]
-        third = np.take_along_axis(third, np.argsort(-np.take_along_axis(keys, third, 1), axis=1, kind="stable"), 1)
+        third = _top2(keys) if k == 2 else keys.argmax(1)[:, None]  # the best key first
         okr = np.take_along_axis(both, third, 1)
+        if k == 2:  # (a row whose keys are all -inf but one: no second member)
+            okr[:, 1] &= third[:, 1] != third[:, 0]
         out.append(np.column_stack([np.repeat(p, k, axis=0), third.ravel()])[okr.ravel()])
     return np.concatenate(out) if out else np.zeros((0, 3), dtype=np.int64)
+
+
+def _top2(keys: np.ndarray) -> np.ndarray:
+    """Columns [n,2] of the largest and the second largest key of each row (``keys`` [n,>=2] is
+    overwritten). Two arg-max passes instead of a partition and a sort of the two: the same columns
+    wherever the two keys differ from the rest (ties only among incompatible members, which are
+    dropped). A row whose other keys are all -inf gives its largest twice."""
+    rows = np.arange(len(keys))
+    first = keys.argmax(1)
+    keys[rows, first] = -np.inf
+    return np.column_stack([first, keys.argmax(1)])
 
 
 def _triple_poses(c: _Candidates, rng: np.random.Generator, max_triples: int, min_altitude_m: float,
