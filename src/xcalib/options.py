@@ -187,12 +187,13 @@ def _default(f: dataclasses.Field) -> Any:
 
 
 def document(*records: type, positional: Sequence[str] = (), skip: Iterable[str] = (),
-             extra: Sequence[inspect.Parameter] = ()) -> Callable[[Callable], Callable]:
+             extra: Sequence[inspect.Parameter] = (), keep_kwargs: bool = False) -> Callable[[Callable], Callable]:
     """Decorator: ``fn``'s signature for ``help()`` / ``inspect.signature`` lists the fields of
     ``records`` as parameters with the records' defaults, in place of ``*args`` (``positional``:
     the fields that may also be given by position, in that order) and ``**overrides`` (the others,
     keyword-only). ``skip``: fields not offered by keyword; ``extra``: more keyword-only parameters
-    (accepted through ``**overrides`` but not fields of a record). The function itself is
+    (accepted through ``**overrides`` but not fields of a record); ``keep_kwargs``: ``**overrides``
+    stays in the signature (it takes more names than the records'). The function itself is
     unchanged: it still takes the record and ``**overrides``."""
     skip = set(skip)
 
@@ -213,6 +214,8 @@ def document(*records: type, positional: Sequence[str] = (), skip: Iterable[str]
         kw_names = {p.name for p in kw}
         own = [p for p in after if p.name not in kw_names]  # the function's own keyword-only parameters
         params = before + pos + [p for p in own if p.name != "options"] + kw + [p for p in own if p.name == "options"]
+        if keep_kwargs:
+            params += [p for p in sig.parameters.values() if p.kind is p.VAR_KEYWORD]
         fn.__signature__ = sig.replace(parameters=params)  # type: ignore[attr-defined]
         return fn
 

@@ -130,7 +130,7 @@ class SiteWriteOptions(Options):
     overwrite: bool = False
 
 
-@document(SiteWriteOptions, SiteConfig, skip=("preset",))
+@document(SiteWriteOptions, keep_kwargs=True)
 def write_site(out_dir, n_train: int, n_val: int, n_test: int, seed: int = 0, preset: str = "roadside", *,
                options: SiteWriteOptions | None = None, **overrides: Any) -> Path:
     """Write ``train.h5``, ``val.h5``, ``test.h5`` (with /calibration) and ``site.json`` to ``out_dir``.
