@@ -57,12 +57,8 @@ def _ok(value: Any, tp: Any) -> bool | None:
         return value in get_args(tp)
     if tp is type(None):
         return value is None
-    if tp is bool:
-        return isinstance(value, (bool,)) or type(value).__name__ == "bool_"
-    if tp is int:
-        return isinstance(value, numbers.Integral) and not isinstance(value, bool)
-    if tp is float:
-        return isinstance(value, numbers.Real) and not isinstance(value, bool)
+    if tp in _SIMPLE:
+        return _SIMPLE[tp](value)
     if tp is str:
         return isinstance(value, str)
     if tp is os.PathLike or (isinstance(tp, type) and issubclass(tp, os.PathLike)):
@@ -78,21 +74,65 @@ def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
 
 
+_CHECKS: dict[type, list[tuple[str, Any, Callable[[Any], bool | None]]]] = {}
+def _is_int(v: Any) -> bool:
+    return type(v) is int or (isinstance(v, numbers.Integral) and not isinstance(v, bool))
+
+
+def _is_float(v: Any) -> bool:
+    return type(v) in (float, int) or (isinstance(v, numbers.Real) and not isinstance(v, bool))
+
+
+def _is_bool(v: Any) -> bool:
+    return isinstance(v, bool) or type(v).__name__ == "bool_"
+
+
+_SIMPLE = {int: _is_int, float: _is_float, bool: _is_bool}
+
+
+def _compile(tp: Any) -> Callable[[Any], bool | None]:
+    """A fast :func:`_ok` for ``tp`` where it is a union of str / int / float / bool / None."""
+    parts = get_args(tp) if (get_origin(tp) is Union or (hasattr(types, "UnionType")
+                                                         and isinstance(tp, types.UnionType))) else (tp,)
+    if not all(p in (str, type(None)) or p in _SIMPLE for p in parts):
+        return lambda v: _ok(v, tp)
+    plain = tuple(p for p in parts if p in (str, type(None)))
+    preds = tuple(_SIMPLE[p] for p in parts if p in _SIMPLE)
+    return lambda v: isinstance(v, plain) or any(f(v) for f in preds)
+
+
+def _checks(cls: type) -> list[tuple[str, Any, Callable[[Any], bool | None]]]:
+    """(field, annotation, predicate) of the fields of ``cls`` whose annotation is checked (cached)."""
+    out = _CHECKS.get(cls)
+    if out is None:
+        hints = _hints(cls)
+        out = []
+        for f in dataclasses.fields(cls):
+            tp = hints.get(f.name)
+            if tp is not None and _ok(_NEVER, tp) is False:  # else no value is ever refused: not checked
+                out.append((f.name, tp, _compile(tp)))
+        _CHECKS[cls] = out
+    return out
+
+
+class _Never:
+    """A value no checked annotation accepts."""
+
+
+_NEVER = _Never()
+
+
 def check_field_types(record: Any, where: str | None = None) -> None:
     """TypeError (ValueError for a ``Literal`` value not among its choices) naming the first field
     of dataclass ``record`` whose value does not fit its annotation."""
-    hints = _hints(type(record))
-    for f in dataclasses.fields(record):
-        tp = hints.get(f.name)
-        if tp is None:
-            continue
-        value = getattr(record, f.name)
-        if _ok(value, tp) is False:
+    for name, tp, ok in _checks(type(record)):
+        value = getattr(record, name)
+        if ok(value) is False:
             who = where or type(record).__name__
             choices = _choices(tp)
             if choices and isinstance(value, str):
-                raise ValueError(f"{who}: {f.name} must be one of {choices}, got {value!r}")
-            raise TypeError(f"{who}: {f.name} must be {_type_name(tp)}, got {type(value).__name__} {value!r}")
+                raise ValueError(f"{who}: {name} must be one of {choices}, got {value!r}")
+            raise TypeError(f"{who}: {name} must be {_type_name(tp)}, got {type(value).__name__} {value!r}")
 
 
 def _choices(tp: Any) -> list[Any]:
@@ -121,6 +161,16 @@ class Options:
         return tuple(f.name for f in dataclasses.fields(cls))
 
 
+_NAMES: dict[type, frozenset[str]] = {}
+
+
+def _names(cls: type) -> frozenset[str]:
+    got = _NAMES.get(cls)
+    if got is None:
+        got = _NAMES[cls] = frozenset(f.name for f in dataclasses.fields(cls))
+    return got
+
+
 def _unknown(where: str, name: str, accepted: Iterable[str]) -> TypeError:
     accepted = sorted(accepted)
     close = difflib.get_close_matches(name, accepted, n=1)
@@ -137,7 +187,7 @@ def resolve(cls: type[R], base: R | None, overrides: Mapping[str, Any], *, where
     where = where or cls.__name__
     if base is not None and not isinstance(base, cls):
         raise TypeError(f"{where}: options must be a {cls.__name__}, got {type(base).__name__}")
-    names = {f.name for f in dataclasses.fields(cls)}
+    names = _names(cls)
     for k in overrides:
         if k not in names:
             raise _unknown(where, k, names)
@@ -166,7 +216,7 @@ def split_overrides(overrides: Mapping[str, Any], groups: Sequence[type | Iterab
                     where: str) -> list[dict[str, Any]]:
     """``overrides`` split by ``groups`` (a dataclass: its field names; else an iterable of names);
     a name in none of them is a TypeError naming it and every accepted name."""
-    sets = [{f.name for f in dataclasses.fields(g)} if dataclasses.is_dataclass(g) else set(g) for g in groups]
+    sets = [g if isinstance(g, frozenset) else _names(g) if isinstance(g, type) else frozenset(g) for g in groups]
     out: list[dict[str, Any]] = [{} for _ in sets]
     for k, v in overrides.items():
         for s, d in zip(sets, out):

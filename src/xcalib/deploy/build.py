@@ -201,7 +201,7 @@ class BuildOptions(Options):
     extra_trt_args: Sequence[str] = ()
     envelope: Any = None
     timeout_s: float | None = None
-    device: str | None = None
+    device: Any = None  # accepted for the reference (graphs are traced on a CPU copy)
     site_folder: bool = False
     overwrite: bool = True
 

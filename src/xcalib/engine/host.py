@@ -80,6 +80,7 @@ class MatchOptions(Options):
 MATCH_POSITIONAL = ("top_k", "match_threshold", "return_latency", "validate")
 #: ``match``'s keyword arguments that are frame inputs, not options (fields of :class:`MatchInputs`)
 MATCH_FRAME_EXTRAS = ("images", "camera_per_det", "box7", "intrinsics")
+_FRAME_EXTRAS = frozenset(MATCH_FRAME_EXTRAS)
 #: the same as parameters (``help()`` / ``inspect.signature`` of ``match``)
 MATCH_FRAME_PARAMS = tuple(inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=None)
                            for n in MATCH_FRAME_EXTRAS)
@@ -92,7 +93,7 @@ def match_request(arrays: tuple, args: tuple, options: MatchOptions | None,
     is a frame input (:data:`MATCH_FRAME_EXTRAS`) or a :class:`MatchOptions` field; any other
     name is a TypeError naming it and the accepted ones."""
     kw = bind_positional(MATCH_POSITIONAL, args, overrides, "match")
-    extras, opts = split_overrides(kw, [MATCH_FRAME_EXTRAS, MatchOptions], "match")
+    extras, opts = split_overrides(kw, [_FRAME_EXTRAS, MatchOptions], "match")
     return MatchInputs(*arrays, **extras), resolve(MatchOptions, options, opts, where="match")
 
 

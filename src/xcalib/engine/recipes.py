@@ -75,7 +75,7 @@ class TrainOptions(Options):
     stage2_weight: float | None = None
     weights: str | Path | None = None
     output_dir: str | Path = "runs/train"
-    device: str = "auto"
+    device: Any = "auto"  # str ("auto", "cpu", "cuda:0") or torch.device
     seed: int = 42
     limit_train_frames: int | None = None
     limit_val_frames: int | None = None

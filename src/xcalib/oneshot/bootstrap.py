@@ -116,7 +116,7 @@ class BootstrapOptions(Options):
     holdout: float = HELDOUT_SHARE
     install: bool = True
     out_dir: str | Path | None = None
-    device: str | None = "cpu"
+    device: Any = "cpu"  # str or torch.device; None: the default
     seed: int = 0
     calib_config: CalibConfig | None = None
     on_frame: Callable[[int, object], None] | None = None
