@@ -75,6 +75,8 @@ def _type_name(tp: Any) -> str:
 
 
 _CHECKS: dict[type, list[tuple[str, Any, Callable[[Any], bool | None]]]] = {}
+
+
 def _is_int(v: Any) -> bool:
     return type(v) is int or (isinstance(v, numbers.Integral) and not isinstance(v, bool))
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..data.crops import CropConfig, FrameInputs, prepare_frame
 from ..engine.fusion import FUSION_WEIGHT, GEO_EPS
-from ..engine.host import (MATCH_FRAME_PARAMS, MATCH_POSITIONAL, MatchInputs, MatchOptions, frame_match_args,
+from ..engine.host import (MATCH_FRAME_PARAMS, MATCH_POSITIONAL, MatchOptions, frame_match_args,
                            match_request, run_match)
 from ..options import document
 from ..protocol import WarningRegistry
