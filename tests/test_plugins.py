@@ -74,6 +74,43 @@ def test_xcalib_declares_its_own_extensions():
     assert "xcalib.cost_terms" in GROUPS
 
 
+def test_the_built_in_fallback_declares_what_pyproject_declares():
+    """``plugins.BUILTIN`` (used when xcalib's package metadata is not installed, e.g. a source tree on
+    sys.path) and the ``[project.entry-points]`` of pyproject.toml name the same built-ins."""
+    import tomllib
+
+    from xcalib.plugins import BUILTIN
+
+    declared = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"]
+    declared = declared["entry-points"]
+    assert {"xcalib.formats", "xcalib.models"} <= set(BUILTIN) & set(declared)
+    for group, table in BUILTIN.items():
+        assert declared.get(group) == table, group
+
+
+def test_built_in_formats_and_models_are_discovered_like_plugins(monkeypatch):
+    """With no package metadata at all (as in a checkout whose install predates the declarations),
+    the built-in formats and models still come through the entry-point registry, from the fallback."""
+    from importlib import metadata
+
+    from xcalib.formats import export
+    from xcalib.plugins import load
+
+    monkeypatch.setattr(metadata, "entry_points", lambda **kw: [])
+    found = {e.name: e for e in entries("xcalib.formats")}
+    assert list(found)[:len(export.FORMATS)] == list(export.FORMATS)
+    assert all(found[n].dist == "xcalib" and load(found[n]) is f for n, f in export.FORMATS.items())
+    assert export.calib_formats() == export.FORMATS and export.format_names(writable=True)[0] == "kitti"
+    pytest.importorskip("torch")
+    from xcalib.models import list_models
+    from xcalib.models.registry import model_class
+
+    models = {e.name: e for e in entries("xcalib.models")}
+    assert {"fastmatch", "crlite", "crlite_2dpe", "calibrefine", "crlite_vit_exp1", "crlite_vit_exp3",
+            "crlite_vit_exp4"} == set(models) and set(models) <= set(list_models())
+    assert all(load(e) is model_class(n) for n, e in models.items())
+
+
 def test_a_third_party_source_and_command_need_no_edit_to_xcalib(tmp_path):
     root = _package(tmp_path / "site", "xcalib_demo_plugin", {"csvdets_src": SOURCE, "hello_cmd": COMMAND}, """
         [xcalib.sources]

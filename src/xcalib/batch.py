@@ -32,15 +32,16 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
 from .calib.config import CalibConfig
 from .errors import FormatError
 from .io.files import atomic_write, inside, read_text, safe_name
+from .options import Options, document, resolve
 
-__all__ = ["BatchRecord", "BatchSummary", "calibrate_many", "expand_recordings", "write_tables", "Executor",
+__all__ = ["BatchRecord", "BatchSummary", "BatchOptions", "calibrate_many", "expand_recordings", "write_tables", "Executor",
            "LIST_SUFFIXES"]
 
 Executor = Literal["process", "ray", "serial"]
@@ -328,17 +329,33 @@ def _html(records: list[BatchRecord], meta: dict) -> str:
 
 # ------------------------------------------------------------------------------ the batch
 
-def calibrate_many(recordings, out_dir, *, config: CalibConfig | None = None, executor: Executor = "process",
-                   jobs: int | None = None, camera: str | None = None, intrinsics: str | os.PathLike | None = None,
-                   ray_address: str | None = None,
-                   progress: Callable[[int, int, BatchRecord], None] | None = None) -> BatchSummary:
+@dataclass(frozen=True)
+class BatchOptions(Options):
+    """How :func:`calibrate_many` runs (the defaults in one place; it documents each): executor
+    ("process" | "ray" | "serial"), jobs, camera, intrinsics, ray_address, progress."""
+
+    executor: Executor = "process"
+    jobs: int | None = None
+    camera: str | None = None
+    intrinsics: str | os.PathLike | None = None
+    ray_address: str | None = None
+    progress: Callable[[int, int, BatchRecord], None] | None = None
+
+
+@document(BatchOptions)
+def calibrate_many(recordings, out_dir, *, config: CalibConfig | None = None, options: BatchOptions | None = None,
+                   **overrides: Any) -> BatchSummary:
     """Calibrate every recording (paths / globs / folders / list files, see ``expand_recordings``)
     on ``executor`` and write the per-recording results and the tables under ``out_dir``.
 
     ``jobs``: worker processes of the local pool or CPUs of a local Ray instance (default: the
     CPUs). ``camera`` / ``intrinsics``: the camera to calibrate and an intrinsics JSON for every
     recording (default: each source's own). ``progress(done, total, record)`` after each one.
+    These settings: a :class:`BatchOptions` (``options=``) and/or its fields as keyword arguments.
     """
+    o = resolve(BatchOptions, options, overrides, where="calibrate_many")
+    executor, jobs, camera, intrinsics, ray_address, progress = o.executor, o.jobs, o.camera, o.intrinsics, \
+        o.ray_address, o.progress
     from .calib.parallel import available_cpus
 
     if executor not in ("process", "ray", "serial"):

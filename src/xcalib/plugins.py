@@ -39,6 +39,13 @@ BUILTIN: dict[str, dict[str, str]] = {
     "xcalib.commands": {n: f"xcalib.cli.{n.replace('-', '_')}_cmd" for n in (
         "demo", "match", "calibrate", "calibrate-many", "detect", "bootstrap", "train", "validate", "export", "synth", "cache", "convert",
         "bag", "monitor", "version", "reference")},
+    "xcalib.formats": {n: f"xcalib.formats.export:{n.upper()}" for n in (
+        "kitti", "calib_json", "lucid", "calib_txt", "opencalib", "openlabel", "ros", "urdf", "tf_static", "nuscenes",
+        "json", "npz", "waymo")},
+    "xcalib.models": {"calibrefine": "xcalib.models.calibrefine:CalibRefine", "crlite": "xcalib.models.crlite:CRLite",
+                      "crlite_2dpe": "xcalib.models.crlite:CRLite2DPE", "crlite_vit_exp1": "xcalib.models.vit_models:ViTExp1",
+                      "crlite_vit_exp3": "xcalib.models.vit_models:ViTExp3",
+                      "crlite_vit_exp4": "xcalib.models.vit_models:ViTExp4", "fastmatch": "xcalib.models.fastmatch:FastMatch"},
     "xcalib.cost_terms": {"box_edges": "xcalib.calib.refine:box_edges",
                           **{n: f"xcalib.calib.terms:{n}" for n in ("pose_prior", "focal_scale", "principal_point",
                                                                    "time_offset")}},

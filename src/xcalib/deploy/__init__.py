@@ -12,6 +12,7 @@ import importlib
 _LAZY = {
     "BuildResult": "xcalib.deploy.build",
     "build": "xcalib.deploy.build",
+    "BuildOptions": "xcalib.deploy.build",
     "OnnxMatcher": "xcalib.deploy.ort_runtime",
     "load_onnx": "xcalib.deploy.ort_runtime",
     "Envelope": "xcalib.deploy.chunking",

@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import hashlib
 import logging
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import torch
@@ -30,8 +31,9 @@ from .manifest import MANIFEST, Manifest, folder_name, read_manifest, write_mani
 from .onnx_export import EXPORTER, OPSET, cpu_copy, export_plan, make_plan, run_torch
 from .onnx_feeds import frame_feeds, pair_feeds
 from .result import PARITY_TOLERANCE, BuildResult
+from ..options import Options, document, resolve
 
-__all__ = ["BuildResult", "build", "state_hash", "random_inputs", "synthetic_inputs", "resolve_site",
+__all__ = ["BuildResult", "BuildOptions", "build", "state_hash", "random_inputs", "synthetic_inputs", "resolve_site",
            "PARITY_TOLERANCE"]
 
 log = logging.getLogger("xcalib.deploy")
@@ -182,12 +184,31 @@ def _refuse_existing(folder: Path) -> None:
         raise FileExistsError(f"{folder} already exists; pass --force to replace it")
 
 
-def build(matcher, target: str = "onnx", output_dir: str | Path | None = None, *, site: str | None = None,
-          allow_random: bool = False, verify: bool = True, opset: int = OPSET,
-          parity_tolerance: float = PARITY_TOLERANCE, precision: str = "fp16", onnx_dir: str | Path | None = None,
-          trtexec: str | Path | None = None, extra_trt_args: Sequence[str] = (), envelope=None,
-          timeout_s: float | None = None, device: str | None = None, site_folder: bool = False,
-          overwrite: bool = True) -> BuildResult:
+@dataclass(frozen=True)
+class BuildOptions(Options):
+    """The settings of :func:`build` (the defaults in one place; ``build`` documents each): site,
+    allow_random, verify, opset, parity_tolerance, precision, onnx_dir, trtexec, extra_trt_args,
+    envelope, timeout_s, device, site_folder, overwrite."""
+
+    site: str | None = None
+    allow_random: bool = False
+    verify: bool = True
+    opset: int = OPSET
+    parity_tolerance: float = PARITY_TOLERANCE
+    precision: str = "fp16"
+    onnx_dir: str | Path | None = None
+    trtexec: str | Path | None = None
+    extra_trt_args: Sequence[str] = ()
+    envelope: Any = None
+    timeout_s: float | None = None
+    device: Any = None  # accepted for the reference (graphs are traced on a CPU copy)
+    site_folder: bool = False
+    overwrite: bool = True
+
+
+@document(BuildOptions)
+def build(matcher, target: str = "onnx", output_dir: str | Path | None = None, *, options: BuildOptions | None = None,
+          **overrides: Any) -> BuildResult:
     """Export ``matcher`` (see module docstring). ``target``: "onnx" or "trt" ("tensorrt",
     "engine"). The files go to ``output_dir`` (default ``./onnx/<model>/`` for ONNX,
     ``./engines/<model>/`` for TRT, as the reference), or with ``site_folder`` to
@@ -198,7 +219,14 @@ def build(matcher, target: str = "onnx", output_dir: str | Path | None = None, *
     ``allow_random``. TRT: ``onnx_dir`` = an existing export folder to build from (it must match
     model, site and weights); otherwise the graphs are exported (or reused when current) into
     the engine folder. ``precision`` "fp32" | "fp16" | "int8" | "best". ``overwrite=False``
-    refuses a target folder that exists and is not empty (FileExistsError)."""
+    refuses a target folder that exists and is not empty (FileExistsError). The settings: a
+    :class:`BuildOptions` (``options=``) and/or its fields as keyword arguments."""
+    o = resolve(BuildOptions, options, overrides, where="build")
+    site, allow_random, verify, opset, parity_tolerance, precision = o.site, o.allow_random, o.verify, o.opset, \
+        o.parity_tolerance, o.precision
+    onnx_dir, trtexec, extra_trt_args, envelope, timeout_s = o.onnx_dir, o.trtexec, o.extra_trt_args, o.envelope, \
+        o.timeout_s
+    site_folder, overwrite = o.site_folder, o.overwrite
     t = str(target).lower()
     if t != "onnx" and t not in TRT_TARGETS:
         raise ValueError(f"target must be 'onnx' or one of {TRT_TARGETS}, got {target!r}")

@@ -27,7 +27,9 @@ import numpy as np
 
 from ..data.crops import CropConfig, FrameInputs, prepare_frame
 from ..engine.fusion import FUSION_WEIGHT, GEO_EPS
-from ..engine.host import MatchInputs, MatchOptions, frame_match_args, run_match
+from ..engine.host import (MATCH_FRAME_PARAMS, MATCH_POSITIONAL, MatchOptions, frame_match_args,
+                           match_request, run_match)
+from ..options import document
 from ..protocol import WarningRegistry
 from ..types import Frame, MatchResult
 from .chunking import PROTOCOL_ENVELOPE, Envelope, run_chunked
@@ -209,15 +211,11 @@ class OnnxMatcher:
         """Numpy model inputs of one frame (same crops as the torch ``Matcher.prepare``)."""
         return prepare_frame(image, point_cloud, bboxes_2d, bboxes_3d, self.crop_config, rng, **multi_camera)
 
-    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float | None = None,
-              return_latency: bool = False, validate: str = "warn", *, assignment: str = "argmax", images=None,
-              camera_per_det=None, use_calibration: str | bool = "auto", box7=None, intrinsics=None,
-              geometry: str = "auto") -> MatchResult:
+    @document(MatchOptions, positional=MATCH_POSITIONAL, extra=MATCH_FRAME_PARAMS)
+    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, *args: Any, options: MatchOptions | None = None,
+              **overrides: Any) -> MatchResult:
         """Match one frame (see ``Matcher.match``). ``latency_ms`` = crop + graphs + host scoring."""
-        return run_match(self, MatchInputs(image, point_cloud, bboxes_2d, bboxes_3d, images, camera_per_det, box7,
-                                           intrinsics),
-                         MatchOptions(top_k, match_threshold, validate, assignment, use_calibration, geometry,
-                                      return_latency),
+        return run_match(self, *match_request((image, point_cloud, bboxes_2d, bboxes_3d), args, options, overrides),
                          score_range=self.score_range,
                          fill_value=self.fill_value)
 

@@ -4,6 +4,7 @@ the ``match`` / ``match_frame`` bodies themselves (:func:`run_match`, :func:`fra
 
 from __future__ import annotations
 
+import inspect
 import logging
 import time
 from dataclasses import dataclass
@@ -12,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..geometry.boxes import center_size_to_extents
+from ..options import Options, bind_positional, resolve, split_overrides
 from ..protocol import WarningRegistry, check_validate_mode, enforce, validate_frame_inputs
 from ..types import Frame, MatchResult
 from .assign import ASSIGNMENTS, assign  # noqa: F401  (re-exported: the matchers import them from here)
@@ -20,7 +22,7 @@ from .domain import (BOOTSTRAP_HINT, SHIPPED_SITES, check_geometry_mode, geometr
 from .fusion import fuse_scores, geometric_iou, is_multi_camera, resolve_use_calibration
 
 __all__ = ["ASSIGNMENTS", "assign", "validate_match_inputs", "run_match", "frame_match_args", "MatchInputs",
-           "MatchOptions"]
+           "MatchOptions", "match_request", "MATCH_POSITIONAL", "MATCH_FRAME_EXTRAS", "MATCH_FRAME_PARAMS"]
 
 log = logging.getLogger("xcalib.matcher")
 
@@ -58,10 +60,12 @@ class MatchInputs:
 
 
 @dataclass(frozen=True)
-class MatchOptions:
+class MatchOptions(Options):
     """How ``match`` turns a frame into matches, the same for the torch and the ONNX Runtime matcher
     (``Matcher.match`` / ``OnnxMatcher.match`` document each): ``top_k``, ``match_threshold`` (None:
-    the site's), ``validate``, ``assignment``, ``use_calibration``, ``geometry``, ``return_latency``."""
+    the site's), ``validate``, ``assignment``, ``use_calibration``, ``geometry``, ``return_latency``.
+    The defaults here are the only ones: ``match`` takes this record (``options=``) and/or its fields
+    as keyword arguments (the first four also by position, the reference's order)."""
 
     top_k: int = 1
     match_threshold: float | None = None
@@ -70,6 +74,27 @@ class MatchOptions:
     use_calibration: str | bool = "auto"
     geometry: str = "auto"
     return_latency: bool = False
+
+
+#: ``match``'s optional positional parameters after the four arrays, in the reference's order
+MATCH_POSITIONAL = ("top_k", "match_threshold", "return_latency", "validate")
+#: ``match``'s keyword arguments that are frame inputs, not options (fields of :class:`MatchInputs`)
+MATCH_FRAME_EXTRAS = ("images", "camera_per_det", "box7", "intrinsics")
+_FRAME_EXTRAS = frozenset(MATCH_FRAME_EXTRAS)
+#: the same as parameters (``help()`` / ``inspect.signature`` of ``match``)
+MATCH_FRAME_PARAMS = tuple(inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=None)
+                           for n in MATCH_FRAME_EXTRAS)
+
+
+def match_request(arrays: tuple, args: tuple, options: MatchOptions | None,
+                  overrides: dict[str, Any]) -> tuple[MatchInputs, MatchOptions]:
+    """The (frame, options) of a ``match(image, point_cloud, bboxes_2d, bboxes_3d, *args,
+    options=None, **overrides)`` call: ``args`` are :data:`MATCH_POSITIONAL` in order; a keyword
+    is a frame input (:data:`MATCH_FRAME_EXTRAS`) or a :class:`MatchOptions` field; any other
+    name is a TypeError naming it and the accepted ones."""
+    kw = bind_positional(MATCH_POSITIONAL, args, overrides, "match")
+    extras, opts = split_overrides(kw, [_FRAME_EXTRAS, MatchOptions], "match")
+    return MatchInputs(*arrays, **extras), resolve(MatchOptions, options, opts, where="match")
 
 
 def run_match(m, frame: MatchInputs, options: MatchOptions, *, score_range, fill_value: float | None) -> MatchResult:

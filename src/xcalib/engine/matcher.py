@@ -32,8 +32,9 @@ import torch
 from ..data.crops import CropConfig, FrameInputs, prepare_frame
 from ..protocol import WarningRegistry
 from ..types import DatasetFrame, Frame, MatchResult, as_frame
-from .host import (MatchInputs, MatchOptions, assign, frame_match_args, run_match,  # torch-free, shared with ONNX Runtime
-                   validate_match_inputs)
+from .host import (MATCH_FRAME_PARAMS, MATCH_POSITIONAL, MatchInputs, MatchOptions,  # noqa: F401 - torch-free,
+                   assign, frame_match_args, match_request, run_match, validate_match_inputs)  # shared with ONNX Runtime
+from ..options import document
 from .domain import BOOTSTRAP_HINT
 from .fusion import FUSION_WEIGHT, GEO_EPS
 from ..errors import FormatError
@@ -282,10 +283,9 @@ class Matcher:
         validate_match_inputs(image, point_cloud, bboxes_2d, bboxes_3d, mode,
                               bbox_expansion=self.crop_config.bbox_expansion, registry=self.warning_registry)
 
-    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, top_k: int = 1, match_threshold: float | None = None,
-              return_latency: bool = False, validate: str = "warn", *, assignment: str = "argmax", images=None,
-              camera_per_det=None, use_calibration: str | bool = "auto", box7=None, intrinsics=None,
-              geometry: str = "auto") -> MatchResult:
+    @document(MatchOptions, positional=MATCH_POSITIONAL, extra=MATCH_FRAME_PARAMS)
+    def match(self, image, point_cloud, bboxes_2d, bboxes_3d, *args: Any, options: MatchOptions | None = None,
+              **overrides: Any) -> MatchResult:
         """Match one frame (the reference's positional order). ``latency_ms`` = crop + model (+
         projection and fusion) wall time (validation excluded), or the model's forward alone with
         ``return_latency=True``. ``use_calibration``: "auto" fuses the model's scores with the
@@ -297,10 +297,7 @@ class Matcher:
         never; ``intrinsics`` (``CameraIntrinsics`` or 3x3 K) help it, else they are searched.
         ``match_threshold`` None: the site's threshold (chosen label-free by ``xcalib bootstrap``,
         saved in the model config as ``match_threshold``), else 0."""
-        return run_match(self, MatchInputs(image, point_cloud, bboxes_2d, bboxes_3d, images, camera_per_det, box7,
-                                           intrinsics),
-                         MatchOptions(top_k, match_threshold, validate, assignment, use_calibration, geometry,
-                                      return_latency),
+        return run_match(self, *match_request((image, point_cloud, bboxes_2d, bboxes_3d), args, options, overrides),
                          score_range=getattr(self.model, "score_range", (-1.0, 1.0)),
                          fill_value=getattr(self.model, "fill_value", None))
 

@@ -31,7 +31,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 import torch
@@ -40,13 +40,14 @@ import torch.distributed as dist
 from ..data.crops import CropConfig, FrameInputs, crop_images, crop_points, gather_box_points, resample_points
 from ..types import Frame, as_frame
 from ..io.files import atomic_write
+from ..options import document, resolve
 from .checkpoint import (WeightsMismatchError, checksum_path, load_resume_state, load_state_strict, read_checkpoint,
                          save_resume_state, save_weights, write_config)
 from .fit import Schedule, fit, make_optimizer
-from .recipes import REFERENCE_RECIPE, XCALIB_RECIPE, Recipe  # noqa: F401 - re-exported
+from .recipes import REFERENCE_RECIPE, XCALIB_RECIPE, Recipe, TrainOptions  # noqa: F401 - re-exported
 from .metrics import MatchingMetrics, MetricsAccumulator
 
-__all__ = ["train", "finetune", "Recipe", "REFERENCE_RECIPE", "XCALIB_RECIPE", "shutdown_distributed", "TrainSample", "prepare_samples", "matching_loss", "evaluate", "load_frames"]
+__all__ = ["train", "finetune", "Recipe", "TrainOptions", "REFERENCE_RECIPE", "XCALIB_RECIPE", "shutdown_distributed", "TrainSample", "prepare_samples", "matching_loss", "evaluate", "load_frames"]
 
 log = logging.getLogger("xcalib.train")
 
@@ -237,9 +238,6 @@ def _allreduce(x: np.ndarray) -> np.ndarray:
     return t.numpy()
 
 
-_R = REFERENCE_RECIPE
-
-
 def _site_config(model: str, site: str | None) -> dict[str, Any] | None:
     """The config of ``model``'s weights at ``site`` (its YAML), or None when there are none."""
     if site is None:
@@ -258,34 +256,34 @@ def _describe_data(data) -> str:
     return str(data) if isinstance(data, (str, Path)) else f"<{type(data).__name__}>"
 
 
-def train(model, train_data, val_data=None, *, model_name: str | None = None,
-          config: Mapping[str, Any] | None = None, site: str | None = None, epochs: int = _R.epochs,
-          lr: float = _R.lr, weight_decay: float = _R.weight_decay, optimizer: str = _R.optimizer,
-          warmup_epochs: float = _R.warmup_epochs, scheduler: str = _R.scheduler, min_lr: float = _R.min_lr,
-          temperature: float | None = None, label_smoothing: float = _R.label_smoothing,
-          stage1_weight: float | None = None, stage2_weight: float | None = None,
-          weights: str | Path | None = None, output_dir: str | Path = "runs/train", device: str = "auto",
-          seed: int = 42, limit_train_frames: int | None = None, limit_val_frames: int | None = None,
-          pairwise_batch_size: int = 64, frames_per_batch: int = 4, grad_clip: float = 5.0,
-          resume: str | Path | bool | None = None, progress: bool = True, weights_dtype: str = "float32",
-          box_jitter: float = 0.02, max_3d: int | None = None) -> Path:
+@document(TrainOptions)
+def train(model, train_data, val_data=None, *, options: TrainOptions | None = None, **overrides: Any) -> Path:
     """Train ``model`` (a registered name or a ``MatchingModel``); returns the path of ``best.pth``.
 
     The reference's signature and defaults (:data:`REFERENCE_RECIPE`; xcalib's CLI uses
     :data:`XCALIB_RECIPE`). train_data / val_data: ``Frame`` sequences with ``match_matrix``,
     .h5 caches, or site folders / names (``load_dataset(data, "train"/"val")``).
-    model_name: must agree with ``model``'s name when given. site: without ``config``, the
-    config of that site's weights of this model (when there are some) is used.
-    temperature / stage1_weight / stage2_weight: None = the model config's values (0.07 / 1 / 1
-    in every packaged config, the reference's defaults); given, they replace them.
-    label_smoothing: of the row/column cross-entropy. pairwise_batch_size: accepted for the
-    reference's API; xcalib scores all N x M pairs of a batch at once, so it has no effect.
-    xcalib's additions: frames_per_batch (scores across frames are masked), grad_clip, resume
-    (``last.pt`` path or True for ``output_dir/last.pt``), box_jitter (training-time box
-    perturbation, fraction of box size), max_3d (negative sampling per frame), weights_dtype.
+    Settings: a :class:`TrainOptions` (``options=``; ``TrainOptions.from_recipe(XCALIB_RECIPE)`` for
+    the paper's recipe) and/or its fields as keyword arguments, which replace the record's values:
+    model_name, config, site, epochs, lr, weight_decay, optimizer, warmup_epochs, scheduler, min_lr,
+    temperature, label_smoothing, stage1_weight, stage2_weight, weights, output_dir, device, seed,
+    limit_train_frames, limit_val_frames, pairwise_batch_size, frames_per_batch, grad_clip, resume,
+    progress, weights_dtype, box_jitter, max_3d (each documented on :class:`TrainOptions`). An
+    unknown keyword is a TypeError naming it; a value of the wrong type a TypeError naming the field.
     Writes ``best.pth`` (``model_state_dict``, ``epoch``, ``metrics``, ``train_args``; loadable
     by ``Matcher.from_pretrained(model, weights=...)``) + ``best.yaml``, ``last.pt``, ``history.json``.
     """
+    o = resolve(TrainOptions, options, overrides, where="train")
+    model_name, config, site, epochs, lr = o.model_name, o.config, o.site, o.epochs, o.lr
+    weight_decay, optimizer, warmup_epochs, scheduler, min_lr = o.weight_decay, o.optimizer, o.warmup_epochs, \
+        o.scheduler, o.min_lr
+    temperature, label_smoothing, stage1_weight, stage2_weight = o.temperature, o.label_smoothing, \
+        o.stage1_weight, o.stage2_weight
+    weights, output_dir, device, seed = o.weights, o.output_dir, o.device, o.seed
+    limit_train_frames, limit_val_frames, pairwise_batch_size = o.limit_train_frames, o.limit_val_frames, \
+        o.pairwise_batch_size
+    frames_per_batch, grad_clip, resume, progress = o.frames_per_batch, o.grad_clip, o.resume, o.progress
+    weights_dtype, box_jitter, max_3d = o.weights_dtype, o.box_jitter, o.max_3d
     from ..models import MatchingModel, create_model
     from ..models.inputs import ModelBatch
 
@@ -434,7 +432,7 @@ def train(model, train_data, val_data=None, *, model_name: str | None = None,
 
 
 def finetune(matcher, train_data, val_data=None, *, output_dir: str | Path = "runs/finetune",
-             device: str | None = None, **kwargs) -> Path:
+             device: str | None = None, **kwargs: Any) -> Path:
     """``Matcher.train``: :func:`train` the matcher's model in place (on ``device``, default the
     matcher's), load the best checkpoint back strictly and return the model to the matcher's
     device in eval mode. Returns the path of ``best.pth``."""

@@ -1,7 +1,8 @@
 """One registry of calibration file formats: name -> writer + reader (+ content sniffing).
 
-xcalib's own formats are :data:`FORMATS`; a third-party package adds one through the entry-point
-group ``xcalib.formats`` (:mod:`xcalib.plugins`) with a :class:`CalibFormat` object::
+xcalib's own formats are :data:`FORMATS`, declared in the entry-point group ``xcalib.formats``
+(:mod:`xcalib.plugins`) like any plugin's, so they are found the same way; a third-party package
+adds one there with a :class:`CalibFormat` object::
 
     [project.entry-points."xcalib.formats"]
     kalibr_camchain = "my_pkg.camchain:FORMAT"   # CalibFormat(name, description, filename, write, read, sniff)
@@ -228,12 +229,29 @@ FORMATS: dict[str, CalibFormat] = {f.name: f for f in [
 ]}
 
 
+#: One attribute per built-in format: the targets of xcalib's own ``xcalib.formats`` entry points
+#: (``pyproject.toml``; :data:`xcalib.plugins.BUILTIN` when the package metadata is not installed).
+KITTI = FORMATS["kitti"]
+CALIB_JSON = FORMATS["calib_json"]
+LUCID = FORMATS["lucid"]
+CALIB_TXT = FORMATS["calib_txt"]
+OPENCALIB = FORMATS["opencalib"]
+OPENLABEL = FORMATS["openlabel"]
+ROS = FORMATS["ros"]
+URDF = FORMATS["urdf"]
+TF_STATIC = FORMATS["tf_static"]
+NUSCENES = FORMATS["nuscenes"]
+JSON = FORMATS["json"]
+NPZ = FORMATS["npz"]
+WAYMO = FORMATS["waymo"]
+
 _PLUGINS: dict[str, CalibFormat] = {}  # loaded xcalib.formats entries (the registry's own bookkeeping)
 
 
-def _plugin_formats() -> dict[str, CalibFormat]:
-    """The formats of the ``xcalib.formats`` entry points (by entry name); one that fails to load or
-    is no ``CalibFormat`` is reported (``xcalib.plugins.PluginWarning``) and left out."""
+def _registered_formats() -> dict[str, CalibFormat]:
+    """The formats of the ``xcalib.formats`` entry points (by entry name), xcalib's own first: they
+    are declared there too; one that fails to load or is no ``CalibFormat`` is reported
+    (``xcalib.plugins.PluginWarning``) and left out."""
     import warnings
 
     from ..plugins import PluginWarning
@@ -258,8 +276,9 @@ def _plugin_formats() -> dict[str, CalibFormat]:
 
 
 def calib_formats() -> dict[str, CalibFormat]:
-    """Every calibration format by name: xcalib's own (:data:`FORMATS`), then the installed plugins'."""
-    return {**FORMATS, **_plugin_formats()}
+    """Every calibration format by name, as the ``xcalib.formats`` entry points declare them:
+    xcalib's own (:data:`FORMATS`), then the installed plugins'."""
+    return _registered_formats()
 
 
 def format_names(writable: bool = False) -> list[str]:
@@ -321,7 +340,7 @@ def detect_format(path) -> str:
     found = _detect_specific(p)
     if found is not None:
         return found
-    for name, fmt in _plugin_formats().items():
+    for name, fmt in _registered_formats().items():  # xcalib's own have no sniff: their rules are above
         if fmt.sniff is not None and _sniffs(name, fmt, p):
             return name
     return _detect_generic(p)

@@ -13,6 +13,10 @@ import importlib
 
 _LAZY = {
     "OneShotSession": "xcalib.oneshot.session",
+    "OneShotOptions": "xcalib.oneshot.session",
+    "SessionAdaptOptions": "xcalib.oneshot.session",
+    "AdaptOptions": "xcalib.oneshot.adapt",
+    "BootstrapOptions": "xcalib.oneshot.bootstrap",
     "ObserveReport": "xcalib.oneshot.session",
     "OneShotError": "xcalib.oneshot.session",
     "NotCalibratedError": "xcalib.oneshot.session",

@@ -35,12 +35,13 @@ import torch
 
 from ..engine.fit import Schedule, fit, make_optimizer
 from ..engine.trainer import evaluate
+from ..options import Options, document, resolve
 from .evidence import Observation
 from .loss import weighted_matching_loss
 from .pseudo import PseudoTargets
 
 __all__ = ["AdaptReport", "GainTrial", "ADAPT_MODES", "BOX_GAIN_SCALE", "auto_box_gain", "trainable_parameters",
-           "pseudo_top1", "pseudo_loss", "adapt_model", "holdout_split"]
+           "pseudo_top1", "pseudo_loss", "adapt_model", "holdout_split", "AdaptOptions"]
 
 log = logging.getLogger("xcalib.oneshot")
 
@@ -240,14 +241,39 @@ def _gain_candidates(box_gain, model, observations, targets, augment) -> list[fl
     return out or [None]
 
 
+@dataclass(frozen=True)
+class AdaptOptions(Options):
+    """How :func:`adapt_model` trains (the defaults in one place; ``adapt_model`` documents each):
+    mode ("heads" | "full"), lr, frames_per_batch, anchor (L2 pull to the starting weights),
+    holdout / min_holdout (held-out share / minimum frames), grad_clip, keep_if_worse, min_pairs,
+    eval_seed (point sampling of the Top-1 evaluation), seed (batches, augmentation), augment (a
+    ``GeometricAugment`` or None), p_augment, box_weight, box_gain, progress (``(step, total,
+    loss)`` callback or None)."""
+
+    mode: str = "heads"
+    lr: float = 1e-3
+    frames_per_batch: int = 4
+    anchor: float = 1e-2
+    holdout: float = 0.2
+    min_holdout: int = 0
+    grad_clip: float = 5.0
+    keep_if_worse: bool = False
+    min_pairs: int = 8
+    eval_seed: int = 0
+    seed: int = 0
+    augment: Any = None
+    p_augment: float = 1.0
+    box_weight: float = 0.0
+    box_gain: Any = None
+    progress: Callable[[int, int, float], None] | None = None
+
+
+@document(AdaptOptions)
 def adapt_model(model, observations: Sequence[Observation], targets: Sequence[PseudoTargets], *, steps: int,
-                n_points: int, device, mode: str = "heads", lr: float = 1e-3, frames_per_batch: int = 4,
-                anchor: float = 1e-2, holdout: float = 0.2, min_holdout: int = 0, grad_clip: float = 5.0,
-                keep_if_worse: bool = False,
-                min_pairs: int = 8, eval_seed: int = 0, seed: int = 0, augment=None, p_augment: float = 1.0,
-                box_weight: float = 0.0, box_gain=None,
-                progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
-    """Fine-tune ``model`` in place on pseudo-labelled ``observations`` (see the module docstring).
+                n_points: int, device, options: AdaptOptions | None = None, **overrides: Any) -> AdaptReport:
+    """Fine-tune ``model`` in place on pseudo-labelled ``observations`` (see the module docstring):
+    ``steps`` optimiser steps with ``n_points`` points per LiDAR crop on ``device``; the other
+    settings are an :class:`AdaptOptions` (``options=``) and/or its fields as keyword arguments.
 
     ``augment``: optional :class:`xcalib.oneshot.augment.GeometricAugment` applied to a share
     ``p_augment`` of the training frames. ``box_weight`` > 0 (with ``augment``, for models whose
@@ -267,6 +293,12 @@ def adapt_model(model, observations: Sequence[Observation], targets: Sequence[Ps
     :class:`AdaptReport` (``gain_trials``: every candidate's scores); ``trained=False`` (weights
     untouched) when fewer than ``min_pairs`` pseudo-matches are available for training.
     """
+    o = resolve(AdaptOptions, options, overrides, where="adapt_model")
+    mode, lr, frames_per_batch, anchor, holdout, min_holdout = o.mode, o.lr, o.frames_per_batch, o.anchor, \
+        o.holdout, o.min_holdout
+    grad_clip, keep_if_worse, min_pairs, eval_seed, seed = o.grad_clip, o.keep_if_worse, o.min_pairs, o.eval_seed, \
+        o.seed
+    augment, p_augment, box_weight, box_gain, progress = o.augment, o.p_augment, o.box_weight, o.box_gain, o.progress
     t0 = time.perf_counter()
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")

@@ -24,7 +24,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Any, Callable, Iterable
 
 from ..calib.config import CalibConfig
 from ..calib.result import CalibrationResult
@@ -33,9 +33,10 @@ from .heldout import HELDOUT_SHARE, MIN_HELDOUT_FRAMES, HeldoutCheck, check_held
 from .site_default import SiteDefault, choose_site_default
 from .threshold import ThresholdChoice, choose_threshold
 from ..types import Frame
-from .adapt import AdaptReport
+from .adapt import AdaptOptions, AdaptReport
+from ..options import Options, document, resolve
 
-__all__ = ["BootstrapResult", "bootstrap", "starting_matcher"]
+__all__ = ["BootstrapResult", "BootstrapOptions", "bootstrap", "starting_matcher"]
 
 THRESHOLD_FRAMES = 32  # frames kept to choose the site's match threshold (label-free, ``oneshot.threshold``)
 
@@ -99,17 +100,43 @@ def starting_matcher(model: str, init: str = "auto", *, device: str | None = "cp
     return Matcher.from_pretrained(model, site=init, device=device), f"site:{init}", "heads"
 
 
-def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, model: str = "fastmatch", init: str = "auto",
-              steps: int = 600, mode: str | None = None, lr: float = 1e-3, holdout: float = HELDOUT_SHARE,
-              install: bool = True, out_dir: str | Path | None = None, device: str | None = "cpu", seed: int = 0,
-              calib_config: CalibConfig | None = None,
-              on_frame: Callable[[int, object], None] | None = None,
-              on_step: Callable[[int, int, float], None] | None = None) -> BootstrapResult:
+@dataclass(frozen=True)
+class BootstrapOptions(Options):
+    """The settings of :func:`bootstrap` (the defaults in one place): model (registered name),
+    init ("auto" | "scratch" | a site; see :func:`starting_matcher`), steps (adaptation steps), mode
+    (None: the starting point's), lr, holdout (share of frames held out), install (into the user
+    site folder), out_dir (also, or with ``install=False`` only, save there), device, seed,
+    calib_config, on_frame (``(n, ObserveReport)`` callback), on_step (``(step, total, loss)``)."""
+
+    model: str = "fastmatch"
+    init: str | Path = "auto"
+    steps: int = 600
+    mode: str | None = None
+    lr: float = AdaptOptions.lr
+    holdout: float = HELDOUT_SHARE
+    install: bool = True
+    out_dir: str | Path | None = None
+    device: Any = "cpu"  # str or torch.device; None: the default
+    seed: int = 0
+    calib_config: CalibConfig | None = None
+    on_frame: Callable[[int, object], None] | None = None
+    on_step: Callable[[int, int, float], None] | None = None
+
+
+@document(BootstrapOptions)
+def bootstrap(frames: Iterable[Frame], intrinsics, site: str, *, options: BootstrapOptions | None = None,
+              **overrides: Any) -> BootstrapResult:
     """Site weights from unlabelled frames (see the module docstring).
 
-    Raises ``OneShotError`` when the frames do not determine a pose (nothing is written then).
-    ``out_dir``: also (or, with ``install=False``, only) save there.
+    Settings: a :class:`BootstrapOptions` (``options=``) and/or its fields as keyword arguments
+    (model, init, steps, mode, lr, holdout, install, out_dir, device, seed, calib_config, on_frame,
+    on_step). Raises ``OneShotError`` when the frames do not determine a pose (nothing is written
+    then). ``out_dir``: also (or, with ``install=False``, only) save there.
     """
+    o = resolve(BootstrapOptions, options, overrides, where="bootstrap")
+    model, init, steps, mode, lr, holdout, install = o.model, o.init, o.steps, o.mode, o.lr, o.holdout, o.install
+    out_dir, device, seed, calib_config, on_frame, on_step = o.out_dir, o.device, o.seed, o.calib_config, \
+        o.on_frame, o.on_step
     from ..engine.checkpoint import site_dirs
     from .session import OneShotError, OneShotSession
 

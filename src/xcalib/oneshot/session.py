@@ -35,12 +35,13 @@ from ..calib.inputs import as_intrinsics
 from ..calib.result import CalibrationResult
 from ..engine.host import assign
 from ..types import Frame
-from .adapt import ADAPT_MODES, AdaptReport, adapt_model
+from ..options import Options, document, resolve
+from .adapt import ADAPT_MODES, AdaptOptions, AdaptReport, adapt_model
 from .evidence import EvidenceBuffer, Observation, observe_frame_inputs
 from .pose_gate import CalibrationUpdate, PoseGate
 from .pseudo import PseudoTargets, pseudo_targets
 
-__all__ = ["OneShotSession", "ObserveReport", "OneShotError", "ImageSizeChangedError", "NotCalibratedError"]
+__all__ = ["OneShotSession", "OneShotOptions", "SessionAdaptOptions", "ObserveReport", "OneShotError", "ImageSizeChangedError", "NotCalibratedError"]
 
 log = logging.getLogger("xcalib.oneshot")
 
@@ -113,6 +114,68 @@ def _as_calibration(cal, intrinsics) -> CalibrationResult:
                              method="survey", message="set_calibration")
 
 
+@dataclass(frozen=True)
+class OneShotOptions(Options):
+    """The settings of a :class:`OneShotSession` (the defaults in one place; the class docstring
+    documents each). ``OneShotSession(matcher, K, options=...)`` and/or the fields as keyword
+    arguments."""
+
+    gate: float = 0.3
+    neg_iou: float = 0.05
+    min_frames: int = 3
+    recalibrate_growth: float = 1.5
+    max_frames: int = 64
+    min_gain: float = 0.0
+    match_threshold: float = 0.7
+    mode: str = "heads"
+    calib_config: CalibConfig | None = None
+    seed: int = 0
+    validate: str = "warn"
+    accept_confidence: float | None = None
+    replay_frames: int | None = None
+    max_center_dist_px: float | None = None
+    bank_capacity: int | None = None
+    calib_buffer: int | None = None
+    calib_reproj_px: float | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.mode not in ADAPT_MODES:
+            raise ValueError(f"mode must be one of {ADAPT_MODES}, got {self.mode!r}")
+        if int(self.min_frames) < 1:
+            raise ValueError(f"min_frames must be >= 1, got {self.min_frames}")
+        if not self.recalibrate_growth >= 1.0:
+            raise ValueError(f"recalibrate_growth must be >= 1, got {self.recalibrate_growth}")
+
+
+_A = AdaptOptions()
+
+
+@dataclass(frozen=True)
+class SessionAdaptOptions(Options):
+    """The settings of :meth:`OneShotSession.adapt` besides ``steps`` (its docstring documents
+    each); those it shares with :func:`adapt_model` default to :class:`AdaptOptions`' values."""
+
+    lr: float = _A.lr
+    batch_size: int | None = None
+    temperature: float | None = None
+    mode: str | None = None
+    replay_weight: float | None = None
+    min_bank: int | None = None
+    frames_per_batch: int = _A.frames_per_batch
+    anchor: float = _A.anchor
+    holdout: float = _A.holdout
+    min_holdout: int = _A.min_holdout
+    min_pairs: int = _A.min_pairs
+    keep_if_worse: bool = _A.keep_if_worse
+    augment: bool = True
+    p_augment: float = _A.p_augment
+    augment_options: dict | None = None
+    box_weight: float = 10.0
+    box_gain: float | str | tuple | None = "auto"
+    progress: Callable[[int, int, float], None] | None = None
+
+
 class OneShotSession:
     """Label-free site adaptation of ``matcher`` (see the module docstring).
 
@@ -140,19 +203,17 @@ class OneShotSession:
             effect (docs/compat.md).
     """
 
-    def __init__(self, matcher, intrinsics, *, gate: float = 0.3, neg_iou: float = 0.05, min_frames: int = 3,
-                 recalibrate_growth: float = 1.5, max_frames: int = 64, min_gain: float = 0.0,
-                 match_threshold: float = 0.7, mode: str = "heads", calib_config: CalibConfig | None = None,
-                 seed: int = 0, validate: str = "warn", accept_confidence: float | None = None,
-                 replay_frames: int | None = None, max_center_dist_px: float | None = None,
-                 bank_capacity: int | None = None, calib_buffer: int | None = None,
-                 calib_reproj_px: float | None = None):
-        if mode not in ADAPT_MODES:
-            raise ValueError(f"mode must be one of {ADAPT_MODES}, got {mode!r}")
-        if int(min_frames) < 1:
-            raise ValueError(f"min_frames must be >= 1, got {min_frames}")
-        if not recalibrate_growth >= 1.0:
-            raise ValueError(f"recalibrate_growth must be >= 1, got {recalibrate_growth}")
+    @document(OneShotOptions)
+    def __init__(self, matcher, intrinsics, *, options: OneShotOptions | None = None, **overrides: Any):
+        o = resolve(OneShotOptions, options, overrides, where="OneShotSession")
+        self.options = o
+        gate, neg_iou, min_frames, recalibrate_growth, max_frames = o.gate, o.neg_iou, o.min_frames, \
+            o.recalibrate_growth, o.max_frames
+        min_gain, match_threshold, mode, calib_config, seed, validate = o.min_gain, o.match_threshold, o.mode, \
+            o.calib_config, o.seed, o.validate
+        accept_confidence, replay_frames, max_center_dist_px, bank_capacity, calib_buffer, calib_reproj_px = \
+            o.accept_confidence, o.replay_frames, o.max_center_dist_px, o.bank_capacity, o.calib_buffer, \
+            o.calib_reproj_px
         self.matcher = matcher
         self.intrinsics = as_intrinsics(intrinsics)
         self.gate, self.neg_iou = float(gate), float(neg_iou)
@@ -371,14 +432,8 @@ class OneShotSession:
         return [pseudo_targets(o, self.calibration, gate=self.gate, neg_iou=self.neg_iou,
                                min_confidence=self.accept_confidence) for o in self.buffer]
 
-    def adapt(self, steps: int = 50, *, lr: float = 1e-3, batch_size: int | None = None,
-              temperature: float | None = None, mode: str | None = None, replay_weight: float | None = None,
-              min_bank: int | None = None, frames_per_batch: int = 4,
-              anchor: float = 1e-2, holdout: float = 0.2, min_holdout: int = 0, min_pairs: int = 8,
-              keep_if_worse: bool = False,
-              augment: bool = True, p_augment: float = 1.0, augment_options: dict | None = None,
-              box_weight: float = 10.0, box_gain: float | str | tuple | None = "auto",
-              progress: Callable[[int, int, float], None] | None = None) -> AdaptReport:
+    @document(SessionAdaptOptions)
+    def adapt(self, steps: int = 50, *, options: SessionAdaptOptions | None = None, **overrides: Any) -> AdaptReport:
         """Fine-tune the matcher on the pseudo-labels of the buffer (see :mod:`xcalib.oneshot.adapt`).
 
         ``steps`` defaults to the reference's 50 (``benchmarks/bench_oneshot.py`` and ``xcalib
@@ -403,7 +458,16 @@ class OneShotSession:
         many stay for training) held out of training (``AdaptReport.heldout_frames``).
         Raises :class:`NotCalibratedError` before any calibration. With fewer than ``min_pairs``
         pseudo-matches it warns and returns a report with ``trained=False`` (weights untouched).
+        The settings: a :class:`SessionAdaptOptions` (``options=``) and/or its fields as keyword
+        arguments (an unknown one is a TypeError naming it).
         """
+        o = resolve(SessionAdaptOptions, options, overrides, where="OneShotSession.adapt")
+        lr, temperature, mode, min_bank, frames_per_batch = o.lr, o.temperature, o.mode, o.min_bank, \
+            o.frames_per_batch
+        anchor, holdout, min_holdout, min_pairs, keep_if_worse = o.anchor, o.holdout, o.min_holdout, o.min_pairs, \
+            o.keep_if_worse
+        augment, p_augment, augment_options, box_weight, box_gain, progress = o.augment, o.p_augment, \
+            o.augment_options, o.box_weight, o.box_gain, o.progress
         mode = _MODE_ALIASES.get(mode, mode) if mode is not None else None
         if min_bank is not None:
             min_pairs = int(min_bank)

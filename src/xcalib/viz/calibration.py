@@ -6,14 +6,18 @@ the lens bends them). Images are RGB uint8 [H,W,3]; the output has the input's s
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 
 from ..geometry.boxes import as_box7, box7_corners, check_boxes2d
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.projection import project_points
 from .matching import _to_uint8
+from ..options import Options, document, resolve
 
-__all__ = ["draw_calibration_overlay", "BOX_EDGES"]
+__all__ = ["draw_calibration_overlay", "CalibrationOverlayOptions", "BOX_EDGES"]
 
 # corner index pairs of the 12 box edges (box7_corners order: bottom face, then top face)
 BOX_EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4],
@@ -56,18 +60,44 @@ def _colormap(values: np.ndarray) -> np.ndarray:
 REPORT_MAX_POINTS = 60000  # LiDAR points xcalib's own reports draw (the function default is the reference's 6000)
 
 
-def draw_calibration_overlay(image, point_cloud=None, *, calibration=None, projection=None, intrinsics=None,
-                             rotation=None, translation=None, bboxes_3d=None, bboxes_2d=None, pairs=None,
-                             max_points: int = 6000, max_depth: float | None = None, point_radius: int = 2,
-                             title: str | None = None) -> np.ndarray:
+@dataclass(frozen=True)
+class CalibrationOverlayOptions(Options):
+    """What :func:`draw_calibration_overlay` draws and how (the defaults in one place; the
+    function documents each): the pose (``calibration``, or ``projection``, or ``intrinsics`` +
+    ``rotation`` + ``translation``), ``bboxes_3d``, ``bboxes_2d``, ``pairs``, ``max_points``,
+    ``max_depth`` (m; None: the 95th percentile), ``point_radius`` (px), ``title``."""
+
+    calibration: Any = None
+    projection: Any = None
+    intrinsics: Any = None
+    rotation: Any = None
+    translation: Any = None
+    bboxes_3d: Any = None
+    bboxes_2d: Any = None
+    pairs: Any = None
+    max_points: int = 6000
+    max_depth: float | None = None
+    point_radius: int = 2
+    title: str | None = None
+
+
+@document(CalibrationOverlayOptions)
+def draw_calibration_overlay(image, point_cloud=None, *, options: CalibrationOverlayOptions | None = None,
+                             **overrides: Any) -> np.ndarray:
     """Draw points coloured by camera depth (near = blue, far = red), projected 3D boxes (orange
     wireframes), 2D boxes (green) and matches (a line from each 2D box centre to its projected
     3D box centre, both labelled with the pair number) on a copy of ``image``.
 
     Pose from ``calibration`` (a CalibrationResult), a 3x4 ``projection`` (no distortion), or
     ``intrinsics`` + ``rotation`` + ``translation`` (LiDAR -> camera). ``pairs`` [n,2] are
-    (2D index, 3D index). Returns RGB uint8 of the image's size.
+    (2D index, 3D index). Returns RGB uint8 of the image's size. The keyword settings are the
+    fields of :class:`CalibrationOverlayOptions` (or one whole as ``options=``).
     """
+    o = resolve(CalibrationOverlayOptions, options, overrides, where="draw_calibration_overlay")
+    calibration, projection, intrinsics, rotation, translation = o.calibration, o.projection, o.intrinsics, \
+        o.rotation, o.translation
+    bboxes_3d, bboxes_2d, pairs, max_points, max_depth, point_radius, title = o.bboxes_3d, o.bboxes_2d, o.pairs, \
+        o.max_points, o.max_depth, o.point_radius, o.title
     import cv2
 
     intr, R, t = _pose_args(calibration, projection, intrinsics, rotation, translation)

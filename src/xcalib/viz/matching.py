@@ -11,12 +11,14 @@ Images are RGB uint8.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..geometry.boxes import as_box7, box2d_centers, box7_corners, check_boxes2d
+from ..options import Options, document, resolve
 
-__all__ = ["draw_matching_overlay", "score_colors", "BevView", "bev_view"]
+__all__ = ["draw_matching_overlay", "MatchingOverlayOptions", "score_colors", "BevView", "bev_view"]
 
 _BG = (24, 26, 30)
 _GRID = (52, 56, 64)
@@ -178,11 +180,24 @@ def _draw_camera(pane, view: BevView, camera, width: int, height: int) -> None:
 REPORT_HEIGHT = 540  # px: the height xcalib's own reports draw at (the function default is the reference's 420)
 
 
-def draw_matching_overlay(image, point_cloud, bboxes_2d, bboxes_3d, matches=None, *, output_height: int = 420,
-                          match_threshold: float | None = None, match_matrix=None,
-                          score_range: tuple[float, float] | None = None,
-                          bev_range: tuple[float, float, float, float] | None = None, max_points: int = 30000,
-                          camera=None, title: str | None = None) -> np.ndarray:
+@dataclass(frozen=True)
+class MatchingOverlayOptions(Options):
+    """What :func:`draw_matching_overlay` draws besides the frame and its matches, and how (the
+    defaults in one place; the function documents each)."""
+
+    output_height: int = 420
+    match_threshold: float | None = None
+    match_matrix: Any = None
+    score_range: tuple[float, float] | None = None
+    bev_range: tuple[float, float, float, float] | None = None
+    max_points: int = 30000
+    camera: Any = None
+    title: str | None = None
+
+
+@document(MatchingOverlayOptions)
+def draw_matching_overlay(image, point_cloud, bboxes_2d, bboxes_3d, matches=None, *,
+                          options: MatchingOverlayOptions | None = None, **overrides: Any) -> np.ndarray:
     """Image with 2D boxes (left) beside a BEV of the point cloud with 3D boxes (right).
 
     Args:
@@ -196,10 +211,16 @@ def draw_matching_overlay(image, point_cloud, bboxes_2d, bboxes_3d, matches=None
         bev_range: (x_min, x_max, y_min, y_max) metres of the BEV window (default: automatic).
         camera: optional ``CalibrationResult`` or (``CameraIntrinsics``, ``T_cam_lidar`` [4,4]):
             draws the camera position and its horizontal field of view in the BEV.
+        output_height, max_points, title: panel height (px), BEV points drawn, header text.
+        The keyword settings are the fields of :class:`MatchingOverlayOptions` (``options=``).
     Returns:
         RGB uint8 [output_height + header + footer, W_total, 3]. Matched boxes and their link
         take the score colour; unmatched boxes are grey and dashed.
     """
+    o = resolve(MatchingOverlayOptions, options, overrides, where="draw_matching_overlay")
+    output_height, match_threshold, match_matrix, score_range = o.output_height, o.match_threshold, o.match_matrix, \
+        o.score_range
+    bev_range, max_points, camera, title = o.bev_range, o.max_points, o.camera, o.title
     import cv2
 
     img = _to_uint8(image)

@@ -18,8 +18,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..io.files import atomic_write, safe_name
+from ..options import Options, document, resolve
 
-__all__ = ["ReportFigure", "CalibrationReport", "write_calibration_report", "frame_arrays"]
+__all__ = ["ReportFigure", "CalibrationReport", "ReportOptions", "write_calibration_report", "frame_arrays"]
 
 _MAX_WIDTH = 1280  # px of the written overlay PNGs
 
@@ -161,10 +162,25 @@ def result_numbers(result, ground_truth=None) -> dict[str, Any]:
     return nums
 
 
-def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=None, matches=None,
-                             before=None, extra: dict[str, Any] | None = None, title: str = "xcalib calibration",
-                             max_frames: int = 4, point_radius: int = 2,
-                             calibration_overlays: Sequence | None = None) -> CalibrationReport:
+@dataclass(frozen=True)
+class ReportOptions(Options):
+    """What :func:`write_calibration_report` shows (the defaults in one place; the function
+    documents each): ground_truth, matches, before, extra, title, max_frames, point_radius,
+    calibration_overlays."""
+
+    ground_truth: Any = None
+    matches: Any = None
+    before: Any = None
+    extra: dict[str, Any] | None = None
+    title: str = "xcalib calibration"
+    max_frames: int = 4
+    point_radius: int = 2
+    calibration_overlays: Sequence | None = None
+
+
+@document(ReportOptions)
+def write_calibration_report(out_dir, result, frames: Sequence, *, options: ReportOptions | None = None,
+                             **overrides: Any) -> CalibrationReport:
     """Write ``<out_dir>/report.html`` + ``<out_dir>/img/*.png`` for one calibration run.
 
     Args:
@@ -179,9 +195,14 @@ def write_calibration_report(out_dir, result, frames: Sequence, *, ground_truth=
         max_frames: frames shown (evenly spaced).
         calibration_overlays: PNGs already drawn (``xcalib.calib.report.write_report``'s
             ``overlays/<key>.png`` and ``<key>_bringup.png``) to show instead of drawing new ones.
+        title, point_radius: the page title and the overlays' point size (px).
+        The keyword settings are the fields of :class:`ReportOptions` (or one whole as ``options=``).
     Returns:
         :class:`CalibrationReport` with the HTML path, figures and numbers.
     """
+    o = resolve(ReportOptions, options, overrides, where="write_calibration_report")
+    ground_truth, matches, before, extra, title = o.ground_truth, o.matches, o.before, o.extra, o.title
+    max_frames, point_radius, calibration_overlays = o.max_frames, o.point_radius, o.calibration_overlays
     from ..geometry.boxes import as_box7, box7_corners, boxes2d_from_points, iou_matrix
     from .calibration import REPORT_MAX_POINTS, draw_calibration_overlay
     from .matching import REPORT_HEIGHT, draw_matching_overlay

@@ -4,18 +4,21 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ...io.files import atomic_write
+from ...options import Options, document, resolve, split_overrides
 from ...types import Frame
 from .detections import camera_view, detect, mirror_boxes
-from .presets import NOISE_FIELDS
+from .presets import NOISE_FIELDS, SiteConfig
 from .scene import simulate_traffic
 from .site import Site, sample_site
 
-__all__ = ["iter_frames", "generate_frames", "write_site", "blank_image", "SPLITS"]
+__all__ = ["iter_frames", "generate_frames", "write_site", "SiteWriteOptions", "blank_image", "SPLITS"]
 
 SPLITS = ("train", "val", "test")
 _SPLIT_SEED = {"train": 1, "val": 2, "test": 3}
@@ -113,20 +116,41 @@ def generate_frames(site: Site, n_frames: int, seed: int = 0, *, render_images: 
     return list(iter_frames(site, n_frames, seed, render_images=render_images, lidar=lidar, **noise))
 
 
+@dataclass(frozen=True)
+class SiteWriteOptions(Options):
+    """How :func:`write_site` writes (the defaults in one place): progress (``(split, done,
+    total)`` after every frame), render_images (False: no camera images), lidar (False: no point
+    clouds), image_format ("jpeg" | "png" | ...; of the HDF5 caches), overwrite (replace a
+    non-empty ``out_dir``)."""
+
+    progress: Callable[[str, int, int], None] | None = None
+    render_images: bool = True
+    lidar: bool = True
+    image_format: str = "jpeg"
+    overwrite: bool = False
+
+
+@document(SiteWriteOptions, keep_kwargs=True)
 def write_site(out_dir, n_train: int, n_val: int, n_test: int, seed: int = 0, preset: str = "roadside", *,
-               progress: Callable[[str, int, int], None] | None = None, render_images: bool = True,
-               lidar: bool = True, image_format: str = "jpeg", overwrite: bool = False, **overrides) -> Path:
+               options: SiteWriteOptions | None = None, **overrides: Any) -> Path:
     """Write ``train.h5``, ``val.h5``, ``test.h5`` (with /calibration) and ``site.json`` to ``out_dir``.
 
-    Each split is its own traffic sequence (no temporal overlap). ``overrides`` go to
-    :func:`sample_site`. ``progress(split, done, total)`` is called after every frame.
-    The site is written into a temporary folder and swapped in whole (the caches and ``site.json``
-    always belong to the same run); an existing non-empty ``out_dir`` needs ``overwrite=True``.
+    Each split is its own traffic sequence (no temporal overlap). Keyword arguments: the fields
+    of :class:`SiteWriteOptions` (``progress``, ``render_images``, ``lidar``, ``image_format``,
+    ``overwrite``; or the record whole as ``options=``) and those of :class:`SiteConfig`, which
+    go to :func:`sample_site`; any other name is a TypeError. ``progress(split, done, total)`` is
+    called after every frame. The site is written into a temporary folder and swapped in whole
+    (the caches and ``site.json`` always belong to the same run); an existing non-empty
+    ``out_dir`` needs ``overwrite=True``.
     """
+    given, site_overrides = split_overrides(overrides, [SiteWriteOptions, SiteConfig], "write_site")
+    o = resolve(SiteWriteOptions, options, given, where="write_site")
+    progress, render_images, lidar, image_format, overwrite = o.progress, o.render_images, o.lidar, o.image_format, \
+        o.overwrite
     from ...io.files import atomic_dir, claim_output
 
     out = Path(out_dir)
-    site = sample_site(seed, preset, **overrides)
+    site = sample_site(seed, preset, **site_overrides)
     with claim_output(out, "output folder"), atomic_dir(out, overwrite=overwrite) as tmp:
         counts = {"train": int(n_train), "val": int(n_val), "test": int(n_test)}
         _write_site_files(tmp, site, counts, seed, progress, render_images, lidar, image_format)

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import FormatError
+from ...options import Options, document, resolve
 from ..files import open_regular
 from .._validate import check_rigid
 from ...geometry.camera import CameraIntrinsics
@@ -32,7 +33,7 @@ from ._msgs import (CAMERA_INFO, COMPRESSED, DET2D, DET3D_TYPES, IMAGE, POINTCLO
                     typestore)
 from ._objects import MAX_TILT_DEG, boxes3d_any
 
-__all__ = ["BAG_SUFFIXES", "MAX_BAG_BYTES", "MAX_MESSAGE_BYTES", "check_bag_input", "is_bag", "BagTopic", "BagInfo",
+__all__ = ["BagReadOptions", "BAG_SUFFIXES", "MAX_BAG_BYTES", "MAX_MESSAGE_BYTES", "check_bag_input", "is_bag", "BagTopic", "BagInfo",
            "bag_info", "BagCamera", "bag_cameras", "Dropped", "PairingReport",
            "BagFrames", "pair_by_time", "META_TOPIC"]
 
@@ -367,6 +368,22 @@ class _Entry:
     meta: dict = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class BagReadOptions(Options):
+    """How :class:`BagFrames` reads a bag besides the camera (the defaults in one place; the class
+    docstring documents each): lidar, camera_info, detections_2d, detections_3d (topics; None:
+    found), tolerance_s, intrinsics, detections, fisheye ("rectify" | "keep")."""
+
+    lidar: str | None = None
+    camera_info: str | None = None
+    detections_2d: str | None = None
+    detections_3d: str | None = None
+    tolerance_s: float = 0.05
+    intrinsics: CameraIntrinsics | None = None
+    detections: bool = True
+    fisheye: str = "rectify"
+
+
 class BagFrames(Sequence):
     """Frames of one camera and one LiDAR from a bag (a lazy ``Sequence[Frame]``).
 
@@ -377,7 +394,9 @@ class BagFrames(Sequence):
     one of the type). ``tolerance_s`` — largest LiDAR/image stamp difference paired.
     ``intrinsics`` — used instead of CameraInfo (required when the bag has none).
     ``detections`` — False: read the sensors only (no detection topics needed; frames carry no
-    boxes, for :mod:`xcalib.detect` to fill).
+    boxes, for :mod:`xcalib.detect` to fill). ``fisheye`` — an equidistant CameraInfo: "rectify"
+    to pinhole or "keep" the fisheye. These settings (all but ``camera``) are the fields of
+    :class:`BagReadOptions`: pass one as ``options=`` and/or them as keyword arguments.
 
     Attributes: ``report`` (:class:`PairingReport`), ``cameras`` (every :class:`BagCamera`),
     ``camera`` (the chosen one's name), ``intrinsics``, ``transforms`` (tf_static / tf edges:
@@ -385,10 +404,11 @@ class BagFrames(Sequence):
     transform through tf, between the cloud's and the image's header frames, or None).
     """
 
-    def __init__(self, path, camera: str | None = None, *, lidar: str | None = None,
-                 camera_info: str | None = None, detections_2d: str | None = None,
-                 detections_3d: str | None = None, tolerance_s: float = 0.05,
-                 intrinsics: CameraIntrinsics | None = None, detections: bool = True, fisheye: str = "rectify"):
+    @document(BagReadOptions)
+    def __init__(self, path, camera: str | None = None, *, options: BagReadOptions | None = None, **overrides: Any):
+        o = resolve(BagReadOptions, options, overrides, where="BagFrames")
+        lidar, camera_info, detections_2d, detections_3d = o.lidar, o.camera_info, o.detections_2d, o.detections_3d
+        tolerance_s, intrinsics, detections, fisheye = o.tolerance_s, o.intrinsics, o.detections, o.fisheye
         self.path = Path(path)
         self.with_detections = bool(detections)
         if fisheye not in ("rectify", "keep"):

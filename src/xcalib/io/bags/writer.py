@@ -22,20 +22,22 @@ import re
 import shutil
 import tempfile
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
 from ...geometry.boxes import detect_box3d_convention
 from ...geometry.transforms import invert_transform
 from ..files import sweep_stale, tmp_prefix
+from ...options import Options, document, resolve
 from ...types import Frame
 from . import _convert as cv
 from ._msgs import CAMERA_INFO, COMPRESSED, DET2D, DET3D, IMAGE, POINTCLOUD2, STRING, TF, typestore
 from .reader import BAG_SUFFIXES, META_TOPIC
 
-__all__ = ["write_bag", "topic_name"]
+__all__ = ["write_bag", "BagWriteOptions", "topic_name"]
 
 
 def topic_name(camera: str) -> str:
@@ -122,14 +124,35 @@ class _Sink:
         return self.path
 
 
-def write_bag(path, frames: Iterable[Frame], *, image_format: Literal["raw", "png", "jpeg"] = "raw",
-              vision_layout: Literal["ros1", "ros2"] | None = None, start_s: float = 1_700_000_000.0,
-              period_s: float = 0.1, camera_delay_s: float = 0.01, lidar_frame: str = "lidar",
-              overwrite: bool = False, detections: bool = True) -> Path:
+@dataclass(frozen=True)
+class BagWriteOptions(Options):
+    """How :func:`write_bag` writes (the defaults in one place): image_format ("raw" | "png" |
+    "jpeg"), vision_layout (vision_msgs layout "ros1" | "ros2"; None: the container's), start_s
+    (stamp of the first frame without its own time, s), period_s (between such frames, s),
+    camera_delay_s (image stamp after the cloud's, s), lidar_frame (the clouds' frame_id),
+    overwrite (replace an existing file), detections (False: sensor topics only)."""
+
+    image_format: Literal["raw", "png", "jpeg"] = "raw"
+    vision_layout: Literal["ros1", "ros2"] | None = None
+    start_s: float = 1_700_000_000.0
+    period_s: float = 0.1
+    camera_delay_s: float = 0.01
+    lidar_frame: str = "lidar"
+    overwrite: bool = False
+    detections: bool = True
+
+
+@document(BagWriteOptions)
+def write_bag(path, frames: Iterable[Frame], *, options: BagWriteOptions | None = None, **overrides: Any) -> Path:
     """Write ``frames`` (single- or multi-camera) to ``path`` (container from the suffix: ``.bag``,
     ``.db3``, ``.mcap``); written to a temporary name beside it and renamed into place.
     ``detections=False``: sensor topics only (images, CameraInfo, clouds, tf_static; no
-    detections and no ``/xcalib/frames`` record), as a raw recording."""
+    detections and no ``/xcalib/frames`` record), as a raw recording. The settings: a
+    :class:`BagWriteOptions` (``options=``) and/or its fields as keyword arguments."""
+    o = resolve(BagWriteOptions, options, overrides, where="write_bag")
+    image_format, vision_layout, start_s, period_s, camera_delay_s = o.image_format, o.vision_layout, o.start_s, \
+        o.period_s, o.camera_delay_s
+    lidar_frame, overwrite, detections = o.lidar_frame, o.overwrite, o.detections
     path = Path(path)
     container = path.suffix.lower()
     if container not in BAG_SUFFIXES:
