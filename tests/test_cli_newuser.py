@@ -1,0 +1,63 @@
+"""What a new user ran into following the README, the docs and every ``--help`` example (the
+new-user pass): each test holds one fix."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import yaml
+
+from xcalib.calib.diagnostics import MisfitCheck
+from xcalib.calib.report import _check_value
+from xcalib.calib.result import CalibrationResult
+from xcalib.cli import main
+from xcalib.geometry.camera import CameraIntrinsics
+
+
+def test_python_dash_m_runs_the_command_line():
+    """``python -m xcalib`` and ``python -m xcalib.cli`` are the ``xcalib`` command (no console
+    script on PATH needed); they were 'No module named xcalib.cli.__main__'."""
+    for mod in ("xcalib", "xcalib.cli"):
+        run = subprocess.run([sys.executable, "-m", mod, "version", "--json"], capture_output=True, text=True,
+                             timeout=120)
+        assert run.returncode == 0, run.stderr
+        assert '"protocol"' in run.stdout
+
+
+def _calibration(tmp_path, size=None):
+    k = CameraIntrinsics(1400.0, 1400.0, 960.0, 600.0, distortion=np.array([-0.05, 0.09, 1e-4, 1e-3, 0.1]))
+    res = CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3), intrinsics=k,
+                            camera_name="cam", image_size=size)
+    return res.save(tmp_path / "calib.json")
+
+
+def test_convert_a_calibration_files_intrinsics_to_a_camera_format(tmp_path, capsys):
+    """``--to camera_info / opencv_yaml`` of a camera-LiDAR calibration file takes its intrinsics
+    (was: '[fx]: missing'); a CameraInfo YAML without the image size is refused (ROS's
+    camera_calibration_parsers will not load it) unless --image-size gives it."""
+    src = _calibration(tmp_path)
+    assert main(["convert", str(src), "--to", "opencv_yaml", "--out", str(tmp_path / "cv.yaml")]) == 0
+    assert "1400" in (tmp_path / "cv.yaml").read_text()
+    capsys.readouterr()
+    assert main(["convert", str(src), "--to", "camera_info", "--out", str(tmp_path / "a.yaml")]) == 2
+    assert "--image-size" in capsys.readouterr().err and not (tmp_path / "a.yaml").exists()
+    assert main(["convert", str(src), "--to", "camera_info", "--out", str(tmp_path / "a.yaml"),
+                 "--image-size", "1920x1200"]) == 0
+    d = yaml.safe_load((tmp_path / "a.yaml").read_text())
+    assert (d["image_width"], d["image_height"]) == (1920, 1200)
+    assert d["distortion_model"] == "plumb_bob" and len(d["distortion_coefficients"]["data"]) == 5
+    # a file that is neither a camera file nor a calibration keeps the camera reader's error
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"hello": 1}')
+    assert main(["convert", str(bad), "--to", "camera_info", "--image-size", "10x10"]) == 1
+    assert "fx" in capsys.readouterr().err
+
+
+def test_misfit_lines_state_the_direction_of_their_limit():
+    """The report printed 'focal_scale: 0.99 (limit 0.03)' and 'focal_checkable: 8.59 (limit 2)',
+    both passing checks that read as far over their limit."""
+    assert _check_value(MisfitCheck("focal_scale", 0.99, 0.03, False)) == "x0.99 (limit x0.971-x1.03)"
+    assert _check_value(MisfitCheck("focal_checkable", 8.59, 2.0, False)) == "8.59 (at least 2)"
+    assert _check_value(MisfitCheck("mirrored", 0.869, 1.25, False)) == "0.869 (limit 1.25)"
