@@ -61,3 +61,20 @@ def test_misfit_lines_state_the_direction_of_their_limit():
     assert _check_value(MisfitCheck("focal_scale", 0.99, 0.03, False)) == "x0.99 (limit x0.971-x1.03)"
     assert _check_value(MisfitCheck("focal_checkable", 8.59, 2.0, False)) == "8.59 (at least 2)"
     assert _check_value(MisfitCheck("mirrored", 0.869, 1.25, False)) == "0.869 (limit 1.25)"
+
+
+def test_demo_does_not_warn_that_the_shipped_weights_do_not_know_their_own_site(caplog):
+    """The demo matches sample_site(0), the site the shipped 'synthetic' weights were trained on:
+    'they do not know yours' was printed in the middle of it. Elsewhere the warning stays."""
+    import logging
+
+    from xcalib.cli import _demo
+
+    with caplog.at_level(logging.WARNING, logger="xcalib.matcher"):
+        m, why = _demo.load_matcher("fastmatch", None, own_site=True)
+    assert m is not None, why
+    assert not [r for r in caplog.records if "shipped 'synthetic' weights" in r.getMessage()]
+    assert not logging.getLogger("xcalib.matcher").filters  # the filter is removed again
+    with caplog.at_level(logging.WARNING, logger="xcalib.matcher"):
+        _demo.load_matcher("fastmatch", None)
+    assert [r for r in caplog.records if "shipped 'synthetic' weights" in r.getMessage()]
