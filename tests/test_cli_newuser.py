@@ -78,3 +78,15 @@ def test_demo_does_not_warn_that_the_shipped_weights_do_not_know_their_own_site(
     with caplog.at_level(logging.WARNING, logger="xcalib.matcher"):
         _demo.load_matcher("fastmatch", None)
     assert [r for r in caplog.records if "shipped 'synthetic' weights" in r.getMessage()]
+
+
+def test_bootstrap_starting_from_the_shipped_weights_does_not_advise_bootstrap(caplog):
+    """``xcalib bootstrap`` printed the shipped weights' warning, whose advice is to run bootstrap."""
+    import logging
+
+    from xcalib.oneshot.bootstrap import starting_matcher
+
+    with caplog.at_level(logging.WARNING, logger="xcalib.matcher"):
+        _, how, _ = starting_matcher("fastmatch", "auto")
+    assert how == "site:synthetic"
+    assert not [r for r in caplog.records if "shipped 'synthetic' weights" in r.getMessage()]

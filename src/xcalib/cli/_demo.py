@@ -118,33 +118,20 @@ def synthetic_site(n_frames: int, seed: int, *, site_seed: int = SHIPPED_SITE_SE
     return SyntheticData(site, frames, time.perf_counter() - t0)
 
 
-class _OwnSite:
-    """A logging filter: drops from_pretrained's 'the shipped weights do not know your site' warning
-    (the demo's frames are that site's)."""
-
-    def filter(self, record) -> bool:
-        return "loading the shipped 'synthetic' weights" not in str(record.msg)
-
-
 def load_matcher(model: str, weights: Optional[Path], site: str = "synthetic", config: Optional[Path] = None,
                  device: str = "cpu", *, own_site: bool = False):
     """``Matcher.from_pretrained`` or (None, why) — never raises. ``own_site``: the frames are
     the shipped weights' own synthetic site, so their warning that they do not know it is not said."""
-    import logging
+    import contextlib
 
-    quiet = _OwnSite() if own_site and weights is None and site == "synthetic" else None
-    log = logging.getLogger("xcalib.matcher")
-    if quiet is not None:
-        log.addFilter(quiet)
     try:
-        from ..engine.matcher import Matcher
+        from ..engine.matcher import Matcher, without_shipped_weights_note
 
-        return Matcher.from_pretrained(model, weights=weights, config=config, site=site, device=device), ""
+        quiet = own_site and weights is None and site == "synthetic"
+        with without_shipped_weights_note() if quiet else contextlib.nullcontext():
+            return Matcher.from_pretrained(model, weights=weights, config=config, site=site, device=device), ""
     except Exception as exc:  # noqa: BLE001 - the demo reports and goes on
         return None, f"{type(exc).__name__}: {exc}"
-    finally:
-        if quiet is not None:
-            log.removeFilter(quiet)
 
 
 def match_frames(matcher, frames: list, progress: Progress = None) -> MatchingOutcome:
