@@ -90,3 +90,23 @@ def test_bootstrap_starting_from_the_shipped_weights_does_not_advise_bootstrap(c
         _, how, _ = starting_matcher("fastmatch", "auto")
     assert how == "site:synthetic"
     assert not [r for r in caplog.records if "shipped 'synthetic' weights" in r.getMessage()]
+
+
+def test_a_cache_of_frames_without_image_pixels_reads_back(tmp_path, capsys):
+    """``xcalib cache build`` of the Waymo test record (labels, calibration, no pixels) wrote a
+    cache its own reader refused ('missing root group /images', naming the new cache)."""
+    from xcalib.io.hdf5 import CacheReader, write_cache
+    from xcalib.types import Frame
+
+    k = CameraIntrinsics(800.0, 800.0, 320.0, 240.0, width=640, height=480)
+    b2 = np.array([[10, 20, 50, 60], [100, 120, 160, 200]], np.float32)
+    b3 = np.array([[10.0, 1.0, 0.0, 4.0, 1.8, 1.5], [15.0, -2.0, 0.0, 4.0, 1.8, 1.5]], np.float32)
+    frames = [Frame(np.zeros((0, 0, 3), np.uint8), np.zeros((0, 3), np.float32), b2, b3, frame_key=f"{i}",
+                    intrinsics=k) for i in range(2)]
+    p = write_cache(tmp_path / "c.h5", frames)
+    with CacheReader(p) as r:
+        got = list(r)
+    assert len(got) == 2 and got[0].image.shape == (0, 0, 3)
+    np.testing.assert_allclose(got[1].bboxes_2d, b2)
+    assert main(["cache", "info", str(p), "--json"]) == 0
+    assert '"frames": 2' in capsys.readouterr().out
