@@ -110,3 +110,18 @@ def test_a_cache_of_frames_without_image_pixels_reads_back(tmp_path, capsys):
     np.testing.assert_allclose(got[1].bboxes_2d, b2)
     assert main(["cache", "info", str(p), "--json"]) == 0
     assert '"frames": 2' in capsys.readouterr().out
+
+
+def test_a_recording_without_2d_boxes_is_pointed_at_detect():
+    """SUSTech's example (3D labels only) was refused 'too few detections: 0 valid 2D', with no word
+    on the way to make them."""
+    import xcalib
+    from xcalib.types import Frame
+
+    k = CameraIntrinsics(800.0, 800.0, 320.0, 240.0, width=640, height=480)
+    b3 = np.array([[10.0 + i, 1.0, 0.0, 4.0, 1.8, 1.5] for i in range(4)], np.float32)
+    f = Frame(np.zeros((480, 640, 3), np.uint8), np.zeros((10, 3), np.float32), np.zeros((0, 4), np.float32), b3,
+              frame_key="0", intrinsics=k)
+    res = xcalib.calibrate([f], k)
+    assert not res.success and "too few detections" in res.message
+    assert "no 2D boxes" in res.message and "--detect" in res.message
