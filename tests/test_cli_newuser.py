@@ -125,3 +125,14 @@ def test_a_recording_without_2d_boxes_is_pointed_at_detect():
     res = xcalib.calibrate([f], k)
     assert not res.success and "too few detections" in res.message
     assert "no 2D boxes" in res.message and "--detect" in res.message
+
+
+def test_bag_info_prints_no_rate_for_a_single_message():
+    """``xcalib bag info`` printed 'rate Hz 0.00' for every topic of a one-frame bag."""
+    from xcalib.io.bags import BagInfo, BagTopic
+
+    info = BagInfo("x.mcap", "mcap", (BagTopic("/a", "std_msgs/msg/String", 1, 5, 5),
+                                      BagTopic("/b", "std_msgs/msg/String", 11, 0, 1_000_000_000)), 0.0, 1.0)
+    a, b = info.lines()[2:4]
+    assert a.split()[-1] == "-" and "0.00" not in a
+    assert b.split()[-1] == "10.00"
