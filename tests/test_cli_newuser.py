@@ -136,3 +136,21 @@ def test_bag_info_prints_no_rate_for_a_single_message():
     a, b = info.lines()[2:4]
     assert a.split()[-1] == "-" and "0.00" not in a
     assert b.split()[-1] == "10.00"
+
+
+def test_mixed_intrinsics_name_the_frames_that_differ():
+    """KITTI's training folder holds frames of several drives (their own calibrations): the refusal
+    said 'different camera intrinsics (mixed cameras?)' without saying where."""
+    import xcalib
+    from xcalib.types import Frame
+
+    b2 = np.array([[100, 100, 200, 200], [300, 300, 400, 380], [50, 60, 90, 120]], np.float32)
+    b3 = np.array([[10.0, 0.0, 0.0, 4.0, 2.0, 1.5], [20.0, 3.0, 0.0, 4.0, 2.0, 1.5], [15.0, -4.0, 0.0, 4.0, 2.0, 1.5]],
+                  np.float32)
+    ks = [CameraIntrinsics(700.0, 700.0, 320.0, 240.0, width=640, height=480),
+          CameraIntrinsics(720.0, 720.0, 330.0, 240.0, width=640, height=480)]
+    frames = [Frame(np.zeros((480, 640, 3), np.uint8), np.zeros((10, 3), np.float32), b2, b3, frame_key=f"k{i}",
+                    intrinsics=k) for i, k in enumerate(ks)]
+    res = xcalib.calibrate(frames, ks[0])
+    assert not res.success
+    assert "frame k0: fx 700" in res.message and "frame k1: fx 720" in res.message
