@@ -154,3 +154,26 @@ def test_mixed_intrinsics_name_the_frames_that_differ():
     res = xcalib.calibrate(frames, ks[0])
     assert not res.success
     assert "frame k0: fx 700" in res.message and "frame k1: fx 720" in res.message
+
+
+def test_convert_reads_a_sustech_camera_calibration(tmp_path, capsys):
+    """``xcalib convert sustech_example/calib/camera/front.json`` was 'unrecognised calibration JSON'
+    though ``xcalib calibrate`` reads the scene; now a read-only format ``sustech``."""
+    import json
+
+    from xcalib.formats.export import read_calibration
+
+    T = np.array([[0.0, -1.0, 0.0, 0.2], [0.0, 0.0, -1.0, 0.1], [1.0, 0.0, 0.0, -0.3], [0, 0, 0, 1]])
+    d = tmp_path / "calib" / "camera"
+    d.mkdir(parents=True)
+    (d / "front.json").write_text(json.dumps({"extrinsic": T.ravel().tolist(),
+                                              "intrinsic": [1000.0, 0, 640.0, 0, 1000.0, 360.0, 0, 0, 1]}))
+    res = read_calibration(d / "front.json")
+    np.testing.assert_allclose(res.extrinsics, T)
+    assert res.camera_name == "front" and res.intrinsics.fx == 1000.0
+    assert main(["convert", str(d / "front.json"), "--to", "urdf", "--out", str(tmp_path / "s.urdf")]) == 0
+    assert "(sustech)" in capsys.readouterr().out
+    (d / "left.json").write_text(json.dumps({"extrinsic": [1.0] * 15, "intrinsic": [1.0] * 9}))
+    assert main(["convert", str(d / "left.json"), "--to", "json", "--out", str(tmp_path / "l.json")]) == 1
+    err = capsys.readouterr().err
+    assert "left.json" in err and "extrinsic" in err

@@ -10,7 +10,7 @@ import typer
 
 _EX = ("Example: xcalib convert cam03/lucid_calib.json --to calib_json --out calib.json\n\n"
        "Formats: kitti, calib_json, lucid, calib_txt, opencalib, openlabel, ros, urdf, tf_static, nuscenes, json, npz "
-       "(waymo .tfrecord and mmdetection3d KITTI .pkl as input only). Every reader returns and every "
+       "(waymo .tfrecord, mmdetection3d KITTI .pkl and SUSTechPOINTS calib/camera/<cam>.json as input only). Every reader returns and every "
        "writer takes T_cam_lidar (LiDAR -> OpenCV camera); each format's own direction is documented "
        "in xcalib.formats.\n\n"
        "Camera files (intrinsics only, the camera model kept): --to camera_info | kalibr | opencv_yaml | "
