@@ -177,3 +177,13 @@ def test_convert_reads_a_sustech_camera_calibration(tmp_path, capsys):
     assert main(["convert", str(d / "left.json"), "--to", "json", "--out", str(tmp_path / "l.json")]) == 1
     err = capsys.readouterr().err
     assert "left.json" in err and "extrinsic" in err
+
+
+def test_convert_of_a_nuscenes_info_pickle_says_what_to_do(capsys):
+    """``xcalib convert <nuScenes info>.pkl`` said only 'no camera-2 projection'."""
+    from conftest import shared_path
+
+    pkl = shared_path("nuscenes", "mmdet3d_demo", "n015-2018-07-24-11-22-45+0800.pkl")
+    assert main(["convert", str(pkl), "--to", "urdf", "--out", "/nonexistent/never.urdf"]) == 1
+    err = capsys.readouterr().err
+    assert "CAM_FRONT" in err and "xcalib calibrate" in err
