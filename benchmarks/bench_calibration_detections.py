@@ -194,10 +194,10 @@ def a9_subsets(n_random: int) -> list[dict]:
     return rows
 
 
-def pandaset_cases(follow: bool = True) -> list[dict]:
-    root = SHARED / "pandaset_002"
-    if not root.exists() or not DETS.exists():
-        return [{"case": "pandaset", "skipped": f"data not found: {root} / {DETS}"}]
+def pandaset_frames(root: Path):
+    """PandaSet sequence ``root`` (no images) as ``(seq, truths, det, proj)``: the true poses, the
+    frames with the shipped detector's 2D boxes (score >= 0.3) and with projected cuboids, both
+    without extrinsics."""
     from xcalib.calib.pose import Pose
     from xcalib.data.boxes2d import synthetic_2d_boxes
     from xcalib.formats.pandaset import PandaSetFrames
@@ -209,6 +209,14 @@ def pandaset_cases(follow: bool = True) -> list[dict]:
     det = [with_detections(f, DETS / "yolox_nano_1280" / "pandaset" / f"{f.frame_key[-2:]}.json", 0.3) for f in seen]
     proj = [dataclasses.replace(synthetic_2d_boxes(f, seed=i), extrinsics=None, match_matrix=None)
             for i, f in enumerate(frames)]
+    return seq, truths, det, proj
+
+
+def pandaset_cases(follow: bool = True) -> list[dict]:
+    root = SHARED / "pandaset_002"
+    if not root.exists() or not DETS.exists():
+        return [{"case": "pandaset", "skipped": f"data not found: {root} / {DETS}"}]
+    seq, truths, det, proj = pandaset_frames(root)
     out = []
     for name, fr in (("PandaSet detector 1280 score>=0.3", det), ("PandaSet projected cuboids", proj)):
         rec = run_case(name, fr, seq.intrinsics, truths)

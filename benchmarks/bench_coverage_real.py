@@ -75,20 +75,11 @@ def pandaset() -> list[dict]:
     root = SHARED / "pandaset_002"
     if not root.exists() or not DETS.exists():
         return []
-    from bench_calibration_detections import with_detections
+    from bench_calibration_detections import pandaset_frames
 
     from xcalib.calib.config import CalibConfig
-    from xcalib.calib.pose import Pose
-    from xcalib.data.boxes2d import synthetic_2d_boxes
-    from xcalib.formats.pandaset import PandaSetFrames
 
-    seq = PandaSetFrames(root, read_images=False)
-    frames = [seq[i] for i in range(len(seq))]
-    truths = [Pose.parse(np.asarray(f.extrinsics)) for f in frames]
-    seen = [dataclasses.replace(f, extrinsics=None) for f in frames]
-    det = [with_detections(f, DETS / "yolox_nano_1280" / "pandaset" / f"{f.frame_key[-2:]}.json", 0.3) for f in seen]
-    proj = [dataclasses.replace(synthetic_2d_boxes(f, seed=i), extrinsics=None, match_matrix=None)
-            for i, f in enumerate(frames)]
+    seq, truths, det, proj = pandaset_frames(root)
     out = []
     for name, fr, cfg in (("PandaSet detector 1280", det, None),
                           ("PandaSet projected cuboids", proj, CalibConfig(time_offset="auto"))):

@@ -231,15 +231,16 @@ def _ramps(streams: dict, runs: int, log) -> list[dict]:
     return rows
 
 
+def _tally(runs: list[dict]) -> tuple[int, int, int, int, list[float]]:
+    """Totals over monitor runs (``_run``): frames, alarms, 'unknown' states, decisions, cpu ms each."""
+    return (sum(q["frames"] for q in runs), sum(q["alarms"] for q in runs),
+            sum(q["states"]["unknown"] for q in runs), sum(sum(q["states"].values()) for q in runs),
+            [q["cpu_ms"] for q in runs])
+
+
 def _null(name: str, streams: dict, log) -> dict:
-    frames_total, alarms, unknown, decisions, cpu = 0, 0, 0, 0, []
-    for seed, (site, frames) in streams.items():
-        q = _run(_synth_calibration(site), frames, latch=False)
-        frames_total += q["frames"]
-        alarms += q["alarms"]
-        unknown += q["states"]["unknown"]
-        decisions += sum(q["states"].values())
-        cpu.append(q["cpu_ms"])
+    frames_total, alarms, unknown, decisions, cpu = _tally(
+        [_run(_synth_calibration(site), frames, latch=False) for site, frames in streams.values()])
     upper = 3.0 / frames_total * 1e4 if alarms == 0 else None  # 95 % upper bound for zero events
     row = {"case": name, "frames": frames_total, "false_alarms": alarms,
            "false_alarms_per_10k": alarms / frames_total * 1e4, "upper95_per_10k_if_zero": upper,
@@ -272,17 +273,14 @@ def _null_replay(name: str, seeds: list[int], n_base: int, n: int, log, **noise)
     """False alarms on drift-free synthetic streams made cheaply: ``n_base`` generated frames per
     site (``iter_frames``, with ``noise``) replayed with fresh 0.5 px jitter and 5 % extra misses
     per pass to ``n`` frames (the generator costs ~11 ms a frame, the monitor ~2.5 ms)."""
-    frames_total, alarms, unknown, decisions, cpu, top = 0, 0, 0, 0, [], []
+    runs = []
     for s in seeds:
         site, base = _synth_stream(s, n_base, **noise)
         q = _run(_synth_calibration(site), _replay(base, n, s, 0.5, 0.05), latch=False)
         log(f"  {name}: site {s}: {q['frames']} frames, {q['alarms']} alarms, states {q['states']}, "
             f"{q['cpu_ms']:.2f} ms/frame", flush=True)
-        frames_total += q["frames"]
-        alarms += q["alarms"]
-        unknown += q["states"]["unknown"]
-        decisions += sum(q["states"].values())
-        cpu.append(q["cpu_ms"])
+        runs.append(q)
+    frames_total, alarms, unknown, decisions, cpu = _tally(runs)
     upper = 3.0 / frames_total * 1e4 if alarms == 0 else None  # 95 % upper bound for zero events
     row = {"case": name, "frames": frames_total, "sites": len(seeds), "base_frames_per_site": n_base,
            "false_alarms": alarms, "false_alarms_per_10k": alarms / frames_total * 1e4,

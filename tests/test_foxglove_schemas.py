@@ -158,6 +158,15 @@ def test_review_messages_match_the_published_foxglove_definitions(review_message
         "m.timestamp.sec: float, Time wants integer"]
 
 
+
+def test_camera_calibration_distortion_has_the_models_length(review_messages):
+    """plumb_bob carries 5 coefficients, rational_polynomial 8 (ROS; Foxglove's camera model reads
+    them by position): a camera without distortion gets 5 zeros, not an empty D."""
+    cals = [m for name, _, m in review_messages if name == "foxglove.CameraCalibration"]
+    assert cals
+    for m in cals:
+        assert len(m["D"]) == {"plumb_bob": 5, "rational_polynomial": 8}[m["distortion_model"]], m["D"]
+
 def _published_schemas() -> dict | None:
     """The JSON schemas of the installed npm package ``@foxglove/schemas`` (``dist/jsonschema``),
     by title (``foxglove.X``); None when it is not installed."""

@@ -323,7 +323,7 @@ def _html(records: list[BatchRecord], meta: dict) -> str:
             f"{len(records) - n_ok - n_err} refused, {n_err} error(s); executor {e(str(meta.get('executor', '')))}, "
             f"{meta.get('wall_s', 0.0):.1f} s. Tables: <a href='results.csv'>results.csv</a>, "
             "<a href='results.json'>results.json</a>.</p><table><tr><th>recording</th><th>verdict</th><th>frames</th>"
-            "<th>pairs</th><th>rot 1-sigma (deg)</th><th>trans 1-sigma (m)</th><th>T_cam_lidar</th><th>time (s)</th>"
+            "<th>pairs</th><th>rot 1-sigma, norm (deg)</th><th>trans 1-sigma, norm (m)</th><th>T_cam_lidar</th><th>time (s)</th>"
             "<th>file</th><th>message</th><th>source</th></tr>" + "".join(rows) + "</table></body></html>\n")
 
 

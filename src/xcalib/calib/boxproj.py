@@ -11,6 +11,7 @@ import numpy as np
 
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import project_outline_rects
+from ..geometry.camera_models.outline import finish_rects, no_rects, pose_batch
 from ..geometry.projection import distort_normalized
 
 __all__ = ["project_rects", "iou_batched", "MIN_DEPTH_M"]
@@ -39,14 +40,10 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
         if corner_uv:
             raise TypeError("project_rects(corner_uv=True) is for CameraIntrinsics; other camera models give rects only")
         return project_outline_rects(corners, R, t, intr, size, clip=clip, min_distance=MIN_DEPTH_M)
-    single = np.ndim(R) == 2
-    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
-    t = np.asarray(t, dtype=np.float64).reshape(-1, 3)
-    c = np.asarray(corners, dtype=np.float64)
+    single, R, t, c = pose_batch(R, t, corners)
     H, M = len(R), len(c)
     if M == 0:
-        out = np.zeros((H, 0, 4)), np.zeros((H, 0), dtype=bool)
-        out = (out[0][0], out[1][0]) if single else out
+        out = no_rects(H, single)
         return out + (np.zeros((0, 0)),) * 2 if corner_uv else out
     S = c.shape[1]
     X = np.matmul(R, c.reshape(-1, 3).T)  # [H,3,M*S] (batched BLAS)
@@ -68,13 +65,7 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
     v = np.multiply(y, intr.fy, out=y)
     v += intr.cy
     rect = _corner_extremes(u, v)
-    if clip:
-        W, Hh = size
-        rect[..., [0, 2]] = np.clip(rect[..., [0, 2]], 0.0, W)
-        rect[..., [1, 3]] = np.clip(rect[..., [1, 3]], 0.0, Hh)
-    with np.errstate(invalid="ignore"):
-        valid = front & (rect[..., 2] - rect[..., 0] > 1.0) & (rect[..., 3] - rect[..., 1] > 1.0)
-    rect[~valid] = np.nan
+    valid = finish_rects(rect, front, size, clip)
     if corner_uv:
         return (rect[0], valid[0], u[0], v[0]) if single else (rect, valid, u, v)
     return (rect[0], valid[0]) if single else (rect, valid)

@@ -48,13 +48,22 @@ def _collinear(P: np.ndarray, tol: float) -> bool:
     return s[1] / np.sqrt(len(P)) < tol
 
 
+def _no_boxes_hint(n2: int, n3: int) -> str:
+    """What to do when a recording carries no boxes of a kind at all."""
+    if n2 and n3:
+        return ""
+    kind = "2D or 3D" if not (n2 or n3) else ("2D" if not n2 else "3D")
+    return (f"; the frames carry no {kind} boxes: `xcalib calibrate --detect` (or `xcalib detect`) makes them "
+            "from the images and point clouds")
+
+
 def precheck(cframes: Sequence[CalibFrame]) -> Refusal | None:
     """Refuse inputs that cannot determine a pose whatever the search finds."""
     n2, n3 = sum(f.n2 for f in cframes), sum(f.n3 for f in cframes)
     if n2 < 3 or n3 < 3:
         return Refusal("too_few_detections",
                        f"too few detections: {n2} valid 2D and {n3} 3D boxes over {len(cframes)} frame(s); "
-                       "need at least 3 of each (better 6+ spread over several frames)")
+                       "need at least 3 of each (better 6+ spread over several frames)" + _no_boxes_hint(n2, n3))
     all3 = np.concatenate([f.boxes3d[:, :3] for f in cframes if f.n3])
     all2 = np.concatenate([box2d_centers(f.boxes2d) for f in cframes if f.n2])
     if _collinear(all3, 0.3):

@@ -158,9 +158,13 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
     if len(cams) > 1:
         problem = (f"frames from different cameras are mixed ({', '.join(sorted(cams))}); "
                    "calibrate one camera at a time")
-    frame_intr = [r[7] for r in raw if r[7] is not None]
-    if problem is None and any(fi != frame_intr[0] for fi in frame_intr[1:]):
-        problem = "frames carry different camera intrinsics (mixed cameras?); calibrate one camera at a time"
+    frame_intr = [(r[5], r[7]) for r in raw if r[7] is not None]
+    other = next(((k, fi) for k, fi in frame_intr[1:] if fi != frame_intr[0][1]), None)
+    if problem is None and other is not None:
+        (k0, i0), (k1, i1) = frame_intr[0], other
+        fx_cx = [f"fx {getattr(i, 'fx', float('nan')):g}, cx {getattr(i, 'cx', float('nan')):g}" for i in (i0, i1)]
+        problem = (f"frames carry different camera intrinsics (frame {k0}: {fx_cx[0]}; frame {k1}: {fx_cx[1]}; "
+                   "mixed cameras or recordings?); calibrate one camera of one recording at a time")
     scan_step = None
     for i, (image, pts, b2, b3, cam, key, gt, _fi, meta) in enumerate(raw):
         size = _image_size(image, intr, meta)

@@ -74,6 +74,17 @@ def frame_table(result: CalibrationResult, frames: Sequence) -> list[dict]:
     return rows
 
 
+def _check_value(c) -> str:
+    """A misfit check's statistic and limit as read: most checks flag a statistic above the limit;
+    ``focal_scale`` is a scale flagged outside x(1 +- limit); ``focal_checkable`` (sigmas from a
+    5 % focal error) is flagged at or below it."""
+    if c.name == "focal_scale":
+        return f"x{c.statistic:.3g} (limit x{1 / (1 + c.limit):.3g}-x{1 + c.limit:.3g})"
+    if c.name == "focal_checkable":
+        return f"{c.statistic:.3g} (at least {c.limit:.3g})"
+    return f"{c.statistic:.3g} (limit {c.limit:.3g})"
+
+
 def _summary_text(result: CalibrationResult, rows: list[dict]) -> str:
     lines = [result.summary(), ""]
     d = result.diagnostics
@@ -86,7 +97,7 @@ def _summary_text(result: CalibrationResult, rows: list[dict]) -> str:
         if d is not None:
             lines.append(f"  bring-up: {d.n_hypotheses} hypotheses ({d.seed_source}); score {d.score:.2f}, "
                          f"runner-up {d.runner_up_score:.2f}")
-            lines += [f"  misfit check {c.name}: {c.statistic:.3g} (limit {c.limit:.3g}){' FLAGGED' if c.flagged else ''}"
+            lines += [f"  misfit check {c.name}: {_check_value(c)}{' FLAGGED' if c.flagged else ''}"
                       f"{'; ' + c.detail if c.detail else ''}" for c in d.misfit]
         lines.append("")
     if d is not None and getattr(d, "box_fit", None) and not result.success and "sides" in d.box_fit:

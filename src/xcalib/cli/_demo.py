@@ -119,12 +119,17 @@ def synthetic_site(n_frames: int, seed: int, *, site_seed: int = SHIPPED_SITE_SE
 
 
 def load_matcher(model: str, weights: Optional[Path], site: str = "synthetic", config: Optional[Path] = None,
-                 device: str = "cpu"):
-    """``Matcher.from_pretrained`` or (None, why) — never raises."""
-    try:
-        from ..engine.matcher import Matcher
+                 device: str = "cpu", *, own_site: bool = False):
+    """``Matcher.from_pretrained`` or (None, why) — never raises. ``own_site``: the frames are
+    the shipped weights' own synthetic site, so their warning that they do not know it is not said."""
+    import contextlib
 
-        return Matcher.from_pretrained(model, weights=weights, config=config, site=site, device=device), ""
+    try:
+        from ..engine.matcher import Matcher, without_shipped_weights_note
+
+        quiet = own_site and weights is None and site == "synthetic"
+        with without_shipped_weights_note() if quiet else contextlib.nullcontext():
+            return Matcher.from_pretrained(model, weights=weights, config=config, site=site, device=device), ""
     except Exception as exc:  # noqa: BLE001 - the demo reports and goes on
         return None, f"{type(exc).__name__}: {exc}"
 

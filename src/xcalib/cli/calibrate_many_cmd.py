@@ -64,7 +64,7 @@ def register(app: typer.Typer) -> None:
         else:
             for r in summary.records:
                 verdict = "ok" if r.success else ("ERROR" if r.error else f"refused ({r.refusal})")
-                sig = f"  1-sigma {r.rot_sigma_deg:.3f} deg / {r.trans_sigma_m:.3f} m" if r.rot_sigma_deg is not None else ""
+                sig = f"  1-sigma (norm over axes) {r.rot_sigma_deg:.3f} deg / {r.trans_sigma_m:.3f} m" if r.rot_sigma_deg is not None else ""
                 typer.echo(f"{r.name}: {verdict}{sig}  [{r.time_s:.1f} s]" + (f"  {r.error}" if r.error else ""))
             n = len(summary.records)
             typer.echo(f"{summary.n_success} of {n} calibrated, {summary.n_error} error(s); wrote {summary.csv}, "

@@ -10,7 +10,7 @@ import typer
 
 _EX = ("Example: xcalib convert cam03/lucid_calib.json --to calib_json --out calib.json\n\n"
        "Formats: kitti, calib_json, lucid, calib_txt, opencalib, openlabel, ros, urdf, tf_static, nuscenes, json, npz "
-       "(waymo .tfrecord and mmdetection3d KITTI .pkl as input only). Every reader returns and every "
+       "(waymo .tfrecord, mmdetection3d KITTI .pkl and SUSTechPOINTS calib/camera/<cam>.json as input only). Every reader returns and every "
        "writer takes T_cam_lidar (LiDAR -> OpenCV camera); each format's own direction is documented "
        "in xcalib.formats.\n\n"
        "Camera files (intrinsics only, the camera model kept): --to camera_info | kalibr | opencv_yaml | "
@@ -31,7 +31,8 @@ def register(app: typer.Typer) -> None:
         repair: bool = typer.Option(False, "--repair", help="Fix unambiguous problems: re-orthonormalise "
                                                             "rotations off by <= 1e-3, normalise quaternions."),
         image_size: str = typer.Option(None, "--image-size", help="WIDTHxHEIGHT of the images, for formats that "
-                                                                   "store it (ros CameraInfo) when the input has none."),
+                                                                   "store it (ros / camera_info CameraInfo) when the "
+                                                                   "input has none."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
         force: bool = typer.Option(False, "--force", help="Replace existing output file(s)."),
         camera: str = typer.Option(None, "--camera", help="Camera files: which camera of a Kalibr camchain "
@@ -40,7 +41,8 @@ def register(app: typer.Typer) -> None:
         from ..formats.cameras import CAMERA_FORMATS
 
         if to in CAMERA_FORMATS:
-            _convert_camera(src, to, out, src_format, camera, as_json=as_json, force=force)
+            size = None if image_size is None else _size(image_size)
+            _convert_camera(src, to, out, src_format, camera, size, as_json=as_json, force=force)
             return
         from ..formats.export import calib_formats, default_filename, detect_format, export_calibration, read_calibration
 
@@ -82,15 +84,31 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def _convert_camera(src: Path, to: str, out: Path | None, src_format: str | None, camera: str | None, *,
-                    as_json: bool, force: bool) -> None:
+def _convert_camera(src: Path, to: str, out: Path | None, src_format: str | None, camera: str | None,
+                    size: tuple[int, int] | None, *, as_json: bool, force: bool) -> None:
     from ..formats.cameras import CAMERA_FORMATS, UnsupportedModelError, detect_camera_format, read_camera, write_camera
 
     if src_format is not None and src_format not in CAMERA_FORMATS:
         raise typer.BadParameter(f"a camera file converts from {', '.join(CAMERA_FORMATS)}, not {src_format!r}",
                                  param_hint="--from")
+    from ..errors import FormatError
+
     fmt_in = src_format or detect_camera_format(src)
-    cam = read_camera(src, fmt_in, camera=camera)
+    try:
+        cam = read_camera(src, fmt_in, camera=camera)
+    except FormatError:
+        if src_format is not None:
+            raise
+        cam, fmt_in = _calibration_camera(src) or (None, fmt_in)
+        if cam is None:
+            raise
+    if size is not None:
+        cam = dataclasses.replace(cam, width=size[0], height=size[1])
+    if to == "camera_info" and (cam.width is None or cam.height is None):
+        # camera_calibration_parsers (ROS) will not load a CameraInfo YAML without them
+        raise typer.BadParameter(f"{src}: a CameraInfo YAML needs image_width and image_height, and the "
+                                 "input does not hold the image size; pass --image-size WIDTHxHEIGHT",
+                                 param_hint="--image-size")
     if out is None:
         out = src.with_name(f"{src.stem}_{to}{'.json' if to.endswith('json') else '.yaml'}")
     if out.exists() and src.exists() and out.resolve() == src.resolve():
@@ -105,3 +123,20 @@ def _convert_camera(src: Path, to: str, out: Path | None, src_format: str | None
         return
     typer.echo(f"{src} ({fmt_in}) -> {to}: {cam.name} camera")
     typer.echo(f"  wrote {out}")
+
+
+def _calibration_camera(src: Path):
+    """``(camera model, format)`` of the intrinsics in a camera-LiDAR calibration file (lucid,
+    OpenCalib, KITTI, ...), for a camera format asked of one; None when it is none or holds none."""
+    from ..errors import FormatError
+    from ..formats.export import detect_format, read_calibration
+    from ..geometry.camera_models import as_camera_model
+
+    try:
+        fmt = detect_format(src)
+        result = read_calibration(src, fmt)
+    except (FormatError, ValueError, KeyError, OSError):
+        return None
+    if result.intrinsics is None:
+        return None
+    return as_camera_model(result.intrinsics), fmt

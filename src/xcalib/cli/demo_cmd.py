@@ -190,7 +190,8 @@ def register(app: typer.Typer) -> None:
                                     "mount": site.mount, "camera_height_m": round(float(site.values.get(
                                         "camera_height", float("nan"))), 2), "seconds": round(data.seconds, 2)}
             # 2. matching
-            matcher, why = _demo.load_matcher(model, weights, weights_site, config, device)
+            matcher, why = _demo.load_matcher(model, weights, weights_site, config, device,
+                                              own_site=site_seed == _demo.SHIPPED_SITE_SEED)
             if matcher is not None:
                 _, cb, _ = _step(progress, f"[2/{n_steps}] matching ({model})", n_frames)
                 mo = _demo.match_frames(matcher, data.frames, progress=cb)

@@ -66,9 +66,19 @@ def register(app: typer.Typer) -> None:
         totals = {"train": n_train, "val": n_val, "test": n_test}
         with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                       TimeElapsedColumn(), console=console, transient=as_json) as progress:
-            tasks = {s: progress.add_task(f"{s:5s}", total=max(n, 1)) for s, n in totals.items()}
-            write_site(out, n_train, n_val, n_test, seed=seed, preset=preset,
-                       progress=lambda s, k, n: progress.update(tasks[s], completed=k),
+            # the splits are written one after the other: each one's clock starts when the one before
+            # it is done (every clock counted from the start of all of them)
+            tasks = {s: progress.add_task(f"{s:5s}", total=max(n, 1), start=False) for s, n in totals.items()}
+            order = [s for s, n in totals.items() if n > 0]
+            if order:
+                progress.start_task(tasks[order[0]])
+
+            def _advance(split: str, k: int, n: int) -> None:
+                progress.update(tasks[split], completed=k)
+                if k >= n and split in order and order.index(split) + 1 < len(order):
+                    progress.start_task(tasks[order[order.index(split) + 1]])
+
+            write_site(out, n_train, n_val, n_test, seed=seed, preset=preset, progress=_advance,
                        render_images=not no_images, lidar=not no_lidar,
                        image_format="png" if lossless else "jpeg", overwrite=force, **overrides)
         info = json.loads((out / "site.json").read_text())

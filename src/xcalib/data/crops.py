@@ -37,7 +37,7 @@ import numpy as np
 from ..geometry.boxes import as_box7, box_point_pairs, take_rows
 
 __all__ = [
-    "IMAGENET_MEAN", "IMAGENET_STD", "CropConfig", "FrameInputs", "crop_images", "crop_points",
+    "IMAGENET_MEAN", "IMAGENET_STD", "CropFields", "CropConfig", "KeptCounts", "FrameInputs", "crop_images", "crop_points",
     "gather_box_points", "resample_points", "prepare_frame", "empty_inputs",
 ]
 
@@ -46,8 +46,9 @@ IMAGENET_STD = np.array([0.229, 0.224, 0.225], dtype=np.float32)
 
 
 @dataclass(frozen=True)
-class CropConfig:
-    """How a frame becomes model inputs. ``crop_size`` px, ``point_cloud_size`` points,
+class CropFields:
+    """The crop settings, unchecked (shared by :class:`CropConfig` and the models' typed configs,
+    ``xcalib.models.registry.ModelConfig``). ``crop_size`` px, ``point_cloud_size`` points,
     ``bbox_expansion`` (scale on 3D box dims), ``min_points`` per kept 3D box, ``seed`` of the
     default point-resampling generator."""
 
@@ -58,6 +59,11 @@ class CropConfig:
     normalize: bool = True
     min_points: int = 1
     seed: int = 0
+
+
+@dataclass(frozen=True)
+class CropConfig(CropFields):
+    """How a frame becomes model inputs: the :class:`CropFields`, checked."""
 
     def __post_init__(self) -> None:
         if int(self.crop_size) < 4:
@@ -76,8 +82,27 @@ class CropConfig:
         return cls(**{k: cfg[k] for k in names if k in cfg})
 
 
+class KeptCounts:
+    """``num_2d`` / ``num_3d`` / ``empty`` of a record with ``kept_2d`` / ``kept_3d`` index arrays."""
+
+    kept_2d: np.ndarray
+    kept_3d: np.ndarray
+
+    @property
+    def num_2d(self) -> int:
+        return int(len(self.kept_2d))
+
+    @property
+    def num_3d(self) -> int:
+        return int(len(self.kept_3d))
+
+    @property
+    def empty(self) -> bool:
+        return self.num_2d == 0 or self.num_3d == 0
+
+
 @dataclass
-class FrameInputs:
+class FrameInputs(KeptCounts):
     """One frame as model inputs (numpy; the ONNX Runtime path reuses it).
 
     crops_2d [N,3,S,S] float32 normalised; crops_3d [M,P,3] float32 box-frame metres;
@@ -95,17 +120,6 @@ class FrameInputs:
     kept_2d: np.ndarray
     kept_3d: np.ndarray
 
-    @property
-    def num_2d(self) -> int:
-        return int(len(self.kept_2d))
-
-    @property
-    def num_3d(self) -> int:
-        return int(len(self.kept_3d))
-
-    @property
-    def empty(self) -> bool:
-        return self.num_2d == 0 or self.num_3d == 0
 
 
 def _image_float_scale(image: np.ndarray) -> float:

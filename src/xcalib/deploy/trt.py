@@ -50,7 +50,8 @@ def find_trtexec(explicit: str | Path | None = None) -> Path:
             return p
         looked.append(str(p))
     raise TrtexecNotFoundError("trtexec (TensorRT) not found; looked in " + "; ".join(looked) +
-                               ". Install TensorRT (JetPack on Jetson/Thor) or pass trtexec=/path/to/trtexec")
+                               ". Install TensorRT (JetPack on Jetson/Thor) or give its path: trtexec=/path/to/trtexec "
+                               "(command line: --trtexec /path/to/trtexec)")
 
 
 def check_precision(precision: str) -> str:

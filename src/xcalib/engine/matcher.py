@@ -21,6 +21,7 @@ Other packages use its public interface only: ``validate_inputs``, ``warning_reg
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from pathlib import Path
@@ -41,9 +42,28 @@ from ..errors import FormatError
 from .checkpoint import (WeightsNotFoundError, find_site_weights, load_state_strict, probe_model, read_checkpoint,
                          read_config, save_weights, weights_in_dir, write_config)
 
-__all__ = ["Matcher", "resolve_device", "assign"]
+__all__ = ["Matcher", "resolve_device", "assign", "without_shipped_weights_note"]
 
 log = logging.getLogger("xcalib.matcher")
+_SHIPPED_NOTE = "loading the shipped 'synthetic' weights"
+
+
+class _NoShippedNote(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return _SHIPPED_NOTE not in str(record.msg)
+
+
+@contextlib.contextmanager
+def without_shipped_weights_note():
+    """Within it, ``Matcher.from_pretrained`` does not warn that the shipped 'synthetic' weights do
+    not know the user's site: for callers that know what they load (the demo on those weights' own
+    synthetic site; ``xcalib bootstrap``, which starts from them to adapt them)."""
+    quiet = _NoShippedNote()
+    log.addFilter(quiet)
+    try:
+        yield
+    finally:
+        log.removeFilter(quiet)
 
 CALIBRATION_FILE = "calibration.json"  # beside the weights (OneShotSession.save writes the same name)
 

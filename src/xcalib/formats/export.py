@@ -201,6 +201,12 @@ def _r_waymo(path, repair=False):
     return waymo_calibration(read_waymo_tfrecord(path, max_frames=1)[0], "FRONT")
 
 
+def _r_sustech(path, repair=False):
+    from .sustech import read_sustech_calibration
+
+    return read_sustech_calibration(path)
+
+
 FORMATS: dict[str, CalibFormat] = {f.name: f for f in [
     CalibFormat("kitti", "KITTI calib txt (camera 2; a KITTI-born result keeps its P0-P3/R0_rect, else "
                          "P0-P3 = [K|0], R0_rect = I, Tr_velo_to_cam = T_cam_lidar)",
@@ -226,6 +232,8 @@ FORMATS: dict[str, CalibFormat] = {f.name: f for f in [
     CalibFormat("json", "xcalib CalibrationResult JSON", "calibration.json", _w_json, _r_xcalib),
     CalibFormat("npz", "xcalib CalibrationResult npz", "calibration.npz", _w_npz, _r_xcalib),
     CalibFormat("waymo", "Waymo segment .tfrecord (read only: FRONT camera, vehicle frame)", "", None, _r_waymo),
+    CalibFormat("sustech", "SUSTechPOINTS calib/camera/<cam>.json (read only: extrinsic LiDAR -> camera, intrinsic K)",
+                "", None, _r_sustech),
 ]}
 
 
@@ -395,6 +403,8 @@ def _detect_specific(p: Path) -> str | None:
                 return "calib_json"
             if len(d) == 1 and str(next(iter(d))).endswith("-extrinsic"):
                 return "opencalib"
+            if "extrinsic" in d and "intrinsic" in d:
+                return "sustech"
         return None
     text = read_bytes(p, max_bytes=MAX_TEXT_BYTES, what="calibration file").decode("utf-8", errors="replace")
     keys = {line.split(":", 1)[0].strip() for line in text.splitlines() if ":" in line}
@@ -412,7 +422,7 @@ def _detect_generic(p: Path) -> str:
         return "ros"
     if name.endswith(".json"):
         raise FormatError(p, "unrecognised calibration JSON (expected xcalib, lucid_calib, calib.json, "
-                             "OpenLABEL, OpenCalib or calibrated_sensor)")
+                             "OpenLABEL, OpenCalib, calibrated_sensor or SUSTechPOINTS)")
     return "kitti"
 
 

@@ -419,7 +419,10 @@ def _calib_from_mmdet3d(path: Path, repair: bool) -> KittiCalibration:
             P[i] = as_matrix(cam["cam2img"], (3, 4), path, f"images.CAM{i}.cam2img", alt_shapes=[(4, 4)])
             _check_projection(P[i], path, f"images.CAM{i}.cam2img")
     if 2 not in P:
-        raise FormatError(path, "no camera-2 projection", "images.CAM2.cam2img")
+        cams = sorted(str(k)[:40] for k in imgs)[:8] if isinstance(imgs, dict) else []
+        raise FormatError(path, "no camera-2 projection: `xcalib convert` reads mmdetection3d KITTI infos (CAM2); "
+                                f"this one holds cameras {cams} (a nuScenes / Waymo info? open it as a frame "
+                                "source: xcalib calibrate / xcalib bag write --camera NAME)", "images.CAM2.cam2img")
     R0 = np.eye(3)
     if "R0_rect" in imgs:
         R0 = checked_rotation(as_matrix(imgs["R0_rect"], (3, 3), path, "images.R0_rect", alt_shapes=[(4, 4)]),

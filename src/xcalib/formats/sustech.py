@@ -85,6 +85,26 @@ def read_sustech_labels(path) -> dict:
             "R_lidar_box": np.asarray(rots, dtype=np.float64).reshape(-1, 3, 3), "obj_ids": ids, "types": types}
 
 
+def read_sustech_calibration(path):
+    """One camera's ``calib/camera/<cam>.json`` of a SUSTechPOINTS scene (``extrinsic``: 16 numbers,
+    LiDAR -> camera; ``intrinsic``: 9, K) as a ``CalibrationResult`` named after the camera; the
+    image size from the scene's first ``camera/<cam>/*.jpg`` when it is there."""
+    from ._result import calibration_record
+
+    path = Path(path)
+    cal = load_json(path, what="SUSTech camera calibration")
+    if not isinstance(cal, dict):
+        raise FormatError(path, "expected a JSON object with 'extrinsic' and 'intrinsic'")
+    K = as_matrix(require(cal, "intrinsic", path), (3, 3), path, "intrinsic")
+    T = as_matrix(require(cal, "extrinsic", path), (4, 4), path, "extrinsic")
+    imgs = sorted((path.parent.parent.parent / "camera" / path.stem).glob("*.jpg"))
+    w, h = (load_rgb(imgs[0]).shape[1::-1]) if imgs else (None, None)
+    try:
+        intr = CameraIntrinsics.from_matrix(K, width=w, height=h)
+    except (TypeError, ValueError) as exc:
+        raise FormatError(path, str(exc), "intrinsic") from None
+    return calibration_record(intr, T, method="sustech", camera_name=path.stem, meta={"format": "sustech"})
+
 class SustechFrames(Sequence):
     """A SUSTechPOINTS scene folder, one camera (default ``front``), as a lazy ``Sequence[Frame]``."""
 

@@ -459,6 +459,8 @@ class CacheReader(Sequence):
         from .images import decode_image
 
         where = f"/images/{cam}/data[{self._image_index[key]}]"
+        if not blob:  # what the writer stores for a frame without image pixels (CacheWriter._encode)
+            return np.zeros((0, 0, 3), dtype=np.uint8)
         try:
             return decode_image(blob, source=f"{self.path}:{where}")
         except FormatError as exc:
@@ -882,7 +884,9 @@ class CacheWriter:
         imgs = dict(frame.images) if frame.images else {}
         if cam_primary not in imgs and frame.image is not None and np.asarray(frame.image).size:
             imgs[cam_primary] = frame.image
-        for cam in list(self.camera_names) + [c for c in imgs if c not in self.camera_names]:
+        # the frame's own camera gets a blob (empty without pixels: a cache needs a camera to be read)
+        cams = list(self.camera_names) + [c for c in imgs if c not in self.camera_names]
+        for cam in cams + ([cam_primary] if cam_primary not in cams else []):
             ds = self._blob_ds(cam)
             if len(ds) <= idx:
                 ds.resize((idx + 1,))
@@ -918,10 +922,10 @@ class CacheWriter:
                 n_idx = max((int(k) for k in self._keys), default=-1) + 1
                 if len(ds) < n_idx:
                     ds.resize((n_idx,))
-            if self._n == 0:
-                f.require_group(f"labels/{self.label_sensor or 'camera'}")
-                f.require_group(f"point_clouds/{self.lidar_name}")
-                f.require_group("images")
+            # the root groups the reader requires, also for no frames or frames without image pixels
+            f.require_group(f"labels/{self.label_sensor or 'camera'}")
+            f.require_group(f"point_clouds/{self.lidar_name}")
+            f.require_group("images")
             for cam, ci in self._intr.items():
                 cg = f.require_group(f"calibration/{cam}")
                 ds = cg.create_dataset("intrinsics", data=ci.K)

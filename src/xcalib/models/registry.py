@@ -25,6 +25,8 @@ from typing import Any, Callable, Mapping
 
 import yaml
 
+from ..data.crops import CropFields
+
 __all__ = ["register_model", "create_model", "list_models", "default_config", "merge_config",
            "UnknownModelError", "model_class", "config_class", "typed_config", "ModelConfig", "MATCHER_KEYS"]
 
@@ -33,19 +35,12 @@ _CONFIGS: dict[str, type] = {}  # typed config class per model name (derived onc
 
 
 @dataclass(frozen=True)
-class ModelConfig:
-    """What every matching model's config holds: the crop settings of ``data.crops.CropConfig``
+class ModelConfig(CropFields):
+    """What every matching model's config holds: the crop settings of ``data.crops.CropFields``
     (``crop_size`` px, ``point_cloud_size`` points, ``bbox_expansion``, ``keep_aspect``,
-    ``normalize``, ``min_points``, ``seed``) and the training ``temperature``. A model's own typed
-    config subclasses it and adds its keys."""
+    ``normalize``, ``min_points``, ``seed``; unchecked here, ``CropConfig`` checks them) and the
+    training ``temperature``. A model's own typed config subclasses it and adds its keys."""
 
-    crop_size: int = 32
-    point_cloud_size: int = 1024
-    bbox_expansion: float = 1.25
-    keep_aspect: bool = True
-    normalize: bool = True
-    min_points: int = 1
-    seed: int = 0
     temperature: float = 0.07
 
 

@@ -80,12 +80,13 @@ def starting_matcher(model: str, init: str = "auto", *, device: str | None = "cp
     import torch
 
     from ..engine.checkpoint import WeightsNotFoundError
-    from ..engine.matcher import Matcher
+    from ..engine.matcher import Matcher, without_shipped_weights_note
     from ..models import create_model
 
     if init in ("auto", "synthetic"):
         try:
-            return Matcher.from_pretrained(model, site="synthetic", device=device), "site:synthetic", "heads"
+            with without_shipped_weights_note():  # (it would advise running bootstrap, which this is)
+                return Matcher.from_pretrained(model, site="synthetic", device=device), "site:synthetic", "heads"
         except WeightsNotFoundError:
             if init == "synthetic":
                 raise

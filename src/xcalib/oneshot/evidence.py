@@ -14,14 +14,14 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from ..data.crops import CropConfig, FrameInputs, crop_images, crop_points, gather_box_points, resample_points
+from ..data.crops import CropConfig, FrameInputs, KeptCounts, crop_images, crop_points, gather_box_points, resample_points
 from ..types import Frame
 
 __all__ = ["Observation", "EvidenceBuffer", "observe_frame_inputs", "light_frame"]
 
 
 @dataclass
-class Observation:
+class Observation(KeptCounts):
     """One observed frame.
 
     crops_2d [N,3,S,S] normalised image crops of the kept 2D boxes; points [T,3] box-frame
@@ -43,18 +43,6 @@ class Observation:
     image_size: tuple[int, int]
     frame: Frame
     meta: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def num_2d(self) -> int:
-        return int(len(self.kept_2d))
-
-    @property
-    def num_3d(self) -> int:
-        return int(len(self.kept_3d))
-
-    @property
-    def empty(self) -> bool:
-        return self.num_2d == 0 or self.num_3d == 0
 
     def inputs(self, n_points: int, rng: np.random.Generator) -> FrameInputs:
         """Model inputs with every 3D crop resampled to ``n_points`` points by ``rng``."""

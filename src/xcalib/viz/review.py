@@ -147,7 +147,8 @@ def _calibration(ns: int, cam: str, result, frame) -> dict | None:
         logging.getLogger("xcalib.viz.review").warning(
             "%s: no foxglove.CameraCalibration message: it cannot express a %s camera", cam, intr.name)
         return None
-    d = [] if intr.distortion is None else [float(v) for v in intr.distortion]
+    # no distortion: plumb_bob with 5 zeros, as ROS writes it (an empty D is not a plumb_bob model)
+    d = [0.0] * 5 if intr.distortion is None else [float(v) for v in intr.distortion]
     K = np.asarray(intr.K, dtype=np.float64)
     h, w = frame.image.shape[:2]
     return {"timestamp": _t(ns), "frame_id": cam, "width": int(w), "height": int(h),

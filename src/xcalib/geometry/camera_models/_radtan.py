@@ -123,3 +123,22 @@ def undistort(md: np.ndarray, d: np.ndarray, r_max: float, iters: int = 40):
     if math.isfinite(r_max):
         ok &= np.linalg.norm(m, axis=1) <= r_max
     return m, ok
+
+
+def distort_within(m: np.ndarray, d: np.ndarray, r_max: float, jac: bool):
+    """A camera model's distortion step: ``(md [N,2], J [N,2,2] or None, valid [N])``, valid
+    where ``m`` lies within ``r_max`` (the one-to-one radius); the identity when ``d`` is all 0."""
+    if not np.any(d):
+        return m, None, np.ones(len(m), dtype=bool)
+    valid = np.ones(len(m), dtype=bool)
+    if math.isfinite(r_max):
+        valid = np.einsum("ij,ij->i", m, m) <= r_max ** 2
+    md, J = distort(m, d, jac)
+    return md, J, valid
+
+
+def undistort_within(md: np.ndarray, d: np.ndarray, r_max: float):
+    """The inverse step of :func:`distort_within`: ``(m [N,2], converged [N])``."""
+    if not np.any(d):
+        return md, np.ones(len(md), dtype=bool)
+    return undistort(md, d, r_max)

@@ -76,14 +76,10 @@ def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, cam
         rects [H,M,4] (NaN where invalid), valid [H,M]: every point projectable and a non-empty
         clipped rectangle (as :func:`xcalib.calib.boxproj.project_rects`).
     """
-    single = np.ndim(R) == 2
-    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
-    t = np.asarray(t, dtype=np.float64).reshape(-1, 3)
-    c = np.asarray(corners, dtype=np.float64)
+    single, R, t, c = pose_batch(R, t, corners)
     H, M = len(R), len(c)
     if M == 0:
-        out = np.zeros((H, 0, 4)), np.zeros((H, 0), dtype=bool)
-        return (out[0][0], out[1][0]) if single else out
+        return no_rects(H, single)
     if camera.is_pinhole or c.shape[1] != 8:
         rect, valid = _rects(c, R, t, camera, size, clip, min_distance)
     elif samples is not None:
@@ -127,6 +123,27 @@ def _rects(c, R, t, camera, size, clip, min_distance):
     v = uv[:, 1].reshape(H, M, S)
     # NaN (a point outside the valid region) propagates: such an outline is invalid anyway
     rect = np.stack([u.min(2), v.min(2), u.max(2), v.max(2)], axis=-1)
+    valid = finish_rects(rect, front, size, clip)
+    return rect, valid
+
+
+def pose_batch(R, t, corners) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray]:
+    """``(single, R [H,3,3], t [H,3], corners)`` as float64: one pose ([3,3], [3]) or H poses."""
+    single = np.ndim(R) == 2
+    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
+    t = np.asarray(t, dtype=np.float64).reshape(-1, 3)
+    return single, R, t, np.asarray(corners, dtype=np.float64)
+
+
+def no_rects(H: int, single: bool):
+    """The rects [H,0,4] and valid [H,0] of no boxes (the first pose's alone when ``single``)."""
+    out = np.zeros((H, 0, 4)), np.zeros((H, 0), dtype=bool)
+    return (out[0][0], out[1][0]) if single else out
+
+
+def finish_rects(rect: np.ndarray, front: np.ndarray, size: tuple[int, int], clip: bool) -> np.ndarray:
+    """Clip rects [...,4] (px) to the image ``size`` (W, H) when ``clip``, in place; return valid
+    [...]: ``front`` and wider and taller than 1 px; invalid rects become NaN (in place)."""
     if clip:
         W, Hh = size
         rect[..., [0, 2]] = np.clip(rect[..., [0, 2]], 0.0, W)
@@ -134,7 +151,7 @@ def _rects(c, R, t, camera, size, clip, min_distance):
     with np.errstate(invalid="ignore"):
         valid = front & (rect[..., 2] - rect[..., 0] > 1.0) & (rect[..., 3] - rect[..., 1] > 1.0)
     rect[~valid] = np.nan
-    return rect, valid
+    return valid
 
 
 def pixels_per_metre(camera: CameraModel, points: np.ndarray) -> np.ndarray:

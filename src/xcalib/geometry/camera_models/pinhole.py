@@ -4,7 +4,6 @@ tilted-sensor distortion (4, 5, 8, 12 or 14 coefficients; ROS ``plumb_bob`` and
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
@@ -88,18 +87,10 @@ class PinholeRadtan(Pinhole):
         return self._rmax
 
     def _distort(self, m, jac):
-        if not any(self.distortion):
-            return m, None, np.ones(len(m), dtype=bool)
-        valid = np.ones(len(m), dtype=bool)
-        if math.isfinite(self._rmax):
-            valid = np.einsum("ij,ij->i", m, m) <= self._rmax ** 2
-        md, J = _radtan.distort(m, self._d14, jac)
-        return md, J, valid
+        return _radtan.distort_within(m, self._d14, self._rmax, jac)
 
     def _undistort(self, md):
-        if not any(self.distortion):
-            return md, np.ones(len(md), dtype=bool)
-        return _radtan.undistort(md, self._d14, self._rmax)
+        return _radtan.undistort_within(md, self._d14, self._rmax)
 
     def to_intrinsics(self) -> "CameraIntrinsics":
         from ..camera import CameraIntrinsics

@@ -60,18 +60,10 @@ class Unified(CameraModel):
         return m, J, valid
 
     def _distort(self, m, jac):
-        if not any(self.distortion):
-            return m, None, np.ones(len(m), dtype=bool)
-        valid = np.ones(len(m), dtype=bool)
-        if math.isfinite(self._rmax):
-            valid = np.einsum("ij,ij->i", m, m) <= self._rmax ** 2
-        md, J = _radtan.distort(m, self._d14, jac)
-        return md, J, valid
+        return _radtan.distort_within(m, self._d14, self._rmax, jac)
 
     def _undistort(self, md):
-        if not any(self.distortion):
-            return md, np.ones(len(md), dtype=bool)
-        return _radtan.undistort(md, self._d14, self._rmax)
+        return _radtan.undistort_within(md, self._d14, self._rmax)
 
     def _lift(self, m):
         xi = self.xi

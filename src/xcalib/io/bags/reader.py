@@ -152,7 +152,8 @@ class BagInfo:
             flag = "" if t.msgtype in SUPPORTED_TYPES else "  (not read by xcalib)"
             if not _SAFE_TOPIC.match(t.topic):
                 flag += "  (name holds characters outside ROS names: refused by bag frames)"
-            out.append(f"  {_shown(t.topic):<{w}}  {_shown(t.msgtype):<36} {t.count:>6} {t.rate_hz:>8.2f}{flag}")
+            rate = f"{t.rate_hz:>8.2f}" if t.rate_hz > 0 else f"{'-':>8}"  # one message (or one stamp): no rate
+            out.append(f"  {_shown(t.topic):<{w}}  {_shown(t.msgtype):<36} {t.count:>6} {rate}{flag}")
         return out
 
 
