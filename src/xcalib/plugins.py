@@ -41,7 +41,7 @@ BUILTIN: dict[str, dict[str, str]] = {
         "bag", "monitor", "version", "reference")},
     "xcalib.formats": {n: f"xcalib.formats.export:{n.upper()}" for n in (
         "kitti", "calib_json", "lucid", "calib_txt", "opencalib", "openlabel", "ros", "urdf", "tf_static", "nuscenes",
-        "json", "npz", "waymo")},
+        "json", "npz", "waymo", "sustech")},
     "xcalib.models": {"calibrefine": "xcalib.models.calibrefine:CalibRefine", "crlite": "xcalib.models.crlite:CRLite",
                       "crlite_2dpe": "xcalib.models.crlite:CRLite2DPE", "crlite_vit_exp1": "xcalib.models.vit_models:ViTExp1",
                       "crlite_vit_exp3": "xcalib.models.vit_models:ViTExp3",

@@ -252,6 +252,7 @@ NUSCENES = FORMATS["nuscenes"]
 JSON = FORMATS["json"]
 NPZ = FORMATS["npz"]
 WAYMO = FORMATS["waymo"]
+SUSTECH = FORMATS["sustech"]
 
 _PLUGINS: dict[str, CalibFormat] = {}  # loaded xcalib.formats entries (the registry's own bookkeeping)
 
