@@ -2,12 +2,14 @@
 
 Cases: the demo site (``sample_site(0)``, 20 frames, traffic seed 5) with the default config and
 with ``refine_intrinsics="focal+center"``; the realism case ``time_offset_0.1s`` with
-``time_offset="estimate"``; the A9 sample (``../shared/data/a9_sample``, skipped when absent).
+``time_offset="estimate"``; the A9 sample (``../shared/data/a9_sample``, skipped when absent); with
+``--realism K``, also every registered realism condition on its first ``K`` identifiable site seeds
+(default config, as ``benchmarks/bench_calibration_realism.py`` runs them).
 
 Usage (run once per tree, then compare)::
 
     PYTHONPATH=<tree>/src python scripts/pose_identity.py run before.json
-    PYTHONPATH=<tree>/src python scripts/pose_identity.py run after.json
+    PYTHONPATH=<tree>/src python scripts/pose_identity.py run after.json [--realism K]
     python scripts/pose_identity.py compare before.json after.json
 """
 
@@ -32,7 +34,7 @@ def _summary(res) -> dict:
             "intrinsics": None if res.intrinsics is None else res.intrinsics.to_dict()}
 
 
-def run(out: Path) -> None:
+def run(out: Path, realism: int = 0) -> None:
     from xcalib.calib.api import calibrate
     from xcalib.calib.config import CalibConfig
     from xcalib.data.synth import generate_frames, sample_site
@@ -47,6 +49,18 @@ def run(out: Path) -> None:
         from xcalib.io.sources import open_source
 
         cases["a9"] = calibrate(list(open_source(A9)))
+    if realism:
+        import warnings
+
+        from xcalib.data.synth.realism import REALISM_CONDITIONS, identifiable_site_seeds
+
+        for seed in identifiable_site_seeds(realism):
+            for name in REALISM_CONDITIONS:
+                case = make_realism_case(name, seed)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    cases[f"realism:{name}:{seed}"] = calibrate(list(case.frames), case.intrinsics_given)
+                print(f"realism:{name}:{seed}", cases[f"realism:{name}:{seed}"].success, flush=True)
     result = {k: _summary(v) for k, v in cases.items()}
     out.write_text(json.dumps(result, indent=1))
     print({k: v["success"] for k, v in result.items()})
@@ -64,8 +78,8 @@ def compare(a: Path, b: Path) -> int:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) == 3 and sys.argv[1] == "run":
-        run(Path(sys.argv[2]))
+    if len(sys.argv) in (3, 5) and sys.argv[1] == "run" and (len(sys.argv) == 3 or sys.argv[3] == "--realism"):
+        run(Path(sys.argv[2]), int(sys.argv[4]) if len(sys.argv) == 5 else 0)
     elif len(sys.argv) == 4 and sys.argv[1] == "compare":
         raise SystemExit(compare(Path(sys.argv[2]), Path(sys.argv[3])))
     else:
