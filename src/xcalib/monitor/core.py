@@ -345,7 +345,6 @@ class CameraMonitor:
         self.cov_cal = np.diag(np.concatenate([np.radians(rs), ts]) ** 2)
         self.h = self.config.threshold
         self.lam = stats.detectable_lambda(self.h, self.config.power)
-        self._scales: deque[float] = deque(maxlen=SCALE_FRAMES)  # frames' robust residual scale
         self._diffs: deque[float] = deque(maxlen=200)  # successive windows' disagreement (chi2 / 6)
         self.reset()
         self.events: list[DriftEvent] = []
@@ -433,9 +432,7 @@ class CameraMonitor:
         J = ((e[1::2] - e[2::2]) / (2 * _EPS)).T  # [4n, 6]
         info = np.any(J != 0, axis=1) & np.isfinite(r)  # edges clipped at the border carry no information
         r, J = r[info], J[info]
-        if len(r):  # the residuals' own scale (noise-model sigmas): the soft-L1 loss bends at F_SCALE times it
-            self._scales.append(float(np.median(np.abs(r))) / 0.6745)
-        w = 1.0 / np.sqrt(1.0 + (r / (F_SCALE * self.residual_scale)) ** 2)
+        w = 1.0 / np.sqrt(1.0 + (r / F_SCALE) ** 2)
         rr = r - J @ self.x_lin  # x relative to the calibration
         JW = J * w[:, None]
         H, g, c = J.T @ JW, JW.T @ rr, float(np.sum(w * rr * rr))
@@ -558,15 +555,6 @@ class CameraMonitor:
                                            f"object(s) (track ids; need >= {cfg.min_objects}): one object's 3D box "
                                            "error would pass for a change")
         return None
-
-    @property
-    def residual_scale(self) -> float:
-        """The residuals' robust scale relative to the calibration's noise model: the median over
-        the last SCALE_FRAMES frames of each frame's median |r| / 0.6745, at least 1. The soft-L1
-        loss bends at ``F_SCALE`` times it, so a detector noisier than the model (4 px boxes: 3-4)
-        is not treated as outliers, whose reweighting would shrink every estimated change (to about
-        half of a 10 cm shift in one step)."""
-        return max(1.0, float(np.median(self._scales))) if self._scales else 1.0
 
     @property
     def inflation(self) -> float:
@@ -751,7 +739,6 @@ def _weak_message(weak: tuple[str, ...], det: np.ndarray, n_frames: int) -> str:
              f"{det[AXIS_NAMES.index(a)]:.2f} {'deg' if a[0] == 'r' else 'm'}" for a in weak]
     return (f"not observable from this traffic within {n_frames} frames of a change (95 % power): "
             + ", ".join(parts))
-SCALE_FRAMES = 200  # frames the residual scale is the median over
 RELIN_ITERS = 3  # rounds of re-linearisation of the frames after a detected change
 RELIN_TOL = 0.5  # a frame linearised farther than this (sigma, any axis) from the estimate is re-linearised
 MIN_DIFFS = 5  # adjacent window pairs before the measured inflation replaces the prior
