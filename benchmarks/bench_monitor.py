@@ -155,22 +155,41 @@ def _pct(v) -> float | None:
     return float(np.median(v)) if v else None
 
 
+_STREAMS: dict = {}  # the synthetic streams the step runs share (worker processes inherit them by fork)
+JOBS = 1  # worker processes (``--jobs``)
+
+
+def _pmap(fn, items: list) -> list:
+    """``[fn(x) for x in items]``, in ``JOBS`` forked worker processes when JOBS > 1 (order kept)."""
+    if JOBS <= 1 or len(items) <= 1:
+        return [fn(x) for x in items]
+    import multiprocessing as mp
+
+    with mp.get_context("fork").Pool(min(JOBS, len(items))) as pool:
+        return pool.map(fn, items)
+
+
+def _step_runs(cell) -> list[dict]:
+    kind, size, within, axis, runs = cell
+    keys = list(_STREAMS)
+    res = []
+    for r in range(runs):
+        seed = keys[r % len(keys)]
+        site, frames = _STREAMS[seed]
+        k0 = PRE + ((r // len(keys)) * 137) % max(len(frames) - PRE - POST, 1)
+        seg = frames[k0 - PRE:k0 + POST]
+        res.append(_run(_synth_calibration(site), seg, k0=PRE, change=_change(kind, size, axis)))
+    return res
+
+
 def _steps(streams: dict, runs: int, log, cells=None) -> list[dict]:
     """``cells``: (kind, size, within, axis) to run (default: every STEPS size on every axis)."""
-    rows = []
-    keys = list(streams)
-    for kind, size, within, axis in cells or [(k, s, w, a) for k, s, w in STEPS for a in range(3)]:
-        if True:
-            res = []
-            for r in range(runs):
-                seed = keys[r % len(keys)]
-                site, frames = streams[seed]
-                k0 = PRE + ((r // len(keys)) * 137) % max(len(frames) - PRE - POST, 1)
-                seg = frames[k0 - PRE:k0 + POST]
-                res.append(_run(_synth_calibration(site), seg, k0=PRE, change=_change(kind, size, axis)))
-            rows.append(_summarise(f"step {size:g} {'deg' if kind == 'rotation' else 'm'} {kind} {AXES[axis]}",
-                                   res, kind, size, axis, within, PRE, log))
-    return rows
+    _STREAMS.clear()
+    _STREAMS.update(streams)
+    cells = cells or [(k, s, w, a) for k, s, w in STEPS for a in range(3)]
+    results = _pmap(_step_runs, [(*c, runs) for c in cells])
+    return [_summarise(f"step {size:g} {'deg' if kind == 'rotation' else 'm'} {kind} {AXES[axis]}",
+                       res, kind, size, axis, within, PRE, log) for (kind, size, within, axis), res in zip(cells, results)]
 
 
 def _summarise(name, res, kind, size, axis, within, k0, log) -> dict:
@@ -269,14 +288,18 @@ def _replay(base: list, n: int, seed: int, jitter_px: float = 1.0, drop: float =
                       camera_time_s=0.1 * i, frame_key=str(i), meta=meta)
 
 
+def _null_site(job) -> dict:
+    s, n_base, n, noise = job
+    site, base = _synth_stream(s, n_base, **noise)
+    return _run(_synth_calibration(site), _replay(base, n, s, 0.5, 0.05), latch=False)
+
+
 def _null_replay(name: str, seeds: list[int], n_base: int, n: int, log, **noise) -> dict:
     """False alarms on drift-free synthetic streams made cheaply: ``n_base`` generated frames per
     site (``iter_frames``, with ``noise``) replayed with fresh 0.5 px jitter and 5 % extra misses
     per pass to ``n`` frames (the generator costs ~11 ms a frame, the monitor ~2.5 ms)."""
     runs = []
-    for s in seeds:
-        site, base = _synth_stream(s, n_base, **noise)
-        q = _run(_synth_calibration(site), _replay(base, n, s, 0.5, 0.05), latch=False)
+    for s, q in zip(seeds, _pmap(_null_site, [(s, n_base, n, noise) for s in seeds])):
         log(f"  {name}: site {s}: {q['frames']} frames, {q['alarms']} alarms, states {q['states']}, "
             f"{q['cpu_ms']:.2f} ms/frame", flush=True)
         runs.append(q)
@@ -427,7 +450,11 @@ def main() -> None:
     ap.add_argument("--steps-only", action="store_true", help="--part synth: the steps only (no null streams, ramps)")
     ap.add_argument("--real-null", type=int, default=1600, help="real sequences: drift-free frames (looped)")
     ap.add_argument("--real-frames", type=int, default=320, help="real sequences: step streams (change at the middle)")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (null sites, step cells)")
+    ap.add_argument("--out", type=Path, default=None, help="results file (default benchmarks/results/monitor.json)")
     args = ap.parse_args()
+    global JOBS
+    JOBS = max(1, args.jobs)
     n_null = 18000 if args.full else args.null_frames
     t_all = time.time()
     def log(*a, **k):
@@ -435,8 +462,9 @@ def main() -> None:
 
     seeds = [3, 5, 7, 11, 13, 17, 19, 23][:args.sites]
     result = {"machine": machine_info(), "config": "MonitorConfig() defaults"}
-    out = REPO / "benchmarks" / "results" / "monitor.json"
-    result[f"command_{args.part}" + (f"_{args.null_noise}" if args.part == "null" else "")] = " ".join(sys.argv)
+    out = args.out or REPO / "benchmarks" / "results" / "monitor.json"
+    argv = [a for i, a in enumerate(sys.argv) if a != "--out" and (i == 0 or sys.argv[i - 1] != "--out")]
+    result[f"command_{args.part}" + (f"_{args.null_noise}" if args.part == "null" else "")] = " ".join(argv)
     from _provenance import provenance
 
     result[f"provenance_{args.part}"] = provenance()  # parts are merged: each keeps the run that made it
