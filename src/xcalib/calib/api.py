@@ -28,7 +28,7 @@ import numpy as np
 from ..geometry.boxes import box2d_centers
 from ..geometry.projection import project_points
 from ..geometry.transforms import make_transform
-from .boxmodel import fit_outline
+from .boxmodel import fit_object_outline, fit_outline
 from .bringup import distinct_best, matcher_similarities, pose_hypotheses
 from .config import CalibConfig
 from .cost import Occlusion
@@ -46,6 +46,7 @@ from .result import CalibrationResult
 from .selection import FrameSelection, scan_frames, select_frames
 from .selfcal import decide as decide_selfcal, wants_selfcal
 from .uncertainty import estimate as estimate_uncertainty
+from .uncertainty import object_groups, with_object_outline
 
 __all__ = ["calibrate", "calibrate_single", "METHOD"]
 
@@ -406,11 +407,19 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     diag.bringup_error_vs_final = list(Pose.parse(np.asarray(diag.bringup_T)).error(pose))
 
     pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=config.gate_iou)
-    px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     f_scale = max(0.5, 1.5 * float(np.median(np.abs(best.residuals)))) if len(best.residuals) else 2.0
+    track_ids = _track_ids(frames_in, cframes)
     unc = estimate_uncertainty(cframes, pairs, intr, pose, best.noise, f_scale, occlusion=occlusion,
-                               mode=config.uncertainty, track_ids=_track_ids(frames_in, cframes), seed=config.seed,
+                               mode=config.uncertainty, track_ids=track_ids, seed=config.seed,
                                floor=inflation)
+    # each object's own outline (a detector's box of this car vs that one): random effects, fitted
+    # where the objects differ beyond the edge noise; the pose moves to that fit (matches held)
+    obj_fit = fit_object_outline(cframes, pairs, intr, pose, best.noise, f_scale, occlusion,
+                                 object_groups(cframes, pairs, track_ids=track_ids))
+    if obj_fit is not None:
+        unc = with_object_outline(unc, obj_fit.sd)
+        pose_plain, pose = pose, obj_fit.pose
+    px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     diag.uncertainty = unc.parts  # its selfcal part: the pose spread the estimated intrinsics / offset add
     # a runner-up within 2 sigma of the best is the same solution (the decision then bounds the
     # error by 2 sigma); only one beyond that is a competing explanation
@@ -425,6 +434,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         diag.matched_places, diag.matched_places_off_line = int(len(places)), int(np.sum(off > POOLED_OFF_LINE_M))
     diag.box_fit = {"outline": diag.box_model or "corners", "px_hulls_corners": diag.box_model_px,
                     **fit_outline(cframes, pairs, intr, pose, best.noise, f_scale, occlusion)}
+    if obj_fit is not None:
+        diag.box_fit["objects"] = obj_fit.summary(pose_plain)
     centre_off = _centre_offsets(cframes, intr, pose.R, pose.t, pairs)
     diag.centre_offset_px_median = float(np.median(centre_off)) if len(centre_off) else None
     diag.frames = _frame_summaries(cframes, intr, pose.R, pose.t, pairs)
