@@ -227,36 +227,42 @@ def fit_object_outline(frames, pairs, intr, pose, noise, f_scale: float, occlusi
     free = np.flatnonzero(tau > 0)
     if p >= OBJECT_OUTLINE_P or not len(free):
         return None
-    obs0, size = term.obs.copy(), _box_size(term.obs)
+    W, H = term.size
+    obs0 = term.obs.copy()
+    on_border = np.column_stack([obs0[:, 0] <= 0.5, obs0[:, 1] <= 0.5, obs0[:, 2] >= W - 0.5, obs0[:, 3] >= H - 0.5])
+    size = _box_size(obs0) * ~on_border  # an edge on the image border is where the image ends: no offset
     k = len(free)
-    lam = sig / tau[free]  # prior rows a * lam: the prior in the edge residuals' scale
-    cols = 6 + groups[:, None] * k + np.arange(k)[None, :]  # [n,k] parameter column of each pair's free edges
+    # common offsets (sides, top, bottom; prior OUTLINE_PRIOR as ``outline_edge_term``) + each object's own
+    lam = np.concatenate([np.full(3, sig / OUTLINE_PRIOR), np.tile(sig / tau[free], G)])
+    common = np.array([[1.0, 0, 0], [0, 1.0, 0], [1.0, 0, 0], [0, 0, 1.0]])  # edge <- (sides, top, bottom)
+    cols = groups[:, None] * k + np.arange(k)[None, :]  # [n,k] column (after pose and common) of each pair's free edges
     rows = 4 * np.arange(n)[:, None] + free[None, :]
+    P = 9 + G * k
 
     def setx(x):
-        a = np.zeros((n, 4))
-        a[:, free] = x[6:].reshape(G, k)[groups]
+        a = (common @ x[6:9])[None, :] + np.zeros((n, 4))
+        a[:, free] += x[9:].reshape(G, k)[groups]
         term.obs = obs0 + INWARD * a * size
         return PoseState(pose.moved(x[:3], x[3:6]), intr)
 
     def resid(x):
         st = setx(x)
-        return np.concatenate([term.residuals(st), x[6:] * np.tile(lam, G)])
+        return np.concatenate([term.residuals(st), x[6:] * lam])
 
     def jac(x):
         st = setx(x)
         Jp = term.jacobian(st, x[:3], [])
         raw = np.where(np.isfinite(term.edges(st)), term.edges(st), 0.0) * term.w
-        da = (_edge_share_derivative(term, size) * _shape_slope(term, raw))[:, free]
-        edges = sparse.hstack([sparse.csr_matrix(Jp), sparse.csr_matrix(
-            (da.ravel(), (rows.ravel(), cols.ravel() - 6)), shape=(4 * n, G * k))])
-        prior = sparse.hstack([sparse.csr_matrix((G * k, 6)), sparse.diags(np.tile(lam, G))])
+        da = _edge_share_derivative(term, size) * _shape_slope(term, raw)  # [n,4]
+        Jc = (da[:, :, None] * common[None]).reshape(4 * n, 3)
+        edges = sparse.hstack([sparse.csr_matrix(np.hstack([Jp, Jc])), sparse.csr_matrix(
+            (da[:, free].ravel(), (rows.ravel(), cols.ravel())), shape=(4 * n, G * k))])
+        prior = sparse.hstack([sparse.csr_matrix((P - 6, 6)), sparse.diags(lam)])
         return sparse.vstack([edges, prior]).tocsr()
 
-    x0 = np.zeros(6 + G * k)
     try:
-        res = least_squares(resid, x0, jac=jac, loss="soft_l1", f_scale=f_scale, method="trf", tr_solver="lsmr",
-                            x_scale=np.concatenate([POSE_X_SCALE, np.full(G * k, 1e-2)]), max_nfev=60)
+        res = least_squares(resid, np.zeros(P), jac=jac, loss="soft_l1", f_scale=f_scale, method="trf", tr_solver="lsmr",
+                            x_scale=np.concatenate([POSE_X_SCALE, np.full(P - 6, 1e-2)]), max_nfev=60)
         J = jac(res.x).toarray()
     except (np.linalg.LinAlgError, ValueError):
         term.obs = obs0
@@ -274,6 +280,6 @@ def fit_object_outline(frames, pairs, intr, pose, noise, f_scale: float, occlusi
         return None
     d = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     sd = np.concatenate([np.degrees(d[:3]), d[3:]])
-    offs = np.zeros((G, 4))
-    offs[:, free] = res.x[6:].reshape(G, k)
+    offs = np.zeros((G, 4)) + common @ res.x[6:9]
+    offs[:, free] += res.x[9:].reshape(G, k)
     return ObjectOutlineFit(pose.moved(res.x[:3], res.x[3:6]), sd, tau, p, G, offs)
