@@ -152,8 +152,9 @@ def object_outline_spread(term, groups: np.ndarray, state) -> tuple[np.ndarray, 
     """(tau [4], residual scale, p-value): the spread of the objects' own outline offsets.
 
     Each object's offset per edge is estimated from its inlier residuals at ``state`` (linearised,
-    the pose held); their robust spread (MAD over objects) less the share the edge noise explains
-    is ``tau`` (method of moments, 0 where the noise explains it all). The p-value tests the
+    the pose held); their robust spread (MAD over objects; left and right edges pooled, one spread
+    for both sides) less the share the edge noise explains is ``tau`` (method of moments, 0 where
+    the noise explains it all). The p-value tests the
     per-object offsets against the noise alone (chi-square over objects and edges)."""
     from scipy.special import chdtrc
 
@@ -177,11 +178,11 @@ def object_outline_spread(term, groups: np.ndarray, state) -> tuple[np.ndarray, 
     a = np.where(ok, -num / np.where(ok, den, 1.0), 0.0)
     nv = np.where(ok, sig ** 2 / np.where(ok, den, 1.0), np.inf)
     tau2 = np.zeros(4)
-    for k in range(4):
-        v = a[ok[:, k], k]
-        if len(v) >= OBJECT_OUTLINE_MIN_OBJECTS:
-            mad = 1.4826 * float(np.median(np.abs(v - np.median(v))))
-            tau2[k] = max(mad ** 2 - float(np.median(nv[ok[:, k], k])), 0.0)
+    for ks in ((0, 2), (1,), (3,)):  # left and right pooled: a detector has no preferred side
+        v = np.concatenate([a[ok[:, k], k] - np.median(a[ok[:, k], k]) for k in ks if ok[:, k].any()] or [np.zeros(0)])
+        if len(v) >= OBJECT_OUTLINE_MIN_OBJECTS * len(ks):
+            mad = 1.4826 * float(np.median(np.abs(v)))
+            tau2[list(ks)] = max(mad ** 2 - float(np.median(np.concatenate([nv[ok[:, k], k] for k in ks]))), 0.0)
     dof = int(ok.sum())
     p = float(chdtrc(dof, float(np.sum(a[ok] ** 2 / nv[ok])))) if dof else 1.0
     return np.sqrt(tau2), sig, p
