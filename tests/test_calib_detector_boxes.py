@@ -199,3 +199,18 @@ def test_each_objects_own_outline_is_a_random_effect_fitted_only_where_objects_d
     cframes, pairs, intr, noise = _setup(frames, T)
     truth = Pose(T[:3, :3], T[:3, 3])
     assert fit_object_outline(cframes, pairs, intr, truth, noise, 2.0, Occlusion(), object_groups(cframes, pairs)) is None
+
+
+def test_object_outline_sigma_taken_per_axis_as_the_larger_and_kept_in_the_parts():
+    from xcalib.calib.diagnostics import CalibDiagnostics, UncertaintyParts
+    from xcalib.calib.uncertainty import Uncertainty, with_object_outline
+
+    unc = Uncertainty(np.array([0.1, 0.2, 0.3]), np.array([0.05, 0.05, 0.4]), UncertaintyParts(), True,
+                      np.array([0.1, 0.1, 0.1]), np.array([0.02, 0.02, 0.02]))
+    out = with_object_outline(unc, [0.2, 0.1, 0.1, 0.1, 0.01, 0.1])
+    assert np.allclose(out.rot_sd, [0.2, 0.2, 0.3]) and np.allclose(out.tr_sd, [0.1, 0.05, 0.4])
+    assert np.allclose(out.rot_sd_data, [0.1, 0.1, 0.1]) and np.allclose(out.tr_sd_data, [0.02] * 3)  # verdict's: kept
+    assert out.parts.object_outline == [0.2, 0.1, 0.1, 0.1, 0.01, 0.1]
+    back = CalibDiagnostics.from_dict(CalibDiagnostics(uncertainty=out.parts).to_dict())
+    assert back.uncertainty.object_outline == out.parts.object_outline
+    assert CalibDiagnostics.from_dict({}).uncertainty.object_outline is None  # results written before
