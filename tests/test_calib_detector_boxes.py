@@ -214,3 +214,19 @@ def test_object_outline_sigma_taken_per_axis_as_the_larger_and_kept_in_the_parts
     back = CalibDiagnostics.from_dict(CalibDiagnostics(uncertainty=out.parts).to_dict())
     assert back.uncertainty.object_outline == out.parts.object_outline
     assert CalibDiagnostics.from_dict({}).uncertainty.object_outline is None  # results written before
+
+
+def test_summary_names_the_objects_own_outlines_when_fitted():
+    from xcalib.calib.diagnostics import CalibDiagnostics
+    from xcalib.calib.result import CalibrationResult
+
+    bf = {"outline": "corners", "sides": 0.05, "top": 0.09, "bottom": 0.0,
+          "objects": {"tau": {"left": 0.03, "top": 0.07, "right": 0.03, "bottom": 0.02}, "p_value": 1e-20,
+                      "n_objects": 13, "sd": [0.1] * 6, "pose_shift": [0.35, 0.42]}}
+    res = CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3),
+                            diagnostics=CalibDiagnostics(box_fit=bf))
+    text = res.summary()
+    assert "own outlines" in text and "13 objects" in text and "0.42 m" in text
+    bf.pop("objects")
+    assert "own outlines" not in CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3),
+                                                   diagnostics=CalibDiagnostics(box_fit=bf)).summary()
