@@ -416,9 +416,10 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     # where the objects differ beyond the edge noise; the pose moves to that fit (matches held)
     obj_fit = fit_object_outline(cframes, pairs, intr, pose, best.noise, f_scale, occlusion,
                                  object_groups(cframes, pairs, track_ids=track_ids))
-    if obj_fit is not None:
+    pose_plain = pose
+    if obj_fit is not None and obj_fit.shift_significant(pose_plain):  # the plain pose is biased beyond its noise
         unc = with_object_outline(unc, obj_fit.sd)
-        pose_plain, pose = pose, obj_fit.pose
+        pose = obj_fit.pose
     px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     diag.uncertainty = unc.parts  # its selfcal part: the pose spread the estimated intrinsics / offset add
     # a runner-up within 2 sigma of the best is the same solution (the decision then bounds the

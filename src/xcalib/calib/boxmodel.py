@@ -121,13 +121,32 @@ class ObjectOutlineFit:
     p_value: float
     n_objects: int
     offsets: np.ndarray
+    cov: np.ndarray | None = None  # [6,6] of the pose (rad, m), the offsets marginalised
+
+    def shift_significant(self, pose0) -> bool:
+        """Whether the pose moved from ``pose0`` (the fit without the objects' own outlines) by more
+        than this fit's own scatter: ``d^2 = delta^T cov^-1 delta`` beyond the 99 % point of chi-square
+        with 6 degrees of freedom (a Hausman-type test, conservative: the difference of the two
+        estimates scatters less than this one). Where it does not, the objects' outlines leave the
+        pose where it was, and the fit without them (which has less scatter) is kept."""
+        from scipy.special import chdtri
+
+        if self.cov is None:
+            return False
+        d = np.asarray(self.pose.delta(pose0), dtype=np.float64)
+        d = np.concatenate([np.radians(d[:3]), d[3:]])
+        try:
+            d2 = float(d @ np.linalg.solve(self.cov, d))
+        except np.linalg.LinAlgError:
+            return False
+        return d2 > float(chdtri(6, 0.01))
 
     def summary(self, pose0) -> dict:
         """JSON-ready record (``diagnostics.box_fit["objects"]``): the spread of the objects' outlines and
         the pose shift from ``pose0`` (the fit without them)."""
         return {"tau": {k: float(v) for k, v in zip(EDGE_NAMES, self.tau)}, "p_value": float(self.p_value),
                 "n_objects": int(self.n_objects), "sd": [float(v) for v in self.sd],
-                "pose_shift": [float(v) for v in self.pose.error(pose0)]}
+                "pose_shift": [float(v) for v in self.pose.error(pose0)], "applied": bool(self.shift_significant(pose0))}
 
 
 def _edge_share_derivative(term, size: np.ndarray) -> np.ndarray:
@@ -283,4 +302,4 @@ def fit_object_outline(frames, pairs, intr, pose, noise, f_scale: float, occlusi
     sd = np.concatenate([np.degrees(d[:3]), d[3:]])
     offs = np.zeros((G, 4)) + common @ res.x[6:9]
     offs[:, free] += res.x[9:].reshape(G, k)
-    return ObjectOutlineFit(pose.moved(res.x[:3], res.x[3:6]), sd, tau, p, G, offs)
+    return ObjectOutlineFit(pose.moved(res.x[:3], res.x[3:6]), sd, tau, p, G, offs, cov)
