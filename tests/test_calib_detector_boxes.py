@@ -153,3 +153,80 @@ def test_following_a_refusals_advice_never_leads_back_to_the_same_refusal():
         codes = [c for _, ok, c in chain if not ok]
         assert len(codes) == len(set(codes)), (cond, chain)  # no refusal comes back
         assert not chain[0][1], (cond, chain)  # the bent site is refused first
+
+
+
+def _objects_with_own_outlines(seed: int, n_frames: int, mean, sd):
+    """One frame's objects seen again in ``n_frames`` frames (fresh 1 px box noise per frame), each
+    2D box moved in by its object's own shares (width, top, bottom) drawn around ``mean`` with
+    1-sigma ``sd``: a detector's visible outline, the same car alike over the frames, car to car different."""
+    from xcalib.types import Frame
+
+    base, T = sim_frames(seed=seed, n_frames=1, n_objects=(14, 20), noise_px=0.0, miss=0.0, false_pos=0.0,
+                         extra_3d=0)
+    rng = np.random.default_rng(seed)
+    f0 = base[0]
+    b = np.asarray(f0.bboxes_2d, dtype=np.float64)
+    w, h = b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]
+    sh = np.asarray(mean) + np.asarray(sd) * rng.normal(size=(len(b), 3))
+    b = b + np.column_stack([sh[:, 0] * w / 2, sh[:, 1] * h, -sh[:, 0] * w / 2, -sh[:, 2] * h])
+    frames = [Frame(**{**f0.__dict__, "frame_key": f"{k:04d}", "bboxes_2d": (b + rng.normal(0, 1.0, b.shape))})
+              for k in range(n_frames)]
+    return frames, T
+
+
+def test_each_objects_own_outline_is_a_random_effect_fitted_only_where_objects_differ():
+    from xcalib.calib.boxmodel import fit_object_outline
+    from xcalib.calib.uncertainty import object_groups
+
+    errs = []
+    for seed in (1, 2, 3):
+        frames, T = _objects_with_own_outlines(seed, 8, (0.08, 0.08, 0.02), (0.06, 0.06, 0.03))
+        truth = Pose(T[:3, :3], T[:3, 3])
+        cframes, pairs, intr, noise = _setup(frames, T)
+        R, t, *_ = lsq(cframes, pairs, intr, truth.R, truth.t, 2.0, 60, noise)
+        plain = Pose(R, t)
+        fit = fit_object_outline(cframes, pairs, intr, plain, noise, 2.0, Occlusion(), object_groups(cframes, pairs))
+        assert fit is not None and fit.p_value < 1e-3 and fit.n_objects >= len(pairs[0]) - 2  # neighbours within 1.5 m: one
+        assert fit.tau.max() > 0.02 and np.all(fit.sd > 0) and fit.offsets.shape == (fit.n_objects, 4)
+        errs.append((plain.error(truth)[1], fit.pose.error(truth)[1]))
+        rec = fit.summary(plain)
+        assert set(rec["tau"]) == {"left", "top", "right", "bottom"} and len(rec["pose_shift"]) == 2
+    plain_m, re_m = np.mean(errs, axis=0)
+    assert re_m < plain_m, errs  # the objects' own outlines no longer pull the camera along its view
+    # exact boxes: the objects do not differ beyond the noise, nothing is fitted (the pose stays)
+    frames, T = _objects_with_own_outlines(1, 8, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    cframes, pairs, intr, noise = _setup(frames, T)
+    truth = Pose(T[:3, :3], T[:3, 3])
+    assert fit_object_outline(cframes, pairs, intr, truth, noise, 2.0, Occlusion(), object_groups(cframes, pairs)) is None
+
+
+def test_object_outline_sigma_taken_per_axis_as_the_larger_and_kept_in_the_parts():
+    from xcalib.calib.diagnostics import CalibDiagnostics, UncertaintyParts
+    from xcalib.calib.uncertainty import Uncertainty, with_object_outline
+
+    unc = Uncertainty(np.array([0.1, 0.2, 0.3]), np.array([0.05, 0.05, 0.4]), UncertaintyParts(), True,
+                      np.array([0.1, 0.1, 0.1]), np.array([0.02, 0.02, 0.02]))
+    out = with_object_outline(unc, [0.2, 0.1, 0.1, 0.1, 0.01, 0.1])
+    assert np.allclose(out.rot_sd, [0.2, 0.2, 0.3]) and np.allclose(out.tr_sd, [0.1, 0.05, 0.4])
+    assert np.allclose(out.rot_sd_data, [0.1, 0.1, 0.1]) and np.allclose(out.tr_sd_data, [0.02] * 3)  # verdict's: kept
+    assert out.parts.object_outline == [0.2, 0.1, 0.1, 0.1, 0.01, 0.1]
+    back = CalibDiagnostics.from_dict(CalibDiagnostics(uncertainty=out.parts).to_dict())
+    assert back.uncertainty.object_outline == out.parts.object_outline
+    assert CalibDiagnostics.from_dict({}).uncertainty.object_outline is None  # results written before
+
+
+def test_summary_names_the_objects_own_outlines_when_fitted():
+    from xcalib.calib.diagnostics import CalibDiagnostics
+    from xcalib.calib.result import CalibrationResult
+
+    bf = {"outline": "corners", "sides": 0.05, "top": 0.09, "bottom": 0.0,
+          "objects": {"tau": {"left": 0.03, "top": 0.07, "right": 0.03, "bottom": 0.02}, "p_value": 1e-20,
+                      "n_objects": 13, "sd": [0.1] * 6, "pose_shift": [0.35, 0.42]}}
+    res = CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3),
+                            diagnostics=CalibDiagnostics(box_fit=bf))
+    text = res.summary()
+    assert "own outlines" in text and "13 objects" in text and "0.42 m" in text
+    bf.pop("objects")
+    assert "own outlines" not in CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3),
+                                                   diagnostics=CalibDiagnostics(box_fit=bf)).summary()

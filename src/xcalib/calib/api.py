@@ -28,7 +28,7 @@ import numpy as np
 from ..geometry.boxes import box2d_centers
 from ..geometry.projection import project_points
 from ..geometry.transforms import make_transform
-from .boxmodel import fit_outline
+from .boxmodel import fit_object_outline, fit_outline
 from .bringup import distinct_best, matcher_similarities, pose_hypotheses
 from .config import CalibConfig
 from .cost import Occlusion
@@ -46,6 +46,7 @@ from .result import CalibrationResult
 from .selection import FrameSelection, scan_frames, select_frames
 from .selfcal import decide as decide_selfcal, wants_selfcal
 from .uncertainty import estimate as estimate_uncertainty
+from .uncertainty import object_groups, with_object_outline
 
 __all__ = ["calibrate", "calibrate_single", "METHOD"]
 
@@ -434,15 +435,28 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     diag.bringup_error_vs_final = list(Pose.parse(np.asarray(diag.bringup_T)).error(pose))
 
     pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=config.gate_iou)
-    px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     f_scale = max(0.5, 1.5 * float(np.median(np.abs(best.residuals)))) if len(best.residuals) else 2.0
+    track_ids = _track_ids(frames_in, cframes)
     fit = FitContext(cframes, pairs, intr, pose, best.noise, f_scale, occlusion)
     # the misfit checks' searches start now on the other cores (workers > 1), beside the uncertainty and
     # the verdict (one worker: they run only when the checks ask for them); closed before returning
     searches = _misfit_searches(fit, config) if config.misfit_check else None
     unc = estimate_uncertainty(fit,
-                               mode=config.uncertainty, track_ids=_track_ids(frames_in, cframes), seed=config.seed,
+                               mode=config.uncertainty, track_ids=track_ids, seed=config.seed,
                                floor=inflation)
+    # each object's own outline (a detector's box of this car vs that one): random effects, fitted
+    # where the objects differ beyond the edge noise; the pose moves to that fit (matches held)
+    obj_fit = fit_object_outline(cframes, pairs, intr, pose, best.noise, f_scale, occlusion,
+                                 object_groups(cframes, pairs, track_ids=track_ids))
+    pose_plain = pose
+    if obj_fit is not None and obj_fit.shift_significant(pose_plain):  # the plain pose is biased beyond its noise
+        unc = with_object_outline(unc, obj_fit.sd)
+        pose = obj_fit.pose
+        fit = fit.with_pose(pose)
+        if searches is not None:  # searched from the plain pose: again from the moved one
+            searches.close()
+            searches = _misfit_searches(fit, config)
+    px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     diag.uncertainty = unc.parts  # its selfcal part: the pose spread the estimated intrinsics / offset add
     # a runner-up within 2 sigma of the best is the same solution (the decision then bounds the
     # error by 2 sigma); only one beyond that is a competing explanation
@@ -457,6 +471,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         diag.matched_places, diag.matched_places_off_line = int(len(places)), int(np.sum(off > POOLED_OFF_LINE_M))
     diag.box_fit = {"outline": diag.box_model or "corners", "px_hulls_corners": diag.box_model_px,
                     **fit_outline(cframes, pairs, intr, pose, best.noise, f_scale, occlusion)}
+    if obj_fit is not None:
+        diag.box_fit["objects"] = obj_fit.summary(pose_plain)
     centre_off = _centre_offsets(cframes, intr, pose.R, pose.t, pairs)
     diag.centre_offset_px_median = float(np.median(centre_off)) if len(centre_off) else None
     diag.frames = _frame_summaries(cframes, intr, pose.R, pose.t, pairs)

@@ -8,6 +8,8 @@ it, a nuisance fitted with the pose (``outline_edge_term``, ``fit_outline``).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .boxshape import (YawFit, YawFitSettings, estimate_yaw_from_points, expand_by_scan_gap,  # noqa: F401
@@ -15,7 +17,8 @@ from .boxshape import (YawFit, YawFitSettings, estimate_yaw_from_points, expand_
 
 __all__ = ["YawFit", "fit_yaw_to_points", "estimate_yaw_from_points", "lidar_angular_step", "expand_by_scan_gap",
            "outline_edge_term", "fit_outline", "OUTLINE_PRIOR", "OUTLINE_PARAMS",
-           "shapes_from_points"]
+           "shapes_from_points", "ObjectOutlineFit", "object_outline_spread", "fit_object_outline",
+           "OBJECT_OUTLINE_P", "OBJECT_OUTLINE_MIN_OBJECTS", "EDGE_NAMES"]
 
 
 # --- the 2D outline of a 3D box as a detector draws it: a nuisance fitted with the pose -------------
@@ -93,3 +96,210 @@ def fit_outline(frames, pairs, intr, pose, noise, f_scale: float, occlusion) -> 
     out["pose_shift"] = [float(v) for v in fit.pose.error(pose)]
     out["n_pairs"] = n
     return out
+
+
+# --- each object's own outline: per-object edge offsets as random effects ------------------------
+#: the per-object offsets are fitted only when the objects' outlines differ beyond the edge noise
+#: (chi-square test of the per-object offsets against the residual scale; p-value below this)
+OBJECT_OUTLINE_P = 1e-3
+#: fewest distinct objects (their spread is the prior's; fewer: no estimate of it)
+OBJECT_OUTLINE_MIN_OBJECTS = 4
+EDGE_NAMES = ("left", "top", "right", "bottom")
+
+
+@dataclass
+class ObjectOutlineFit:
+    """The pose refitted with one outline offset per object and edge (a share of the box size,
+    positive: the 2D box lies inside the projected outline), each a random effect with the prior
+    1-sigma ``tau`` [4] (left, top, right, bottom) estimated from the per-object residuals.
+    ``sd``: the pose's 1-sigma (deg / m) with the offsets marginalised; ``p_value``: the test that
+    made them worth fitting; ``offsets`` [G,4]: the fitted offsets per object."""
+
+    pose: object
+    sd: np.ndarray
+    tau: np.ndarray
+    p_value: float
+    n_objects: int
+    offsets: np.ndarray
+    cov: np.ndarray | None = None  # [6,6] of the pose (rad, m), the offsets marginalised
+
+    def shift_significant(self, pose0) -> bool:
+        """Whether the pose moved from ``pose0`` (the fit without the objects' own outlines) by more
+        than this fit's own scatter: ``d^2 = delta^T cov^-1 delta`` beyond the 99 % point of chi-square
+        with 6 degrees of freedom (a Hausman-type test, conservative: the difference of the two
+        estimates scatters less than this one). Where it does not, the objects' outlines leave the
+        pose where it was, and the fit without them (which has less scatter) is kept."""
+        from scipy.special import chdtri
+
+        if self.cov is None:
+            return False
+        d = np.asarray(self.pose.delta(pose0), dtype=np.float64)
+        d = np.concatenate([np.radians(d[:3]), d[3:]])
+        try:
+            d2 = float(d @ np.linalg.solve(self.cov, d))
+        except np.linalg.LinAlgError:
+            return False
+        return d2 > float(chdtri(6, 0.01))
+
+    def summary(self, pose0) -> dict:
+        """JSON-ready record (``diagnostics.box_fit["objects"]``): the spread of the objects' outlines and
+        the pose shift from ``pose0`` (the fit without them)."""
+        return {"tau": {k: float(v) for k, v in zip(EDGE_NAMES, self.tau)}, "p_value": float(self.p_value),
+                "n_objects": int(self.n_objects), "sd": [float(v) for v in self.sd],
+                "pose_shift": [float(v) for v in self.pose.error(pose0)], "applied": bool(self.shift_significant(pose0))}
+
+
+def _edge_share_derivative(term, size: np.ndarray) -> np.ndarray:
+    """d residual / d offset [n,4] of a box-edge term at its last residuals: an offset ``a`` moves
+    the expected 2D edge into the outline by ``a`` x the box size (``size`` [n,4]: w, h, w, h)."""
+    from .cost import INWARD
+
+    d = -INWARD * size * term.w
+    return d
+
+
+def _shape_slope(term, r: np.ndarray) -> np.ndarray:
+    """Slope [n,4] of the term's occlusion shaping at the weighted residuals ``r`` [n,4]."""
+    from .cost import INWARD
+
+    if term.occlusion is None:
+        return np.ones_like(r)
+    return np.where(r * INWARD > term.occlusion.tau, term.occlusion.slope, 1.0)
+
+
+def object_outline_spread(term, groups: np.ndarray, state) -> tuple[np.ndarray, float, float]:
+    """(tau [4], residual scale, p-value): the spread of the objects' own outline offsets.
+
+    Each object's offset per edge is estimated from its inlier residuals at ``state`` (linearised,
+    the pose held); their robust spread (MAD over objects; left and right edges pooled, one spread
+    for both sides) less the share the edge noise explains is ``tau`` (method of moments, 0 where
+    the noise explains it all). The p-value tests the
+    per-object offsets against the noise alone (chi-square over objects and edges)."""
+    from scipy.special import chdtrc
+
+    n = len(term.obs)
+    raw = np.where(np.isfinite(term.edges(state)), term.edges(state), 0.0) * term.w
+    r = term.occlusion.shape(raw) if term.occlusion is not None else raw
+    size = _box_size(term.obs)
+    s_row = (_edge_share_derivative(term, size) * _shape_slope(term, raw)).ravel()
+    r = r.ravel()
+    informative = np.any(term.jacobian(state, np.zeros(3), []) != 0, axis=1)  # edges clipped at the border: none
+    sig = 1.4826 * float(np.median(np.abs(r[informative]))) if np.any(informative) else 0.0
+    if not sig > 0:
+        return np.zeros(4), sig, 1.0
+    inl = informative & (np.abs(r) <= 3.0 * sig)
+    edge, obj = np.tile(np.arange(4), n), np.repeat(groups, 4)
+    G = int(groups.max()) + 1
+    num, den = np.zeros((G, 4)), np.zeros((G, 4))
+    np.add.at(num, (obj, edge), np.where(inl, s_row * r, 0.0))
+    np.add.at(den, (obj, edge), np.where(inl, s_row ** 2, 0.0))
+    ok = den > 1e-12
+    a = np.where(ok, -num / np.where(ok, den, 1.0), 0.0)
+    nv = np.where(ok, sig ** 2 / np.where(ok, den, 1.0), np.inf)
+    tau2 = np.zeros(4)
+    for ks in ((0, 2), (1,), (3,)):  # left and right pooled: a detector has no preferred side
+        v = np.concatenate([a[ok[:, k], k] - np.median(a[ok[:, k], k]) for k in ks if ok[:, k].any()] or [np.zeros(0)])
+        if len(v) >= OBJECT_OUTLINE_MIN_OBJECTS * len(ks):
+            mad = 1.4826 * float(np.median(np.abs(v)))
+            tau2[list(ks)] = max(mad ** 2 - float(np.median(np.concatenate([nv[ok[:, k], k] for k in ks]))), 0.0)
+    dof = int(ok.sum())
+    p = float(chdtrc(dof, float(np.sum(a[ok] ** 2 / nv[ok])))) if dof else 1.0
+    return np.sqrt(tau2), sig, p
+
+
+def _box_size(obs: np.ndarray) -> np.ndarray:
+    w, h = obs[:, 2] - obs[:, 0], obs[:, 3] - obs[:, 1]
+    return np.column_stack([w, h, w, h])
+
+
+def fit_object_outline(frames, pairs, intr, pose, noise, f_scale: float, occlusion,
+                       groups: np.ndarray) -> ObjectOutlineFit | None:
+    """The pose refitted (matches held) with every object's own outline offsets as random effects.
+
+    A detector draws each object's visible outline, not the rectangle around its 3D box: a car a
+    few per cent narrower or lower than another, the same car alike over the frames. A common
+    offset (``outline_edge_term``) leaves each object's own part, which objects near the camera
+    turn into a bias along the view axis (realism ``detector_outline``: 0.6 m at a site whose
+    every pair is right). Here each object (``groups``: object id per matched pair, in pair order)
+    gets four offsets (left, top, right, bottom; shares of the 2D box size) with a zero-mean
+    Gaussian prior whose 1-sigma per edge is the objects' spread estimated from the residuals
+    (:func:`object_outline_spread`): exact boxes give a spread of 0 and nothing changes. Fitted
+    only when the per-object offsets are significant (p < ``OBJECT_OUTLINE_P``), with at least
+    ``OBJECT_OUTLINE_MIN_OBJECTS`` objects, a pinhole camera and no extra cost terms; else None."""
+    from scipy import sparse
+    from scipy.optimize import least_squares
+
+    from ..geometry.camera import CameraIntrinsics
+    from .cost import INWARD, POSE_X_SCALE, PoseState
+    from .refine import edge_term
+    from .terms import CostSpec
+
+    spec = CostSpec.of(occlusion)
+    groups = np.asarray(groups, dtype=np.int64)
+    n = int(sum(len(p) for p in pairs))
+    if spec.terms or not isinstance(intr, CameraIntrinsics) or n < 12 or len(groups) != n:
+        return None
+    G = int(groups.max()) + 1
+    if G < OBJECT_OUTLINE_MIN_OBJECTS:
+        return None
+    term = edge_term(frames, pairs, intr, pose, noise, spec.occlusion)
+    tau, sig, p = object_outline_spread(term, groups, PoseState(pose, intr))
+    free = np.flatnonzero(tau > 0)
+    if p >= OBJECT_OUTLINE_P or not len(free):
+        return None
+    W, H = term.size
+    obs0 = term.obs.copy()
+    on_border = np.column_stack([obs0[:, 0] <= 0.5, obs0[:, 1] <= 0.5, obs0[:, 2] >= W - 0.5, obs0[:, 3] >= H - 0.5])
+    size = _box_size(obs0) * ~on_border  # an edge on the image border is where the image ends: no offset
+    k = len(free)
+    # common offsets (sides, top, bottom; prior OUTLINE_PRIOR as ``outline_edge_term``) + each object's own
+    lam = np.concatenate([np.full(3, sig / OUTLINE_PRIOR), np.tile(sig / tau[free], G)])
+    common = np.array([[1.0, 0, 0], [0, 1.0, 0], [1.0, 0, 0], [0, 0, 1.0]])  # edge <- (sides, top, bottom)
+    cols = groups[:, None] * k + np.arange(k)[None, :]  # [n,k] column (after pose and common) of each pair's free edges
+    rows = 4 * np.arange(n)[:, None] + free[None, :]
+    P = 9 + G * k
+
+    def setx(x):
+        a = (common @ x[6:9])[None, :] + np.zeros((n, 4))
+        a[:, free] += x[9:].reshape(G, k)[groups]
+        term.obs = obs0 + INWARD * a * size
+        return PoseState(pose.moved(x[:3], x[3:6]), intr)
+
+    def resid(x):
+        st = setx(x)
+        return np.concatenate([term.residuals(st), x[6:] * lam])
+
+    def jac(x):
+        st = setx(x)
+        Jp = term.jacobian(st, x[:3], [])
+        raw = np.where(np.isfinite(term.edges(st)), term.edges(st), 0.0) * term.w
+        da = _edge_share_derivative(term, size) * _shape_slope(term, raw)  # [n,4]
+        Jc = (da[:, :, None] * common[None]).reshape(4 * n, 3)
+        edges = sparse.hstack([sparse.csr_matrix(np.hstack([Jp, Jc])), sparse.csr_matrix(
+            (da[:, free].ravel(), (rows.ravel(), cols.ravel())), shape=(4 * n, G * k))])
+        prior = sparse.hstack([sparse.csr_matrix((P - 6, 6)), sparse.diags(lam)])
+        return sparse.vstack([edges, prior]).tocsr()
+
+    try:
+        res = least_squares(resid, np.zeros(P), jac=jac, loss="soft_l1", f_scale=f_scale, method="trf", tr_solver="lsmr",
+                            x_scale=np.concatenate([POSE_X_SCALE, np.full(P - 6, 1e-2)]), max_nfev=60)
+        J = jac(res.x).toarray()
+    except (np.linalg.LinAlgError, ValueError):
+        term.obs = obs0
+        return None
+    r = res.fun
+    term.obs = obs0
+    if not np.all(np.isfinite(res.x)):
+        return None
+    m = 4 * n
+    s = 1.4826 * float(np.median(np.abs(r[:m])))
+    use = np.concatenate([np.abs(r[:m]) <= 3.0 * max(s, 1e-9), np.ones(len(r) - m, dtype=bool)])
+    try:
+        cov = np.linalg.inv(J[use].T @ J[use])[:6, :6] * sig ** 2
+    except np.linalg.LinAlgError:
+        return None
+    d = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    sd = np.concatenate([np.degrees(d[:3]), d[3:]])
+    offs = np.zeros((G, 4)) + common @ res.x[6:9]
+    offs[:, free] += res.x[9:].reshape(G, k)
+    return ObjectOutlineFit(pose.moved(res.x[:3], res.x[3:6]), sd, tau, p, G, offs, cov)

@@ -196,9 +196,10 @@ def _bound_check(ev: Evidence, config: CalibConfig) -> Refusal | None:
         return None
     bound = "unbounded (one object alone fixes part of the pose)" if not (np.isfinite(r) and np.isfinite(t)) \
         else f"{r:.2f} deg / {t:.2f} m"
+    few = "" if ev.n_objects is None else f"too few distinct objects ({ev.n_objects}) to bound the pose tighter; "
     return Refusal("uncertain", f"too uncertain: the frames agree on the pose, but counting each object once (the same "
                    f"vehicles repeat over the frames) and the 3D box model, its 95 % bound is {bound} (limit "
-                   f"{config.max_rot_bound_deg:g} deg / {config.max_trans_bound_m:g} m); add recordings with other "
+                   f"{config.max_rot_bound_deg:g} deg / {config.max_trans_bound_m:g} m); {few}add recordings with other "
                    "objects at other places")
 
 

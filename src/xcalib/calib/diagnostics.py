@@ -87,7 +87,10 @@ class UncertaintyParts:
     (every object's pairs over all frames share one error); frames: the leave-frames-out jackknife
     sigma (what the verdict judges the pose by, in place of the halves); n_objects: distinct objects;
     box_model: how the floor was weighed (robust costs of the outlines in use and of the box corners,
-    the corners' posterior weight, the pose shift to them; ``uncertainty.box_model_floor``)."""
+    the corners' posterior weight, the pose shift to them; ``uncertainty.box_model_floor``);
+    outline: the pose shift when common outline offsets are fitted; object_outline: the pose's
+    sigma with every object's own outline offsets as random effects (``boxmodel.fit_object_outline``;
+    None where the objects' outlines do not differ beyond the noise)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -101,6 +104,7 @@ class UncertaintyParts:
     n_objects: int = 0
     box_model: dict = field(default_factory=dict)
     outline: list[float] | None = None
+    object_outline: list[float] | None = None
 
 
 @dataclass

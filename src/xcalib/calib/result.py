@@ -326,6 +326,13 @@ class CalibrationResult:
             lines.append(f"  box model     = {bf.get('outline') or 'corners'} outlines; 2D boxes inside them by "
                          f"{100 * bf['sides']:+.1f} % (sides), {100 * bf['top']:+.1f} % (top), "
                          f"{100 * bf['bottom']:+.1f} % (bottom) of their size")
+        ob = bf.get("objects") if bf else None
+        if ob and "tau" in ob:
+            tau = ob["tau"]
+            lines.append(f"  own outlines  = {ob.get('n_objects', 0)} objects differ by 1-sigma {100 * tau.get('left', 0):.1f} % "
+                         f"(sides), {100 * tau.get('top', 0):.1f} % (top), {100 * tau.get('bottom', 0):.1f} % (bottom); "
+                         + (f"fitted with the pose (moved {ob['pose_shift'][0]:.2f} deg / {ob['pose_shift'][1]:.2f} m)"
+                            if ob.get("applied", True) else "the pose did not move beyond its noise: kept"))
         if self.message:
             lines.append(f"  note: {self.message}")
         return "\n".join(lines)

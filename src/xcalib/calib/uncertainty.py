@@ -35,7 +35,7 @@ from .refine import F_SCALE, build_cost, lsq
 from .terms import CostSpec, pose_block
 
 __all__ = ["pose_covariance", "object_sandwich", "pose_spread", "pose_jackknife", "frame_jackknife", "object_groups", "pose_object_bootstrap",
-           "combine", "bound95", "outline_shift", "box_model_shift", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "Uncertainty", "estimate"]
+           "combine", "bound95", "outline_shift", "with_object_outline", "box_model_shift", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "Uncertainty", "estimate"]
 
 HALF_MIN_MATCHES = 6  # matches each half of the frames (or pairs) needs for the frame-halves check
 HALVES_MIN_MATCHES = 2 * HALF_MIN_MATCHES
@@ -554,3 +554,18 @@ def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None 
                              frames=_lst(frames_sd), n_objects=n_obj, box_model=box_info,
                              outline=_lst(outl))
     return Uncertainty(r, t, parts, halves is not None, r_data, t_data)
+
+
+def with_object_outline(unc: Uncertainty, sd6) -> Uncertainty:
+    """``unc`` with the sigma of the pose fitted with every object's own outline offsets as random
+    effects (``boxmodel.fit_object_outline``; 6-vector, deg / m) taken in: per axis the larger of
+    it and the reported sigma (both count each object's outline error once: the object-clustered
+    spread from the objects' realised residuals, this one from the spread of the objects' outlines,
+    which it does not need to see in a high-leverage object's residuals). The verdict's data sigma
+    is kept."""
+    import dataclasses
+
+    sd6 = np.asarray(sd6, dtype=np.float64)
+    total = np.fmax(np.concatenate([unc.rot_sd, unc.tr_sd]), sd6)
+    parts = dataclasses.replace(unc.parts, object_outline=_lst(sd6))
+    return Uncertainty(total[:3], total[3:], parts, unc.halves_available, unc.rot_sd_data, unc.tr_sd_data)
