@@ -184,7 +184,7 @@ def test_each_objects_own_outline_is_a_random_effect_fitted_only_where_objects_d
         frames, T = _objects_with_own_outlines(seed, 8, (0.08, 0.08, 0.02), (0.06, 0.06, 0.03))
         truth = Pose(T[:3, :3], T[:3, 3])
         cframes, pairs, intr, noise = _setup(frames, T)
-        R, t, *_ = lsq(cframes, pairs, intr, truth.R, truth.t, 2.0, 60, noise)
+        R, t, *_ = lsq(FitContext(cframes, pairs, intr, truth, noise, 2.0), 60)
         plain = Pose(R, t)
         fit = fit_object_outline(cframes, pairs, intr, plain, noise, 2.0, Occlusion(), object_groups(cframes, pairs))
         assert fit is not None and fit.p_value < 1e-3 and fit.n_objects >= len(pairs[0]) - 2  # neighbours within 1.5 m: one
