@@ -94,8 +94,10 @@ def throughput(n: int) -> list[dict]:
     return rows
 
 
-def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole: bool = False) -> dict:
+def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole: bool = False,
+                   workers: int | str = "auto") -> dict:
     import xcalib
+    from xcalib.calib.config import CalibConfig
     from xcalib.data.synth import generate_frames, sample_site
     from xcalib.geometry import CameraIntrinsics
 
@@ -109,7 +111,7 @@ def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            res = xcalib.calibrate(frames, cam)
+            res = xcalib.calibrate(frames, cam, CalibConfig(workers=workers))
     except Exception as exc:  # noqa: BLE001 - an exception is a finding too
         return {"row": row, "seed": seed, "success": False, "message": f"exception: {exc!r}",
                 "time_s": time.perf_counter() - t0}
@@ -159,7 +161,11 @@ def main(argv=None) -> int:
     ap.add_argument("--no-pinhole-check", action="store_true", help="skip the '<model> as pinhole' rows")
     ap.add_argument("--no-pinhole-rows", action="store_true", help="skip the 90-degree pinhole baseline rows")
     ap.add_argument("--pinhole-check-only", action="store_true",
-                    help="only the '<model> as pinhole' rows (of every --models at the widest --fovs)")
+                    help="only the '<model> as pinhole' rows (of every --models at every --fovs)")
+    ap.add_argument("--jobs", default="auto",
+                    help="processes per calibration (CalibConfig.workers; 1 on a shared machine); results do not depend on it")
+    ap.add_argument("--seed-major", action="store_true",
+                    help="all cells of one site before the next site (a run cut short keeps every cell balanced)")
     ap.add_argument("--label", default="run")
     a = ap.parse_args(argv)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -173,18 +179,21 @@ def main(argv=None) -> int:
     recs: list[dict] = []
     if not a.no_calibration:
         seeds = range(a.first_seed, a.first_seed + a.sites)
+        workers = a.jobs if a.jobs == "auto" else int(a.jobs)
         models = [m for m in a.models.split(",") if m]
         fovs = [float(f) for f in a.fovs.split(",") if f]
         cases = [] if a.pinhole_check_only or a.no_pinhole_rows else [("pinhole", 90.0, s, False) for s in seeds]
         if a.pinhole_check_only:
-            cases += [(m, max(fovs), s, True) for m in models for s in seeds]
+            cases += [(m, f, s, True) for f in sorted(fovs, reverse=True) for m in models for s in seeds]
         elif not a.no_pinhole_check:  # the refusal check first: it is the one that must never fail
             cases += [(m, max(fovs), s, True) for m in models[:1] for s in seeds]
-        for fov in ([] if a.pinhole_check_only else sorted(fovs, reverse=True)):  # the widest first
+        if a.seed_major and not a.pinhole_check_only:  # site by site, every cell of a site in turn
+            cases += [(m, fov, s, False) for s in seeds for fov in sorted(fovs, reverse=True) for m in models]
+        for fov in ([] if a.pinhole_check_only or a.seed_major else sorted(fovs, reverse=True)):  # the widest first
             for m in models:
                 cases += [(m, fov, s, False) for s in seeds]
         for i, (m, fov, s, asp) in enumerate(cases):
-            rec = calibrate_case(m, fov, s, a.frames, asp)
+            rec = calibrate_case(m, fov, s, a.frames, asp, workers)
             recs.append(rec)
             _save(a, tp, summarise(recs), recs)  # after every case: a cut-short run keeps its rows
             print(f"[{i + 1}/{len(cases)}] {rec['row']} seed {s}: success={rec['success']} "
@@ -205,15 +214,22 @@ def main(argv=None) -> int:
 
 
 def _save(a, tp, table, recs) -> None:
-    data = json.loads(OUT.read_text()) if OUT.is_file() else {}
+    import fcntl
+
     from _provenance import provenance
 
-    data[a.label] = {"machine": machine_info(), "args": vars(a), "throughput": tp, "calibration": table,
-                     "records": recs, "provenance": provenance()}
+    entry = {"machine": machine_info(), "args": vars(a), "throughput": tp, "calibration": table,
+             "records": recs, "provenance": provenance()}
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    tmp = OUT.with_name(f".{OUT.name}.{os.getpid()}.tmp")  # atomic: runs under other labels may save meanwhile
-    tmp.write_text(json.dumps(data, indent=1))
-    os.replace(tmp, OUT)
+    # runs under other labels may save meanwhile (one run per model in parallel): read-modify-write
+    # under an exclusive lock, so that no run's label is lost, and replace atomically
+    with open(OUT.with_name(f".{OUT.name}.lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        data = json.loads(OUT.read_text()) if OUT.is_file() else {}
+        data[a.label] = entry
+        tmp = OUT.with_name(f".{OUT.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(data, indent=1))
+        os.replace(tmp, OUT)
 
 
 if __name__ == "__main__":
