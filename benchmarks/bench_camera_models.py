@@ -120,12 +120,25 @@ def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole:
            "message": res.message[:300], "refusal": res.diagnostics.refusal,
            "lens_check": lens[0].detail if lens else None, "time_s": time.perf_counter() - t0, "n_pairs": res.n_pairs,
            "n_2d_boxes": int(sum(len(f.bboxes_2d) for f in frames))}
+    from xcalib.calib.pose import Pose
+    from xcalib.calib.uncertainty import bound95
+
+    sd = np.concatenate([res.rotation_std_deg, res.translation_std_m])
     if res.success:
         rot, tr = res.pose_error(site.T_cam_lidar)
         rs, ts = float(np.linalg.norm(res.rotation_std_deg)), float(np.linalg.norm(res.translation_std_m))
+        delta = Pose.parse(res.extrinsics).delta(Pose.parse(site.T_cam_lidar))
         rec.update(rot_deg=rot, trans_m=tr, rot_sigma_deg=rs, trans_sigma_m=ts,
                    wrong=bool(rot > WRONG_ROT_DEG or tr > WRONG_TRANS_M),
-                   within_2sigma=bool(rot <= 2 * rs and tr <= 2 * ts))
+                   within_2sigma=bool(rot <= 2 * rs and tr <= 2 * ts),
+                   # as bench_calibration_realism: the 95 % radius of the per-axis sigma, and each axis's
+                   # error in its own sigmas (|z| <= 2 for ~95 % of the axes when the sigma is right)
+                   within_95=bool(rot <= bound95(res.rotation_std_deg) and tr <= bound95(res.translation_std_m)),
+                   z_axes=[float(v) for v in np.abs(delta) / np.maximum(sd, 1e-12)],
+                   sigma_axes=[float(v) for v in sd])
+    elif res.diagnostics.refused_T is not None:  # what the refused pose was (a correct pose refused, or not)
+        delta = Pose.parse(np.asarray(res.diagnostics.refused_T)).delta(Pose.parse(site.T_cam_lidar))
+        rec.update(refused_delta=[float(v) for v in delta], sigma_axes=[float(v) for v in sd])
     return rec
 
 
@@ -140,9 +153,16 @@ def summarise(recs: list[dict]) -> list[dict]:
         out.append({"row": name, "n": len(rs), "success": len(ok) / len(rs), "wrong": sum(r["wrong"] for r in ok),
                     "rot_deg_median": med("rot_deg"), "trans_m_median": med("trans_m"),
                     "coverage_2sigma": (sum(r["within_2sigma"] for r in ok) / len(ok)) if ok else None,
+                    "coverage_95": _mean([r["within_95"] for r in ok if "within_95" in r]),
+                    "coverage_axis_rot": _mean([z <= 2 for r in ok if "z_axes" in r for z in r["z_axes"][:3]]),
+                    "coverage_axis_trans": _mean([z <= 2 for r in ok if "z_axes" in r for z in r["z_axes"][3:]]),
                     "refused_misfit_lens": sum(r.get("refusal") == "misfit_lens" for r in rs),
                     "time_s_median": float(np.median([r["time_s"] for r in rs]))})
     return out
+
+
+def _mean(v) -> float | None:
+    return float(np.mean(v)) if len(v) else None
 
 
 def _fmt(v, spec):
@@ -201,10 +221,11 @@ def main(argv=None) -> int:
                   f"({rec['time_s']:.0f} s) {'' if rec['success'] else rec['message'][:120]}", flush=True)
         table = summarise(recs)
         print(f"\n{'row':32s} {'n':>3s} {'success':>7s} {'wrong':>5s} {'rot deg':>8s} {'trans m':>8s} "
-              f"{'2sig cov':>8s} {'time s':>7s} {'lens':>4s}")
+              f"{'2sig cov':>8s} {'95% cov':>7s} {'axis cov r/t':>12s} {'time s':>7s} {'lens':>4s}")
         for r in table:
             print(f"{r['row']:32s} {r['n']:3d} {r['success']:7.0%} {r['wrong']:5d} {_fmt(r['rot_deg_median'], '8.3f')} "
-                  f"{_fmt(r['trans_m_median'], '8.3f')} {_fmt(r['coverage_2sigma'], '8.0%')} {r['time_s_median']:7.0f} "
+                  f"{_fmt(r['trans_m_median'], '8.3f')} {_fmt(r['coverage_2sigma'], '8.0%')} {_fmt(r['coverage_95'], '7.0%')} "
+                  f"{_fmt(r['coverage_axis_rot'], '.0%') + '/' + _fmt(r['coverage_axis_trans'], '.0%'):>12s} {r['time_s_median']:7.0f} "
                   f"{r['refused_misfit_lens']:4d}")
     else:
         table = []
