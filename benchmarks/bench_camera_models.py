@@ -94,6 +94,90 @@ def throughput(n: int) -> list[dict]:
     return rows
 
 
+def round_trips() -> list[dict]:
+    """Every model (the synthetic sites' lenses, and pinhole / radtan 4, 5, 8, 14 coefficients) through
+    every camera format: written and read back where the format can express it (``formats_for``),
+    refused otherwise; for those written, the largest difference (px) between the two cameras'
+    projections of the rays of a 33 x 21 pixel grid over the 1280 x 800 image."""
+    import tempfile
+
+    from xcalib.data.synth.site import WIDE_ANGLE_PARAMS
+    from xcalib.formats.cameras import CAMERA_FORMATS, UnsupportedModelError, formats_for, read_camera, write_camera
+    from xcalib.geometry.camera_models import Pinhole, PinholeRadtan, get_model
+
+    W, H = 1280, 800
+    cams = {"pinhole": Pinhole(fx=700.1234567891, fy=701, cx=640.5, cy=399.25, width=W, height=H)}
+    for label, d in (("radtan4", (-0.21, 0.04, 0.001, -0.0015)), ("plumb_bob", (-0.21, 0.04, 0.001, -0.0015, 0.003)),
+                     ("rational_polynomial", (0.12, -0.05, 0.001, -0.002, 0.01, 0.35, 0.02, 0.001)),
+                     ("radtan14", (0.12, -0.05, 0.001, -0.002, 0.01, 0.35, 0.02, 0.001, 0.001, -0.002, 0.003, 0.001,
+                                   0.01, -0.02))):
+        cams[label] = PinholeRadtan(fx=700, fy=701, cx=640, cy=400, width=W, height=H, distortion=d)
+    for name, params in WIDE_ANGLE_PARAMS.items():
+        cams[name] = get_model(name)(fx=380.0000000001, fy=379.5, cx=640.3, cy=400.7, width=W, height=H, **params)
+    u, v = np.meshgrid(np.linspace(0, W, 33), np.linspace(0, H, 21))
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, cam in cams.items():
+            rays, ok = cam.unproject(np.column_stack([u.ravel(), v.ravel()]))
+            can = formats_for(cam)
+            for fmt in CAMERA_FORMATS:
+                path = Path(tmp) / f"{label}_{fmt}{'.json' if fmt.endswith('json') else '.yaml'}"
+                row = {"camera": label, "model": cam.name, "format": fmt, "expressible": fmt in can}
+                try:
+                    write_camera(cam, path, fmt)
+                except UnsupportedModelError:
+                    row.update(written=False, refused=True)
+                    rows.append(row)
+                    continue
+                back = read_camera(path)
+                a, va = cam.project(rays[ok])
+                b, vb = back.project(rays[ok])
+                row.update(written=True, refused=False, model_back=back.name, n_pixels=int(ok.sum()),
+                           all_valid=bool(va.all() and vb.all()), max_px_diff=float(np.abs(b - a).max()))
+                rows.append(row)
+    return rows
+
+
+def bag_case(model: str, fov: float, seed: int, n_frames: int, workers: int | str = "auto") -> dict:
+    """A synthetic site written to an MCAP bag with its camera's CameraInfo (``equidistant`` for a
+    ``kannala_brandt`` lens; images rendered through the model), read back with
+    ``BagFrames(fisheye="keep")`` and calibrated with the intrinsics the bag gives (none passed):
+    the fisheye image itself, no rectification."""
+    import tempfile
+
+    import xcalib
+    from xcalib.calib.config import CalibConfig
+    from xcalib.data.synth import generate_frames, sample_site
+    from xcalib.io.bags.reader import BagFrames
+    from xcalib.io.bags.writer import write_bag
+
+    site = sample_site(seed, camera_model=model, hfov_deg=fov, width=1280, height=800, box_noise_px=1.0)
+    frames = generate_frames(site, n_frames, seed=seed, render_images=True)
+    rec = {"row": f"{model} {fov:g} deg from a bag (--fisheye keep)", "bag_model": model, "hfov_deg": fov, "seed": seed}
+    with tempfile.TemporaryDirectory() as tmp:
+        path = write_bag(Path(tmp) / "site.mcap", frames, image_format="png")
+        back = BagFrames(path, fisheye="keep")
+        read = [back[i] for i in range(len(back))]
+        cam = read[0].intrinsics
+        rec.update(camera_from_bag=cam.to_dict() if hasattr(cam, "to_dict") else repr(cam),
+                   camera_equal=bool(cam == site.intrinsics), n_frames=len(read),
+                   box_max_diff_px=float(max(np.abs(np.asarray(f.bboxes_2d, dtype=np.float64) - np.asarray(g.bboxes_2d)).max()
+                                             for f, g in zip(read, frames) if len(g.bboxes_2d))))
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = xcalib.calibrate(read, None, CalibConfig(workers=workers))
+    rec.update(success=bool(res.success), message=res.message[:300], refusal=res.diagnostics.refusal,
+               time_s=time.perf_counter() - t0, n_pairs=res.n_pairs,
+               calibrated_model=getattr(getattr(res, "intrinsics", None), "name", None))
+    if res.success:
+        rot, tr = res.pose_error(site.T_cam_lidar)
+        rs, ts = float(np.linalg.norm(res.rotation_std_deg)), float(np.linalg.norm(res.translation_std_m))
+        rec.update(rot_deg=rot, trans_m=tr, rot_sigma_deg=rs, trans_sigma_m=ts,
+                   wrong=bool(rot > WRONG_ROT_DEG or tr > WRONG_TRANS_M), within_2sigma=bool(rot <= 2 * rs and tr <= 2 * ts))
+    return rec
+
+
 def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole: bool = False,
                    workers: int | str = "auto") -> dict:
     import xcalib
@@ -184,6 +268,11 @@ def main(argv=None) -> int:
                     help="only the '<model> as pinhole' rows (of every --models at every --fovs)")
     ap.add_argument("--jobs", default="auto",
                     help="processes per calibration (CalibConfig.workers; 1 on a shared machine); results do not depend on it")
+    ap.add_argument("--round-trips", action="store_true",
+                    help="also every model through every camera format (max px difference of the read-back camera)")
+    ap.add_argument("--bag", default="",
+                    help="also calibrate sites read from an MCAP bag with --fisheye keep: MODEL:FOV:SEED[,...] "
+                         "(e.g. kannala_brandt:185:0; images rendered, so slow)")
     ap.add_argument("--seed-major", action="store_true",
                     help="all cells of one site before the next site (a run cut short keeps every cell balanced)")
     ap.add_argument("--label", default="run")
@@ -196,6 +285,22 @@ def main(argv=None) -> int:
     for r in tp:
         print(f"{r['model']:36s} {r['project_mpts_s']:8.2f} {r['project_vs_pinhole_radtan']:9.2f} "
               f"{_fmt(r.get('jacobian_mpts_s'), '9.2f'):>9s} {_fmt(r.get('unproject_mpts_s'), '9.2f'):>9s}")
+    extra: dict = {}
+    if a.round_trips:
+        extra["round_trips"] = rt = round_trips()
+        done = [r for r in rt if r["written"]]
+        print(f"\nRound trips: {len(done)} written and read back, {sum(r['refused'] for r in rt)} refused "
+              f"(format cannot express the model); largest difference {max(r['max_px_diff'] for r in done):.2e} px; "
+              f"written = expressible: {all(r['written'] == r['expressible'] for r in rt)}")
+        _save(a, tp, [], [], extra)
+    for spec in [b for b in a.bag.split(",") if b]:
+        m, f, sd = spec.split(":")
+        extra.setdefault("bag", []).append(bag_case(m, float(f), int(sd), a.frames, a.jobs if a.jobs == "auto" else int(a.jobs)))
+        r = extra["bag"][-1]
+        print(f"{r['row']} seed {sd}: camera from the bag {r['camera_from_bag'].get('model') if isinstance(r['camera_from_bag'], dict) else r['camera_from_bag']} "
+              f"(equal to the site's: {r['camera_equal']}), success={r['success']} rot={_fmt(r.get('rot_deg'), '.3f')} deg "
+              f"trans={_fmt(r.get('trans_m'), '.3f')} m ({r['time_s']:.0f} s) {r['message'][:120]}", flush=True)
+        _save(a, tp, [], [], extra)
     recs: list[dict] = []
     if not a.no_calibration:
         seeds = range(a.first_seed, a.first_seed + a.sites)
@@ -215,7 +320,7 @@ def main(argv=None) -> int:
         for i, (m, fov, s, asp) in enumerate(cases):
             rec = calibrate_case(m, fov, s, a.frames, asp, workers)
             recs.append(rec)
-            _save(a, tp, summarise(recs), recs)  # after every case: a cut-short run keeps its rows
+            _save(a, tp, summarise(recs), recs, extra)  # after every case: a cut-short run keeps its rows
             print(f"[{i + 1}/{len(cases)}] {rec['row']} seed {s}: success={rec['success']} "
                   f"rot={_fmt(rec.get('rot_deg'), '.3f')} deg trans={_fmt(rec.get('trans_m'), '.3f')} m "
                   f"({rec['time_s']:.0f} s) {'' if rec['success'] else rec['message'][:120]}", flush=True)
@@ -229,18 +334,18 @@ def main(argv=None) -> int:
                   f"{r['refused_misfit_lens']:4d}")
     else:
         table = []
-    _save(a, tp, table, recs)
+    _save(a, tp, table, recs, extra)
     print(f"wrote {OUT} [{a.label}]")
     return 0
 
 
-def _save(a, tp, table, recs) -> None:
+def _save(a, tp, table, recs, extra: dict | None = None) -> None:
     import fcntl
 
     from _provenance import provenance
 
     entry = {"machine": machine_info(), "args": vars(a), "throughput": tp, "calibration": table,
-             "records": recs, "provenance": provenance()}
+             "records": recs, **(extra or {}), "provenance": provenance()}
     OUT.parent.mkdir(parents=True, exist_ok=True)
     # runs under other labels may save meanwhile (one run per model in parallel): read-modify-write
     # under an exclusive lock, so that no run's label is lost, and replace atomically
