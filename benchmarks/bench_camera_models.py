@@ -245,6 +245,75 @@ def summarise(recs: list[dict]) -> list[dict]:
     return out
 
 
+#: results are pooled over the runs at or after this commit: the uncertainty of 0.6 (95 % bound, each
+#: scatter source once; merge 90e3ab5) moved every sigma and some verdicts, so older runs are stale
+POOL_SINCE = "90e3ab5"
+
+
+def _at_or_after(commit: str | None, base: str = POOL_SINCE) -> bool:
+    import subprocess
+
+    if not commit:
+        return False
+    p = subprocess.run(["git", "-C", str(REPO), "merge-base", "--is-ancestor", base, commit], capture_output=True)
+    return p.returncode == 0
+
+
+def pooled(doc: dict) -> tuple[list[dict], list[str], list[str]]:
+    """The Done-when table of issue 26 pooled over every run in ``doc`` made at or after
+    ``POOL_SINCE`` (one record per row and site: the newest run's): summarise()'s columns plus
+    ``rot_vs_pinhole`` / ``trans_vs_pinhole`` (median error over the 90-degree pinhole row's). Returns
+    (rows, labels pooled, labels left out as stale)."""
+    recs: dict[tuple, dict] = {}
+    used, stale = [], []
+    for label, run in doc.items():
+        if not run.get("records"):
+            continue
+        if not _at_or_after((run.get("provenance") or {}).get("git_commit")):
+            stale.append(label)
+            continue
+        used.append(label)
+        for r in run["records"]:
+            recs[(r["row"], r["seed"])] = r
+    rows = summarise(list(recs.values()))
+    pin = next((r for r in rows if r["row"].startswith("pinhole")), None)
+    for r in rows:
+        for k in ("rot", "trans"):
+            a, b = r[f"{k}_{'deg' if k == 'rot' else 'm'}_median"], pin and pin[f"{k}_{'deg' if k == 'rot' else 'm'}_median"]
+            r[f"{k}_vs_pinhole"] = (a / b) if a is not None and b else None
+        r["seeds"] = sorted(int(x["seed"]) for x in recs.values() if x["row"] == r["row"])
+        # the same ratio over the sites both rows calibrated (the sites differ in objects and distances)
+        both = [(x, recs.get((pin["row"], x["seed"]))) for x in recs.values() if pin and x["row"] == r["row"]]
+        both = [(x, y) for x, y in both if y is not None and x["success"] and y["success"]]
+        r["same_sites"] = len(both)
+        for k, unit in (("rot", "deg"), ("trans", "m")):
+            num = [x[f"{k}_{unit}"] for x, _ in both]
+            den = [y[f"{k}_{unit}"] for _, y in both]
+            r[f"{k}_vs_pinhole_same_sites"] = float(np.median(num) / np.median(den)) if both and np.median(den) > 0 else None
+    order = {"pinhole": 0}
+    rows.sort(key=lambda r: (order.get(r["row"].split()[0], 1), r["row"].endswith("as pinhole"),
+                             -float(r["row"].split()[1]) if r["row"].split()[1].replace(".", "").isdigit() else 0,
+                             r["row"]))
+    return rows, used, stale
+
+
+def print_pooled(doc: dict) -> None:
+    rows, used, stale = pooled(doc)
+    print(f"Pooled over {len(used)} runs at or after {POOL_SINCE} ({', '.join(used)}); stale runs left out: "
+          f"{', '.join(stale) or 'none'}")
+    print(f"{'row':36s} {'n':>3s} {'success':>7s} {'wrong':>5s} {'rot deg':>8s} {'trans m':>8s} {'vs pin r/t':>11s} "
+          f"{'2sig cov':>8s} {'95% cov':>7s} {'axis cov r/t':>12s} {'lens':>4s}  same sites: n, vs pin r/t")
+    for r in rows:
+        vs = _fmt(r["rot_vs_pinhole"], ".2f") + "/" + _fmt(r["trans_vs_pinhole"], ".2f")
+        same = f"{r['same_sites']:3d} " + _fmt(r["rot_vs_pinhole_same_sites"], ".2f") + "/" + \
+            _fmt(r["trans_vs_pinhole_same_sites"], ".2f")
+        print(f"{r['row']:36s} {r['n']:3d} {r['success']:7.0%} {r['wrong']:5d} {_fmt(r['rot_deg_median'], '8.3f')} "
+              f"{_fmt(r['trans_m_median'], '8.3f')} {vs:>11s} {_fmt(r['coverage_2sigma'], '8.0%')} "
+              f"{_fmt(r['coverage_95'], '7.0%')} "
+              f"{_fmt(r['coverage_axis_rot'], '.0%') + '/' + _fmt(r['coverage_axis_trans'], '.0%'):>12s} "
+              f"{r['refused_misfit_lens']:4d}  {same}")
+
+
 def _mean(v) -> float | None:
     return float(np.mean(v)) if len(v) else None
 
@@ -276,7 +345,13 @@ def main(argv=None) -> int:
     ap.add_argument("--seed-major", action="store_true",
                     help="all cells of one site before the next site (a run cut short keeps every cell balanced)")
     ap.add_argument("--label", default="run")
+    ap.add_argument("--summary", action="store_true",
+                    help="only print the table pooled over the stored runs (see POOL_SINCE) and store it as 'pooled'")
     a = ap.parse_args(argv)
+    if a.summary:
+        doc = json.loads(OUT.read_text())
+        print_pooled(doc)
+        return 0
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
     tp = throughput(a.points)
