@@ -2,8 +2,8 @@
 wide-angle sites in the model's own image.
 
 **Throughput**: ``project`` (and ``project_jacobian``, ``unproject``) of ``--points`` random
-camera-frame points within each model's field of view, best of 5 (CPU time of the process), in million points per second;
-the reference is pinhole-radtan (5 coefficients) through ``CameraIntrinsics`` and
+camera-frame points within each model's field of view, best of 5 (CPU time of the process), in
+million points per second; the reference is pinhole-radtan (5 coefficients) through ``CameraIntrinsics`` and
 ``xcalib.geometry.project_points`` (today's path) and through the ``pinhole_radtan`` model.
 
 **Calibration**: for every ``--models`` x ``--fovs`` a synthetic roadside site
@@ -372,11 +372,13 @@ def main(argv=None) -> int:
         _save(a, tp, [], [], extra)
     for spec in [b for b in a.bag.split(",") if b]:
         m, f, sd = spec.split(":")
-        extra.setdefault("bag", []).append(bag_case(m, float(f), int(sd), a.frames, a.jobs if a.jobs == "auto" else int(a.jobs)))
-        r = extra["bag"][-1]
-        print(f"{r['row']} seed {sd}: camera from the bag {r['camera_from_bag'].get('model') if isinstance(r['camera_from_bag'], dict) else r['camera_from_bag']} "
-              f"(equal to the site's: {r['camera_equal']}), success={r['success']} rot={_fmt(r.get('rot_deg'), '.3f')} deg "
-              f"trans={_fmt(r.get('trans_m'), '.3f')} m ({r['time_s']:.0f} s) {r['message'][:120]}", flush=True)
+        r = bag_case(m, float(f), int(sd), a.frames, a.jobs if a.jobs == "auto" else int(a.jobs))
+        extra.setdefault("bag", []).append(r)
+        got = r["camera_from_bag"]
+        print(f"{r['row']} seed {sd}: camera from the bag {got.get('model') if isinstance(got, dict) else got} "
+              f"(equal to the site's: {r['camera_equal']}), success={r['success']} "
+              f"rot={_fmt(r.get('rot_deg'), '.3f')} deg trans={_fmt(r.get('trans_m'), '.3f')} m "
+              f"({r['time_s']:.0f} s) {r['message'][:120]}", flush=True)
         _save(a, tp, [], [], extra)
     recs: list[dict] = []
     if not a.no_calibration:
