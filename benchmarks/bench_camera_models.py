@@ -17,11 +17,32 @@ pinhole ``CameraIntrinsics`` of the same fx, fy, cx, cy (a user who hands a fish
 pinhole-only path): it must be refused, never a wrong success, with the cause named (column
 ``lens``: runs refused as ``misfit_lens``, the lens-misfit check of ``xcalib.calib.misfit``).
 
-Results go to ``benchmarks/results/camera_models.json`` under ``--label``.
+**Formats** (``--round-trips``): every model through every camera format, the largest pixel
+difference of the camera read back. **Bags** (``--bag MODEL:FOV:SEED``): a site written to an MCAP
+bag with its CameraInfo (``equidistant`` for Kannala-Brandt), read back with ``fisheye="keep"`` and
+calibrated with the bag's own camera.
+
+Results go to ``benchmarks/results/camera_models.json`` under ``--label`` (runs in parallel, e.g.
+one per model, save under a file lock); ``--summary`` prints the Done-when table pooled over the
+stored runs made at the current uncertainty (``POOL_SINCE``), one record per row and site.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_camera_models.py [--points 200000]
-        [--sites 1] [--models kannala_brandt,double_sphere] [--fovs 120,150,185] [--frames 20]
-        [--no-calibration] [--pinhole-check-only] [--no-pinhole-rows] [--label run]
+        [--sites 1] [--first-seed 0] [--models kannala_brandt,double_sphere] [--fovs 120,150,185]
+        [--frames 20] [--jobs 1] [--seed-major] [--no-calibration] [--pinhole-check-only]
+        [--no-pinhole-rows] [--no-pinhole-check] [--round-trips] [--bag kannala_brandt:185:0]
+        [--label run] [--summary]
+
+The whole Done-when grid (20 sites per cell; ~15-20 s of CPU per wide-angle calibration with
+``--jobs 1``, so ~2 CPU-hours in all), one process per model:
+
+    for m in kannala_brandt unified ucm eucm double_sphere; do
+      OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_camera_models.py --models $m --fovs 120,150,185 \
+        --sites 20 --seed-major --no-pinhole-rows --no-pinhole-check --jobs 1 --label grid_$m & done
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_camera_models.py --fovs "" --no-pinhole-check \
+        --sites 20 --jobs 1 --label pinhole90 &
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_camera_models.py --pinhole-check-only --fovs 120,150,185 \
+        --sites 4 --jobs 1 --label as_pinhole &
+    wait; .venv/bin/python benchmarks/bench_camera_models.py --summary
 """
 
 from __future__ import annotations
