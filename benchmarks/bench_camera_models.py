@@ -374,6 +374,7 @@ def main(argv=None) -> int:
     if a.summary:
         doc = json.loads(OUT.read_text())
         print_pooled(doc)
+        _save_pooled(doc)
         return 0
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -437,6 +438,24 @@ def main(argv=None) -> int:
     _save(a, tp, table, recs, extra)
     print(f"wrote {OUT} [{a.label}]")
     return 0
+
+
+def _save_pooled(doc: dict) -> None:
+    """Store the pooled table under the key ``pooled`` (no records: not a run of its own)."""
+    import fcntl
+
+    from _provenance import provenance
+
+    rows, used, stale = pooled(doc)
+    with open(OUT.with_name(f".{OUT.name}.lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        data = json.loads(OUT.read_text())
+        data["pooled"] = {"since": POOL_SINCE, "runs": used, "stale_runs": stale, "table": rows,
+                          "provenance": provenance()}
+        tmp = OUT.with_name(f".{OUT.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(data, indent=1))
+        os.replace(tmp, OUT)
+    print(f"wrote {OUT} [pooled]")
 
 
 def _save(a, tp, table, recs, extra: dict | None = None) -> None:
