@@ -174,3 +174,27 @@ def test_bag_equidistant_camera_can_stay_a_fisheye():
     np.testing.assert_allclose(cam.project(P)[0], ref.reshape(-1, 2), atol=1e-8)
     with pytest.raises(ValueError, match="fisheye must be 'rectify' or 'keep'"):
         BagFrames("missing.bag", fisheye="undistort")
+
+
+def test_bag_of_a_fisheye_site_keeps_the_fisheye(tmp_path):
+    """A synthetic Kannala-Brandt site written to a bag gets an ``equidistant`` CameraInfo, and reads
+    back (``fisheye="keep"``) as the same camera model with the same 2D boxes (the fisheye image's
+    own); a model CameraInfo cannot express is refused by the writer, never written as another."""
+    from xcalib.data.synth import generate_frames, sample_site
+    from xcalib.geometry import CameraIntrinsics
+    from xcalib.io.bags.reader import BagFrames
+    from xcalib.io.bags.writer import write_bag
+
+    site = sample_site(3, camera_model="kannala_brandt", hfov_deg=185, width=320, height=200, box_noise_px=1.0)
+    frames = generate_frames(site, 2, seed=3, render_images=False)
+    path = write_bag(tmp_path / "fe.mcap", frames)
+    kept = BagFrames(path, fisheye="keep")
+    assert len(kept) == 2
+    for f, g in zip(kept, frames):
+        assert f.intrinsics == site.intrinsics and f.intrinsics.name == "kannala_brandt"
+        np.testing.assert_allclose(np.asarray(f.bboxes_2d, dtype=np.float64), g.bboxes_2d, atol=1e-3)
+    assert isinstance(BagFrames(path)[0].intrinsics, CameraIntrinsics)  # the default: rectified to a pinhole
+    ds = sample_site(3, camera_model="double_sphere", hfov_deg=185, width=320, height=200)
+    with pytest.raises(ValueError, match="CameraInfo cannot express a double_sphere camera"):
+        write_bag(tmp_path / "ds.mcap", generate_frames(ds, 1, seed=3, render_images=False))
+    assert not (tmp_path / "ds.mcap").exists()

@@ -31,8 +31,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..geometry.camera import CameraIntrinsics
-from ..geometry.camera_models import Unified
+from ..geometry.camera_models import CameraModel, Unified
 from ..geometry.camera_models import pixels_per_metre as camera_pixels_per_metre
+from ..geometry.camera_models.outline import outline_extremes
 from ..geometry.rotations import so3_left_jacobian
 from .boxproj import MIN_DEPTH_M, project_rects
 from .diagnostics import NoiseModel
@@ -186,8 +187,13 @@ class BoxEdgeTerm(CostTerm):
         Jacobian needs the corners' pixels. Keyed by everything the projection depends on."""
         intr = state.intr
         outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
-        if not isinstance(intr, CameraIntrinsics):  # another camera model: rects only (its Jacobian is numeric)
+        if not isinstance(intr, CameraIntrinsics):  # another camera model: rects only (see _model_jacobian)
+            key = (state.pose.R.tobytes(), state.pose.t.tobytes(), intr,
+                   None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
+            if self._last is not None and self._last[0] == key:
+                return self._last[1]
             rect, valid = project_rects(outlines, state.pose.R, state.pose.t, intr, self.size)
+            self._last = (key, (rect, valid, None, None))
             return rect, valid, None, None
         key = (state.pose.R.tobytes(), state.pose.t.tobytes(), intr.fx, intr.fy, intr.cx, intr.cy,
                None if intr.distortion is None else np.asarray(intr.distortion, dtype=np.float64).tobytes(),
@@ -216,6 +222,8 @@ class BoxEdgeTerm(CostTerm):
         n, P = len(self.obs), 6 + len(extra)
         if n == 0:
             return np.zeros((0, P))
+        if not isinstance(state.intr, CameraIntrinsics):
+            return self._model_jacobian(state, rotvec, extra)
         R, t, intr = state.pose.R, state.pose.t, state.intr
         rects, valid, u, v = self._projection(state)
         rows = np.arange(n)[:, None]
@@ -257,6 +265,46 @@ class BoxEdgeTerm(CostTerm):
                 col = col + np.einsum("nek,nk->ne", a, tg.shift @ R.T)
             D[..., 6 + k] = col
         D *= ((inside & valid[:, None]) * self.w)[..., None]
+        if self.occlusion is not None:
+            r = np.where(valid[:, None], rects - self.obs, self.fallback) * self.w
+            D = np.where((r * INWARD > self.occlusion.tau)[..., None], self.occlusion.slope * D, D)
+        return D.reshape(4 * n, P)
+
+
+    def _model_jacobian(self, state: PoseState, rotvec: np.ndarray, extra: list[Tangent]) -> np.ndarray:
+        """:meth:`jacobian` for a camera model (``xcalib.geometry.camera_models``): each rectangle
+        edge moves with the outline point that defines it (``outline_extremes``: the extreme of the
+        densified edges), through the model's own Jacobian ``project_jacobian``; the rest as for
+        ``CameraIntrinsics``."""
+        n, P = len(self.obs), 6 + len(extra)
+        R, t, cam = state.pose.R, state.pose.t, state.intr
+        rects, valid, _, _ = self._projection(state)
+        outlines = self.outlines if state.shift_m is None else self.outlines + np.asarray(state.shift_m)[:, None, :]
+        sel = outline_extremes(outlines, R, t, cam)  # [n,4,3] the points defining u_min, v_min, u_max, v_max
+        Ys = sel @ R.T
+        uv, Juv, _ = cam.project_jacobian((Ys + t).reshape(-1, 3))
+        comp = np.array([0, 1, 0, 1])  # u, v, u, v
+        ext = uv.reshape(n, 4, 2)[:, np.arange(4), comp]  # [n,4] the unclipped edges
+        a = Juv.reshape(n, 4, 2, 3)[:, np.arange(4), comp, :]  # d edge / d X_cam [n,4,3]
+        good = valid[:, None] & np.isfinite(ext) & np.all(np.isfinite(a), axis=2)
+        ext, a = np.where(good, ext, 0.0), np.where(good[..., None], a, 0.0)
+        W, H = self.size
+        inside = (ext > 0.0) & (ext < np.array([W, H, W, H], dtype=np.float64))
+        D = np.empty((n, 4, P))
+        cr = np.empty_like(a)  # R c x a
+        cr[..., 0] = Ys[..., 1] * a[..., 2] - Ys[..., 2] * a[..., 1]
+        cr[..., 1] = Ys[..., 2] * a[..., 0] - Ys[..., 0] * a[..., 2]
+        cr[..., 2] = Ys[..., 0] * a[..., 1] - Ys[..., 1] * a[..., 0]
+        D[..., :3] = cr @ so3_left_jacobian(rotvec)
+        D[..., 3:6] = a
+        is_u = comp == 0
+        dn = (ext - np.where(is_u, cam.cx, cam.cy)) / np.where(is_u, cam.fx, cam.fy)  # u = fx * dn + cx
+        for k, tg in enumerate(extra):
+            col = np.where(is_u, tg.fx, tg.fy) * dn + np.where(is_u, tg.cx, tg.cy)
+            if tg.shift is not None:
+                col = col + np.einsum("nek,nk->ne", a, tg.shift @ R.T)
+            D[..., 6 + k] = col
+        D *= ((inside & good) * self.w)[..., None]
         if self.occlusion is not None:
             r = np.where(valid[:, None], rects - self.obs, self.fallback) * self.w
             D = np.where((r * INWARD > self.occlusion.tau)[..., None], self.occlusion.slope * D, D)
@@ -495,7 +543,8 @@ class CostModel:
         """True when every parameterised term is one whose effect on the projection is known (each
         at most once): focal scale, principal point, time offset."""
         kinds = [type(t) for t in self.terms if t.n_params]
-        return (isinstance(self.intr, CameraIntrinsics)  # the derivative is the pinhole-radtan model's
+        # the derivative is the pinhole-radtan model's, or a camera model's own (project_jacobian)
+        return (isinstance(self.intr, (CameraIntrinsics, CameraModel))
                 and all(k in self._TANGENT_TERMS for k in kinds) and len(set(kinds)) == len(kinds))
 
     def analytic_jacobian(self, x: np.ndarray) -> np.ndarray:

@@ -18,7 +18,8 @@ import numpy as np
 
 from .base import CameraModel
 
-__all__ = ["densify_box_edges", "project_outline_rects", "pixels_per_metre", "EDGE_SAMPLES", "STEP_DEG"]
+__all__ = ["densify_box_edges", "project_outline_rects", "outline_extremes", "pixels_per_metre", "EDGE_SAMPLES",
+           "STEP_DEG"]
 
 #: points per segment between corners (besides the corners themselves)
 EDGE_SAMPLES = 7
@@ -92,6 +93,34 @@ def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, cam
             rect[:, sel], valid[:, sel] = _rects(densify_box_edges(c[sel], int(n)), R, t, camera, size, clip,
                                                  min_distance)
     return (rect[0], valid[0]) if single else (rect, valid)
+
+
+def outline_extremes(corners: np.ndarray, R: np.ndarray, t: np.ndarray, camera: CameraModel) -> np.ndarray:
+    """[M,4,3] for one pose (R [3,3], t [3]): the outline points (LiDAR frame, as given) at which
+    each outline's image takes its u minimum, v minimum, u maximum and v maximum -- the points
+    that define the edges of :func:`project_outline_rects`' rectangle (the same densified edges),
+    so the rectangle's derivative is theirs (an analytic Jacobian). Points that cannot be
+    projected count as pixel 0 (such an outline is invalid and has no derivative anyway)."""
+    c = np.asarray(corners, dtype=np.float64)
+    R = np.asarray(R, dtype=np.float64).reshape(3, 3)
+    t = np.asarray(t, dtype=np.float64).reshape(3)
+    M = len(c)
+    out = np.zeros((M, 4, 3))
+    if M == 0:
+        return out
+    if camera.is_pinhole or c.shape[1] != 8:
+        groups = [(np.arange(M), c)]
+    else:  # as project_outline_rects for one pose
+        k = _samples_needed(c, R[None], t[None], COARSE_SAMPLES if M > _COARSE_ABOVE else EDGE_SAMPLES)
+        groups = [(sel, densify_box_edges(c[sel], int(n))) for n in np.unique(k) for sel in [np.flatnonzero(k == n)]]
+    for sel, pts in groups:
+        S = pts.shape[1]
+        uv, _ = camera.project(pts.reshape(-1, 3) @ R.T + t)
+        uv = np.nan_to_num(uv, nan=0.0)
+        u, v = uv[:, 0].reshape(len(sel), S), uv[:, 1].reshape(len(sel), S)
+        idx = np.column_stack([u.argmin(1), v.argmin(1), u.argmax(1), v.argmax(1)])
+        out[sel] = pts[np.arange(len(sel))[:, None], idx]
+    return out
 
 
 #: at most this angle (degrees, seen from the camera) between outline points along an edge

@@ -365,10 +365,26 @@ def intrinsics_from_msg(msg, where) -> CameraIntrinsics:
 
 
 def make_camera_info(store, intr: CameraIntrinsics, stamp: int, frame_id: str, width: int, height: int):
-    d = np.zeros(5) if intr.distortion is None else np.asarray(intr.distortion, dtype=np.float64)
-    if d.size == 4:
-        d = np.concatenate([d, [0.0]])
-    model = "plumb_bob" if d.size == 5 else "rational_polynomial"
+    """A CameraInfo of ``intr``: ``plumb_bob`` / ``rational_polynomial``, or ``equidistant`` for a
+    ``kannala_brandt`` camera model (its k1-k4; the fisheye image as it is). A camera model that
+    CameraInfo cannot express (unified, UCM, EUCM, double sphere) is a ValueError naming it, never
+    written as another model."""
+    model = None
+    if not isinstance(intr, CameraIntrinsics):  # a camera model (xcalib.geometry.camera_models)
+        name = getattr(intr, "name", type(intr).__name__)
+        if name == "kannala_brandt":
+            model, d = "equidistant", np.asarray(intr.k, dtype=np.float64)
+        elif getattr(intr, "is_pinhole", False):
+            intr = intr.to_intrinsics()
+        else:
+            raise ValueError(f"make_camera_info: a ROS CameraInfo cannot express a {name} camera (plumb_bob, "
+                             f"rational_polynomial and equidistant only); write its intrinsics as a Kalibr camchain "
+                             f"or an xcalib intrinsics JSON (xcalib.formats.cameras)")
+    if model is None:
+        d = np.zeros(5) if intr.distortion is None else np.asarray(intr.distortion, dtype=np.float64)
+        if d.size == 4:
+            d = np.concatenate([d, [0.0]])
+        model = "plumb_bob" if d.size == 5 else "rational_polynomial"
     CI = store.types["sensor_msgs/msg/CameraInfo"]
     upper = "K" in CI.__dataclass_fields__
     K = np.asarray(intr.K, dtype=np.float64).reshape(-1)
