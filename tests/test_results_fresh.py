@@ -38,8 +38,6 @@ REL_TOL = 1e-6  # sigmas, scores and other floats
 # then reports XPASS(strict) as a failure, and the entry goes. A crash still fails (only the
 # staleness failure is expected).
 KNOWN_STALE: dict[str, str] = {
-    "selfcal.json": "its sigmas moved with the merged uncertainty change (the first row that differs: sigma only); table 1 takes ~20 min "
-                    "of the 2 shared cores and was not re-run at the final commit",
 }
 
 
