@@ -16,6 +16,11 @@ W, H = 1920, 1200
 INTR = CameraIntrinsics(1300.0, 1300.0, 960.0, 600.0, width=W, height=H)
 
 
+def central_jacobian(fun, x: np.ndarray, eps: float = 1e-7) -> np.ndarray:
+    """Central differences of ``fun`` at ``x`` (the reference the analytic Jacobians are held to)."""
+    return np.stack([(fun(x + eps * e) - fun(x - eps * e)) / (2 * eps) for e in np.eye(len(x))], 1)
+
+
 def sim_rig(rng):
     """(T_cam_world, T_lidar_world) for a pole-mounted camera and LiDAR."""
     h = rng.uniform(5, 12)
