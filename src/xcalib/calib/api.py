@@ -37,7 +37,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, match
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSelectionSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, lean_frames, prepare_frames, with_corner_outlines, with_point_outlines
-from .misfit import box_frame_check, flipped_frames, lens_check, focal_fit, focal_scale_check, focal_width_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, time_offset_check, time_shifted_frames, unexplained_frames_check
+from .misfit import box_frame_check, flipped_frames, lens_check, focal_fit, focal_scale_check, focal_width_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .parallel import Deferred, Workers, parallel_map, resolve_workers
 from .pose import Pose
@@ -544,7 +544,9 @@ def calibrate(frames, intrinsics=None, config: CalibConfig | None = None, *args,
     config = CalibConfig.from_kwargs(config, **legacy_kwargs) if legacy_kwargs else (config or CalibConfig())
     prior_pose = None if prior is None else Pose.parse(prior, "prior")
     frames_in, selection = _selected_frames(frames, intrinsics, config, progress)
-    return _with_selection(_calibrate_retry(frames_in, intrinsics, config, matcher, prior_pose, progress), selection)
+    res = _calibrate_retry(frames_in, intrinsics, config, matcher, prior_pose, progress)
+    res = _deliver_time_offset(res, frames_in, intrinsics, config, (matcher, prior_pose, progress))
+    return _with_selection(res, selection)
 
 
 def _indexable(frames) -> bool:
@@ -602,6 +604,42 @@ def _calibrate_retry(frames_in: list, intrinsics, config: CalibConfig, matcher, 
         retry = _calibrate(frames_in, intrinsics, config.replace(max_baseline_m=None), matcher, None, progress)
         if retry.success or res.diagnostics.refusal == "no_hypothesis":
             return retry
+    return res
+
+
+def _deliver_time_offset(res: CalibrationResult, frames_in: list, intrinsics, config: CalibConfig,
+                         rest: tuple) -> CalibrationResult:
+    """Deliver when the data allow: a default run (no ``time_offset`` asked for) refused because the
+    sensors are out of time (``misfit_time_offset``: a significant fitted offset that moves the
+    moving objects), on frames that carry LiDAR timestamps, is calibrated once more with the offset
+    estimated with the pose (``time_offset="auto"``: used only when object motion determines it
+    within ``config.time_offset_max_std_s``). That run's success is delivered when the offset it used
+    is itself significant (beyond ``TIME_SIGMAS`` of its 1-sigma); the result then names the offset,
+    its 1-sigma and why it was estimated (``message``, ``summary()``, ``selfcal.time_offset_trigger``).
+    Otherwise the refusal stands, saying what the estimate gave. The run with the offset estimated
+    is the one the refusal's advice asks for, with every check it has: nothing is accepted here that
+    following the advice would not accept. ``rest``: (matcher, prior pose, progress)."""
+    d = res.diagnostics
+    if res.success or d is None or d.refusal != "misfit_time_offset" or config.time_offset is not None \
+            or _frame_times(frames_in)[1] != "s":
+        return res
+    check = next((c for c in d.misfit if c.name == "time_offset" and c.flagged), None)
+    est = _calibrate_retry(frames_in, intrinsics, config.replace(time_offset="auto"), *rest)
+    sc = None if est.diagnostics is None else est.diagnostics.selfcal
+    used = sc is not None and sc.time_offset_source == "estimated" and sc.time_offset_s is not None
+    significant = used and abs(sc.time_offset_s) > TIME_SIGMAS * (sc.time_offset_std_s or np.inf)
+    if est.success and significant:
+        sc.time_offset_trigger = "misfit_time_offset" + (f": {check.detail}" if check is not None else "")
+        est.message = (f"the sensors are out of time: the camera-LiDAR time offset was estimated with the pose, "
+                       f"{1e3 * sc.time_offset_s:+.1f} ms (1-sigma {1e3 * sc.time_offset_std_s:.1f} ms; the default "
+                       "run's time-offset check found the 3D boxes fit best moved along their motion). Check the "
+                       "sensors' timestamps; give the offset (time_offset=seconds) once it is known")
+        return est
+    why = est.message if not est.success else (
+        "the offset was not used (too few moving objects to determine it)" if not used else
+        f"the offset estimated with the pose ({1e3 * sc.time_offset_s:+.1f} ms, 1-sigma "
+        f"{1e3 * (sc.time_offset_std_s or 0):.1f} ms) is not significant")
+    res.message = f"{res.message}. Estimating the offset with the pose was tried and did not deliver: {why}"
     return res
 
 

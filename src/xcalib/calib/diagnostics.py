@@ -121,7 +121,9 @@ class SelfCalDiagnostics:
     "estimated" | "fallback". velocity_source: "given" | "tracks" | "nearest" | "" (how the 3D box
     velocities were obtained); n_moving_pairs: matched pairs of moving objects (> 0.5 m/s);
     ego_motion: ego motion compensated (known ego poses). stamp_offset_s: median camera - LiDAR
-    stamp difference of the frames (for comparison; never used). notes: warnings and reasons."""
+    stamp difference of the frames (for comparison; never used). time_offset_trigger: why an offset
+    was estimated although none was asked for ("" : it was asked for, or none was): the default run's
+    time-offset misfit check, which found the sensors out of time. notes: warnings and reasons."""
 
     intrinsics_mode: str = "none"
     intrinsics_given: dict | None = None
@@ -142,6 +144,7 @@ class SelfCalDiagnostics:
     n_moving_pairs: int = 0
     ego_motion: bool = False
     stamp_offset_s: float | None = None
+    time_offset_trigger: str = ""
     notes: list[str] = field(default_factory=list)
 
 
