@@ -48,3 +48,30 @@ def test_failed_result_has_no_pose_error():
     with pytest.raises(ValueError, match="too few"):
         res.pose_error(np.eye(4))
     assert "FAILED" in res.summary()
+
+
+def test_a_success_whose_95_bound_exceeds_the_fine_line_is_reported_coarse():
+    """Issue 25: a success promises its 95 % bound (within the acceptance limits, 2 deg / 1.2 m);
+    one whose bound exceeds 1 deg / 0.5 m (the line every benchmark calls wrong beyond) is coarse."""
+    import dataclasses
+
+    from xcalib.calib.config import CalibConfig
+
+    fine = _result()
+    assert not fine.coarse and fine.bound95[1] < 0.02
+    assert "precision     = fine" in fine.summary()
+    # calibrate_many's rec034: 1-sigma 0.74 deg / 0.48 m (norms), accepted, 0.82 m from the truth
+    coarse = dataclasses.replace(fine, rotation_std_deg=[0.43, 0.43, 0.42], translation_std_m=[0.28, 0.28, 0.27])
+    r, t = coarse.bound95
+    assert 1.0 < r < 2.0 and 0.5 < t < 1.2  # inside the acceptance limits, beyond the fine line
+    assert coarse.coarse and "COARSE" in coarse.summary()
+    d = coarse.to_dict()
+    assert d["coarse"] is True and d["bound95"][1] == pytest.approx(t)
+    # the fine line is the config's: a looser one makes it fine; a refusal is never coarse
+    assert not dataclasses.replace(coarse, config=CalibConfig(fine_rot_bound_deg=2.0, fine_trans_bound_m=1.2)).coarse
+    assert not CalibrationResult(success=False, message="refused").coarse
+    # one dominant axis: 1.96 sigma; three equal: 2.80 sigma
+    one = dataclasses.replace(fine, translation_std_m=[0.2, 0.0, 0.0])
+    assert one.bound95[1] == pytest.approx(0.392, abs=1e-3)
+    with pytest.raises(ValueError, match="fine_trans_bound_m"):
+        CalibConfig(fine_trans_bound_m=0.0)

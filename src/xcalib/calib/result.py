@@ -16,7 +16,7 @@ from ..geometry.camera_models import calibration_camera_from_dict
 from ..geometry.projection import project_points, projection_matrix
 from ..geometry.transforms import make_transform, pose_error as _pose_error
 from .config import CalibConfig
-from .diagnostics import CalibDiagnostics
+from .diagnostics import CalibDiagnostics, bound95
 
 __all__ = ["CalibrationResult"]
 
@@ -99,6 +99,35 @@ class CalibrationResult:
         return projection_matrix(self.K, self.rotation, self.translation)
 
     @property
+    def bound95(self) -> tuple[float, float]:
+        """(deg, m): the radii within which the rotation and the translation error lie with 95 %
+        probability, from the reported per-axis 1-sigma (``uncertainty.bound95``; inf: unbounded)."""
+        return bound95(self.rotation_std_deg), bound95(self.translation_std_m)
+
+    @property
+    def coarse(self) -> bool:
+        """A success whose 95 % bound exceeds ``config.fine_rot_bound_deg`` / ``fine_trans_bound_m``
+        (1 deg / 0.5 m by default): determined, but not 95 % sure within that line; a starting
+        point, not a pose for fusion. False for a refusal (it has no pose) and for a fine success."""
+        if not self.success:
+            return False
+        cfg = self.config or CalibConfig()
+        r, t = self.bound95
+        return bool(not (r <= cfg.fine_rot_bound_deg and t <= cfg.fine_trans_bound_m))
+
+    def precision_line(self) -> str:
+        """"fine ..." / "COARSE ...": the 95 % bound against the fine line (``coarse``); "" for a refusal."""
+        if not self.success:
+            return ""
+        cfg = self.config or CalibConfig()
+        r, t = self.bound95
+        head = f"95 % bound {r:.2f} deg / {t:.2f} m"
+        if not self.coarse:
+            return f"fine: {head} (within {cfg.fine_rot_bound_deg:g} deg / {cfg.fine_trans_bound_m:g} m)"
+        return (f"COARSE: {head} exceeds {cfg.fine_rot_bound_deg:g} deg / {cfg.fine_trans_bound_m:g} m -- a starting "
+                "point, not a pose for fusing the sensors; add frames with other objects at other places and depths")
+
+    @property
     def time_offset_s(self) -> float | None:
         """Camera time minus LiDAR time (s) the 3D boxes were moved by (estimated or fixed); None: none."""
         return None if self.diagnostics is None else self.diagnostics.selfcal.time_offset_s
@@ -167,6 +196,8 @@ class CalibrationResult:
             "rotation_std_deg": [_num(v) for v in self.rotation_std_deg],
             "translation_std_m": [_num(v) for v in self.translation_std_m],
             "accepted": bool(self.accepted),
+            "bound95": [_num(v) for v in self.bound95],  # derived (deg, m); not read back
+            "coarse": self.coarse,  # derived: the 95 % bound beyond config.fine_*_bound; not read back
             "buffer_reproj_px": _num(self.buffer_reproj_px),
             "frame_keys": list(self.frame_keys),
             "pairs": [p.tolist() for p in self.pairs],
@@ -307,6 +338,7 @@ class CalibrationResult:
             f"  residual      = {self.residual_px_median:.2f} px median, IoU median {self.iou_median:.3f}",
             f"  1-sigma       = rot {np.array2string(self.rotation_std_deg, precision=3)} deg, "
             f"trans {np.array2string(self.translation_std_m, precision=3)} m",
+            f"  precision     = {self.precision_line()}",
         ]
         sc = None if self.diagnostics is None else self.diagnostics.selfcal
         if sc is not None and sc.focal_estimated:
