@@ -126,6 +126,40 @@ def test_verdict_refuses_a_determined_pose_whose_reported_bound_is_too_wide():
     assert verdict(loose, cfg).code == "poorly_constrained"
 
 
+def test_a_bound_the_objects_own_scatter_fails_is_refused_as_too_few_objects():
+    """Issue 25 (A9, 416 px detections: 19 objects): when the objects' scatter alone -- no box or
+    outline model -- exceeds the bound, the refusal's code and message say too few objects, with
+    roughly how many would do; when the box model is what widens the bound it stays ``uncertain``."""
+    from xcalib.calib.config import CalibConfig
+    from xcalib.calib.decision import Evidence, verdict
+    from xcalib.calib.diagnostics import UncertaintyParts
+    from xcalib.calib.uncertainty import statistical_sd
+
+    def ev(total_deg, total_m, objects_deg, objects_m):
+        return Evidence(n_pairs=82, n_2d=107, most_per_frame=6, places=10, places_off_line=5, halves_available=True,
+                        best_score=50.0, runner_up_score=0.0, rot_sd=np.full(3, 0.1), tr_sd=np.full(3, 0.05),
+                        rot_sd_total=np.asarray(total_deg, float), tr_sd_total=np.asarray(total_m, float),
+                        n_objects=19, rot_sd_objects=np.asarray(objects_deg, float),
+                        tr_sd_objects=np.asarray(objects_m, float))
+
+    cfg = CalibConfig()
+    # A9 416 px: reported [1.13 0.79 0.63] deg / [0.57 0.77 0.27] m, objects alone [1.07 0.53 0.57] / [0.28 0.54 0.18]
+    few = verdict(ev([1.13, 0.79, 0.63], [0.57, 0.77, 0.27], [1.07, 0.53, 0.57], [0.28, 0.54, 0.18]), cfg)
+    assert few is not None and few.code == "too_few_objects"
+    assert few.message.startswith("too few distinct objects") and "19 distinct objects" in few.message
+    need = int(few.message.split("roughly ")[1].split()[0])
+    assert 19 < need < 40
+    # the same bound, but the objects alone are within the limits: the box model widens it
+    box = verdict(ev([1.13, 0.79, 0.63], [0.57, 0.77, 0.27], [0.3, 0.2, 0.2], [0.1, 0.1, 0.1]), cfg)
+    assert box is not None and box.code == "uncertain"
+    assert verdict(ev([0.3, 0.3, 0.3], [0.1, 0.1, 0.1], [0.3, 0.3, 0.3], [0.1, 0.1, 0.1]), cfg) is None
+    # the object-level part: per axis the largest of the Jacobian, clusters, bootstrap, own outlines
+    parts = UncertaintyParts(jacobian=[0.2] * 6, clusters=[1.0, 0.1, 0.1, 0.3, 0.1, 0.1],
+                             object_outline=[0.1, 0.5, 0.1, 0.1, 0.1, 0.1], outline=[9.0] * 6, floor=[9.0] * 6)
+    np.testing.assert_allclose(statistical_sd(parts), [1.0, 0.5, 0.2, 0.3, 0.2, 0.2])
+    assert statistical_sd(UncertaintyParts(jacobian=[0.2] * 6)) is None  # objects not counted
+
+
 def test_exact_refits_replace_the_largest_linearised_moves():
     frames, T = _repeated_scene(seed=1, n_frames=8, bias_px=4.0)
     cframes, pairs, intr, pose = _fit(frames, T)

@@ -46,7 +46,7 @@ from .result import CalibrationResult
 from .selection import FrameSelection, scan_frames, select_frames
 from .selfcal import decide as decide_selfcal, wants_selfcal
 from .uncertainty import estimate as estimate_uncertainty
-from .uncertainty import object_groups, with_object_outline
+from .uncertainty import object_groups, statistical_sd, with_object_outline
 
 __all__ = ["calibrate", "calibrate_single", "METHOD"]
 
@@ -219,6 +219,12 @@ def _track_ids(frames_in, cframes) -> list | None:
     return out if any_ else None
 
 
+def _objects_sd(parts, config: CalibConfig) -> dict:
+    """``Evidence``'s object-level statistical sigma (``uncertainty.statistical_sd``), when objects are counted."""
+    sd = statistical_sd(parts) if config.uncertainty != "frames" else None
+    return {} if sd is None else {"rot_sd_objects": sd[:3], "tr_sd_objects": sd[3:]}
+
+
 def _search(cframes, frames_in, intr, config: CalibConfig, matcher, prior: Pose | None, diag: CalibDiagnostics,
             progress: Progress | None) -> Hypotheses:
     """Bring-up hypotheses (or the prior), scored on every frame."""
@@ -233,7 +239,7 @@ def _search(cframes, frames_in, intr, config: CalibConfig, matcher, prior: Pose 
     return bu.hyps
 
 
-_MISFIT_CAN_EXPLAIN = ("poorly_constrained", "ambiguous", "few_explained", "uncertain")
+_MISFIT_CAN_EXPLAIN = ("poorly_constrained", "ambiguous", "few_explained", "uncertain", "too_few_objects")
 
 
 def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion) -> tuple[float, int]:
@@ -481,7 +487,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
                                halves_available=unc.halves_available, best_score=ref.best_score,
                                runner_up_score=runner, rot_sd=unc.rot_sd_data, tr_sd=unc.tr_sd_data,
                                rot_sd_total=unc.rot_sd, tr_sd_total=unc.tr_sd,
-                               n_objects=unc.parts.n_objects if config.uncertainty != "frames" else None), config)
+                               n_objects=unc.parts.n_objects if config.uncertainty != "frames" else None,
+                               **_objects_sd(unc.parts, config)), config)
     if refusal is None and prior is None:
         refusal = crowded_check(cframes, config)
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):

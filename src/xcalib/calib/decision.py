@@ -22,7 +22,7 @@ from .config import CalibConfig
 from .inputs import CalibFrame
 from .uncertainty import HALF_MIN_MATCHES, HALVES_MIN_MATCHES, MIN_OBJECTS, bound95
 
-__all__ = ["Refusal", "precheck", "verdict", "crowded_check", "matched_places", "POOLED_MIN_PLACES", "POOLED_SEP_M",
+__all__ = ["Refusal", "Evidence", "precheck", "verdict", "crowded_check", "matched_places", "POOLED_MIN_PLACES", "POOLED_SEP_M",
            "POOLED_OFF_LINE_M"]
 
 # pooled identifiability (frames with only 1-2 matched objects each): the matched 3D boxes over
@@ -120,6 +120,10 @@ class Evidence:
     rot_sd_total: np.ndarray | None = None  # the reported sigma (objects counted once, box-model floor)
     tr_sd_total: np.ndarray | None = None
     n_objects: int | None = None  # distinct physical objects among the matches (None: not grouped)
+    # the part of the reported sigma that the objects' scatter alone gives (it shrinks as 1/sqrt of the
+    # distinct objects; ``uncertainty.statistical_sd``); None: not measured per object
+    rot_sd_objects: np.ndarray | None = None
+    tr_sd_objects: np.ndarray | None = None
 
 
 def _few_pairs_message(n_pairs: int, rot_sd, tr_sd, max_rot: float, max_tr: float) -> str:
@@ -196,11 +200,36 @@ def _bound_check(ev: Evidence, config: CalibConfig) -> Refusal | None:
         return None
     bound = "unbounded (one object alone fixes part of the pose)" if not (np.isfinite(r) and np.isfinite(t)) \
         else f"{r:.2f} deg / {t:.2f} m"
+    few_objects = _too_few_objects(ev, config, bound)
+    if few_objects is not None:
+        return few_objects
     few = "" if ev.n_objects is None else f"too few distinct objects ({ev.n_objects}) to bound the pose tighter; "
     return Refusal("uncertain", f"too uncertain: the frames agree on the pose, but counting each object once (the same "
                    f"vehicles repeat over the frames) and the 3D box model, its 95 % bound is {bound} (limit "
                    f"{config.max_rot_bound_deg:g} deg / {config.max_trans_bound_m:g} m); {few}add recordings with other "
                    "objects at other places")
+
+
+def _too_few_objects(ev: Evidence, config: CalibConfig, bound: str) -> Refusal | None:
+    """``too_few_objects`` when the objects' own scatter is what fails the bound: the 95 % bound of
+    the object-level statistical sigma alone (each distinct object one sample; no box-model or
+    outline part) already exceeds a limit, so only more distinct objects can tighten it (it shrinks
+    as 1/sqrt of their number; the message says roughly how many). None otherwise: the 3D box /
+    outline model is (part of) the cause, and the plain ``uncertain`` refusal names it."""
+    if ev.n_objects is None or ev.rot_sd_objects is None or ev.tr_sd_objects is None:
+        return None
+    r, t = bound95(ev.rot_sd_objects), bound95(ev.tr_sd_objects)
+    if not (np.isfinite(r) and np.isfinite(t)):
+        return None
+    ratio = max(r / config.max_rot_bound_deg, t / config.max_trans_bound_m)
+    if ratio <= 1.0:
+        return None
+    need = int(np.ceil(ev.n_objects * ratio ** 2))
+    return Refusal("too_few_objects", f"too few distinct objects: the {ev.n_pairs} matches come from {ev.n_objects} "
+                   f"distinct objects (the same vehicles repeat over the frames), and their scatter alone bounds the pose "
+                   f"only within {r:.2f} deg / {t:.2f} m at 95 % (limit {config.max_rot_bound_deg:g} deg / "
+                   f"{config.max_trans_bound_m:g} m; with the 3D box model {bound}); roughly {need} distinct objects "
+                   "would be needed. Add frames (or recordings) in which other objects pass, at other places and depths")
 
 
 def crowded_check(cframes: Sequence[CalibFrame], config: CalibConfig) -> Refusal | None:

@@ -35,7 +35,7 @@ from .refine import F_SCALE, build_cost, lsq
 from .terms import CostSpec, pose_block
 
 __all__ = ["pose_covariance", "object_sandwich", "pose_spread", "pose_jackknife", "frame_jackknife", "object_groups", "pose_object_bootstrap",
-           "combine", "bound95", "outline_shift", "with_object_outline", "box_model_shift", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "Uncertainty", "estimate"]
+           "combine", "bound95", "outline_shift", "with_object_outline", "statistical_sd", "box_model_shift", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "Uncertainty", "estimate"]
 
 HALF_MIN_MATCHES = 6  # matches each half of the frames (or pairs) needs for the frame-halves check
 HALVES_MIN_MATCHES = 2 * HALF_MIN_MATCHES
@@ -537,6 +537,20 @@ def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None 
                              frames=_lst(frames_sd), n_objects=n_obj, box_model=box_info,
                              outline=_lst(outl))
     return Uncertainty(r, t, parts, halves is not None, r_data, t_data)
+
+
+def statistical_sd(parts: UncertaintyParts) -> np.ndarray | None:
+    """The object-level statistical 6-vector sigma (deg, m) in ``parts``: per axis the largest of
+    the Jacobian, the object-clustered sandwich, the object bootstrap and the objects' own outlines
+    -- the scatter that each distinct object adds once and that more objects shrink (no occlusion,
+    outline-shift or box-model part). None when the objects were not counted (no clustered sigma)."""
+    if parts.clusters is None or parts.jacobian is None:
+        return None
+    sd = np.abs(np.asarray(parts.jacobian, dtype=np.float64))
+    for v in (parts.clusters, parts.objects, parts.object_outline):
+        if v is not None:
+            sd = np.fmax(sd, np.abs(np.asarray(v, dtype=np.float64)))
+    return sd
 
 
 def with_object_outline(unc: Uncertainty, sd6) -> Uncertainty:
