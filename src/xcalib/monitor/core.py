@@ -71,11 +71,13 @@ class MonitorConfig:
     the calibration's 1-sigma where the result has none; gate_iou / gate_dist: matching gates
     (``refine.match_frame``); latch: a drift stays (and the estimate follows the frames since
     the change); False: the monitor starts afresh after each alarm (benchmarks);
-    leave_out_objects: an alarm needs the test to cross the threshold with the this many most
-    influential tracked objects left out of both segments (one object whose 3D box stays wrong for
-    tens of frames is not a change of the camera; 0: off); robust_scale: the soft-L1 loss bends at
-    the residuals' own robust scale (at least the noise model's), so a detector noisier than the
-    calibration's noise model does not shrink every estimated change.
+    leave_out_objects / leave_out_level: an alarm also needs the change to stay significant at
+    ``leave_out_level`` (chi-square, 6 dof; 0: the alarm threshold itself) with this many most
+    influential tracked objects left out of both segments, one after the other (one or two
+    objects whose 3D boxes stay wrong for tens of frames are not a move of the camera; 0: off);
+    robust_scale: the soft-L1 loss bends at the residuals' own robust scale (at least the noise
+    model's), so a detector noisier than the calibration's noise model does not shrink every
+    estimated change.
     """
 
     window: int = 20
@@ -97,12 +99,15 @@ class MonitorConfig:
     gate_dist: float = 0.5
     latch: bool = True
     power: float = 0.95
-    leave_out_objects: int = 1
+    leave_out_objects: int = 2
+    leave_out_level: float = 0.01
     robust_scale: bool = True
 
     def __post_init__(self) -> None:
         if int(self.leave_out_objects) < 0:
             raise ValueError(f"MonitorConfig.leave_out_objects must be >= 0, got {self.leave_out_objects}")
+        if not 0.0 <= self.leave_out_level < 1.0:
+            raise ValueError(f"MonitorConfig.leave_out_level must be in [0, 1), got {self.leave_out_level}")
         for name in ("window", "stride", "scales", "history", "min_pairs"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"MonitorConfig.{name} must be >= 1, got {getattr(self, name)}")
@@ -144,6 +149,9 @@ class DriftEvent:
     statistic: float
     before_x: np.ndarray | None = None    # pre-change estimate (rad / m) and its covariance
     before_cov: np.ndarray | None = None
+    alternative: np.ndarray | None = None  # the other pure model the data do not reject either (deg / m)
+    alternative_sigma: np.ndarray | None = None
+    alternative_model: str = ""
 
     def to_dict(self) -> dict:
         return {"camera": self.camera, "detected_frame": self.detected_frame, "detected_time_s": self.detected_time_s,
@@ -152,17 +160,27 @@ class DriftEvent:
                 "rotation_step_sigma_deg": _l(self.step_sigma[:3]), "translation_step_sigma_m": _l(self.step_sigma[3:]),
                 "rotation_change_deg": _l(self.change[:3]), "translation_change_m": _l(self.change[3:]),
                 "rotation_sigma_deg": _l(self.sigma[:3]), "translation_sigma_m": _l(self.sigma[3:]),
-                "statistic": self.statistic}
+                "statistic": self.statistic,
+                "ambiguous_with": None if self.alternative is None else {
+                    "model": self.alternative_model, "rotation_step_deg": _l(self.alternative[:3]),
+                    "translation_step_m": _l(self.alternative[3:]),
+                    "rotation_step_sigma_deg": _l(self.alternative_sigma[:3]),
+                    "translation_step_sigma_m": _l(self.alternative_sigma[3:])}}
 
     def update(self, fit: "_Fit") -> None:
         """Refresh the estimates from the frames since the change (``fit``)."""
         self.change, self.sigma = _to_units(fit.x), fit.sd6
         bx = np.zeros(6) if self.before_x is None else self.before_x
         bc = np.zeros((6, 6)) if self.before_cov is None else self.before_cov
-        x, cov, self.model = stats.select_model(fit.x - bx, fit.cov + bc)
-        self.step = _to_units(x)
-        d = np.sqrt(np.clip(np.diag(cov), 0, None))
-        self.step_sigma = np.concatenate([np.degrees(d[:3]), d[3:]])
+        kept = stats.pure_models(fit.x - bx, fit.cov + bc)
+        x, cov, self.model = (kept[0][1], kept[0][2], kept[0][3]) if kept else \
+            (fit.x - bx, fit.cov + bc, "rotation+translation")
+        self.step, self.step_sigma = _to_units(x), _sd_units(cov)
+        # a pure rotation and a pure translation both fit (far objects: a turn about y looks like a
+        # shift along x): the step is ambiguous, and the other reading is reported beside it
+        self.alternative = _to_units(kept[1][1]) if len(kept) > 1 else None
+        self.alternative_sigma = _sd_units(kept[1][2]) if len(kept) > 1 else None
+        self.alternative_model = kept[1][3] if len(kept) > 1 else ""
 
 
 @dataclass
@@ -250,6 +268,12 @@ class _Fit:
     def sd6(self) -> np.ndarray:
         d = np.sqrt(np.clip(np.diag(self.cov), 0, None))
         return np.concatenate([np.degrees(d[:3]), d[3:]])
+
+
+def _sd_units(cov: np.ndarray) -> np.ndarray:
+    """1-sigma per axis of a [6,6] covariance (rad / m) in deg / m."""
+    d = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return np.concatenate([np.degrees(d[:3]), d[3:]])
 
 
 def _to_units(x: np.ndarray) -> np.ndarray:
@@ -385,9 +409,12 @@ class CameraMonitor:
         self.cov_cal = np.diag(np.concatenate([np.radians(rs), ts]) ** 2)
         self.h = self.config.threshold
         self.lam = stats.detectable_lambda(self.h, self.config.power)
+        lvl = float(self.config.leave_out_level)
+        self.h_out = stats.threshold(lvl, 1, 1) if lvl > 0 else self.h  # without the left-out objects
         self._diffs: deque[float] = deque(maxlen=200)  # successive windows' disagreement (chi2 / 6)
         self._scales: deque[float] = deque(maxlen=SCALE_FRAMES)  # frames' robust residual scale
         self._anon = 0  # untracked pairs' object ids (-1, -2, ...)
+        self._scale_at = [-1, 0, 1.0]  # residual_scale's cache: (frames in, uses since, value)
         self.reset()
         self.events: list[DriftEvent] = []
         self.statuses_seen = {"ok": 0, "drift": 0, "unknown": 0}
@@ -632,7 +659,10 @@ class CameraMonitor:
         1. The soft-L1 loss bends at ``F_SCALE`` times it, so a detector noisier than the model
         (4 px boxes: 3-4) is not treated as outliers, whose down-weighting would shrink every
         estimated change (to about half of a 10 cm shift in one linearisation)."""
-        return max(1.0, float(np.median(self._scales))) if self._scales else 1.0
+        if self._scale_at[0] != len(self._scales) or self._scale_at[1] >= SCALE_EVERY:  # refreshed every few frames
+            self._scale_at = [len(self._scales), 0, max(1.0, float(np.median(self._scales))) if self._scales else 1.0]
+        self._scale_at[1] += 1
+        return self._scale_at[2]
 
     @property
     def inflation(self) -> float:
@@ -703,10 +733,10 @@ class CameraMonitor:
                 if s <= self.h:
                     break
                 s_lo, dropped = self._without_objects(recs, n - (L or longest), fa, fb)
-                if s_lo > self.h:
+                if s_lo > self.h_out:
                     return self._alarm(recs, sums, s, L, det)
                 held = held or (f"; a change (statistic {s:.1f}) rests on object(s) "
-                                f"{', '.join(str(o) for o in dropped)}: without them {s_lo:.1f} < {self.h:.1f}")
+                                f"{', '.join(str(o) for o in dropped)}: without them {s_lo:.1f} < {self.h_out:.1f}")
             best_stat = min(best_stat, self.h)
         if np.any(det[:3] > cfg.max_detectable_deg) or np.any(det[3:] > cfg.max_detectable_m):
             axes = [f"{a} {v:.2f} {'deg' if i < 3 else 'm'}" for i, (a, v) in
@@ -763,7 +793,7 @@ class CameraMonitor:
             Ta, ta = Ta - Ha[j], ta - ga[j]
             if fb is not None:
                 Tb, tb = Tb - Hb_a[j], tb - gb_a[j]
-            if stat <= self.h:
+            if stat <= self.h_out:
                 break
         return stat, dropped
 
@@ -879,6 +909,7 @@ def _weak_message(weak: tuple[str, ...], det: np.ndarray, n_frames: int) -> str:
     return (f"not observable from this traffic within {n_frames} frames of a change (95 % power): "
             + ", ".join(parts))
 SCALE_FRAMES = 200  # frames the residual scale is the median over
+SCALE_EVERY = 5  # ... recomputed every this many frames
 RELIN_ITERS = 3  # rounds of re-linearisation of the frames after a detected change
 RELIN_TOL = 0.5  # a frame linearised farther than this (sigma, any axis) from the estimate is re-linearised
 MIN_DIFFS = 5  # adjacent window pairs before the measured inflation replaces the prior
@@ -897,7 +928,17 @@ def _drift_message(ev: DriftEvent) -> str:
         i = int(np.argmax(np.abs(t)))
         parts.append(f"shifted {100 * np.linalg.norm(t):.1f} cm (largest {100 * t[i]:+.1f} cm along its {_AXES[i]} "
                      f"axis, 1-sigma {100 * st[i]:.1f})")
-    return (f"the camera has {' and '.join(parts)} since frame {ev.change_frame} (t={ev.change_time_s:.1f} s, "
+    alt = ""
+    if ev.alternative is not None:
+        a = ev.alternative
+        if ev.alternative_model == "rotation":
+            i = int(np.argmax(np.abs(a[:3])))
+            alt = f"{a[i]:+.3f} deg about its {_AXES[i]} axis"
+        else:
+            i = int(np.argmax(np.abs(a[3:])))
+            alt = f"{100 * a[3 + i]:+.1f} cm along its {_AXES[i]} axis"
+        alt = f" (or, equally well, {ev.alternative_model == 'rotation' and 'turned' or 'shifted'} {alt}: this traffic cannot tell the two apart)"
+    return (f"the camera has {' and '.join(parts)}{alt} since frame {ev.change_frame} (t={ev.change_time_s:.1f} s, "
             f"detected at frame {ev.detected_frame}); recalibrate")
 
 
