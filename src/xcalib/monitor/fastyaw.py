@@ -58,18 +58,18 @@ def points_near(pts: np.ndarray, box7: np.ndarray, margin: float = 0.3, clearanc
 
 def fit_yaw_batch(box7: np.ndarray, pts: np.ndarray, *, step_deg: float = 4.0, min_points: int = 8,
                   band_m: float = 0.3, ambiguity_deg: float = 20.0, min_contrast: float = 1.5,
-                  min_aspect: float = 1.3, max_points: int | None = MAX_POINTS) -> tuple[np.ndarray, np.ndarray]:
+                  min_aspect: float = 1.3) -> tuple[np.ndarray, np.ndarray]:
     """(boxes [M,7] with the fitted yaw, ambiguous [M] bool): ``fit_yaw_to_points``'s fit for
     every box at once (boxes with fewer than ``min_points`` side points keep their yaw; a box with
-    more than ``max_points`` is fitted on every k-th of them, at most ``max_points``)."""
+    more than ``MAX_POINTS`` is fitted on every k-th of them, at most ``MAX_POINTS``)."""
     b = np.array(box7, dtype=np.float64).reshape(-1, 7)
     M = len(b)
     fitted, contrast = np.zeros(M, dtype=bool), np.zeros(M)
     bi, qx, qy = points_near(pts, b)
     counts = np.bincount(bi, minlength=M)
-    if max_points is not None and len(bi) and counts.max() > max_points:  # near boxes: thin evenly
+    if len(bi) and counts.max() > MAX_POINTS:  # near boxes hold thousands of points: thin them evenly
         first = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        stride = np.maximum(1, -(-counts // max_points))
+        stride = np.maximum(1, -(-counts // MAX_POINTS))
         thin = ((np.arange(len(bi)) - first[bi]) % stride[bi]) == 0
         bi, qx, qy = bi[thin], qx[thin], qy[thin]
     use = counts[bi] >= min_points
