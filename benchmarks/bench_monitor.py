@@ -469,6 +469,7 @@ def main() -> None:
     ap.add_argument("--null-frames", type=int, default=1500)
     ap.add_argument("--null-base", type=int, default=1200, help="--part null: generated frames per site (looped)")
     ap.add_argument("--null-sites", type=int, default=6, help="--part null: sites")
+    ap.add_argument("--null-seeds", default="", help="--part null: comma-separated site seeds (default: the first --null-sites)")
     ap.add_argument("--null-noise", choices=("both", "default", "noisy"), default="both",
                     help="--part null: which detection noise (two processes can share the work)")
     ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak"), default="all",
@@ -502,7 +503,8 @@ def main() -> None:
 
     result[f"provenance_{args.part}"] = provenance()  # parts are merged: each keeps the run that made it
     if args.part == "null":  # long drift-free streams (the false-alarm rate), looped with jitter
-        nseeds = [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites]
+        nseeds = ([int(v) for v in args.null_seeds.split(",") if v.strip()] if args.null_seeds
+                  else [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites])
         log(f"== long synthetic null streams ({n_null} frames per site from {args.null_base} generated, sites {nseeds})")
         if args.null_noise in ("both", "default"):
             result["null_long_default"] = _null_replay("default noise", nseeds, args.null_base, n_null, log)
