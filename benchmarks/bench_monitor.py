@@ -94,12 +94,12 @@ def _run(cal, frames, *, k0: int | None = None, change=None, ramp: int = 0, latc
     from xcalib.monitor import Monitor, MonitorConfig
     from xcalib.monitor.inject import inject_change
 
-    mon = Monitor(cal, MonitorConfig(latch=latch))
+    mon = Monitor(cal, MonitorConfig(**{"latch": latch, **CONFIG}))
     cm = next(iter(mon.cameras.values()))
     states = {"ok": 0, "drift": 0, "unknown": 0}
     weak: dict[str, int] = {}
     first, est_first, alarms, cpu, n = None, None, 0, 0.0, 0
-    settled, weak_before = {}, None
+    settled, weak_before, settled_alt = {}, None, {}
     for i, f in enumerate(frames):
         if change is not None and i >= k0:
             frac = 1.0 if not ramp else min(1.0, (i - k0 + 1) / ramp)
@@ -121,7 +121,10 @@ def _run(cal, frames, *, k0: int | None = None, change=None, ramp: int = 0, latc
                 est_first = cm.events[-1].step.copy()
         if k0 is not None and latch and cm.events and i - k0 + 1 in settle:
             settled[i - k0 + 1] = cm.events[0].step.copy()
-    return {"first": first, "est_first": est_first, "settled": settled, "states": states, "alarms": alarms,
+            alt = cm.events[0].alternative
+            settled_alt[i - k0 + 1] = None if alt is None else alt.copy()
+    return {"first": first, "est_first": est_first, "settled": settled, "settled_alt": settled_alt,
+            "states": states, "alarms": alarms,
             "cpu_ms": 1e3 * cpu / max(n, 1), "frames": n, "weak": weak,
             "weak_before": weak_before,
             "model": cm.events[0].model if cm.events else None}
@@ -136,6 +139,13 @@ def _rel_err(est, kind: str, size: float, axis: int) -> float | None:
     true = np.zeros(3)
     true[axis] = size
     return float(np.linalg.norm(est[sl] - true) / size)
+
+
+def _either(q: dict, at: int, kind: str, size: float, axis: int) -> float | None:
+    """The error of the better of the step and its ambiguous alternative (where reported)."""
+    errs = [_rel_err(e, kind, size, axis) for e in (q["settled"].get(at), q.get("settled_alt", {}).get(at))]
+    errs = [e for e in errs if e is not None]
+    return min(errs) if errs else None
 
 
 def _leak(est, kind: str) -> float | None:
@@ -157,6 +167,7 @@ def _pct(v) -> float | None:
 
 _STREAMS: dict = {}  # the synthetic streams the step runs share (worker processes inherit them by fork)
 JOBS = 1  # worker processes (``--jobs``)
+CONFIG: dict = {}  # MonitorConfig settings other than the defaults (``--set``)
 
 
 def _pmap(fn, items: list) -> list:
@@ -207,6 +218,10 @@ def _summarise(name, res, kind, size, axis, within, k0, log) -> dict:
            "est_err_at_change_plus_100": _pct([_rel_err(q["settled"].get(100), kind, size, axis) for q in res]),
            "est_within_25pct_at_plus_50": _share([_rel_err(q["settled"].get(50), kind, size, axis) for q in res]),
            "leak_other_kind_at_plus_50": _pct([_leak(q["settled"].get(50), kind) for q in res]),
+           # the step was reported ambiguous (a pure rotation and a pure translation both fit) ...
+           "ambiguous_at_plus_50": float(np.mean([q.get("settled_alt", {}).get(50) is not None for q in res])),
+           # ... and the better of the two readings
+           "est_err_either_at_plus_50": _pct([_either(q, 50, kind, size, axis) for q in res]),
            "axis_right": float(np.mean([q["settled"].get(100) is not None and
                                         int(np.argmax(np.abs(q["settled"][100]))) == (0 if kind == "rotation" else 3) + axis
                                         for q in res])),
@@ -217,7 +232,8 @@ def _summarise(name, res, kind, size, axis, within, k0, log) -> dict:
     log(f"{name:34s} {row['detected_within'] * 100:5.0f} % <= {within:2d} fr  {row['detected_100'] * 100:4.0f} % <= 100  "
         f"delay {_f(row['delay_median'])} (max {_f(row['delay_max'])})  err@det {_f(row['est_err_at_detection'], 2)} "
         f"err@+50 {_f(row['est_err_at_change_plus_50'], 2)} (<=25 %: {_f(row['est_within_25pct_at_plus_50'], 2)}) "
-        f"err@+100 {_f(row['est_err_at_change_plus_100'], 2)}  axis {row['axis_right'] * 100:.0f} %  early {early}  "
+        f"err@+100 {_f(row['est_err_at_change_plus_100'], 2)}  ambiguous {row['ambiguous_at_plus_50'] * 100:.0f} % "
+        f"(either {_f(row['est_err_either_at_plus_50'], 2)})  axis {row['axis_right'] * 100:.0f} %  early {early}  "
         f"stated weak {row['weak_axis_stated'] * 100:.0f} %")
     return row
 
@@ -435,6 +451,16 @@ def _kitti(n_null: int, n_step: int, log) -> dict:
     return _real_case("KITTI", base, cal, n_null, n_step, log)
 
 
+def _value(v: str):
+    """``--set`` value: int, float, bool or str."""
+    for conv in (int, float):
+        try:
+            return conv(v)
+        except ValueError:
+            pass
+    return {"true": True, "false": False}.get(v.lower(), v)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="30-min null streams (18,000 frames per site)")
@@ -443,6 +469,7 @@ def main() -> None:
     ap.add_argument("--null-frames", type=int, default=1500)
     ap.add_argument("--null-base", type=int, default=1200, help="--part null: generated frames per site (looped)")
     ap.add_argument("--null-sites", type=int, default=6, help="--part null: sites")
+    ap.add_argument("--null-seeds", default="", help="--part null: comma-separated site seeds (default: the first --null-sites)")
     ap.add_argument("--null-noise", choices=("both", "default", "noisy"), default="both",
                     help="--part null: which detection noise (two processes can share the work)")
     ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak"), default="all",
@@ -451,10 +478,15 @@ def main() -> None:
     ap.add_argument("--real-null", type=int, default=1600, help="real sequences: drift-free frames (looped)")
     ap.add_argument("--real-frames", type=int, default=320, help="real sequences: step streams (change at the middle)")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (null sites, step cells)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a MonitorConfig setting other than its default (repeatable; the results say so)")
     ap.add_argument("--out", type=Path, default=None, help="results file (default benchmarks/results/monitor.json)")
     args = ap.parse_args()
     global JOBS
     JOBS = max(1, args.jobs)
+    for kv in args.set:
+        k, _, v = kv.partition("=")
+        CONFIG[k.strip()] = _value(v.strip())
     n_null = 18000 if args.full else args.null_frames
     t_all = time.time()
     def log(*a, **k):
@@ -462,6 +494,8 @@ def main() -> None:
 
     seeds = [3, 5, 7, 11, 13, 17, 19, 23][:args.sites]
     result = {"machine": machine_info(), "config": "MonitorConfig() defaults"}
+    if CONFIG:
+        result[f"config_{args.part}"] = dict(CONFIG)
     out = args.out or REPO / "benchmarks" / "results" / "monitor.json"
     argv = [a for i, a in enumerate(sys.argv) if a != "--out" and (i == 0 or sys.argv[i - 1] != "--out")]
     result[f"command_{args.part}" + (f"_{args.null_noise}" if args.part == "null" else "")] = " ".join(argv)
@@ -469,7 +503,8 @@ def main() -> None:
 
     result[f"provenance_{args.part}"] = provenance()  # parts are merged: each keeps the run that made it
     if args.part == "null":  # long drift-free streams (the false-alarm rate), looped with jitter
-        nseeds = [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites]
+        nseeds = ([int(v) for v in args.null_seeds.split(",") if v.strip()] if args.null_seeds
+                  else [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites])
         log(f"== long synthetic null streams ({n_null} frames per site from {args.null_base} generated, sites {nseeds})")
         if args.null_noise in ("both", "default"):
             result["null_long_default"] = _null_replay("default noise", nseeds, args.null_base, n_null, log)

@@ -70,7 +70,14 @@ class MonitorConfig:
     target_frames: judged on the longest window the decisions test within that many frames); calibration_sigma_deg / _m:
     the calibration's 1-sigma where the result has none; gate_iou / gate_dist: matching gates
     (``refine.match_frame``); latch: a drift stays (and the estimate follows the frames since
-    the change); False: the monitor starts afresh after each alarm (benchmarks).
+    the change); False: the monitor starts afresh after each alarm (benchmarks);
+    leave_out_objects / leave_out_level: an alarm also needs the change to stay significant at
+    ``leave_out_level`` (chi-square, 6 dof; 0: the alarm threshold itself) with this many most
+    influential tracked objects left out of both segments, one after the other (one or two
+    objects whose 3D boxes stay wrong for tens of frames are not a move of the camera; 0: off);
+    robust_scale: the soft-L1 loss bends at the residuals' own robust scale (at least the noise
+    model's), so a detector noisier than the calibration's noise model does not shrink every
+    estimated change.
     """
 
     window: int = 20
@@ -92,8 +99,15 @@ class MonitorConfig:
     gate_dist: float = 0.5
     latch: bool = True
     power: float = 0.95
+    leave_out_objects: int = 2
+    leave_out_level: float = 0.01
+    robust_scale: bool = True
 
     def __post_init__(self) -> None:
+        if int(self.leave_out_objects) < 0:
+            raise ValueError(f"MonitorConfig.leave_out_objects must be >= 0, got {self.leave_out_objects}")
+        if not 0.0 <= self.leave_out_level < 1.0:
+            raise ValueError(f"MonitorConfig.leave_out_level must be in [0, 1), got {self.leave_out_level}")
         for name in ("window", "stride", "scales", "history", "min_pairs"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"MonitorConfig.{name} must be >= 1, got {getattr(self, name)}")
@@ -135,6 +149,9 @@ class DriftEvent:
     statistic: float
     before_x: np.ndarray | None = None    # pre-change estimate (rad / m) and its covariance
     before_cov: np.ndarray | None = None
+    alternative: np.ndarray | None = None  # the other pure model the data do not reject either (deg / m)
+    alternative_sigma: np.ndarray | None = None
+    alternative_model: str = ""
 
     def to_dict(self) -> dict:
         return {"camera": self.camera, "detected_frame": self.detected_frame, "detected_time_s": self.detected_time_s,
@@ -143,17 +160,27 @@ class DriftEvent:
                 "rotation_step_sigma_deg": _l(self.step_sigma[:3]), "translation_step_sigma_m": _l(self.step_sigma[3:]),
                 "rotation_change_deg": _l(self.change[:3]), "translation_change_m": _l(self.change[3:]),
                 "rotation_sigma_deg": _l(self.sigma[:3]), "translation_sigma_m": _l(self.sigma[3:]),
-                "statistic": self.statistic}
+                "statistic": self.statistic,
+                "ambiguous_with": None if self.alternative is None else {
+                    "model": self.alternative_model, "rotation_step_deg": _l(self.alternative[:3]),
+                    "translation_step_m": _l(self.alternative[3:]),
+                    "rotation_step_sigma_deg": _l(self.alternative_sigma[:3]),
+                    "translation_step_sigma_m": _l(self.alternative_sigma[3:])}}
 
     def update(self, fit: "_Fit") -> None:
         """Refresh the estimates from the frames since the change (``fit``)."""
         self.change, self.sigma = _to_units(fit.x), fit.sd6
         bx = np.zeros(6) if self.before_x is None else self.before_x
         bc = np.zeros((6, 6)) if self.before_cov is None else self.before_cov
-        x, cov, self.model = stats.select_model(fit.x - bx, fit.cov + bc)
-        self.step = _to_units(x)
-        d = np.sqrt(np.clip(np.diag(cov), 0, None))
-        self.step_sigma = np.concatenate([np.degrees(d[:3]), d[3:]])
+        kept = stats.pure_models(fit.x - bx, fit.cov + bc)
+        x, cov, self.model = (kept[0][1], kept[0][2], kept[0][3]) if kept else \
+            (fit.x - bx, fit.cov + bc, "rotation+translation")
+        self.step, self.step_sigma = _to_units(x), _sd_units(cov)
+        # a pure rotation and a pure translation both fit (far objects: a turn about y looks like a
+        # shift along x): the step is ambiguous, and the other reading is reported beside it
+        self.alternative = _to_units(kept[1][1]) if len(kept) > 1 else None
+        self.alternative_sigma = _sd_units(kept[1][2]) if len(kept) > 1 else None
+        self.alternative_model = kept[1][3] if len(kept) > 1 else ""
 
 
 @dataclass
@@ -223,6 +250,10 @@ class _Rec:
     cf: CalibFrame | None = None  # kept for the recent frames only: re-linearised at a detected change
     objects: np.ndarray | None = None  # track ids of the matched 3D boxes (None: the frame has none)
     x_lin: np.ndarray | None = None  # the pose it was linearised at (None: the calibration)
+    ids3d: np.ndarray | None = None  # the frame's 3D track ids (kept with cf, for the re-linearisation)
+    obj: np.ndarray | None = None  # [m] object ids of the frame's matched pairs (track ids; untracked: unique < 0)
+    obj_H: np.ndarray | None = None  # [m,6,6] their share of H
+    obj_g: np.ndarray | None = None  # [m,6] their share of g
 
 
 @dataclass
@@ -237,6 +268,12 @@ class _Fit:
     def sd6(self) -> np.ndarray:
         d = np.sqrt(np.clip(np.diag(self.cov), 0, None))
         return np.concatenate([np.degrees(d[:3]), d[3:]])
+
+
+def _sd_units(cov: np.ndarray) -> np.ndarray:
+    """1-sigma per axis of a [6,6] covariance (rad / m) in deg / m."""
+    d = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return np.concatenate([np.degrees(d[:3]), d[3:]])
 
 
 def _to_units(x: np.ndarray) -> np.ndarray:
@@ -303,6 +340,33 @@ def _scan(sums: _Sums, n: int, min_pairs: int, lo: int = 1, hi: int | None = Non
 _EPS = 1e-6
 
 
+def _object_sums(recs: list[_Rec], a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per object over frames [a, b): sorted ids [K], H [K,6,6], g [K,6]."""
+    parts = [q for q in recs[a:b] if q.obj is not None and len(q.obj)]
+    if not parts:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 6, 6)), np.zeros((0, 6))
+    ids = np.concatenate([q.obj for q in parts])
+    u, inv = np.unique(ids, return_inverse=True)
+    HG = np.concatenate([np.concatenate([q.obj_H.reshape(-1, 36), q.obj_g], 1) for q in parts])
+    out = np.zeros((len(u), 42))
+    np.add.at(out, inv, HG)
+    return u, out[:, :36].reshape(-1, 6, 6), out[:, 36:]
+
+
+def _total(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return H.sum(0) if len(H) else np.zeros((6, 6)), g.sum(0) if len(g) else np.zeros(6)
+
+
+def _solve_batch(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """x = -H^-1 g, H^-1 and a usable flag per row of a batch of normal equations (a row whose H is
+    (near) singular is not usable)."""
+    ev = np.linalg.eigvalsh(H)
+    ok = (ev[:, 0] > 1e-10 * np.maximum(ev[:, -1], 1e-300)) & np.all(np.isfinite(ev), axis=1)
+    Hs = np.where(ok[:, None, None], H, np.eye(6)[None])
+    inv = np.linalg.inv(Hs)
+    return -np.einsum("kij,kj->ki", inv, g), inv, ok
+
+
 def _perturbations(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
     """R [13,3,3], t [13,3]: the pose and its central-difference steps of each of the 6 parameters
     (``Pose.moved``: R <- exp([w]x) R, t <- t + dt)."""
@@ -345,7 +409,12 @@ class CameraMonitor:
         self.cov_cal = np.diag(np.concatenate([np.radians(rs), ts]) ** 2)
         self.h = self.config.threshold
         self.lam = stats.detectable_lambda(self.h, self.config.power)
+        lvl = float(self.config.leave_out_level)
+        self.h_out = stats.threshold(lvl, 1, 1) if lvl > 0 else self.h  # without the left-out objects
         self._diffs: deque[float] = deque(maxlen=200)  # successive windows' disagreement (chi2 / 6)
+        self._scales: deque[float] = deque(maxlen=SCALE_FRAMES)  # frames' robust residual scale
+        self._anon = 0  # untracked pairs' object ids (-1, -2, ...)
+        self._scale_at = [-1, 0, 1.0]  # residual_scale's cache: (frames in, uses since, value)
         self.reset()
         self.events: list[DriftEvent] = []
         self.statuses_seen = {"ok": 0, "drift": 0, "unknown": 0}
@@ -408,16 +477,17 @@ class CameraMonitor:
             t = (getattr(frame, "meta", None) or {}).get("timestamp")
         return float(t) if t is not None else index / self.config.fps
 
-    def _linearise(self, cf: CalibFrame) -> _Rec:
+    def _linearise(self, cf: CalibFrame, ids3d: np.ndarray | None = None) -> _Rec:
         """Match the frame at the current pose and reduce its linearised box-edge residuals
         (``edge_term``'s weights and occlusion shaping; all 13 central-difference poses projected in
-        one batched ``project_rects`` call) to normal equations."""
+        one batched ``project_rects`` call) to normal equations, in total and per matched object
+        (``ids3d``: the frame's 3D track ids; pairs without one count as objects of their own)."""
         pose = self.pose_lin
         pairs, _, _ = match_frame(cf, self.intr, pose.R, pose.t, gate_iou=self.config.gate_iou,
                                   gate_dist=self.config.gate_dist)
         self._last_pairs = pairs
         if len(pairs) == 0:
-            return _Rec(0, 0.0, np.zeros((6, 6)), np.zeros(6), 0.0, 0, cf.n2, 0)
+            return _Rec(0, 0.0, np.zeros((6, 6)), np.zeros(6), 0.0, 0, cf.n2, 0, ids3d=ids3d)
         term = edge_term([cf], [pairs], self.intr, pose, self.noise, self.occlusion)
         key = self.x_lin.tobytes()
         if self._steps is None or self._steps[0] != key:
@@ -432,11 +502,36 @@ class CameraMonitor:
         J = ((e[1::2] - e[2::2]) / (2 * _EPS)).T  # [4n, 6]
         info = np.any(J != 0, axis=1) & np.isfinite(r)  # edges clipped at the border carry no information
         r, J = r[info], J[info]
-        w = 1.0 / np.sqrt(1.0 + (r / F_SCALE) ** 2)
+        if self.config.robust_scale and len(r):  # the residuals' own scale, in noise-model sigmas
+            self._scales.append(float(np.median(np.abs(r))) / 0.6745)
+        w = 1.0 / np.sqrt(1.0 + (r / (F_SCALE * self.residual_scale)) ** 2)
         rr = r - J @ self.x_lin  # x relative to the calibration
         JW = J * w[:, None]
         H, g, c = J.T @ JW, JW.T @ rr, float(np.sum(w * rr * rr))
-        return _Rec(0, 0.0, H, g, c, int(info.sum()), cf.n2, int(len(pairs)), x_lin=self.x_lin.copy())
+        # each matched object's share (rows are 4 edges per pair, pair-major)
+        obj = self._pair_objects(cf, pairs, ids3d)
+        uo, inv = np.unique(obj, return_inverse=True)
+        row_obj = inv[np.repeat(np.arange(len(pairs)), 4)[info]]
+        P = np.zeros((len(uo), len(r)))
+        P[row_obj, np.arange(len(r))] = 1.0
+        oH = (P @ (JW[:, :, None] * J[:, None, :]).reshape(len(r), 36)).reshape(-1, 6, 6)
+        og = P @ (JW * rr[:, None])
+        return _Rec(0, 0.0, H, g, c, int(info.sum()), cf.n2, int(len(pairs)), x_lin=self.x_lin.copy(),
+                    ids3d=ids3d, obj=uo, obj_H=oH, obj_g=og)
+
+    def _pair_objects(self, cf: CalibFrame, pairs: np.ndarray, ids3d: np.ndarray | None) -> np.ndarray:
+        """Object id of each matched pair: the 3D box's track id, else a fresh negative id (an
+        object seen once)."""
+        out = np.full(len(pairs), -1, dtype=np.int64)
+        if ids3d is not None and len(pairs):
+            cols = cf.idx3d[pairs[:, 1]]
+            ok = cols < len(ids3d)
+            out[ok] = ids3d[cols[ok]]
+        bad = out < 0
+        if np.any(bad):
+            out[bad] = -(self._anon + 1 + np.arange(int(bad.sum())))
+            self._anon += int(bad.sum())
+        return out
 
     def _prepare(self, frame) -> CalibFrame:
         """The frame's boxes as the cost's outlines. Yaw-less [M,6] 3D boxes with a point cloud get
@@ -477,11 +572,11 @@ class CameraMonitor:
                              f"frame's {self.last_time:.3f} s; frames must arrive in time order")
         self.last_time = t
         cf = self._prepare(frame)
-        rec = self._linearise(cf)
-        rec.index, rec.time_s, rec.cf = index, t, cf
         ids = getattr(frame, "track_ids_3d", None)
+        ids = None if ids is None else np.asarray(ids, dtype=np.int64).ravel()
+        rec = self._linearise(cf, ids)
+        rec.index, rec.time_s, rec.cf = index, t, cf
         if ids is not None and rec.n_pairs and self._last_pairs is not None:
-            ids = np.asarray(ids, dtype=np.int64)
             cols = cf.idx3d[self._last_pairs[:, 1]]
             if len(ids) > int(cols.max()):
                 rec.objects = np.unique(ids[cols][ids[cols] >= 0])
@@ -489,6 +584,7 @@ class CameraMonitor:
         keep = self.config.window * 2 ** (self.config.scales - 1) + self.config.stride
         if len(self.recs) > keep:
             self.recs[-keep - 1].cf = None
+            self.recs[-keep - 1].ids3d = None
         self.n_seen += 1
         self._since_decision += 1
         if len(self.recs) < self.config.window or self._since_decision < self.config.stride:
@@ -557,6 +653,18 @@ class CameraMonitor:
         return None
 
     @property
+    def residual_scale(self) -> float:
+        """The residuals' robust scale relative to the calibration's noise model (``robust_scale``):
+        the median over the last SCALE_FRAMES frames of each frame's median |r| / 0.6745, at least
+        1. The soft-L1 loss bends at ``F_SCALE`` times it, so a detector noisier than the model
+        (4 px boxes: 3-4) is not treated as outliers, whose down-weighting would shrink every
+        estimated change (to about half of a 10 cm shift in one linearisation)."""
+        if self._scale_at[0] != len(self._scales) or self._scale_at[1] >= SCALE_EVERY:  # refreshed every few frames
+            self._scale_at = [len(self._scales), 0, max(1.0, float(np.median(self._scales))) if self._scales else 1.0]
+        self._scale_at[1] += 1
+        return self._scale_at[2]
+
+    @property
     def inflation(self) -> float:
         """Factor on every covariance: how much more successive windows disagree than their
         covariances say (75th percentile of d^T C^-1 d / 6 over adjacent non-overlapping windows,
@@ -595,6 +703,7 @@ class CameraMonitor:
             return self._status("unknown", None, "the matched boxes do not determine the pose (degenerate geometry)",
                                 "degenerate", n_frames=longest)
         best_stat, best_len, det, det_t = 0.0, longest, None, None
+        tests: list[tuple[float, int, _Fit, _Fit | None]] = []
         # weak axes are judged on the longest window tested within target_frames of a change
         L_t = max([L for L in lengths if L + cfg.stride <= cfg.target_frames] or [lengths[0]])
         for L in lengths:  # the change-point tests: each recent segment against the frames before it
@@ -609,15 +718,26 @@ class CameraMonitor:
                 det = stats.detectable_change(C, self.lam)
             if L == L_t:
                 det_t = stats.detectable_change(C, self.lam)
+            tests.append((s, L, fa, fb))
             if s > best_stat:
                 best_stat, best_len = s, L
         s0 = stats.chi2_stat(fit_r.x, fit_r.cov + self.cov_cal)  # the offset from the calibration itself
+        tests.append((s0, 0, fit_r, None))
         if s0 > best_stat:
             best_stat, best_len = s0, 0
         det = _to_units(det if det is not None else stats.detectable_change(fit_r.cov, self.lam))
         weak_det = (_to_units(det_t), L_t) if det_t is not None else None
-        if best_stat > self.h:
-            return self._alarm(recs, sums, best_stat, best_len, det)
+        held = ""
+        if best_stat > self.h:  # an alarm needs the change to hold without its most influential objects
+            for s, L, fa, fb in sorted(tests, key=lambda q: -q[0]):
+                if s <= self.h:
+                    break
+                s_lo, dropped = self._without_objects(recs, n - (L or longest), fa, fb)
+                if s_lo > self.h_out:
+                    return self._alarm(recs, sums, s, L, det)
+                held = held or (f"; a change (statistic {s:.1f}) rests on object(s) "
+                                f"{', '.join(str(o) for o in dropped)}: without them {s_lo:.1f} < {self.h_out:.1f}")
+            best_stat = min(best_stat, self.h)
         if np.any(det[:3] > cfg.max_detectable_deg) or np.any(det[3:] > cfg.max_detectable_m):
             axes = [f"{a} {v:.2f} {'deg' if i < 3 else 'm'}" for i, (a, v) in
                     enumerate(zip(("rx", "ry", "rz", "tx", "ty", "tz"), det))
@@ -625,8 +745,57 @@ class CameraMonitor:
             return self._status("unknown", fit_r, "the matched boxes constrain the pose too weakly to rule out a "
                                 f"change: detectable {', '.join(axes)} (limit {cfg.max_detectable_deg:g} deg / "
                                 f"{cfg.max_detectable_m:g} m)", "weak_geometry", best_stat, det, longest, weak_det)
-        return self._status("ok", fit_r, f"no change (statistic {best_stat:.1f} < threshold {self.h:.1f})", "",
-                            best_stat, det, longest, weak_det)
+        return self._status("ok", fit_r, f"no change (statistic {best_stat:.1f} < threshold {self.h:.1f}){held}",
+                            "one_object" if held else "", best_stat, det, longest, weak_det)
+
+    def _without_objects(self, recs: list[_Rec], a: int, fa: _Fit, fb: _Fit | None) -> tuple[float, list[int]]:
+        """The test of the recent frames [a, n) (``fa``) against the frames before them (``fb``; None:
+        against the calibration) with the ``leave_out_objects`` most influential objects left out
+        of both, one at a time (each the one whose removal lowers the statistic most); returns the
+        statistic and the objects left out. An object left out that leaves too little to fit gives 0."""
+        n = len(recs)
+        k_out = int(self.config.leave_out_objects)
+        ids_a, Ha, ga = _object_sums(recs, a, n)
+        Ta, ta = _total(Ha, ga)
+        if fb is not None:
+            ids_b, Hb, gb = _object_sums(recs, 0, a)
+            Tb, tb = _total(Hb, gb)
+            pos = np.searchsorted(ids_b, ids_a)
+            pos = np.clip(pos, 0, max(len(ids_b) - 1, 0))
+            inb = (len(ids_b) > 0) & (ids_b[pos] == ids_a) if len(ids_b) else np.zeros(len(ids_a), bool)
+            Hb_a = np.where(inb[:, None, None], Hb[pos] if len(ids_b) else 0.0, 0.0)
+            gb_a = np.where(inb[:, None], gb[pos] if len(ids_b) else 0.0, 0.0)
+        fac_a = float(np.trace(fa.cov @ (Ta))) / 6.0  # the fit's covariance is inv(H) times this factor
+        fac_b = float(np.trace(fb.cov @ Tb)) / 6.0 if fb is not None else 0.0
+        stat, dropped = stats.chi2_stat(fa.x - (fb.x if fb is not None else 0.0),
+                                        fa.cov + (fb.cov if fb is not None else self.cov_cal)), []
+        alive = np.ones(len(ids_a), dtype=bool)
+        for _ in range(k_out):
+            if not np.any(alive):
+                break
+            HA, gA = Ta[None] - Ha, ta[None] - ga
+            xa, ca, oka = _solve_batch(HA, gA)
+            if fb is not None:
+                HB, gB = Tb[None] - Hb_a, tb[None] - gb_a
+                xb, cb, okb = _solve_batch(HB, gB)
+                d, C = xa - xb, ca * fac_a + cb * fac_b
+                ok = oka & okb
+            else:
+                d, C, ok = xa, ca * fac_a + self.cov_cal[None], oka
+            s_k = np.zeros(len(ids_a))
+            if np.any(ok):
+                s_k[ok] = np.einsum("ki,ki->k", d[ok], np.linalg.solve(C[ok], d[ok][..., None])[..., 0])
+            s_k[~alive] = np.inf
+            j = int(np.argmin(s_k))
+            stat = float(s_k[j])
+            dropped.append(int(ids_a[j]))
+            alive[j] = False
+            Ta, ta = Ta - Ha[j], ta - ga[j]
+            if fb is not None:
+                Tb, tb = Tb - Hb_a[j], tb - gb_a[j]
+            if stat <= self.h_out:
+                break
+        return stat, dropped
 
     def _alarm(self, recs: list[_Rec], sums: _Sums, stat: float, length: int, det: np.ndarray) -> MonitorStatus:
         cfg = self.config
@@ -677,7 +846,7 @@ class CameraMonitor:
             self.x_lin = np.array(fit.x, dtype=np.float64)
             for j in todo:
                 q = recs[j]
-                new = self._linearise(q.cf)
+                new = self._linearise(q.cf, q.ids3d)
                 new.index, new.time_s, new.cf, new.objects = q.index, q.time_s, q.cf, q.objects
                 recs[j] = new
             fit = _Sums(recs).fit(k, n, phi) or fit
@@ -739,6 +908,8 @@ def _weak_message(weak: tuple[str, ...], det: np.ndarray, n_frames: int) -> str:
              f"{det[AXIS_NAMES.index(a)]:.2f} {'deg' if a[0] == 'r' else 'm'}" for a in weak]
     return (f"not observable from this traffic within {n_frames} frames of a change (95 % power): "
             + ", ".join(parts))
+SCALE_FRAMES = 200  # frames the residual scale is the median over
+SCALE_EVERY = 5  # ... recomputed every this many frames
 RELIN_ITERS = 3  # rounds of re-linearisation of the frames after a detected change
 RELIN_TOL = 0.5  # a frame linearised farther than this (sigma, any axis) from the estimate is re-linearised
 MIN_DIFFS = 5  # adjacent window pairs before the measured inflation replaces the prior
@@ -757,7 +928,17 @@ def _drift_message(ev: DriftEvent) -> str:
         i = int(np.argmax(np.abs(t)))
         parts.append(f"shifted {100 * np.linalg.norm(t):.1f} cm (largest {100 * t[i]:+.1f} cm along its {_AXES[i]} "
                      f"axis, 1-sigma {100 * st[i]:.1f})")
-    return (f"the camera has {' and '.join(parts)} since frame {ev.change_frame} (t={ev.change_time_s:.1f} s, "
+    alt = ""
+    if ev.alternative is not None:
+        a = ev.alternative
+        if ev.alternative_model == "rotation":
+            i = int(np.argmax(np.abs(a[:3])))
+            alt = f"{a[i]:+.3f} deg about its {_AXES[i]} axis"
+        else:
+            i = int(np.argmax(np.abs(a[3:])))
+            alt = f"{100 * a[3 + i]:+.1f} cm along its {_AXES[i]} axis"
+        alt = f" (or, equally well, {ev.alternative_model == 'rotation' and 'turned' or 'shifted'} {alt}: this traffic cannot tell the two apart)"
+    return (f"the camera has {' and '.join(parts)}{alt} since frame {ev.change_frame} (t={ev.change_time_s:.1f} s, "
             f"detected at frame {ev.detected_frame}); recalibrate")
 
 

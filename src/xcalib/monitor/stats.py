@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2, ncx2
 
-__all__ = ["threshold", "detectable_lambda", "detectable_change", "chi2_stat"]
+__all__ = ["threshold", "detectable_lambda", "detectable_change", "chi2_stat", "select_model", "pure_models"]
 
 DOF = 6
 
@@ -62,18 +62,17 @@ def chi2_stat(d: np.ndarray, cov: np.ndarray) -> float:
 MODEL_LEVEL = 0.01  # a nested model (rotation only / translation only) is kept unless rejected at this level
 
 
-def select_model(d: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
-    """The simplest model of a change ``d`` (6-vector, rad / m) with covariance ``cov`` that the data
-    do not reject: a pure rotation, a pure translation (each: the constrained generalised least
-    squares estimate, kept when its misfit d^T C^-1 d - ... is below the chi-square(3) quantile at
-    MODEL_LEVEL; the better of the two when both are kept) or both. Returns (estimate [6],
-    covariance [6,6], "rotation" | "translation" | "rotation+translation")."""
+def pure_models(d: np.ndarray, cov: np.ndarray) -> list[tuple[float, np.ndarray, np.ndarray, str]]:
+    """The pure models of a change ``d`` (6-vector, rad / m) with covariance ``cov`` that the data
+    do not reject at MODEL_LEVEL: a pure rotation, a pure translation (each: the constrained
+    generalised least squares estimate, kept when its misfit ``(d - E a)^T C^-1 (d - E a)`` is
+    below the chi-square(3) quantile), best first: (misfit, estimate [6], covariance [6,6], name)."""
     try:
         info = np.linalg.inv(cov)
     except np.linalg.LinAlgError:
-        return d, cov, "rotation+translation"
+        return []
     limit = float(chi2.isf(MODEL_LEVEL, 3))
-    best = None
+    kept = []
     for name, sl in (("rotation", slice(0, 3)), ("translation", slice(3, 6))):
         E = np.zeros((6, 3))
         E[sl] = np.eye(3)
@@ -84,8 +83,17 @@ def select_model(d: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray
         a = ca @ E.T @ info @ d
         res = d - E @ a
         misfit = float(res @ info @ res)
-        if misfit < limit and (best is None or misfit < best[0]):
-            best = (misfit, E @ a, E @ ca @ E.T, name)
-    if best is None:
+        if misfit < limit:
+            kept.append((misfit, E @ a, E @ ca @ E.T, name))
+    return sorted(kept, key=lambda q: q[0])
+
+
+def select_model(d: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
+    """The simplest model of a change ``d`` (6-vector, rad / m) with covariance ``cov`` that the data
+    do not reject (``pure_models``: the better of a pure rotation and a pure translation when both
+    are kept) or both. Returns (estimate [6], covariance [6,6], "rotation" | "translation" |
+    "rotation+translation")."""
+    kept = pure_models(d, cov)
+    if not kept:
         return d, cov, "rotation+translation"
-    return best[1], best[2], best[3]
+    return kept[0][1], kept[0][2], kept[0][3]
