@@ -417,7 +417,9 @@ class WideLensTerm(CostTerm):
     (``xi = 0``: the given pinhole; ~1.75: close to an equidistant fisheye over 180 degrees).
     ``fixed``: hold ``xi`` at this value (the pinhole alternative, projected the same way). Put a
     ``FocalScaleTerm`` after it to free the focal length too. ``start``: the fit's first ``xi``
-    (its parameter is the step from there). No analytic Jacobian (numeric)."""
+    (its parameter is the step from there). Its Jacobian column is a forward difference (the
+    model's ``NUMERIC_TERMS``); the pose and focal columns stay analytic (the unified model's own
+    ``project_jacobian``)."""
 
     name = "wide_lens_xi"
     n_params = 1
@@ -451,6 +453,9 @@ class WideLensTerm(CostTerm):
 
     def residuals(self, state: PoseState) -> np.ndarray:
         return np.zeros(0)
+
+    def own_jacobian(self, state: PoseState, n_params: int, col: int) -> np.ndarray:
+        return np.zeros((0, n_params))
 
 
 class TimeOffsetTerm(CostTerm):
@@ -538,14 +543,18 @@ class CostModel:
         return CostFit(pose=st.pose, params=dict(st.params), cost=float(res.cost), residuals=res.fun, x=res.x)
 
     _TANGENT_TERMS = (FocalScaleTerm, PrincipalPointTerm, TimeOffsetTerm)
+    #: terms whose parameters get a forward-difference column (the rest of the Jacobian analytic)
+    NUMERIC_TERMS = (WideLensTerm,)
 
     def has_analytic_jacobian(self) -> bool:
         """True when every parameterised term is one whose effect on the projection is known (each
-        at most once): focal scale, principal point, time offset."""
+        at most once): focal scale, principal point, time offset -- or a ``NUMERIC_TERMS`` one,
+        whose own columns are then forward differences."""
         kinds = [type(t) for t in self.terms if t.n_params]
         # the derivative is the pinhole-radtan model's, or a camera model's own (project_jacobian)
         return (isinstance(self.intr, (CameraIntrinsics, CameraModel))
-                and all(k in self._TANGENT_TERMS for k in kinds) and len(set(kinds)) == len(kinds))
+                and all(k in self._TANGENT_TERMS + self.NUMERIC_TERMS for k in kinds)
+                and len(set(kinds)) == len(kinds))
 
     def analytic_jacobian(self, x: np.ndarray) -> np.ndarray:
         """d residuals / d x [len(residuals), n_params]: the box-edge terms analytically
@@ -555,10 +564,14 @@ class CostModel:
         st = self.state(x)
         n = self.n_params
         tangents: list[Tangent] = []
-        cols, k = [], 6
+        cols, k, numeric = [], 6, []
         for term in self.terms:
             if term.n_params:
-                tangents += term.tangents(st, x[k:k + term.n_params], self.intr)
+                tg = term.tangents(st, x[k:k + term.n_params], self.intr)
+                if tg is None:  # a NUMERIC_TERMS term: its columns below, by forward differences
+                    tg = [Tangent()] * term.n_params
+                    numeric += list(range(k, k + term.n_params))
+                tangents += tg
                 cols.append(k)
                 k += term.n_params
             else:
@@ -572,7 +585,22 @@ class CostModel:
             if J is None:
                 J = self._term_differences(term, x)
             blocks.append(J)
-        return np.concatenate(blocks) if blocks else np.zeros((0, n))
+        J = np.concatenate(blocks) if blocks else np.zeros((0, n))
+        if numeric:
+            J[:, numeric] = self._forward_columns(x, numeric)
+        return J
+
+    def _forward_columns(self, x: np.ndarray, cols: list[int]) -> np.ndarray:
+        """Forward differences of all residuals along the parameters ``cols`` [len(r), len(cols)],
+        with the step of scipy's "2-point" scheme (sqrt(eps) max(1, |x|), towards x's sign)."""
+        r0 = self.residuals(x)
+        out = np.empty((len(r0), len(cols)))
+        for j, k in enumerate(cols):
+            h = np.sqrt(np.finfo(np.float64).eps) * (1.0 if x[k] >= 0 else -1.0) * max(1.0, abs(float(x[k])))
+            xh = x.copy()
+            xh[k] = x[k] + h
+            out[:, j] = (self.residuals(xh) - r0) / (xh[k] - x[k])
+        return out
 
     def _term_differences(self, term: CostTerm, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:
         r0 = term.residuals(self.state(x))
