@@ -396,6 +396,11 @@ def time_offset_check(ctx: FitContext, times: np.ndarray, unit: str, *, draws: i
         return MisfitCheck("time_offset", 0.0, TIME_SIGMAS, False, "too few moving matched objects"), None
     step = TIME_START_S if unit == "s" else TIME_START_S * 10.0
     dt, _ = _time_fit(ctx, vel, (0.0, -step, step))
+    shift = float(np.median(speed[moving]) * abs(dt))
+    if shift <= TIME_MIN_SHIFT_M:  # cannot flag whatever its sigma: the bootstrap refits are not run
+        return MisfitCheck("time_offset", 0.0, TIME_SIGMAS, False,
+                           f"fitted time offset {dt:+.3f} {unit} moves the moving objects {shift:.2f} m (a misfit needs "
+                           f"> {TIME_MIN_SHIFT_M:g} m; its bootstrap sigma not computed, statistic 0)"), None
     rng = np.random.default_rng(seed)
     offs = np.cumsum([0] + [len(p) for p in pairs])
     nz = [k for k, p in enumerate(pairs) if len(p)]
@@ -409,7 +414,6 @@ def time_offset_check(ctx: FitContext, times: np.ndarray, unit: str, *, draws: i
                              for k, c in zip(range(len(pairs)), [dict(zip(nz, w)).get(k, 0) for k in range(len(pairs))])])
         boot.append(_time_fit(ctx.with_pairs(sub), vs, (dt,))[0])
     sd = float(np.std(boot, ddof=1))
-    shift = float(np.median(speed[moving]) * abs(dt))
     z = abs(dt) / max(sd, 1e-9)
     flagged = bool(z > TIME_SIGMAS and shift > TIME_MIN_SHIFT_M)
     detail = f"fitted time offset {dt:+.3f} {unit} (bootstrap sigma {sd:.3f}; moves the moving objects {shift:.2f} m)"
