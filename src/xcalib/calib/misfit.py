@@ -487,11 +487,13 @@ def _pp_outline_fits(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion,
     return d, float(fit.cost)
 
 
-def _pp_boot(ctx: FitContext, draws: int, seed: int, outline: bool):
-    """(shift [2] px, bootstrap sd [2] px over frames) of the principal-point fit."""
+def _pp_boot(ctx: FitContext, draws: int, seed: int, outline: bool, d: np.ndarray | None = None):
+    """(shift [2] px, bootstrap sd [2] px over frames) of the principal-point fit (``d``: the shift
+    when already fitted)."""
     frames, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
                                                             ctx.f_scale, ctx.occlusion)
-    d = _pp_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, outline)
+    if d is None:
+        d = _pp_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, outline)
     rng = np.random.default_rng(seed)
     nz = [k for k, p in enumerate(pairs) if len(p)]
     boot = []
@@ -533,7 +535,12 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
         # a principal-point shift trades off against a small rotation; with fewer than 4 frames the
         # bootstrap over pairs understates that (one nuScenes frame, 47 pairs: a false 78 px)
         return MisfitCheck("principal_point", 0.0, PP_TOL_FRAC * W, False, "too few matches or frames"), None
-    d, sd_xy = _pp_boot(ctx, draws, seed, False)
+    d = _pp_fit(frames, pairs, intr, pose, noise, f_scale, occlusion)
+    if float(np.linalg.norm(d)) <= PP_TOL_FRAC * W:  # cannot flag whatever its sigma: no bootstrap refits
+        return MisfitCheck("principal_point", float(np.linalg.norm(d)), PP_TOL_FRAC * W, False,
+                           f"fitted principal point shift ({d[0]:+.1f}, {d[1]:+.1f}) px, within the tolerance (its "
+                           "bootstrap sigma not computed)"), None
+    d, sd_xy = _pp_boot(ctx, draws, seed, False, d)
     sd, shift = float(np.linalg.norm(sd_xy)), float(np.linalg.norm(d))
     flagged = _pp_flagged(d, sd_xy, W)
     box_note = ""
