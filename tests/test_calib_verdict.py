@@ -53,7 +53,8 @@ def test_second_pose_check_passes_the_clean_site():
     case, res = _calibrate("clean", 7)
     assert res.success, res.message
     checks = {c.name: c for c in res.diagnostics.misfit}
-    assert not checks["second_pose"].flagged and checks["second_pose"].statistic < 0.1
+    sp = checks["second_pose"]  # searched: a share below 0.1; or not searched (issue 29): its bound below the limit
+    assert not sp.flagged and (sp.statistic < 0.1 or (sp.detail.startswith("not searched") and sp.statistic < sp.limit))
     assert not checks["time_offset"].flagged
     rot, trans = res.pose_error(case.T_cam_lidar)
     assert rot < 0.2 and trans < 0.1

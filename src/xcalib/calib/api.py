@@ -37,7 +37,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, match
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSelectionSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, lean_frames, prepare_frames, with_corner_outlines, with_point_outlines
-from .misfit import box_frame_check, flipped_frames, lens_check, focal_fit, focal_scale_check, focal_width_check, leftover_frames, second_pose_check, mirror_check, principal_point_check, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
+from .misfit import box_frame_check, flipped_frames, lens_check, focal_fit, focal_scale_check, focal_width_check, leftover_frames, match_bound, second_pose_check, second_pose_screen, mirror_check, mirror_screen, principal_point_check, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .parallel import Deferred, Workers, parallel_map, resolve_workers
 from .pose import Pose
@@ -242,36 +242,52 @@ def _search(cframes, frames_in, intr, config: CalibConfig, matcher, prior: Pose 
 _MISFIT_CAN_EXPLAIN = ("poorly_constrained", "ambiguous", "few_explained", "uncertain", "too_few_objects")
 
 
-def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion) -> tuple[float, int]:
-    """(best score, 2D boxes its pose matches) of the search (a few frames, few candidates) on the
-    left-right flipped 2D boxes."""
+def _mirror_need(cframes, config: CalibConfig) -> int:
+    """The matches a pose needs to explain the 2D boxes (``mirror_check``'s ``explained``)."""
+    return max(config.min_pairs, 3, int(np.ceil(config.min_explained * sum(f.n2 for f in cframes))))
+
+
+def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion, best_score: float | None = None,
+                  pose: Pose | None = None) -> tuple[float, int, str | None]:
+    """(best score, 2D boxes its pose matches, None) of the search (a few frames, few candidates) on
+    the left-right flipped 2D boxes; with the best pose's ``best_score`` and ``pose``, not searched
+    where no result could flag a mirror (``misfit.mirror_screen``): (the bound, the bound, why)."""
+    if best_score is not None:
+        why = mirror_screen(best_score, cframes, pose, _mirror_need(cframes, config))
+        if why is not None:
+            return float(match_bound(cframes)), match_bound(cframes), why
     flipped = flipped_frames(cframes)
     small = config.replace(max_hyp_frames=min(config.max_hyp_frames, 4), max_refine=min(config.max_refine, 3))
     bu = pose_hypotheses(flipped, intr, small, max_baseline_m=config.max_baseline_m,
                          rng=np.random.default_rng(config.seed))
     if len(bu.hyps) == 0:
-        return 0.0, 0
+        return 0.0, 0, None
     ref = _refine_candidates(flipped, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None)
     matched = match_all(flipped, intr, ref.best.R, ref.best.t, gate_iou=config.gate_iou)
-    return ref.best_score, int(sum(len(p) for p in matched))
+    return ref.best_score, int(sum(len(p) for p in matched)), None
 
 
-def _second_pose(cframes, pairs, intr, pose: Pose, config: CalibConfig, occlusion: Occlusion):
+def _second_pose(cframes, pairs, intr, pose: Pose, config: CalibConfig, occlusion: Occlusion,
+                 best_score: float | None = None):
     """The search (a few frames, few candidates) on the 2D boxes the pose leaves unmatched:
-    (score, matches, (deg, m) from ``pose``, admissible under ``config.max_baseline_m``) of the best
-    pose found there, or (0, 0, None, False)."""
+    (score, matches, (deg, m) from ``pose``, admissible under ``config.max_baseline_m``, None) of the
+    best pose found there, or (0, 0, None, False, None); with the best pose's ``best_score``, not
+    searched where no result could flag (``misfit.second_pose_screen``): (bound, bound, None, False, why)."""
     left = leftover_frames(cframes, pairs)
     if sum(f.n2 for f in left) < 6:
-        return 0.0, 0, None, False
+        return 0.0, 0, None, False, None
+    why = None if best_score is None else second_pose_screen(best_score, left)
+    if why is not None:
+        return float(match_bound(left)), match_bound(left), None, False, why
     small = config.replace(max_hyp_frames=min(config.max_hyp_frames, 4), max_refine=min(config.max_refine, 3))
     bu = pose_hypotheses(left, intr, small, max_baseline_m=config.max_baseline_m, rng=np.random.default_rng(config.seed))
     if len(bu.hyps) == 0:
-        return 0.0, 0, None, False
+        return 0.0, 0, None, False, None
     ref = _refine_candidates(left, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None)
     p2, cap = Pose(ref.best.R, ref.best.t), config.max_baseline_m
     n2 = int(sum(len(p) for p in match_all(left, intr, p2.R, p2.t, gate_iou=config.gate_iou)))
     admissible = cap is None or np.linalg.norm(pose.t) > cap or np.linalg.norm(p2.t) <= cap
-    return ref.best_score, n2, tuple(float(v) for v in p2.error(pose)), bool(admissible)
+    return ref.best_score, n2, tuple(float(v) for v in p2.error(pose)), bool(admissible), None
 
 
 def _frame_times(frames_in) -> tuple[np.ndarray, str]:
@@ -282,19 +298,21 @@ def _frame_times(frames_in) -> tuple[np.ndarray, str]:
     return np.arange(len(frames_in), dtype=np.float64), "frames"
 
 
-def _misfit_searches(ctx: FitContext, config: CalibConfig) -> Deferred:
+def _misfit_searches(ctx: FitContext, config: CalibConfig, best_score: float | None = None) -> Deferred:
     """The misfit checks' searches and refits that need no other check (second pose, lens, mirror),
     started now on up to ``config.workers`` processes, the longest first (the second-pose search on a
     few frames; the lens refit, numeric derivatives, on long recordings: ~4.5 s of a 200-frame
     selection's 5.5 s of checks). With one worker each runs here when its result is first asked for,
-    so the serial order of work is unchanged. Close it (or use it as a context manager)."""
+    so the serial order of work is unchanged. Close it (or use it as a context manager). ``best_score``:
+    the best pose's score; the second-pose and mirror searches that could not flag whatever they
+    found are then not run (exact screens, ``misfit.second_pose_screen`` / ``mirror_screen``)."""
     cframes, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
                                                              ctx.f_scale, ctx.occlusion)
     lean, one = lean_frames(cframes), config.replace(workers=1)
     places = len(matched_places(cframes, pairs)[0])
-    return Deferred([(_second_pose, (lean, pairs, intr, pose, one, occlusion)),
+    return Deferred([(_second_pose, (lean, pairs, intr, pose, one, occlusion, best_score)),
                      (_lens_check, (ctx.with_frames(lean), places)),
-                     (_mirror_score, (lean, intr, one, occlusion))], config.workers)
+                     (_mirror_score, (lean, intr, one, occlusion, best_score, pose))], config.workers)
 
 
 def _misfit(ctx: FitContext, best_score: float, config: CalibConfig, diag: CalibDiagnostics, frames_in,
@@ -305,7 +323,7 @@ def _misfit(ctx: FitContext, best_score: float, config: CalibConfig, diag: Calib
     earlier by the caller (None: started here, while the other checks run)."""
     if searches is not None:
         return _misfit_checks(ctx, best_score, config, diag, frames_in, refusal, searches)
-    with _misfit_searches(ctx, config) as searches:
+    with _misfit_searches(ctx, config, best_score) as searches:
         return _misfit_checks(ctx, best_score, config, diag, frames_in, refusal, searches)
 
 
@@ -320,9 +338,9 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
                                                              ctx.f_scale, ctx.occlusion)
     found = []
     # a mirrored image first: it also bends the focal / principal-point fits, but is the cause to name
-    flipped_score, flipped_matched = searches.result(2)
-    need = max(config.min_pairs, 3, int(np.ceil(config.min_explained * sum(f.n2 for f in cframes))))
-    chk, msg = mirror_check(best_score, flipped_score, pose, (flipped_matched, need))
+    flipped_score, flipped_matched, screened = searches.result(2)
+    need = _mirror_need(cframes, config)
+    chk, msg = mirror_check(best_score, flipped_score, pose, (flipped_matched, need), screened)
     found.append((chk, msg, "misfit_mirrored"))
     chk, msg = unexplained_frames_check(cframes, pairs)
     found.append((chk, msg, "misfit_mixed_cameras"))
@@ -354,7 +372,8 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
         found.append((chk, msg, "misfit_principal_point"))
     if time_chk is not None:
         found.append((*time_chk, "misfit_time_offset"))
-    chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)), *searches.result(0))
+    score2, n2, dist2, admissible2, screened = searches.result(0)
+    chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)), score2, n2, dist2, admissible2, screened)
     found.append((chk, msg, "misfit_mixed_cameras"))
     diag.misfit = diag.misfit + [c for c, _, _ in found] + ([] if width is None else [width[0]])
     named = next((Refusal(code, m) for _, m, code in found if m), None)  # a misfit names the cause first
@@ -395,7 +414,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
                progress: Progress | None) -> CalibrationResult:
     t0 = time.perf_counter()
     cframes, intr, problem = prepare_frames(frames_in, intr_in, reestimate_yaw=config.reestimate_yaw,
-                                            box_model=config.box_model)
+                                            box_model=config.box_model, workers=config.workers)
     diag = CalibDiagnostics(n_2d=sum(f.n2 for f in cframes), n_3d=sum(f.n3 for f in cframes),
                             max_baseline_m=config.max_baseline_m)
     diag.selfcal.intrinsics_mode, diag.selfcal.intrinsics_given = config.refine_intrinsics, intr.to_dict()
@@ -446,7 +465,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     fit = FitContext(cframes, pairs, intr, pose, best.noise, f_scale, occlusion)
     # the misfit checks' searches start now on the other cores (workers > 1), beside the uncertainty and
     # the verdict (one worker: they run only when the checks ask for them); closed before returning
-    searches = _misfit_searches(fit, config) if config.misfit_check else None
+    searches = _misfit_searches(fit, config, ref.best_score) if config.misfit_check else None
     unc = estimate_uncertainty(fit,
                                mode=config.uncertainty, track_ids=track_ids, seed=config.seed,
                                floor=inflation)
@@ -461,7 +480,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         fit = fit.with_pose(pose)
         if searches is not None:  # searched from the plain pose: again from the moved one
             searches.close()
-            searches = _misfit_searches(fit, config)
+            searches = _misfit_searches(fit, config, ref.best_score)
     px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     diag.uncertainty = unc.parts  # its selfcal part: the pose spread the estimated intrinsics / offset add
     # a runner-up within 2 sigma of the best is the same solution (the decision then bounds the

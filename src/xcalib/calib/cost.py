@@ -238,7 +238,7 @@ class BoxEdgeTerm(CostTerm):
         sel = self.outlines[rows, idx]
         if state.shift_m is not None:
             sel = sel + np.asarray(state.shift_m)[:, None, :]
-        Ys = sel @ R.T
+        Ys = _rows_matmul(sel, R.T)
         izs = 1.0 / np.where(valid[:, None], Ys[..., 2] + t[2], 1.0)
         xs, ys = (Ys[..., 0] + t[0]) * izs, (Ys[..., 1] + t[1]) * izs
         dist = _distortion(intr)
@@ -256,7 +256,7 @@ class BoxEdgeTerm(CostTerm):
         cr[..., 0] = Ys[..., 1] * a[..., 2] - Ys[..., 2] * a[..., 1]
         cr[..., 1] = Ys[..., 2] * a[..., 0] - Ys[..., 0] * a[..., 2]
         cr[..., 2] = Ys[..., 0] * a[..., 1] - Ys[..., 1] * a[..., 0]
-        D[..., :3] = cr @ so3_left_jacobian(rotvec)  # rotation: (R c x a) J_l
+        D[..., :3] = _rows_matmul(cr, so3_left_jacobian(rotvec))  # rotation: (R c x a) J_l
         D[..., 3:6] = a
         dn = np.where(is_u, xds, yds)
         for k, tg in enumerate(extra):
@@ -281,7 +281,7 @@ class BoxEdgeTerm(CostTerm):
         rects, valid, _, _ = self._projection(state)
         outlines = self.outlines if state.shift_m is None else self.outlines + np.asarray(state.shift_m)[:, None, :]
         sel = outline_extremes(outlines, R, t, cam)  # [n,4,3] the points defining u_min, v_min, u_max, v_max
-        Ys = sel @ R.T
+        Ys = _rows_matmul(sel, R.T)
         uv, Juv, _ = cam.project_jacobian((Ys + t).reshape(-1, 3))
         comp = np.array([0, 1, 0, 1])  # u, v, u, v
         ext = uv.reshape(n, 4, 2)[:, np.arange(4), comp]  # [n,4] the unclipped edges
@@ -295,7 +295,7 @@ class BoxEdgeTerm(CostTerm):
         cr[..., 0] = Ys[..., 1] * a[..., 2] - Ys[..., 2] * a[..., 1]
         cr[..., 1] = Ys[..., 2] * a[..., 0] - Ys[..., 0] * a[..., 2]
         cr[..., 2] = Ys[..., 0] * a[..., 1] - Ys[..., 1] * a[..., 0]
-        D[..., :3] = cr @ so3_left_jacobian(rotvec)
+        D[..., :3] = _rows_matmul(cr, so3_left_jacobian(rotvec))
         D[..., 3:6] = a
         is_u = comp == 0
         dn = (ext - np.where(is_u, cam.cx, cam.cy)) / np.where(is_u, cam.fx, cam.fy)  # u = fx * dn + cx
@@ -309,6 +309,12 @@ class BoxEdgeTerm(CostTerm):
             r = np.where(valid[:, None], rects - self.obs, self.fallback) * self.w
             D = np.where((r * INWARD > self.occlusion.tau)[..., None], self.occlusion.slope * D, D)
         return D.reshape(4 * n, P)
+
+
+def _rows_matmul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """``a @ m`` for a [..., k] stack of rows and one [k, j] matrix, as one matrix product (numpy's
+    stacked ``@`` makes one small product per leading index: most of the Jacobian's time)."""
+    return (a.reshape(-1, a.shape[-1]) @ m).reshape(a.shape[:-1] + (m.shape[1],))
 
 
 def _distortion(intr: CameraIntrinsics) -> np.ndarray | None:
@@ -417,7 +423,9 @@ class WideLensTerm(CostTerm):
     (``xi = 0``: the given pinhole; ~1.75: close to an equidistant fisheye over 180 degrees).
     ``fixed``: hold ``xi`` at this value (the pinhole alternative, projected the same way). Put a
     ``FocalScaleTerm`` after it to free the focal length too. ``start``: the fit's first ``xi``
-    (its parameter is the step from there). No analytic Jacobian (numeric)."""
+    (its parameter is the step from there). Its Jacobian column is a forward difference (the
+    model's ``NUMERIC_TERMS``); the pose and focal columns stay analytic (the unified model's own
+    ``project_jacobian``)."""
 
     name = "wide_lens_xi"
     n_params = 1
@@ -451,6 +459,9 @@ class WideLensTerm(CostTerm):
 
     def residuals(self, state: PoseState) -> np.ndarray:
         return np.zeros(0)
+
+    def own_jacobian(self, state: PoseState, n_params: int, col: int) -> np.ndarray:
+        return np.zeros((0, n_params))
 
 
 class TimeOffsetTerm(CostTerm):
@@ -538,14 +549,18 @@ class CostModel:
         return CostFit(pose=st.pose, params=dict(st.params), cost=float(res.cost), residuals=res.fun, x=res.x)
 
     _TANGENT_TERMS = (FocalScaleTerm, PrincipalPointTerm, TimeOffsetTerm)
+    #: terms whose parameters get a forward-difference column (the rest of the Jacobian analytic)
+    NUMERIC_TERMS = (WideLensTerm,)
 
     def has_analytic_jacobian(self) -> bool:
         """True when every parameterised term is one whose effect on the projection is known (each
-        at most once): focal scale, principal point, time offset."""
+        at most once): focal scale, principal point, time offset -- or a ``NUMERIC_TERMS`` one,
+        whose own columns are then forward differences."""
         kinds = [type(t) for t in self.terms if t.n_params]
         # the derivative is the pinhole-radtan model's, or a camera model's own (project_jacobian)
         return (isinstance(self.intr, (CameraIntrinsics, CameraModel))
-                and all(k in self._TANGENT_TERMS for k in kinds) and len(set(kinds)) == len(kinds))
+                and all(k in self._TANGENT_TERMS + self.NUMERIC_TERMS for k in kinds)
+                and len(set(kinds)) == len(kinds))
 
     def analytic_jacobian(self, x: np.ndarray) -> np.ndarray:
         """d residuals / d x [len(residuals), n_params]: the box-edge terms analytically
@@ -555,10 +570,14 @@ class CostModel:
         st = self.state(x)
         n = self.n_params
         tangents: list[Tangent] = []
-        cols, k = [], 6
+        cols, k, numeric = [], 6, []
         for term in self.terms:
             if term.n_params:
-                tangents += term.tangents(st, x[k:k + term.n_params], self.intr)
+                tg = term.tangents(st, x[k:k + term.n_params], self.intr)
+                if tg is None:  # a NUMERIC_TERMS term: its columns below, by forward differences
+                    tg = [Tangent()] * term.n_params
+                    numeric += list(range(k, k + term.n_params))
+                tangents += tg
                 cols.append(k)
                 k += term.n_params
             else:
@@ -572,7 +591,22 @@ class CostModel:
             if J is None:
                 J = self._term_differences(term, x)
             blocks.append(J)
-        return np.concatenate(blocks) if blocks else np.zeros((0, n))
+        J = np.concatenate(blocks) if blocks else np.zeros((0, n))
+        if numeric:
+            J[:, numeric] = self._forward_columns(x, numeric)
+        return J
+
+    def _forward_columns(self, x: np.ndarray, cols: list[int]) -> np.ndarray:
+        """Forward differences of all residuals along the parameters ``cols`` [len(r), len(cols)],
+        with the step of scipy's "2-point" scheme (sqrt(eps) max(1, |x|), towards x's sign)."""
+        r0 = self.residuals(x)
+        out = np.empty((len(r0), len(cols)))
+        for j, k in enumerate(cols):
+            h = np.sqrt(np.finfo(np.float64).eps) * (1.0 if x[k] >= 0 else -1.0) * max(1.0, abs(float(x[k])))
+            xh = x.copy()
+            xh[k] = x[k] + h
+            out[:, j] = (self.residuals(xh) - r0) / (xh[k] - x[k])
+        return out
 
     def _term_differences(self, term: CostTerm, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:
         r0 = term.residuals(self.state(x))

@@ -16,6 +16,7 @@ from ..geometry.boxes import as_box7, box7_corners, check_boxes2d, check_boxes3d
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import CameraModel, as_calibration_camera, calibration_camera_from_dict
 from .boxshape import fit_yaw_to_points, lidar_angular_step, shapes_from_points
+from .parallel import Workers, parallel_map
 
 __all__ = ["CalibFrame", "as_intrinsics", "prepare_frames", "with_corner_outlines", "with_point_outlines",
            "YAW_OPEN_SIGMA", "lean_frames", "SCAN_STEP_KEY", "scan_step_of"]
@@ -132,14 +133,16 @@ def _image_size(image, intr: CameraIntrinsics, meta: dict) -> tuple[int, int]:
 
 
 def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool = "auto",
-                   box_model: str = "auto", min_box_px: float = 2.0) -> tuple[list[CalibFrame], CameraIntrinsics, str | None]:
+                   box_model: str = "auto", min_box_px: float = 2.0, workers: Workers = 1) -> tuple[list[CalibFrame], CameraIntrinsics, str | None]:
     """Normalise ``frames`` -> (CalibFrames, intrinsics, problem message or None).
 
     The message is set (and the list may be partial) when frames come from different
     cameras. ``reestimate_yaw``: "auto" (yaw-less [M,6] boxes get their yaw from the points),
     "always" or "never" (True/False accepted). ``box_model``: "corners" (the 8 box corners), "points" (hull of the LiDAR points in
     each box; corners where too few) or "auto" (points for yaw-less [M,6] boxes when a cloud is
-    given, corners otherwise). Raises ValueError for impossible intrinsics or malformed boxes.
+    given, corners otherwise). ``workers``: processes for the per-frame yaw fits and point hulls
+    (the frames come back the same whatever the number). Raises ValueError for impossible
+    intrinsics or malformed boxes.
     """
     if not isinstance(frames, (list, tuple)):
         frames = list(frames)
@@ -165,7 +168,12 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
         fx_cx = [f"fx {getattr(i, 'fx', float('nan')):g}, cx {getattr(i, 'cx', float('nan')):g}" for i in (i0, i1)]
         problem = (f"frames carry different camera intrinsics (frame {k0}: {fx_cx[0]}; frame {k1}: {fx_cx[1]}; "
                    "mixed cameras or recordings?); calibrate one camera of one recording at a time")
+    if reestimate_yaw not in ("auto", "always", "never", True, False):
+        raise ValueError(f"reestimate_yaw: expected 'auto', 'always' or 'never', got {reestimate_yaw!r}")
+    if box_model not in ("auto", "corners", "points"):
+        raise ValueError(f"box_model: expected 'auto', 'corners' or 'points', got {box_model!r}")
     scan_step = None
+    rows = []
     for i, (image, pts, b2, b3, cam, key, gt, _fi, meta) in enumerate(raw):
         size = _image_size(image, intr, meta)
         intr.check_image_size(*size)
@@ -189,33 +197,21 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
                 raise ValueError(f"frames[{i}].point_cloud: expected shape [P, >=3], got {p.shape}")
             p = p[:, :3]
         had_yaw = b3.ndim == 2 and b3.shape[1] == 7
-        if reestimate_yaw not in ("auto", "always", "never", True, False):
-            raise ValueError(f"reestimate_yaw: expected 'auto', 'always' or 'never', got {reestimate_yaw!r}")
         redo = reestimate_yaw in (True, "always") or (reestimate_yaw == "auto" and not had_yaw)
-        ambiguous = None
-        if redo and p is not None and len(p) and len(box7):
-            yf = fit_yaw_to_points(box7, p)
-            box7, ambiguous = yf.boxes7, yf.ambiguous
-            meta = {**meta, "yaw_fitted": int(yf.fitted.sum()), "yaw_ambiguous": int(yf.ambiguous.sum())}
-        elif not had_yaw and len(box7):
-            # yaw-less boxes and no cloud to tell their heading: every outline's yaw is open (its
-            # corners can be a quarter-turn off), so it weighs as little as an ambiguous one -- with
-            # no outline sigma, a 4-frame folder of such boxes gave a success 0.84 m off with a
-            # reported 1-sigma of 0.08 m (issue 29's calibrate-many benchmark, synthetic site 34)
-            ambiguous = np.ones(len(box7), dtype=bool)
-            meta = {**meta, "yaw_unknown": int(len(box7))}
-        if box_model not in ("auto", "corners", "points"):
-            raise ValueError(f"box_model: expected 'auto', 'corners' or 'points', got {box_model!r}")
-        corners8 = box7_corners(box7) if len(box7) else np.zeros((0, 8, 3))
-        shapes, from_pts = corners8, np.zeros(len(box7), dtype=bool)
         use_pts = box_model == "points" or (box_model == "auto" and not had_yaw)
-        if use_pts and p is not None and len(p) and len(box7):
-            if scan_step is None:  # one LiDAR for all frames: its scan pattern once
-                scan_step = scan_step_of(p, meta)
-            shapes, from_pts = shapes_from_points(box7, corners8, p, scan_step_rad=scan_step)
-            meta = {**meta, "boxes_from_points": int(from_pts.sum())}
+        has_pts = p is not None and len(p) and len(box7)
+        if use_pts and has_pts and scan_step is None:  # one LiDAR for all frames: its scan pattern once
+            scan_step = scan_step_of(p, meta)
+        rows.append((i, image, cam, key, gt, meta, b2[idx2].astype(np.float64), box7, idx2, idx3, p, size,
+                     (bool(redo and has_pts), not had_yaw, bool(use_pts and has_pts))))
+    # the per-frame outline work (yaw fits, point hulls) on up to ``workers`` processes (frames in order)
+    shaped = parallel_map(_frame_outlines, [(r[7], r[10], r[12], scan_step) for r in rows],
+                          workers if any(r[12][0] or r[12][2] for r in rows) else 1)
+    for (i, image, cam, key, gt, meta, b2, box7, idx2, idx3, p, size, _), (box7, ambiguous, shapes, corners8,
+                                                                          from_pts, extra) in zip(rows, shaped):
+        meta = {**meta, **extra}
         out.append(CalibFrame(
-            key=str(key), camera=cam, boxes2d=b2[idx2].astype(np.float64), boxes3d=box7,
+            key=str(key), camera=cam, boxes2d=b2, boxes3d=box7,
             corners=shapes, box_corners=corners8, from_points=from_pts, yaw_ambiguous=ambiguous,
             outline_sigma_m=None if ambiguous is None else np.where(ambiguous & ~from_pts,
                                                                    YAW_OPEN_SIGMA * np.abs(box7[:, 3] - box7[:, 4]), 0.0),
@@ -224,6 +220,32 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
             gt=None if gt is None else np.asarray(gt, dtype=np.float64), meta=meta,
         ))
     return out, intr, problem
+
+
+def _frame_outlines(job):
+    """One frame's 3D outlines (a task of ``prepare_frames``): job = (box7 [M,7], points [P,3] or
+    None, (refit the yaw to the points, the boxes came without a yaw, outline from the points),
+    scan step). Returns (box7, yaw_ambiguous or None, outlines [M,S,3], 8 corners [M,8,3],
+    from_points [M], meta additions)."""
+    box7, p, (refit, yawless, hulls), scan_step = job
+    ambiguous, extra = None, {}
+    if refit:
+        yf = fit_yaw_to_points(box7, p)
+        box7, ambiguous = yf.boxes7, yf.ambiguous
+        extra = {"yaw_fitted": int(yf.fitted.sum()), "yaw_ambiguous": int(yf.ambiguous.sum())}
+    elif yawless and len(box7):
+        # yaw-less boxes and no cloud to tell their heading: every outline's yaw is open (its
+        # corners can be a quarter-turn off), so it weighs as little as an ambiguous one -- with
+        # no outline sigma, a 4-frame folder of such boxes gave a success 0.84 m off with a
+        # reported 1-sigma of 0.08 m (issue 29's calibrate-many benchmark, synthetic site 34)
+        ambiguous = np.ones(len(box7), dtype=bool)
+        extra = {"yaw_unknown": int(len(box7))}
+    corners8 = box7_corners(box7) if len(box7) else np.zeros((0, 8, 3))
+    shapes, from_pts = corners8, np.zeros(len(box7), dtype=bool)
+    if hulls:
+        shapes, from_pts = shapes_from_points(box7, corners8, p, scan_step_rad=scan_step)
+        extra = {**extra, "boxes_from_points": int(from_pts.sum())}
+    return box7, ambiguous, shapes, corners8, from_pts, extra
 
 
 def with_corner_outlines(frames: Sequence[CalibFrame]) -> list[CalibFrame] | None:

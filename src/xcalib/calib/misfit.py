@@ -53,7 +53,7 @@ from .context import FitContext
 from .refine import build_cost, lsq, match_all
 from .uncertainty import jackknife_sd, leave_frames_out
 
-__all__ = ["MisfitVerdict", "lens_check", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "time_offset_check", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
+__all__ = ["MisfitVerdict", "lens_check", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "second_pose_screen", "mirror_screen", "match_bound", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "time_offset_check", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
            "FOCAL_MAX_UNCHECKED"]
 
 FOCAL_TOL = 0.03          # |fitted focal scale - 1| beyond this (and 2 sigma) is a misfit
@@ -234,13 +234,36 @@ def leftover_frames(frames: list[CalibFrame], pairs: list[np.ndarray]) -> list[C
     return out
 
 
+def match_bound(frames: list[CalibFrame]) -> int:
+    """The most matches any pose can make on ``frames``: one-to-one per frame, so at most
+    min(2D boxes, 3D boxes) each. A search's score (a sum of IoUs <= 1 over its matches) is bounded
+    by it too."""
+    return int(sum(min(fr.n2, fr.n3) for fr in frames))
+
+
+def second_pose_screen(best_score: float, left: list[CalibFrame]) -> str | None:
+    """Why no second pose can be flagged on the leftover frames ``left`` whatever the search
+    finds (its score and matches cannot reach ``SECOND_POSE_SHARE`` of ``best_score`` or
+    ``SECOND_POSE_MIN_PAIRS``), or None when the search must run. Exact: the bound is
+    :func:`match_bound`, so skipping the search leaves the verdict unchanged."""
+    bound = match_bound(left)
+    if bound >= SECOND_POSE_MIN_PAIRS and bound + 1e-9 >= SECOND_POSE_SHARE * best_score:
+        return None
+    return (f"not searched: the unmatched 2D boxes allow at most {bound} matches (a second pose needs "
+            f"{SECOND_POSE_MIN_PAIRS}+ scoring {SECOND_POSE_SHARE:g} x {best_score:.1f})")
+
+
 def second_pose_check(best_score: float, n_best: int, second_score: float, n_second: int,
-                      distance: tuple[float, float] | None, admissible: bool = True) -> tuple[MisfitCheck, str | None]:
+                      distance: tuple[float, float] | None, admissible: bool = True,
+                      screened: str | None = None) -> tuple[MisfitCheck, str | None]:
     """Flag when a pose ``distance`` (deg, m) away from the best explains the 2D boxes the best
     leaves unmatched with ``n_second`` coherent matches scoring ``SECOND_POSE_SHARE``+ of the best.
     ``admissible``: the second pose is a camera the search's assumptions allow (within the
-    baseline; a pose tens of metres away aligning leftover boxes by chance is none)."""
+    baseline; a pose tens of metres away aligning leftover boxes by chance is none). ``screened``:
+    the reason the search was not run (``second_pose_screen``; ``second_score`` is then its bound)."""
     share = second_score / max(best_score, 1e-9)
+    if screened is not None:
+        return MisfitCheck("second_pose", share, SECOND_POSE_SHARE, False, screened), None
     mean_iou = second_score / max(n_second, 1)
     far = distance is not None and (distance[0] > 3.0 or distance[1] > 1.0)
     flagged = bool(far and admissible and share >= SECOND_POSE_SHARE and n_second >= SECOND_POSE_MIN_PAIRS
@@ -268,16 +291,32 @@ def flipped_frames(frames: list[CalibFrame]) -> list[CalibFrame]:
     return out
 
 
+def mirror_screen(best_score: float, frames: list[CalibFrame], pose: Pose, need: int) -> str | None:
+    """Why the flipped boxes cannot be flagged whatever their search finds (:func:`mirror_check`
+    with the flipped score and matches at their bound, :func:`match_bound`), or None when the
+    search must run. Exact: skipping the search leaves the verdict unchanged."""
+    bound = match_bound(frames)
+    ratio = (bound + 1e-9) / max(best_score, 1e-9)
+    upside_down = bool(pose.R[1, 2] > 0.5)
+    if bound >= need and (ratio > MIRROR_GAIN or (ratio > 1.0 and upside_down)):
+        return None
+    return (f"not searched: the flipped boxes allow at most {bound} matches, a score of at most {ratio:.3f} x "
+            f"{best_score:.1f} (a mirror needs > {MIRROR_GAIN:g} x and {need}+ matches)")
+
+
 def mirror_check(best_score: float, flipped_score: float, pose: Pose,
-                 explained: tuple[int, int] | None = None) -> tuple[MisfitCheck, str | None]:
+                 explained: tuple[int, int] | None = None, screened: str | None = None) -> tuple[MisfitCheck, str | None]:
     """Flag when the left-right flipped boxes are explained clearly better than the boxes as given
     (by ``MIRROR_GAIN``), or better at all while the pose for the boxes as given is upside down
     (the LiDAR's up axis, z, pointing down the image: a mirrored image is fitted best by a camera
     rolled 180 deg). ``explained`` = (2D boxes the flipped boxes' pose matches, the matches a pose
     needs to explain the 2D boxes): a mirror is named only when the flipped boxes are explained --
     among many unmatched boxes (distractors, crowded frames) both scores are chance alignments,
-    and the one of the flipped boxes may come out ahead (issue 31: 32 + 270 boxes per frame)."""
+    and the one of the flipped boxes may come out ahead (issue 31: 32 + 270 boxes per frame).
+    ``screened``: the reason the search was not run (``mirror_screen``; ``flipped_score`` is then its bound)."""
     ratio = flipped_score / max(best_score, 1e-9)
+    if screened is not None:
+        return MisfitCheck("mirrored", ratio, MIRROR_GAIN, False, screened), None
     upside_down = bool(pose.R[1, 2] > 0.5)
     flagged = bool(ratio > MIRROR_GAIN or (ratio > 1.0 and upside_down))
     unexplained = explained is not None and explained[0] < explained[1]
@@ -357,6 +396,11 @@ def time_offset_check(ctx: FitContext, times: np.ndarray, unit: str, *, draws: i
         return MisfitCheck("time_offset", 0.0, TIME_SIGMAS, False, "too few moving matched objects"), None
     step = TIME_START_S if unit == "s" else TIME_START_S * 10.0
     dt, _ = _time_fit(ctx, vel, (0.0, -step, step))
+    shift = float(np.median(speed[moving]) * abs(dt))
+    if shift <= TIME_MIN_SHIFT_M:  # cannot flag whatever its sigma: the bootstrap refits are not run
+        return MisfitCheck("time_offset", 0.0, TIME_SIGMAS, False,
+                           f"fitted time offset {dt:+.3f} {unit} moves the moving objects {shift:.2f} m (a misfit needs "
+                           f"> {TIME_MIN_SHIFT_M:g} m; its bootstrap sigma not computed, statistic 0)"), None
     rng = np.random.default_rng(seed)
     offs = np.cumsum([0] + [len(p) for p in pairs])
     nz = [k for k, p in enumerate(pairs) if len(p)]
@@ -370,7 +414,6 @@ def time_offset_check(ctx: FitContext, times: np.ndarray, unit: str, *, draws: i
                              for k, c in zip(range(len(pairs)), [dict(zip(nz, w)).get(k, 0) for k in range(len(pairs))])])
         boot.append(_time_fit(ctx.with_pairs(sub), vs, (dt,))[0])
     sd = float(np.std(boot, ddof=1))
-    shift = float(np.median(speed[moving]) * abs(dt))
     z = abs(dt) / max(sd, 1e-9)
     flagged = bool(z > TIME_SIGMAS and shift > TIME_MIN_SHIFT_M)
     detail = f"fitted time offset {dt:+.3f} {unit} (bootstrap sigma {sd:.3f}; moves the moving objects {shift:.2f} m)"
@@ -444,11 +487,13 @@ def _pp_outline_fits(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion,
     return d, float(fit.cost)
 
 
-def _pp_boot(ctx: FitContext, draws: int, seed: int, outline: bool):
-    """(shift [2] px, bootstrap sd [2] px over frames) of the principal-point fit."""
+def _pp_boot(ctx: FitContext, draws: int, seed: int, outline: bool, d: np.ndarray | None = None):
+    """(shift [2] px, bootstrap sd [2] px over frames) of the principal-point fit (``d``: the shift
+    when already fitted)."""
     frames, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
                                                             ctx.f_scale, ctx.occlusion)
-    d = _pp_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, outline)
+    if d is None:
+        d = _pp_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, outline)
     rng = np.random.default_rng(seed)
     nz = [k for k, p in enumerate(pairs) if len(p)]
     boot = []
@@ -490,7 +535,12 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
         # a principal-point shift trades off against a small rotation; with fewer than 4 frames the
         # bootstrap over pairs understates that (one nuScenes frame, 47 pairs: a false 78 px)
         return MisfitCheck("principal_point", 0.0, PP_TOL_FRAC * W, False, "too few matches or frames"), None
-    d, sd_xy = _pp_boot(ctx, draws, seed, False)
+    d = _pp_fit(frames, pairs, intr, pose, noise, f_scale, occlusion)
+    if float(np.linalg.norm(d)) <= PP_TOL_FRAC * W:  # cannot flag whatever its sigma: no bootstrap refits
+        return MisfitCheck("principal_point", float(np.linalg.norm(d)), PP_TOL_FRAC * W, False,
+                           f"fitted principal point shift ({d[0]:+.1f}, {d[1]:+.1f}) px, within the tolerance (its "
+                           "bootstrap sigma not computed)"), None
+    d, sd_xy = _pp_boot(ctx, draws, seed, False, d)
     sd, shift = float(np.linalg.norm(sd_xy)), float(np.linalg.norm(d))
     flagged = _pp_flagged(d, sd_xy, W)
     box_note = ""
