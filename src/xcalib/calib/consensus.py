@@ -40,7 +40,8 @@ from ..geometry.rotations import rotation_angle
 from .boxproj import iou_batched
 from .hypotheses import TripleSearch, frame_hypotheses
 from .inputs import CalibFrame, prepare_frames
-from .refine import RefineOptions, match_frame, pair_metrics, refine_pose
+from .poses_refine import refine_poses
+from .refine import RefineOptions, RefineResult, match_frame
 
 __all__ = ["ConsensusConfig", "ConsensusMatches", "consensus_matches", "pair_margins", "searched_intrinsics"]
 
@@ -173,12 +174,10 @@ def _best_poses(fr: CalibFrame, intr: CameraIntrinsics, h, cfg: ConsensusConfig)
             keep.append(int(i))
         if len(keep) >= cfg.n_refine:
             break
-    out = []
-    for k in keep:
-        rr = refine_pose([fr], intr, h.R[k], h.t[k], options=RefineOptions(gates=((0.1, 1.0), (0.2, 0.5), (cfg.gate, 0.0)),
-                                                                           max_nfev=15, max_outer=3))
-        _, ious = pair_metrics([fr], intr, rr.R, rr.t, rr.pairs)
-        out.append((float(np.sum(ious)), rr))
+    opts = RefineOptions(gates=((0.1, 1.0), (0.2, 0.5), (cfg.gate, 0.0)), max_nfev=15, max_outer=3)
+    fit = refine_poses(fr, intr, h.R[keep], h.t[keep], opts)
+    out = [(float(fit.score[i]), RefineResult(fit.R[i], fit.t[i], [fit.pairs[i]], cost=float("nan"), n_iter=opts.max_outer))
+           for i in range(len(keep))]
     out.sort(key=lambda x: -x[0])
     return out
 
