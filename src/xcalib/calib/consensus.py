@@ -159,7 +159,7 @@ def _distinct(Ra, ta, Rb, tb, rot_deg: float, trans_m: float) -> bool:
 def _hypotheses(fr: CalibFrame, intr: CameraIntrinsics, cfg: ConsensusConfig):
     rng = np.random.default_rng(cfg.seed)
     keep = max(cfg.keep, cfg.score_budget // max(8 * fr.n2 * fr.n3, 1))  # frame_hypotheses IoU-scores 8 x keep
-    search = TripleSearch(keep=keep, max_triples=cfg.max_triples, min_altitude_m=cfg.min_altitude_m)
+    search = TripleSearch(keep=keep, max_triples=cfg.max_triples, min_altitude_m=cfg.min_altitude_m, closed_form=True)
     h = frame_hypotheses(fr, intr, 0, rng=rng, search=replace(search, max_baseline_m=cfg.max_baseline_m))
     if len(h) == 0 and cfg.max_baseline_m is not None:
         h = frame_hypotheses(fr, intr, 0, rng=np.random.default_rng(cfg.seed), search=search)
