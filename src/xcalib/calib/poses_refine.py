@@ -98,20 +98,21 @@ class _Batch:
         Y = self.C @ R.transpose(0, 2, 1)[:, None]  # [H,P,S,3]
         z = Y[..., 2] + t[:, None, None, 2]
         ahead = z > MIN_DEPTH_M
-        inv = np.full(z.shape, np.nan)
-        np.divide(1.0, z, out=inv, where=ahead)
+        inv = 1.0 / np.where(ahead, z, np.nan)
         x = (Y[..., 0] + t[:, None, None, 0]) * inv
         y = (Y[..., 1] + t[:, None, None, 1]) * inv
         if self.dist is not None:
             x, y = _distort_with_jacobian(x, y, self.dist)[:2]
         intr = self.intr
         u, v = x * intr.fx + intr.cx, y * intr.fy + intr.cy
-        rect = np.stack([u.min(-1), v.min(-1), u.max(-1), v.max(-1)], -1)
+        rect = np.empty(u.shape[:-1] + (4,))
         W, Hh = self.size
-        rect[..., [0, 2]] = np.clip(rect[..., [0, 2]], 0.0, W)
-        rect[..., [1, 3]] = np.clip(rect[..., [1, 3]], 0.0, Hh)
+        np.clip(u.min(-1), 0.0, W, out=rect[..., 0])
+        np.clip(v.min(-1), 0.0, Hh, out=rect[..., 1])
+        np.clip(u.max(-1), 0.0, W, out=rect[..., 2])
+        np.clip(v.max(-1), 0.0, Hh, out=rect[..., 3])
         with np.errstate(invalid="ignore"):
-            valid = np.all(ahead, -1) & (rect[..., 2] - rect[..., 0] > 1.0) & (rect[..., 3] - rect[..., 1] > 1.0)
+            valid = ahead.all(-1) & (rect[..., 2] - rect[..., 0] > 1.0) & (rect[..., 3] - rect[..., 1] > 1.0)
         return Y, u, v, rect, valid
 
     def residuals(self, R, t):
@@ -133,12 +134,16 @@ class _Batch:
         where the edge is clipped to the image or the box cannot be projected."""
         Y, u, v, _, valid = proj
         uu, vv = np.where(valid[..., None], u, 0.0), np.where(valid[..., None], v, 0.0)
-        idx = np.stack([uu.argmin(-1), vv.argmin(-1), uu.argmax(-1), vv.argmax(-1)], -1)  # [H,P,4]
-        comp = np.stack([uu, vv, uu, vv], 2)  # [H,P,4,S]
-        ext = np.take_along_axis(comp, idx[..., None], -1)[..., 0]
+        H, P = valid.shape
+        hh, pp = np.arange(H)[:, None], np.arange(P)[None, :]
+        cols = (uu.argmin(-1), vv.argmin(-1), uu.argmax(-1), vv.argmax(-1))  # the defining corners
+        ext = np.empty((H, P, 4))
+        Ys = np.empty((H, P, 4, 3))  # [H,P,4,3] the defining corners, rotated
+        for k, (plane, c) in enumerate(zip((uu, vv, uu, vv), cols)):
+            ext[..., k] = plane[hh, pp, c]
+            Ys[:, :, k] = Y[hh, pp, c]
         W, Hh = self.size
         inside = (ext > 0.0) & (ext < np.array([W, Hh, W, Hh], dtype=np.float64))
-        Ys = np.take_along_axis(Y, idx[..., None], 2)  # [H,P,4,3] the defining corners, rotated
         izs = 1.0 / np.where(valid[..., None], Ys[..., 2] + t[:, None, None, 2], 1.0)
         xs, ys = (Ys[..., 0] + t[:, None, None, 0]) * izs, (Ys[..., 1] + t[:, None, None, 1]) * izs
         if self.dist is None:
