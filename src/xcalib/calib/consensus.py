@@ -39,7 +39,7 @@ from ..geometry.camera_models import KannalaBrandt
 from ..geometry.rotations import rotation_angle
 from .boxproj import iou_batched
 from .hypotheses import TripleSearch, frame_hypotheses
-from .inputs import CalibFrame, prepare_frames
+from .inputs import CalibFrame, as_intrinsics, prepare_frames
 from .poses_refine import refine_poses
 from .refine import RefineOptions, RefineResult, match_frame
 
@@ -192,10 +192,12 @@ def _candidates(frame, intrinsics, cfg: ConsensusConfig):
     H, W = int(image.shape[0]), int(image.shape[1])
     found = []
     lenses = [(fov, "pinhole") for fov in cfg.fov_deg] + [(fov, "equidistant") for fov in cfg.fisheye_fov_deg]
-    for fov, lens in lenses:
-        cfs, intr, problem = prepare_frames([frame], searched_intrinsics(W, H, fov, lens))
-        if problem:
-            return [], "searched", problem, cfs[0], intr
+    cfs, _, problem = prepare_frames([frame], searched_intrinsics(W, H, lenses[0][0], lenses[0][1]))
+    if problem:
+        return [], "searched", problem, cfs[0], as_intrinsics(searched_intrinsics(W, H, *lenses[0]))
+    for fov, lens in lenses:  # the frame is prepared once: its outlines do not depend on the lens
+        intr = as_intrinsics(searched_intrinsics(W, H, fov, lens))
+        intr.check_image_size(*cfs[0].size)
         h = _hypotheses(cfs[0], intr, cfg)
         found.append((float(h.score.max()) if len(h) else -1.0, cfs[0], intr, h))
     found.sort(key=lambda x: -x[0])
