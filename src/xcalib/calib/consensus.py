@@ -3,8 +3,9 @@ that explains most of them, found from that frame alone (no site weights, no lab
 
 This is the calibration bring-up (:mod:`xcalib.calib.hypotheses`: box triples -> P3P ->
 Kabsch, scored by how well every projected 3D box explains the 2D boxes), run on one frame,
-followed by a short refinement of the best few distinct poses (:func:`xcalib.calib.refine.refine_pose`)
-and one-to-one matching by projection (Hungarian on IoU >= ``gate``). A match is kept only when
+followed by a short refinement of the best few distinct poses, all at once
+(:func:`xcalib.calib.poses_refine.refine_poses`: ``refine_pose``'s schedule and objective, one
+batched Levenberg-Marquardt with analytic Jacobians) and one-to-one matching by projection (Hungarian on IoU >= ``gate``). A match is kept only when
 no other refined pose that pairs either of its boxes differently explains the frame within
 ``min_margin`` summed IoU of the best (:func:`pair_margins`): a frame whose few boxes fit two
 poses equally well (SUSTech's right camera: 2 objects and a false box) gets no matches rather

@@ -20,7 +20,7 @@ from ..geometry.projection import undistort_pixels
 from .boxproj import iou_batched, project_rects
 from .inputs import CalibFrame
 
-__all__ = ["Hypotheses", "kabsch", "kabsch_triangles", "bearings", "frame_hypotheses", "TripleSearch", "score_poses"]
+__all__ = ["Hypotheses", "kabsch", "kabsch_triangles", "informative_view", "bearings", "frame_hypotheses", "TripleSearch", "score_poses"]
 
 
 @dataclass
@@ -308,6 +308,23 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
     out = Hypotheses(R[order], t[order], sc[order], np.full(len(order), fi, dtype=np.int64))
     out.n_searches = len(windows)
     return out
+
+
+def informative_view(fr: CalibFrame, max_2d: int) -> tuple[CalibFrame, np.ndarray]:
+    """The search's gate on a crowded frame: a view of ``fr`` with only its ``max_2d`` largest 2D
+    boxes (px area: the nearest, least truncated objects, whose size tells their depth best) and
+    the rows kept (ascending); every 3D box stays (a 360-degree LiDAR's boxes around the camera's
+    view are sorted out by the depth test of the candidate pairs and the azimuth windows). A
+    frame within the count is returned as it is. The pose is scored and refined on all boxes
+    later; the search's cost then grows only with the 3D boxes, linearly."""
+    rows = np.arange(fr.n2)
+    if fr.n2 <= max_2d:
+        return fr, rows
+    from dataclasses import replace
+
+    area = (fr.boxes2d[:, 2] - fr.boxes2d[:, 0]) * (fr.boxes2d[:, 3] - fr.boxes2d[:, 1])
+    rows = np.sort(np.argsort(-area, kind="stable")[:max_2d])
+    return replace(fr, boxes2d=fr.boxes2d[rows], idx2d=fr.idx2d[rows]), rows
 
 
 def _only_3d(fr: CalibFrame, cols: np.ndarray) -> CalibFrame:
