@@ -30,14 +30,24 @@ def _frames(n2: int, n3: int, n_frames: int = 2):
     return cf
 
 
-def test_informative_view_keeps_the_largest_2d_boxes_and_every_3d_box():
-    fr = _frames(40, 90)[0]
-    view, rows = informative_view(fr, 10)
-    area = (fr.boxes2d[:, 2] - fr.boxes2d[:, 0]) * (fr.boxes2d[:, 3] - fr.boxes2d[:, 1])
-    assert view.n2 == 10 and view.n3 == fr.n3 and np.all(np.diff(rows) > 0)
-    assert set(rows.tolist()) == set(np.argsort(-area)[:10].tolist())
-    np.testing.assert_array_equal(view.boxes2d, fr.boxes2d[rows])
+def test_informative_view_keeps_the_largest_well_separated_2d_boxes_and_every_3d_box():
+    from dataclasses import replace
+
+    fr = _frames(8, 90)[0]
+    W, H = fr.size
+    b2 = np.array([[0.0, 100, 600, 500],  # the largest, truncated at the left edge
+                   [800, 100, 1300, 500],  # large, but covered by the next one for more than a quarter
+                   [900, 150, 1200, 450],
+                   [100, 700, 300, 900], [400, 700, 550, 850], [700, 700, 800, 800],  # separated, 200/150/100 px
+                   [1500, 100, 1520, 120], [1600, 100, 1610, 110]])  # separated, small
+    fr = replace(fr, boxes2d=b2, idx2d=np.arange(10, 18))
+    assert W > 1620 and H > 900
+    view, rows = informative_view(fr, 4)
+    assert rows.tolist() == [3, 4, 5, 6] and view.n3 == fr.n3
+    np.testing.assert_array_equal(view.boxes2d, b2[rows])
     np.testing.assert_array_equal(view.idx2d, fr.idx2d[rows])
+    _, rows = informative_view(fr, 7)  # too few separated ones: the largest others fill up
+    assert rows.tolist() == [0, 1, 3, 4, 5, 6, 7]
     same, all_rows = informative_view(fr, 100)
     assert same is fr and all_rows.tolist() == list(range(fr.n2))
 
