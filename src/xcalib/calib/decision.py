@@ -213,10 +213,10 @@ def crowded_check(cframes: Sequence[CalibFrame], config: CalibConfig, explained:
     of a 360-degree LiDAR), the bring-up searches only the largest 2D boxes, azimuth windows and
     samples of them, and a pose aligning many boxes by chance (1-2 deg / 1-2 m off on synthetic
     32x270 frames, matching 46-49 % of their 2D boxes; 0.9 deg / 1.7 m off at a dense junction
-    with 200 boxes a side, matching 52 %) can pass every other check. Unless the pose matches
-    ``explained`` >= ``CROWDED_EXPLAINED`` of the 2D boxes (the true pose of the junction with 80
-    boxes a side: 69 %): no chance alignment pairs most of many boxes in every frame at one rigid
-    pose. A ``prior`` pose skips the bring-up and this check."""
+    with 200 boxes a side, from a cruder gate, matching 52 %) can pass every other check. Unless
+    the pose matches ``explained`` >= ``CROWDED_EXPLAINED`` of the 2D boxes (the true poses of the
+    junction with 80 / 200 boxes a side: 69 / 64 %): no chance alignment pairs most of many boxes
+    in every frame at one rigid pose. A ``prior`` pose skips the bring-up and this check."""
     have = [f for f in cframes if f.n2 and f.n3]
     crowded = [f for f in have if f.n2 * f.n3 > 2 * config.max_candidates]
     if not have or len(crowded) * 2 <= len(have) or explained >= CROWDED_EXPLAINED:
