@@ -93,6 +93,27 @@ def crowded_frames(seed: int, n_frames: int, n2: int, n3: int):
     return out, site.T_cam_lidar
 
 
+#: target objects in the scene per sequence for about N 2D boxes per frame (``junction_frames``)
+JUNCTION_OBJECTS = {20: 22, 40: 45, 80: 95, 200: 650}
+
+
+def junction_frames(seed: int, n_frames: int, per_side: int):
+    """(frames, truth [4,4]): a busy junction seen by a wide 4K camera (100 deg, 3840x2160, 8-12 m
+    up, four lanes a direction) and a 360-degree LiDAR: about ``per_side`` 2D boxes per frame (the
+    generator's detections: 10 % missed, 5 % false, 1 px noise; partly occluded objects down to 5 %
+    visible and 4 px are detected) and the LiDAR's 3D boxes of every object in range (exact), more
+    than the 2D ones (objects all around). Unlike :func:`crowded_frames` the 2D boxes are the
+    camera's view of the objects, not random padding."""
+    from xcalib.data.synth import generate_frames, sample_site
+
+    n = JUNCTION_OBJECTS.get(per_side, int(round(1.1 * per_side)))
+    site = sample_site(seed, preset="roadside", n_objects=(n, n), lanes_per_direction=4, min_visible_fraction=0.05,
+                       min_box_px=4.0, width=3840, height=2160, hfov_deg=(100.0, 100.0), camera_height=(8.0, 12.0))
+    frames = generate_frames(site, n_frames, seed=seed, render_images=False, lidar=False, miss_rate_2d=0.1,
+                             false_positive_rate_2d=0.05, box_noise_px=1.0, **NOISE_3D_OFF)
+    return frames, site.T_cam_lidar
+
+
 def _child(case: str, seed: int, limit_gb: float, q) -> None:
     import resource
 

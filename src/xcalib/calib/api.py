@@ -509,7 +509,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
                                n_objects=unc.parts.n_objects if config.uncertainty != "frames" else None,
                                **_objects_sd(unc.parts, config)), config)
     if refusal is None and prior is None:
-        refusal = crowded_check(cframes, config)
+        refusal = crowded_check(cframes, config, n_pairs / max(diag.n_2d, 1))
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):
         # a refusal that a model misfit explains is replaced by the misfit's message (it names the cause)
         refusal = _misfit(fit, ref.best_score, config, diag, frames_in, refusal, searches) or refusal

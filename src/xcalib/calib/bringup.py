@@ -19,7 +19,7 @@ import numpy as np
 
 from ..geometry.camera import CameraIntrinsics
 from .config import CalibConfig
-from .hypotheses import Hypotheses, TripleSearch, frame_hypotheses, score_poses
+from .hypotheses import Hypotheses, TripleSearch, frame_hypotheses, informative_view, score_poses
 from .inputs import CalibFrame
 from .pose import Pose
 
@@ -112,6 +112,24 @@ def _search_groups(cframes: Sequence[CalibFrame], max_hyp_frames: int) -> tuple[
     return groups, n_before, sparse_scene
 
 
+#: the search's gate on crowded frames (more than twice ``max_candidates`` box pairs): the largest
+#: 2D boxes it searches and scores with (``hypotheses.informative_view``)
+GATE_2D = 24
+
+
+def _gated(cframes: Sequence[CalibFrame], sims: list, max_candidates: int):
+    """The frames (and matcher similarities) the search sees: each crowded frame (n2 x n3 above
+    twice ``max_candidates``) through the gate, the others as they are."""
+    out, out_sims = [], []
+    for fr, sm in zip(cframes, sims):
+        if fr.n2 * fr.n3 > 2 * max_candidates:
+            fr, rows = informative_view(fr, GATE_2D)
+            sm = None if sm is None else np.asarray(sm)[rows]
+        out.append(fr)
+        out_sims.append(sm)
+    return out, out_sims
+
+
 def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, config: CalibConfig = CalibConfig(), *,
                     similarities: list | None = None, max_baseline_m: float | None = None,
                     rng: np.random.Generator | None = None,
@@ -124,6 +142,7 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
     """
     rng = np.random.default_rng(config.seed) if rng is None else rng
     sims = [None] * len(cframes) if similarities is None else list(similarities)
+    cframes, sims = _gated(cframes, sims, config.max_candidates)
     groups, n_before, sparse_scene = _search_groups(cframes, config.max_hyp_frames)
     parts, splits = [], 0
     for k, g in enumerate(groups):

@@ -3,8 +3,9 @@ that explains most of them, found from that frame alone (no site weights, no lab
 
 This is the calibration bring-up (:mod:`xcalib.calib.hypotheses`: box triples -> P3P ->
 Kabsch, scored by how well every projected 3D box explains the 2D boxes), run on one frame,
-followed by a short refinement of the best few distinct poses (:func:`xcalib.calib.refine.refine_pose`)
-and one-to-one matching by projection (Hungarian on IoU >= ``gate``). A match is kept only when
+followed by a short refinement of the best few distinct poses, all at once
+(:func:`xcalib.calib.poses_refine.refine_poses`: ``refine_pose``'s schedule and objective, one
+batched Levenberg-Marquardt with analytic Jacobians) and one-to-one matching by projection (Hungarian on IoU >= ``gate``). A match is kept only when
 no other refined pose that pairs either of its boxes differently explains the frame within
 ``min_margin`` summed IoU of the best (:func:`pair_margins`): a frame whose few boxes fit two
 poses equally well (SUSTech's right camera: 2 objects and a false box) gets no matches rather
@@ -39,8 +40,9 @@ from ..geometry.camera_models import KannalaBrandt
 from ..geometry.rotations import rotation_angle
 from .boxproj import iou_batched
 from .hypotheses import TripleSearch, frame_hypotheses
-from .inputs import CalibFrame, prepare_frames
-from .refine import RefineOptions, match_frame, pair_metrics, refine_pose
+from .inputs import CalibFrame, as_intrinsics, prepare_frames
+from .poses_refine import refine_poses
+from .refine import RefineOptions, RefineResult, match_frame
 
 __all__ = ["ConsensusConfig", "ConsensusMatches", "consensus_matches", "pair_margins", "searched_intrinsics"]
 
@@ -158,7 +160,7 @@ def _distinct(Ra, ta, Rb, tb, rot_deg: float, trans_m: float) -> bool:
 def _hypotheses(fr: CalibFrame, intr: CameraIntrinsics, cfg: ConsensusConfig):
     rng = np.random.default_rng(cfg.seed)
     keep = max(cfg.keep, cfg.score_budget // max(8 * fr.n2 * fr.n3, 1))  # frame_hypotheses IoU-scores 8 x keep
-    search = TripleSearch(keep=keep, max_triples=cfg.max_triples, min_altitude_m=cfg.min_altitude_m)
+    search = TripleSearch(keep=keep, max_triples=cfg.max_triples, min_altitude_m=cfg.min_altitude_m, closed_form=True)
     h = frame_hypotheses(fr, intr, 0, rng=rng, search=replace(search, max_baseline_m=cfg.max_baseline_m))
     if len(h) == 0 and cfg.max_baseline_m is not None:
         h = frame_hypotheses(fr, intr, 0, rng=np.random.default_rng(cfg.seed), search=search)
@@ -173,12 +175,10 @@ def _best_poses(fr: CalibFrame, intr: CameraIntrinsics, h, cfg: ConsensusConfig)
             keep.append(int(i))
         if len(keep) >= cfg.n_refine:
             break
-    out = []
-    for k in keep:
-        rr = refine_pose([fr], intr, h.R[k], h.t[k], options=RefineOptions(gates=((0.1, 1.0), (0.2, 0.5), (cfg.gate, 0.0)),
-                                                                           max_nfev=15, max_outer=3))
-        _, ious = pair_metrics([fr], intr, rr.R, rr.t, rr.pairs)
-        out.append((float(np.sum(ious)), rr))
+    opts = RefineOptions(gates=((0.1, 1.0), (0.2, 0.5), (cfg.gate, 0.0)), max_nfev=15, max_outer=3)
+    fit = refine_poses(fr, intr, h.R[keep], h.t[keep], opts)
+    out = [(float(fit.score[i]), RefineResult(fit.R[i], fit.t[i], [fit.pairs[i]], cost=float("nan"), n_iter=opts.max_outer))
+           for i in range(len(keep))]
     out.sort(key=lambda x: -x[0])
     return out
 
@@ -193,10 +193,12 @@ def _candidates(frame, intrinsics, cfg: ConsensusConfig):
     H, W = int(image.shape[0]), int(image.shape[1])
     found = []
     lenses = [(fov, "pinhole") for fov in cfg.fov_deg] + [(fov, "equidistant") for fov in cfg.fisheye_fov_deg]
-    for fov, lens in lenses:
-        cfs, intr, problem = prepare_frames([frame], searched_intrinsics(W, H, fov, lens))
-        if problem:
-            return [], "searched", problem, cfs[0], intr
+    cfs, _, problem = prepare_frames([frame], searched_intrinsics(W, H, lenses[0][0], lenses[0][1]))
+    if problem:
+        return [], "searched", problem, cfs[0], as_intrinsics(searched_intrinsics(W, H, *lenses[0]))
+    for fov, lens in lenses:  # the frame is prepared once: its outlines do not depend on the lens
+        intr = as_intrinsics(searched_intrinsics(W, H, fov, lens))
+        intr.check_image_size(*cfs[0].size)
         h = _hypotheses(cfs[0], intr, cfg)
         found.append((float(h.score.max()) if len(h) else -1.0, cfs[0], intr, h))
     found.sort(key=lambda x: -x[0])

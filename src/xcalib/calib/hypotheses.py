@@ -20,7 +20,7 @@ from ..geometry.projection import undistort_pixels
 from .boxproj import iou_batched, project_rects
 from .inputs import CalibFrame
 
-__all__ = ["Hypotheses", "kabsch", "bearings", "frame_hypotheses", "TripleSearch", "score_poses"]
+__all__ = ["Hypotheses", "kabsch", "kabsch_triangles", "informative_view", "bearings", "frame_hypotheses", "TripleSearch", "score_poses"]
 
 
 @dataclass
@@ -69,6 +69,39 @@ def kabsch(A: np.ndarray, B: np.ndarray, w: np.ndarray | None = None):
     R = np.einsum("tji,tjk,tlk->til", Vt, D, U)
     t = cb - np.einsum("tij,tj->ti", R, ca)
     return R, t
+
+
+def kabsch_triangles(A: np.ndarray, B: np.ndarray):
+    """:func:`kabsch` (unweighted) of triangles A, B [T,3,3] in closed form, no SVD: the centred
+    points of a triangle span its plane, so the best rotation maps A's plane normal onto B's, up to
+    sign, and turns in the plane by the 2D Procrustes angle; of the two signs the one with the
+    larger fit wins (the SVD's determinant correction). The same R, t as :func:`kabsch` up to
+    rounding (1e-12) wherever the triangles are not degenerate. Returns R [T,3,3], t [T,3]."""
+    ca, cb = A.mean(1), B.mean(1)
+    a, b = A - ca[:, None], B - cb[:, None]
+
+    def frame(p):  # orthonormal [e1, e2, n] (rows) of each triangle's plane
+        e1 = p[:, 1] - p[:, 0]
+        n = np.cross(e1, p[:, 2] - p[:, 0])
+        e1 = e1 / np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
+        n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        return np.stack([e1, np.cross(n, e1), n], 1)
+
+    EA, EB = frame(A), frame(B)
+    pa = a @ EA.transpose(0, 2, 1)  # [T,3 points, (x, y, ~0)]
+    pb = b @ EB.transpose(0, 2, 1)
+    xa, ya, xb, yb = pa[..., 0], pa[..., 1], pb[..., 0], pb[..., 1]
+    c1, s1 = np.sum(xa * xb + ya * yb, 1), np.sum(xa * yb - ya * xb, 1)  # normal onto normal
+    c2, s2 = np.sum(xa * xb - ya * yb, 1), np.sum(-xa * yb - ya * xb, 1)  # onto minus normal (y flipped)
+    flip = np.hypot(c2, s2) > np.hypot(c1, s1)
+    c, s = np.where(flip, c2, c1), np.where(flip, s2, s1)
+    h = np.maximum(np.hypot(c, s), 1e-300)
+    c, s = c / h, s / h
+    EB = np.where(flip[:, None, None], EB * np.array([1.0, -1.0, -1.0])[None, :, None], EB)
+    Rz = np.zeros((len(A), 3, 3))
+    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0
+    R = EB.transpose(0, 2, 1) @ Rz @ EA
+    return R, cb - (R @ ca[..., None])[..., 0]
 
 
 def bearings(intr: CameraIntrinsics, uv: np.ndarray) -> np.ndarray:
@@ -217,13 +250,15 @@ class TripleSearch:
     """Settings of :func:`frame_hypotheses`: at most ``max_triples`` box triples per window, triangles
     with an altitude of at least ``min_altitude_m`` (m), the ``keep`` best hypotheses kept, a camera
     within ``max_baseline_m`` of the LiDAR (None: anywhere), at most ``max_candidates`` candidate
-    pairs per azimuth window."""
+    pairs per azimuth window; ``closed_form``: each triple's Kabsch fit by :func:`kabsch_triangles`
+    (no SVD; the same poses up to rounding) rather than :func:`kabsch`."""
 
     max_triples: int = 3000
     min_altitude_m: float = 0.8
     keep: int = 25
     max_baseline_m: float | None = None
     max_candidates: int = 1500
+    closed_form: bool = False
 
 
 def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, fi: int, *,
@@ -254,7 +289,7 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
     windows = _azimuth_windows(cand.X, max_candidates, rng, cand.w if have_prior else None)
     Rs, ts = [], []
     for idx in windows:
-        f = _triple_poses(cand.take(idx), rng, max_triples, min_altitude_m, have_prior)
+        f = _triple_poses(cand.take(idx), rng, max_triples, min_altitude_m, have_prior, search.closed_form)
         if f is None:
             continue
         # cheap pre-score (projected 3D centres inside 2D boxes; split searches: only the 3D boxes
@@ -273,6 +308,39 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
     out = Hypotheses(R[order], t[order], sc[order], np.full(len(order), fi, dtype=np.int64))
     out.n_searches = len(windows)
     return out
+
+
+def informative_view(fr: CalibFrame, max_2d: int) -> tuple[CalibFrame, np.ndarray]:
+    """The search's gate on a crowded frame: a view of ``fr`` with only ``max_2d`` of its 2D boxes,
+    the most informative: the largest (px area: near objects, whose size tells their depth best)
+    of those well separated -- inside the image (not truncated) and covered by no other 2D box for
+    more than a quarter of their area (not occluded, not occluding: their box is the object's
+    whole outline) -- then, if too few are, the largest others; and the rows kept (ascending).
+    Every 3D box stays (a 360-degree LiDAR's boxes around the camera's view are sorted out by the
+    depth test of the candidate pairs and the azimuth windows). A frame within the count is
+    returned as it is. The pose is scored and refined on all boxes later; the search's cost then
+    grows only with the 3D boxes, linearly."""
+    rows = np.arange(fr.n2)
+    if fr.n2 <= max_2d:
+        return fr, rows
+    from dataclasses import replace
+
+    b = fr.boxes2d
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    W, H = fr.size
+    inside = (b[:, 0] > 2) & (b[:, 1] > 2) & (b[:, 2] < W - 2) & (b[:, 3] < H - 2)
+    covered = np.zeros(len(b))
+    for s in range(0, len(b), 256):  # [s:s+256, all] overlaps: memory linear in the boxes
+        blk = b[s:s + 256]
+        w = np.clip(np.minimum(blk[:, None, 2], b[None, :, 2]) - np.maximum(blk[:, None, 0], b[None, :, 0]), 0, None)
+        h = np.clip(np.minimum(blk[:, None, 3], b[None, :, 3]) - np.maximum(blk[:, None, 1], b[None, :, 1]), 0, None)
+        ov = w * h
+        ov[np.arange(len(blk)), np.arange(s, s + len(blk))] = 0.0
+        covered[s:s + len(blk)] = ov.max(1) / np.maximum(area[s:s + len(blk)], 1e-9)
+    separated = inside & (covered <= 0.25)
+    order = np.lexsort((-area, ~separated))  # separated first, each group largest first
+    rows = np.sort(order[:max_2d])
+    return replace(fr, boxes2d=fr.boxes2d[rows], idx2d=fr.idx2d[rows]), rows
 
 
 def _only_3d(fr: CalibFrame, cols: np.ndarray) -> CalibFrame:
@@ -333,7 +401,7 @@ def _top2(keys: np.ndarray) -> np.ndarray:
 
 
 def _triple_poses(c: _Candidates, rng: np.random.Generator, max_triples: int, min_altitude_m: float,
-                  have_prior: bool):
+                  have_prior: bool, closed_form: bool = False):
     """Poses (R [T,3,3], t [T,3]) of the consistent, well-shaped triples of candidates c, or None."""
     if len(c.ii) < 3:
         return None
@@ -384,7 +452,7 @@ def _triple_poses(c: _Candidates, rng: np.random.Generator, max_triples: int, mi
     good = (rel < 0.05) & np.all(lam_t > 1.0, axis=1)
     if not np.any(good):
         return None
-    return kabsch(A[good], lam_t[good, :, None] * B[good])
+    return (kabsch_triangles if closed_form else kabsch)(A[good], lam_t[good, :, None] * B[good])
 
 
 def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.ndarray, *,

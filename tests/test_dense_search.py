@@ -1,0 +1,72 @@
+"""Dense scenes (issue 29): the search's gate on crowded frames (``hypotheses.informative_view``,
+``bringup._gated``) and the crowded-site verdict given the share of 2D boxes the pose matches."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from xcalib.calib import CalibConfig
+from xcalib.calib.bringup import GATE_2D, _gated
+from xcalib.calib.decision import CROWDED_EXPLAINED, crowded_check
+from xcalib.calib.hypotheses import informative_view
+from xcalib.calib.inputs import prepare_frames
+from xcalib.data.synth import generate_frames, sample_site
+from xcalib.types import Frame
+
+
+def _frames(n2: int, n3: int, n_frames: int = 2):
+    site = sample_site(1)
+    frames = generate_frames(site, n_frames, seed=2, render_images=False, lidar=False)
+    rng = np.random.default_rng(0)
+    out = []
+    for f in frames:
+        x, y = rng.uniform(0, 1700, n2), rng.uniform(0, 1000, n2)
+        w, h = rng.uniform(10, 200, n2), rng.uniform(10, 150, n2)
+        b2 = np.column_stack([x, y, x + w, y + h])
+        b3 = np.column_stack([rng.uniform(-60, 60, (n3, 2)), np.zeros(n3), np.tile([4.5, 1.9, 1.6], (n3, 1)),
+                              rng.uniform(-3, 3, n3)])
+        out.append(Frame(**{**f.__dict__, "bboxes_2d": b2, "bboxes_3d": b3}))
+    cf, intr, _ = prepare_frames(out, site.intrinsics)
+    return cf
+
+
+def test_informative_view_keeps_the_largest_well_separated_2d_boxes_and_every_3d_box():
+    from dataclasses import replace
+
+    fr = _frames(8, 90)[0]
+    W, H = fr.size
+    b2 = np.array([[0.0, 100, 600, 500],  # the largest, truncated at the left edge
+                   [800, 100, 1300, 500],  # large, but covered by the next one for more than a quarter
+                   [900, 150, 1200, 450],
+                   [100, 700, 300, 900], [400, 700, 550, 850], [700, 700, 800, 800],  # separated, 200/150/100 px
+                   [1500, 100, 1520, 120], [1600, 100, 1610, 110]])  # separated, small
+    fr = replace(fr, boxes2d=b2, idx2d=np.arange(10, 18))
+    assert W > 1620 and H > 900
+    view, rows = informative_view(fr, 4)
+    assert rows.tolist() == [3, 4, 5, 6] and view.n3 == fr.n3
+    np.testing.assert_array_equal(view.boxes2d, b2[rows])
+    np.testing.assert_array_equal(view.idx2d, fr.idx2d[rows])
+    _, rows = informative_view(fr, 7)  # too few separated ones: the largest others fill up
+    assert rows.tolist() == [0, 1, 3, 4, 5, 6, 7]
+    same, all_rows = informative_view(fr, 100)
+    assert same is fr and all_rows.tolist() == list(range(fr.n2))
+
+
+def test_only_crowded_frames_are_gated():
+    cfg = CalibConfig()
+    quiet, busy = _frames(12, 30, 1)[0], _frames(60, 120, 1)[0]
+    assert quiet.n2 * quiet.n3 <= 2 * cfg.max_candidates < busy.n2 * busy.n3
+    sims = [np.zeros((quiet.n2, quiet.n3)), np.arange(busy.n2 * busy.n3, dtype=float).reshape(busy.n2, busy.n3)]
+    views, vs = _gated([quiet, busy], sims, cfg.max_candidates)
+    assert views[0] is quiet and vs[0] is sims[0]
+    assert views[1].n2 == GATE_2D and views[1].n3 == busy.n3
+    rows = np.searchsorted(busy.idx2d, views[1].idx2d)
+    np.testing.assert_array_equal(vs[1], sims[1][rows])
+
+
+def test_a_crowded_site_is_refused_unless_the_pose_matches_most_2d_boxes():
+    cf = _frames(32, 270, 3)
+    assert crowded_check(cf, CalibConfig()).code == "crowded"
+    assert crowded_check(cf, CalibConfig(), explained=CROWDED_EXPLAINED - 0.1).code == "crowded"
+    assert crowded_check(cf, CalibConfig(), explained=CROWDED_EXPLAINED) is None
+    assert crowded_check(_frames(10, 20, 3), CalibConfig()) is None  # not crowded
