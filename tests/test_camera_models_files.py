@@ -90,3 +90,14 @@ def test_calibration_overlay_draws_through_a_fisheye_model():
     out = draw_calibration_overlay(img, pts, intrinsics=KB, rotation=np.eye(3), translation=np.zeros(3),
                                    bboxes_3d=box)
     assert out.shape == img.shape and (out.sum(-1) > 0).sum() > 1000
+
+
+def test_ros_camera_info_of_a_calibrated_model_is_the_model_or_refused():
+    from xcalib.formats.cameras import UnsupportedModelError
+    from xcalib.formats.ros import camera_info_dict
+
+    d = camera_info_dict(KB, "cam")  # the site ROS export of a fisheye camera (it crashed before)
+    assert d["distortion_model"] == "equidistant" and d["distortion_coefficients"]["data"] == list(KB.k)
+    assert d["image_width"] == 1280 and d["camera_matrix"]["data"][0] == 300.0
+    with pytest.raises(UnsupportedModelError, match="double_sphere.*formats that can: intrinsics_json, kalibr"):
+        camera_info_dict(DS, "cam")  # never a pinhole CameraInfo of its fx, fy, cx, cy
