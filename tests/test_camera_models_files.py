@@ -101,3 +101,14 @@ def test_ros_camera_info_of_a_calibrated_model_is_the_model_or_refused():
     assert d["image_width"] == 1280 and d["camera_matrix"]["data"][0] == 300.0
     with pytest.raises(UnsupportedModelError, match="double_sphere.*formats that can: intrinsics_json, kalibr"):
         camera_info_dict(DS, "cam")  # never a pinhole CameraInfo of its fx, fy, cx, cy
+
+
+def test_convert_a_camera_file_to_a_calibration_format_says_what_it_is(tmp_path, capsys):
+    from xcalib.cli import main
+
+    src = write_camera(DS, tmp_path / "camchain.yaml", "kalibr")
+    assert main(["convert", str(src), "--to", "calib_json", "--out", str(tmp_path / "x.json")]) == 1
+    err = capsys.readouterr().err
+    assert "camchain.yaml" in err and "a camera file (kalibr" in err and "--to a camera format" in err
+    assert main(["convert", str(src), "--to", "intrinsics_json", "--out", str(tmp_path / "ds.json")]) == 0
+    assert read_intrinsics(tmp_path / "ds.json") == DS
