@@ -140,10 +140,16 @@ def test_a_wrong_focal_on_a_pinhole_is_not_blamed_on_the_lens():
 
 
 class _Searches:
-    """The misfit searches' results, canned: (second pose, lens checks, mirror)."""
+    """The misfit searches' results, canned: (second pose, lens checks, mirror), the searches'
+    "nothing found" tuples (their length as ``api._second_pose`` gives it on no leftover boxes; the
+    mirror's has two fewer entries: no pose distance, no admissibility)."""
 
-    def __init__(self, lens):
-        self.out = [(0.0, 0, None, False), lens, (0.0, 0)]
+    def __init__(self, lens, intr, pose):
+        from xcalib.calib.api import _second_pose
+        from xcalib.calib.config import CalibConfig
+
+        second = _second_pose([], [], intr, pose, CalibConfig(), Occlusion())
+        self.out = [second, lens, (0.0, 0, *second[4:])]
 
     def result(self, k):
         return self.out[k]
@@ -165,7 +171,7 @@ def test_a_fired_focal_check_names_the_lens_when_the_lens_explains_the_boxes(len
         if lens_explains else (MisfitCheck("lens", 1.0, LENS_ALT_GAIN, False, "alternative"), None)
     ctx = FitContext(cframes, pairs, intr, truth, NoiseModel(), 2.0, Occlusion())
     diag = CalibDiagnostics()
-    refusal = _misfit_checks(ctx, 100.0, CalibConfig(), diag, cframes, None, _Searches((lens, alt)))
+    refusal = _misfit_checks(ctx, 100.0, CalibConfig(), diag, cframes, None, _Searches((lens, alt), intr, truth))
     assert refusal is not None
     lens_rows = [c for c in diag.misfit if c.name == "lens"]
     assert len(lens_rows) == 1
