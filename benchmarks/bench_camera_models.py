@@ -20,7 +20,10 @@ pinhole-only path): it must be refused, never a wrong success, with the cause na
 **Formats** (``--round-trips``): every model through every camera format, the largest pixel
 difference of the camera read back. **Bags** (``--bag MODEL:FOV:SEED``): a site written to an MCAP
 bag with its CameraInfo (``equidistant`` for Kannala-Brandt), read back with ``fisheye="keep"`` and
-calibrated with the bag's own camera.
+calibrated with the bag's own camera. **Matching** (``--matching``): geometric consensus matches
+of one frame per model, field of view and site, in the model's own image (the model given, and
+the intrinsics searched with equidistant lenses at the widest field of view), precision and
+recall against the true matches.
 
 Results go to ``benchmarks/results/camera_models.json`` under ``--label`` (runs in parallel, e.g.
 one per model, save under a file lock); ``--summary`` prints the Done-when table pooled over the
@@ -29,7 +32,7 @@ stored runs made at the current uncertainty (``POOL_SINCE``), one record per row
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_camera_models.py [--points 200000]
         [--sites 1] [--first-seed 0] [--models kannala_brandt,double_sphere] [--fovs 120,150,185]
         [--frames 20] [--jobs 1] [--seed-major] [--no-calibration] [--pinhole-check-only]
-        [--no-pinhole-rows] [--no-pinhole-check] [--round-trips] [--bag kannala_brandt:185:0]
+        [--no-pinhole-rows] [--no-pinhole-check] [--round-trips] [--bag kannala_brandt:185:0] [--matching]
         [--label run] [--summary]
 
 The whole Done-when grid (20 sites per cell; ~15-20 s of CPU per wide-angle calibration with
@@ -367,6 +370,9 @@ def main(argv=None) -> int:
                          "(e.g. kannala_brandt:185:0; images rendered, so slow)")
     ap.add_argument("--seed-major", action="store_true",
                     help="all cells of one site before the next site (a run cut short keeps every cell balanced)")
+    ap.add_argument("--matching", action="store_true",
+                    help="geometric consensus matching of one frame per --models x --fovs x --sites (given model; "
+                         "searched intrinsics at the widest field of view)")
     ap.add_argument("--label", default="run")
     ap.add_argument("--summary", action="store_true",
                     help="only print the table pooled over the stored runs (see POOL_SINCE) and store it as 'pooled'")
@@ -402,6 +408,25 @@ def main(argv=None) -> int:
               f"rot={_fmt(r.get('rot_deg'), '.3f')} deg trans={_fmt(r.get('trans_m'), '.3f')} m "
               f"({r['time_s']:.0f} s) {r['message'][:120]}", flush=True)
         _save(a, tp, [], [], extra)
+    if a.matching:
+        mrecs = extra["matching"] = []
+        fovs = sorted((float(f) for f in a.fovs.split(",") if f), reverse=True)
+        cases = [(m, f, s, False) for m in a.models.split(",") if m for f in fovs
+                 for s in range(a.first_seed, a.first_seed + a.sites)]
+        cases += [(m, fovs[0], s, True) for m in a.models.split(",") if m
+                  for s in range(a.first_seed, a.first_seed + a.sites)]
+        for m, f, sd, searched in cases:
+            r = matching_case(m, f, sd, searched)
+            mrecs.append(r)
+            print(f"matching {m} {f:g} deg seed {sd} ({r['intrinsics']}, lens {r['lens_used']}): {r['correct']}/"
+                  f"{r['matches']} correct of {r['true_pairs']} true pairs ({r['cpu_s']:.1f} s CPU)", flush=True)
+            _save(a, tp, [], [], extra)
+        for kind in ("given", "searched"):
+            rs = [r for r in mrecs if r["intrinsics"] == kind]
+            if rs:
+                n, c, tp_ = (sum(r[k] for r in rs) for k in ("matches", "correct", "true_pairs"))
+                print(f"matching, intrinsics {kind}: {len(rs)} frames, precision {c / max(n, 1):.3f}, "
+                      f"recall {c / max(tp_, 1):.3f}")
     recs: list[dict] = []
     if not a.no_calibration:
         seeds = range(a.first_seed, a.first_seed + a.sites)
@@ -438,6 +463,27 @@ def main(argv=None) -> int:
     _save(a, tp, table, recs, extra)
     print(f"wrote {OUT} [{a.label}]")
     return 0
+
+
+def matching_case(model: str, hfov: float, seed: int, searched: bool) -> dict:
+    """Geometric consensus matching (``consensus_matches``, what ``Matcher.match(geometry="on")``
+    runs) of one frame (traffic seed ``seed``) of the synthetic site ``sample_site(seed, model,
+    hfov)``: with the site's own camera model given, or (``searched``) with the intrinsics unknown
+    and equidistant lenses of 150 and 185 degrees added to the pinhole search. Matches counted
+    against the frame's true match matrix."""
+    from xcalib.calib.consensus import ConsensusConfig, consensus_matches
+    from xcalib.data.synth import generate_frames, sample_site
+
+    site = sample_site(seed, camera_model=model, hfov_deg=hfov, width=1280, height=800, box_noise_px=1.0)
+    frame = generate_frames(site, 1, seed=seed, render_images=False, lidar=False)[0]
+    M = np.asarray(frame.match_matrix)
+    t0 = time.process_time()
+    cfg = ConsensusConfig(fisheye_fov_deg=(150.0, 185.0)) if searched else None
+    cm = consensus_matches(frame, None if searched else site.intrinsics, cfg)
+    correct = int(sum(M[i, j] > 0 for i, j in cm.pairs))
+    return {"model": model, "hfov_deg": hfov, "seed": seed, "intrinsics": "searched" if searched else "given",
+            "lens_used": type(cm.intrinsics).__name__, "true_pairs": int((M > 0).sum()), "matches": int(len(cm.pairs)),
+            "correct": correct, "cpu_s": time.process_time() - t0}
 
 
 def _save_pooled(doc: dict) -> None:

@@ -4,13 +4,15 @@ benchmarks/bench_camera_models.py, rows "<model> as pinhole")."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from xcalib.calib.cost import FocalScaleTerm, WideLensTerm
 from xcalib.calib.diagnostics import NoiseModel
 from xcalib.calib.inputs import prepare_frames
-from xcalib.calib.misfit import LENS_MIN_GAIN, LENS_MIN_XI, lens_check
+from xcalib.calib.misfit import LENS_ALT_GAIN, LENS_MIN_GAIN, LENS_MIN_XI, lens_check, lens_checks
 from xcalib.calib.pose import Pose
 from xcalib.calib.refine import match_all
 from xcalib.calib.cost import Occlusion
@@ -117,3 +119,65 @@ def test_wide_renderer_draws_faces_beside_the_optical_plane_with_curved_sides():
     lo, hi = np.clip(uv.min(0), 0, [639, 399]), np.clip(uv.max(0), 0, [639, 399])
     assert xs.min() <= lo[0] + 1.5 and xs.max() >= hi[0] - 1.5
     assert ys.min() <= lo[1] + 1.5 and ys.max() >= hi[1] - 1.5
+
+
+def test_unified_lens_given_as_pinhole_with_its_own_focal_is_named():
+    # a Mei/Kalibr omni camera's fx is f (1 + xi): given as pinhole the focal is ~2.1x too long as
+    # well; the lens fit starts there too (focal / (1 + xi)) and names the lens
+    cframes, pairs, intr, truth = _case("unified", 120.0, 1, as_pinhole=True, n_frames=4)
+    (chk, msg), (alt, alt_msg) = lens_checks(cframes, pairs, intr, truth, NoiseModel(), 2.0, Occlusion())
+    assert chk.flagged and alt.flagged, chk.detail
+    assert "xi 1.1" in chk.detail or "xi 1.2" in chk.detail  # the site's xi is 1.1
+    assert "wider-angle lens" in msg and "changed focal length" in alt_msg
+
+
+def test_a_wrong_focal_on_a_pinhole_is_not_blamed_on_the_lens():
+    cframes, pairs, intr, truth = _case("pinhole", 90.0, 0, as_pinhole=False, n_frames=4)
+    intr = replace(intr, fx=intr.fx * 1.1, fy=intr.fy * 1.1)
+    (chk, msg), (alt, alt_msg) = lens_checks(cframes, pairs, intr, truth, NoiseModel(), 2.0, Occlusion())
+    assert not chk.flagged and not alt.flagged and msg is None and alt_msg is None, alt.detail
+    assert alt.limit == LENS_ALT_GAIN < LENS_MIN_GAIN
+
+
+class _Searches:
+    """The misfit searches' results, canned: (second pose, lens checks, mirror), the searches'
+    "nothing found" tuples (their length as ``api._second_pose`` gives it on no leftover boxes; the
+    mirror's has two fewer entries: no pose distance, no admissibility)."""
+
+    def __init__(self, lens, intr, pose):
+        from xcalib.calib.api import _second_pose
+        from xcalib.calib.config import CalibConfig
+
+        second = _second_pose([], [], intr, pose, CalibConfig(), Occlusion())
+        self.out = [second, lens, (0.0, 0, *second[4:])]
+
+    def result(self, k):
+        return self.out[k]
+
+
+@pytest.mark.parametrize("lens_explains", [False, True])
+def test_a_fired_focal_check_names_the_lens_when_the_lens_explains_the_boxes(lens_explains):
+    # the attribution rule of calib.api: the lens check did not fire on its own, the focal-length
+    # check did; the lens is named only when its alternative verdict supports it
+    from xcalib.calib.api import _misfit_checks
+    from xcalib.calib.config import CalibConfig
+    from xcalib.calib.context import FitContext
+    from xcalib.calib.diagnostics import CalibDiagnostics, MisfitCheck
+
+    cframes, pairs, intr, truth = _case("pinhole", 90.0, 0, as_pinhole=False, n_frames=4)
+    intr = replace(intr, fx=intr.fx * 1.15, fy=intr.fy * 1.15)
+    lens = (MisfitCheck("lens", 1.0, LENS_MIN_GAIN, False, "primary"), None)
+    alt = (MisfitCheck("lens", 5.0, LENS_ALT_GAIN, True, "alternative"), "model misfit: ... a wider-angle lens ...") \
+        if lens_explains else (MisfitCheck("lens", 1.0, LENS_ALT_GAIN, False, "alternative"), None)
+    ctx = FitContext(cframes, pairs, intr, truth, NoiseModel(), 2.0, Occlusion())
+    diag = CalibDiagnostics()
+    refusal = _misfit_checks(ctx, 100.0, CalibConfig(), diag, cframes, None, _Searches((lens, alt), intr, truth))
+    assert refusal is not None
+    lens_rows = [c for c in diag.misfit if c.name == "lens"]
+    assert len(lens_rows) == 1
+    if lens_explains:
+        assert refusal.code == "misfit_lens" and "wider-angle lens" in refusal.message
+        assert lens_rows[0].detail == "alternative"
+    else:
+        assert refusal.code == "misfit_focal_length", refusal
+        assert lens_rows[0].detail == "primary"

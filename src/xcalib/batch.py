@@ -196,12 +196,12 @@ def _run_one(task: _Task) -> BatchRecord:
     rec = BatchRecord(name=task.name, source=task.source)
     try:
         from .calib.api import calibrate
-        from .io.frames import read_intrinsics_json
+        from .formats.cameras import read_intrinsics
         from .io.sources import open_source
 
         seq = open_source(task.source, camera=task.camera) if task.camera else open_source(task.source)
         frames = [seq[i] for i in range(len(seq))]
-        intr = read_intrinsics_json(task.intrinsics) if task.intrinsics else getattr(seq, "intrinsics", None)
+        intr = read_intrinsics(task.intrinsics) if task.intrinsics else getattr(seq, "intrinsics", None)
         rec.frames = len(frames)
         if not frames:
             raise ValueError("no frames")

@@ -37,7 +37,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, match
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSelectionSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, lean_frames, prepare_frames, with_corner_outlines, with_point_outlines
-from .misfit import box_frame_check, flipped_frames, lens_check, focal_fit, focal_scale_check, focal_width_check, leftover_frames, match_bound, second_pose_check, second_pose_screen, mirror_check, mirror_screen, principal_point_check, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
+from .misfit import box_frame_check, flipped_frames, lens_checks, focal_fit, focal_scale_check, focal_width_check, leftover_frames, match_bound, second_pose_check, second_pose_screen, mirror_check, mirror_screen, principal_point_check, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .parallel import Deferred, Workers, parallel_map, resolve_workers
 from .pose import Pose
@@ -328,8 +328,9 @@ def _misfit(ctx: FitContext, best_score: float, config: CalibConfig, diag: Calib
 
 
 def _lens_check(ctx: FitContext, places: int):
-    """``misfit.lens_check`` (a task of ``_misfit``'s deferred calls)."""
-    return lens_check(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, ctx.f_scale, ctx.occlusion, places=places)
+    """``misfit.lens_checks`` (a task of ``_misfit``'s deferred calls): (the lens check, the lens as
+    the alternative cause when the focal-length / principal-point check fires)."""
+    return lens_checks(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, ctx.f_scale, ctx.occlusion, places=places)
 
 
 def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag: CalibDiagnostics, frames_in,
@@ -346,8 +347,8 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
     found.append((chk, msg, "misfit_mixed_cameras"))
     places = len(matched_places(cframes, pairs)[0])
     # a fisheye given as pinhole bends the focal / principal-point fits too: the lens is the cause to name
-    chk, msg = searches.result(1)
-    found.append((chk, msg, "misfit_lens"))
+    (chk_lens, msg), lens_alt = searches.result(1)
+    found.append((chk_lens, msg, "misfit_lens"))
     width = None
     if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
         fit = focal_fit(cframes, pairs, intr, pose, noise, f_scale, occlusion)
@@ -377,6 +378,10 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
     found.append((chk, msg, "misfit_mixed_cameras"))
     diag.misfit = diag.misfit + [c for c, _, _ in found] + ([] if width is None else [width[0]])
     named = next((Refusal(code, m) for _, m, code in found if m), None)  # a misfit names the cause first
+    if named is not None and named.code in ("misfit_focal_length", "misfit_principal_point") and lens_alt[1]:
+        # the given pinhole is refused either way: name the lens when it explains the boxes better
+        diag.misfit = [lens_alt[0] if c is chk_lens else c for c in diag.misfit]
+        named = Refusal("misfit_lens", lens_alt[1])
     if named is None and refusal is None and width is not None and width[1]:
         return Refusal("focal_unverifiable", width[1])  # only a pose nothing else refused
     return named

@@ -29,7 +29,9 @@ and x1.1 gives 0.910).
   flagged when the widened lens fits ``xi >= LENS_MIN_XI`` and lowers the robust cost by more than
   ``LENS_MIN_GAIN`` per object: the frames of a fisheye or wide-angle camera given with pinhole
   intrinsics. Runs first among the intrinsics checks: such frames also bend the focal-length
-  and principal-point fits, but the lens is the cause to name.
+  and principal-point fits, but the lens is the cause to name. When the focal-length or
+  principal-point check fires and this one did not, the same fit is judged as their alternative
+  (``LENS_ALT_GAIN``): the lens is named when it explains the boxes better than the rescaled pinhole.
 * ``box_frame``: the 3D boxes (pooled over the frames) spread along a direction far out of the
   LiDAR's x-y plane -- boxes given in a camera frame (x right, y down, z forward) or another
   frame whose z axis is not up. Runs on the inputs alone, before the search. Real rigs: the
@@ -53,7 +55,7 @@ from .context import FitContext
 from .refine import build_cost, lsq, match_all
 from .uncertainty import jackknife_sd, leave_frames_out
 
-__all__ = ["MisfitVerdict", "lens_check", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "second_pose_screen", "mirror_screen", "match_bound", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "time_offset_check", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
+__all__ = ["MisfitVerdict", "lens_check", "lens_checks", "LENS_ALT_GAIN", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "second_pose_screen", "mirror_screen", "match_bound", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "time_offset_check", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
            "FOCAL_MAX_UNCHECKED"]
 
 FOCAL_TOL = 0.03          # |fitted focal scale - 1| beyond this (and 2 sigma) is a misfit
@@ -75,6 +77,7 @@ BOX_FRAME_MAX_TILT_DEG = 30.0  # a direction the 3D boxes spread along may leave
 BOX_FRAME_MIN_SPREAD_M = 2.0   # ... counting directions with at least this 1-sigma spread (m)
 LENS_MIN_XI = 0.25        # the widened lens must bend this much (xi; 0.25 compresses 45 deg off axis by ~5 %)
 LENS_MIN_GAIN = 10.0      # ... and lower the robust cost by this per object (~4.5 sigmas for 1 parameter)
+LENS_ALT_GAIN = 2.0       # ... per object, when a focal-length / principal-point check has fired (~2 sigmas)
 LENS_START_XI = 1.0       # the widened fit starts from the pinhole and from this xi (a fisheye's range)
 
 
@@ -600,23 +603,27 @@ class LensFit:
 
 
 def _wide_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion,
-              lens: tuple[float | None, tuple[float, ...], float]):
+              lens: tuple[float | None, tuple[tuple[float, float], ...]]):
     """(xi, focal scale, robust cost, pose) of the unified-lens fit. ``lens``: (xi held at this
-    value, or None: free from each start xi in turn, the lowest cost wins; the focal scale it
-    starts from). The residuals are weighted as at ``intr`` whatever the lens, so costs compare.
-    Several starts and the pinhole fit's focal length as the start: from xi 0 and the given focal
-    alone, a 185-degree fisheye given as pinhole that fit the pinhole with the focal x1.41 ended at
-    xi 0 and a cost above the pinhole's (22.5 -> 25.2)."""
-    fixed, starts, s0 = lens
-    lens_base = replace(intr, fx=intr.fx * s0, fy=intr.fy * s0)
+    value, or None: free; the (xi, focal scale) starts, the lowest cost wins; with xi held, the
+    first start's focal scale). The residuals are weighted as at ``intr`` whatever the lens, so
+    costs compare. Several starts and the pinhole fit's focal length as the start: from xi 0 and
+    the given focal alone, a 185-degree fisheye given as pinhole that fit the pinhole with the focal
+    x1.41 ended at xi 0 and a cost above the pinhole's (22.5 -> 25.2). A start at the focal scale
+    divided by 1 + xi reads the given focal length as the unified model's own f (1 + xi) (Mei's,
+    Kalibr's omni convention): a unified 120-degree lens (xi 1.1) given as pinhole fit nothing
+    from the given focal (xi 1.00, cost 16950) and xi 1.14 (cost 137) from there."""
+    fixed, starts = lens
     best = None
-    for x0 in ((0.0,) if fixed is not None else starts):
+    for x0, s0 in (starts[:1] if fixed is not None else starts):
+        lens_base = replace(intr, fx=intr.fx * s0, fy=intr.fy * s0)
         fit = build_cost(frames, pairs, intr, pose, noise, occlusion,
-                         extra=(WideLensTerm(lens_base, fixed, x0), FocalScaleTerm())).fit(f_scale=f_scale, max_nfev=60)
-        if best is None or fit.cost < best.cost:
-            best = fit
-    return (float(best.params[WideLensTerm.name][0]), s0 * float(np.exp(best.params[FocalScaleTerm.name][0])),
-            float(best.cost), best.pose)
+                         extra=(WideLensTerm(lens_base, fixed, 0.0 if fixed is not None else x0),
+                                FocalScaleTerm())).fit(f_scale=f_scale, max_nfev=60)
+        if best is None or fit.cost < best[2]:
+            best = (float(fit.params[WideLensTerm.name][0]), s0 * float(np.exp(fit.params[FocalScaleTerm.name][0])),
+                    float(fit.cost), fit.pose)
+    return best
 
 
 def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
@@ -625,7 +632,8 @@ def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntr
     ``xi``, ``cost.WideLensTerm``) and the focal length free, against ``xi`` held at 0. The cost
     drop is counted per object (``places``: distinct places of the matched 3D boxes; the pairs of
     one object share its outline error), as the principal-point check does. The widened fit
-    starts where the pinhole fit ended (pose, focal length), from xi 0 and ``LENS_START_XI``.
+    starts where the pinhole fit ended (pose, focal length), from xi 0 and ``LENS_START_XI`` (there
+    also with the focal length read as the unified model's f (1 + xi)).
 
     When the lens bends (``xi >= LENS_MIN_XI``) the boxes are matched once more through the fitted
     lens at its pose and both fits are repeated on those matches; the larger gain counts. A pose
@@ -634,9 +642,9 @@ def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntr
     matches. A pinhole site fits xi ~0 and is never rematched."""
     n = sum(len(p) for p in pairs)
     per_obj = max(n / max(places or n / 4.0, 1.0), 1.0)
-    _, s0, c0, pose0 = _wide_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, (0.0, (), 1.0))
+    _, s0, c0, pose0 = _wide_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, (0.0, ((0.0, 1.0),)))
     xi, scale, c1, pose1 = _wide_fit(frames, pairs, intr, pose0, noise, f_scale, occlusion,
-                                     (None, (0.0, LENS_START_XI), s0))
+                                     (None, ((0.0, s0), (LENS_START_XI, s0), (LENS_START_XI, s0 / (1 + LENS_START_XI)))))
     best = LensFit(xi, scale, c0, c1, (c0 - c1) / per_obj)
     if xi >= LENS_MIN_XI:
         cam = WideLensTerm(intr).camera(xi)
@@ -644,8 +652,8 @@ def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntr
         pairs2 = match_all(frames, cam, pose1.R, pose1.t)
         n2 = sum(len(p) for p in pairs2)
         if n2 >= 12:
-            _, _, c0b, _ = _wide_fit(frames, pairs2, intr, pose, noise, f_scale, occlusion, (0.0, (), 1.0))
-            xib, scaleb, c1b, _ = _wide_fit(frames, pairs2, intr, pose1, noise, f_scale, occlusion, (None, (xi,), scale))
+            _, _, c0b, _ = _wide_fit(frames, pairs2, intr, pose, noise, f_scale, occlusion, (0.0, ((0.0, 1.0),)))
+            xib, scaleb, c1b, _ = _wide_fit(frames, pairs2, intr, pose1, noise, f_scale, occlusion, (None, ((xi, scale),)))
             gain = (c0b - c1b) / max(n2 / max(places or n2 / 4.0, 1.0), 1.0)
             if gain > best.gain_per_object:
                 best = LensFit(xib, scaleb, c0b, c1b, gain)
@@ -659,24 +667,52 @@ def lens_check(frames: list[CalibFrame], pairs: list[np.ndarray], intr, pose: Po
     frames of a fisheye camera given as pinhole fit xi 1.4-1.6 (equidistant ~1.75) at their true
     pose; good pinhole frames fit xi ~0 with no gain. Statistic: the gain per object. Only for a
     pinhole camera (a given wide-angle model is the user's statement of the lens)."""
+    return lens_checks(frames, pairs, intr, pose, noise, f_scale, occlusion, places=places)[0]
+
+
+def lens_checks(frames: list[CalibFrame], pairs: list[np.ndarray], intr, pose: Pose, noise: NoiseModel,
+                f_scale: float, occlusion: Occlusion, *,
+                places: int | None = None) -> tuple[tuple[MisfitCheck, str | None], tuple[MisfitCheck, str | None]]:
+    """(:func:`lens_check`, the lens as the alternative cause): one :func:`lens_fit`, judged twice.
+    The second verdict is the one to use when another intrinsics check (focal length, principal
+    point) has fired: the data then already refuse the given pinhole, and the question is only which
+    cause they support. The lens fit frees the focal length too, so its gain is what the wider lens
+    explains beyond a rescaled pinhole; ``xi >= LENS_MIN_XI`` and a gain above ``LENS_ALT_GAIN`` per
+    object name the lens. Unified 120/150-degree sites given as pinhole fit xi 0.44 / 4.0 with
+    gains 4.3 / 8.5 per object at the (wrong) pinhole pose and were refused as focal-length misfits;
+    wrong focal lengths on pinhole sites (realism +-5..20 %) fit xi <= 0.13."""
     if not WideLensTerm.applies(intr):
         what = "a pinhole with k3+ distortion" if isinstance(intr, CameraIntrinsics) else f"a {getattr(intr, 'name', '')} model"
-        return MisfitCheck("lens", 0.0, LENS_MIN_GAIN, False, f"not checked: the camera is {what}"), None
+        chk = MisfitCheck("lens", 0.0, LENS_MIN_GAIN, False, f"not checked: the camera is {what}"), None
+        return chk, chk
     if sum(len(p) for p in pairs) < 12:
-        return MisfitCheck("lens", 0.0, LENS_MIN_GAIN, False, "too few matches to fit a lens"), None
+        chk = MisfitCheck("lens", 0.0, LENS_MIN_GAIN, False, "too few matches to fit a lens"), None
+        return chk, chk
     fit = lens_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, places)
-    flagged = bool(fit.xi >= LENS_MIN_XI and fit.gain_per_object > LENS_MIN_GAIN)
+    return _lens_verdict(fit, LENS_MIN_GAIN, False), _lens_verdict(fit, LENS_ALT_GAIN, True)
+
+
+def _lens_verdict(fit: LensFit, min_gain: float, alternative: bool) -> tuple[MisfitCheck, str | None]:
+    """The lens check's verdict on ``fit`` at ``min_gain`` per object (``alternative``: judged because
+    another intrinsics check fired)."""
+    flagged = bool(fit.xi >= LENS_MIN_XI and fit.gain_per_object > min_gain)
     detail = (f"widened into a unified lens the boxes fit xi {fit.xi:.2f} (0: the given pinhole; limit {LENS_MIN_XI:g}) "
               f"with the focal length x{fit.focal_scale:.3f}; robust cost {fit.cost_wide:.1f} against {fit.cost_pinhole:.1f} "
-              f"as pinhole: {fit.gain_per_object:.1f} per object (limit {LENS_MIN_GAIN:g})")
+              f"as pinhole: {fit.gain_per_object:.1f} per object (limit {min_gain:g}"
+              + ("; judged as the alternative to a fired focal-length / principal-point check)" if alternative else ")"))
     msg = None
     if flagged:
-        msg = (f"model misfit: the boxes fit a wider-angle lens than the given pinhole intrinsics -- a fisheye or wide-angle "
+        why = ("the boxes fit a wider-angle lens than the given pinhole intrinsics" if not alternative else
+               "the given pinhole intrinsics do not fit the boxes, and a wider-angle lens explains them better than "
+               "a changed focal length or principal point alone")
+        msg = (f"model misfit: {why} -- a fisheye or wide-angle "
                f"camera given as pinhole? (refitted as a unified/Mei lens with xi ~{fit.xi:.1f}, the boxes are explained "
-               f"with a robust cost of {fit.cost_wide:.0f} instead of {fit.cost_pinhole:.0f}; a pinhole has xi 0, an "
+               f"with a robust cost of {fit.cost_wide:.0f} instead of {fit.cost_pinhole:.0f}"
+               + (" with the focal length free in both" if alternative else "")
+               + "; a pinhole has xi 0, an "
                "equidistant fisheye ~1.75). The pose found with pinhole intrinsics is biased. Give the camera's own "
                "model: an intrinsics JSON with a \"model\" field (kannala_brandt, unified, ucm, eucm, double_sphere; "
                "--intrinsics FILE, see docs/camera-models.md), a CameraInfo with distortion_model equidistant, or a "
                "Kalibr camchain (pinhole-equi, omni-radtan, ds-none, eucm-none); for a bag's equidistant camera, "
                "calibrate --fisheye keep")
-    return MisfitCheck("lens", fit.gain_per_object, LENS_MIN_GAIN, flagged, detail), msg
+    return MisfitCheck("lens", fit.gain_per_object, min_gain, flagged, detail), msg

@@ -37,17 +37,17 @@ def register(app: typer.Typer) -> None:
         camera_info: str = typer.Option(None, "--camera-info", help="CameraInfo topic (default: the camera's)."),
         det2d: str = typer.Option(None, "--detections-2d", help="Detection2DArray topic (default: the camera's)."),
         det3d: str = typer.Option(None, "--detections-3d", help="Detection3DArray topic (default: the LiDAR's)."),
-        intrinsics: Path = typer.Option(None, "--intrinsics", "-k", help="Intrinsics JSON when the bag has no "
-                                                                         "CameraInfo."),
+        intrinsics: Path = typer.Option(None, "--intrinsics", "-k", help="Intrinsics (JSON, with or without "
+                                                                         "a camera \"model\", or a camera file) when the bag has no CameraInfo."),
         tolerance: float = typer.Option(0.05, "--tolerance", help="Largest LiDAR/image stamp difference, seconds."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
     ) -> None:
-        from ..geometry.camera import CameraIntrinsics
+        from ..formats.cameras import read_intrinsics
         from ..io.bags import BagFrames
 
         seq = BagFrames(path, camera, lidar=lidar, camera_info=camera_info, detections_2d=det2d,
                         detections_3d=det3d, tolerance_s=tolerance,
-                        intrinsics=None if intrinsics is None else CameraIntrinsics.from_json(intrinsics))
+                        intrinsics=None if intrinsics is None else read_intrinsics(intrinsics))
         bad = _undecodable(seq, progress=not as_json)
         if as_json:
             typer.echo(json.dumps({"topics": seq.topics, "camera": seq.camera, "cameras": seq.camera_names,

@@ -21,7 +21,9 @@ def register(app: typer.Typer) -> None:
                                    "($XCALIB_HOME/sites/SITE).\n\n" + _EXAMPLE)
     def bootstrap_cmd(
         frames: Path = typer.Argument(..., help="Recording: frame folder, HDF5 cache or any source read_frames opens."),
-        intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", "-K", help="Camera intrinsics JSON "
+        intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", "-K", help="Intrinsics: xcalib intrinsics JSON {fx, fy, cx, cy, distortion}, or with a \"model\" "
+                                                       "(kannala_brandt, unified, ucm, eucm, double_sphere: docs/camera-models.md), or a "
+                                                       "camera file (ROS CameraInfo YAML, Kalibr camchain, OpenCV YAML/JSON) "
                                                   "(pixels); default: the recording's own (e.g. its intrinsics.json)."),
         site: str = typer.Option(..., "--site", help="Name to install the weights under."),
         model: str = typer.Option("fastmatch", "--model", help="Registered model name."),
@@ -48,7 +50,8 @@ def register(app: typer.Typer) -> None:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         from ..calib.config import CalibConfig
-        from ..io.frames import read_frames, read_intrinsics_json
+        from ..formats.cameras import read_intrinsics
+        from ..io.frames import read_frames
         from ..oneshot.bootstrap import bootstrap
 
         if no_install and out_dir is None:
@@ -56,7 +59,7 @@ def register(app: typer.Typer) -> None:
         if out_dir is not None and not force and out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
             raise FileExistsError(f"{out_dir} already exists; pass --force to replace it")
         source = read_frames(frames)
-        K = read_intrinsics_json(intrinsics) if intrinsics is not None else getattr(source, "intrinsics", None)
+        K = read_intrinsics(intrinsics) if intrinsics is not None else getattr(source, "intrinsics", None)
         if K is None and hasattr(source, "__getitem__") and len(source):  # HDF5 caches: per-frame /calibration
             K = getattr(source[0], "intrinsics", None)
         if K is None:

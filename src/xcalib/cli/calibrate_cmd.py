@@ -38,8 +38,10 @@ def register(app: typer.Typer) -> None:
         camera: list[str] = typer.Option(None, "--camera", "-c", help="Camera to calibrate (repeat for several)."),
         frame_range: str = typer.Option(None, "--frames", help="Frames to use: 0:8, 0,3,5, 8: (indices)."),
         intrinsics: Path = typer.Option(None, "--intrinsics", "-k",
-                                        help="Intrinsics JSON {fx, fy, cx, cy, distortion} (one camera); "
-                                             "default: the source's."),
+                                        help="Intrinsics: xcalib intrinsics JSON {fx, fy, cx, cy, distortion}, or with a \"model\" "
+                                             "(kannala_brandt, unified, ucm, eucm, double_sphere: docs/camera-models.md), or a "
+                                             "camera file (ROS CameraInfo YAML, Kalibr camchain, OpenCV YAML/JSON) "
+                                             "(one camera); default: the source's."),
         out: Path = typer.Option(Path("calibration_report"), "--out", "-o", help="Report folder."),
         prior: Path = typer.Option(None, "--prior", help="Initial guess: a calibration file of any "
                                                          "format xcalib convert reads (skips bring-up; one camera)."),
@@ -96,7 +98,7 @@ def register(app: typer.Typer) -> None:
         from ..calib.config import CalibConfig
         from ..formats.export import read_calibration
         from ..io.files import atomic_dir, claim_output
-        from ..io.frames import read_intrinsics_json
+        from ..formats.cameras import read_intrinsics
         from ..site import calibrate_site
         from ..site.calibration import is_frame_id
         from ..site.stream import StreamConfig, parse_memory, stream_views
@@ -130,7 +132,7 @@ def register(app: typer.Typer) -> None:
                                          param_hint="--intrinsics")
             if prior is not None and len(cams) > 1:
                 raise typer.BadParameter("--prior applies to one camera; give one --camera", param_hint="--prior")
-            intr = read_intrinsics_json(intrinsics) if intrinsics is not None else None
+            intr = read_intrinsics(intrinsics) if intrinsics is not None else None
             if fisheye not in ("rectify", "keep"):
                 raise typer.BadParameter(f"expected rectify or keep, got {fisheye!r}", param_hint="--fisheye")
             views = _open_views(frames, cams, frame_range, limit, intr, (tolerance, fisheye, detect))

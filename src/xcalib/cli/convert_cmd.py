@@ -8,6 +8,8 @@ from pathlib import Path
 
 import typer
 
+from ..errors import FormatError
+
 _EX = ("Example: xcalib convert cam03/lucid_calib.json --to calib_json --out calib.json\n\n"
        "Formats: kitti, calib_json, lucid, calib_txt, opencalib, openlabel, ros, urdf, tf_static, nuscenes, json, npz "
        "(waymo .tfrecord, mmdetection3d KITTI .pkl and SUSTechPOINTS calib/camera/<cam>.json as input only). Every reader returns and every "
@@ -51,8 +53,16 @@ def register(app: typer.Typer) -> None:
             writable = ", ".join(n for n, f in formats.items() if f.write is not None)
             raise typer.BadParameter(f"unknown or read-only output format {to!r}; choose one of: {writable}",
                                      param_hint="--to")
-        fmt_in = src_format or detect_format(src)
-        result = read_calibration(src, fmt_in, repair=repair)
+        try:
+            fmt_in = src_format or detect_format(src)
+            result = read_calibration(src, fmt_in, repair=repair)
+        except FormatError as exc:
+            cam_fmt = None if src_format is not None else _camera_file_format(src)
+            if cam_fmt is None:
+                raise
+            raise FormatError(src, f"a camera file ({cam_fmt}: intrinsics only, no LiDAR pose) cannot become a "
+                                   f"calibration ({to}); convert it --to a camera format ({', '.join(CAMERA_FORMATS)})"
+                                   f" [reading it as a calibration: {exc}]") from None
         if image_size is not None:
             result = dataclasses.replace(result, image_size=_size(image_size))
         if out is None:
@@ -71,6 +81,18 @@ def register(app: typer.Typer) -> None:
         typer.echo(f"  T_cam_lidar translation (m) = [{t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}]")
         for p in written:
             typer.echo(f"  wrote {p}")
+
+
+def _camera_file_format(src: Path) -> str | None:
+    """The camera format of ``src`` when it is a camera file other than a CameraInfo (which is also a
+    calibration format, with its transform), else None."""
+    from ..formats.cameras import detect_camera_format
+
+    try:
+        fmt = detect_camera_format(src) if src.is_file() else None
+    except (FormatError, OSError, ValueError):
+        return None
+    return fmt if fmt in ("kalibr", "opencv_yaml", "opencv_json", "intrinsics_json") else None
 
 
 def _size(text: str) -> tuple[int, int]:

@@ -52,7 +52,8 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(..., "--out", "-o", help="Output .bag, .db3 or .mcap (written atomically)."),
         camera: str = typer.Option(None, "--camera", "-c", help="Camera (default: the source's only one)."),
         frame_range: str = typer.Option(None, "--frames", help="Frames: 0:8, 0,3,5, 8: (indices)."),
-        intrinsics: Path = typer.Option(None, "--intrinsics", "-k", help="Bags: intrinsics JSON when the bag has no CameraInfo."),
+        intrinsics: Path = typer.Option(None, "--intrinsics", "-k", help="Bags: intrinsics when the bag has no "
+                                        "CameraInfo: JSON (with or without a camera \"model\") or a CameraInfo / Kalibr / OpenCV camera file."),
         tolerance: float = typer.Option(0.05, "--tolerance", help="Bags: largest LiDAR/image stamp difference (s)."),
         detector_2d: Path = typer.Option(None, "--detector-2d", help="Your ONNX detector (default: the shipped "
                                                                      "YOLOX-Nano)."),
@@ -70,7 +71,7 @@ def register(app: typer.Typer) -> None:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         from ..io.bags import write_bag
-        from ..io.frames import read_intrinsics_json
+        from ..formats.cameras import read_intrinsics
 
         if out.suffix.lower() not in (".bag", ".db3", ".mcap"):
             raise typer.BadParameter(f"{out.name}: expected a .bag, .db3 or .mcap name", param_hint="--out")
@@ -79,7 +80,7 @@ def register(app: typer.Typer) -> None:
         if image_format not in ("raw", "png", "jpeg"):
             raise typer.BadParameter(f"{image_format!r}: choose raw, png or jpeg", param_hint="--image-format")
         config = detect_options(detector_2d, classes_file, score_min, input_size, lidar_mode)
-        intr = read_intrinsics_json(intrinsics) if intrinsics is not None else None
+        intr = read_intrinsics(intrinsics) if intrinsics is not None else None
         seq = open_sensors(source, camera, frame_range, intr, tolerance)
         with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                       console=Console(stderr=True)) as bar:

@@ -35,7 +35,7 @@ from ..geometry.camera_models import (EUCM, UCM, CameraModel, DoubleSphere, Kann
                                       PinholeRadtan, Unified, as_camera_model, model_from_dict)
 from ..io.files import MAX_TEXT_BYTES, atomic_write, read_text
 
-__all__ = ["CAMERA_FORMATS", "UnsupportedModelError", "read_camera", "write_camera", "camera_text",
+__all__ = ["CAMERA_FORMATS", "UnsupportedModelError", "read_camera", "read_intrinsics", "write_camera", "camera_text",
            "detect_camera_format", "formats_for", "read_kalibr_camchain"]
 
 CAMERA_FORMATS = ("intrinsics_json", "camera_info", "kalibr", "opencv_yaml", "opencv_json")
@@ -481,6 +481,23 @@ def read_camera(path, fmt: str | None = None, *, camera: str | None = None) -> C
     if fmt not in _DECODERS:
         raise ValueError(f"unknown camera format {fmt!r}; expected one of {', '.join(CAMERA_FORMATS)}")
     return _DECODERS[fmt](text, path, camera)
+
+
+def read_intrinsics(path, *, camera: str | None = None):
+    """The camera of a command's ``--intrinsics FILE``: xcalib's intrinsics JSON (with or without a
+    ``model``: ``xcalib.io.read_intrinsics_json``), or any camera file :func:`read_camera` reads (ROS
+    CameraInfo YAML, Kalibr camchain -- ``camera`` picks one of several --, OpenCV YAML / JSON).
+    Pinhole models come back as ``CameraIntrinsics``, wide-angle ones as their ``CameraModel``."""
+    from ..io.frames import read_intrinsics_json
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"intrinsics file not found: {path}")
+    fmt = detect_camera_format(path)
+    if fmt == "intrinsics_json":
+        return read_intrinsics_json(path)
+    cam = read_camera(path, fmt, camera=camera)
+    return cam.to_intrinsics() if cam.is_pinhole else cam
 
 
 def camera_text(camera, fmt: str, *, camera_name: str = "camera") -> str:

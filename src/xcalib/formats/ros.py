@@ -99,8 +99,17 @@ def camera_info_dict(intr: CameraIntrinsics, camera_name: str = "camera", image_
     """``camera_info`` YAML content as ``camera_calibration_parsers`` reads it: every key it
     requires (``image_width``/``image_height`` from the intrinsics, else ``image_size`` (width,
     height) of the images; ``ValueError`` when neither is known), distortion model plumb_bob for
-    <= 5 coefficients, else rational_polynomial."""
+    <= 5 coefficients, else rational_polynomial. A camera model (``xcalib.geometry.camera_models``)
+    is written as itself: ``equidistant`` for Kannala-Brandt; a model CameraInfo cannot express
+    (unified, UCM, EUCM, double sphere) is an ``UnsupportedModelError`` (a ValueError) naming the
+    formats that can, never a pinhole CameraInfo of its fx, fy, cx, cy."""
     w, h = camera_info_size(intr, image_size)
+    if not isinstance(intr, CameraIntrinsics):
+        import yaml
+
+        from .cameras import camera_text
+
+        return yaml.safe_load(camera_text(intr.with_image_size(w, h), "camera_info", camera_name=camera_name))
     d = np.zeros(5) if intr.distortion is None else np.asarray(intr.distortion, dtype=np.float64)
     if d.size < 5:
         d = np.concatenate([d, np.zeros(5 - d.size)])

@@ -216,7 +216,9 @@ class CameraIntrinsics:
             intr.check_plausible()
             return intr
         except (TypeError, ValueError, OverflowError) as exc:
-            raise FormatError(path, str(exc)) from None
+            head = str(exc).split(":", 1)[0]  # "CameraIntrinsics.distortion: ..." names the field
+            field = head.rpartition(".")[2] if head.startswith("CameraIntrinsics.") and " " not in head else None
+            raise FormatError(path, str(exc), field) from None
 
     def to_dict(self) -> dict:
         out: dict[str, Any] = {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,

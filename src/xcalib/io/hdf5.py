@@ -12,7 +12,9 @@ Layout (spec) ::
     /calibration/<cam>/intrinsics               float64 [3,3]    (optional)
     /calibration/<cam>/extrinsics[/<key>]       float64 [4,4]    LiDAR->camera, one or per frame
 
-xcalib's additive extras (ignored by spec readers): ``/calibration/<cam>/distortion`` [n]
+xcalib's additive extras (ignored by spec readers): ``/calibration/<cam>/intrinsics@camera_model``
+(a wide-angle camera model as xcalib's intrinsics JSON text; K is then its fx, fy, cx, cy only, not
+the camera), ``/calibration/<cam>/distortion`` [n]
 (OpenCV order), image size as ``width``/``height`` attributes of ``intrinsics``;
 ``lidar_bbox_7`` float64 [>=M,7] (box7 with yaw, exposed as ``Frame.meta["box7"]``),
 ``lidar_bbox_7_gt`` [M,7] / ``camera_bbox_2d_clean`` [K,4] (noise-free boxes: ``meta["box7_gt"]``,
@@ -34,6 +36,7 @@ garbage collected or closed.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import uuid
@@ -524,8 +527,12 @@ class CacheReader(Sequence):
             w, h = ds.attrs.get("width"), ds.attrs.get("height")
             if w is None and image is not None and image.size:
                 h, w = image.shape[:2]
+            if "camera_model" in ds.attrs:  # a wide-angle camera model (the writer's extra)
+                intr = _camera_model_attr(self.path, f"{where}/intrinsics@camera_model", ds.attrs["camera_model"], Km)
+            else:
+                intr = None
             try:
-                intr = CameraIntrinsics.from_matrix(Km, dist, width=None if w is None else check_count(
+                intr = intr or CameraIntrinsics.from_matrix(Km, dist, width=None if w is None else check_count(
                     self.path, f"{where}/intrinsics@width", w), height=None if h is None else check_count(
                     self.path, f"{where}/intrinsics@height", h))
             except (TypeError, ValueError) as exc:
@@ -931,7 +938,9 @@ class CacheWriter:
                 ds = cg.create_dataset("intrinsics", data=ci.K)
                 if ci.width is not None:
                     ds.attrs["width"], ds.attrs["height"] = ci.width, ci.height
-                if ci.distortion is not None:
+                if not isinstance(ci, CameraIntrinsics):  # a camera model: kept whole (its K alone is not it)
+                    ds.attrs["camera_model"] = json.dumps(ci.to_dict())
+                elif ci.distortion is not None:
                     cg.create_dataset("distortion", data=np.asarray(ci.distortion, dtype=np.float64))
             for cam, per_key in self._extr.items():
                 cg = f.require_group(f"calibration/{cam}")
@@ -949,6 +958,22 @@ class CacheWriter:
         os.replace(self._tmp, self.path)
         self._finalizer.detach()
         return self.path
+
+
+def _camera_model_attr(path, field: str, text, K: np.ndarray):
+    """The camera model of a ``camera_model`` attribute (xcalib's intrinsics JSON object); its fx,
+    fy, cx, cy must be the dataset's K. FormatError naming ``field`` otherwise."""
+    from ..geometry.camera_models import model_from_dict
+
+    try:
+        d = json.loads(text if isinstance(text, str) else bytes(text).decode("utf-8"))
+        cam = model_from_dict(d, source="camera_model")
+    except (ValueError, TypeError, UnicodeDecodeError) as exc:
+        raise FormatError(path, f"not a camera model: {exc}", field=field) from None
+    if not np.allclose(cam.K, K, rtol=1e-12, atol=1e-9):
+        raise FormatError(path, f"the model's fx, fy, cx, cy {cam.K[[0, 1, 0, 1], [0, 1, 2, 2]].tolist()} differ from "
+                                f"the intrinsics matrix's {K[[0, 1, 0, 1], [0, 1, 2, 2]].tolist()}", field=field)
+    return cam
 
 
 def _small(group, name: str, data: np.ndarray) -> None:

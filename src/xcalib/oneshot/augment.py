@@ -32,22 +32,40 @@ import numpy as np
 from ..data.crops import FrameInputs
 from ..geometry.boxes import box7_corners
 from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera_models import CameraModel, project_outline_rects
 from ..geometry.projection import project_points
 from .pseudo import PseudoTargets
 
 __all__ = ["GeometricAugment"]
 
 
-def _rects(box7: np.ndarray, intr: CameraIntrinsics, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Unclipped enclosing rectangles [M,4] px of projected box7 corners (NaN if any corner is behind)."""
+def _rects(box7: np.ndarray, intr, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Unclipped enclosing rectangles [M,4] px of projected boxes (NaN if any point is behind or
+    outside the camera's valid region). A pinhole ``CameraIntrinsics``: the 8 corners' rectangle; a
+    wide-angle camera model: the outline of the box's edges, densely projected (edges curve,
+    :func:`xcalib.geometry.camera_models.project_outline_rects`), so a moved object's 2D box is
+    where it appears in the fisheye image."""
     if len(box7) == 0:
         return np.zeros((0, 4))
+    if isinstance(intr, CameraModel) and not intr.is_pinhole:
+        rect, _ = project_outline_rects(box7_corners(box7), R, t, intr, (1, 1), clip=False, min_distance=0.5)
+        return rect
     c = box7_corners(box7).reshape(-1, 3)
     uv, depth = project_points(c, intr, R, t, min_depth=0.5)
     uv = uv.reshape(-1, 8, 2)
     r = np.concatenate([uv.min(1), uv.max(1)], axis=1)
     r[np.isnan(uv).any(axis=(1, 2))] = np.nan
     return r
+
+
+def _pixel_rays(intr, uv: np.ndarray) -> np.ndarray:
+    """Camera-frame rays [...,3] through pixels ``uv`` [...,2]: K^-1 (u, v, 1) for a pinhole, the
+    model's own ``unproject`` (unit rays, NaN outside its image) for a wide-angle camera model."""
+    if isinstance(intr, CameraModel) and not intr.is_pinhole:
+        rays, _ = intr.unproject(uv.reshape(-1, 2))
+        return rays.reshape(*uv.shape[:-1], 3)
+    uv1 = np.concatenate([uv, np.ones((*uv.shape[:-1], 1))], -1)
+    return uv1 @ np.linalg.inv(intr.K).T
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -67,9 +85,11 @@ def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 @dataclass
 class GeometricAugment:
-    """Moves objects through the pose ``R``, ``t`` (LiDAR -> camera) and ``intrinsics`` (see module)."""
+    """Moves objects through the pose ``R``, ``t`` (LiDAR -> camera) and ``intrinsics`` (see module;
+    a ``CameraIntrinsics`` or any camera model: moved boxes are projected, and placed under pixels,
+    through the model's own image)."""
 
-    intrinsics: CameraIntrinsics
+    intrinsics: CameraIntrinsics | CameraModel
     R: np.ndarray
     t: np.ndarray
     shift_m: float = 12.0
@@ -89,14 +109,14 @@ class GeometricAugment:
         M = len(b3)
         ground = float(np.median(b3[:, 2] - b3[:, 5] / 2))
         zc = ground + b3[:, 5] / 2                                      # [M]
-        uv1 = np.stack([rng.uniform(0, W, (M, tries)), rng.uniform(0, H, (M, tries)), np.ones((M, tries))], -1)
-        rays_c = uv1 @ np.linalg.inv(self.intrinsics.K).T               # [M,T,3] camera frame
+        uv = np.stack([rng.uniform(0, W, (M, tries)), rng.uniform(0, H, (M, tries))], -1)
+        rays_c = _pixel_rays(self.intrinsics, uv)                        # [M,T,3] camera frame
         d = rays_c @ self.R                                             # R^T d, LiDAR frame
         o = -self.R.T @ self.t
         with np.errstate(divide="ignore", invalid="ignore"):
             s = (zc[:, None] - o[2]) / d[..., 2]
-        p = o + s[..., None] * d
-        ok = (s > 0) & (np.linalg.norm(p[..., :2], axis=-1) < self.max_range_m) & np.isfinite(s)
+            p = o + s[..., None] * d
+            ok = (s > 0) & (np.linalg.norm(p[..., :2], axis=-1) < self.max_range_m) & np.isfinite(s)
         first = np.argmax(ok, axis=1)
         out = p[np.arange(M), first]
         out[~ok.any(axis=1)] = np.nan

@@ -24,6 +24,7 @@ from ..calib.result import CalibrationResult
 from ..errors import FormatError
 from ..geometry.boxes import as_box7, box7_corners, boxes2d_from_points, iou_matrix
 from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera_models import CameraModel, project_outline_rects
 from ..geometry.projection import project_points
 from ..geometry.rotations import rotation_angle
 from ..geometry.transforms import invert_transform
@@ -233,8 +234,13 @@ def _projected_iou(frame: Frame, pair, result: CalibrationResult) -> float:
     i2, i3 = int(pair[0]), int(pair[1])
     corners = box7_corners(as_box7(np.asarray(frame.bboxes_3d)[i3:i3 + 1]))
     T = result.extrinsics
-    uv, _ = project_points(corners.reshape(-1, 3), result.intrinsics.K, T[:3, :3], T[:3, 3], min_depth=0.1)
-    box = boxes2d_from_points(uv.reshape(1, 8, 2))
+    if isinstance(result.intrinsics, CameraModel) and not result.intrinsics.is_pinhole:
+        # a wide-angle camera: the outline of the box's edges in the model's own image (edges curve)
+        box, _ = project_outline_rects(corners, T[:3, :3], T[:3, 3], result.intrinsics, (1, 1), clip=False,
+                                       min_distance=0.1)
+    else:
+        uv, _ = project_points(corners.reshape(-1, 3), result.intrinsics.K, T[:3, :3], T[:3, 3], min_depth=0.1)
+        box = boxes2d_from_points(uv.reshape(1, 8, 2))
     if not np.all(np.isfinite(box)):
         return 0.0
     return float(iou_matrix(box, np.asarray(frame.bboxes_2d)[i2:i2 + 1])[0, 0])

@@ -91,7 +91,8 @@ def write_site_ros(site: SiteCalibration, out_dir) -> list[Path]:
             try:
                 d = camera_info_dict(c.result.intrinsics, ros_name(c.camera, "camera"),
                                      c.result.image_size or c.image_size)
-            except ValueError as exc:  # no image size anywhere: a YAML without it loads in no ROS tool
+            except ValueError as exc:  # no image size anywhere (a YAML without it loads in no ROS tool), or
+                # a camera model CameraInfo cannot express (the message names the formats that can)
                 log.warning("camera %s: no CameraInfo YAML written (%s)", c.camera, exc)
                 continue
             written.append(atomic_write(out / f"{folders[c.camera]}_camera_info.yaml", [_yaml_text(d)]))

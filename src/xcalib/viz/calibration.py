@@ -13,6 +13,7 @@ import numpy as np
 
 from ..geometry.boxes import as_box7, box7_corners, check_boxes2d
 from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera_models import CameraModel
 from ..geometry.projection import project_points
 from .matching import _to_uint8
 from ..options import Options, document, resolve
@@ -45,8 +46,22 @@ def _pose_args(calibration, projection, intrinsics, rotation, translation):
     if intrinsics is None or rotation is None or translation is None:
         raise ValueError("draw_calibration_overlay: give calibration=, projection= (3x4), or intrinsics= with "
                          "rotation= and translation=")
-    intr = intrinsics if isinstance(intrinsics, CameraIntrinsics) else CameraIntrinsics.from_matrix(intrinsics)
+    if isinstance(intrinsics, (CameraIntrinsics, CameraModel)):  # a wide-angle model: drawn through it
+        intr = intrinsics
+    else:
+        intr = CameraIntrinsics.from_matrix(intrinsics)
     return intr, np.asarray(rotation, float), np.asarray(translation, float)
+
+
+def _project(points: np.ndarray, intr, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(uv [N,2] px, depth [N] m) of LiDAR-frame points: depth is Z for a pinhole camera, the range
+    for a wide-angle camera model (whose image also holds points with Z <= 0; NaN pixels outside
+    its valid region)."""
+    uv, z = project_points(points, intr, R, t)
+    if isinstance(intr, CameraModel) and not intr.is_pinhole:
+        pc = np.asarray(points, dtype=np.float64)[:, :3] @ np.asarray(R, float).T + np.asarray(t, float)
+        z = np.where(np.isfinite(uv).all(1), np.linalg.norm(pc, axis=1), np.nan)
+    return uv, z
 
 
 def _colormap(values: np.ndarray) -> np.ndarray:
@@ -108,7 +123,7 @@ def draw_calibration_overlay(image, point_cloud=None, *, options: CalibrationOve
         pts = np.asarray(point_cloud)[:, :3]
         if len(pts) > max_points:
             pts = pts[:: int(np.ceil(len(pts) / max_points))]
-        uv, z = project_points(pts, intr, R, t)
+        uv, z = _project(pts, intr, R, t)
         ok = (z > 0.5) & np.all(np.isfinite(uv), 1) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < Hh)
         uv, z = uv[ok], z[ok]
         if len(z):
@@ -130,7 +145,7 @@ def draw_calibration_overlay(image, point_cloud=None, *, options: CalibrationOve
         s = np.linspace(0, 1, 8)
         seg = corners[:, BOX_EDGES[:, 0], None] * (1 - s)[None, None, :, None] + \
             corners[:, BOX_EDGES[:, 1], None] * s[None, None, :, None]  # [M,12,8,3]
-        uv, z = project_points(seg.reshape(-1, 3), intr, R, t)
+        uv, z = _project(seg.reshape(-1, 3), intr, R, t)
         uv = uv.reshape(len(b7), 12, 8, 2)
         z = z.reshape(len(b7), 12, 8)
         for j in range(len(b7)):
@@ -138,7 +153,7 @@ def draw_calibration_overlay(image, point_cloud=None, *, options: CalibrationOve
                 continue
             lines = [np.round(uv[j, e]).astype(np.int32).reshape(-1, 1, 2) for e in range(12)]
             cv2.polylines(out, lines, False, (255, 140, 0), 2, cv2.LINE_AA)
-            cuv, cz = project_points(b7[j:j + 1, :3], intr, R, t)
+            cuv, cz = _project(b7[j:j + 1, :3], intr, R, t)
             if cz[0] > 0.5:
                 centres3[j] = cuv[0]
     b2 = None

@@ -1,0 +1,114 @@
+"""A new wide-angle user's files (issue 26): ``--intrinsics FILE`` reads xcalib's intrinsics JSON
+with a ``model`` and every camera file (Kalibr camchain, CameraInfo, OpenCV YAML); bad input is a
+FormatError naming the file, the field and the expected range; a synthetic fisheye site's HDF5
+cache keeps its camera model; calibration overlays draw through the model."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from xcalib.errors import FormatError
+from xcalib.formats.cameras import read_intrinsics, write_camera
+from xcalib.geometry import CameraIntrinsics
+from xcalib.geometry.camera_models import DoubleSphere, KannalaBrandt
+
+KB = KannalaBrandt(fx=300.0, fy=300.0, cx=640.0, cy=400.0, width=1280, height=800, k=(0.03, -0.006, 0.001, -0.0002))
+DS = DoubleSphere(fx=330.0, fy=330.0, cx=640.0, cy=400.0, width=1280, height=800, xi=-0.2, alpha=0.6)
+
+
+@pytest.mark.parametrize("fmt,cam", [("intrinsics_json", KB), ("kalibr", KB), ("camera_info", KB),
+                                     ("opencv_yaml", KB), ("intrinsics_json", DS), ("kalibr", DS)])
+def test_intrinsics_option_reads_every_camera_file_with_its_model(tmp_path, fmt, cam):
+    path = write_camera(cam, tmp_path / ("cam.json" if fmt == "intrinsics_json" else "cam.yaml"), fmt)
+    assert read_intrinsics(path) == cam
+
+
+def test_intrinsics_option_keeps_pinhole_files_as_intrinsics(tmp_path):
+    K = CameraIntrinsics(1000.0, 1000.0, 960.0, 600.0, [-0.1, 0.01, 0.0, 0.0, 0.0], 1920, 1200)
+    (tmp_path / "k.json").write_text(json.dumps({"fx": 1000, "fy": 1000, "cx": 960, "cy": 600}))
+    assert isinstance(read_intrinsics(tmp_path / "k.json"), CameraIntrinsics)
+    got = read_intrinsics(write_camera(K, tmp_path / "info.yaml", "camera_info"))
+    assert isinstance(got, CameraIntrinsics) and np.allclose(got.K, K.K)
+
+
+@pytest.mark.parametrize("name,body,field,expect", [
+    ("model.json", {"model": "fishy"}, "model", "expected one of"),
+    ("k.json", {"model": "kannala_brandt", "k": [0.1, 0.0, 0.0]}, "k", "expected 4 coefficients"),
+    ("xi.json", {"model": "double_sphere", "xi": 3.0, "alpha": 0.5}, "xi", "[-1, 1]"),
+    ("alpha.json", {"model": "double_sphere", "xi": 0.0, "alpha": 1.5}, "alpha", "[0, 1]"),
+    ("uxi.json", {"model": "unified", "xi": -0.5}, "xi", "[0, "),
+    ("ucm.json", {"model": "ucm", "alpha": 2.0}, "alpha", "[0, 1]"),
+    ("radtan.json", {"model": "pinhole_radtan", "distortion": [0.1] * 7}, "distortion", "got 7"),
+])
+def test_bad_intrinsics_name_file_field_and_range(tmp_path, name, body, field, expect):
+    path = tmp_path / name
+    path.write_text(json.dumps({"fx": 300, "fy": 300, "cx": 640, "cy": 400, "width": 1280, "height": 800, **body}))
+    with pytest.raises(FormatError) as e:
+        read_intrinsics(path)
+    msg = str(e.value)
+    assert name in msg and f"[{field}]" in msg and expect in msg, msg
+
+
+def test_bad_kalibr_camchain_names_the_field(tmp_path):
+    path = tmp_path / "camchain.yaml"
+    path.write_text("cam0:\n  camera_model: ds\n  intrinsics: [0.0, 1.7, 300, 300, 640, 400]\n  distortion_model: none\n"
+                    "  distortion_coeffs: []\n  resolution: [1280, 800]\n")
+    with pytest.raises(FormatError, match=r"camchain.yaml \[cam0.intrinsics\]: DoubleSphere.alpha: expected a value "
+                                          r"in \[0, 1\], got 1.7"):
+        read_intrinsics(path)
+
+
+def test_fisheye_site_cache_keeps_its_model(tmp_path):
+    from xcalib.data.synth import write_site
+    from xcalib.io.sources import open_source
+
+    write_site(tmp_path / "site", 0, 0, 2, seed=0, render_images=False, lidar=False, camera_model="kannala_brandt",
+               hfov_deg=185.0)
+    frames = list(open_source(tmp_path / "site" / "test.h5"))
+    cam = frames[0].intrinsics
+    assert isinstance(cam, KannalaBrandt) and cam.field_of_view()[0] > 180.0
+    # a camera_model attribute that is not a camera is a FormatError naming it
+    with h5py.File(tmp_path / "site" / "test.h5", "r+") as f:
+        ds = next(g["intrinsics"] for g in f["calibration"].values() if "intrinsics" in g)
+        ds.attrs["camera_model"] = json.dumps({**cam.to_dict(), "k": [1.0]})
+    with pytest.raises(FormatError, match="camera_model"):
+        list(open_source(tmp_path / "site" / "test.h5"))
+
+
+def test_calibration_overlay_draws_through_a_fisheye_model():
+    from xcalib.viz.calibration import draw_calibration_overlay
+
+    img = np.zeros((800, 1280, 3), np.uint8)
+    # points all around the camera (LiDAR frame = camera frame here): a fisheye sees some behind Z = 0
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(4000, 3)) * 5.0
+    box = np.array([[3.0, 0.5, -0.5, 2.0, 1.0, 1.0, 0.0]])  # beside the camera, partly behind its image plane
+    out = draw_calibration_overlay(img, pts, intrinsics=KB, rotation=np.eye(3), translation=np.zeros(3),
+                                   bboxes_3d=box)
+    assert out.shape == img.shape and (out.sum(-1) > 0).sum() > 1000
+
+
+def test_ros_camera_info_of_a_calibrated_model_is_the_model_or_refused():
+    from xcalib.formats.cameras import UnsupportedModelError
+    from xcalib.formats.ros import camera_info_dict
+
+    d = camera_info_dict(KB, "cam")  # the site ROS export of a fisheye camera (it crashed before)
+    assert d["distortion_model"] == "equidistant" and d["distortion_coefficients"]["data"] == list(KB.k)
+    assert d["image_width"] == 1280 and d["camera_matrix"]["data"][0] == 300.0
+    with pytest.raises(UnsupportedModelError, match="double_sphere.*formats that can: intrinsics_json, kalibr"):
+        camera_info_dict(DS, "cam")  # never a pinhole CameraInfo of its fx, fy, cx, cy
+
+
+def test_convert_a_camera_file_to_a_calibration_format_says_what_it_is(tmp_path, capsys):
+    from xcalib.cli import main
+
+    src = write_camera(DS, tmp_path / "camchain.yaml", "kalibr")
+    assert main(["convert", str(src), "--to", "calib_json", "--out", str(tmp_path / "x.json")]) == 1
+    err = capsys.readouterr().err
+    assert "camchain.yaml" in err and "a camera file (kalibr" in err and "--to a camera format" in err
+    assert main(["convert", str(src), "--to", "intrinsics_json", "--out", str(tmp_path / "ds.json")]) == 0
+    assert read_intrinsics(tmp_path / "ds.json") == DS
