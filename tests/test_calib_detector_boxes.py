@@ -252,6 +252,12 @@ def test_hausman_test_uses_the_scatter_of_the_difference_not_of_one_fit():
     same_z = dataclasses.replace(old, cov_plain=cov + np.diag([1e-6] * 3 + [1e-2, 1e-2, 0.0]))
     assert same_z.shift_d2(pose0)[1] == 5
     assert new.summary(pose0)["shift_dof"] == 6 and new.summary(pose0)["applied"]
+    # a move in 2 directions only, d^2 12 (beyond chi-square(2) 99 %, 9.2): judged against the 6-dof point
+    # (16.8) whatever the rank -- A9 detector 12-frame subsets moved so ended > 0.5 m from the labelled pose
+    low = dataclasses.replace(old, pose=pose0.moved(np.zeros(3), np.array([0.2, 0.2 * np.sqrt(2), 0.0])),
+                              cov_plain=cov + np.diag([0.0] * 3 + [1e-2, 1e-2, 0.0]))
+    d2, dof = low.shift_d2(pose0)
+    assert dof == 2 and abs(d2 - 12.0) < 1e-6 and not low.shift_significant(pose0)
 
 
 def test_the_plain_poses_sigma_counts_the_objects_own_outlines():
