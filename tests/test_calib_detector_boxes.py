@@ -259,3 +259,56 @@ def test_summary_names_the_objects_own_outlines_when_fitted():
     bf.pop("objects")
     assert "own outlines" not in CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3),
                                                    diagnostics=CalibDiagnostics(box_fit=bf)).summary()
+
+
+def test_hausman_test_uses_the_scatter_of_the_difference_not_of_one_fit():
+    """Site-14-like (realism detector_all, site 14: the plain pose 0.37 deg / 0.63 m off, d^2 15.3 against
+    the random-effects fit's own covariance, under the 16.8 line): the two fits' difference scatters
+    with ``cov_plain - cov`` (Hausman), much less than either fit, so the same move is significant."""
+    from xcalib.calib.boxmodel import ObjectOutlineFit
+
+    pose0 = Pose(np.eye(3), np.zeros(3))
+    cov = np.diag([1e-6] * 3 + [1e-2] * 3)  # rad^2, m^2
+    d = np.array([0.0, 0.0, 0.0, 0.1, 0.2, 0.3])  # 1.4 sigma per metre axis of this fit: d^2 14 < 16.8
+    moved = pose0.moved(d[:3], d[3:])
+    old = ObjectOutlineFit(moved, np.zeros(6), np.zeros(4), 0.0, 8, np.zeros((8, 4)), cov)
+    assert old.shift_d2(pose0)[1] == 6 and abs(old.shift_d2(pose0)[0] - 14.0) < 1e-6
+    assert not old.shift_significant(pose0)  # without cov_plain: the one-fit stand-in
+    new = dataclasses.replace(old, cov_plain=1.5 * cov)  # the plain fit scatters 1.5x: the difference 0.5x
+    d2, dof = new.shift_d2(pose0)
+    assert dof == 6 and abs(d2 - 28.0) < 1e-6 and new.shift_significant(pose0)
+    # where the two fits agree by construction (no difference in scatter), that direction is dropped
+    same_z = dataclasses.replace(old, cov_plain=cov + np.diag([1e-6] * 3 + [1e-2, 1e-2, 0.0]))
+    assert same_z.shift_d2(pose0)[1] == 5
+    assert new.summary(pose0)["shift_dof"] == 6 and new.summary(pose0)["applied"]
+    # a move in 2 directions only, d^2 12 (beyond chi-square(2) 99 %, 9.2): judged against the 6-dof point
+    # (16.8) whatever the rank -- A9 detector 12-frame subsets moved so ended > 0.5 m from the labelled pose
+    low = dataclasses.replace(old, pose=pose0.moved(np.zeros(3), np.array([0.2, 0.2 * np.sqrt(2), 0.0])),
+                              cov_plain=cov + np.diag([0.0] * 3 + [1e-2, 1e-2, 0.0]))
+    d2, dof = low.shift_d2(pose0)
+    assert dof == 2 and abs(d2 - 12.0) < 1e-6 and not low.shift_significant(pose0)
+
+
+def test_the_plain_poses_sigma_counts_the_objects_own_outlines():
+    """The pose fitted without per-object outline offsets takes each object's outline error as noise
+    of independent edges; under the random effects the objects' edges share it (``sd_plain``): its
+    error then lies within 2 ``sd_plain`` per axis, where the Jacobian sigma is 2-3x too small."""
+    from xcalib.calib.boxmodel import fit_object_outline
+    from xcalib.calib.uncertainty import object_groups, pose_covariance
+
+    z_plain, z_jac = [], []
+    for seed in (0, 4, 7):
+        frames, T = _objects_with_own_outlines(seed, 8, (0.0, 0.0, 0.0), (0.06, 0.06, 0.03))
+        truth = Pose(T[:3, :3], T[:3, 3])
+        cframes, pairs, intr, noise = _setup(frames, T)
+        R, t, *_ = lsq(FitContext(cframes, pairs, intr, truth, noise, 2.0), 60)
+        plain = Pose(R, t)
+        fit = fit_object_outline(cframes, pairs, intr, plain, noise, 2.0, Occlusion(), object_groups(cframes, pairs))
+        assert fit is not None and fit.cov_plain is not None and np.all(fit.sd_plain > 0)
+        rs, ts, _ = pose_covariance(cframes, pairs, intr, R, t, noise=noise)
+        err = np.abs(plain.delta(truth))
+        z_plain.append(err / fit.sd_plain)
+        z_jac.append(err / np.concatenate([rs, ts]))
+    z_plain, z_jac = np.array(z_plain), np.array(z_jac)
+    assert np.mean(z_plain <= 2) >= 0.9, z_plain
+    assert np.sqrt(np.mean(z_jac ** 2)) > 1.5 * np.sqrt(np.mean(z_plain ** 2)), (z_jac, z_plain)

@@ -479,7 +479,10 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     obj_fit = fit_object_outline(cframes, pairs, intr, pose, best.noise, f_scale, occlusion,
                                  object_groups(cframes, pairs, track_ids=track_ids))
     pose_plain = pose
-    if obj_fit is not None and obj_fit.shift_significant(pose_plain):  # the plain pose is biased beyond its noise
+    if obj_fit is not None and not obj_fit.shift_significant(pose_plain) and obj_fit.sd_plain is not None:
+        # the plain pose kept: its sigma counts the objects' outline errors its edges share
+        unc = with_object_outline(unc, obj_fit.sd_plain)
+    elif obj_fit is not None and obj_fit.shift_significant(pose_plain):  # the plain pose is biased beyond its noise
         unc = with_object_outline(unc, obj_fit.sd)
         pose = obj_fit.pose
         fit = fit.with_pose(pose)
