@@ -271,7 +271,7 @@ def print_table(rows: list[dict]) -> None:
 def dense_scaling(rows: list[dict]) -> dict:
     """Per dense case run with ``dense20`` in the same run: the current code's CPU time over
     dense20's, the verdict, the pose error to the truth and the peak RSS."""
-    cur = {r["case"]: r["current"] for r in rows if "error" not in r["current"]}
+    cur = {r["case"]: r["current"] for r in rows if isinstance(r.get("current"), dict) and "error" not in r["current"]}
     if "dense20" not in cur:
         return {}
     out = {}
