@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_calib_support import central_jacobian
+from test_calib_support import central_jacobian, vehicle_boxes7
 
 from xcalib.calib.boxproj import project_rects
 from xcalib.calib.cost import BoxEdgeTerm, CostModel, CostTerm, FocalScaleTerm, WideLensTerm
@@ -20,10 +20,7 @@ SIZE = (1280, 800)
 def _scene(seed: int):
     r = np.random.default_rng(seed)
     n = 30
-    az = r.uniform(-0.5, 0.5, n)
-    d = r.uniform(6, 30, n)
-    box7 = np.column_stack([d * np.cos(az), d * np.sin(az), r.uniform(-1, 0.5, n), r.uniform(3.5, 5, n),
-                            r.uniform(1.6, 2, n), r.uniform(1.4, 1.8, n), r.uniform(-np.pi, np.pi, n)])
+    box7 = vehicle_boxes7(r, n, 0.5, (6, 30))
     outl = box7_corners(box7)
     pose = Pose(np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]), np.array([0.1, 0.2, 0.3]))
     intr = CameraIntrinsics(fx=800.0, fy=801.0, cx=640.0, cy=400.0, width=SIZE[0], height=SIZE[1],

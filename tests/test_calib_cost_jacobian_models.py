@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_calib_support import central_jacobian
+from test_calib_support import central_jacobian, vehicle_boxes7
 
 from xcalib.calib.cost import (BoxEdgeTerm, CostModel, CostTerm, FocalScaleTerm, PrincipalPointTerm,
                                TimeOffsetTerm)
@@ -24,10 +24,7 @@ def _scene(seed: int, model: str):
     r = np.random.default_rng(seed)
     n = 30
     # boxes all around a 185-degree camera looking along LiDAR x: ahead, beside and slightly behind
-    az = r.uniform(-1.5, 1.5, n)
-    d = r.uniform(4, 25, n)
-    box7 = np.column_stack([d * np.cos(az), d * np.sin(az), r.uniform(-1, 0.5, n), r.uniform(3.5, 5, n),
-                            r.uniform(1.6, 2, n), r.uniform(1.4, 1.8, n), r.uniform(-np.pi, np.pi, n)])
+    box7 = vehicle_boxes7(r, n, 1.5, (4, 25))
     outl = box7_corners(box7)
     R0 = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
     pose = Pose(R0, np.array([0.1, 0.2, 0.3]))

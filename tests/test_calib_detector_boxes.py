@@ -204,18 +204,29 @@ def _objects_with_own_outlines(seed: int, n_frames: int, mean, sd):
     return frames, T
 
 
+
+def _plain_and_object_outline_fit(seed: int, shared: tuple):
+    """A seeded scene whose objects each have their own outline error (and ``shared`` common
+    offsets): the pose fitted without per-object offsets from the truth, and the random-effects fit."""
+    from xcalib.calib.boxmodel import fit_object_outline
+    from xcalib.calib.uncertainty import object_groups
+
+    frames, T = _objects_with_own_outlines(seed, 8, shared, (0.06, 0.06, 0.03))
+    truth = Pose(T[:3, :3], T[:3, 3])
+    cframes, pairs, intr, noise = _setup(frames, T)
+    R, t, *_ = lsq(FitContext(cframes, pairs, intr, truth, noise, 2.0), 60)
+    plain = Pose(R, t)
+    fit = fit_object_outline(cframes, pairs, intr, plain, noise, 2.0, Occlusion(), object_groups(cframes, pairs))
+    return cframes, pairs, intr, noise, truth, plain, fit
+
+
 def test_each_objects_own_outline_is_a_random_effect_fitted_only_where_objects_differ():
     from xcalib.calib.boxmodel import fit_object_outline
     from xcalib.calib.uncertainty import object_groups
 
     errs = []
     for seed in (1, 2, 3):
-        frames, T = _objects_with_own_outlines(seed, 8, (0.08, 0.08, 0.02), (0.06, 0.06, 0.03))
-        truth = Pose(T[:3, :3], T[:3, 3])
-        cframes, pairs, intr, noise = _setup(frames, T)
-        R, t, *_ = lsq(FitContext(cframes, pairs, intr, truth, noise, 2.0), 60)
-        plain = Pose(R, t)
-        fit = fit_object_outline(cframes, pairs, intr, plain, noise, 2.0, Occlusion(), object_groups(cframes, pairs))
+        _, pairs, _, _, truth, plain, fit = _plain_and_object_outline_fit(seed, (0.08, 0.08, 0.02))
         assert fit is not None and fit.p_value < 1e-3 and fit.n_objects >= len(pairs[0]) - 2  # neighbours within 1.5 m: one
         assert fit.tau.max() > 0.02 and np.all(fit.sd > 0) and fit.offsets.shape == (fit.n_objects, 4)
         errs.append((plain.error(truth)[1], fit.pose.error(truth)[1]))
@@ -293,19 +304,13 @@ def test_the_plain_poses_sigma_counts_the_objects_own_outlines():
     """The pose fitted without per-object outline offsets takes each object's outline error as noise
     of independent edges; under the random effects the objects' edges share it (``sd_plain``): its
     error then lies within 2 ``sd_plain`` per axis, where the Jacobian sigma is 2-3x too small."""
-    from xcalib.calib.boxmodel import fit_object_outline
-    from xcalib.calib.uncertainty import object_groups, pose_covariance
+    from xcalib.calib.uncertainty import pose_covariance
 
     z_plain, z_jac = [], []
     for seed in (0, 4, 7):
-        frames, T = _objects_with_own_outlines(seed, 8, (0.0, 0.0, 0.0), (0.06, 0.06, 0.03))
-        truth = Pose(T[:3, :3], T[:3, 3])
-        cframes, pairs, intr, noise = _setup(frames, T)
-        R, t, *_ = lsq(FitContext(cframes, pairs, intr, truth, noise, 2.0), 60)
-        plain = Pose(R, t)
-        fit = fit_object_outline(cframes, pairs, intr, plain, noise, 2.0, Occlusion(), object_groups(cframes, pairs))
+        cframes, pairs, intr, noise, truth, plain, fit = _plain_and_object_outline_fit(seed, (0.0, 0.0, 0.0))
         assert fit is not None and fit.cov_plain is not None and np.all(fit.sd_plain > 0)
-        rs, ts, _ = pose_covariance(cframes, pairs, intr, R, t, noise=noise)
+        rs, ts, _ = pose_covariance(cframes, pairs, intr, plain.R, plain.t, noise=noise)
         err = np.abs(plain.delta(truth))
         z_plain.append(err / fit.sd_plain)
         z_jac.append(err / np.concatenate([rs, ts]))

@@ -16,6 +16,15 @@ W, H = 1920, 1200
 INTR = CameraIntrinsics(1300.0, 1300.0, 960.0, 600.0, width=W, height=H)
 
 
+def vehicle_boxes7(r: np.random.Generator, n: int, az_half: float, dist: tuple) -> np.ndarray:
+    """``n`` vehicle-sized 3D boxes (x, y, z, l, w, h, yaw) at azimuths within +-``az_half`` rad
+    and distances ``dist`` (m) of the LiDAR, random yaw: the scenes of the cost-Jacobian tests."""
+    az = r.uniform(-az_half, az_half, n)
+    d = r.uniform(*dist, n)
+    return np.column_stack([d * np.cos(az), d * np.sin(az), r.uniform(-1, 0.5, n), r.uniform(3.5, 5, n),
+                            r.uniform(1.6, 2, n), r.uniform(1.4, 1.8, n), r.uniform(-np.pi, np.pi, n)])
+
+
 def central_jacobian(fun, x: np.ndarray, eps: float = 1e-7) -> np.ndarray:
     """Central differences of ``fun`` at ``x`` (the reference the analytic Jacobians are held to)."""
     return np.stack([(fun(x + eps * e) - fun(x - eps * e)) / (2 * eps) for e in np.eye(len(x))], 1)
