@@ -80,9 +80,10 @@ def _scale_for_loss(J: np.ndarray, f: np.ndarray, rho: np.ndarray):
     return J, f
 
 
-def _solve_trust_region(n: int, m: int, uf, s, V, Delta: float, initial_alpha: float | None = None,
-                        rtol: float = 0.01, max_iter: int = 10):
-    """scipy's ``solve_lsq_trust_region`` (More's method on one SVD): (step p, alpha, iterations)."""
+def _solve_trust_region(n: int, m: int, uf, s, V, Delta: float, initial_alpha: float | None = None):
+    """scipy's ``solve_lsq_trust_region`` (More's method on one SVD; its defaults rtol 0.01, 10
+    iterations): (step p, alpha, iterations)."""
+    rtol, max_iter = 0.01, 10
     def phi_and_derivative(alpha, suf, s, Delta):
         denom = s ** 2 + alpha
         p_norm = _norm(suf / denom)
