@@ -14,7 +14,7 @@ from xcalib.calib.diagnostics import NoiseModel
 from xcalib.calib.inputs import prepare_frames
 from xcalib.calib.misfit import LENS_ALT_GAIN, LENS_MIN_GAIN, LENS_MIN_XI, lens_check, lens_checks
 from xcalib.calib.pose import Pose
-from xcalib.calib.refine import match_all
+from xcalib.calib.refine import build_cost, match_all
 from xcalib.calib.cost import Occlusion
 from xcalib.data.synth import generate_frames, sample_site
 from xcalib.geometry import CameraIntrinsics
@@ -181,3 +181,32 @@ def test_a_fired_focal_check_names_the_lens_when_the_lens_explains_the_boxes(len
     else:
         assert refusal.code == "misfit_focal_length", refusal
         assert lens_rows[0].detail == "primary"
+
+
+def _free_fits(cframes, pairs, intr, truth, n_always, monkeypatch):
+    """(the free lens fit of ``misfit.lens_fit``, its three starts, with the third gated after
+    ``n_always`` or not; the fits it ran)."""
+    from xcalib.calib import misfit
+
+    s0 = misfit._wide_fit(cframes, pairs, intr, truth, NoiseModel(), 2.0, Occlusion(), (0.0, ((0.0, 1.0),)))[1]
+    starts = ((0.0, s0), (misfit.LENS_START_XI, s0), (misfit.LENS_START_XI, s0 / (1 + misfit.LENS_START_XI)))
+    built = []
+    monkeypatch.setattr(misfit, "build_cost", lambda *a, **k: built.append(1) or build_cost(*a, **k))
+    fit = misfit._wide_fit(cframes, pairs, intr, truth, NoiseModel(), 2.0, Occlusion(), (None, starts, n_always))
+    monkeypatch.undo()
+    return fit, len(built)
+
+
+def test_the_lens_fits_third_start_runs_only_while_the_lens_question_is_open(monkeypatch):
+    from xcalib.calib import misfit
+
+    assert not misfit._lens_open([0.02, 0.0]) and misfit._lens_open([0.02, LENS_MIN_XI])
+    # a pinhole site: both first starts come back to the pinhole, the third is not run; the third,
+    # run, ends where the first did (to the solver's tolerance)
+    cframes, pairs, intr, truth = _case("pinhole", 90.0, 0, as_pinhole=False, n_frames=3)
+    gated, n_gated = _free_fits(cframes, pairs, intr, truth, 2, monkeypatch)
+    full, n_full = _free_fits(cframes, pairs, intr, truth, 3, monkeypatch)
+    assert (n_gated, n_full) == (2, 3)
+    assert gated[0] < LENS_MIN_XI and abs(gated[0] - full[0]) < 1e-3
+    assert gated[1] == pytest.approx(full[1], rel=1e-5) and gated[2] == pytest.approx(full[2], rel=1e-6)
+    # (where a start ends bent the third runs: test_unified_lens_given_as_pinhole_with_its_own_focal_is_named)

@@ -602,28 +602,42 @@ class LensFit:
     gain_per_object: float
 
 
-def _wide_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion,
-              lens: tuple[float | None, tuple[tuple[float, float], ...]]):
+def _wide_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion, lens: tuple):
     """(xi, focal scale, robust cost, pose) of the unified-lens fit. ``lens``: (xi held at this
     value, or None: free; the (xi, focal scale) starts, the lowest cost wins; with xi held, the
-    first start's focal scale). The residuals are weighted as at ``intr`` whatever the lens, so
+    first start's focal scale[; n: the starts after the first n run only while the lens question is
+    open, :func:`_lens_open`]). The residuals are weighted as at ``intr`` whatever the lens, so
     costs compare. Several starts and the pinhole fit's focal length as the start: from xi 0 and
     the given focal alone, a 185-degree fisheye given as pinhole that fit the pinhole with the focal
     x1.41 ended at xi 0 and a cost above the pinhole's (22.5 -> 25.2). A start at the focal scale
     divided by 1 + xi reads the given focal length as the unified model's own f (1 + xi) (Mei's,
     Kalibr's omni convention): a unified 120-degree lens (xi 1.1) given as pinhole fit nothing
     from the given focal (xi 1.00, cost 16950) and xi 1.14 (cost 137) from there."""
-    fixed, starts = lens
-    best = None
-    for x0, s0 in (starts[:1] if fixed is not None else starts):
+    fixed, starts = lens[:2]
+    n_always = lens[2] if len(lens) > 2 else len(starts)
+    best, ended = None, []
+    for k, (x0, s0) in enumerate(starts[:1] if fixed is not None else starts):
+        if k >= n_always and not _lens_open(ended):
+            break
         lens_base = replace(intr, fx=intr.fx * s0, fy=intr.fy * s0)
         fit = build_cost(frames, pairs, intr, pose, noise, occlusion,
                          extra=(WideLensTerm(lens_base, fixed, 0.0 if fixed is not None else x0),
                                 FocalScaleTerm())).fit(f_scale=f_scale, max_nfev=60)
+        ended.append(float(fit.params[WideLensTerm.name][0]))
         if best is None or fit.cost < best[2]:
-            best = (float(fit.params[WideLensTerm.name][0]), s0 * float(np.exp(fit.params[FocalScaleTerm.name][0])),
-                    float(fit.cost), fit.pose)
+            best = (ended[-1], s0 * float(np.exp(fit.params[FocalScaleTerm.name][0])), float(fit.cost), fit.pose)
     return best
+
+
+def _lens_open(ended_xi: list[float]) -> bool:
+    """Whether the free lens fits so far (``ended_xi``: the xi each start ended at) leave the lens
+    question open: some start ended bent (xi >= ``LENS_MIN_XI``). When the start from the pinhole
+    and the start from ``LENS_START_XI`` both came back below it, the boxes pull the lens to the
+    pinhole from either side, and the start that reads the focal length as the unified model's
+    f (1 + xi) is not run (~1/3 of the lens check's CPU on a pinhole site). It exists for the lens
+    that does bend: from the given focal length a unified 120-degree lens stayed at xi 1.00 with a
+    cost 120x the one that start found."""
+    return any(x >= LENS_MIN_XI for x in ended_xi)
 
 
 def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntrinsics, pose: Pose,
@@ -633,7 +647,8 @@ def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntr
     drop is counted per object (``places``: distinct places of the matched 3D boxes; the pairs of
     one object share its outline error), as the principal-point check does. The widened fit
     starts where the pinhole fit ended (pose, focal length), from xi 0 and ``LENS_START_XI`` (there
-    also with the focal length read as the unified model's f (1 + xi)).
+    also with the focal length read as the unified model's f (1 + xi), when one of the first two
+    ended bent: ``_lens_open``).
 
     When the lens bends (``xi >= LENS_MIN_XI``) the boxes are matched once more through the fitted
     lens at its pose and both fits are repeated on those matches; the larger gain counts. A pose
@@ -644,7 +659,7 @@ def lens_fit(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIntr
     per_obj = max(n / max(places or n / 4.0, 1.0), 1.0)
     _, s0, c0, pose0 = _wide_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, (0.0, ((0.0, 1.0),)))
     xi, scale, c1, pose1 = _wide_fit(frames, pairs, intr, pose0, noise, f_scale, occlusion,
-                                     (None, ((0.0, s0), (LENS_START_XI, s0), (LENS_START_XI, s0 / (1 + LENS_START_XI)))))
+                                     (None, ((0.0, s0), (LENS_START_XI, s0), (LENS_START_XI, s0 / (1 + LENS_START_XI))), 2))
     best = LensFit(xi, scale, c0, c1, (c0 - c1) / per_obj)
     if xi >= LENS_MIN_XI:
         cam = WideLensTerm(intr).camera(xi)
