@@ -112,3 +112,58 @@ def test_convert_a_camera_file_to_a_calibration_format_says_what_it_is(tmp_path,
     assert "camchain.yaml" in err and "a camera file (kalibr" in err and "--to a camera format" in err
     assert main(["convert", str(src), "--to", "intrinsics_json", "--out", str(tmp_path / "ds.json")]) == 0
     assert read_intrinsics(tmp_path / "ds.json") == DS
+
+
+def _two_camera_camchain(tmp_path):
+    import yaml
+
+    a = yaml.safe_load(write_camera(KB, tmp_path / "a.yaml", "kalibr").read_text())
+    b = yaml.safe_load(write_camera(DS, tmp_path / "b.yaml", "kalibr").read_text())
+    path = tmp_path / "camchain.yaml"
+    path.write_text(yaml.safe_dump({"cam0": a["cam0"], "cam1": b["cam0"]}))
+    return path
+
+
+def test_a_camchain_camera_is_picked_by_file_hash_camera(tmp_path):
+    from xcalib.formats.cameras import read_camera
+
+    chain = _two_camera_camchain(tmp_path)
+    assert read_intrinsics(f"{chain}#cam1") == DS and read_intrinsics(f"{chain}#cam0") == KB
+    assert read_camera(f"{chain}#cam1") == DS and read_intrinsics(chain, camera="cam1") == DS
+    with pytest.raises(FormatError, match=r"camchain.yaml: 2 cameras \(cam0, cam1\); name one: camchain.yaml#cam0"):
+        read_intrinsics(chain)
+    with pytest.raises(FormatError, match=r"camchain.yaml \[cam7\]: no camera 'cam7'; found cam0, cam1"):
+        read_intrinsics(f"{chain}#cam7")
+    with pytest.raises(ValueError, match="names camera 'cam1' but camera='cam0'"):
+        read_intrinsics(f"{chain}#cam1", camera="cam0")
+    with pytest.raises(ValueError, match="empty camera name"):
+        read_intrinsics(f"{chain}#")
+    # only a camchain has cameras to pick; a file whose name holds '#' is read whole
+    info = write_camera(KB, tmp_path / "info.yaml", "camera_info")
+    with pytest.raises(FormatError, match=r"info.yaml: camera 'cam1' named, but this camera_info file holds one camera"):
+        read_intrinsics(f"{info}#cam1")
+    odd = write_camera(DS, tmp_path / "rig#2.json", "intrinsics_json")
+    assert read_intrinsics(odd) == DS
+
+
+@pytest.mark.parametrize("argv", [["calibrate", "nosuch"], ["bag", "frames", "nosuch.mcap"],
+                                  ["detect", "nosuch", "--out", "o.mcap"]])
+def test_every_intrinsics_option_names_the_camchain_camera(tmp_path, capsys, monkeypatch, argv):
+    """``--intrinsics FILE#camN`` in the commands (read before the source is opened): a camchain of two
+    cameras without ``#camN`` is refused naming the entries and the form; ``#cam7`` names the missing one."""
+    from xcalib.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    chain = _two_camera_camchain(tmp_path)
+    assert main([*argv, "--intrinsics", str(chain)]) != 0
+    assert "2 cameras (cam0, cam1); name one: camchain.yaml#cam0" in capsys.readouterr().err
+    assert main([*argv, "--intrinsics", f"{chain}#cam7"]) != 0
+    assert "no camera 'cam7'; found cam0, cam1" in capsys.readouterr().err
+
+
+def test_calibrate_many_checks_the_camchain_camera_before_any_recording(tmp_path):
+    from xcalib.batch import calibrate_many
+
+    chain = _two_camera_camchain(tmp_path)
+    with pytest.raises(FormatError, match="name one: camchain.yaml#cam0"):
+        calibrate_many([str(tmp_path / "no_recording_yet")], tmp_path / "out", intrinsics=chain, executor="serial")

@@ -38,7 +38,8 @@ def register(app: typer.Typer) -> None:
         det2d: str = typer.Option(None, "--detections-2d", help="Detection2DArray topic (default: the camera's)."),
         det3d: str = typer.Option(None, "--detections-3d", help="Detection3DArray topic (default: the LiDAR's)."),
         intrinsics: Path = typer.Option(None, "--intrinsics", "-k", help="Intrinsics (JSON, with or without "
-                                                                         "a camera \"model\", or a camera file) when the bag has no CameraInfo."),
+                                                                         "a camera \"model\", or a camera file; a Kalibr camchain's camera: "
+                                                                         "FILE#cam1) when the bag has no CameraInfo."),
         tolerance: float = typer.Option(0.05, "--tolerance", help="Largest LiDAR/image stamp difference, seconds."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
     ) -> None:
