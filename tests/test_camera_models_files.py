@@ -167,3 +167,45 @@ def test_calibrate_many_checks_the_camchain_camera_before_any_recording(tmp_path
     chain = _two_camera_camchain(tmp_path)
     with pytest.raises(FormatError, match="name one: camchain.yaml#cam0"):
         calibrate_many([str(tmp_path / "no_recording_yet")], tmp_path / "out", intrinsics=chain, executor="serial")
+
+
+@pytest.mark.parametrize("cam,model", [(KB, "kannala_brandt"), (DS, None)])
+def test_review_mcap_camera_calibration_keeps_the_model(tmp_path, caplog, cam, model):
+    """The review MCAP's foxglove.CameraCalibration of a Kannala-Brandt camera is Foxglove's
+    ``kannala_brandt`` (k1-k4); a model it cannot express (double sphere) gets no message, and one
+    warning for the camera, not one per frame."""
+    import logging
+
+    from mcap.reader import make_reader
+
+    from xcalib.calib.result import CalibrationResult
+    from xcalib.site import calibrate_site
+    from xcalib.types import Frame
+    from xcalib.viz.review import write_review_mcap
+
+    T = np.array([[0, -1, 0, 0.1], [0, 0, -1, 0.2], [1, 0, 0, -0.3], [0, 0, 0, 1]], dtype=np.float64)
+    rng = np.random.default_rng(0)
+    frames = [Frame(rng.integers(0, 255, (800, 1280, 3), dtype=np.uint8),
+                    np.column_stack([rng.uniform(5, 30, 200), rng.uniform(-8, 8, 200), rng.uniform(-1.5, 1, 200)]),
+                    np.array([[500, 300, 600, 360]], np.float32),
+                    np.array([[10.0 + i, -1.0, -0.8, 4.5, 1.8, 1.5, 0.1]], np.float32), frame_key=f"{i:04d}",
+                    intrinsics=cam, meta={"lidar_stamp_ns": 1_700_000_000_000_000_000 + i * 100_000_000})
+              for i in range(3)]
+
+    def ok(frames, intrinsics, progress=None, **_):
+        return CalibrationResult(success=True, intrinsics=intrinsics, rotation=T[:3, :3], translation=T[:3, 3],
+                                 camera_name="fish", pairs=[np.array([[0, 0]])] * len(frames),
+                                 rotation_std_deg=np.full(3, 0.1), translation_std_m=np.full(3, 0.02))
+
+    site, loaded = calibrate_site({"fish": frames}, calibrate=ok, lidar_frame="velodyne")
+    with caplog.at_level(logging.WARNING, logger="xcalib.viz.review"):
+        path = write_review_mcap(tmp_path / "r.mcap", site, loaded)
+    with open(path, "rb") as f:
+        cals = [json.loads(m.data) for s, _, m in make_reader(f).iter_messages() if s.name == "foxglove.CameraCalibration"]
+    warnings = [r for r in caplog.records if "CameraCalibration" in r.getMessage()]
+    if model is None:
+        assert cals == [] and len(warnings) == 1 and "double_sphere" in warnings[0].getMessage()
+    else:
+        assert len(cals) == 3 and not warnings
+        assert {c["distortion_model"] for c in cals} == {model} and cals[0]["D"] == list(cam.k)
+        assert cals[0]["K"] == [300.0, 0.0, 640.0, 0.0, 300.0, 400.0, 0.0, 0.0, 1.0]
