@@ -209,3 +209,14 @@ def test_review_mcap_camera_calibration_keeps_the_model(tmp_path, caplog, cam, m
         assert len(cals) == 3 and not warnings
         assert {c["distortion_model"] for c in cals} == {model} and cals[0]["D"] == list(cam.k)
         assert cals[0]["K"] == [300.0, 0.0, 640.0, 0.0, 300.0, 400.0, 0.0, 0.0, 1.0]
+
+
+def test_convert_takes_a_camchain_camera_as_file_hash_camera(tmp_path, capsys):
+    from xcalib.cli import main
+
+    chain = _two_camera_camchain(tmp_path)
+    assert main(["convert", f"{chain}#cam1", "--to", "intrinsics_json", "--out", str(tmp_path / "ds.json")]) == 0
+    assert read_intrinsics(tmp_path / "ds.json") == DS
+    assert main(["convert", f"{chain}#cam1", "--camera", "cam0", "--to", "intrinsics_json",
+                 "--out", str(tmp_path / "x.json")]) != 0
+    assert "names camera 'cam1' but camera='cam0'" in capsys.readouterr().err

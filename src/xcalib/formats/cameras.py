@@ -341,7 +341,8 @@ def _dec_kalibr(text: str, path, camera: str | None) -> CameraModel:
         if len(cams) > 1:
             first = next(iter(cams))
             raise FormatError(path, f"{len(cams)} cameras ({', '.join(cams)}); name one: {Path(path).name}#{first} "
-                                    f"(CLI --intrinsics FILE#{first}; read_camera(path, camera={first!r}))")
+                                    f"(--intrinsics {Path(path).name}#{first}; convert: --camera {first}; "
+                                    f"read_camera(path, camera={first!r}))")
         camera = next(iter(cams))
     if camera not in cams:
         raise FormatError(path, f"no camera {camera!r}; found {', '.join(cams)}", camera)
