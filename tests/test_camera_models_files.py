@@ -220,3 +220,20 @@ def test_convert_takes_a_camchain_camera_as_file_hash_camera(tmp_path, capsys):
     assert main(["convert", f"{chain}#cam1", "--camera", "cam0", "--to", "intrinsics_json",
                  "--out", str(tmp_path / "x.json")]) != 0
     assert "names camera 'cam1' but camera='cam0'" in capsys.readouterr().err
+
+
+def test_bag_frames_says_how_a_fisheye_camera_info_is_read(tmp_path, capsys):
+    """``xcalib bag frames`` of a bag with an equidistant CameraInfo says that the frames are rectified
+    to pinhole and how to keep the fisheye; with ``--fisheye keep`` it names the kannala_brandt model."""
+    from xcalib.cli import main
+    from xcalib.data.synth import generate_frames, sample_site
+    from xcalib.io.bags.writer import write_bag
+
+    site = sample_site(3, camera_model="kannala_brandt", hfov_deg=185, width=320, height=200, box_noise_px=1.0)
+    path = write_bag(tmp_path / "fe.mcap", generate_frames(site, 2, seed=3, render_images=False))
+    assert main(["bag", "frames", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "the CameraInfo is equidistant (fisheye), its images and 2D boxes are rectified" in out
+    assert "--fisheye keep" in out
+    assert main(["bag", "frames", str(path), "--fisheye", "keep", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["camera_model"] == "kannala_brandt"
