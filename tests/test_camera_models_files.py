@@ -237,3 +237,24 @@ def test_bag_frames_says_how_a_fisheye_camera_info_is_read(tmp_path, capsys):
     assert "--fisheye keep" in out
     assert main(["bag", "frames", str(path), "--fisheye", "keep", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["camera_model"] == "kannala_brandt"
+
+
+@pytest.mark.parametrize("fmt", ["kitti", "calib_json", "lucid", "calib_txt", "opencalib", "openlabel", "nuscenes"])
+def test_pinhole_only_calibration_formats_refuse_a_fisheye_result(tmp_path, fmt):
+    """A fisheye calibration exported to a format whose intrinsics are a pinhole K (+ radial-tangential)
+    is refused naming the model and the formats that keep it, nothing written (before: an
+    AttributeError, or nuScenes' camera_intrinsic the fisheye's K as a pinhole one); the formats that
+    can express it, or hold the pose alone, still write."""
+    from xcalib.calib.result import CalibrationResult
+    from xcalib.formats.cameras import UnsupportedModelError
+    from xcalib.formats.export import export_calibration
+
+    T = np.array([[0, -1, 0, 0.1], [0, 0, -1, 0.2], [1, 0, 0, -0.3], [0, 0, 0, 1]], dtype=np.float64)
+    res = CalibrationResult(success=True, intrinsics=KB, rotation=T[:3, :3], translation=T[:3, 3], camera_name="fish",
+                            rotation_std_deg=np.full(3, 0.1), translation_std_m=np.full(3, 0.02))
+    with pytest.raises(UnsupportedModelError, match=rf"{fmt}: cannot express a kannala_brandt camera.*nothing written"
+                                                    r".*keep the kannala_brandt camera or hold the pose alone: ros, urdf"):
+        export_calibration(res, fmt, tmp_path / fmt / "out")
+    assert not (tmp_path / fmt).exists() or not any((tmp_path / fmt).iterdir())
+    for ok in ("ros", "tf_static", "json"):
+        assert export_calibration(res, ok, tmp_path / ok / "out.yaml")
