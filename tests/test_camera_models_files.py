@@ -159,6 +159,10 @@ def test_every_intrinsics_option_names_the_camchain_camera(tmp_path, capsys, mon
     assert "2 cameras (cam0, cam1); name one: camchain.yaml#cam0" in capsys.readouterr().err
     assert main([*argv, "--intrinsics", f"{chain}#cam7"]) != 0
     assert "no camera 'cam7'; found cam0, cam1" in capsys.readouterr().err
+    # with the camera named the camera file is read, and the command goes on to the (missing) source
+    assert main([*argv, "--intrinsics", f"{chain}#cam1"]) != 0
+    err = capsys.readouterr().err
+    assert "nosuch" in err and "camchain" not in err, err
 
 
 def test_calibrate_many_checks_the_camchain_camera_before_any_recording(tmp_path):
