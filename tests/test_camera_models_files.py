@@ -112,3 +112,153 @@ def test_convert_a_camera_file_to_a_calibration_format_says_what_it_is(tmp_path,
     assert "camchain.yaml" in err and "a camera file (kalibr" in err and "--to a camera format" in err
     assert main(["convert", str(src), "--to", "intrinsics_json", "--out", str(tmp_path / "ds.json")]) == 0
     assert read_intrinsics(tmp_path / "ds.json") == DS
+
+
+def _two_camera_camchain(tmp_path):
+    import yaml
+
+    a = yaml.safe_load(write_camera(KB, tmp_path / "a.yaml", "kalibr").read_text())
+    b = yaml.safe_load(write_camera(DS, tmp_path / "b.yaml", "kalibr").read_text())
+    path = tmp_path / "camchain.yaml"
+    path.write_text(yaml.safe_dump({"cam0": a["cam0"], "cam1": b["cam0"]}))
+    return path
+
+
+def test_a_camchain_camera_is_picked_by_file_hash_camera(tmp_path):
+    from xcalib.formats.cameras import read_camera
+
+    chain = _two_camera_camchain(tmp_path)
+    assert read_intrinsics(f"{chain}#cam1") == DS and read_intrinsics(f"{chain}#cam0") == KB
+    assert read_camera(f"{chain}#cam1") == DS and read_intrinsics(chain, camera="cam1") == DS
+    with pytest.raises(FormatError, match=r"camchain.yaml: 2 cameras \(cam0, cam1\); name one: camchain.yaml#cam0"):
+        read_intrinsics(chain)
+    with pytest.raises(FormatError, match=r"camchain.yaml \[cam7\]: no camera 'cam7'; found cam0, cam1"):
+        read_intrinsics(f"{chain}#cam7")
+    with pytest.raises(ValueError, match="names camera 'cam1' but camera='cam0'"):
+        read_intrinsics(f"{chain}#cam1", camera="cam0")
+    with pytest.raises(ValueError, match="empty camera name"):
+        read_intrinsics(f"{chain}#")
+    # only a camchain has cameras to pick; a file whose name holds '#' is read whole
+    info = write_camera(KB, tmp_path / "info.yaml", "camera_info")
+    with pytest.raises(FormatError, match=r"info.yaml: camera 'cam1' named, but this camera_info file holds one camera"):
+        read_intrinsics(f"{info}#cam1")
+    odd = write_camera(DS, tmp_path / "rig#2.json", "intrinsics_json")
+    assert read_intrinsics(odd) == DS
+
+
+@pytest.mark.parametrize("argv", [["calibrate", "nosuch"], ["bag", "frames", "nosuch.mcap"],
+                                  ["detect", "nosuch", "--out", "o.mcap"]])
+def test_every_intrinsics_option_names_the_camchain_camera(tmp_path, capsys, monkeypatch, argv):
+    """``--intrinsics FILE#camN`` in the commands (read before the source is opened): a camchain of two
+    cameras without ``#camN`` is refused naming the entries and the form; ``#cam7`` names the missing one."""
+    from xcalib.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    chain = _two_camera_camchain(tmp_path)
+    assert main([*argv, "--intrinsics", str(chain)]) != 0
+    assert "2 cameras (cam0, cam1); name one: camchain.yaml#cam0" in capsys.readouterr().err
+    assert main([*argv, "--intrinsics", f"{chain}#cam7"]) != 0
+    assert "no camera 'cam7'; found cam0, cam1" in capsys.readouterr().err
+    # with the camera named the camera file is read, and the command goes on to the (missing) source
+    assert main([*argv, "--intrinsics", f"{chain}#cam1"]) != 0
+    err = capsys.readouterr().err
+    assert "nosuch" in err and "camchain" not in err, err
+
+
+def test_calibrate_many_checks_the_camchain_camera_before_any_recording(tmp_path):
+    from xcalib.batch import calibrate_many
+
+    chain = _two_camera_camchain(tmp_path)
+    with pytest.raises(FormatError, match="name one: camchain.yaml#cam0"):
+        calibrate_many([str(tmp_path / "no_recording_yet")], tmp_path / "out", intrinsics=chain, executor="serial")
+
+
+@pytest.mark.parametrize("cam,model", [(KB, "kannala_brandt"), (DS, None)])
+def test_review_mcap_camera_calibration_keeps_the_model(tmp_path, caplog, cam, model):
+    """The review MCAP's foxglove.CameraCalibration of a Kannala-Brandt camera is Foxglove's
+    ``kannala_brandt`` (k1-k4); a model it cannot express (double sphere) gets no message, and one
+    warning for the camera, not one per frame."""
+    import logging
+
+    from mcap.reader import make_reader
+
+    from xcalib.calib.result import CalibrationResult
+    from xcalib.site import calibrate_site
+    from xcalib.types import Frame
+    from xcalib.viz.review import write_review_mcap
+
+    T = np.array([[0, -1, 0, 0.1], [0, 0, -1, 0.2], [1, 0, 0, -0.3], [0, 0, 0, 1]], dtype=np.float64)
+    rng = np.random.default_rng(0)
+    frames = [Frame(rng.integers(0, 255, (800, 1280, 3), dtype=np.uint8),
+                    np.column_stack([rng.uniform(5, 30, 200), rng.uniform(-8, 8, 200), rng.uniform(-1.5, 1, 200)]),
+                    np.array([[500, 300, 600, 360]], np.float32),
+                    np.array([[10.0 + i, -1.0, -0.8, 4.5, 1.8, 1.5, 0.1]], np.float32), frame_key=f"{i:04d}",
+                    intrinsics=cam, meta={"lidar_stamp_ns": 1_700_000_000_000_000_000 + i * 100_000_000})
+              for i in range(3)]
+
+    def ok(frames, intrinsics, progress=None, **_):
+        return CalibrationResult(success=True, intrinsics=intrinsics, rotation=T[:3, :3], translation=T[:3, 3],
+                                 camera_name="fish", pairs=[np.array([[0, 0]])] * len(frames),
+                                 rotation_std_deg=np.full(3, 0.1), translation_std_m=np.full(3, 0.02))
+
+    site, loaded = calibrate_site({"fish": frames}, calibrate=ok, lidar_frame="velodyne")
+    with caplog.at_level(logging.WARNING, logger="xcalib.viz.review"):
+        path = write_review_mcap(tmp_path / "r.mcap", site, loaded)
+    with open(path, "rb") as f:
+        cals = [json.loads(m.data) for s, _, m in make_reader(f).iter_messages() if s.name == "foxglove.CameraCalibration"]
+    warnings = [r for r in caplog.records if "CameraCalibration" in r.getMessage()]
+    if model is None:
+        assert cals == [] and len(warnings) == 1 and "double_sphere" in warnings[0].getMessage()
+    else:
+        assert len(cals) == 3 and not warnings
+        assert {c["distortion_model"] for c in cals} == {model} and cals[0]["D"] == list(cam.k)
+        assert cals[0]["K"] == [300.0, 0.0, 640.0, 0.0, 300.0, 400.0, 0.0, 0.0, 1.0]
+
+
+def test_convert_takes_a_camchain_camera_as_file_hash_camera(tmp_path, capsys):
+    from xcalib.cli import main
+
+    chain = _two_camera_camchain(tmp_path)
+    assert main(["convert", f"{chain}#cam1", "--to", "intrinsics_json", "--out", str(tmp_path / "ds.json")]) == 0
+    assert read_intrinsics(tmp_path / "ds.json") == DS
+    assert main(["convert", f"{chain}#cam1", "--camera", "cam0", "--to", "intrinsics_json",
+                 "--out", str(tmp_path / "x.json")]) != 0
+    assert "names camera 'cam1' but camera='cam0'" in capsys.readouterr().err
+
+
+def test_bag_frames_says_how_a_fisheye_camera_info_is_read(tmp_path, capsys):
+    """``xcalib bag frames`` of a bag with an equidistant CameraInfo says that the frames are rectified
+    to pinhole and how to keep the fisheye; with ``--fisheye keep`` it names the kannala_brandt model."""
+    from xcalib.cli import main
+    from xcalib.data.synth import generate_frames, sample_site
+    from xcalib.io.bags.writer import write_bag
+
+    site = sample_site(3, camera_model="kannala_brandt", hfov_deg=185, width=320, height=200, box_noise_px=1.0)
+    path = write_bag(tmp_path / "fe.mcap", generate_frames(site, 2, seed=3, render_images=False))
+    assert main(["bag", "frames", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "the CameraInfo is equidistant (fisheye), its images and 2D boxes are rectified" in out
+    assert "--fisheye keep" in out
+    assert main(["bag", "frames", str(path), "--fisheye", "keep", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["camera_model"] == "kannala_brandt"
+
+
+@pytest.mark.parametrize("fmt", ["kitti", "calib_json", "lucid", "calib_txt", "opencalib", "openlabel", "nuscenes"])
+def test_pinhole_only_calibration_formats_refuse_a_fisheye_result(tmp_path, fmt):
+    """A fisheye calibration exported to a format whose intrinsics are a pinhole K (+ radial-tangential)
+    is refused naming the model and the formats that keep it, nothing written (before: an
+    AttributeError, or nuScenes' camera_intrinsic the fisheye's K as a pinhole one); the formats that
+    can express it, or hold the pose alone, still write."""
+    from xcalib.calib.result import CalibrationResult
+    from xcalib.formats.cameras import UnsupportedModelError
+    from xcalib.formats.export import export_calibration
+
+    T = np.array([[0, -1, 0, 0.1], [0, 0, -1, 0.2], [1, 0, 0, -0.3], [0, 0, 0, 1]], dtype=np.float64)
+    res = CalibrationResult(success=True, intrinsics=KB, rotation=T[:3, :3], translation=T[:3, 3], camera_name="fish",
+                            rotation_std_deg=np.full(3, 0.1), translation_std_m=np.full(3, 0.02))
+    with pytest.raises(UnsupportedModelError, match=rf"{fmt}: cannot express a kannala_brandt camera.*nothing written"
+                                                    r".*keep the kannala_brandt camera or hold the pose alone: ros, urdf"):
+        export_calibration(res, fmt, tmp_path / fmt / "out")
+    assert not (tmp_path / fmt).exists() or not any((tmp_path / fmt).iterdir())
+    for ok in ("ros", "tf_static", "json"):
+        assert export_calibration(res, ok, tmp_path / ok / "out.yaml")

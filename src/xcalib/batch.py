@@ -360,6 +360,10 @@ def calibrate_many(recordings, out_dir, *, config: CalibConfig | None = None, op
 
     if executor not in ("process", "ray", "serial"):
         raise ValueError(f"executor: expected 'process', 'ray' or 'serial', got {executor!r}")
+    if intrinsics is not None:  # a bad camera file (or FILE#cam of a camchain) named once, before any recording runs
+        from .formats.cameras import read_intrinsics
+
+        read_intrinsics(intrinsics)
     paths = expand_recordings(recordings)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

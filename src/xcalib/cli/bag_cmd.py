@@ -38,22 +38,26 @@ def register(app: typer.Typer) -> None:
         det2d: str = typer.Option(None, "--detections-2d", help="Detection2DArray topic (default: the camera's)."),
         det3d: str = typer.Option(None, "--detections-3d", help="Detection3DArray topic (default: the LiDAR's)."),
         intrinsics: Path = typer.Option(None, "--intrinsics", "-k", help="Intrinsics (JSON, with or without "
-                                                                         "a camera \"model\", or a camera file) when the bag has no CameraInfo."),
+                                                                         "a camera \"model\", or a camera file; a Kalibr camchain's camera: "
+                                                                         "FILE#cam1) when the bag has no CameraInfo."),
         tolerance: float = typer.Option(0.05, "--tolerance", help="Largest LiDAR/image stamp difference, seconds."),
+        fisheye: str = typer.Option("rectify", "--fisheye", help="An equidistant CameraInfo: rectify (to pinhole) | "
+                                                                 "keep (the fisheye image, kannala_brandt), as calibrate."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
     ) -> None:
         from ..formats.cameras import read_intrinsics
         from ..io.bags import BagFrames
 
         seq = BagFrames(path, camera, lidar=lidar, camera_info=camera_info, detections_2d=det2d,
-                        detections_3d=det3d, tolerance_s=tolerance,
+                        detections_3d=det3d, tolerance_s=tolerance, fisheye=fisheye,
                         intrinsics=None if intrinsics is None else read_intrinsics(intrinsics))
-        bad = _undecodable(seq, progress=not as_json)
+        bad, seen = _undecodable(seq, progress=not as_json)
         if as_json:
             typer.echo(json.dumps({"topics": seq.topics, "camera": seq.camera, "cameras": seq.camera_names,
                                    "frame_keys": seq.frame_keys, **seq.report.to_dict(),
                                    "frames_paired": seq.report.frames, "frames": seq.report.frames - len(bad),
-                                   "undecodable": [{"index": i, "frame_key": k, "error": e} for i, k, e in bad]},
+                                   "undecodable": [{"index": i, "frame_key": k, "error": e} for i, k, e in bad],
+                                   "camera_model": seen},
                                   indent=1))
         else:
             typer.echo(f"camera {seq.camera} (cameras in the bag: {', '.join(seq.camera_names)})")
@@ -65,6 +69,8 @@ def register(app: typer.Typer) -> None:
             if len(seq.report.dropped) > 20:
                 typer.echo(f"    ... {len(seq.report.dropped) - 20} more (--json lists all)")
             typer.echo(f"{seq.report.frames - len(bad)} of {seq.report.frames} paired frame(s) decode")
+            if seen:
+                typer.echo(f"camera model   {seen}")
             for i, k, e in bad[:20]:
                 typer.echo(f"    frame {i} ({k}): {e}")
         if len(bad) == seq.report.frames:
@@ -106,19 +112,32 @@ def register(app: typer.Typer) -> None:
         typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
 
 
-def _undecodable(seq, progress: bool) -> list[tuple[int, str, str]]:
+def _undecodable(seq, progress: bool) -> tuple[list[tuple[int, str, str]], str | None]:
     """Decode every paired frame (one at a time): ``[(index, frame key, error)]`` of those that fail,
-    so that the count printed is of frames a calibration can use, not of stamps that pair."""
+    so that the count printed is of frames a calibration can use, not of stamps that pair; and the
+    camera model the first decoded frame comes with (:func:`_camera_seen`; None when none decodes)."""
     from rich.console import Console
     from rich.progress import track
 
     from ..errors import FormatError
 
-    keys, bad = seq.frame_keys, []
+    keys, bad, seen = seq.frame_keys, [], None
     for i in track(range(len(seq)), description="decoding frames", disable=not progress, transient=True,
                    console=Console(stderr=True)):
         try:
-            seq[i]
+            f = seq[i]
         except FormatError as exc:
             bad.append((i, keys[i], str(exc)))
-    return bad
+        else:
+            seen = seen or _camera_seen(f)
+    return bad, seen
+
+
+def _camera_seen(frame) -> str:
+    """What camera model the frames come with (a fisheye's rectification said, with how to keep it)."""
+    intr = frame.intrinsics
+    name = "none" if intr is None else getattr(intr, "name", "pinhole_radtan")
+    if (frame.meta or {}).get("rectified_from") == "equidistant":
+        return (f"{name}: the CameraInfo is equidistant (fisheye), its images and 2D boxes are rectified to "
+                "pinhole; calibrate --fisheye keep calibrates in the fisheye image itself (kannala_brandt)")
+    return name

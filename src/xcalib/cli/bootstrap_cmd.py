@@ -23,7 +23,7 @@ def register(app: typer.Typer) -> None:
         frames: Path = typer.Argument(..., help="Recording: frame folder, HDF5 cache or any source read_frames opens."),
         intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", "-K", help="Intrinsics: xcalib intrinsics JSON {fx, fy, cx, cy, distortion}, or with a \"model\" "
                                                        "(kannala_brandt, unified, ucm, eucm, double_sphere: docs/camera-models.md), or a "
-                                                       "camera file (ROS CameraInfo YAML, Kalibr camchain, OpenCV YAML/JSON) "
+                                                       "camera file (ROS CameraInfo YAML, Kalibr camchain -- one of several: FILE#cam1 --, OpenCV YAML/JSON) "
                                                   "(pixels); default: the recording's own (e.g. its intrinsics.json)."),
         site: str = typer.Option(..., "--site", help="Name to install the weights under."),
         model: str = typer.Option("fastmatch", "--model", help="Registered model name."),

@@ -41,7 +41,7 @@ def register(app: typer.Typer) -> None:
                                         help="Intrinsics: xcalib intrinsics JSON {fx, fy, cx, cy, distortion}, or with a \"model\" "
                                              "(kannala_brandt, unified, ucm, eucm, double_sphere: docs/camera-models.md), or a "
                                              "camera file (ROS CameraInfo YAML, Kalibr camchain, OpenCV YAML/JSON) "
-                                             "(one camera); default: the source's."),
+                                             "(one camera; a camchain's: FILE#cam1); default: the source's."),
         out: Path = typer.Option(Path("calibration_report"), "--out", "-o", help="Report folder."),
         prior: Path = typer.Option(None, "--prior", help="Initial guess: a calibration file of any "
                                                          "format xcalib convert reads (skips bring-up; one camera)."),

@@ -32,7 +32,8 @@ def register(app: typer.Typer) -> None:
         ray_address: str = typer.Option(None, "--ray-address", help="Ray cluster to join (default: a local one)."),
         camera: str = typer.Option(None, "--camera", "-c", help="Camera to calibrate in every recording."),
         intrinsics: Path = typer.Option(None, "--intrinsics", "-k", help="Intrinsics for every recording: "
-                                     "JSON (with or without a camera \"model\") or a CameraInfo / Kalibr / OpenCV camera file."),
+                                     "JSON (with or without a camera \"model\") or a CameraInfo / Kalibr / OpenCV camera file "
+                                     "(one camera of a Kalibr camchain: FILE#cam1)."),
         seed: int = typer.Option(0, "--seed", help="Random seed of the hypothesis sampling."),
         as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
         force: bool = typer.Option(False, "--force", help="Write into an existing, non-empty folder."),

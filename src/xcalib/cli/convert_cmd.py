@@ -108,13 +108,18 @@ def _size(text: str) -> tuple[int, int]:
 
 def _convert_camera(src: Path, to: str, out: Path | None, src_format: str | None, camera: str | None,
                     size: tuple[int, int] | None, *, as_json: bool, force: bool) -> None:
-    from ..formats.cameras import CAMERA_FORMATS, UnsupportedModelError, detect_camera_format, read_camera, write_camera
+    from ..formats.cameras import (CAMERA_FORMATS, UnsupportedModelError, detect_camera_format, read_camera,
+                                   split_camera_ref, write_camera)
 
     if src_format is not None and src_format not in CAMERA_FORMATS:
         raise typer.BadParameter(f"a camera file converts from {', '.join(CAMERA_FORMATS)}, not {src_format!r}",
                                  param_hint="--from")
     from ..errors import FormatError
 
+    try:  # camchain.yaml#cam1 names the camera as --camera cam1 does
+        src, camera = split_camera_ref(src, camera)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="SOURCE / --camera") from None
     fmt_in = src_format or detect_camera_format(src)
     try:
         cam = read_camera(src, fmt_in, camera=camera)

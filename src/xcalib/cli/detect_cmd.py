@@ -53,7 +53,8 @@ def register(app: typer.Typer) -> None:
         camera: str = typer.Option(None, "--camera", "-c", help="Camera (default: the source's only one)."),
         frame_range: str = typer.Option(None, "--frames", help="Frames: 0:8, 0,3,5, 8: (indices)."),
         intrinsics: Path = typer.Option(None, "--intrinsics", "-k", help="Bags: intrinsics when the bag has no "
-                                        "CameraInfo: JSON (with or without a camera \"model\") or a CameraInfo / Kalibr / OpenCV camera file."),
+                                        "CameraInfo: JSON (with or without a camera \"model\") or a CameraInfo / Kalibr / OpenCV camera file "
+                                        "(one camera of a Kalibr camchain: FILE#cam1)."),
         tolerance: float = typer.Option(0.05, "--tolerance", help="Bags: largest LiDAR/image stamp difference (s)."),
         detector_2d: Path = typer.Option(None, "--detector-2d", help="Your ONNX detector (default: the shipped "
                                                                      "YOLOX-Nano)."),

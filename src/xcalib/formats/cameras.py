@@ -36,7 +36,7 @@ from ..geometry.camera_models import (EUCM, UCM, CameraModel, DoubleSphere, Kann
 from ..io.files import MAX_TEXT_BYTES, atomic_write, read_text
 
 __all__ = ["CAMERA_FORMATS", "UnsupportedModelError", "read_camera", "read_intrinsics", "write_camera", "camera_text",
-           "detect_camera_format", "formats_for", "read_kalibr_camchain"]
+           "detect_camera_format", "formats_for", "read_kalibr_camchain", "split_camera_ref"]
 
 CAMERA_FORMATS = ("intrinsics_json", "camera_info", "kalibr", "opencv_yaml", "opencv_json")
 _SUFFIX = {"intrinsics_json": ".json", "camera_info": ".yaml", "kalibr": ".yaml", "opencv_yaml": ".yaml",
@@ -339,7 +339,10 @@ def _dec_kalibr(text: str, path, camera: str | None) -> CameraModel:
     cams = _kalibr_all(_yaml_mapping(text, path), path)
     if camera is None:
         if len(cams) > 1:
-            raise FormatError(path, f"{len(cams)} cameras ({', '.join(cams)}); name one (camera=..., CLI --camera)")
+            first = next(iter(cams))
+            raise FormatError(path, f"{len(cams)} cameras ({', '.join(cams)}); name one: {Path(path).name}#{first} "
+                                    f"(--intrinsics {Path(path).name}#{first}; convert: --camera {first}; "
+                                    f"read_camera(path, camera={first!r}))")
         camera = next(iter(cams))
     if camera not in cams:
         raise FormatError(path, f"no camera {camera!r}; found {', '.join(cams)}", camera)
@@ -470,31 +473,55 @@ def detect_camera_format(path, text: str | None = None) -> str:
                             f"camchain, OpenCV YAML/JSON); found keys {sorted(map(str, d))[:12]}")
 
 
+def split_camera_ref(ref, camera: str | None = None) -> tuple[Path, str | None]:
+    """``FILE#cam1`` -> (``FILE``, ``"cam1"``): a camera file with the camera of a Kalibr camchain
+    picked after ``#`` (what ``--intrinsics`` of every command accepts). A path that exists as
+    given is taken whole (a ``#`` in a file name is kept); ``camera`` (the keyword of
+    :func:`read_camera`) may name the same camera again, not another one (ValueError)."""
+    path = Path(ref)
+    text = str(ref)
+    if path.is_file() or "#" not in text:
+        return path, camera
+    base, frag = text.rsplit("#", 1)
+    if not frag or not base:
+        raise ValueError(f"{text!r}: expected FILE#CAMERA (e.g. camchain.yaml#cam1), got an empty "
+                         f"{'camera' if not frag else 'file'} name")
+    if camera is not None and camera != frag:
+        raise ValueError(f"{text!r} names camera {frag!r} but camera={camera!r} was given too; name one")
+    return Path(base), frag
+
+
 def read_camera(path, fmt: str | None = None, *, camera: str | None = None) -> CameraModel:
     """A :class:`CameraModel` from a camera file (``fmt`` one of :data:`CAMERA_FORMATS`, default:
-    detected); ``camera`` picks one camera of a Kalibr camchain (``cam1``)."""
-    path = Path(path)
+    detected); ``camera`` picks one camera of a Kalibr camchain (``cam1``), as does a path
+    ``camchain.yaml#cam1`` (:func:`split_camera_ref`). Only a camchain has cameras to pick: a
+    camera named for another format is a FormatError."""
+    path, camera = split_camera_ref(path, camera)
     if not path.is_file():
         raise FileNotFoundError(f"camera file not found: {path}")
     text = read_text(path, max_bytes=MAX_TEXT_BYTES, what="camera file")
     fmt = fmt or detect_camera_format(path, text)
     if fmt not in _DECODERS:
         raise ValueError(f"unknown camera format {fmt!r}; expected one of {', '.join(CAMERA_FORMATS)}")
+    if camera is not None and fmt != "kalibr":
+        raise FormatError(path, f"camera {camera!r} named, but this {fmt} file holds one camera (only a Kalibr "
+                                "camchain has cameras to pick: FILE#cam1); give the file alone")
     return _DECODERS[fmt](text, path, camera)
 
 
 def read_intrinsics(path, *, camera: str | None = None):
     """The camera of a command's ``--intrinsics FILE``: xcalib's intrinsics JSON (with or without a
     ``model``: ``xcalib.io.read_intrinsics_json``), or any camera file :func:`read_camera` reads (ROS
-    CameraInfo YAML, Kalibr camchain -- ``camera`` picks one of several --, OpenCV YAML / JSON).
+    CameraInfo YAML, Kalibr camchain -- ``camera``, or ``path`` given as ``camchain.yaml#cam1``,
+    picks one of several --, OpenCV YAML / JSON).
     Pinhole models come back as ``CameraIntrinsics``, wide-angle ones as their ``CameraModel``."""
     from ..io.frames import read_intrinsics_json
 
-    path = Path(path)
+    path, camera = split_camera_ref(path, camera)
     if not path.is_file():
         raise FileNotFoundError(f"intrinsics file not found: {path}")
     fmt = detect_camera_format(path)
-    if fmt == "intrinsics_json":
+    if fmt == "intrinsics_json" and camera is None:
         return read_intrinsics_json(path)
     cam = read_camera(path, fmt, camera=camera)
     return cam.to_intrinsics() if cam.is_pinhole else cam

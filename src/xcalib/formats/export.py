@@ -36,7 +36,11 @@ class CalibFormat:
     """A calibration format: ``write(result, path) -> [paths]`` (None: read-only) and
     ``read(path, repair) -> CalibrationResult``; ``filename`` is the default output name;
     ``sniff(path) -> bool``: whether a file is of this format (detection on read; None: detected
-    by :func:`detect_format`'s own rules, or only when named with ``--from``)."""
+    by :func:`detect_format`'s own rules, or only when named with ``--from``). ``models``: the camera
+    models (``CameraModel.name``) whose intrinsics the written file can express; a result calibrated
+    with another model is refused (:class:`~xcalib.formats.cameras.UnsupportedModelError`, nothing
+    written) instead of written as a pinhole K of its fx, fy, cx, cy. None: any model (xcalib's own
+    files), or a format without intrinsics (a pose only)."""
 
     name: str
     description: str
@@ -44,6 +48,11 @@ class CalibFormat:
     write: Callable[..., list[Path]] | None
     read: Callable[..., CalibrationResult]
     sniff: Callable[[Path], bool] | None = None
+    models: tuple[str, ...] | None = None
+
+
+#: the camera models of a pinhole K with OpenCV radial-tangential distortion (or none)
+PINHOLE_MODELS = ("pinhole", "pinhole_radtan")
 
 
 # ----------------------------------------------------------------------------- adapters
@@ -210,25 +219,25 @@ def _r_sustech(path, repair=False):
 FORMATS: dict[str, CalibFormat] = {f.name: f for f in [
     CalibFormat("kitti", "KITTI calib txt (camera 2; a KITTI-born result keeps its P0-P3/R0_rect, else "
                          "P0-P3 = [K|0], R0_rect = I, Tr_velo_to_cam = T_cam_lidar)",
-                "calib.txt", _w_kitti, _r_kitti),
+                "calib.txt", _w_kitti, _r_kitti, models=PINHOLE_MODELS),
     CalibFormat("calib_json", "CalibAnything v2 calib.json (T_lidar_to_cam, cam_K, cam_dist)", "calib.json",
-                _w_calib_json, _r_calib_json),
+                _w_calib_json, _r_calib_json, models=PINHOLE_MODELS),
     CalibFormat("lucid", "CalibAnything lucid_calib.json (camera pose in the LiDAR frame, roll/pitch/yaw deg)",
-                "lucid_calib.json", _w_lucid, _r_lucid),
+                "lucid_calib.json", _w_lucid, _r_lucid, models=PINHOLE_MODELS),
     CalibFormat("calib_txt", "CalibAnything v1 calib.txt (K:, D:, T: LiDAR->camera)", "calib_v1.txt",
-                _w_calib_txt, _r_calib_txt),
+                _w_calib_txt, _r_calib_txt, models=PINHOLE_MODELS),
     CalibFormat("opencalib", "OpenCalib <lidar>-to-<camera>-extrinsic.json + <camera>-intrinsic.json",
-                "opencalib", _w_opencalib, _r_opencalib),
+                "opencalib", _w_opencalib, _r_opencalib, models=PINHOLE_MODELS),
     CalibFormat("openlabel", "OpenLABEL coordinate_systems + streams (camera pose_wrt_parent = T_lidar_cam)",
-                "openlabel.json", _w_openlabel, _r_openlabel),
+                "openlabel.json", _w_openlabel, _r_openlabel, models=PINHOLE_MODELS),
     CalibFormat("ros", "ROS camera_info YAML + <stem>_tf.yaml static transform (lidar -> camera_optical pose)",
-                "camera_info.yaml", _w_ros, _r_ros),
+                "camera_info.yaml", _w_ros, _r_ros, models=PINHOLE_MODELS + ("kannala_brandt",)),
     CalibFormat("urdf", "URDF fixed joints: lidar -> <camera>_link (body) -> <camera>_optical_frame (no intrinsics)",
                 "camera.urdf", _w_urdf, _r_urdf),
     CalibFormat("tf_static", "tf2_msgs/TFMessage YAML: lidar -> <camera>_optical_frame pose (no intrinsics)",
                 "tf_static.yaml", _w_tf_static, _r_tf_static),
     CalibFormat("nuscenes", "nuScenes calibrated_sensor.json + sensor.json (sensor->ego, w,x,y,z)",
-                "calibrated_sensor.json", _w_nuscenes, _r_nuscenes),
+                "calibrated_sensor.json", _w_nuscenes, _r_nuscenes, models=PINHOLE_MODELS),
     CalibFormat("json", "xcalib CalibrationResult JSON", "calibration.json", _w_json, _r_xcalib),
     CalibFormat("npz", "xcalib CalibrationResult npz", "calibration.npz", _w_npz, _r_xcalib),
     CalibFormat("waymo", "Waymo segment .tfrecord (read only: FRONT camera, vehicle frame)", "", None, _r_waymo),
@@ -322,6 +331,7 @@ def export_calibration(result: CalibrationResult, fmt: str, path, *, overwrite: 
         raise ValueError(f"format {fmt!r} is read-only; writable: {', '.join(format_names(True))}")
     if not result.success:
         raise ValueError(f"refusing to export a failed calibration ({result.message})")
+    _check_model(result, f)
     path = Path(path)
     is_dir = fmt == "opencalib" and not path.suffix
     target = path if is_dir else path.parent
@@ -338,6 +348,21 @@ def export_calibration(result: CalibrationResult, fmt: str, path, *, overwrite: 
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     return final
+
+
+def _check_model(result: CalibrationResult, f: CalibFormat) -> None:
+    """An UnsupportedModelError (nothing written) when ``f`` cannot express the result's camera model."""
+    from .cameras import UnsupportedModelError
+
+    intr = result.intrinsics
+    name = None if intr is None else getattr(intr, "name", "pinhole_radtan")  # CameraIntrinsics: pinhole-radtan
+    if f.models is None or name is None or name in f.models:
+        return
+    keep = [g.name for g in FORMATS.values() if g.write is not None and (g.models is None or name in g.models)]
+    raise UnsupportedModelError(
+        f"{f.name}: cannot express a {name} camera (its intrinsics are {' / '.join(f.models)}); nothing written "
+        f"rather than a pinhole K of the lens's fx, fy, cx, cy. Formats that keep the {name} camera or hold "
+        f"the pose alone: {', '.join(keep)}")
 
 
 def detect_format(path) -> str:

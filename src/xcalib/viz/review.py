@@ -136,23 +136,34 @@ def _annotations(ns: int, frame, result, max_points: int) -> dict:
     return {"circles": [], "points": pts, "texts": []}
 
 
-def _calibration(ns: int, cam: str, result, frame) -> dict | None:
-    """foxglove.CameraCalibration (plumb_bob / rational_polynomial) in the optical frame ``cam``, or
-    None for a camera model it cannot express (a wide-angle model): no message rather than a wrong
-    pinhole one."""
+def _calibration(ns: int, cam: str, result, frame, warned: set | None = None) -> dict | None:
+    """foxglove.CameraCalibration in the optical frame ``cam``: ``plumb_bob`` / ``rational_polynomial``
+    for a pinhole camera, ``kannala_brandt`` (k1-k4, OpenCV's fisheye, as Foxglove defines it) for a
+    Kannala-Brandt one; None for a model it cannot express (unified, UCM, EUCM, double sphere): no
+    message rather than a wrong pinhole one, with one warning per camera (``warned`` holds the
+    cameras already warned about)."""
     intr = result.intrinsics if result.intrinsics is not None else frame.intrinsics
-    if not hasattr(intr, "dist_coeffs"):  # a CameraModel other than CameraIntrinsics
-        import logging
-
-        logging.getLogger("xcalib.viz.review").warning(
-            "%s: no foxglove.CameraCalibration message: it cannot express a %s camera", cam, intr.name)
-        return None
-    # no distortion: plumb_bob with 5 zeros, as ROS writes it (an empty D is not a plumb_bob model)
-    d = [0.0] * 5 if intr.distortion is None else [float(v) for v in intr.distortion]
-    K = np.asarray(intr.K, dtype=np.float64)
     h, w = frame.image.shape[:2]
+    if getattr(intr, "name", "") == "kannala_brandt":
+        d, K = [float(v) for v in intr.k], np.asarray(intr.K, dtype=np.float64)
+        model = "kannala_brandt"
+    elif not hasattr(intr, "dist_coeffs"):  # a CameraModel other than CameraIntrinsics
+        if warned is None or cam not in warned:
+            import logging
+
+            logging.getLogger("xcalib.viz.review").warning(
+                "%s: no foxglove.CameraCalibration message: it cannot express a %s camera (plumb_bob, "
+                "rational_polynomial and kannala_brandt only)", cam, intr.name)
+            if warned is not None:
+                warned.add(cam)
+        return None
+    else:
+        # no distortion: plumb_bob with 5 zeros, as ROS writes it (an empty D is not a plumb_bob model)
+        d = [0.0] * 5 if intr.distortion is None else [float(v) for v in intr.distortion]
+        K = np.asarray(intr.K, dtype=np.float64)
+        model = "rational_polynomial" if len(d) > 5 else "plumb_bob"
     return {"timestamp": _t(ns), "frame_id": cam, "width": int(w), "height": int(h),
-            "distortion_model": "rational_polynomial" if len(d) > 5 else "plumb_bob", "D": d,
+            "distortion_model": model, "D": d,
             "K": K.reshape(-1).tolist(), "R": np.eye(3).reshape(-1).tolist(),
             "P": np.hstack([K, np.zeros((3, 1))]).reshape(-1).tolist()}
 
@@ -224,6 +235,7 @@ def write_review_mcap(path, site, frames_by_camera: dict[str, Sequence], *, max_
             stamps, recorded = _stamps(first_cam, n, period_s)
             t0 = stamps[0] if stamps else 1_000_000_000
             out.add("/tf", "foxglove.FrameTransforms", t0, _transforms(t0, site))
+            warned: set = set()  # cameras whose model CameraCalibration cannot express: said once
             for i in range(n):
                 ns = stamps[i]
                 out.add("/lidar/points", "foxglove.PointCloud", ns,
@@ -240,7 +252,7 @@ def write_review_mcap(path, site, frames_by_camera: dict[str, Sequence], *, max_
                              "data": base64.b64encode(encode_jpeg(frame.image, 85)).decode()})
                     out.add(f"{topic}/annotations", "foxglove.ImageAnnotations", cs,
                             _annotations(cs, frame, res, 5000))
-                    calib = (_calibration(cs, optical, res, frame)
+                    calib = (_calibration(cs, optical, res, frame, warned)
                              if res.intrinsics is not None or frame.intrinsics is not None else None)
                     if calib is not None:
                         out.add(f"{topic}/calibration", "foxglove.CameraCalibration", cs, calib)
