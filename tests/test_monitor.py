@@ -278,8 +278,20 @@ def test_yawless_boxes_get_their_yaw_from_the_points_in_the_monitor(stream):
     boxes turned to the fitted heading; the box without points is an open-yaw outline."""
     from xcalib.geometry.boxes import box7_to_extents
 
+    from xcalib.monitor.fastyaw import maybe_in_view
+
     site, frames = stream
     boxes, yaws, pts = _l_shaped_boxes()
+    # the scene moved (x-y) in front of the camera, the box without points out of its view
+    T = site.T_cam_lidar
+    ahead = T[:3, :3].T @ (np.array([0.0, 0.0, 45.0]) - T[:3, 3])
+    shift = np.array([*(ahead[:2] - boxes[:4, :2].mean(0)), 0.0])
+    boxes[:4, :3] += shift
+    pts = pts + shift
+    behind = T[:3, :3].T @ (np.array([0.0, 0.0, -30.0]) - T[:3, 3])
+    boxes[4, :2] = behind[:2]
+    seen = maybe_in_view(boxes, T[:3, :3], T[:3, 3], site.intrinsics_given, (site.width, site.height))
+    assert seen.tolist() == [True] * 4 + [False]
     f = replace(frames[0], bboxes_3d=box7_to_extents(boxes).astype(np.float32), point_cloud=pts.astype(np.float32),
                 match_matrix=None, meta={k: v for k, v in frames[0].meta.items() if k != "box7"})
     cm = Monitor(_calibration(site)).cameras[site.camera_name]

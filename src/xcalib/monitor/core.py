@@ -40,7 +40,7 @@ from ..calib.result import CalibrationResult
 from ..geometry.boxes import as_box7, check_boxes3d
 from ..geometry.camera import CameraIntrinsics
 from . import stats
-from .fastyaw import fit_yaw_batch
+from .fastyaw import fit_yaw_batch, maybe_in_view
 
 __all__ = ["MonitorConfig", "MonitorStatus", "DriftEvent", "CameraMonitor", "Monitor", "State", "load_calibration",
            "JSON_FIELDS"]
@@ -255,6 +255,11 @@ class _Rec:
     obj_H: np.ndarray | None = None  # [m,6,6] their share of H
     obj_g: np.ndarray | None = None  # [m,6] their share of g
 
+    def __post_init__(self) -> None:
+        # H, g, c, n_res, n_pairs, n2 as one row: a segment's sums are one stack and one cumsum
+        self.row = np.concatenate([np.asarray(self.H, dtype=np.float64).ravel(), np.asarray(self.g, dtype=np.float64),
+                                   [self.c, self.n_res, self.n_pairs, self.n2]])
+
 
 @dataclass
 class _Fit:
@@ -285,16 +290,10 @@ class _Sums:
     """Cumulative sums of the frames' normal equations: any run of frames is one subtraction."""
 
     def __init__(self, recs: list[_Rec]):
-        n = len(recs)
-        z = np.zeros(1)
-        hgc = [(q.H, q.g, q.c) for q in recs]
-        self.H = np.concatenate([np.zeros((1, 6, 6)), np.cumsum(np.stack([x[0] for x in hgc]), 0)]) if n else \
-            np.zeros((1, 6, 6))
-        self.g = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([x[1] for x in hgc]), 0)]) if n else np.zeros((1, 6))
-        self.c = np.concatenate([z, np.cumsum([x[2] for x in hgc])])
-        self.n = np.concatenate([z, np.cumsum([q.n_res for q in recs])])
-        self.p = np.concatenate([z, np.cumsum([q.n_pairs for q in recs])])
-        self.n2 = np.concatenate([z, np.cumsum([q.n2 for q in recs])])
+        rows = np.stack([q.row for q in recs]) if len(recs) else np.zeros((0, 46))
+        C = np.concatenate([np.zeros((1, 46)), np.cumsum(rows, 0)])
+        self.H, self.g = C[:, :36].reshape(-1, 6, 6), C[:, 36:42]
+        self.c, self.n, self.p, self.n2 = C[:, 42], C[:, 43], C[:, 44], C[:, 45]
 
     def pairs(self, a: int, b: int) -> int:
         return int(self.p[b] - self.p[a])
@@ -551,7 +550,11 @@ class CameraMonitor:
         if yawless and pts is not None and np.ndim(pts) == 2 and len(pts):
             box7 = as_box7(check_boxes3d(b3, "bboxes_3d"))
             if np.all(np.isfinite(box7)):
-                b7, ambiguous = fit_yaw_batch(box7, pts)
+                # only the boxes the camera may see (at the pose frames are matched at) need a yaw
+                seen = maybe_in_view(box7, self.pose_lin.R, self.pose_lin.t, self.intr, self._size(frame))
+                b7, ambiguous = np.array(box7, dtype=np.float64), np.ones(len(box7), dtype=bool)
+                if np.any(seen):
+                    b7[seen], ambiguous[seen] = fit_yaw_batch(box7[seen], pts)
                 f2 = replace(frame, bboxes_3d=b7, point_cloud=np.zeros((0, 3), np.float32),
                              meta={k: v for k, v in meta.items() if k != "box7"})
                 cf = prepare_frames([f2], self.intr, reestimate_yaw="never", box_model="corners")[0][0]
@@ -560,6 +563,15 @@ class CameraMonitor:
                 return replace(cf, yaw_ambiguous=amb, outline_sigma_m=sig, points=None, image=None)
         cfs, _, _ = prepare_frames([frame], self.intr, **self._prep)
         return replace(cfs[0], points=None, image=None)
+
+    def _size(self, frame) -> tuple[int, int] | None:
+        """(width, height) px of the frame's image: the calibration's, else the frame's intrinsics'."""
+        size = self.calibration.image_size
+        if size is not None:
+            return int(size[0]), int(size[1])
+        fi = getattr(frame, "intrinsics", None)
+        w, h = getattr(fi, "width", None), getattr(fi, "height", None)
+        return (int(w), int(h)) if w and h else None
 
     def update(self, frame, index: int | None = None) -> MonitorStatus | None:
         """Add one frame (an ``xcalib.types.Frame`` of this camera); returns the decision when one
