@@ -337,6 +337,12 @@ def test_weak_axes_name_what_the_traffic_cannot_show_and_the_statement_holds(str
     assert "shifts along z below" in tz[-1].message and tz[-1].to_dict()["weak_axes"] == list(tz[-1].weak_axes)
     summ = mon.summary()["cameras"][site.camera_name]
     assert summ["weak_axes_share"]["tz"] >= 0.4 and summ["target_change"]["translation_m"] == 0.10
+    # the power statement: per axis, the step seen within 45 frames (median over the ok decisions)
+    pw = summ["power"]
+    assert pw["within_frames"] == 45 and pw["decisions"] >= len(oks)
+    assert pw["seen_at_target"]["tz"] is False and pw["seen_at_target"]["tx"] is True
+    assert pw["translation_m_median"][2] > 0.10 >= pw["translation_m_median"][0]
+    assert pw["translation_m_p90"][2] >= pw["translation_m_median"][2]
     k0 = 80
     det_tz = [st for st in oks if st.frame < k0][-1].weak_detectable[5]
     big, _ = _detect(Monitor(cal, cfg), frames, k0, (np.zeros(3), np.array([0, 0, 2.0 * det_tz])), cal)
@@ -423,3 +429,25 @@ def test_a_turn_that_looks_like_a_shift_is_reported_ambiguous():
     # a well-observed turn is not ambiguous
     x, _, model = select_model(d, np.diag([1e-8] * 3 + [1e-6] * 3))
     assert model == "rotation"
+
+
+def test_view_filter_drops_only_boxes_the_camera_cannot_see():
+    """``maybe_in_view``: a box ahead in the image is kept, one behind the camera or far outside the
+    widened image is dropped; a box the camera's plane cuts is kept; lens distortion widens the
+    margin; without an image size or with another camera model every box is kept."""
+    from xcalib.geometry.camera import CameraIntrinsics
+    from xcalib.monitor.fastyaw import maybe_in_view
+
+    K = CameraIntrinsics(1000.0, 1000.0, 960.0, 600.0)
+    R, t = np.eye(3), np.zeros(3)  # LiDAR = camera axes (z ahead)
+    def box(x, y, z):
+        return [x, y, z, 4.5, 1.9, 1.6, 0.0]
+    boxes = np.array([box(0, 0, 30), box(0, 0, -30), box(200, 0, 30), box(14, 0, 30), box(0, 0, 1.0),
+                      box(0, 50, 30)])
+    keep = maybe_in_view(boxes, R, t, K, (1920, 1200))
+    # 14 m aside at 30 m: just outside the pinhole image (x/z 0.47 > 0.96), inside its 25 % margin
+    assert keep.tolist() == [True, False, False, True, True, False]
+    Kd = CameraIntrinsics(1000.0, 1000.0, 960.0, 600.0, distortion=np.array([-0.3, 0.1, 0, 0, 0]))
+    assert maybe_in_view(boxes, R, t, Kd, (1920, 1200))[5]  # 50 m below at 30 m: within a whole extra image
+    assert maybe_in_view(boxes, R, t, K, None).all()
+    assert maybe_in_view(boxes, R, t, object(), (1920, 1200)).all()

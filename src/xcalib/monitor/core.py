@@ -418,6 +418,7 @@ class CameraMonitor:
         self.events: list[DriftEvent] = []
         self.statuses_seen = {"ok": 0, "drift": 0, "unknown": 0}
         self.weak_seen = dict.fromkeys(AXIS_NAMES, 0)
+        self._power: deque[tuple[np.ndarray, int]] = deque(maxlen=POWER_DECISIONS)  # ok decisions' detectable [6], frames
         self.n_seen = 0
         self.last_time: float | None = None
         self.last_status: MonitorStatus | None = None
@@ -606,6 +607,8 @@ class CameraMonitor:
         self.statuses_seen[st.state] += 1
         for a in st.weak_axes:
             self.weak_seen[a] += 1
+        if st.state == "ok" and st.weak_detectable is not None and np.all(np.isfinite(st.weak_detectable)):
+            self._power.append((np.array(st.weak_detectable, dtype=np.float64), st.weak_frames + self.config.stride))
         self.last_status = st
         return st
 
@@ -895,6 +898,24 @@ class CameraMonitor:
             s = stats.chi2_stat(fit.x, fit.cov + self.cov_cal)
         return self._status("drift", fit, _drift_message(ev), "change", s, det, n - k)
 
+    def power_statement(self) -> dict | None:
+        """Per axis, the step this traffic lets the monitor see within ``target_frames`` of it: the
+        smallest change along / about each camera axis alone that the decisions detect with
+        ``power`` (95 %) by the test of the longest window within that many frames, as the median
+        and the 90th percentile (the sparser stretches) over the last POWER_DECISIONS ``ok``
+        decisions; ``seen_at_target``: per axis, whether the median is within the target change
+        (the issue's 0.25 deg / 10 cm). None before the first ``ok`` decision."""
+        if not self._power:
+            return None
+        det = np.stack([d for d, _ in self._power])
+        med, p90 = np.median(det, axis=0), np.quantile(det, 0.9, axis=0)
+        tgt = np.array([self.config.target_deg] * 3 + [self.config.target_m] * 3)
+        return {"within_frames": int(np.median([f for _, f in self._power])), "decisions": len(det),
+                "power": self.config.power,
+                "rotation_deg_median": _l(med[:3]), "translation_m_median": _l(med[3:]),
+                "rotation_deg_p90": _l(p90[:3]), "translation_m_p90": _l(p90[3:]),
+                "seen_at_target": {a: bool(v <= t) for a, v, t in zip(AXIS_NAMES, med, tgt)}}
+
     def summary(self) -> dict:
         last = self.last_status
         return {"camera": self.camera, "frames": self.n_seen, "decisions": dict(self.statuses_seen),
@@ -907,6 +928,7 @@ class CameraMonitor:
                                     if v},
                 "target_change": {"rotation_deg": self.config.target_deg, "translation_m": self.config.target_m,
                                   "within_frames": self.config.target_frames},
+                "power": self.power_statement(),
                 "events": [e.to_dict() for e in self.events],
                 "message": "no decision yet (fewer frames than one window)" if last is None else last.message}
 
@@ -920,6 +942,7 @@ def _weak_message(weak: tuple[str, ...], det: np.ndarray, n_frames: int) -> str:
              f"{det[AXIS_NAMES.index(a)]:.2f} {'deg' if a[0] == 'r' else 'm'}" for a in weak]
     return (f"not observable from this traffic within {n_frames} frames of a change (95 % power): "
             + ", ".join(parts))
+POWER_DECISIONS = 2000  # ok decisions the power statement is the median over
 SCALE_FRAMES = 200  # frames the residual scale is the median over
 SCALE_EVERY = 5  # ... recomputed every this many frames
 RELIN_ITERS = 3  # rounds of re-linearisation of the frames after a detected change
