@@ -61,6 +61,20 @@ def test_model_selection_names_a_pure_rotation():
     assert model == "rotation" and np.allclose(x[3:], 0) and abs(x[0] - d[0]) < 1e-3
 
 
+def test_the_step_is_reported_on_the_fewest_axes_the_data_need():
+    """``sparse_step``: a 10 cm shift along x with the view axis's noise on z is reported along x
+    alone; two significant axes stay two; nothing outside the model's axes is touched."""
+    from xcalib.monitor.stats import sparse_step
+
+    cov = np.diag([1e-8] * 3 + [0.01 ** 2, 0.01 ** 2, 0.02 ** 2])
+    x, axes = sparse_step(np.array([0, 0, 0, 0.10, 0.005, -0.02]), cov, (3, 4, 5))
+    assert axes == (3,) and abs(x[3] - 0.10) < 0.005 and np.all(x[[0, 1, 2, 4, 5]] == 0)
+    x, axes = sparse_step(np.array([0, 0, 0, 0.10, 0.05, 0.0]), cov, (3, 4, 5))
+    assert axes == (3, 4) and abs(x[4] - 0.05) < 1e-9
+    x, axes = sparse_step(np.array([0, 0, 0, 0.10, 0.05, 0.0]), cov, (0, 1, 2, 3, 4, 5))
+    assert axes == (3, 4)  # the rotation axes, with no change, are left out too
+
+
 def test_no_drift_is_ok_without_false_alarm(stream):
     site, frames = stream
     mon = Monitor(_calibration(site))

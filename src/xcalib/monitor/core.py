@@ -152,6 +152,7 @@ class DriftEvent:
     alternative: np.ndarray | None = None  # the other pure model the data do not reject either (deg / m)
     alternative_sigma: np.ndarray | None = None
     alternative_model: str = ""
+    step_axes: tuple[int, ...] = ()  # the axes (0-5: rx .. tz) the reported step is on
 
     def to_dict(self) -> dict:
         return {"camera": self.camera, "detected_frame": self.detected_frame, "detected_time_s": self.detected_time_s,
@@ -160,7 +161,7 @@ class DriftEvent:
                 "rotation_step_sigma_deg": _l(self.step_sigma[:3]), "translation_step_sigma_m": _l(self.step_sigma[3:]),
                 "rotation_change_deg": _l(self.change[:3]), "translation_change_m": _l(self.change[3:]),
                 "rotation_sigma_deg": _l(self.sigma[:3]), "translation_sigma_m": _l(self.sigma[3:]),
-                "statistic": self.statistic,
+                "statistic": self.statistic, "step_axes": [AXIS_NAMES[a] for a in self.step_axes],
                 "ambiguous_with": None if self.alternative is None else {
                     "model": self.alternative_model, "rotation_step_deg": _l(self.alternative[:3]),
                     "translation_step_m": _l(self.alternative[3:]),
@@ -173,11 +174,16 @@ class DriftEvent:
         bx = np.zeros(6) if self.before_x is None else self.before_x
         bc = np.zeros((6, 6)) if self.before_cov is None else self.before_cov
         kept = stats.pure_models(fit.x - bx, fit.cov + bc)
-        x, cov, self.model = (kept[0][1], kept[0][2], kept[0][3]) if kept else \
+        _, cov, self.model = (kept[0][1], kept[0][2], kept[0][3]) if kept else \
             (fit.x - bx, fit.cov + bc, "rotation+translation")
-        self.step, self.step_sigma = _to_units(x), _sd_units(cov)
+        d, dcov = fit.x - bx, fit.cov + bc
+        # the step on the fewest axes of the model the data need (sigmas: the model's, all its axes)
+        xs, self.step_axes = stats.sparse_step(d, dcov, _MODEL_AXES[self.model])
+        self.step, self.step_sigma = _to_units(xs), _sd_units(cov)
         # a pure rotation and a pure translation both fit (far objects: a turn about y looks like a
         # shift along x): the step is ambiguous, and the other reading is reported beside it
+        if len(kept) > 1:
+            kept[1] = (kept[1][0], stats.sparse_step(d, dcov, _MODEL_AXES[kept[1][3]])[0], kept[1][2], kept[1][3])
         self.alternative = _to_units(kept[1][1]) if len(kept) > 1 else None
         self.alternative_sigma = _sd_units(kept[1][2]) if len(kept) > 1 else None
         self.alternative_model = kept[1][3] if len(kept) > 1 else ""
@@ -935,6 +941,7 @@ class CameraMonitor:
 
 _AXES = ("x", "y", "z")
 AXIS_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
+_MODEL_AXES = {"rotation": (0, 1, 2), "translation": (3, 4, 5), "rotation+translation": (0, 1, 2, 3, 4, 5)}
 
 
 def _weak_message(weak: tuple[str, ...], det: np.ndarray, n_frames: int) -> str:
