@@ -5,6 +5,7 @@ exit codes, JSON lines schema and outputs."""
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -202,7 +203,10 @@ def test_cli_exit_codes_json_lines_and_outputs(tmp_path, stream, capsys):
     new = CalibrationResult.load(out / rec["path"])
     assert new.success and new.camera_name == site.camera_name
     # no drift (the frames before the change) -> 0; a stream with no objects -> 1 (could not tell)
+    capsys.readouterr()
     assert main(["monitor", str(src), "--frames", "0:50", "--calibration", str(cal), "--out", str(tmp_path / "w0")]) == 0
+    printed = " ".join(capsys.readouterr().out.split())  # the power statement (lines wrap at the terminal)
+    assert re.search(r"steps seen within \d+ frames \(95 % power", printed) and "at the target size only" in printed, printed
     empty = [replace(f, bboxes_2d=np.zeros((0, 4), np.float32), bboxes_3d=np.zeros((0, 7), np.float32),
                      match_matrix=None) for f in frames[:25]]
     src1, cal1 = _write_stream(tmp_path / "b", site, empty, 10**6, np.zeros(3))
