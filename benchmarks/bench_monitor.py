@@ -472,8 +472,9 @@ def main() -> None:
     ap.add_argument("--null-seeds", default="", help="--part null: comma-separated site seeds (default: the first --null-sites)")
     ap.add_argument("--null-noise", choices=("both", "default", "noisy"), default="both",
                     help="--part null: which detection noise (two processes can share the work)")
-    ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak"), default="all",
+    ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak", "information"), default="all",
                     help="run one part; its keys are merged into an existing results file")
+    ap.add_argument("--info-frames", type=int, default=400, help="--part information: frames per site for the bound")
     ap.add_argument("--steps-only", action="store_true", help="--part synth: the steps only (no null streams, ramps)")
     ap.add_argument("--real-null", type=int, default=1600, help="real sequences: drift-free frames (looped)")
     ap.add_argument("--real-frames", type=int, default=320, help="real sequences: step streams (change at the middle)")
@@ -511,6 +512,8 @@ def main() -> None:
         if args.null_noise in ("both", "noisy"):
             result["null_long_noisy"] = _null_replay("4 px box noise, 10 % missed", nseeds, args.null_base, n_null,
                                                      log, box_noise_px=4.0, miss_rate_2d=0.1)
+    elif args.part == "information":  # is the z step's power the boxes' information or the test?
+        result["information"] = _information(seeds, args.info_frames, args.null_frames, log)
     elif args.part in ("all", "synth"):
         _synthetic(result, seeds, n_null, args.runs, log, nulls=not args.steps_only)
     elif args.part == "weak":  # does the monitor say which changes it cannot see within 50 frames?
@@ -532,6 +535,34 @@ def main() -> None:
 
         result = {**json.loads(out.read_text()), **result}
     write_result(out, result)
+
+
+def _information(seeds: list[int], n_bound: int, n_null: int, log) -> dict:
+    """Per site: the Cramer-Rao bound of each axis over 40 / 50 frames and the power the 6-dof test
+    would have with it for the target steps (``monitor_information``), beside the monitor's own
+    test on a drift-free stream (stated vs empirical spread)."""
+    from monitor_information import bound_rows, frame_information, monitor_spread
+
+    from xcalib.monitor import Monitor, MonitorConfig
+
+    cfg = MonitorConfig()
+    rows = {}
+    for s in seeds:
+        site, frames = _synth_stream(s, max(n_bound, n_null))
+        cal = _synth_calibration(site)
+        cm = next(iter(Monitor(cal, cfg).cameras.values()))
+        infos = frame_information(cm, frames[:n_bound], float(site.config.box_noise_px))
+        row = {"bound": bound_rows(infos, cfg.threshold), "monitor": monitor_spread(cal, frames[:n_null])}
+        rows[f"site_{s}"] = row
+        for L, b in row["bound"].items():
+            sd = b["sigma_per_axis"]
+            log(f"site {s} {L}: bound 1-sigma rot {np.round(sd[:3], 3)} deg, trans {np.round(np.array(sd[3:]) * 100, 2)} cm; "
+                f"6-dof test power for 0.25 deg / 10 cm: " + ", ".join(f"{a} {v:.2f}" for a, v in b["power_6dof_target_step"].items()))
+        m = row["monitor"]
+        log(f"site {s} monitor (40 vs 250 frames, {m['tests']} tests): mean chi2 {m['mean_chi2_6dof']:.2f} (6: covariance right); "
+            f"stated / empirical variance " + ", ".join(f"{a} {v:.2f}" for a, v in m["stated_over_empirical_variance"].items())
+            + f"; detectable tz {100 * m['detectable_tz_median_m']:.1f} cm")
+    return rows
 
 
 def _synthetic(result: dict, seeds: list[int], n_null: int, runs: int, log, nulls: bool = True) -> None:

@@ -5,6 +5,7 @@ exit codes, JSON lines schema and outputs."""
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -59,6 +60,20 @@ def test_model_selection_names_a_pure_rotation():
     d = np.array([0.01, 0, 0, 0, 0, 0]) + np.array([1e-4, -1e-4, 0, 1e-3, 0, -1e-3])
     x, c, model = select_model(d, cov)
     assert model == "rotation" and np.allclose(x[3:], 0) and abs(x[0] - d[0]) < 1e-3
+
+
+def test_the_step_is_reported_on_the_fewest_axes_the_data_need():
+    """``sparse_step``: a 10 cm shift along x with the view axis's noise on z is reported along x
+    alone; two significant axes stay two; nothing outside the model's axes is touched."""
+    from xcalib.monitor.stats import sparse_step
+
+    cov = np.diag([1e-8] * 3 + [0.01 ** 2, 0.01 ** 2, 0.02 ** 2])
+    x, axes = sparse_step(np.array([0, 0, 0, 0.10, 0.005, -0.02]), cov, (3, 4, 5))
+    assert axes == (3,) and abs(x[3] - 0.10) < 0.005 and np.all(x[[0, 1, 2, 4, 5]] == 0)
+    x, axes = sparse_step(np.array([0, 0, 0, 0.10, 0.05, 0.0]), cov, (3, 4, 5))
+    assert axes == (3, 4) and abs(x[4] - 0.05) < 1e-9
+    x, axes = sparse_step(np.array([0, 0, 0, 0.10, 0.05, 0.0]), cov, (0, 1, 2, 3, 4, 5))
+    assert axes == (3, 4)  # the rotation axes, with no change, are left out too
 
 
 def test_no_drift_is_ok_without_false_alarm(stream):
@@ -188,7 +203,10 @@ def test_cli_exit_codes_json_lines_and_outputs(tmp_path, stream, capsys):
     new = CalibrationResult.load(out / rec["path"])
     assert new.success and new.camera_name == site.camera_name
     # no drift (the frames before the change) -> 0; a stream with no objects -> 1 (could not tell)
+    capsys.readouterr()
     assert main(["monitor", str(src), "--frames", "0:50", "--calibration", str(cal), "--out", str(tmp_path / "w0")]) == 0
+    printed = " ".join(capsys.readouterr().out.split())  # the power statement (lines wrap at the terminal)
+    assert re.search(r"steps seen within \d+ frames \(95 % power", printed) and "at the target size only" in printed, printed
     empty = [replace(f, bboxes_2d=np.zeros((0, 4), np.float32), bboxes_3d=np.zeros((0, 7), np.float32),
                      match_matrix=None) for f in frames[:25]]
     src1, cal1 = _write_stream(tmp_path / "b", site, empty, 10**6, np.zeros(3))
@@ -278,8 +296,20 @@ def test_yawless_boxes_get_their_yaw_from_the_points_in_the_monitor(stream):
     boxes turned to the fitted heading; the box without points is an open-yaw outline."""
     from xcalib.geometry.boxes import box7_to_extents
 
+    from xcalib.monitor.fastyaw import maybe_in_view
+
     site, frames = stream
     boxes, yaws, pts = _l_shaped_boxes()
+    # the scene moved (x-y) in front of the camera, the box without points out of its view
+    T = site.T_cam_lidar
+    ahead = T[:3, :3].T @ (np.array([0.0, 0.0, 45.0]) - T[:3, 3])
+    shift = np.array([*(ahead[:2] - boxes[:4, :2].mean(0)), 0.0])
+    boxes[:4, :3] += shift
+    pts = pts + shift
+    behind = T[:3, :3].T @ (np.array([0.0, 0.0, -30.0]) - T[:3, 3])
+    boxes[4, :2] = behind[:2]
+    seen = maybe_in_view(boxes, T[:3, :3], T[:3, 3], site.intrinsics_given, (site.width, site.height))
+    assert seen.tolist() == [True] * 4 + [False]
     f = replace(frames[0], bboxes_3d=box7_to_extents(boxes).astype(np.float32), point_cloud=pts.astype(np.float32),
                 match_matrix=None, meta={k: v for k, v in frames[0].meta.items() if k != "box7"})
     cm = Monitor(_calibration(site)).cameras[site.camera_name]
@@ -325,6 +355,12 @@ def test_weak_axes_name_what_the_traffic_cannot_show_and_the_statement_holds(str
     assert "shifts along z below" in tz[-1].message and tz[-1].to_dict()["weak_axes"] == list(tz[-1].weak_axes)
     summ = mon.summary()["cameras"][site.camera_name]
     assert summ["weak_axes_share"]["tz"] >= 0.4 and summ["target_change"]["translation_m"] == 0.10
+    # the power statement: per axis, the step seen within 45 frames (median over the ok decisions)
+    pw = summ["power"]
+    assert pw["within_frames"] == 45 and pw["decisions"] >= len(oks)
+    assert pw["seen_at_target"]["tz"] is False and pw["seen_at_target"]["tx"] is True
+    assert pw["translation_m_median"][2] > 0.10 >= pw["translation_m_median"][0]
+    assert pw["translation_m_p90"][2] >= pw["translation_m_median"][2]
     k0 = 80
     det_tz = [st for st in oks if st.frame < k0][-1].weak_detectable[5]
     big, _ = _detect(Monitor(cal, cfg), frames, k0, (np.zeros(3), np.array([0, 0, 2.0 * det_tz])), cal)
@@ -411,3 +447,25 @@ def test_a_turn_that_looks_like_a_shift_is_reported_ambiguous():
     # a well-observed turn is not ambiguous
     x, _, model = select_model(d, np.diag([1e-8] * 3 + [1e-6] * 3))
     assert model == "rotation"
+
+
+def test_view_filter_drops_only_boxes_the_camera_cannot_see():
+    """``maybe_in_view``: a box ahead in the image is kept, one behind the camera or far outside the
+    widened image is dropped; a box the camera's plane cuts is kept; lens distortion widens the
+    margin; without an image size or with another camera model every box is kept."""
+    from xcalib.geometry.camera import CameraIntrinsics
+    from xcalib.monitor.fastyaw import maybe_in_view
+
+    K = CameraIntrinsics(1000.0, 1000.0, 960.0, 600.0)
+    R, t = np.eye(3), np.zeros(3)  # LiDAR = camera axes (z ahead)
+    def box(x, y, z):
+        return [x, y, z, 4.5, 1.9, 1.6, 0.0]
+    boxes = np.array([box(0, 0, 30), box(0, 0, -30), box(200, 0, 30), box(14, 0, 30), box(0, 0, 1.0),
+                      box(0, 50, 30)])
+    keep = maybe_in_view(boxes, R, t, K, (1920, 1200))
+    # 14 m aside at 30 m: just outside the pinhole image (x/z 0.47 > 0.96), inside its 25 % margin
+    assert keep.tolist() == [True, False, False, True, True, False]
+    Kd = CameraIntrinsics(1000.0, 1000.0, 960.0, 600.0, distortion=np.array([-0.3, 0.1, 0, 0, 0]))
+    assert maybe_in_view(boxes, R, t, Kd, (1920, 1200))[5]  # 50 m below at 30 m: within a whole extra image
+    assert maybe_in_view(boxes, R, t, K, None).all()
+    assert maybe_in_view(boxes, R, t, object(), (1920, 1200)).all()

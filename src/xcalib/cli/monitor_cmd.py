@@ -117,6 +117,14 @@ def register(app: typer.Typer) -> None:
                 if dr is not None:
                     typer.echo(f"  detectable change (95 % power, last window): rotation x/y/z "
                                f"{_fmt3(dr)} deg, translation x/y/z {_fmt3(dt, 100)} cm")
+                pw = cs.get("power")
+                if pw is not None:
+                    seen = [a for a, v in pw["seen_at_target"].items() if v]
+                    blind = [a for a, v in pw["seen_at_target"].items() if not v]
+                    typer.echo(f"  steps seen within {pw['within_frames']} frames ({100 * pw['power']:.0f} % power, median over "
+                               f"{pw['decisions']} decisions): rotation x/y/z {_fmt3(pw['rotation_deg_median'])} deg, "
+                               f"translation x/y/z {_fmt3(pw['translation_m_median'], 100)} cm"
+                               + (f"; at the target size only {', '.join(seen) or 'none'}" if blind else ""))
                 if cs.get("weak_axes"):
                     tgt = cs["target_change"]
                     typer.echo(f"  not observable at {tgt['rotation_deg']:g} deg / {100 * tgt['translation_m']:g} cm "

@@ -40,7 +40,7 @@ from ..calib.result import CalibrationResult
 from ..geometry.boxes import as_box7, check_boxes3d
 from ..geometry.camera import CameraIntrinsics
 from . import stats
-from .fastyaw import fit_yaw_batch
+from .fastyaw import fit_yaw_batch, maybe_in_view
 
 __all__ = ["MonitorConfig", "MonitorStatus", "DriftEvent", "CameraMonitor", "Monitor", "State", "load_calibration",
            "JSON_FIELDS"]
@@ -152,6 +152,7 @@ class DriftEvent:
     alternative: np.ndarray | None = None  # the other pure model the data do not reject either (deg / m)
     alternative_sigma: np.ndarray | None = None
     alternative_model: str = ""
+    step_axes: tuple[int, ...] = ()  # the axes (0-5: rx .. tz) the reported step is on
 
     def to_dict(self) -> dict:
         return {"camera": self.camera, "detected_frame": self.detected_frame, "detected_time_s": self.detected_time_s,
@@ -160,7 +161,7 @@ class DriftEvent:
                 "rotation_step_sigma_deg": _l(self.step_sigma[:3]), "translation_step_sigma_m": _l(self.step_sigma[3:]),
                 "rotation_change_deg": _l(self.change[:3]), "translation_change_m": _l(self.change[3:]),
                 "rotation_sigma_deg": _l(self.sigma[:3]), "translation_sigma_m": _l(self.sigma[3:]),
-                "statistic": self.statistic,
+                "statistic": self.statistic, "step_axes": [AXIS_NAMES[a] for a in self.step_axes],
                 "ambiguous_with": None if self.alternative is None else {
                     "model": self.alternative_model, "rotation_step_deg": _l(self.alternative[:3]),
                     "translation_step_m": _l(self.alternative[3:]),
@@ -173,11 +174,16 @@ class DriftEvent:
         bx = np.zeros(6) if self.before_x is None else self.before_x
         bc = np.zeros((6, 6)) if self.before_cov is None else self.before_cov
         kept = stats.pure_models(fit.x - bx, fit.cov + bc)
-        x, cov, self.model = (kept[0][1], kept[0][2], kept[0][3]) if kept else \
+        _, cov, self.model = (kept[0][1], kept[0][2], kept[0][3]) if kept else \
             (fit.x - bx, fit.cov + bc, "rotation+translation")
-        self.step, self.step_sigma = _to_units(x), _sd_units(cov)
+        d, dcov = fit.x - bx, fit.cov + bc
+        # the step on the fewest axes of the model the data need (sigmas: the model's, all its axes)
+        xs, self.step_axes = stats.sparse_step(d, dcov, _MODEL_AXES[self.model])
+        self.step, self.step_sigma = _to_units(xs), _sd_units(cov)
         # a pure rotation and a pure translation both fit (far objects: a turn about y looks like a
         # shift along x): the step is ambiguous, and the other reading is reported beside it
+        if len(kept) > 1:
+            kept[1] = (kept[1][0], stats.sparse_step(d, dcov, _MODEL_AXES[kept[1][3]])[0], kept[1][2], kept[1][3])
         self.alternative = _to_units(kept[1][1]) if len(kept) > 1 else None
         self.alternative_sigma = _sd_units(kept[1][2]) if len(kept) > 1 else None
         self.alternative_model = kept[1][3] if len(kept) > 1 else ""
@@ -255,6 +261,11 @@ class _Rec:
     obj_H: np.ndarray | None = None  # [m,6,6] their share of H
     obj_g: np.ndarray | None = None  # [m,6] their share of g
 
+    def __post_init__(self) -> None:
+        # H, g, c, n_res, n_pairs, n2 as one row: a segment's sums are one stack and one cumsum
+        self.row = np.concatenate([np.asarray(self.H, dtype=np.float64).ravel(), np.asarray(self.g, dtype=np.float64),
+                                   [self.c, self.n_res, self.n_pairs, self.n2]])
+
 
 @dataclass
 class _Fit:
@@ -285,16 +296,10 @@ class _Sums:
     """Cumulative sums of the frames' normal equations: any run of frames is one subtraction."""
 
     def __init__(self, recs: list[_Rec]):
-        n = len(recs)
-        z = np.zeros(1)
-        hgc = [(q.H, q.g, q.c) for q in recs]
-        self.H = np.concatenate([np.zeros((1, 6, 6)), np.cumsum(np.stack([x[0] for x in hgc]), 0)]) if n else \
-            np.zeros((1, 6, 6))
-        self.g = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([x[1] for x in hgc]), 0)]) if n else np.zeros((1, 6))
-        self.c = np.concatenate([z, np.cumsum([x[2] for x in hgc])])
-        self.n = np.concatenate([z, np.cumsum([q.n_res for q in recs])])
-        self.p = np.concatenate([z, np.cumsum([q.n_pairs for q in recs])])
-        self.n2 = np.concatenate([z, np.cumsum([q.n2 for q in recs])])
+        rows = np.stack([q.row for q in recs]) if len(recs) else np.zeros((0, 46))
+        C = np.concatenate([np.zeros((1, 46)), np.cumsum(rows, 0)])
+        self.H, self.g = C[:, :36].reshape(-1, 6, 6), C[:, 36:42]
+        self.c, self.n, self.p, self.n2 = C[:, 42], C[:, 43], C[:, 44], C[:, 45]
 
     def pairs(self, a: int, b: int) -> int:
         return int(self.p[b] - self.p[a])
@@ -419,6 +424,7 @@ class CameraMonitor:
         self.events: list[DriftEvent] = []
         self.statuses_seen = {"ok": 0, "drift": 0, "unknown": 0}
         self.weak_seen = dict.fromkeys(AXIS_NAMES, 0)
+        self._power: deque[tuple[np.ndarray, int]] = deque(maxlen=POWER_DECISIONS)  # ok decisions' detectable [6], frames
         self.n_seen = 0
         self.last_time: float | None = None
         self.last_status: MonitorStatus | None = None
@@ -551,7 +557,11 @@ class CameraMonitor:
         if yawless and pts is not None and np.ndim(pts) == 2 and len(pts):
             box7 = as_box7(check_boxes3d(b3, "bboxes_3d"))
             if np.all(np.isfinite(box7)):
-                b7, ambiguous = fit_yaw_batch(box7, pts)
+                # only the boxes the camera may see (at the pose frames are matched at) need a yaw
+                seen = maybe_in_view(box7, self.pose_lin.R, self.pose_lin.t, self.intr, self._size(frame))
+                b7, ambiguous = np.array(box7, dtype=np.float64), np.ones(len(box7), dtype=bool)
+                if np.any(seen):
+                    b7[seen], ambiguous[seen] = fit_yaw_batch(box7[seen], pts)
                 f2 = replace(frame, bboxes_3d=b7, point_cloud=np.zeros((0, 3), np.float32),
                              meta={k: v for k, v in meta.items() if k != "box7"})
                 cf = prepare_frames([f2], self.intr, reestimate_yaw="never", box_model="corners")[0][0]
@@ -560,6 +570,15 @@ class CameraMonitor:
                 return replace(cf, yaw_ambiguous=amb, outline_sigma_m=sig, points=None, image=None)
         cfs, _, _ = prepare_frames([frame], self.intr, **self._prep)
         return replace(cfs[0], points=None, image=None)
+
+    def _size(self, frame) -> tuple[int, int] | None:
+        """(width, height) px of the frame's image: the calibration's, else the frame's intrinsics'."""
+        size = self.calibration.image_size
+        if size is not None:
+            return int(size[0]), int(size[1])
+        fi = getattr(frame, "intrinsics", None)
+        w, h = getattr(fi, "width", None), getattr(fi, "height", None)
+        return (int(w), int(h)) if w and h else None
 
     def update(self, frame, index: int | None = None) -> MonitorStatus | None:
         """Add one frame (an ``xcalib.types.Frame`` of this camera); returns the decision when one
@@ -594,6 +613,8 @@ class CameraMonitor:
         self.statuses_seen[st.state] += 1
         for a in st.weak_axes:
             self.weak_seen[a] += 1
+        if st.state == "ok" and st.weak_detectable is not None and np.all(np.isfinite(st.weak_detectable)):
+            self._power.append((np.array(st.weak_detectable, dtype=np.float64), st.weak_frames + self.config.stride))
         self.last_status = st
         return st
 
@@ -883,6 +904,24 @@ class CameraMonitor:
             s = stats.chi2_stat(fit.x, fit.cov + self.cov_cal)
         return self._status("drift", fit, _drift_message(ev), "change", s, det, n - k)
 
+    def power_statement(self) -> dict | None:
+        """Per axis, the step this traffic lets the monitor see within ``target_frames`` of it: the
+        smallest change along / about each camera axis alone that the decisions detect with
+        ``power`` (95 %) by the test of the longest window within that many frames, as the median
+        and the 90th percentile (the sparser stretches) over the last POWER_DECISIONS ``ok``
+        decisions; ``seen_at_target``: per axis, whether the median is within the target change
+        (the issue's 0.25 deg / 10 cm). None before the first ``ok`` decision."""
+        if not self._power:
+            return None
+        det = np.stack([d for d, _ in self._power])
+        med, p90 = np.median(det, axis=0), np.quantile(det, 0.9, axis=0)
+        tgt = np.array([self.config.target_deg] * 3 + [self.config.target_m] * 3)
+        return {"within_frames": int(np.median([f for _, f in self._power])), "decisions": len(det),
+                "power": self.config.power,
+                "rotation_deg_median": _l(med[:3]), "translation_m_median": _l(med[3:]),
+                "rotation_deg_p90": _l(p90[:3]), "translation_m_p90": _l(p90[3:]),
+                "seen_at_target": {a: bool(v <= t) for a, v, t in zip(AXIS_NAMES, med, tgt)}}
+
     def summary(self) -> dict:
         last = self.last_status
         return {"camera": self.camera, "frames": self.n_seen, "decisions": dict(self.statuses_seen),
@@ -895,12 +934,14 @@ class CameraMonitor:
                                     if v},
                 "target_change": {"rotation_deg": self.config.target_deg, "translation_m": self.config.target_m,
                                   "within_frames": self.config.target_frames},
+                "power": self.power_statement(),
                 "events": [e.to_dict() for e in self.events],
                 "message": "no decision yet (fewer frames than one window)" if last is None else last.message}
 
 
 _AXES = ("x", "y", "z")
 AXIS_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
+_MODEL_AXES = {"rotation": (0, 1, 2), "translation": (3, 4, 5), "rotation+translation": (0, 1, 2, 3, 4, 5)}
 
 
 def _weak_message(weak: tuple[str, ...], det: np.ndarray, n_frames: int) -> str:
@@ -908,6 +949,7 @@ def _weak_message(weak: tuple[str, ...], det: np.ndarray, n_frames: int) -> str:
              f"{det[AXIS_NAMES.index(a)]:.2f} {'deg' if a[0] == 'r' else 'm'}" for a in weak]
     return (f"not observable from this traffic within {n_frames} frames of a change (95 % power): "
             + ", ".join(parts))
+POWER_DECISIONS = 2000  # ok decisions the power statement is the median over
 SCALE_FRAMES = 200  # frames the residual scale is the median over
 SCALE_EVERY = 5  # ... recomputed every this many frames
 RELIN_ITERS = 3  # rounds of re-linearisation of the frames after a detected change

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["fit_yaw_batch", "points_near"]
+__all__ = ["fit_yaw_batch", "points_near", "maybe_in_view"]
 
 CELL_M = 4.0
 MAX_POINTS = 160  # side points per box the heading cost is evaluated on (evenly thinned beyond)
@@ -76,15 +76,17 @@ def fit_yaw_batch(box7: np.ndarray, pts: np.ndarray, *, step_deg: float = 4.0, m
     bi, qx, qy = bi[use], qx[use], qy[use]
     if len(bi):
         theta = np.radians(np.arange(0.0, 180.0, step_deg))
-        cos_t, sin_t = np.cos(theta)[:, None], np.sin(theta)[:, None]
-        dx, dy = qx - b[bi, 0], qy - b[bi, 1]
-        u = np.abs(cos_t * dx + sin_t * dy) - b[bi, 3] / 2
-        v = np.abs(-sin_t * dx + cos_t * dy) - b[bi, 4] / 2
+        # the [T, K] grid in single precision (half the memory traffic; the cost's resolution is a
+        # fraction of the band's 0.3 m, far above float32's)
+        cos_t, sin_t = np.cos(theta)[:, None].astype(np.float32), np.sin(theta)[:, None].astype(np.float32)
+        dx, dy = (qx - b[bi, 0]).astype(np.float32), (qy - b[bi, 1]).astype(np.float32)
+        u = np.abs(cos_t * dx + sin_t * dy) - (b[bi, 3] / 2).astype(np.float32)
+        v = np.abs(cos_t * dy - sin_t * dx) - (b[bi, 4] / 2).astype(np.float32)
         inside = (u <= 0) & (v <= 0)
         d = np.where(inside, np.minimum(-u, -v), np.hypot(np.maximum(u, 0), np.maximum(v, 0)))
         d = np.minimum(d, band_m) ** 2  # [T, K]
         boxes, starts = np.unique(bi, return_index=True)  # bi is sorted (np.nonzero is row-major)
-        cost = np.add.reduceat(d, starts, axis=1).T  # [B, T]
+        cost = np.add.reduceat(d, starts, axis=1, dtype=np.float64).T  # [B, T]
         T = len(theta)
         k = np.argmin(cost, axis=1)
         rows = np.arange(len(boxes))
@@ -99,3 +101,32 @@ def fit_yaw_batch(box7: np.ndarray, pts: np.ndarray, *, step_deg: float = 4.0, m
         fitted[boxes] = True
     aspect = np.maximum(b[:, 3], b[:, 4]) / np.maximum(np.minimum(b[:, 3], b[:, 4]), 1e-6)
     return b, (aspect >= min_aspect) & ~(fitted & (contrast >= min_contrast))
+
+
+def maybe_in_view(box7: np.ndarray, R: np.ndarray, t: np.ndarray, intr, size: tuple[int, int] | None,
+                  margin: float = 0.25) -> np.ndarray:
+    """[M] bool: boxes the camera (pose ``R``, ``t``: LiDAR -> camera) may see. A box is dropped only
+    when the sphere around it (its half space diagonal) lies wholly behind the camera or wholly
+    outside the pinhole image widened by ``margin`` of its width / height on every side (a whole
+    image width with lens distortion); a camera model other than ``CameraIntrinsics`` or an unknown
+    image size keeps every box. The yaw of a box no 2D box can match is never used."""
+    from ..geometry.camera import CameraIntrinsics
+
+    b = np.asarray(box7, dtype=np.float64).reshape(-1, 7)
+    keep = np.ones(len(b), dtype=bool)
+    if not len(b) or size is None or not isinstance(intr, CameraIntrinsics):
+        return keep
+    X = b[:, :3] @ np.asarray(R, dtype=np.float64).T + np.asarray(t, dtype=np.float64)
+    r = 0.5 * np.linalg.norm(b[:, 3:6], axis=1)
+    Z = X[:, 2]
+    near = Z - r <= 0.3  # touches the camera's plane: kept unless wholly behind it
+    zs = np.where(near, 1.0, Z)
+    ang = r / np.maximum(Z - r, 0.3)  # the sphere's angular radius (tangent, over-estimated)
+    W, H = float(size[0]), float(size[1])
+    m = 1.0 if intr.distortion is not None else float(margin)
+    x0, x1 = (-intr.cx - m * W) / intr.fx, (W - intr.cx + m * W) / intr.fx
+    y0, y1 = (-intr.cy - m * H) / intr.fy, (H - intr.cy + m * H) / intr.fy
+    xn, yn = X[:, 0] / zs, X[:, 1] / zs
+    inside = (xn + ang > x0) & (xn - ang < x1) & (yn + ang > y0) & (yn - ang < y1)
+    keep = (Z > -r) & (near | inside)
+    return keep | ~np.all(np.isfinite(X), axis=1)

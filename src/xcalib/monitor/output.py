@@ -197,6 +197,16 @@ def write_monitor_html(path, monitor: Monitor, log: MonitorLog, *, title: str = 
                          + "; translation "
                          + ", ".join(f"{a} {v if v is None else round(100 * v, 1)} cm" for a, v in zip("xyz", dt))
                          + "</p>")
+        pw = cs.get("power")
+        if pw is not None:
+            parts.append(f"<p>Steps seen within {pw['within_frames']} frames of them ({100 * pw['power']:.0f} % power, "
+                         f"median over {pw['decisions']} decisions): rotation "
+                         + ", ".join(f"{a} {v if v is None else round(v, 3)} deg" for a, v in zip("xyz", pw["rotation_deg_median"]))
+                         + "; translation "
+                         + ", ".join(f"{a} {v if v is None else round(100 * v, 1)} cm"
+                                     for a, v in zip("xyz", pw["translation_m_median"]))
+                         + ". Not seen at the target size: "
+                         + html.escape(", ".join(a for a, v in pw["seen_at_target"].items() if not v) or "none") + "</p>")
         parts.append("<table><tr><th>decisions</th>" + "".join(f"<td>{k}: {v}</td>" for k, v in
                                                                cs["decisions"].items()) + "</tr></table>")
         if rows:

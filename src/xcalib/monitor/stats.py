@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2, ncx2
 
-__all__ = ["threshold", "detectable_lambda", "detectable_change", "chi2_stat", "select_model", "pure_models"]
+__all__ = ["threshold", "detectable_lambda", "detectable_change", "chi2_stat", "select_model", "pure_models",
+           "sparse_step"]
 
 DOF = 6
 
@@ -97,3 +98,37 @@ def select_model(d: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray
     if not kept:
         return d, cov, "rotation+translation"
     return kept[0][1], kept[0][2], kept[0][3]
+
+
+def sparse_step(d: np.ndarray, cov: np.ndarray, axes, level: float = MODEL_LEVEL) -> tuple[np.ndarray, tuple[int, ...]]:
+    """The change ``d`` (6-vector, rad / m; covariance ``cov``) on the fewest of ``axes`` (indices
+    0-5: the axes of the model ``pure_models`` chose) that the data do not reject at ``level``:
+    every subset S of ``axes`` gets its constrained generalised least squares estimate, kept when
+    its misfit is below the chi-square(6 - |S|) quantile; the smallest kept subset wins (ties: the
+    smaller misfit); the whole of ``axes`` when none smaller is kept. An axis left out is one the
+    window cannot tell from no change (a 10 cm shift along x does not also report the view axis's
+    2-3 cm of noise as a shift along z). Returns (estimate [6], the axes kept)."""
+    from itertools import combinations
+
+    axes = tuple(int(a) for a in axes)
+    try:
+        info = np.linalg.inv(cov)
+    except np.linalg.LinAlgError:
+        return np.asarray(d, dtype=np.float64), axes
+    best = None
+    for k in range(1, len(axes) + 1):
+        for S in combinations(axes, k):
+            E = np.zeros((DOF, k))
+            E[list(S), range(k)] = 1.0
+            try:
+                ca = np.linalg.inv(E.T @ info @ E)
+            except np.linalg.LinAlgError:
+                continue
+            a = ca @ E.T @ info @ d
+            res = d - E @ a
+            misfit = float(res @ info @ res)
+            if (k == len(axes) or misfit < float(chi2.isf(level, DOF - k))) and (best is None or misfit < best[0]):
+                best = (misfit, E @ a, S)
+        if best is not None:
+            return best[1], best[2]
+    return np.asarray(d, dtype=np.float64), axes

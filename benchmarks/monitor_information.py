@@ -1,0 +1,129 @@
+"""The information a window of synthetic frames holds about each axis of a pose change, under the
+generator's own noise (``xcalib.data.synth``: 2D box coordinates iid ``box_noise_px``; 3D centre
+iid 0.1 m per LiDAR axis, size 3 % per axis, yaw 2 deg -- per frame and box), against what the
+monitor's test makes of it (``bench_monitor.py --part information``).
+
+Cramer-Rao bound: per matched pair (matched at the true pose) the box-edge residual is linearised,
+``r = J x + N e + n`` (``J`` [4,6] the edges' pixel Jacobian in the pose change, ``N`` [4,7] in the
+box's centre, size and yaw errors ``e``, ``n`` the 2D noise), ``Cov = s2d^2 I + N diag(sig^2) N^T``
+(the four edges' correlation kept); the information is ``sum J^T Cov^-1 J``. Occluded and
+truncated boxes count as exact and the noise as Gaussian, so the bound is optimistic (the
+information is an upper bound). From it: the 1-sigma of each axis over a window (the other five
+profiled out) and the power of the monitor's 6-dof two-sample test (its threshold, a
+``window``-frame segment against a ``ref``-frame reference) for a step on one axis.
+
+Monitor: on a drift-free stream, every 20 frames the test the decisions run (the last 40 frames
+against the 250 before them): the empirical spread of the difference ``d`` against the
+covariance the test uses (mean of ``d^T C^-1 d``: 6 when the covariance is right).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+SIG_NUISANCE = np.array([0.1, 0.1, 0.1, 0.03, 0.03, 0.03, np.radians(2.0)])  # the generator's 3D errors
+TARGET = np.array([np.radians(0.25)] * 3 + [0.10] * 3)
+AXES = ("rx", "ry", "rz", "tx", "ty", "tz")
+
+
+def frame_information(cm, frames, s2d: float) -> np.ndarray:
+    """[n,6,6]: each frame's information about the pose change (rad / m) at the calibration."""
+    from xcalib.calib.boxproj import project_rects
+    from xcalib.calib.refine import edge_term, match_frame
+    from xcalib.monitor.core import _EPS, _perturbations
+
+    pose = cm.pose0
+    Rs, ts = _perturbations(pose)
+    d = 1e-4
+    out = []
+    for f in frames:
+        cf = cm._prepare(f)
+        pairs, _, _ = match_frame(cf, cm.intr, pose.R, pose.t, gate_iou=0.2, gate_dist=0.5)
+        info = np.zeros((6, 6))
+        if len(pairs):
+            term = edge_term([cf], [pairs], cm.intr, pose, cm.noise, None)
+            c = term.outlines
+
+            def rect(cc):
+                return project_rects(cc, pose.R, pose.t, cm.intr, term.size)[0]
+
+            rects, _ = project_rects(c, Rs, ts, cm.intr, term.size)
+            J = np.transpose((rects[1::2] - rects[2::2]) / (2 * _EPS), (1, 2, 0))  # [m,4,6]
+            m0 = c.mean(1, keepdims=True)
+            dev = c - m0
+            nuis = []
+            for k in range(3):  # centre along the LiDAR axes
+                e = np.zeros(3)
+                e[k] = d
+                nuis.append((rect(c + e) - rect(c - e)) / (2 * d))
+            _, V = np.linalg.eigh(np.einsum("msi,msj->mij", dev, dev))  # the box's axes
+            for k in range(3):  # relative size along each
+                a = V[:, :, k]
+                proj = np.einsum("msi,mi->ms", dev, a)[..., None] * a[:, None, :]
+                nuis.append((rect(c + d * proj) - rect(c - d * proj)) / (2 * d))
+
+            def turned(th):
+                cs, sn = np.cos(th), np.sin(th)
+                return m0 + np.stack([cs * dev[..., 0] - sn * dev[..., 1], sn * dev[..., 0] + cs * dev[..., 1],
+                                      dev[..., 2]], -1)
+
+            nuis.append((rect(turned(d)) - rect(turned(-d))) / (2 * d))
+            N = np.stack(nuis, -1)  # [m,4,7]
+            for p in range(len(pairs)):
+                rows = np.any(J[p] != 0, axis=1) & np.all(np.isfinite(J[p]), 1) & np.all(np.isfinite(N[p]), 1)
+                if rows.any():
+                    Jp, Np = J[p][rows], N[p][rows]
+                    Cp = s2d ** 2 * np.eye(int(rows.sum())) + Np @ np.diag(SIG_NUISANCE ** 2) @ Np.T
+                    info += Jp.T @ np.linalg.solve(Cp, Jp)
+        out.append(info)
+    return np.array(out)
+
+
+def bound_rows(infos: np.ndarray, h: float, ref: int = 250, windows=(40, 50)) -> dict:
+    """Per window length: the median 1-sigma per axis (deg / m, others profiled) and, per axis, the
+    mean power of the 6-dof test (threshold ``h``) for the target step on that axis alone."""
+    from scipy.stats import ncx2
+
+    out = {}
+    n = len(infos)
+    for L in windows:
+        sds, pw = [], []
+        for a in range(0, n - L - ref + 1, 25):
+            Ib, Ia = infos[a:a + ref].sum(0), infos[a + ref:a + ref + L].sum(0)
+            Cd_inv = np.linalg.inv(np.linalg.inv(Ia) + np.linalg.inv(Ib))
+            sds.append(np.sqrt(np.diag(np.linalg.inv(Ia))))
+            pw.append([ncx2.sf(h, 6, TARGET[k] ** 2 * Cd_inv[k, k]) for k in range(6)])
+        sd = np.median(sds, 0)
+        out[f"window_{L}"] = {"sigma_per_axis": [*np.degrees(sd[:3]).tolist(), *sd[3:].tolist()],
+                              "power_6dof_target_step": dict(zip(AXES, np.mean(pw, 0).tolist())),
+                              "placements": len(pw)}
+    return out
+
+
+def monitor_spread(cal, frames, every: int = 20, L: int = 40, ref: int = 250) -> dict:
+    """The monitor's own test on a drift-free stream: empirical vs stated spread of d."""
+    from xcalib.monitor import Monitor, MonitorConfig, stats
+    from xcalib.monitor.core import _Sums
+
+    mon = Monitor(cal, MonitorConfig(latch=False, history=max(len(frames), 600), false_alarm_rate=1e-12))
+    cm = next(iter(mon.cameras.values()))
+    D, C, S = [], [], []
+    for i, f in enumerate(frames):
+        mon.update(f)
+        if i + 1 >= L + ref and (i + 1 - L - ref) % every == 0:
+            recs = list(cm.recs)[-(L + ref):]
+            sums = _Sums(recs)
+            m = len(recs)
+            fa, fb = sums.fit(m - L, m, cm.inflation), sums.fit(0, m - L, cm.inflation)
+            if fa is None or fb is None:
+                continue
+            D.append(fa.x - fb.x)
+            C.append(fa.cov + fb.cov)
+            S.append(stats.chi2_stat(D[-1], C[-1]))
+    D, C = np.array(D), np.array(C)
+    emp, nom = D.std(0), np.sqrt(np.median(np.diagonal(C, axis1=1, axis2=2), 0))
+    return {"tests": len(D), "mean_chi2_6dof": float(np.mean(S)),
+            "empirical_sd_per_axis": [*np.degrees(emp[:3]).tolist(), *emp[3:].tolist()],
+            "stated_sd_per_axis": [*np.degrees(nom[:3]).tolist(), *nom[3:].tolist()],
+            "stated_over_empirical_variance": dict(zip(AXES, (nom ** 2 / emp ** 2).tolist())),
+            "detectable_tz_median_m": float(np.median([stats.detectable_change(c, cm.lam)[5] for c in C]))}
