@@ -70,3 +70,49 @@ def test_a_crowded_site_is_refused_unless_the_pose_matches_most_2d_boxes():
     assert crowded_check(cf, CalibConfig(), explained=CROWDED_EXPLAINED - 0.1).code == "crowded"
     assert crowded_check(cf, CalibConfig(), explained=CROWDED_EXPLAINED) is None
     assert crowded_check(_frames(10, 20, 3), CalibConfig()) is None  # not crowded
+
+
+def test_gated_frames_views_only_crowded_frames_and_none_when_none_is():
+    from xcalib.calib.bringup import gated_frames
+
+    cfg = CalibConfig()
+    quiet, busy = _frames(12, 30, 1)[0], _frames(60, 120, 1)[0]
+    assert gated_frames([quiet, quiet], cfg.max_candidates) is None  # nothing crowded: the frames as they are
+    views = gated_frames([quiet, busy], cfg.max_candidates)
+    assert views[0] is quiet
+    assert views[1].n2 == GATE_2D and views[1].n3 == busy.n3
+    np.testing.assert_array_equal(views[1].boxes3d, busy.boxes3d)
+
+
+def test_a_crowded_frame_spends_its_azimuth_windows_of_the_search_budget():
+    from xcalib.calib.bringup import search_cost
+    from xcalib.calib.hypotheses import Hypotheses
+
+    h = Hypotheses.empty()
+    h.n_searches = 6
+    assert search_cost(h, crowded=True) == 6
+    assert search_cost(h, crowded=False) == 1  # a frame that is not crowded costs one, split or not
+    h.n_searches = 0
+    assert search_cost(h, crowded=True) == 1
+
+
+def test_the_bring_up_searches_crowded_frames_until_the_budget_is_spent(monkeypatch):
+    import xcalib.calib.bringup as bu
+    from xcalib.calib.hypotheses import Hypotheses
+
+    cf = _frames(60, 120, 4) + _frames(12, 30, 2)  # four crowded frames, then two quiet ones
+    seen = []
+
+    def fake(frs, intr, fi, **kw):
+        if len(frs) == 1:  # the per-frame searches (pooled groups may follow)
+            seen.append(fi)
+        h = Hypotheses.empty()
+        h.n_searches = 6 if frs[0].n3 == 120 else 1
+        return h
+
+    monkeypatch.setattr(bu, "frame_hypotheses", fake)
+    bu.pose_hypotheses(cf, None, CalibConfig(max_hyp_frames=10))
+    assert seen == [0, 1, 4, 5]  # 6 + 6 windows spend the 10; quiet frames are searched whatever the budget
+    seen.clear()
+    bu.pose_hypotheses(cf[4:], None, CalibConfig(max_hyp_frames=10))
+    assert seen == [0, 1]  # not crowded: every frame, as before

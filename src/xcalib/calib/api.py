@@ -29,7 +29,7 @@ from ..geometry.boxes import box2d_centers
 from ..geometry.projection import project_points
 from ..geometry.transforms import make_transform
 from .boxmodel import fit_object_outline, fit_outline
-from .bringup import distinct_best, matcher_similarities, pose_hypotheses
+from .bringup import distinct_best, gated_frames, matcher_similarities, pose_hypotheses
 from .config import CalibConfig
 from .cost import Occlusion
 from .terms import CostSpec
@@ -93,12 +93,16 @@ def _full_refine(args) -> tuple[float, RefineResult]:
 
 
 def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
-                       progress: Progress | None, workers: Workers = 1) -> _Refined:
+                       progress: Progress | None, workers: Workers = 1, max_candidates: int | None = None) -> _Refined:
     """A quick refinement of every candidate, then a full one of the best and the best distinct
     runner-up (each stage on up to ``workers`` processes; the results, in candidate order, are the
-    same whatever the number)."""
+    same whatever the number). ``max_candidates`` (``CalibConfig.max_candidates``): the quick
+    refinements see crowded frames through the search's gate (``bringup.gated_frames``), so their
+    cost stops growing with the boxes per frame; None: every frame as it is."""
     lean = lean_frames(cframes) if resolve_workers(workers) > 1 else cframes
-    quick = parallel_map(_quick_refine, [(lean, intr, cand.R[k], cand.t[k], occlusion) for k in range(len(cand))],
+    gated = None if max_candidates is None else gated_frames(lean, max_candidates)
+    qf = lean if gated is None else gated
+    quick = parallel_map(_quick_refine, [(qf, intr, cand.R[k], cand.t[k], occlusion) for k in range(len(cand))],
                          workers)
     if progress:
         for k in range(len(cand)):
@@ -170,7 +174,7 @@ def _choose_box_model(cframes, intr, cand: Hypotheses, ref: _Refined, occlusion:
         diag.box_model = _outline_kind(cframes)
         return cframes, ref
     diag.box_model = _outline_kind(alt)
-    return alt, _refine_candidates(alt, intr, cand, occlusion, progress, config.workers)
+    return alt, _refine_candidates(alt, intr, cand, occlusion, progress, config.workers, config.max_candidates)
 
 
 def _runner_up(ref: _Refined, max_baseline_m: float | None, r2: float = 1.0, t2: float = 0.3) -> float:
@@ -262,7 +266,8 @@ def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion, best
                          rng=np.random.default_rng(config.seed))
     if len(bu.hyps) == 0:
         return 0.0, 0, None
-    ref = _refine_candidates(flipped, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None)
+    ref = _refine_candidates(flipped, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None, 1,
+                             config.max_candidates)
     matched = match_all(flipped, intr, ref.best.R, ref.best.t, gate_iou=config.gate_iou)
     return ref.best_score, int(sum(len(p) for p in matched)), None
 
@@ -283,7 +288,8 @@ def _second_pose(cframes, pairs, intr, pose: Pose, config: CalibConfig, occlusio
     bu = pose_hypotheses(left, intr, small, max_baseline_m=config.max_baseline_m, rng=np.random.default_rng(config.seed))
     if len(bu.hyps) == 0:
         return 0.0, 0, None, False, None
-    ref = _refine_candidates(left, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None)
+    ref = _refine_candidates(left, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None, 1,
+                             config.max_candidates)
     p2, cap = Pose(ref.best.R, ref.best.t), config.max_baseline_m
     n2 = int(sum(len(p) for p in match_all(left, intr, p2.R, p2.t, gate_iou=config.gate_iou)))
     admissible = cap is None or np.linalg.norm(pose.t) > cap or np.linalg.norm(p2.t) <= cap
@@ -444,7 +450,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     cand = distinct_best(hyps, config.max_refine * 2 if diag.sparse_search else config.max_refine)
     diag.bringup_T = Pose(cand.R[0], cand.t[0]).T.tolist()
     occlusion = CostSpec.from_config(config)  # the box-edge shaping and the config's cost terms, for every fit
-    ref = _refine_candidates(cframes, intr, cand, occlusion, progress, config.workers)
+    ref = _refine_candidates(cframes, intr, cand, occlusion, progress, config.workers, config.max_candidates)
     cframes, ref = _choose_box_model(cframes, intr, cand, ref, occlusion, config, diag, progress)
     inflation = None
     if wants_selfcal(config):
@@ -456,7 +462,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
             # every candidate again with the estimated intrinsics / moved 3D boxes (a fair runner-up)
             cframes, intr, inflation = choice.frames, choice.intr, choice.inflation
             joint = Hypotheses(choice.pose.R[None], choice.pose.t[None], np.zeros(1), np.zeros(1, dtype=np.int64))
-            ref = _refine_candidates(cframes, intr, Hypotheses.concat([joint, cand]), occlusion, progress, config.workers)
+            ref = _refine_candidates(cframes, intr, Hypotheses.concat([joint, cand]), occlusion, progress,
+                                     config.workers, config.max_candidates)
     best, pose = ref.best, Pose(ref.best.R, ref.best.t)
     diag.score, diag.runner_up_score = ref.best_score, _runner_up(ref, config.max_baseline_m)
     diag.refine_history, diag.noise_model = list(best.history), best.noise

@@ -23,7 +23,7 @@ from .hypotheses import Hypotheses, TripleSearch, frame_hypotheses, informative_
 from .inputs import CalibFrame
 from .pose import Pose
 
-__all__ = ["BringUp", "pose_hypotheses", "distinct_best", "pooled_groups", "matcher_similarities"]
+__all__ = ["BringUp", "pose_hypotheses", "distinct_best", "pooled_groups", "matcher_similarities", "gated_frames"]
 
 log = logging.getLogger("xcalib.calib")
 
@@ -130,6 +130,30 @@ def _gated(cframes: Sequence[CalibFrame], sims: list, max_candidates: int):
     return out, out_sims
 
 
+def gated_frames(cframes: Sequence[CalibFrame], max_candidates: int) -> list[CalibFrame] | None:
+    """The frames with each crowded one (n2 x n3 above twice ``max_candidates``) seen through the
+    search's gate (its ``GATE_2D`` most informative 2D boxes, every 3D box), or None when no frame
+    is crowded. The candidates' quick refinements use it: their job is to rank the candidates and
+    bring them near their optimum, which ~``GATE_2D`` well-separated boxes per frame do as well as
+    all of them, at a cost that no longer grows with the boxes (the finalists are refined on every
+    box). Frames that are not crowded are the same objects, so nothing changes for them."""
+    if not any(fr.n2 * fr.n3 > 2 * max_candidates for fr in cframes):
+        return None
+    return _gated(cframes, [None] * len(cframes), max_candidates)[0]
+
+
+def search_cost(h: Hypotheses, crowded: bool) -> int:
+    """What one frame's search spends of the bring-up's budget of ``max_hyp_frames`` searches: a
+    search of at most ``max_candidates`` candidate pairs costs one, and a crowded frame (through the
+    gate, still above ``max_candidates`` pairs: a 360-degree LiDAR's boxes all around) is split
+    into azimuth windows, each a search of its own (``hypotheses.frame_hypotheses``), so it costs
+    its windows. The per-frame searches stop once the budget is spent (at least one frame is
+    searched): the bring-up's cost is that of ``max_hyp_frames`` plain searches however many boxes
+    a frame holds, where ten crowded frames of six windows each cost six times the budget. Frames
+    that are not crowded cost one each, so their search is the same as before."""
+    return max(1, int(getattr(h, "n_searches", 1))) if crowded else 1
+
+
 def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, config: CalibConfig = CalibConfig(), *,
                     similarities: list | None = None, max_baseline_m: float | None = None,
                     rng: np.random.Generator | None = None,
@@ -142,10 +166,13 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
     """
     rng = np.random.default_rng(config.seed) if rng is None else rng
     sims = [None] * len(cframes) if similarities is None else list(similarities)
+    crowded = [fr.n2 * fr.n3 > 2 * config.max_candidates for fr in cframes]
     cframes, sims = _gated(cframes, sims, config.max_candidates)
     groups, n_before, sparse_scene = _search_groups(cframes, config.max_hyp_frames)
-    parts, splits = [], 0
+    parts, splits, budget = [], 0, config.max_hyp_frames
     for k, g in enumerate(groups):
+        if k < n_before and len(g) == 1 and crowded[g[0]] and budget <= 0:
+            continue  # the per-frame searches' budget is spent (see ``search_cost``)
         gs = [sims[i] for i in g]
         big = (sparse_scene or k >= n_before) and len(g) > 1
         search = TripleSearch(max_baseline_m=max_baseline_m, max_candidates=config.max_candidates)
@@ -154,6 +181,8 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
         if any(x is not None for x in gs) and len(h) == 0:
             h = frame_hypotheses([cframes[i] for i in g], intr, g[0], rng=rng, search=search)
         splits += int(getattr(h, "n_searches", 1) > 1)
+        if k < n_before and len(g) == 1:
+            budget -= search_cost(h, crowded[g[0]])
         parts.append(h)
         if progress:
             progress("hypotheses", k + 1, len(groups))
