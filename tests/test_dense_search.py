@@ -86,33 +86,27 @@ def test_gated_frames_views_only_crowded_frames_and_none_when_none_is():
 
 def test_a_crowded_frame_spends_its_azimuth_windows_of_the_search_budget():
     from xcalib.calib.bringup import search_cost
-    from xcalib.calib.hypotheses import Hypotheses
 
-    h = Hypotheses.empty()
-    h.n_searches = 6
-    assert search_cost(h, crowded=True) == 6
-    assert search_cost(h, crowded=False) == 1  # a frame that is not crowded costs one, split or not
-    h.n_searches = 0
-    assert search_cost(h, crowded=True) == 1
+    assert search_cost(6, crowded=True) == 6
+    assert search_cost(6, crowded=False) == 1  # a frame that is not crowded costs one, split or not
+    assert search_cost(0, crowded=True) == 1
 
 
 def test_the_bring_up_searches_crowded_frames_until_the_budget_is_spent(monkeypatch):
     import xcalib.calib.bringup as bu
-    from xcalib.calib.hypotheses import Hypotheses
+    from xcalib.calib.hypotheses import TripleDraw
 
     cf = _frames(60, 120, 4) + _frames(12, 30, 2)  # four crowded frames, then two quiet ones
     seen = []
 
-    def fake(frs, intr, fi, **kw):
+    def fake(frs, intr, **kw):
         if len(frs) == 1:  # the per-frame searches (pooled groups may follow)
-            seen.append(fi)
-        h = Hypotheses.empty()
-        h.n_searches = 6 if frs[0].n3 == 120 else 1
-        return h
+            seen.append(next(i for i, f in enumerate(cf) if f.key == frs[0].key and f.n3 == frs[0].n3))
+        return TripleDraw(None, [None] * (6 if frs[0].n3 == 120 else 1))
 
-    monkeypatch.setattr(bu, "frame_hypotheses", fake)
+    monkeypatch.setattr(bu, "draw_triples", fake)
     bu.pose_hypotheses(cf, None, CalibConfig(max_hyp_frames=10))
     assert seen == [0, 1, 4, 5]  # 6 + 6 windows spend the 10; quiet frames are searched whatever the budget
     seen.clear()
     bu.pose_hypotheses(cf[4:], None, CalibConfig(max_hyp_frames=10))
-    assert seen == [0, 1]  # not crowded: every frame, as before
+    assert seen == [4, 5]  # not crowded: every frame, as before

@@ -29,7 +29,7 @@ from ..geometry.boxes import box2d_centers
 from ..geometry.projection import project_points
 from ..geometry.transforms import make_transform
 from .boxmodel import fit_object_outline, fit_outline
-from .bringup import distinct_best, gated_frames, matcher_similarities, pose_hypotheses
+from .bringup import distinct_best, gated_frames, gated_matches, matcher_similarities, pose_hypotheses
 from .config import CalibConfig
 from .cost import Occlusion
 from .terms import CostSpec
@@ -316,8 +316,13 @@ def _misfit_searches(ctx: FitContext, config: CalibConfig, best_score: float | N
                                                              ctx.f_scale, ctx.occlusion)
     lean, one = lean_frames(cframes), config.replace(workers=1)
     places = len(matched_places(cframes, pairs)[0])
+    lens_ctx = ctx.with_frames(lean)
+    gated = gated_matches(lean, pairs, config.max_candidates)  # crowded frames: the lens refits on the gate's matches
+    if gated is not None:
+        lens_ctx = dataclasses.replace(lens_ctx, frames=gated[0], pairs=gated[1])
+        places = len(matched_places(*gated)[0])
     return Deferred([(_second_pose, (lean, pairs, intr, pose, one, occlusion, best_score)),
-                     (_lens_check, (ctx.with_frames(lean), places)),
+                     (_lens_check, (lens_ctx, places)),
                      (_mirror_score, (lean, intr, one, occlusion, best_score, pose))], config.workers)
 
 

@@ -19,11 +19,14 @@ import numpy as np
 
 from ..geometry.camera import CameraIntrinsics
 from .config import CalibConfig
-from .hypotheses import Hypotheses, TripleSearch, frame_hypotheses, informative_view, score_poses
-from .inputs import CalibFrame
+from .hypotheses import (Hypotheses, TripleSearch, draw_triples, frame_hypotheses, informative_view, score_poses,
+                         solve_triples)
+from .inputs import CalibFrame, lean_frames
+from .parallel import parallel_map, resolve_workers
 from .pose import Pose
 
-__all__ = ["BringUp", "pose_hypotheses", "distinct_best", "pooled_groups", "matcher_similarities", "gated_frames"]
+__all__ = ["BringUp", "pose_hypotheses", "distinct_best", "pooled_groups", "matcher_similarities", "gated_frames",
+           "gated_matches"]
 
 log = logging.getLogger("xcalib.calib")
 
@@ -142,8 +145,34 @@ def gated_frames(cframes: Sequence[CalibFrame], max_candidates: int) -> list[Cal
     return _gated(cframes, [None] * len(cframes), max_candidates)[0]
 
 
-def search_cost(h: Hypotheses, crowded: bool) -> int:
-    """What one frame's search spends of the bring-up's budget of ``max_hyp_frames`` searches: a
+def gated_matches(cframes: Sequence[CalibFrame], pairs: list[np.ndarray],
+                  max_candidates: int) -> tuple[list[CalibFrame], list[np.ndarray]] | None:
+    """:func:`gated_frames` with the matches ``pairs`` (per frame [n,2] rows) that fall on the
+    gate's 2D boxes, renumbered to the view's rows; None when no frame is crowded. The misfit
+    refits that cost one fit each over all matches (the lens check) use it on crowded sites: the
+    ``GATE_2D`` well-separated boxes of every frame are as many matches as the sites the checks
+    were designed on have in all (A9: 16 frames, ~150), and their statistics are per match or per
+    object, so their thresholds mean the same on the view."""
+    if not any(fr.n2 * fr.n3 > 2 * max_candidates for fr in cframes):
+        return None
+    frames, out = [], []
+    for fr, p in zip(cframes, pairs):
+        if fr.n2 * fr.n3 <= 2 * max_candidates:
+            frames.append(fr)
+            out.append(p)
+            continue
+        view, rows = informative_view(fr, GATE_2D)
+        keep = np.isin(p[:, 0], rows)
+        q = p[keep].copy()
+        q[:, 0] = np.searchsorted(rows, q[:, 0])
+        frames.append(view)
+        out.append(q)
+    return frames, out
+
+
+def search_cost(n_windows: int, crowded: bool) -> int:
+    """What one frame's search (drawn in ``n_windows`` azimuth windows) spends of the bring-up's
+    budget of ``max_hyp_frames`` searches: a
     search of at most ``max_candidates`` candidate pairs costs one, and a crowded frame (through the
     gate, still above ``max_candidates`` pairs: a 360-degree LiDAR's boxes all around) is split
     into azimuth windows, each a search of its own (``hypotheses.frame_hypotheses``), so it costs
@@ -151,7 +180,7 @@ def search_cost(h: Hypotheses, crowded: bool) -> int:
     searched): the bring-up's cost is that of ``max_hyp_frames`` plain searches however many boxes
     a frame holds, where ten crowded frames of six windows each cost six times the budget. Frames
     that are not crowded cost one each, so their search is the same as before."""
-    return max(1, int(getattr(h, "n_searches", 1))) if crowded else 1
+    return max(1, int(n_windows)) if crowded else 1
 
 
 def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, config: CalibConfig = CalibConfig(), *,
@@ -169,27 +198,49 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
     crowded = [fr.n2 * fr.n3 > 2 * config.max_candidates for fr in cframes]
     cframes, sims = _gated(cframes, sims, config.max_candidates)
     groups, n_before, sparse_scene = _search_groups(cframes, config.max_hyp_frames)
-    parts, splits, budget = [], 0, config.max_hyp_frames
+    workers = resolve_workers(config.workers)
+    lean = lean_frames(cframes) if workers > 1 else cframes
+    jobs, budget = [], config.max_hyp_frames
     for k, g in enumerate(groups):
         if k < n_before and len(g) == 1 and crowded[g[0]] and budget <= 0:
             continue  # the per-frame searches' budget is spent (see ``search_cost``)
         gs = [sims[i] for i in g]
         big = (sparse_scene or k >= n_before) and len(g) > 1
         search = TripleSearch(max_baseline_m=max_baseline_m, max_candidates=config.max_candidates)
-        h = frame_hypotheses([cframes[i] for i in g], intr, g[0], prior_sims=gs, rng=rng,
-                             search=replace(search, max_triples=20000 if big else 3000, keep=60 if big else 25))
-        if any(x is not None for x in gs) and len(h) == 0:
-            h = frame_hypotheses([cframes[i] for i in g], intr, g[0], rng=rng, search=search)
-        splits += int(getattr(h, "n_searches", 1) > 1)
+        wide = replace(search, max_triples=20000 if big else 3000, keep=60 if big else 25)
+        frs = [lean[i] for i in g]
+        draw = draw_triples(frs, intr, prior_sims=gs, rng=rng, search=wide)
         if k < n_before and len(g) == 1:
-            budget -= search_cost(h, crowded[g[0]])
-        parts.append(h)
-        if progress:
-            progress("hypotheses", k + 1, len(groups))
+            budget -= search_cost(draw.n_windows, crowded[g[0]])
+        if any(x is not None for x in gs):  # matcher priors: solved now (a search without them may follow)
+            h = solve_triples(frs, intr, g[0], draw, wide)
+            if len(h) == 0:
+                h = frame_hypotheses(frs, intr, g[0], rng=rng, search=search)
+            jobs.append(h)
+        else:
+            jobs.append((frs, intr, g[0], draw, wide))
+    # the draws took every random number in order: the searches are solved in parallel, the same result
+    todo = [j for j in jobs if not isinstance(j, Hypotheses)]
+    solved = iter(parallel_map(_solve_job, todo, workers))
+    parts = [j if isinstance(j, Hypotheses) else next(solved) for j in jobs]
+    splits = sum(int(getattr(h, "n_searches", 1) > 1) for h in parts)
+    if progress:
+        progress("hypotheses", len(groups), len(groups))
     hyps = Hypotheses.concat(parts)
     if len(hyps):  # re-score the pooled hypotheses on every frame (static rig: one pose explains all)
-        hyps.score = sum(score_poses(fr, intr, hyps.R, hyps.t) for fr in cframes)
+        per_frame = parallel_map(_score_job, [(fr, intr, hyps.R, hyps.t) for fr in lean], workers)
+        hyps.score = sum(per_frame)  # summed frame by frame, as ``sum(score_poses(...) for fr ...)``
     return BringUp(hyps, sparse_search=bool(sparse_scene), pooled_search=len(groups) > n_before, split_searches=splits)
+
+
+def _solve_job(job) -> Hypotheses:
+    """One drawn search solved (a task of ``pose_hypotheses``)."""
+    return solve_triples(*job)
+
+
+def _score_job(job) -> np.ndarray:
+    """Every hypothesis scored on one frame (a task of ``pose_hypotheses``)."""
+    return score_poses(*job)
 
 
 def distinct_best(h: Hypotheses, n: int, rot_deg: float = 3.0, trans_m: float = 1.0) -> Hypotheses:

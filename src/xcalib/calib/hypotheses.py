@@ -20,7 +20,8 @@ from ..geometry.projection import undistort_pixels
 from .boxproj import iou_batched, project_rects
 from .inputs import CalibFrame
 
-__all__ = ["Hypotheses", "kabsch", "kabsch_triangles", "informative_view", "bearings", "frame_hypotheses", "TripleSearch", "score_poses"]
+__all__ = ["Hypotheses", "kabsch", "kabsch_triangles", "informative_view", "bearings", "frame_hypotheses", "TripleSearch",
+           "score_poses", "TripleDraw", "draw_triples", "solve_triples"]
 
 
 @dataclass
@@ -256,24 +257,35 @@ class TripleSearch:
     closed_form: bool = False
 
 
-def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, fi: int, *,
-                     prior_sims: list | None = None, rng: np.random.Generator | None = None,
-                     search: TripleSearch = TripleSearch()) -> Hypotheses:
-    """Pose hypotheses from box triples of one frame (or a group of frames of the same static rig,
-    whose pairs are rigidly consistent with each other too), scored on those frames; keep ``keep``.
+@dataclass
+class TripleDraw:
+    """The random part of one search (:func:`draw_triples`): its candidate pairs ``cand`` (None:
+    none), per azimuth window the candidate rows and the drawn triples [T,3] of rows of the window
+    (None: none that are consistent and well shaped), and whether matcher priors ranked them. What
+    remains (:func:`solve_triples`: P3P, Kabsch, scoring) draws no random numbers, so searches drawn
+    one after another from one generator can be solved in any order, or in parallel, with the same
+    result."""
 
-    The search is quadratic in the candidate pairs; beyond ``max_candidates`` of them it runs on
-    azimuth windows of at most that many (see ``_azimuth_windows``), so memory stays bounded.
-    (``search``: these settings, :class:`TripleSearch`.)"""
-    max_triples, min_altitude_m, keep, max_baseline_m, max_candidates = (
-        search.max_triples, search.min_altitude_m, search.keep, search.max_baseline_m, search.max_candidates)
+    cand: "_Candidates | None"
+    windows: list
+    have_prior: bool = False
+
+    @property
+    def n_windows(self) -> int:
+        return len(self.windows)
+
+
+def draw_triples(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, *, prior_sims: list | None = None,
+                 rng: np.random.Generator | None = None, search: TripleSearch = TripleSearch()) -> TripleDraw:
+    """The candidate pairs of ``frs`` and the box triples of :func:`frame_hypotheses`, drawn from
+    ``rng`` exactly as it draws them (the same numbers in the same order)."""
     rng = np.random.default_rng(0) if rng is None else rng
     frs = [frs] if isinstance(frs, CalibFrame) else list(frs)
     prior_sims = [None] * len(frs) if prior_sims is None else list(prior_sims)
-    parts = [(k,) + _candidate_pairs(fr, intr, ps, max_baseline_m=max_baseline_m)
+    parts = [(k,) + _candidate_pairs(fr, intr, ps, max_baseline_m=search.max_baseline_m)
              for k, (fr, ps) in enumerate(zip(frs, prior_sims)) if fr.n2 and fr.n3]
     if not parts:
-        return Hypotheses.empty()
+        return TripleDraw(None, [])
     cand = _Candidates(
         fk=np.concatenate([np.full(len(p[1]), p[0]) for p in parts]),
         ii=np.concatenate([p[1] for p in parts]), jj=np.concatenate([p[2] for p in parts]),
@@ -281,10 +293,22 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
         dtol=np.concatenate([p[5] for p in parts]), w=np.concatenate([p[6] for p in parts]),
         X=np.concatenate([frs[p[0]].boxes3d[p[2], :3] for p in parts]))  # LiDAR centre of each pair
     have_prior = any(ps is not None for ps in prior_sims)
-    windows = _azimuth_windows(cand.X, max_candidates, rng, cand.w if have_prior else None)
+    windows = _azimuth_windows(cand.X, search.max_candidates, rng, cand.w if have_prior else None)
+    return TripleDraw(cand, [(idx, _triples(cand.take(idx), rng, search.max_triples, search.min_altitude_m, have_prior))
+                             for idx in windows], have_prior)
+
+
+def solve_triples(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, fi: int, draw: TripleDraw,
+                  search: TripleSearch = TripleSearch()) -> Hypotheses:
+    """The poses of a drawn search's triples (P3P, Kabsch), pre-scored per window, then IoU-scored
+    on ``frs``; the ``search.keep`` best, from frame ``fi``. No random numbers."""
+    frs = [frs] if isinstance(frs, CalibFrame) else list(frs)
+    keep, cand, windows = search.keep, draw.cand, draw.windows
+    if cand is None:
+        return Hypotheses.empty()
     Rs, ts = [], []
-    for idx in windows:
-        f = _triple_poses(cand.take(idx), rng, max_triples, min_altitude_m, have_prior, search.closed_form)
+    for idx, tri in windows:
+        f = None if tri is None else _triple_solve(cand.take(idx), tri, search.closed_form)
         if f is None:
             continue
         # cheap pre-score (projected 3D centres inside 2D boxes; split searches: only the 3D boxes
@@ -303,6 +327,20 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
     out = Hypotheses(R[order], t[order], sc[order], np.full(len(order), fi, dtype=np.int64))
     out.n_searches = len(windows)
     return out
+
+
+def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, fi: int, *,
+                     prior_sims: list | None = None, rng: np.random.Generator | None = None,
+                     search: TripleSearch = TripleSearch()) -> Hypotheses:
+    """Pose hypotheses from box triples of one frame (or a group of frames of the same static rig,
+    whose pairs are rigidly consistent with each other too), scored on those frames; keep ``keep``.
+
+    The search is quadratic in the candidate pairs; beyond ``max_candidates`` of them it runs on
+    azimuth windows of at most that many (see ``_azimuth_windows``), so memory stays bounded.
+    (``search``: these settings, :class:`TripleSearch`.) It is :func:`draw_triples` (every random
+    number) followed by :func:`solve_triples`."""
+    frs = [frs] if isinstance(frs, CalibFrame) else list(frs)
+    return solve_triples(frs, intr, fi, draw_triples(frs, intr, prior_sims=prior_sims, rng=rng, search=search), search)
 
 
 def informative_view(fr: CalibFrame, max_2d: int) -> tuple[CalibFrame, np.ndarray]:
@@ -395,9 +433,10 @@ def _top2(keys: np.ndarray) -> np.ndarray:
     return np.column_stack([first, keys.argmax(1)])
 
 
-def _triple_poses(c: _Candidates, rng: np.random.Generator, max_triples: int, min_altitude_m: float,
-                  have_prior: bool, closed_form: bool = False):
-    """Poses (R [T,3,3], t [T,3]) of the consistent, well-shaped triples of candidates c, or None."""
+def _triples(c: _Candidates, rng: np.random.Generator, max_triples: int, min_altitude_m: float,
+             have_prior: bool) -> np.ndarray | None:
+    """The consistent, well-shaped triples [T,3] of candidates c (rows), or None; every random
+    number of a window's search is drawn here."""
     if len(c.ii) < 3:
         return None
     X, ray, lam = c.X, c.ray, c.lam
@@ -436,8 +475,13 @@ def _triple_poses(c: _Candidates, rng: np.random.Generator, max_triples: int, mi
     area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
     longest = np.maximum(np.maximum(np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)), np.linalg.norm(e3, axis=1))
     tri = tri[area2 / np.maximum(longest, 1e-9) >= min_altitude_m]
-    if len(tri) == 0:
-        return None
+    return tri if len(tri) else None
+
+
+def _triple_solve(c: _Candidates, tri: np.ndarray, closed_form: bool = False):
+    """Poses (R [T,3,3], t [T,3]) of the triples ``tri`` [T,3] of candidates c (P3P, then Kabsch),
+    or None when none solves."""
+    X, ray, lam = c.X, c.ray, c.lam
     B = ray[tri]  # [T,3,3]
     A = X[tri]
     a_idx, b_idx = np.array([0, 0, 1]), np.array([1, 2, 2])
