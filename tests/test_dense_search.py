@@ -110,3 +110,44 @@ def test_the_bring_up_searches_crowded_frames_until_the_budget_is_spent(monkeypa
     seen.clear()
     bu.pose_hypotheses(cf[4:], None, CalibConfig(max_hyp_frames=10))
     assert seen == [4, 5]  # not crowded: every frame, as before
+
+
+def test_gated_matches_keep_the_matches_on_the_gate_s_boxes_renumbered():
+    from xcalib.calib.bringup import gated_matches
+
+    cfg = CalibConfig()
+    quiet, busy = _frames(12, 30, 1)[0], _frames(60, 120, 1)[0]
+    p_quiet = np.array([[0, 1], [3, 2]])
+    p_busy = np.column_stack([np.arange(0, 60, 2), np.arange(30)])  # every other 2D box matched
+    assert gated_matches([quiet], [p_quiet], cfg.max_candidates) is None
+    frames, pairs = gated_matches([quiet, busy], [p_quiet, p_busy], cfg.max_candidates)
+    assert frames[0] is quiet and pairs[0] is p_quiet
+    view = frames[1]
+    _, rows = informative_view(busy, GATE_2D)
+    want = p_busy[np.isin(p_busy[:, 0], rows)]
+    assert len(pairs[1]) == len(want) > 0
+    # the renumbered rows name the same 2D boxes, the 3D columns are unchanged
+    np.testing.assert_array_equal(view.boxes2d[pairs[1][:, 0]], busy.boxes2d[want[:, 0]])
+    np.testing.assert_array_equal(pairs[1][:, 1], want[:, 1])
+
+
+def test_the_misfit_searches_see_a_crowded_site_through_the_gate_and_compare_there():
+    from xcalib.calib.api import _search_view
+    from xcalib.calib.context import FitContext
+    from xcalib.calib.pose import Pose
+    from xcalib.calib.refine import match_all, pair_metrics
+    from xcalib.data.synth import sample_site
+
+    site = sample_site(1)
+    cfg = CalibConfig()
+    quiet = _frames(12, 30, 2)
+    pose = Pose(site.T_cam_lidar[:3, :3], site.T_cam_lidar[:3, 3])
+    pairs = match_all(quiet, site.intrinsics, pose.R, pose.t)
+    assert _search_view(FitContext(quiet, pairs, site.intrinsics, pose), cfg) is None  # not crowded: every box
+    busy = _frames(60, 120, 2)
+    pairs = [np.column_stack([np.arange(0, 60, 3), np.arange(20)]) for _ in busy]
+    view = _search_view(FitContext(busy, pairs, site.intrinsics, pose), cfg)
+    assert [f.n2 for f in view.frames] == [GATE_2D, GATE_2D]
+    _, iou = pair_metrics(view.frames, site.intrinsics, pose.R, pose.t, view.pairs)
+    assert view.score == float(np.sum(iou))
+    assert sum(len(p) for p in view.pairs) < sum(len(p) for p in pairs)
