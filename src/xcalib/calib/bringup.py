@@ -216,31 +216,33 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
             h = solve_triples(frs, intr, g[0], draw, wide)
             if len(h) == 0:
                 h = frame_hypotheses(frs, intr, g[0], rng=rng, search=search)
-            jobs.append(h)
+            jobs.append(_rescored(h, lean, intr))
         else:
-            jobs.append((frs, intr, g[0], draw, wide))
-    # the draws took every random number in order: the searches are solved in parallel, the same result
-    todo = [j for j in jobs if not isinstance(j, Hypotheses)]
+            jobs.append((frs, intr, g[0], draw, wide, lean))
+    # the draws took every random number in order: the searches are solved (and their hypotheses
+    # scored on every frame) in parallel, with the same result
+    todo = [j for j in jobs if isinstance(j, tuple)]
     solved = iter(parallel_map(_solve_job, todo, workers))
-    parts = [j if isinstance(j, Hypotheses) else next(solved) for j in jobs]
-    splits = sum(int(getattr(h, "n_searches", 1) > 1) for h in parts)
+    parts = [next(solved) if isinstance(j, tuple) else j for j in jobs]
+    splits = sum(int(getattr(h, "n_searches", 1) > 1) for h, _ in parts)
     if progress:
         progress("hypotheses", len(groups), len(groups))
-    hyps = Hypotheses.concat(parts)
-    if len(hyps):  # re-score the pooled hypotheses on every frame (static rig: one pose explains all)
-        per_frame = parallel_map(_score_job, [(fr, intr, hyps.R, hyps.t) for fr in lean], workers)
-        hyps.score = sum(per_frame)  # summed frame by frame, as ``sum(score_poses(...) for fr ...)``
+    hyps = Hypotheses.concat([h for h, _ in parts])
+    if len(hyps):  # re-scored on every frame (static rig: one pose explains all), summed frame by frame
+        hyps.score = sum(np.concatenate([sc[f] for h, sc in parts if len(h)]) for f in range(len(lean)))
     return BringUp(hyps, sparse_search=bool(sparse_scene), pooled_search=len(groups) > n_before, split_searches=splits)
 
 
-def _solve_job(job) -> Hypotheses:
-    """One drawn search solved (a task of ``pose_hypotheses``)."""
-    return solve_triples(*job)
+def _rescored(h: Hypotheses, frames: Sequence[CalibFrame], intr) -> tuple[Hypotheses, list[np.ndarray]]:
+    """``h`` and its hypotheses' scores on each of ``frames`` (each pose is scored on its own, so
+    scoring the searches' hypotheses apart and joining the scores gives the joint scoring's values)."""
+    return h, [score_poses(fr, intr, h.R, h.t) for fr in frames] if len(h) else []
 
 
-def _score_job(job) -> np.ndarray:
-    """Every hypothesis scored on one frame (a task of ``pose_hypotheses``)."""
-    return score_poses(*job)
+def _solve_job(job) -> tuple[Hypotheses, list[np.ndarray]]:
+    """One drawn search solved and its hypotheses scored on every frame (a task of ``pose_hypotheses``)."""
+    frs, intr, fi, draw, search, frames = job
+    return _rescored(solve_triples(frs, intr, fi, draw, search), frames, intr)
 
 
 def distinct_best(h: Hypotheses, n: int, rot_deg: float = 3.0, trans_m: float = 1.0) -> Hypotheses:
