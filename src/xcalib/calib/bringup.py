@@ -225,8 +225,9 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
     solved = iter(parallel_map(_solve_job, todo, workers))
     parts = [next(solved) if isinstance(j, tuple) else j for j in jobs]
     splits = sum(int(getattr(h, "n_searches", 1) > 1) for h, _ in parts)
-    if progress:
-        progress("hypotheses", len(groups), len(groups))
+    if progress:  # (the searches are solved together: reported once they are)
+        for k in range(len(groups)):
+            progress("hypotheses", k + 1, len(groups))
     hyps = Hypotheses.concat([h for h, _ in parts])
     if len(hyps):  # re-scored on every frame (static rig: one pose explains all), summed frame by frame
         hyps.score = sum(np.concatenate([sc[f] for h, sc in parts if len(h)]) for f in range(len(lean)))
