@@ -50,3 +50,37 @@ def test_same_result_for_one_and_two_workers():
     assert one.diagnostics.refusal == two.diagnostics.refusal
     assert [m.statistic for m in one.diagnostics.misfit] == [m.statistic for m in two.diagnostics.misfit]
     assert two.config.workers == 2
+
+
+@needs_fork
+def test_the_bring_up_search_is_the_same_on_two_workers():
+    from xcalib.calib.bringup import pose_hypotheses
+    from xcalib.calib.inputs import prepare_frames
+
+    frames, _ = sim_frames(seed=1, n_frames=6)
+    cf, intr, _ = prepare_frames(frames, INTR)
+    one = pose_hypotheses(cf, intr, CalibConfig(workers=1))
+    two = pose_hypotheses(cf, intr, CalibConfig(workers=2))
+    assert len(one.hyps) > 10
+    for k in ("R", "t", "score", "frame"):
+        assert np.array_equal(getattr(one.hyps, k), getattr(two.hyps, k)), k
+    assert (one.split_searches, one.pooled_search) == (two.split_searches, two.pooled_search)
+
+
+def test_drawn_searches_solved_later_are_the_frame_search():
+    """``frame_hypotheses`` = ``draw_triples`` then ``solve_triples``: two searches drawn one after
+    the other from one generator, solved afterwards in reverse order, give what two searches in a
+    row give (the draws take every random number)."""
+    from xcalib.calib.hypotheses import draw_triples, frame_hypotheses, solve_triples
+    from xcalib.calib.inputs import prepare_frames
+
+    frames, _ = sim_frames(seed=2, n_frames=2)
+    cf, intr, _ = prepare_frames(frames, INTR)
+    rng = np.random.default_rng(3)
+    direct = [frame_hypotheses([f], intr, k, rng=rng) for k, f in enumerate(cf)]
+    rng = np.random.default_rng(3)
+    draws = [draw_triples([f], intr, rng=rng) for f in cf]
+    later = [solve_triples([cf[k]], intr, k, draws[k]) for k in (1, 0)][::-1]
+    assert all(len(h) for h in direct)
+    for a, b in zip(direct, later):
+        assert np.array_equal(a.R, b.R) and np.array_equal(a.t, b.t) and np.array_equal(a.score, b.score)

@@ -70,3 +70,84 @@ def test_a_crowded_site_is_refused_unless_the_pose_matches_most_2d_boxes():
     assert crowded_check(cf, CalibConfig(), explained=CROWDED_EXPLAINED - 0.1).code == "crowded"
     assert crowded_check(cf, CalibConfig(), explained=CROWDED_EXPLAINED) is None
     assert crowded_check(_frames(10, 20, 3), CalibConfig()) is None  # not crowded
+
+
+def test_gated_frames_views_only_crowded_frames_and_none_when_none_is():
+    from xcalib.calib.bringup import gated_frames
+
+    cfg = CalibConfig()
+    quiet, busy = _frames(12, 30, 1)[0], _frames(60, 120, 1)[0]
+    assert gated_frames([quiet, quiet], cfg.max_candidates) is None  # nothing crowded: the frames as they are
+    views = gated_frames([quiet, busy], cfg.max_candidates)
+    assert views[0] is quiet
+    assert views[1].n2 == GATE_2D and views[1].n3 == busy.n3
+    np.testing.assert_array_equal(views[1].boxes3d, busy.boxes3d)
+
+
+def test_a_crowded_frame_spends_its_azimuth_windows_of_the_search_budget():
+    from xcalib.calib.bringup import search_cost
+
+    assert search_cost(6, crowded=True) == 6
+    assert search_cost(6, crowded=False) == 1  # a frame that is not crowded costs one, split or not
+    assert search_cost(0, crowded=True) == 1
+
+
+def test_the_bring_up_searches_crowded_frames_until_the_budget_is_spent(monkeypatch):
+    import xcalib.calib.bringup as bu
+    from xcalib.calib.hypotheses import TripleDraw
+
+    cf = _frames(60, 120, 4) + _frames(12, 30, 2)  # four crowded frames, then two quiet ones
+    seen = []
+
+    def fake(frs, intr, **kw):
+        if len(frs) == 1:  # the per-frame searches (pooled groups may follow)
+            seen.append(next(i for i, f in enumerate(cf) if f.key == frs[0].key and f.n3 == frs[0].n3))
+        return TripleDraw(None, [None] * (6 if frs[0].n3 == 120 else 1))
+
+    monkeypatch.setattr(bu, "draw_triples", fake)
+    bu.pose_hypotheses(cf, None, CalibConfig(max_hyp_frames=10))
+    assert seen == [0, 1, 4, 5]  # 6 + 6 windows spend the 10; quiet frames are searched whatever the budget
+    seen.clear()
+    bu.pose_hypotheses(cf[4:], None, CalibConfig(max_hyp_frames=10))
+    assert seen == [4, 5]  # not crowded: every frame, as before
+
+
+def test_gated_matches_keep_the_matches_on_the_gate_s_boxes_renumbered():
+    from xcalib.calib.bringup import gated_matches
+
+    cfg = CalibConfig()
+    quiet, busy = _frames(12, 30, 1)[0], _frames(60, 120, 1)[0]
+    p_quiet = np.array([[0, 1], [3, 2]])
+    p_busy = np.column_stack([np.arange(0, 60, 2), np.arange(30)])  # every other 2D box matched
+    assert gated_matches([quiet], [p_quiet], cfg.max_candidates) is None
+    frames, pairs = gated_matches([quiet, busy], [p_quiet, p_busy], cfg.max_candidates)
+    assert frames[0] is quiet and pairs[0] is p_quiet
+    view = frames[1]
+    _, rows = informative_view(busy, GATE_2D)
+    want = p_busy[np.isin(p_busy[:, 0], rows)]
+    assert len(pairs[1]) == len(want) > 0
+    # the renumbered rows name the same 2D boxes, the 3D columns are unchanged
+    np.testing.assert_array_equal(view.boxes2d[pairs[1][:, 0]], busy.boxes2d[want[:, 0]])
+    np.testing.assert_array_equal(pairs[1][:, 1], want[:, 1])
+
+
+def test_the_misfit_searches_see_a_crowded_site_through_the_gate_and_compare_there():
+    from xcalib.calib.api import _search_view
+    from xcalib.calib.context import FitContext
+    from xcalib.calib.pose import Pose
+    from xcalib.calib.refine import match_all, pair_metrics
+    from xcalib.data.synth import sample_site
+
+    site = sample_site(1)
+    cfg = CalibConfig()
+    quiet = _frames(12, 30, 2)
+    pose = Pose(site.T_cam_lidar[:3, :3], site.T_cam_lidar[:3, 3])
+    pairs = match_all(quiet, site.intrinsics, pose.R, pose.t)
+    assert _search_view(FitContext(quiet, pairs, site.intrinsics, pose), cfg) is None  # not crowded: every box
+    busy = _frames(60, 120, 2)
+    pairs = [np.column_stack([np.arange(0, 60, 3), np.arange(20)]) for _ in busy]
+    view = _search_view(FitContext(busy, pairs, site.intrinsics, pose), cfg)
+    assert [f.n2 for f in view.frames] == [GATE_2D, GATE_2D]
+    _, iou = pair_metrics(view.frames, site.intrinsics, pose.R, pose.t, view.pairs)
+    assert view.score == float(np.sum(iou))
+    assert sum(len(p) for p in view.pairs) < sum(len(p) for p in pairs)

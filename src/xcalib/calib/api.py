@@ -29,7 +29,7 @@ from ..geometry.boxes import box2d_centers
 from ..geometry.projection import project_points
 from ..geometry.transforms import make_transform
 from .boxmodel import fit_object_outline, fit_outline
-from .bringup import distinct_best, matcher_similarities, pose_hypotheses
+from .bringup import distinct_best, gated_frames, gated_matches, matcher_similarities, pose_hypotheses
 from .config import CalibConfig
 from .cost import Occlusion
 from .terms import CostSpec
@@ -93,12 +93,16 @@ def _full_refine(args) -> tuple[float, RefineResult]:
 
 
 def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
-                       progress: Progress | None, workers: Workers = 1) -> _Refined:
+                       progress: Progress | None, workers: Workers = 1, max_candidates: int | None = None) -> _Refined:
     """A quick refinement of every candidate, then a full one of the best and the best distinct
     runner-up (each stage on up to ``workers`` processes; the results, in candidate order, are the
-    same whatever the number)."""
+    same whatever the number). ``max_candidates`` (``CalibConfig.max_candidates``): the quick
+    refinements see crowded frames through the search's gate (``bringup.gated_frames``), so their
+    cost stops growing with the boxes per frame; None: every frame as it is."""
     lean = lean_frames(cframes) if resolve_workers(workers) > 1 else cframes
-    quick = parallel_map(_quick_refine, [(lean, intr, cand.R[k], cand.t[k], occlusion) for k in range(len(cand))],
+    gated = None if max_candidates is None else gated_frames(lean, max_candidates)
+    qf = lean if gated is None else gated
+    quick = parallel_map(_quick_refine, [(qf, intr, cand.R[k], cand.t[k], occlusion) for k in range(len(cand))],
                          workers)
     if progress:
         for k in range(len(cand)):
@@ -170,7 +174,7 @@ def _choose_box_model(cframes, intr, cand: Hypotheses, ref: _Refined, occlusion:
         diag.box_model = _outline_kind(cframes)
         return cframes, ref
     diag.box_model = _outline_kind(alt)
-    return alt, _refine_candidates(alt, intr, cand, occlusion, progress, config.workers)
+    return alt, _refine_candidates(alt, intr, cand, occlusion, progress, config.workers, config.max_candidates)
 
 
 def _runner_up(ref: _Refined, max_baseline_m: float | None, r2: float = 1.0, t2: float = 0.3) -> float:
@@ -262,7 +266,8 @@ def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion, best
                          rng=np.random.default_rng(config.seed))
     if len(bu.hyps) == 0:
         return 0.0, 0, None
-    ref = _refine_candidates(flipped, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None)
+    ref = _refine_candidates(flipped, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None, 1,
+                             config.max_candidates)
     matched = match_all(flipped, intr, ref.best.R, ref.best.t, gate_iou=config.gate_iou)
     return ref.best_score, int(sum(len(p) for p in matched)), None
 
@@ -283,7 +288,8 @@ def _second_pose(cframes, pairs, intr, pose: Pose, config: CalibConfig, occlusio
     bu = pose_hypotheses(left, intr, small, max_baseline_m=config.max_baseline_m, rng=np.random.default_rng(config.seed))
     if len(bu.hyps) == 0:
         return 0.0, 0, None, False, None
-    ref = _refine_candidates(left, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None)
+    ref = _refine_candidates(left, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None, 1,
+                             config.max_candidates)
     p2, cap = Pose(ref.best.R, ref.best.t), config.max_baseline_m
     n2 = int(sum(len(p) for p in match_all(left, intr, p2.R, p2.t, gate_iou=config.gate_iou)))
     admissible = cap is None or np.linalg.norm(pose.t) > cap or np.linalg.norm(p2.t) <= cap
@@ -309,10 +315,39 @@ def _misfit_searches(ctx: FitContext, config: CalibConfig, best_score: float | N
     cframes, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
                                                              ctx.f_scale, ctx.occlusion)
     lean, one = lean_frames(cframes), config.replace(workers=1)
-    places = len(matched_places(cframes, pairs)[0])
+    view = _search_view(ctx.with_frames(lean), config)
+    if view is not None:  # crowded frames: the searches and the lens refits on the gate's view
+        lean, pairs, best_score = view.frames, view.pairs, None if best_score is None else view.score
+    places = len(matched_places(lean, pairs)[0])
     return Deferred([(_second_pose, (lean, pairs, intr, pose, one, occlusion, best_score)),
-                     (_lens_check, (ctx.with_frames(lean), places)),
+                     (_lens_check, (dataclasses.replace(ctx, frames=lean, pairs=pairs), places)),
                      (_mirror_score, (lean, intr, one, occlusion, best_score, pose))], config.workers)
+
+
+@dataclass
+class _View:
+    """The misfit searches' view of a crowded site: the frames through the search's gate, the
+    matches on them (renumbered) and the best pose's score there (summed IoU of those matches)."""
+
+    frames: list
+    pairs: list
+    score: float
+
+
+def _search_view(ctx: FitContext, config: CalibConfig) -> _View | None:
+    """On a crowded site (``bringup.gated_matches``), the view the second-pose and mirror searches
+    and the lens refits run on: each crowded frame's ``GATE_2D`` most informative 2D boxes, every
+    3D box, the pose's matches among them. Their flags compare the alternative's score with the
+    best pose's *on the same boxes* (shares and per-object gains), so the thresholds mean what they
+    mean on a site of that many boxes, and their cost no longer grows with the boxes per frame
+    (at 200 boxes a side the searches on every box took ~40 % of the calibration). None: no frame
+    is crowded, every check on every box as before."""
+    gated = gated_matches(ctx.frames, ctx.pairs, config.max_candidates)
+    if gated is None:
+        return None
+    frames, pairs = gated
+    _, iou = pair_metrics(frames, ctx.intr, ctx.pose.R, ctx.pose.t, pairs)
+    return _View(frames, pairs, float(np.sum(iou)))
 
 
 def _misfit(ctx: FitContext, best_score: float, config: CalibConfig, diag: CalibDiagnostics, frames_in,
@@ -338,10 +373,12 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
     cframes, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
                                                              ctx.f_scale, ctx.occlusion)
     found = []
+    view = _search_view(ctx, config)  # crowded: the searches ran on this view, their flags compare on it
+    s_score, s_frames, s_pairs = (best_score, cframes, pairs) if view is None else (view.score, view.frames, view.pairs)
     # a mirrored image first: it also bends the focal / principal-point fits, but is the cause to name
     flipped_score, flipped_matched, screened = searches.result(2)
-    need = _mirror_need(cframes, config)
-    chk, msg = mirror_check(best_score, flipped_score, pose, (flipped_matched, need), screened)
+    need = _mirror_need(s_frames, config)
+    chk, msg = mirror_check(s_score, flipped_score, pose, (flipped_matched, need), screened)
     found.append((chk, msg, "misfit_mirrored"))
     chk, msg = unexplained_frames_check(cframes, pairs)
     found.append((chk, msg, "misfit_mixed_cameras"))
@@ -374,7 +411,7 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
     if time_chk is not None:
         found.append((*time_chk, "misfit_time_offset"))
     score2, n2, dist2, admissible2, screened = searches.result(0)
-    chk, msg = second_pose_check(best_score, int(sum(len(p) for p in pairs)), score2, n2, dist2, admissible2, screened)
+    chk, msg = second_pose_check(s_score, int(sum(len(p) for p in s_pairs)), score2, n2, dist2, admissible2, screened)
     found.append((chk, msg, "misfit_mixed_cameras"))
     diag.misfit = diag.misfit + [c for c, _, _ in found] + ([] if width is None else [width[0]])
     named = next((Refusal(code, m) for _, m, code in found if m), None)  # a misfit names the cause first
@@ -444,7 +481,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     cand = distinct_best(hyps, config.max_refine * 2 if diag.sparse_search else config.max_refine)
     diag.bringup_T = Pose(cand.R[0], cand.t[0]).T.tolist()
     occlusion = CostSpec.from_config(config)  # the box-edge shaping and the config's cost terms, for every fit
-    ref = _refine_candidates(cframes, intr, cand, occlusion, progress, config.workers)
+    ref = _refine_candidates(cframes, intr, cand, occlusion, progress, config.workers, config.max_candidates)
     cframes, ref = _choose_box_model(cframes, intr, cand, ref, occlusion, config, diag, progress)
     inflation = None
     if wants_selfcal(config):
@@ -456,7 +493,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
             # every candidate again with the estimated intrinsics / moved 3D boxes (a fair runner-up)
             cframes, intr, inflation = choice.frames, choice.intr, choice.inflation
             joint = Hypotheses(choice.pose.R[None], choice.pose.t[None], np.zeros(1), np.zeros(1, dtype=np.int64))
-            ref = _refine_candidates(cframes, intr, Hypotheses.concat([joint, cand]), occlusion, progress, config.workers)
+            ref = _refine_candidates(cframes, intr, Hypotheses.concat([joint, cand]), occlusion, progress,
+                                     config.workers, config.max_candidates)
     best, pose = ref.best, Pose(ref.best.R, ref.best.t)
     diag.score, diag.runner_up_score = ref.best_score, _runner_up(ref, config.max_baseline_m)
     diag.refine_history, diag.noise_model = list(best.history), best.noise

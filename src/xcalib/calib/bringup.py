@@ -19,11 +19,14 @@ import numpy as np
 
 from ..geometry.camera import CameraIntrinsics
 from .config import CalibConfig
-from .hypotheses import Hypotheses, TripleSearch, frame_hypotheses, informative_view, score_poses
-from .inputs import CalibFrame
+from .hypotheses import (Hypotheses, TripleSearch, draw_triples, frame_hypotheses, informative_view, score_poses,
+                         solve_triples)
+from .inputs import CalibFrame, lean_frames
+from .parallel import parallel_map, resolve_workers
 from .pose import Pose
 
-__all__ = ["BringUp", "pose_hypotheses", "distinct_best", "pooled_groups", "matcher_similarities"]
+__all__ = ["BringUp", "pose_hypotheses", "distinct_best", "pooled_groups", "matcher_similarities", "gated_frames",
+           "gated_matches"]
 
 log = logging.getLogger("xcalib.calib")
 
@@ -130,6 +133,56 @@ def _gated(cframes: Sequence[CalibFrame], sims: list, max_candidates: int):
     return out, out_sims
 
 
+def gated_frames(cframes: Sequence[CalibFrame], max_candidates: int) -> list[CalibFrame] | None:
+    """The frames with each crowded one (n2 x n3 above twice ``max_candidates``) seen through the
+    search's gate (its ``GATE_2D`` most informative 2D boxes, every 3D box), or None when no frame
+    is crowded. The candidates' quick refinements use it: their job is to rank the candidates and
+    bring them near their optimum, which ~``GATE_2D`` well-separated boxes per frame do as well as
+    all of them, at a cost that no longer grows with the boxes (the finalists are refined on every
+    box). Frames that are not crowded are the same objects, so nothing changes for them."""
+    if not any(fr.n2 * fr.n3 > 2 * max_candidates for fr in cframes):
+        return None
+    return _gated(cframes, [None] * len(cframes), max_candidates)[0]
+
+
+def gated_matches(cframes: Sequence[CalibFrame], pairs: list[np.ndarray],
+                  max_candidates: int) -> tuple[list[CalibFrame], list[np.ndarray]] | None:
+    """:func:`gated_frames` with the matches ``pairs`` (per frame [n,2] rows) that fall on the
+    gate's 2D boxes, renumbered to the view's rows; None when no frame is crowded. The misfit
+    refits that cost one fit each over all matches (the lens check) use it on crowded sites: the
+    ``GATE_2D`` well-separated boxes of every frame are as many matches as the sites the checks
+    were designed on have in all (A9: 16 frames, ~150), and their statistics are per match or per
+    object, so their thresholds mean the same on the view."""
+    if not any(fr.n2 * fr.n3 > 2 * max_candidates for fr in cframes):
+        return None
+    frames, out = [], []
+    for fr, p in zip(cframes, pairs):
+        if fr.n2 * fr.n3 <= 2 * max_candidates:
+            frames.append(fr)
+            out.append(p)
+            continue
+        view, rows = informative_view(fr, GATE_2D)
+        keep = np.isin(p[:, 0], rows)
+        q = p[keep].copy()
+        q[:, 0] = np.searchsorted(rows, q[:, 0])
+        frames.append(view)
+        out.append(q)
+    return frames, out
+
+
+def search_cost(n_windows: int, crowded: bool) -> int:
+    """What one frame's search (drawn in ``n_windows`` azimuth windows) spends of the bring-up's
+    budget of ``max_hyp_frames`` searches: a
+    search of at most ``max_candidates`` candidate pairs costs one, and a crowded frame (through the
+    gate, still above ``max_candidates`` pairs: a 360-degree LiDAR's boxes all around) is split
+    into azimuth windows, each a search of its own (``hypotheses.frame_hypotheses``), so it costs
+    its windows. The per-frame searches stop once the budget is spent (at least one frame is
+    searched): the bring-up's cost is that of ``max_hyp_frames`` plain searches however many boxes
+    a frame holds, where ten crowded frames of six windows each cost six times the budget. Frames
+    that are not crowded cost one each, so their search is the same as before."""
+    return max(1, int(n_windows)) if crowded else 1
+
+
 def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, config: CalibConfig = CalibConfig(), *,
                     similarities: list | None = None, max_baseline_m: float | None = None,
                     rng: np.random.Generator | None = None,
@@ -142,25 +195,55 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
     """
     rng = np.random.default_rng(config.seed) if rng is None else rng
     sims = [None] * len(cframes) if similarities is None else list(similarities)
+    crowded = [fr.n2 * fr.n3 > 2 * config.max_candidates for fr in cframes]
     cframes, sims = _gated(cframes, sims, config.max_candidates)
     groups, n_before, sparse_scene = _search_groups(cframes, config.max_hyp_frames)
-    parts, splits = [], 0
+    workers = resolve_workers(config.workers)
+    lean = lean_frames(cframes) if workers > 1 else cframes
+    jobs, budget = [], config.max_hyp_frames
     for k, g in enumerate(groups):
+        if k < n_before and len(g) == 1 and crowded[g[0]] and budget <= 0:
+            continue  # the per-frame searches' budget is spent (see ``search_cost``)
         gs = [sims[i] for i in g]
         big = (sparse_scene or k >= n_before) and len(g) > 1
         search = TripleSearch(max_baseline_m=max_baseline_m, max_candidates=config.max_candidates)
-        h = frame_hypotheses([cframes[i] for i in g], intr, g[0], prior_sims=gs, rng=rng,
-                             search=replace(search, max_triples=20000 if big else 3000, keep=60 if big else 25))
-        if any(x is not None for x in gs) and len(h) == 0:
-            h = frame_hypotheses([cframes[i] for i in g], intr, g[0], rng=rng, search=search)
-        splits += int(getattr(h, "n_searches", 1) > 1)
-        parts.append(h)
-        if progress:
+        wide = replace(search, max_triples=20000 if big else 3000, keep=60 if big else 25)
+        frs = [lean[i] for i in g]
+        draw = draw_triples(frs, intr, prior_sims=gs, rng=rng, search=wide)
+        if k < n_before and len(g) == 1:
+            budget -= search_cost(draw.n_windows, crowded[g[0]])
+        if any(x is not None for x in gs):  # matcher priors: solved now (a search without them may follow)
+            h = solve_triples(frs, intr, g[0], draw, wide)
+            if len(h) == 0:
+                h = frame_hypotheses(frs, intr, g[0], rng=rng, search=search)
+            jobs.append(_rescored(h, lean, intr))
+        else:
+            jobs.append((frs, intr, g[0], draw, wide, lean))
+    # the draws took every random number in order: the searches are solved (and their hypotheses
+    # scored on every frame) in parallel, with the same result
+    todo = [j for j in jobs if isinstance(j, tuple)]
+    solved = iter(parallel_map(_solve_job, todo, workers))
+    parts = [next(solved) if isinstance(j, tuple) else j for j in jobs]
+    splits = sum(int(getattr(h, "n_searches", 1) > 1) for h, _ in parts)
+    if progress:  # (the searches are solved together: reported once they are)
+        for k in range(len(groups)):
             progress("hypotheses", k + 1, len(groups))
-    hyps = Hypotheses.concat(parts)
-    if len(hyps):  # re-score the pooled hypotheses on every frame (static rig: one pose explains all)
-        hyps.score = sum(score_poses(fr, intr, hyps.R, hyps.t) for fr in cframes)
+    hyps = Hypotheses.concat([h for h, _ in parts])
+    if len(hyps):  # re-scored on every frame (static rig: one pose explains all), summed frame by frame
+        hyps.score = sum(np.concatenate([sc[f] for h, sc in parts if len(h)]) for f in range(len(lean)))
     return BringUp(hyps, sparse_search=bool(sparse_scene), pooled_search=len(groups) > n_before, split_searches=splits)
+
+
+def _rescored(h: Hypotheses, frames: Sequence[CalibFrame], intr) -> tuple[Hypotheses, list[np.ndarray]]:
+    """``h`` and its hypotheses' scores on each of ``frames`` (each pose is scored on its own, so
+    scoring the searches' hypotheses apart and joining the scores gives the joint scoring's values)."""
+    return h, [score_poses(fr, intr, h.R, h.t) for fr in frames] if len(h) else []
+
+
+def _solve_job(job) -> tuple[Hypotheses, list[np.ndarray]]:
+    """One drawn search solved and its hypotheses scored on every frame (a task of ``pose_hypotheses``)."""
+    frs, intr, fi, draw, search, frames = job
+    return _rescored(solve_triples(frs, intr, fi, draw, search), frames, intr)
 
 
 def distinct_best(h: Hypotheses, n: int, rot_deg: float = 3.0, trans_m: float = 1.0) -> Hypotheses:

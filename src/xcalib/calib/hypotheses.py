@@ -20,7 +20,8 @@ from ..geometry.projection import undistort_pixels
 from .boxproj import iou_batched, project_rects
 from .inputs import CalibFrame
 
-__all__ = ["Hypotheses", "kabsch", "kabsch_triangles", "informative_view", "bearings", "frame_hypotheses", "TripleSearch", "score_poses"]
+__all__ = ["Hypotheses", "kabsch", "kabsch_triangles", "informative_view", "bearings", "frame_hypotheses", "TripleSearch",
+           "score_poses", "TripleDraw", "draw_triples", "solve_triples"]
 
 
 @dataclass
@@ -121,49 +122,44 @@ def _size3(boxes7: np.ndarray) -> np.ndarray:
 
 
 def _p3p_newton(lam: np.ndarray, cosang: np.ndarray, d2: np.ndarray, iters: int = 12):
-    """Solve |l_a b_a - l_b b_b|^2 = d_ab^2 for (ab) in (01, 02, 12); lam [T,3] start depths."""
-    a_idx, b_idx = np.array([0, 0, 1]), np.array([1, 2, 2])
-    T = len(lam)
-    rows = np.arange(3)
+    """Solve |l_a b_a - l_b b_b|^2 = d_ab^2 for (ab) in (01, 02, 12); lam [T,3] start depths.
+
+    Damped Newton on the three depths. Each equation involves two depths, so the 3x3 Jacobian has
+    one zero per row ([[P0, Q0, 0], [P1, 0, Q1], [0, P2, Q2]] plus 1e-6 on the diagonal): it is
+    solved by the adjugate written out for that pattern, one [T] column at a time: the terms of the
+    general 3x3 adjugate that have a zero factor are dropped, which changes no bit of the result,
+    and the [T,3,3] arrays and their fancy indexing are gone (4x less time on A9's triples)."""
+    l0, l1, l2 = (np.array(lam[:, k], dtype=np.float64) for k in range(3))
+    c0, c1, c2 = cosang[:, 0], cosang[:, 1], cosang[:, 2]
+    d0, d1, d2_ = d2[:, 0], d2[:, 1], d2[:, 2]
     for _ in range(iters):
-        la, lb = lam[:, a_idx], lam[:, b_idx]
-        f = la * la + lb * lb - 2 * la * lb * cosang - d2
-        J = np.zeros((T, 3, 3))
-        J[:, rows, a_idx] = 2 * la - 2 * lb * cosang
-        J[:, rows, b_idx] = 2 * lb - 2 * la * cosang
-        J += np.eye(3)[None] * 1e-6
-        step = _solve3(J, f)
-        if step is None:  # a singular system (np.linalg.solve would raise)
+        f0 = l0 * l0 + l1 * l1 - 2 * l0 * l1 * c0 - d0
+        f1 = l0 * l0 + l2 * l2 - 2 * l0 * l2 * c1 - d1
+        f2 = l1 * l1 + l2 * l2 - 2 * l1 * l2 * c2 - d2_
+        P0, Q0 = 2 * l0 - 2 * l1 * c0, 2 * l1 - 2 * l0 * c0
+        P1, Q1 = 2 * l0 - 2 * l2 * c1, 2 * l2 - 2 * l0 * c1
+        P2, Q2 = 2 * l1 - 2 * l2 * c2, 2 * l2 - 2 * l1 * c2
+        A00, A22 = P0 + 1e-6, Q2 + 1e-6
+        k00 = 1e-6 * A22 - Q1 * P2
+        k01 = -(P1 * A22)
+        k02 = P1 * P2
+        det = A00 * k00 + Q0 * k01
+        if not np.all(np.isfinite(det)) or np.any(det == 0):  # a singular system (np.linalg.solve would raise)
             break
+        s0 = (k00 * f0 + -(Q0 * A22) * f1 + (Q0 * Q1) * f2) / det
+        s1 = (k01 * f0 + (A00 * A22) * f1 + -(A00 * Q1) * f2) / det
+        s2 = (k02 * f0 + -(A00 * P2) * f1 + (A00 * 1e-6 - Q0 * P1) * f2) / det
         # damp: never move a depth by more than half its value per step
-        scale = np.minimum(1.0, 0.5 * lam.min(1) / np.maximum(np.abs(step).max(1), 1e-12))
-        lam = lam - step * scale[:, None]
-        lam = np.maximum(lam, 0.05)
-    la, lb = lam[:, a_idx], lam[:, b_idx]
+        big = np.maximum(np.maximum(np.abs(s0), np.abs(s1)), np.abs(s2))
+        scale = np.minimum(1.0, 0.5 * np.minimum(np.minimum(l0, l1), l2) / np.maximum(big, 1e-12))
+        l0 = np.maximum(l0 - s0 * scale, 0.05)
+        l1 = np.maximum(l1 - s1 * scale, 0.05)
+        l2 = np.maximum(l2 - s2 * scale, 0.05)
+    lam = np.column_stack([l0, l1, l2])
+    la, lb = lam[:, [0, 0, 1]], lam[:, [1, 2, 2]]
     f = la * la + lb * lb - 2 * la * lb * cosang - d2
     rel = np.abs(f) / np.maximum(d2, 1e-6)
     return lam, rel.max(1)
-
-
-def _solve3(A: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-    """Solutions of the 3x3 systems A [T,3,3] x = b [T,3] by the adjugate (vectorised; a batched
-    LAPACK solve pays a call per matrix); None when one is exactly singular."""
-    c00 = A[:, 1, 1] * A[:, 2, 2] - A[:, 1, 2] * A[:, 2, 1]
-    c01 = A[:, 1, 2] * A[:, 2, 0] - A[:, 1, 0] * A[:, 2, 2]
-    c02 = A[:, 1, 0] * A[:, 2, 1] - A[:, 1, 1] * A[:, 2, 0]
-    det = A[:, 0, 0] * c00 + A[:, 0, 1] * c01 + A[:, 0, 2] * c02
-    if not np.all(np.isfinite(det)) or np.any(det == 0):
-        return None
-    c10 = A[:, 0, 2] * A[:, 2, 1] - A[:, 0, 1] * A[:, 2, 2]
-    c11 = A[:, 0, 0] * A[:, 2, 2] - A[:, 0, 2] * A[:, 2, 0]
-    c12 = A[:, 0, 1] * A[:, 2, 0] - A[:, 0, 0] * A[:, 2, 1]
-    c20 = A[:, 0, 1] * A[:, 1, 2] - A[:, 0, 2] * A[:, 1, 1]
-    c21 = A[:, 0, 2] * A[:, 1, 0] - A[:, 0, 0] * A[:, 1, 2]
-    c22 = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
-    x0 = c00 * b[:, 0] + c10 * b[:, 1] + c20 * b[:, 2]
-    x1 = c01 * b[:, 0] + c11 * b[:, 1] + c21 * b[:, 2]
-    x2 = c02 * b[:, 0] + c12 * b[:, 1] + c22 * b[:, 2]
-    return np.stack([x0, x1, x2], 1) / det[:, None]
 
 
 def _candidate_pairs(fr: CalibFrame, intr: CameraIntrinsics, prior_sim, top_k: int = 3,
@@ -261,24 +257,35 @@ class TripleSearch:
     closed_form: bool = False
 
 
-def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, fi: int, *,
-                     prior_sims: list | None = None, rng: np.random.Generator | None = None,
-                     search: TripleSearch = TripleSearch()) -> Hypotheses:
-    """Pose hypotheses from box triples of one frame (or a group of frames of the same static rig,
-    whose pairs are rigidly consistent with each other too), scored on those frames; keep ``keep``.
+@dataclass
+class TripleDraw:
+    """The random part of one search (:func:`draw_triples`): its candidate pairs ``cand`` (None:
+    none), per azimuth window the candidate rows and the drawn triples [T,3] of rows of the window
+    (None: none that are consistent and well shaped), and whether matcher priors ranked them. What
+    remains (:func:`solve_triples`: P3P, Kabsch, scoring) draws no random numbers, so searches drawn
+    one after another from one generator can be solved in any order, or in parallel, with the same
+    result."""
 
-    The search is quadratic in the candidate pairs; beyond ``max_candidates`` of them it runs on
-    azimuth windows of at most that many (see ``_azimuth_windows``), so memory stays bounded.
-    (``search``: these settings, :class:`TripleSearch`.)"""
-    max_triples, min_altitude_m, keep, max_baseline_m, max_candidates = (
-        search.max_triples, search.min_altitude_m, search.keep, search.max_baseline_m, search.max_candidates)
+    cand: "_Candidates | None"
+    windows: list
+    have_prior: bool = False
+
+    @property
+    def n_windows(self) -> int:
+        return len(self.windows)
+
+
+def draw_triples(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, *, prior_sims: list | None = None,
+                 rng: np.random.Generator | None = None, search: TripleSearch = TripleSearch()) -> TripleDraw:
+    """The candidate pairs of ``frs`` and the box triples of :func:`frame_hypotheses`, drawn from
+    ``rng`` exactly as it draws them (the same numbers in the same order)."""
     rng = np.random.default_rng(0) if rng is None else rng
     frs = [frs] if isinstance(frs, CalibFrame) else list(frs)
     prior_sims = [None] * len(frs) if prior_sims is None else list(prior_sims)
-    parts = [(k,) + _candidate_pairs(fr, intr, ps, max_baseline_m=max_baseline_m)
+    parts = [(k,) + _candidate_pairs(fr, intr, ps, max_baseline_m=search.max_baseline_m)
              for k, (fr, ps) in enumerate(zip(frs, prior_sims)) if fr.n2 and fr.n3]
     if not parts:
-        return Hypotheses.empty()
+        return TripleDraw(None, [])
     cand = _Candidates(
         fk=np.concatenate([np.full(len(p[1]), p[0]) for p in parts]),
         ii=np.concatenate([p[1] for p in parts]), jj=np.concatenate([p[2] for p in parts]),
@@ -286,10 +293,22 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
         dtol=np.concatenate([p[5] for p in parts]), w=np.concatenate([p[6] for p in parts]),
         X=np.concatenate([frs[p[0]].boxes3d[p[2], :3] for p in parts]))  # LiDAR centre of each pair
     have_prior = any(ps is not None for ps in prior_sims)
-    windows = _azimuth_windows(cand.X, max_candidates, rng, cand.w if have_prior else None)
+    windows = _azimuth_windows(cand.X, search.max_candidates, rng, cand.w if have_prior else None)
+    return TripleDraw(cand, [(idx, _triples(cand.take(idx), rng, search.max_triples, search.min_altitude_m, have_prior))
+                             for idx in windows], have_prior)
+
+
+def solve_triples(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, fi: int, draw: TripleDraw,
+                  search: TripleSearch = TripleSearch()) -> Hypotheses:
+    """The poses of a drawn search's triples (P3P, Kabsch), pre-scored per window, then IoU-scored
+    on ``frs``; the ``search.keep`` best, from frame ``fi``. No random numbers."""
+    frs = [frs] if isinstance(frs, CalibFrame) else list(frs)
+    keep, cand, windows = search.keep, draw.cand, draw.windows
+    if cand is None:
+        return Hypotheses.empty()
     Rs, ts = [], []
-    for idx in windows:
-        f = _triple_poses(cand.take(idx), rng, max_triples, min_altitude_m, have_prior, search.closed_form)
+    for idx, tri in windows:
+        f = None if tri is None else _triple_solve(cand.take(idx), tri, search.closed_form)
         if f is None:
             continue
         # cheap pre-score (projected 3D centres inside 2D boxes; split searches: only the 3D boxes
@@ -308,6 +327,20 @@ def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics,
     out = Hypotheses(R[order], t[order], sc[order], np.full(len(order), fi, dtype=np.int64))
     out.n_searches = len(windows)
     return out
+
+
+def frame_hypotheses(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, fi: int, *,
+                     prior_sims: list | None = None, rng: np.random.Generator | None = None,
+                     search: TripleSearch = TripleSearch()) -> Hypotheses:
+    """Pose hypotheses from box triples of one frame (or a group of frames of the same static rig,
+    whose pairs are rigidly consistent with each other too), scored on those frames; keep ``keep``.
+
+    The search is quadratic in the candidate pairs; beyond ``max_candidates`` of them it runs on
+    azimuth windows of at most that many (see ``_azimuth_windows``), so memory stays bounded.
+    (``search``: these settings, :class:`TripleSearch`.) It is :func:`draw_triples` (every random
+    number) followed by :func:`solve_triples`."""
+    frs = [frs] if isinstance(frs, CalibFrame) else list(frs)
+    return solve_triples(frs, intr, fi, draw_triples(frs, intr, prior_sims=prior_sims, rng=rng, search=search), search)
 
 
 def informative_view(fr: CalibFrame, max_2d: int) -> tuple[CalibFrame, np.ndarray]:
@@ -400,9 +433,10 @@ def _top2(keys: np.ndarray) -> np.ndarray:
     return np.column_stack([first, keys.argmax(1)])
 
 
-def _triple_poses(c: _Candidates, rng: np.random.Generator, max_triples: int, min_altitude_m: float,
-                  have_prior: bool, closed_form: bool = False):
-    """Poses (R [T,3,3], t [T,3]) of the consistent, well-shaped triples of candidates c, or None."""
+def _triples(c: _Candidates, rng: np.random.Generator, max_triples: int, min_altitude_m: float,
+             have_prior: bool) -> np.ndarray | None:
+    """The consistent, well-shaped triples [T,3] of candidates c (rows), or None; every random
+    number of a window's search is drawn here."""
     if len(c.ii) < 3:
         return None
     X, ray, lam = c.X, c.ray, c.lam
@@ -441,8 +475,13 @@ def _triple_poses(c: _Candidates, rng: np.random.Generator, max_triples: int, mi
     area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
     longest = np.maximum(np.maximum(np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)), np.linalg.norm(e3, axis=1))
     tri = tri[area2 / np.maximum(longest, 1e-9) >= min_altitude_m]
-    if len(tri) == 0:
-        return None
+    return tri if len(tri) else None
+
+
+def _triple_solve(c: _Candidates, tri: np.ndarray, closed_form: bool = False):
+    """Poses (R [T,3,3], t [T,3]) of the triples ``tri`` [T,3] of candidates c (P3P, then Kabsch),
+    or None when none solves."""
+    X, ray, lam = c.X, c.ray, c.lam
     B = ray[tri]  # [T,3,3]
     A = X[tri]
     a_idx, b_idx = np.array([0, 0, 1]), np.array([1, 2, 2])
