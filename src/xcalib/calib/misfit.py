@@ -53,7 +53,7 @@ from .pose import Pose
 from .boxmodel import outline_edge_term
 from .context import FitContext
 from .refine import build_cost, lsq, match_all
-from .uncertainty import jackknife_sd, leave_frames_out
+from .uncertainty import jackknife_sd, leave_frames_out, object_groups
 
 __all__ = ["MisfitVerdict", "lens_check", "lens_checks", "LENS_ALT_GAIN", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "second_pose_screen", "mirror_screen", "match_bound", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "time_offset_check", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
            "FOCAL_MAX_UNCHECKED"]
@@ -511,6 +511,42 @@ def _pp_boot(ctx: FitContext, draws: int, seed: int, outline: bool, d: np.ndarra
     return d, np.std(np.asarray(boot), axis=0, ddof=1)
 
 
+#: objects left out in at most this many interleaved groups by the principal point's object jackknife
+PP_OBJECT_GROUPS = 12
+#: a principal-point shift the objects must rule out (at ``PP_CHECK_SIGMAS`` of their own sigma) when
+#: the frames flagged one that the objects do not support: the shift that turns the camera by this
+#: much (deg; fx tan of it, ~35 px at fx 2000), the benchmarks' wrong-pose line
+PP_CHECK_DEG = 1.0
+PP_CHECK_SIGMAS = 2.0
+
+
+def _pp_object_sd(ctx: FitContext, outline: bool = False) -> tuple[np.ndarray, int]:
+    """(leave-objects-out jackknife 1-sigma [2] px of the principal-point shift, distinct objects).
+    The matched pairs are grouped into physical objects (``uncertainty.object_groups``: a parked car
+    or a track seen over the frames is one object) and each of ``min(objects, PP_OBJECT_GROUPS)``
+    interleaved groups of objects is left out in turn (matches fixed, pose refitted). Zeros with
+    fewer than 4 objects (nothing to leave out; the ``few_objects`` rule refuses such poses anyway).
+
+    The bootstrap over frames treats the frames as independent samples; the same objects seen again
+    in every frame are not: an object's own error (its outline, its occlusion, its 3D box) repeats in
+    each of its boxes and a bootstrap over frames cannot see it. Realism clean site 9 (5 parked
+    objects, 66 matches): the shift (+34, -72) px had a frame-bootstrap sigma of (8, 16) px, a false
+    misfit; leaving one object out moves it to (+262, -272) px (object jackknife sigma ~180 px)."""
+    groups = object_groups(ctx.frames, ctx.pairs)
+    n_obj = int(groups.max()) + 1 if len(groups) else 0
+    if n_obj < 4:
+        return np.zeros(2), n_obj
+    G = min(n_obj, PP_OBJECT_GROUPS)
+    offs = np.cumsum([0] + [len(p) for p in ctx.pairs])
+    est = []
+    for g in range(G):
+        out = np.arange(g, n_obj, G)
+        sub = [p[~np.isin(groups[offs[k]:offs[k + 1]], out)] for k, p in enumerate(ctx.pairs)]
+        est.append(_pp_fit(ctx.frames, sub, ctx.intr, ctx.pose, ctx.noise, ctx.f_scale, ctx.occlusion, outline))
+    sd = jackknife_sd(np.asarray(est))
+    return np.where(np.isfinite(sd), sd, np.inf), n_obj
+
+
 def _pp_flagged(d: np.ndarray, sd_xy: np.ndarray, W: int) -> bool:
     sd, shift = float(np.linalg.norm(sd_xy)), float(np.linalg.norm(d))
     return bool((shift > PP_TOL_FRAC * W and shift > PP_SIGMAS * sd)
@@ -544,6 +580,18 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
                            f"fitted principal point shift ({d[0]:+.1f}, {d[1]:+.1f}) px, within the tolerance (its "
                            "bootstrap sigma not computed)"), None
     d, sd_xy = _pp_boot(ctx, draws, seed, False, d)
+    obj_note, unverifiable = "", None
+    if _pp_flagged(d, sd_xy, W):  # the objects' own errors too: only ever widens the sigma (exact to skip)
+        sd_obj, n_obj = _pp_object_sd(ctx)
+        if np.any(sd_obj > sd_xy):
+            obj_note = (f"; leaving objects out ({n_obj} objects) gives a sigma of ({sd_obj[0]:.1f}, {sd_obj[1]:.1f}) px, "
+                        f"against ({sd_xy[0]:.1f}, {sd_xy[1]:.1f}) px over frames")
+            sd_xy = np.maximum(sd_xy, sd_obj)
+            need = float(min(intr.fx, intr.fy) * np.tan(np.radians(PP_CHECK_DEG)))
+            if not _pp_flagged(d, sd_xy, W) and PP_CHECK_SIGMAS * float(np.max(sd_obj)) > need:
+                # the frames' flag was the objects' own errors, but these objects cannot check the
+                # principal point either: a shift that turns the pose by PP_CHECK_DEG would pass unseen
+                unverifiable = (need, n_obj)
     sd, shift = float(np.linalg.norm(sd_xy)), float(np.linalg.norm(d))
     flagged = _pp_flagged(d, sd_xy, W)
     box_note = ""
@@ -571,8 +619,18 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
                         f"{PP_MIN_GAIN:g}); cost with the outline offsets alone {c_box:.1f}, with the principal "
                         f"point alone {pp_only.cost:.1f}: the box model explains it")
     detail = (f"fitted principal point shift ({d[0]:+.1f}, {d[1]:+.1f}) px (bootstrap sigma {sd:.1f} px; "
-              f"x alone {sd_xy[0]:.1f} px){box_note}")
+              f"x alone {sd_xy[0]:.1f} px){obj_note}{box_note}")
     msg = None
+    if unverifiable is not None:
+        need, n_obj = unverifiable
+        detail += (f"; not verifiable: a shift of {need:.0f} px (the camera turned {PP_CHECK_DEG:g} deg) is not ruled "
+                   f"out at {PP_CHECK_SIGMAS:g} object sigmas")
+        msg = (f"not verifiable: the {sum(len(p) for p in pairs)} matches come from {n_obj} distinct objects, too few to "
+               f"check the principal point: the boxes fit it moved by ({d[0]:+.0f}, {d[1]:+.0f}) px, but leaving one "
+               f"object out moves that fit by up to {float(np.max(sd_obj)):.0f} px (1-sigma), so a wrong cx, cy that turns "
+               f"the pose by {PP_CHECK_DEG:g} deg would go unnoticed. Add frames in which other objects pass, at other "
+               "places in the image (the intrinsics are not blamed: the shift is within the objects' scatter)")
+        return MisfitCheck("principal_point", shift, PP_TOL_FRAC * W, True, detail), msg
     if flagged:
         msg = (f"model misfit: the boxes fit best with the principal point moved by ({d[0]:+.0f}, {d[1]:+.0f}) px "
                f"(cx ~{intr.cx + d[0]:.0f} instead of {intr.cx:.0f}, cy ~{intr.cy + d[1]:.0f} instead of {intr.cy:.0f}); "
