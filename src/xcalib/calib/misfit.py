@@ -55,7 +55,7 @@ from .context import FitContext
 from .refine import build_cost, lsq, match_all
 from .uncertainty import jackknife_sd, leave_frames_out, object_groups
 
-__all__ = ["MisfitVerdict", "lens_check", "lens_checks", "LENS_ALT_GAIN", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "second_pose_screen", "mirror_screen", "match_bound", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "time_offset_check", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
+__all__ = ["MisfitVerdict", "lens_check", "lens_checks", "LENS_ALT_GAIN", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "second_pose_screen", "mirror_screen", "match_bound", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "principal_point_check_all", "inner_pairs", "time_offset_check", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
            "FOCAL_MAX_UNCHECKED"]
 
 FOCAL_TOL = 0.03          # |fitted focal scale - 1| beyond this (and 2 sigma) is a misfit
@@ -553,8 +553,50 @@ def _pp_flagged(d: np.ndarray, sd_xy: np.ndarray, W: int) -> bool:
                 or (abs(d[0]) > PP_TOL_FRAC * W and abs(d[0]) > PP_X_SIGMAS * sd_xy[0]))
 
 
+#: a 2D box edge within this many pixels of the image border is the border's, not the object's
+PP_BORDER_PX = 1.0
+
+
+def inner_pairs(frames: list[CalibFrame], pairs: list[np.ndarray]) -> list[np.ndarray]:
+    """The matches whose 2D box touches no image border (within ``PP_BORDER_PX``): a box cut by the
+    border (a truncated object) carries its object's outline on one side only, which a shift of the
+    principal point can mimic."""
+    out = []
+    for f, p in zip(frames, pairs):
+        if not len(p):
+            out.append(p)
+            continue
+        W, H = f.size
+        b = f.boxes2d[p[:, 0]]
+        keep = ((b[:, 0] > PP_BORDER_PX) & (b[:, 1] > PP_BORDER_PX) & (b[:, 2] < W - PP_BORDER_PX)
+                & (b[:, 3] < H - PP_BORDER_PX))
+        out.append(p[keep])
+    return out
+
+
 def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
                           places: int | None = None) -> tuple[MisfitCheck, str | None]:
+    """:func:`principal_point_check_all`, and when it names a misfit while some matched 2D boxes
+    touch the image border, the same check without them (truncated boxes do not vote): a shift
+    those boxes alone asked for is no misfit (the second look only ever clears; a cropped image
+    moves every box). Realism ``detector_truncation`` (objects cut by the border, their visible
+    outline): shifts of 70-170 px in x that the boxes inside the image do not ask for."""
+    chk, msg = principal_point_check_all(ctx, draws=draws, seed=seed, places=places)
+    if not (msg or "").startswith("model misfit"):
+        return chk, msg
+    inner = inner_pairs(ctx.frames, ctx.pairs)
+    n_in, n = sum(len(p) for p in inner), sum(len(p) for p in ctx.pairs)
+    if n_in == n:
+        return chk, msg
+    chk2, msg2 = principal_point_check_all(ctx.with_pairs(inner), draws=draws, seed=seed, places=places)
+    if chk2.detail == "too few matches or frames" or (msg2 or "").startswith("model misfit"):
+        return chk, msg
+    note = f"without the {n - n_in} matched 2D boxes at the image border (of {n}): "
+    return replace(chk2, detail=note + chk2.detail + f"; with them: {chk.detail}"), msg2
+
+
+def principal_point_check_all(ctx: FitContext, *, draws: int = 5, seed: int = 0,
+                              places: int | None = None) -> tuple[MisfitCheck, str | None]:
     """Fitted shift of the principal point (px; pose refitted, matches fixed) and its bootstrap
     spread over frames; flagged beyond ``PP_TOL_FRAC`` of the width and 4 sigma, or when its x part
     alone is beyond that share and ``PP_X_SIGMAS`` sigmas of x. ``places``:
