@@ -576,20 +576,21 @@ def inner_pairs(frames: list[CalibFrame], pairs: list[np.ndarray]) -> list[np.nd
 
 def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
                           places: int | None = None) -> tuple[MisfitCheck, str | None]:
-    """:func:`principal_point_check_all`, and when it names a misfit while some matched 2D boxes
-    touch the image border, the same check without them (truncated boxes do not vote): a shift
-    those boxes alone asked for is no misfit (the second look only ever clears; a cropped image
-    moves every box). Realism ``detector_truncation`` (objects cut by the border, their visible
+    """:func:`principal_point_check_all`, and when it names a misfit (or a shift it cannot check)
+    while some matched 2D boxes touch the image border, the same check without them (truncated
+    boxes do not vote): a shift those boxes alone asked for is no misfit (the second look only
+    ever clears or turns a misfit into "not verifiable"; a cropped image moves every box). Realism ``detector_truncation`` (objects cut by the border, their visible
     outline): shifts of 70-170 px in x that the boxes inside the image do not ask for."""
     chk, msg = principal_point_check_all(ctx, draws=draws, seed=seed, places=places)
-    if not (msg or "").startswith("model misfit"):
+    if msg is None:  # a misfit, or a shift the objects could not check
         return chk, msg
     inner = inner_pairs(ctx.frames, ctx.pairs)
     n_in, n = sum(len(p) for p in inner), sum(len(p) for p in ctx.pairs)
     if n_in == n:
         return chk, msg
     chk2, msg2 = principal_point_check_all(ctx.with_pairs(inner), draws=draws, seed=seed, places=places)
-    if chk2.detail == "too few matches or frames" or (msg2 or "").startswith("model misfit"):
+    if chk2.detail == "too few matches or frames" or (msg2 or "").startswith("model misfit") \
+            or (msg2 is not None and not msg.startswith("model misfit")):
         return chk, msg
     note = f"without the {n - n_in} matched 2D boxes at the image border (of {n}): "
     return replace(chk2, detail=note + chk2.detail + f"; with them: {chk.detail}"), msg2
