@@ -579,10 +579,11 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
     """:func:`principal_point_check_all`, and when it names a misfit (or a shift it cannot check)
     while some matched 2D boxes touch the image border, the same check without them (truncated
     boxes do not vote): a shift those boxes alone asked for is no misfit (the second look only
-    ever clears or turns a misfit into "not verifiable"; a cropped image moves every box). Realism ``detector_truncation`` (objects cut by the border, their visible
-    outline): shifts of 70-170 px in x that the boxes inside the image do not ask for."""
+    ever clears or turns a misfit into "not verifiable"; a cropped image moves every box). Realism
+    ``detector_truncation`` (objects cut by the border, their visible outline): shifts of 70-170 px
+    in x that the boxes inside the image do not ask for."""
     chk, msg = principal_point_check_all(ctx, draws=draws, seed=seed, places=places)
-    if msg is None:  # a misfit, or a shift the objects could not check
+    if msg is None:  # nothing flagged: nothing to clear
         return chk, msg
     inner = inner_pairs(ctx.frames, ctx.pairs)
     n_in, n = sum(len(p) for p in inner), sum(len(p) for p in ctx.pairs)
