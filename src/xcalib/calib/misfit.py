@@ -624,28 +624,17 @@ def principal_point_check_all(ctx: FitContext, *, draws: int = 5, seed: int = 0,
                            f"fitted principal point shift ({d[0]:+.1f}, {d[1]:+.1f}) px, within the tolerance (its "
                            "bootstrap sigma not computed)"), None
     d, sd_xy = _pp_boot(ctx, draws, seed, False, d)
-    obj_note, unverifiable = "", None
-    if _pp_flagged(d, sd_xy, W):  # the objects' own errors too: only ever widens the sigma (exact to skip)
-        sd_obj, n_obj = _pp_object_sd(ctx)
-        if np.any(sd_obj > sd_xy):
-            obj_note = (f"; leaving objects out ({n_obj} objects) gives a sigma of ({sd_obj[0]:.1f}, {sd_obj[1]:.1f}) px, "
-                        f"against ({sd_xy[0]:.1f}, {sd_xy[1]:.1f}) px over frames")
-            sd_xy = np.maximum(sd_xy, sd_obj)
-            need = float(min(intr.fx, intr.fy) * np.tan(np.radians(PP_CHECK_DEG)))
-            if not _pp_flagged(d, sd_xy, W) and PP_CHECK_SIGMAS * float(np.max(sd_obj)) > need:
-                # the frames' flag was the objects' own errors, but these objects cannot check the
-                # principal point either: a shift that turns the pose by PP_CHECK_DEG would pass unseen
-                unverifiable = (need, n_obj)
-    sd, shift = float(np.linalg.norm(sd_xy)), float(np.linalg.norm(d))
-    flagged = _pp_flagged(d, sd_xy, W)
-    box_note = ""
-    x_alone = bool(abs(d[0]) > PP_TOL_FRAC * W and abs(d[0]) > PP_X_SIGMAS * sd_xy[0])
-    if flagged and not x_alone:  # a horizontal shift no outline offset can mimic stays flagged
-        # the box model first: with the outline offsets free, is the shift still asked for? Its x part
-        # by its own sigma (the symmetric side offset cannot mimic it); the whole shift by how much
-        # it lowers the robust cost, counted once per object (a vertical shift and a pitch of the
-        # pose nearly trade off, so its size and a bootstrap over frames that share one box bias
-        # say little: PandaSet's detector boxes fit +108 px alone and +196 px with the offsets)
+    box_memo: list = []
+
+    def box_model_clears() -> str:
+        """The box model first: with the outline offsets free, is the shift still asked for? Its x
+        part by its own sigma (the symmetric side offset cannot mimic it); the whole shift by how
+        much it lowers the robust cost, counted once per object (a vertical shift and a pitch of the
+        pose nearly trade off, so its size and a bootstrap over frames that share one box bias say
+        little: PandaSet's detector boxes fit +108 px alone and +196 px with the offsets). The note
+        when the box model explains the shift, else "" (fitted once)."""
+        if box_memo:
+            return box_memo[0]
         d2, sd2 = _pp_boot(ctx, draws, seed, True)
         _, c_pp = _pp_outline_fits(frames, pairs, intr, pose, noise, f_scale, occlusion, True)
         _, c_box = _pp_outline_fits(frames, pairs, intr, pose, noise, f_scale, occlusion, False)
@@ -656,12 +645,39 @@ def principal_point_check_all(ctx: FitContext, *, draws: int = 5, seed: int = 0,
         x_flag = abs(d2[0]) > PP_TOL_FRAC * W and abs(d2[0]) > PP_X_SIGMAS * sd2[0]
         # the outline must explain the boxes better than the principal point does (alternative
         # models, each alone), and the shift must add little to it
+        note = ""
         if not x_flag and c_box < pp_only.cost and gain <= PP_MIN_GAIN:
-            flagged = False
-            box_note = (f"; with the 2D outline offsets fitted (box model) it is ({d2[0]:+.1f}, {d2[1]:+.1f}) px, "
-                        f"x sigma {sd2[0]:.1f} px, and lowers the cost by {gain:.1f} per object (limit "
-                        f"{PP_MIN_GAIN:g}); cost with the outline offsets alone {c_box:.1f}, with the principal "
-                        f"point alone {pp_only.cost:.1f}: the box model explains it")
+            note = (f"; with the 2D outline offsets fitted (box model) it is ({d2[0]:+.1f}, {d2[1]:+.1f}) px, "
+                    f"x sigma {sd2[0]:.1f} px, and lowers the cost by {gain:.1f} per object (limit "
+                    f"{PP_MIN_GAIN:g}); cost with the outline offsets alone {c_box:.1f}, with the principal "
+                    f"point alone {pp_only.cost:.1f}: the box model explains it")
+        box_memo.append(note)
+        return note
+
+    def judge(sd_xy: np.ndarray) -> tuple[bool, str]:
+        flagged = _pp_flagged(d, sd_xy, W)
+        x_alone = bool(abs(d[0]) > PP_TOL_FRAC * W and abs(d[0]) > PP_X_SIGMAS * sd_xy[0])
+        if flagged and not x_alone:  # a horizontal shift no outline offset can mimic stays flagged
+            note = box_model_clears()
+            if note:
+                return False, note
+        return flagged, ""
+
+    flagged, box_note = judge(sd_xy)
+    obj_note, unverifiable = "", None
+    if flagged:  # the objects' own errors too: only ever widens the sigma (exact to skip otherwise)
+        sd_obj, n_obj = _pp_object_sd(ctx)
+        if np.any(sd_obj > sd_xy):
+            obj_note = (f"; leaving objects out ({n_obj} objects) gives a sigma of ({sd_obj[0]:.1f}, {sd_obj[1]:.1f}) px, "
+                        f"against ({sd_xy[0]:.1f}, {sd_xy[1]:.1f}) px over frames")
+            sd_xy = np.maximum(sd_xy, sd_obj)
+            flagged, box_note = judge(sd_xy)
+            need = float(min(intr.fx, intr.fy) * np.tan(np.radians(PP_CHECK_DEG)))
+            if not flagged and PP_CHECK_SIGMAS * float(np.max(sd_obj)) > need:
+                # the frames' flag was the objects' own errors, but these objects cannot check the
+                # principal point either: a shift that turns the pose by PP_CHECK_DEG would pass unseen
+                unverifiable = (need, n_obj)
+    sd, shift = float(np.linalg.norm(sd_xy)), float(np.linalg.norm(d))
     detail = (f"fitted principal point shift ({d[0]:+.1f}, {d[1]:+.1f}) px (bootstrap sigma {sd:.1f} px; "
               f"x alone {sd_xy[0]:.1f} px){obj_note}{box_note}")
     msg = None
