@@ -102,15 +102,19 @@ def test_box_frame_check_judges_a_line_of_boxes_by_its_elevation():
 def test_a_horizontal_principal_point_error_under_noisy_boxes_is_refused():
     """Realism site 4, cx + 3 % W, 4 px 2D noise: the shift's norm is within 4 bootstrap sigmas
     (its y part wanders), but its x part alone is far outside its own spread -> refused. Before
-    the x test this pose was a success 2.3 deg / 0.77 m off."""
+    the x test this pose was a success 2.3 deg / 0.77 m off. Since the sigma counts each object once
+    (issue 25: 18 objects, leaving them out spreads the x shift wider than the frames do) the shift
+    is no longer significant, but neither can the objects rule out one that turns the pose by 1 deg:
+    refused as not verifiable, still never a success."""
     from xcalib.data.synth.realism import make_realism_case
 
     case = make_realism_case("principal_point+3%W_4px", 4)
     res = calibrate(list(case.frames), case.intrinsics_given)
-    assert not res.success and res.diagnostics.refusal == "misfit_principal_point"
+    assert not res.success and res.rotation is None
+    assert res.diagnostics.refusal in ("misfit_principal_point", "principal_point_unverifiable"), res.message
     chk = next(c for c in res.diagnostics.misfit if c.name == "principal_point")
     assert chk.flagged and "x alone" in chk.detail
-    assert "principal point moved by (-" in res.message  # the given cx is too large: the fit moves it left
+    assert "principal point" in res.message and "moved by (-" in res.message  # the given cx is too large
 
 
 def test_a_five_percent_focal_error_under_noisy_boxes_is_refused():

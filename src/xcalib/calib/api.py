@@ -392,7 +392,7 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
         chk, msg = focal_scale_check(fit, intr, n_matches=int(sum(len(p) for p in pairs)), places=places)
         found.append((chk, msg, "misfit_focal_length"))
         width = focal_width_check(fit, cframes, pairs, pose)
-    time_chk = None
+    time_chk, pp_unverifiable = None, None
     if config.time_offset is None:  # a fixed or estimated offset is already in the model
         times, unit = _frame_times(frames_in)
         time_chk = time_offset_check(ctx, times, unit, seed=config.seed)
@@ -407,6 +407,8 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
                                                              places=places)[1] is None:
                 chk, msg = dataclasses.replace(chk, flagged=False, detail=chk.detail + "; explained by the fitted "
                                                "time offset (not flagged with it applied)"), None
+        if (msg or "").startswith("not verifiable"):  # like an unverifiable focal: refuses only what nothing else did
+            pp_unverifiable, msg = msg, None
         found.append((chk, msg, "misfit_principal_point"))
     if time_chk is not None:
         found.append((*time_chk, "misfit_time_offset"))
@@ -421,6 +423,8 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
         named = Refusal("misfit_lens", lens_alt[1])
     if named is None and refusal is None and width is not None and width[1]:
         return Refusal("focal_unverifiable", width[1])  # only a pose nothing else refused
+    if named is None and refusal is None and pp_unverifiable:
+        return Refusal("principal_point_unverifiable", pp_unverifiable)
     return named
 
 
@@ -671,12 +675,20 @@ def _calibrate_retry(frames_in: list, intrinsics, config: CalibConfig, matcher, 
     res = _calibrate(frames_in, intrinsics, config, matcher, prior_pose, progress)
     if not res.success and config.max_baseline_m is not None and prior_pose is None \
             and res.diagnostics.refusal not in ("mixed_cameras", "too_few_detections", "collinear_3d", "collinear_2d") \
-            and not res.diagnostics.refusal.startswith("misfit") and res.diagnostics.refusal not in ("crowded", "few_objects", "focal_unverifiable"):
+            and not res.diagnostics.refusal.startswith("misfit") and res.diagnostics.refusal not in ("crowded", "few_objects", "focal_unverifiable",
+                                                                             "principal_point_unverifiable"):
         # the co-located-rig assumption may be wrong (e.g. boxes in a global frame): search again
         retry = _calibrate(frames_in, intrinsics, config.replace(max_baseline_m=None), matcher, None, progress)
         if retry.success or res.diagnostics.refusal == "no_hypothesis":
             return retry
     return res
+
+
+#: refusals after which a default run is retried with the time offset estimated: the time-offset misfit,
+#: and a focal-length / principal-point misfit found together with a flagged time-offset check (an
+#: offset bends those fits too: realism time-offset sites refused as such, the time check at 9-30 sigmas)
+TIME_TRIGGERS = ("misfit_time_offset", "misfit_focal_length", "misfit_principal_point")
+_MISFIT_NAMES = {"misfit_focal_length": "focal-length", "misfit_principal_point": "principal-point"}
 
 
 def _deliver_time_offset(res: CalibrationResult, frames_in: list, intrinsics, config: CalibConfig,
@@ -686,26 +698,34 @@ def _deliver_time_offset(res: CalibrationResult, frames_in: list, intrinsics, co
     moving objects), on frames that carry LiDAR timestamps, is calibrated once more with the offset
     estimated with the pose (``time_offset="auto"``: used only when object motion determines it
     within ``config.time_offset_max_std_s``). That run's success is delivered when the offset it used
-    is itself significant (beyond ``TIME_SIGMAS`` of its 1-sigma); the result then names the offset,
-    its 1-sigma and why it was estimated (``message``, ``summary()``, ``selfcal.time_offset_trigger``).
+    is itself significant (beyond ``TIME_SIGMAS`` of its 1-sigma). A refusal as a focal-length or
+    principal-point misfit is retried the same way when the default run's time-offset check flagged
+    too (``TIME_TRIGGERS``): the retry runs every misfit check again with the offset in the model,
+    so it succeeds only when the offset explains what those checks found. The result names the
+    offset, its 1-sigma, why it was estimated and which other check it explained (``message``,
+    ``summary()``, ``selfcal.time_offset_trigger``).
     Otherwise the refusal stands, saying what the estimate gave. The run with the offset estimated
     is the one the refusal's advice asks for, with every check it has: nothing is accepted here that
     following the advice would not accept. ``rest``: (matcher, prior pose, progress)."""
     d = res.diagnostics
-    if res.success or d is None or d.refusal != "misfit_time_offset" or config.time_offset is not None \
-            or _frame_times(frames_in)[1] != "s":
+    if res.success or d is None or config.time_offset is not None or _frame_times(frames_in)[1] != "s":
         return res
     check = next((c for c in d.misfit if c.name == "time_offset" and c.flagged), None)
+    if d.refusal not in TIME_TRIGGERS or (d.refusal != "misfit_time_offset" and check is None):
+        return res
     est = _calibrate_retry(frames_in, intrinsics, config.replace(time_offset="auto"), *rest)
     sc = None if est.diagnostics is None else est.diagnostics.selfcal
     used = sc is not None and sc.time_offset_source == "estimated" and sc.time_offset_s is not None
     significant = used and abs(sc.time_offset_s) > TIME_SIGMAS * (sc.time_offset_std_s or np.inf)
     if est.success and significant:
-        sc.time_offset_trigger = "misfit_time_offset" + (f": {check.detail}" if check is not None else "")
+        also = "" if d.refusal == "misfit_time_offset" else f" (with {d.refusal}: explained by the offset)"
+        sc.time_offset_trigger = "misfit_time_offset" + also + (f": {check.detail}" if check is not None else "")
         est.message = (f"the sensors are out of time: the camera-LiDAR time offset was estimated with the pose, "
                        f"{1e3 * sc.time_offset_s:+.1f} ms (1-sigma {1e3 * sc.time_offset_std_s:.1f} ms; the default "
-                       "run's time-offset check found the 3D boxes fit best moved along their motion). Check the "
-                       "sensors' timestamps; give the offset (time_offset=seconds) once it is known")
+                       "run's time-offset check found the 3D boxes fit best moved along their motion"
+                       + ("" if not also else f", and the {_MISFIT_NAMES[d.refusal]} misfit it also found passes with "
+                          "the offset applied") + "). Check the sensors' timestamps; give the offset "
+                       "(time_offset=seconds) once it is known")
         return est
     why = est.message if not est.success else (
         "the offset was not used (too few moving objects to determine it)" if not used else
