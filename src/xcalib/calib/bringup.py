@@ -216,14 +216,15 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
             h = solve_triples(frs, intr, g[0], draw, wide)
             if len(h) == 0:
                 h = frame_hypotheses(frs, intr, g[0], rng=rng, search=search)
-            jobs.append(_rescored(h, lean, intr))
+            jobs.append((False, _rescored(h, lean, intr)))
         else:
-            jobs.append((frs, intr, g[0], draw, wide, lean))
+            jobs.append((True, (frs, intr, g[0], draw, wide, lean)))
     # the draws took every random number in order: the searches are solved (and their hypotheses
     # scored on every frame) in parallel, with the same result
-    todo = [j for j in jobs if isinstance(j, tuple)]
+    # (each job is (to_solve, job): a search solved already is a (hypotheses, scores) tuple too)
+    todo = [j for to_solve, j in jobs if to_solve]
     solved = iter(parallel_map(_solve_job, todo, workers))
-    parts = [next(solved) if isinstance(j, tuple) else j for j in jobs]
+    parts = [next(solved) if to_solve else j for to_solve, j in jobs]
     splits = sum(int(getattr(h, "n_searches", 1) > 1) for h, _ in parts)
     if progress:  # (the searches are solved together: reported once they are)
         for k in range(len(groups)):
