@@ -114,3 +114,39 @@ def test_a_focal_misfit_explained_by_a_flagged_time_offset_is_retried_with_the_o
     assert abs(res.time_offset_s - case.time_offset_s) < 0.005 and "out of time" in res.message
     rot, trans = res.pose_error(case.T_cam_lidar)
     assert rot < 0.3 and trans < 0.15, (rot, trans)
+
+
+def test_an_unflagged_principal_point_the_objects_cannot_check_is_not_verifiable():
+    """Issue 25, realism principal point +3 % W, 4 px, sites 7 and 18: a shift the frames did not
+    flag (below 4 frame sigmas) was never checked against the objects, and two poses 1.6 deg off
+    were delivered. Every unflagged pose is now judged too (``misfit._pp_verify``)."""
+    from xcalib.calib.diagnostics import MisfitCheck
+    from xcalib.calib.misfit import _pp_verify
+
+    ctx, _ = _parked(2, 8)  # 5 parked objects: their jackknife sigma is > 30 px (above)
+    chk = MisfitCheck("principal_point", 0.0, 1.0, False, "unflagged")
+    chk2, msg = _pp_verify(ctx, chk, np.zeros(2))
+    assert chk2.flagged and msg.startswith("not verifiable") and "5 distinct objects" in msg, chk2.detail
+    # new objects in every frame at many places: the objects rule a 1-deg shift out, nothing is refused
+    frames, T = sim_frames(seed=5, n_frames=12, noise_px=1.0, miss=0.0, false_pos=0.0, extra_3d=0)
+    cframes, intr, _ = prepare_frames(frames, frames[0].intrinsics)
+    pairs = _truth_pairs(frames, cframes)
+    noise = estimate_noise(cframes, pairs, intr, T[:3, :3], T[:3, 3])
+    R, t, *_ = lsq(FitContext(cframes, pairs, intr, Pose(T[:3, :3], T[:3, 3]), noise, 2.0), 60)
+    chk3, msg3 = _pp_verify(FitContext(cframes, pairs, intr, Pose(R, t), noise, 2.0, Occlusion()), chk, np.zeros(2))
+    assert msg3 is None and not chk3.flagged and "leaving objects out" in chk3.detail, chk3.detail
+
+
+def test_realism_site_with_an_unflagged_principal_point_error_is_refused():
+    """The end-to-end case: realism principal point +3 % W, 4 px, site 7 (1.6 deg off when delivered)."""
+    import warnings
+
+    import xcalib
+    from xcalib.data.synth.realism import make_realism_case
+
+    case = make_realism_case("principal_point+3%W_4px", 7, 20)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = xcalib.calibrate(list(case.frames), case.intrinsics_given)
+    assert not res.success and res.diagnostics.refusal == "principal_point_unverifiable", res.message
+    assert Pose.parse(np.asarray(res.diagnostics.refused_T)).error(Pose.parse(case.T_cam_lidar))[0] > 1.0

@@ -568,22 +568,6 @@ def _pp_unverifiable(ctx: FitContext, chk: MisfitCheck, d: np.ndarray, sd_obj: n
     return replace(chk, flagged=True, detail=detail), msg
 
 
-def _pp_verify(ctx: FitContext, chk: MisfitCheck, d: np.ndarray) -> tuple[MisfitCheck, str | None]:
-    """An unflagged principal point: can the objects rule out a shift that turns the pose by
-    ``PP_CHECK_DEG``? (``chk`` unflagged; returned as is, or as ``_pp_unverifiable``.) Realism
-    principal point +3 % W, 4 px, sites 7 and 18: a true shift of 58 px fitted (-57, -68) px at a
-    frame-bootstrap sigma of 26 px (below 4 sigmas: unflagged), with 5-6 objects; the pose reported
-    1.6 deg off the truth with a 1-sigma of 0.2-0.3 deg."""
-    sd_obj, n_obj = _pp_object_sd(ctx)
-    if n_obj < 4:  # nothing to leave out (the few-objects rule refuses such poses)
-        return chk, None
-    detail = chk.detail + f"; leaving objects out ({n_obj} objects): sigma ({sd_obj[0]:.1f}, {sd_obj[1]:.1f}) px"
-    chk = replace(chk, detail=detail)
-    if PP_CHECK_SIGMAS * float(np.max(sd_obj)) <= _pp_need(ctx.intr):
-        return chk, None
-    return _pp_unverifiable(ctx, chk, d, sd_obj, n_obj)
-
-
 def _pp_flagged(d: np.ndarray, sd_xy: np.ndarray, W: int) -> bool:
     sd, shift = float(np.linalg.norm(sd_xy)), float(np.linalg.norm(d))
     return bool((shift > PP_TOL_FRAC * W and shift > PP_SIGMAS * sd)
@@ -656,11 +640,11 @@ def principal_point_check_all(ctx: FitContext, *, draws: int = 5, seed: int = 0,
         # bootstrap over pairs understates that (one nuScenes frame, 47 pairs: a false 78 px)
         return MisfitCheck("principal_point", 0.0, PP_TOL_FRAC * W, False, "too few matches or frames"), None
     d = _pp_fit(frames, pairs, intr, pose, noise, f_scale, occlusion)
-    if float(np.linalg.norm(d)) <= PP_TOL_FRAC * W:  # cannot flag whatever its sigma: no bootstrap refits
-        chk = MisfitCheck("principal_point", float(np.linalg.norm(d)), PP_TOL_FRAC * W, False,
-                          f"fitted principal point shift ({d[0]:+.1f}, {d[1]:+.1f}) px, within the tolerance (its "
-                          "bootstrap sigma not computed)")
-        return _pp_verify(ctx, chk, d)
+    need = _pp_need(intr)
+    if float(np.linalg.norm(d)) <= min(PP_TOL_FRAC * W, need):  # cannot flag nor turn the pose: no bootstrap refits
+        return MisfitCheck("principal_point", float(np.linalg.norm(d)), PP_TOL_FRAC * W, False,
+                           f"fitted principal point shift ({d[0]:+.1f}, {d[1]:+.1f}) px, within the tolerance (its "
+                           "bootstrap sigma not computed)"), None
     d, sd_xy = _pp_boot(ctx, draws, seed, False, d)
     box_memo: list = []
 
@@ -710,7 +694,6 @@ def principal_point_check_all(ctx: FitContext, *, draws: int = 5, seed: int = 0,
                         f"against ({sd_xy[0]:.1f}, {sd_xy[1]:.1f}) px over frames")
             sd_xy = np.maximum(sd_xy, sd_obj)
             flagged, box_note = judge(sd_xy)
-            need = _pp_need(intr)
             if not flagged and PP_CHECK_SIGMAS * float(np.max(sd_obj)) > need:
                 # the frames' flag was the objects' own errors, but these objects cannot check the
                 # principal point either: a shift that turns the pose by PP_CHECK_DEG would pass unseen
@@ -723,8 +706,20 @@ def principal_point_check_all(ctx: FitContext, *, draws: int = 5, seed: int = 0,
         need, n_obj = unverifiable
         return _pp_unverifiable(ctx, MisfitCheck("principal_point", shift, PP_TOL_FRAC * W, True, detail), d,
                                 sd_obj, n_obj)
-    if not flagged and not obj_note:  # nothing flagged: can these objects check the principal point at all?
-        return _pp_verify(ctx, MisfitCheck("principal_point", shift, PP_TOL_FRAC * W, False, detail), d)
+    if not flagged and shift > need and not (box_note or box_model_clears()):
+        # not flagged, yet the boxes ask for a shift that turns the camera beyond PP_CHECK_DEG and the box
+        # model does not explain it: the pose with the given cx, cy and the one with the fitted shift differ
+        # beyond the wrong-pose line, and the data cannot choose between them
+        detail += (f"; not verifiable: the shift turns the camera by {np.degrees(np.arctan(shift / min(intr.fx, intr.fy))):.2f}"
+                   f" deg (limit {PP_CHECK_DEG:g} deg, {need:.0f} px), not flagged: neither confirmed "
+                   "nor ruled out")
+        msg = (f"not verifiable: the boxes fit best with the principal point moved by ({d[0]:+.0f}, {d[1]:+.0f}) px "
+               f"(cx ~{intr.cx + d[0]:.0f} instead of {intr.cx:.0f}, cy ~{intr.cy + d[1]:.0f} instead of {intr.cy:.0f}), "
+               f"which would turn the camera by {np.degrees(np.arctan(shift / min(intr.fx, intr.fy))):.1f} deg; these "
+               f"detections can neither confirm that shift (1-sigma {sd:.0f} px) nor rule it out, so the pose found "
+               "with the given intrinsics may be off by as much. Check cx, cy (cropped or resized image?) and add "
+               "frames in which other objects pass, at other places and depths in the image")
+        return MisfitCheck("principal_point", shift, PP_TOL_FRAC * W, True, detail), msg
     if flagged:
         msg = (f"model misfit: the boxes fit best with the principal point moved by ({d[0]:+.0f}, {d[1]:+.0f}) px "
                f"(cx ~{intr.cx + d[0]:.0f} instead of {intr.cx:.0f}, cy ~{intr.cy + d[1]:.0f} instead of {intr.cy:.0f}); "
