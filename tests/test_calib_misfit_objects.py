@@ -114,3 +114,54 @@ def test_a_focal_misfit_explained_by_a_flagged_time_offset_is_retried_with_the_o
     assert abs(res.time_offset_s - case.time_offset_s) < 0.005 and "out of time" in res.message
     rot, trans = res.pose_error(case.T_cam_lidar)
     assert rot < 0.3 and trans < 0.15, (rot, trans)
+
+
+def test_an_unflagged_principal_point_shift_that_turns_the_pose_beyond_1_deg_is_not_verifiable(monkeypatch):
+    """Issue 25, realism principal point +3 % W, 4 px, sites 7 and 18: the boxes asked for shifts of
+    89 and 56 px (2.4 and 1.5 deg) below 4 frame sigmas: unflagged, never judged, and the poses were
+    delivered 1.6 deg off the truth. A shift beyond ``PP_CHECK_DEG`` whose x part is beyond the
+    tolerance and 3 of its sigmas, neither flagged nor explained by the box model, now refuses as not
+    verifiable; a small one passes."""
+    import xcalib.calib.misfit as misfit
+
+    frames, T = sim_frames(seed=5, n_frames=12, noise_px=1.0, miss=0.0, false_pos=0.0, extra_3d=0)
+    W = frames[0].intrinsics.width
+
+    def ctx_for(dx_px: float) -> FitContext:
+        shifted = [Frame(**{**f.__dict__, "bboxes_2d": np.asarray(f.bboxes_2d) + np.array([dx_px, 0, dx_px, 0])})
+                   for f in frames]
+        cframes, intr, _ = prepare_frames(shifted, shifted[0].intrinsics)
+        pairs = _truth_pairs(shifted, cframes)
+        noise = estimate_noise(cframes, pairs, intr, T[:3, :3], T[:3, 3])
+        R, t, *_ = lsq(FitContext(cframes, pairs, intr, Pose(T[:3, :3], T[:3, 3]), noise, 2.0), 60)
+        return FitContext(cframes, pairs, intr, Pose(R, t), noise, 2.0, Occlusion())
+
+    fit = misfit._pp_fit
+
+    def wide_boot(ctx, draws, seed, outline, d=None):  # noisy data: x at 3.5 of its sigmas, y unknown
+        d = fit(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, ctx.f_scale, ctx.occlusion, outline) \
+            if d is None else d
+        return d, np.array([abs(d[0]) / 3.5, 1e3])
+
+    monkeypatch.setattr(misfit, "_pp_boot", wide_boot)
+    ctx = ctx_for(0.03 * W)
+    need = misfit._pp_need(ctx.intr)
+    chk, msg = principal_point_check(ctx)
+    assert chk.statistic > need and msg.startswith("not verifiable") and "would turn the camera" in msg, chk.detail
+    chk, msg = principal_point_check(ctx_for(0.0))  # exact intrinsics: the fitted shift is small
+    assert msg is None and not chk.flagged and chk.statistic < need, chk.detail
+
+
+def test_realism_site_with_an_unflagged_principal_point_error_is_refused():
+    """The end-to-end case: realism principal point +3 % W, 4 px, site 7 (1.6 deg off when delivered)."""
+    import warnings
+
+    import xcalib
+    from xcalib.data.synth.realism import make_realism_case
+
+    case = make_realism_case("principal_point+3%W_4px", 7, 20)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = xcalib.calibrate(list(case.frames), case.intrinsics_given)
+    assert not res.success and res.diagnostics.refusal == "principal_point_unverifiable", res.message
+    assert Pose.parse(np.asarray(res.diagnostics.refused_T)).error(Pose.parse(case.T_cam_lidar))[0] > 1.0
