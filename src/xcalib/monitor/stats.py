@@ -77,16 +77,23 @@ def pure_models(d: np.ndarray, cov: np.ndarray) -> list[tuple[float, np.ndarray,
     for name, sl in (("rotation", slice(0, 3)), ("translation", slice(3, 6))):
         E = np.zeros((6, 3))
         E[sl] = np.eye(3)
-        try:
-            ca = np.linalg.inv(E.T @ info @ E)
-        except np.linalg.LinAlgError:
-            continue
-        a = ca @ E.T @ info @ d
-        res = d - E @ a
-        misfit = float(res @ info @ res)
-        if misfit < limit:
+        fit = _constrained_fit(d, info, E)
+        if fit is not None and fit[0] < limit:
+            misfit, a, ca = fit
             kept.append((misfit, E @ a, E @ ca @ E.T, name))
     return sorted(kept, key=lambda q: q[0])
+
+
+def _constrained_fit(d: np.ndarray, info: np.ndarray, E: np.ndarray):
+    """The generalised least squares fit of ``d`` (information ``info``) restricted to the columns of
+    ``E`` (d ~ E a): (misfit, a, cov(a)), or None when the restricted information is singular."""
+    try:
+        ca = np.linalg.inv(E.T @ info @ E)
+    except np.linalg.LinAlgError:
+        return None
+    a = ca @ E.T @ info @ d
+    res = d - E @ a
+    return float(res @ info @ res), a, ca
 
 
 def select_model(d: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
@@ -120,13 +127,10 @@ def sparse_step(d: np.ndarray, cov: np.ndarray, axes, level: float = MODEL_LEVEL
         for S in combinations(axes, k):
             E = np.zeros((DOF, k))
             E[list(S), range(k)] = 1.0
-            try:
-                ca = np.linalg.inv(E.T @ info @ E)
-            except np.linalg.LinAlgError:
+            fit = _constrained_fit(d, info, E)
+            if fit is None:
                 continue
-            a = ca @ E.T @ info @ d
-            res = d - E @ a
-            misfit = float(res @ info @ res)
+            misfit, a, _ = fit
             if (k == len(axes) or misfit < float(chi2.isf(level, DOF - k))) and (best is None or misfit < best[0]):
                 best = (misfit, E @ a, S)
         if best is not None:
