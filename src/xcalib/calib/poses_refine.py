@@ -92,6 +92,15 @@ class _Batch:
         self.fallback = np.sqrt((o[..., 2] - o[..., 0]) * (o[..., 3] - o[..., 1]))[..., None]
         self.intr, self.size, self.occlusion, self.dist = intr, fr.size, occlusion, _distortion(intr)
 
+    def take(self, idx: np.ndarray) -> "_Batch":
+        """The batch of the poses ``idx`` only (the same arrays, rows ``idx``): a fit evaluates
+        only the poses still moving, with the same operations per pose, so the same values."""
+        out = object.__new__(_Batch)
+        out.__dict__.update(self.__dict__)
+        for k in ("C", "obs", "w", "mask", "fallback"):
+            setattr(out, k, getattr(self, k)[idx])
+        return out
+
     def _project(self, R, t):
         """Camera-frame corners Y = R C [H,P,S,3] (without t), u, v [H,P,S] (NaN behind), rects
         [H,P,4] (clipped), valid [H,P]: the operations of ``boxproj.project_rects``."""
@@ -179,7 +188,9 @@ def _robust(r: np.ndarray, fs: np.ndarray):
 
 def _fit(batch: _Batch, R: np.ndarray, t: np.ndarray, fs: np.ndarray, active: np.ndarray, max_iter: int):
     """Robust Levenberg-Marquardt fit of the poses flagged ``active`` [H], at most ``max_iter``
-    evaluations; returns (R, t, residuals [H,P,4])."""
+    evaluations; returns (R, t, residuals [H,P,4]). Each step solves, projects and
+    differentiates only the poses still live (settled ones keep their state), pose by pose the
+    same operations as on the whole batch."""
     R, t = R.copy(), t.copy()
     r, raw, proj = batch.residuals(R, t)
     cost, wts = _robust(r, fs)
@@ -188,31 +199,34 @@ def _fit(batch: _Batch, R: np.ndarray, t: np.ndarray, fs: np.ndarray, active: np
     J = batch.jacobian(t, raw, proj)
     eye = np.eye(6)
     for _ in range(max_iter):
-        if not live.any():
+        idx = np.flatnonzero(live)
+        if not len(idx):
             break
-        Jf = J.reshape(len(R), -1, 6)
-        sf = wts.reshape(len(R), -1)
+        sub = batch if len(idx) == len(R) else batch.take(idx)
+        n = len(idx)
+        Jf = J[idx].reshape(n, -1, 6)
+        sf = wts[idx].reshape(n, -1)
         Jt = Jf.transpose(0, 2, 1)
         A = (Jt * sf[:, None, :] ** -3) @ Jf
-        g = (Jt @ (r.reshape(len(R), -1) / sf)[..., None])[..., 0]
+        g = (Jt @ (r[idx].reshape(n, -1) / sf)[..., None])[..., 0]
         dA = np.maximum(np.diagonal(A, axis1=1, axis2=2), 1e-12)
-        M = A + lam[:, None, None] * (eye * dA[:, None, :])
-        M[~live] = eye
-        dx = -np.linalg.solve(M, np.where(live[:, None], g, 0.0)[..., None])[..., 0]
-        Rn = _exp(dx[:, :3]) @ R
-        tn = t + dx[:, 3:]
-        rn, rawn, projn = batch.residuals(Rn, tn)
-        cn, wn = _robust(rn, fs)
-        better = live & (cn <= cost)
+        M = A + lam[idx, None, None] * (eye * dA[:, None, :])
+        dx = -np.linalg.solve(M, g[..., None])[..., 0]
+        Rn = _exp(dx[:, :3]) @ R[idx]
+        tn = t[idx] + dx[:, 3:]
+        rn, rawn, projn = sub.residuals(Rn, tn)
+        cn, wn = _robust(rn, fs[idx])
+        better = cn <= cost[idx]
         step = np.linalg.norm(dx[:, :3], axis=1) + np.linalg.norm(dx[:, 3:], axis=1) / 100.0
-        settled = better & ((step < STEP_TOL) | (cost - cn <= COST_TOL * np.maximum(cost, 1e-12)))
+        settled = better & ((step < STEP_TOL) | (cost[idx] - cn <= COST_TOL * np.maximum(cost[idx], 1e-12)))
         if better.any():
-            R[better], t[better] = Rn[better], tn[better]
-            r[better], raw[better], wts[better], cost[better] = rn[better], rawn[better], wn[better], cn[better]
-            Jn = batch.jacobian(tn, rawn, projn)
-            J[better] = Jn[better]
-        lam = np.where(better, np.maximum(lam / 3.0, 1e-9), lam * 4.0)
-        live &= ~settled & (lam < 1e8)
+            b = idx[better]
+            R[b], t[b] = Rn[better], tn[better]
+            r[b], raw[b], wts[b], cost[b] = rn[better], rawn[better], wn[better], cn[better]
+            kb = np.flatnonzero(better)
+            J[b] = (sub if len(kb) == n else sub.take(kb)).jacobian(tn[kb], rawn[kb], tuple(a[kb] for a in projn))
+        lam[idx] = np.where(better, np.maximum(lam[idx] / 3.0, 1e-9), lam[idx] * 4.0)
+        live[idx] &= ~settled & (lam[idx] < 1e8)
     return R, t, r
 
 

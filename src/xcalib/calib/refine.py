@@ -68,32 +68,45 @@ def _match_projected(fr: CalibFrame, rects: np.ndarray, valid: np.ndarray, gate_
 
 
 def _assign(iou: np.ndarray, dist: np.ndarray, valid: np.ndarray, gate_iou: float, gate_dist: float):
-    """Hungarian matching of one frame from its IoU [K,M] and centre distance [K,M] (diagonals)."""
+    """Hungarian matching of one frame from its IoU [K,M] and centre distance [K,M] (diagonals).
+
+    The assignment runs on the rows and columns that have an allowed pair only: a box with none
+    can only take a forbidden (1e6) entry, and any set of allowed pairs extends to a full
+    assignment of the complete matrix with forbidden entries, so both problems choose the most
+    allowed pairs at the least summed cost -- the same matches (exact; tested against the full
+    matrix in ``tests/test_match_pruning.py``)."""
     dist = np.where(valid[None], dist, np.inf)
     allowed = (iou >= gate_iou) if gate_dist <= 0 else ((iou >= gate_iou) | (dist <= gate_dist))
     allowed &= valid[None]
-    if not np.any(allowed):
+    rows = np.flatnonzero(allowed.any(axis=1))
+    if not len(rows):
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
-    cost = np.where(allowed, (1 - iou) + np.minimum(dist, 10.0), 1e6)
+    cols = np.flatnonzero(allowed.any(axis=0))
+    sub = allowed[np.ix_(rows, cols)]
+    iou_s = iou[np.ix_(rows, cols)]
+    cost = np.where(sub, (1 - iou_s) + np.minimum(dist[np.ix_(rows, cols)], 10.0), 1e6)
     r, c = linear_sum_assignment(cost)
-    keep = allowed[r, c]
-    pairs = np.column_stack([r[keep], c[keep]]).astype(np.int64)
-    return pairs, iou[r[keep], c[keep]]
+    keep = sub[r, c]
+    pairs = np.column_stack([rows[r[keep]], cols[c[keep]]]).astype(np.int64)
+    return pairs, iou_s[r[keep], c[keep]]
 
 
 def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_dist: float) -> list[np.ndarray]:
     """The pairs of every frame, the IoU and centre distances of all frames in one padded
     [F,K,M] computation (the same element-wise operations as ``iou_batched`` / ``_match_projected``,
-    so the same values); the assignment frame by frame."""
+    so the same values); the assignment frame by frame. Only the 3D boxes that project into the
+    image (``valid``) enter the arrays: the others can match no box (``_assign`` forbids them), so
+    dropping them first changes no match (a 360-degree LiDAR's boxes behind the camera)."""
     out = [np.zeros((0, 2), dtype=np.int64) for _ in frames]
     live = [k for k, fr in enumerate(frames) if fr.n2 and fr.n3 and np.any(proj[k][1])]
     if not live:
         return out
-    L, K, M = len(live), max(frames[k].n2 for k in live), max(frames[k].n3 for k in live)
+    cols = [np.flatnonzero(proj[k][1]) for k in live]
+    L, K, M = len(live), max(frames[k].n2 for k in live), max(len(c) for c in cols)
     rects = np.zeros((L, M, 4))
     boxes = np.tile(np.array([0.0, 0.0, 1.0, 1.0]), (L, K, 1))  # padding: a unit box (no zero diagonal)
     for i, k in enumerate(live):
-        rects[i, :frames[k].n3] = proj[k][0]
+        rects[i, :len(cols[i])] = proj[k][0][cols[i]]
         boxes[i, :frames[k].n2] = frames[k].boxes2d
     r = np.nan_to_num(rects, nan=0.0)
     rx0, ry0, rx1, ry1 = (np.ascontiguousarray(r[..., j])[:, None, :] for j in range(4))
@@ -104,8 +117,10 @@ def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_di
     diag = np.hypot(boxes[..., 2] - boxes[..., 0], boxes[..., 3] - boxes[..., 1])
     dist = np.linalg.norm(c_obs[:, :, None] - c_pred[:, None], axis=3) / diag[..., None]
     for i, k in enumerate(live):
-        n2, n3 = frames[k].n2, frames[k].n3
-        out[k] = _assign(iou[i, :n2, :n3], dist[i, :n2, :n3], proj[k][1], gate_iou, gate_dist)[0]
+        n2, c = frames[k].n2, cols[i]
+        p = _assign(iou[i, :n2, :len(c)], dist[i, :n2, :len(c)], np.ones(len(c), bool), gate_iou, gate_dist)[0]
+        p[:, 1] = c[p[:, 1]]
+        out[k] = p
     return out
 
 
