@@ -73,8 +73,9 @@ def _assign(iou: np.ndarray, dist: np.ndarray, valid: np.ndarray, gate_iou: floa
     The assignment runs on the rows and columns that have an allowed pair only: a box with none
     can only take a forbidden (1e6) entry, and any set of allowed pairs extends to a full
     assignment of the complete matrix with forbidden entries, so both problems choose the most
-    allowed pairs at the least summed cost -- the same matches (exact; tested against the full
-    matrix in ``tests/test_match_pruning.py``)."""
+    allowed pairs at the least summed cost: the same matches (only alternatives of exactly equal
+    summed cost could be ordered differently by the solver; tested against the full matrix in
+    ``tests/test_match_pruning.py``)."""
     dist = np.where(valid[None], dist, np.inf)
     allowed = (iou >= gate_iou) if gate_dist <= 0 else ((iou >= gate_iou) | (dist <= gate_dist))
     allowed &= valid[None]
@@ -82,9 +83,12 @@ def _assign(iou: np.ndarray, dist: np.ndarray, valid: np.ndarray, gate_iou: floa
     if not len(rows):
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
     cols = np.flatnonzero(allowed.any(axis=0))
-    sub = allowed[np.ix_(rows, cols)]
-    iou_s = iou[np.ix_(rows, cols)]
-    cost = np.where(sub, (1 - iou_s) + np.minimum(dist[np.ix_(rows, cols)], 10.0), 1e6)
+    if len(rows) == len(iou) and len(cols) == iou.shape[1]:  # nothing to drop (small frames)
+        sub, iou_s, dist_s = allowed, iou, dist
+    else:
+        ix = np.ix_(rows, cols)
+        sub, iou_s, dist_s = allowed[ix], iou[ix], dist[ix]
+    cost = np.where(sub, (1 - iou_s) + np.minimum(dist_s, 10.0), 1e6)
     r, c = linear_sum_assignment(cost)
     keep = sub[r, c]
     pairs = np.column_stack([rows[r[keep]], cols[c[keep]]]).astype(np.int64)
