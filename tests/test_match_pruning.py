@@ -110,3 +110,72 @@ def test_match_all_frames_without_valid_boxes():
     got = match_all(cfs, intr, R, t, gate_iou=0.3)
     for fr, p in zip(cfs, got):
         np.testing.assert_array_equal(p, _reference(fr, intr, R, t, 0.3, 0.0))
+
+
+def _fit_all_poses(batch, R, t, fs, active, max_iter):
+    """``poses_refine._fit`` as it was: every step solves, projects and differentiates all H poses."""
+    from xcalib.calib.poses_refine import COST_TOL, STEP_TOL, _exp, _robust
+
+    R, t = R.copy(), t.copy()
+    r, raw, proj = batch.residuals(R, t)
+    cost, wts = _robust(r, fs)
+    lam = np.full(len(R), 1e-3)
+    live = active.copy()
+    J = batch.jacobian(t, raw, proj)
+    eye = np.eye(6)
+    for _ in range(max_iter):
+        if not live.any():
+            break
+        Jf = J.reshape(len(R), -1, 6)
+        sf = wts.reshape(len(R), -1)
+        Jt = Jf.transpose(0, 2, 1)
+        A = (Jt * sf[:, None, :] ** -3) @ Jf
+        g = (Jt @ (r.reshape(len(R), -1) / sf)[..., None])[..., 0]
+        dA = np.maximum(np.diagonal(A, axis1=1, axis2=2), 1e-12)
+        M = A + lam[:, None, None] * (eye * dA[:, None, :])
+        M[~live] = eye
+        dx = -np.linalg.solve(M, np.where(live[:, None], g, 0.0)[..., None])[..., 0]
+        Rn = _exp(dx[:, :3]) @ R
+        tn = t + dx[:, 3:]
+        rn, rawn, projn = batch.residuals(Rn, tn)
+        cn, wn = _robust(rn, fs)
+        better = live & (cn <= cost)
+        step = np.linalg.norm(dx[:, :3], axis=1) + np.linalg.norm(dx[:, 3:], axis=1) / 100.0
+        settled = better & ((step < STEP_TOL) | (cost - cn <= COST_TOL * np.maximum(cost, 1e-12)))
+        if better.any():
+            R[better], t[better] = Rn[better], tn[better]
+            r[better], raw[better], wts[better], cost[better] = rn[better], rawn[better], wn[better], cn[better]
+            J[better] = batch.jacobian(tn, rawn, projn)[better]
+        lam = np.where(better, np.maximum(lam / 3.0, 1e-9), lam * 4.0)
+        live &= ~settled & (lam < 1e8)
+    return R, t, r
+
+
+def test_poses_fit_live_only_same_as_all_poses():
+    """The consensus's batched fit stepping only the live poses gives the poses and residuals of
+    stepping all of them, to the bit (seeded frame, 6 rough starts, one of them inactive)."""
+    from xcalib.calib.cost import Occlusion, edge_sigma
+    from xcalib.calib.pose import Pose
+    from xcalib.calib.poses_refine import _Batch, _fit
+    from xcalib.calib.refine import DEFAULT_NOISE
+
+    frames, T = _junction(5, 12, 1)
+    cfs, intr, _ = prepare_frames(frames, frames[0].intrinsics)
+    fr = cfs[0]
+    poses = _poses(T, np.random.default_rng(5), 5)
+    R = np.stack([p[0] for p in poses])
+    t = np.stack([p[1] for p in poses])
+    pairs, _ = match_poses(fr, intr, R, t, 0.1, 1.0)
+    assert all(len(p) >= 3 for p in pairs)
+    sig = [edge_sigma(fr.boxes2d[p[:, 0]], fr.corners[p[:, 1]], intr, Pose(R[h], t[h]), DEFAULT_NOISE, np.zeros(len(p)))
+           for h, p in enumerate(pairs)]
+    batch = _Batch(fr, pairs, sig, intr, Occlusion())
+    active = np.ones(len(R), bool)
+    active[2] = False
+    fs = np.full(len(R), 2.0)
+    for max_iter in (1, 4, 15):
+        got = _fit(batch, R, t, fs, active, max_iter)
+        ref = _fit_all_poses(batch, R, t, fs, active, max_iter)
+        for a, b in zip(got, ref):
+            np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(got[0], R)  # the fit moved the poses
