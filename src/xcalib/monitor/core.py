@@ -443,7 +443,11 @@ class CameraMonitor:
 
     @property
     def pose_lin(self) -> Pose:
-        return self.pose0.moved(self.x_lin[:3], self.x_lin[3:])
+        key = self.x_lin.tobytes()
+        cached = getattr(self, "_pose_lin", None)
+        if cached is None or cached[0] != key:  # moved only at a detected change: computed once per pose
+            cached = self._pose_lin = (key, self.pose0.moved(self.x_lin[:3], self.x_lin[3:]))
+        return cached[1]
 
     def estimated_pose(self) -> Pose:
         """The camera pose the monitor currently believes (the calibration unless a drift was found)."""
@@ -558,7 +562,8 @@ class CameraMonitor:
             box7 = as_box7(check_boxes3d(b3, "bboxes_3d"))
             if np.all(np.isfinite(box7)):
                 # only the boxes the camera may see (at the pose frames are matched at) need a yaw
-                seen = maybe_in_view(box7, self.pose_lin.R, self.pose_lin.t, self.intr, self._size(frame))
+                pose = self.pose_lin
+                seen = maybe_in_view(box7, pose.R, pose.t, self.intr, self._size(frame))
                 b7, ambiguous = np.array(box7, dtype=np.float64), np.ones(len(box7), dtype=bool)
                 if np.any(seen):
                     b7[seen], ambiguous[seen] = fit_yaw_batch(box7[seen], pts)
