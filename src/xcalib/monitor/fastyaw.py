@@ -46,9 +46,13 @@ def points_near(pts: np.ndarray, box7: np.ndarray, margin: float = 0.3, clearanc
             cell = (slice(a[0], c[0] + 1), slice(a[1], c[1] + 1))
             zlo[cell] = np.minimum(zlo[cell], zl)
             zhi[cell] = np.maximum(zhi[cell], zh)
-        inb = (z > lo_z.min()) & (z < hi_z.max())
-        inb &= (x >= o[0] * CELL_M) & (x < (o[0] + shape[0]) * CELL_M)
-        inb &= (y >= o[1] * CELL_M) & (y < (o[1] + shape[1]) * CELL_M)
+        # in the points' own precision (Python floats: float32 clouds stay float32): the cell
+        # edges are multiples of CELL_M (exact); the z band is widened by a millimetre, as the
+        # per-cell bands below and each box's own band decide in float64
+        zb0, zb1 = float(lo_z.min()) - 1e-3, float(hi_z.max()) + 1e-3
+        inb = (z > zb0) & (z < zb1)
+        inb &= (x >= float(o[0] * CELL_M)) & (x < float((o[0] + shape[0]) * CELL_M))
+        inb &= (y >= float(o[1] * CELL_M)) & (y < float((o[1] + shape[1]) * CELL_M))
         cand = np.flatnonzero(inb)
         i = np.floor(x[cand] / CELL_M).astype(np.int64) - o[0]
         j = np.floor(y[cand] / CELL_M).astype(np.int64) - o[1]
