@@ -562,6 +562,10 @@ def _information(seeds: list[int], n_bound: int, n_null: int, log) -> dict:
         log(f"site {s} monitor (40 vs 250 frames, {m['tests']} tests): mean chi2 {m['mean_chi2_6dof']:.2f} (6: covariance right); "
             f"stated / empirical variance " + ", ".join(f"{a} {v:.2f}" for a, v in m["stated_over_empirical_variance"].items())
             + f"; detectable tz {100 * m['detectable_tz_median_m']:.1f} cm")
+        for key, w in m["by_window"].items():
+            log(f"site {s}   {key:16s} ({w['tests']} tests vs 250 frames): mean chi2 {w['mean_chi2_6dof']:.2f}, max "
+                f"{w['max_chi2_6dof']:.1f}, above the 1 % point {100 * w['share_above_chi2_6dof_1pct']:.1f} %; stated / "
+                "empirical variance " + ", ".join(f"{a} {v:.2f}" for a, v in w["stated_over_empirical_variance"].items()))
     return rows
 
 
