@@ -104,6 +104,45 @@ def bound_rows(infos: np.ndarray, h: float, ref: int = 250, windows=(40, 50)) ->
     return out
 
 
+def sequential_rows(infos: np.ndarray, rate: float, stride: int, ref: int = 250, targets=((5, 0.10, 50), (5, 0.20, 20)),
+                    scan: int = 80) -> dict:
+    """Does a sequential change-point statistic reach a step sooner than the fixed windows at the same
+    false-alarm rate? Per target (axis, step, within W frames), the power of the last decision within
+    W frames of the change (the change D frames back, D uniform over the decision phases in
+    (W - stride, W]) under this information (``infos``; the best single test's power, a lower bound
+    of the decision's): "fixed" (the monitor's windows 20 / 40 / 80
+    and the calibration test: 4 tests a decision), "fixed_plus_target" (and a window of W - stride
+    frames: 5 tests), "glr_scan" (the two-sample statistic at every change point within the last
+    ``scan`` frames: the segment since the change exactly, ``scan`` + 1 tests a decision,
+    Bonferroni as the monitor's threshold). Segments against ``ref`` frames before them."""
+    from scipy.stats import chi2, ncx2
+
+    n = len(infos)
+    out = {}
+    for axis, size, W in targets:
+        rows = {"fixed": [], "fixed_plus_target": [], "glr_scan": []}
+        h = {"fixed": chi2.isf(rate * stride / 4, 6), "fixed_plus_target": chi2.isf(rate * stride / 5, 6),
+             "glr_scan": chi2.isf(rate * stride / (scan + 1), 6)}
+        for a in range(80, n - ref - W + 1, 25):
+            for D in range(W - stride + 1, W + 1):
+                end = a + ref + D  # the decision: the change D frames back
+
+                def power(L, hh):
+                    """The test of the last L frames (the last D of them changed) against the ref frames before them."""
+                    Ia, Ip = infos[end - L:end].sum(0), infos[end - min(L, D):end].sum(0)
+                    Ibb = infos[end - L - ref:end - L].sum(0)
+                    d = np.linalg.solve(Ia, Ip[:, axis]) * size  # a mixed segment sees part of the step
+                    lam = float(d @ np.linalg.solve(np.linalg.inv(Ia) + np.linalg.inv(Ibb), d))
+                    return ncx2.sf(hh, 6, lam)
+
+                rows["fixed"].append(max(power(L, h["fixed"]) for L in (20, 40, 80)))
+                rows["fixed_plus_target"].append(max(power(L, h["fixed_plus_target"]) for L in (20, 40, 80, W - stride)))
+                rows["glr_scan"].append(power(D, h["glr_scan"]))
+        out[f"{AXES[axis]}_{size:g}_within_{W}"] = {k: float(np.mean(v)) for k, v in rows.items()} | \
+            {f"threshold_{k}": float(v) for k, v in h.items()}
+    return out
+
+
 def _pairs_sandwich(recs, a: int, b: int, H: np.ndarray, x: np.ndarray) -> np.ndarray:
     """The covariance of a segment's estimate ``x`` (frames [a, b), information ``H``) from the spread
     of its matched pairs' own scores (each pair's four edges one cluster, its score at ``x``):
