@@ -496,3 +496,13 @@ def test_points_near_keeps_exactly_the_points_of_each_box_band():
         assert want.sum() > 0
         got = np.column_stack([qx[bi == k], qy[bi == k]])
         assert np.array_equal(np.sort(got, axis=0), np.sort(p[want][:, :2], axis=0))
+
+
+def test_target_window_adds_one_test_at_the_target_delay():
+    """``target_window``: the decisions also test the last ``target_frames - stride`` frames, one more
+    test under the same false-alarm rate (a higher threshold); off by default (the windows and the
+    threshold as before)."""
+    base, tw = MonitorConfig(), MonitorConfig(target_window=True)
+    assert base.windows == (20, 40, 80) and base.n_tests == 4 and base.threshold == threshold(1e-4, 5, 4)
+    assert tw.windows == (20, 40, 45, 80) and tw.n_tests == 5 and tw.threshold > base.threshold
+    assert MonitorConfig(target_window=True, target_frames=45).windows == (20, 40, 80)  # 40: already tested
