@@ -498,11 +498,9 @@ def test_points_near_keeps_exactly_the_points_of_each_box_band():
         assert np.array_equal(np.sort(got, axis=0), np.sort(p[want][:, :2], axis=0))
 
 
-def test_target_window_adds_one_test_at_the_target_delay():
-    """``target_window``: the decisions also test the last ``target_frames - stride`` frames, one more
-    test under the same false-alarm rate (a higher threshold); off by default (the windows and the
-    threshold as before)."""
-    base, tw = MonitorConfig(), MonitorConfig(target_window=True)
-    assert base.windows == (20, 40, 80) and base.n_tests == 4 and base.threshold == threshold(1e-4, 5, 4)
-    assert tw.windows == (20, 40, 45, 80) and tw.n_tests == 5 and tw.threshold > base.threshold
-    assert MonitorConfig(target_window=True, target_frames=45).windows == (20, 40, 80)  # 40: already tested
+
+def test_windows_are_the_configured_scales():
+    """``MonitorConfig.windows``: window * 2^k for k < scales; one test each and the calibration test."""
+    cfg = MonitorConfig()
+    assert cfg.windows == (20, 40, 80) and cfg.n_tests == 4 and cfg.threshold == threshold(1e-4, 5, 4)
+    assert MonitorConfig(window=10, scales=2, history=100).windows == (10, 20)

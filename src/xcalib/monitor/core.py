@@ -77,10 +77,7 @@ class MonitorConfig:
     objects whose 3D boxes stay wrong for tens of frames are not a move of the camera; 0: off);
     robust_scale: the soft-L1 loss bends at the residuals' own robust scale (at least the noise
     model's), so a detector noisier than the calibration's noise model does not shrink every
-    estimated change; target_window: also test a recent segment of ``target_frames - stride``
-    frames (the longest a decision within target_frames of a change can test; one more test, so a
-    slightly higher threshold at the same false-alarm rate; off by default: not yet measured on the
-    long drift-free streams).
+    estimated change.
     """
 
     window: int = 20
@@ -105,7 +102,6 @@ class MonitorConfig:
     leave_out_objects: int = 2
     leave_out_level: float = 0.01
     robust_scale: bool = True
-    target_window: bool = False
 
     def __post_init__(self) -> None:
         if int(self.leave_out_objects) < 0:
@@ -123,14 +119,8 @@ class MonitorConfig:
 
     @property
     def windows(self) -> tuple[int, ...]:
-        """The recent segments' lengths the decisions test (frames): window * 2^k, k < scales, and
-        with ``target_window`` the longest segment a decision within ``target_frames`` of a change
-        can test (``target_frames - stride``)."""
-        out = [int(self.window) * 2 ** k for k in range(int(self.scales))]
-        t = int(self.target_frames) - int(self.stride)
-        if self.target_window and t > int(self.window) and t not in out and 2 * t <= int(self.history):
-            out.append(t)
-        return tuple(sorted(out))
+        """The recent segments' lengths the decisions test (frames): window * 2^k, k < scales."""
+        return tuple(int(self.window) * 2 ** k for k in range(int(self.scales)))
 
     @property
     def n_tests(self) -> int:
