@@ -486,16 +486,20 @@ def test_points_near_keeps_exactly_the_points_of_each_box_band():
     bottom = boxes[:, 2] - boxes[:, 5] / 2
     pts[:50, 2] = (bottom[0] + 0.3).astype(np.float32)  # on the band's lower edge
     pts[:50, :2] = boxes[0, :2]
-    bi, qx, qy = points_near(pts, boxes)
-    p = pts.astype(np.float64)
-    half = np.hypot(boxes[:, 3], boxes[:, 4]) / 2 + 0.3
-    lo_z, hi_z = bottom + 0.3, bottom + np.maximum(0.7 * boxes[:, 5], 0.6)
-    for k in range(len(boxes)):  # brute force, box by box
-        d2 = (p[:, 0] - boxes[k, 0]) ** 2 + (p[:, 1] - boxes[k, 1]) ** 2
-        want = (d2 < half[k] ** 2) & (p[:, 2] > lo_z[k]) & (p[:, 2] < hi_z[k])
-        assert want.sum() > 0
-        got = np.column_stack([qx[bi == k], qy[bi == k]])
-        assert np.array_equal(np.sort(got, axis=0), np.sort(p[want][:, :2], axis=0))
+    for dz in (0.0, 480.0):  # and a cloud in heights above sea level (float32 rounds at 3e-5 m there)
+        b = boxes + [0, 0, dz, 0, 0, 0, 0]
+        q = (pts + np.float32(dz)).astype(np.float32)
+        bi, qx, qy = points_near(q, b)
+        p = q.astype(np.float64)
+        half = np.hypot(b[:, 3], b[:, 4]) / 2 + 0.3
+        bot = b[:, 2] - b[:, 5] / 2
+        lo_z, hi_z = bot + 0.3, bot + np.maximum(0.7 * b[:, 5], 0.6)
+        for k in range(len(b)):  # brute force, box by box
+            d2 = (p[:, 0] - b[k, 0]) ** 2 + (p[:, 1] - b[k, 1]) ** 2
+            want = (d2 < half[k] ** 2) & (p[:, 2] > lo_z[k]) & (p[:, 2] < hi_z[k])
+            assert want.sum() > 0
+            got = np.column_stack([qx[bi == k], qy[bi == k]])
+            assert np.array_equal(np.sort(got, axis=0), np.sort(p[want][:, :2], axis=0))
 
 
 

@@ -47,9 +47,11 @@ def points_near(pts: np.ndarray, box7: np.ndarray, margin: float = 0.3, clearanc
             zlo[cell] = np.minimum(zlo[cell], zl)
             zhi[cell] = np.maximum(zhi[cell], zh)
         # in the points' own precision (Python floats: float32 clouds stay float32): the cell
-        # edges are multiples of CELL_M (exact); the z band is widened by a millimetre, as the
-        # per-cell bands below and each box's own band decide in float64
-        zb0, zb1 = float(lo_z.min()) - 1e-3, float(hi_z.max()) + 1e-3
+        # edges are multiples of CELL_M (exact); the z band is widened by a millimetre (and by
+        # float32's rounding at large heights), as the per-cell bands below and each box's own
+        # band decide in float64
+        zb0, zb1 = float(lo_z.min()), float(hi_z.max())
+        zb0, zb1 = zb0 - 1e-3 - 1e-6 * abs(zb0), zb1 + 1e-3 + 1e-6 * abs(zb1)
         inb = (z > zb0) & (z < zb1)
         inb &= (x >= float(o[0] * CELL_M)) & (x < float((o[0] + shape[0]) * CELL_M))
         inb &= (y >= float(o[1] * CELL_M)) & (y < float((o[1] + shape[1]) * CELL_M))
