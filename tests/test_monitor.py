@@ -488,7 +488,8 @@ def test_points_near_keeps_exactly_the_points_of_each_box_band():
     pts[:50, :2] = boxes[0, :2]
     for dz in (0.0, 480.0):  # and a cloud in heights above sea level (float32 rounds at 3e-5 m there)
         b = boxes + [0, 0, dz, 0, 0, 0, 0]
-        q = (pts + np.float32(dz)).astype(np.float32)
+        q = pts.copy()
+        q[:, 2] += np.float32(dz)
         bi, qx, qy = points_near(q, b)
         p = q.astype(np.float64)
         half = np.hypot(b[:, 3], b[:, 4]) / 2 + 0.3
