@@ -3,8 +3,9 @@ points' capped distance to the nearest side of the turned rectangle; the side ba
 ground and below the roof) for all boxes of a frame in a few vectorised passes, so a frame at A9
 density costs about a millisecond instead of tens.
 
-Points: the cloud is first cut to the grid cells (``CELL_M``) the boxes touch (a table look-up),
-then to each box's half diagonal + margin in x-y and its side band in z. Headings: a
+Points: the cloud is first cut to the grid cells (``CELL_M``) the boxes touch and, per cell, to the
+side bands in z of the boxes touching it (a table look-up), then to each box's half diagonal +
+margin in x-y and its own side band in z. Headings: a
 ``step_deg`` grid over [0, 180) refined by a parabola. Contrast and ambiguity as in
 ``fit_yaw_to_points``.
 """
