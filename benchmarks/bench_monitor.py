@@ -541,7 +541,7 @@ def _information(seeds: list[int], n_bound: int, n_null: int, log) -> dict:
     """Per site: the Cramer-Rao bound of each axis over 40 / 50 frames and the power the 6-dof test
     would have with it for the target steps (``monitor_information``), beside the monitor's own
     test on a drift-free stream (stated vs empirical spread)."""
-    from monitor_information import bound_rows, frame_information, monitor_spread
+    from monitor_information import bound_rows, frame_information, monitor_spread, sequential_rows
 
     from xcalib.monitor import Monitor, MonitorConfig
 
@@ -552,7 +552,12 @@ def _information(seeds: list[int], n_bound: int, n_null: int, log) -> dict:
         cal = _synth_calibration(site)
         cm = next(iter(Monitor(cal, cfg).cameras.values()))
         infos = frame_information(cm, frames[:n_bound], float(site.config.box_noise_px))
-        row = {"bound": bound_rows(infos, cfg.threshold), "monitor": monitor_spread(cal, frames[:n_null])}
+        row = {"bound": bound_rows(infos, cfg.threshold), "monitor": monitor_spread(cal, frames[:n_null]),
+               "sequential": sequential_rows(infos, cfg.false_alarm_rate, cfg.stride)}
+        for key, q in row["sequential"].items():
+            log(f"site {s} {key} (bound's information, last decision within the frames): fixed windows "
+                f"{q['fixed']:.2f}, + a window of the target's length {q['fixed_plus_target']:.2f}, GLR over every "
+                f"change point in the last 80 frames {q['glr_scan']:.2f}")
         rows[f"site_{s}"] = row
         for L, b in row["bound"].items():
             sd = b["sigma_per_axis"]
@@ -562,6 +567,10 @@ def _information(seeds: list[int], n_bound: int, n_null: int, log) -> dict:
         log(f"site {s} monitor (40 vs 250 frames, {m['tests']} tests): mean chi2 {m['mean_chi2_6dof']:.2f} (6: covariance right); "
             f"stated / empirical variance " + ", ".join(f"{a} {v:.2f}" for a, v in m["stated_over_empirical_variance"].items())
             + f"; detectable tz {100 * m['detectable_tz_median_m']:.1f} cm")
+        for key, w in m["by_window"].items():
+            log(f"site {s}   {key:16s} ({w['tests']} tests vs 250 frames): mean chi2 {w['mean_chi2_6dof']:.2f}, max "
+                f"{w['max_chi2_6dof']:.1f}, above the 1 % point {100 * w['share_above_chi2_6dof_1pct']:.1f} %; stated / "
+                "empirical variance " + ", ".join(f"{a} {v:.2f}" for a, v in w["stated_over_empirical_variance"].items()))
     return rows
 
 

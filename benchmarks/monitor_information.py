@@ -14,7 +14,11 @@ profiled out) and the power of the monitor's 6-dof two-sample test (its threshol
 
 Monitor: on a drift-free stream, every 20 frames the test the decisions run (the last 40 frames
 against the 250 before them): the empirical spread of the difference ``d`` against the
-covariance the test uses (mean of ``d^T C^-1 d``: 6 when the covariance is right).
+covariance the test uses (mean of ``d^T C^-1 d``: 6 when the covariance is right); per window
+length (20 / 40 / 80 frames against 250) the same for the monitor's covariance and for the
+matched pairs' sandwich, which is right where the frames' errors are independent and too small
+where they are not (an object occluded alike frame after frame): the figures that say why the
+monitor's covariance is too large on some axes and why the sandwich cannot replace it.
 """
 
 from __future__ import annotations
@@ -100,30 +104,114 @@ def bound_rows(infos: np.ndarray, h: float, ref: int = 250, windows=(40, 50)) ->
     return out
 
 
-def monitor_spread(cal, frames, every: int = 20, L: int = 40, ref: int = 250) -> dict:
-    """The monitor's own test on a drift-free stream: empirical vs stated spread of d."""
-    from xcalib.monitor import Monitor, MonitorConfig, stats
-    from xcalib.monitor.core import _Sums
+def sequential_rows(infos: np.ndarray, rate: float, stride: int, ref: int = 250, targets=((5, 0.10, 50), (5, 0.20, 20)),
+                    scan: int = 80) -> dict:
+    """Does a sequential change-point statistic reach a step sooner than the fixed windows at the same
+    false-alarm rate? Per target (axis, step, within W frames), the power of the last decision within
+    W frames of the change (the change D frames back, D uniform over the decision phases in
+    (W - stride, W]) under this information (``infos``; the best single test's power, a lower bound
+    of the decision's): "fixed" (the monitor's windows 20 / 40 / 80
+    and the calibration test: 4 tests a decision), "fixed_plus_target" (and a window of W - stride
+    frames: 5 tests), "glr_scan" (the two-sample statistic at every change point within the last
+    ``scan`` frames: the segment since the change exactly, ``scan`` + 1 tests a decision,
+    Bonferroni as the monitor's threshold). Segments against ``ref`` frames before them."""
+    from scipy.stats import chi2, ncx2
 
-    mon = Monitor(cal, MonitorConfig(latch=False, history=max(len(frames), 600), false_alarm_rate=1e-12))
-    cm = next(iter(mon.cameras.values()))
-    D, C, S = [], [], []
-    for i, f in enumerate(frames):
-        mon.update(f)
-        if i + 1 >= L + ref and (i + 1 - L - ref) % every == 0:
-            recs = list(cm.recs)[-(L + ref):]
-            sums = _Sums(recs)
-            m = len(recs)
-            fa, fb = sums.fit(m - L, m, cm.inflation), sums.fit(0, m - L, cm.inflation)
-            if fa is None or fb is None:
-                continue
-            D.append(fa.x - fb.x)
-            C.append(fa.cov + fb.cov)
-            S.append(stats.chi2_stat(D[-1], C[-1]))
+    n = len(infos)
+    out = {}
+    for axis, size, W in targets:
+        rows = {"fixed": [], "fixed_plus_target": [], "glr_scan": []}
+        h = {"fixed": chi2.isf(rate * stride / 4, 6), "fixed_plus_target": chi2.isf(rate * stride / 5, 6),
+             "glr_scan": chi2.isf(rate * stride / (scan + 1), 6)}
+        for a in range(80, n - ref - W + 1, 25):
+            for D in range(W - stride + 1, W + 1):
+                end = a + ref + D  # the decision: the change D frames back
+
+                def power(L, hh):
+                    """The test of the last L frames (the last D of them changed) against the ref frames before them."""
+                    Ia, Ip = infos[end - L:end].sum(0), infos[end - min(L, D):end].sum(0)
+                    Ibb = infos[end - L - ref:end - L].sum(0)
+                    d = np.linalg.solve(Ia, Ip[:, axis]) * size  # a mixed segment sees part of the step
+                    lam = float(d @ np.linalg.solve(np.linalg.inv(Ia) + np.linalg.inv(Ibb), d))
+                    return ncx2.sf(hh, 6, lam)
+
+                rows["fixed"].append(max(power(L, h["fixed"]) for L in (20, 40, 80)))
+                rows["fixed_plus_target"].append(max(power(L, h["fixed_plus_target"]) for L in (20, 40, 80, W - stride)))
+                rows["glr_scan"].append(power(D, h["glr_scan"]))
+        out[f"{AXES[axis]}_{size:g}_within_{W}"] = {k: float(np.mean(v)) for k, v in rows.items()} | \
+            {f"threshold_{k}": float(v) for k, v in h.items()}
+    return out
+
+
+def _pairs_sandwich(recs, a: int, b: int, H: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The covariance of a segment's estimate ``x`` (frames [a, b), information ``H``) from the spread
+    of its matched pairs' own scores (each pair's four edges one cluster, its score at ``x``):
+    ``H^-1 (sum s s^T) H^-1 n / (n - 6)``. Right when the frames' errors are independent."""
+    M, n = np.zeros((6, 6)), 0
+    for q in recs[a:b]:
+        if q.obj_g is None or not len(q.obj_g):
+            continue
+        s = q.obj_g + np.einsum("kij,j->ki", q.obj_H, x)
+        M += s.T @ s
+        n += len(s)
+    Hi = np.linalg.inv(H)
+    return Hi @ M @ Hi * n / max(n - 6, 1)
+
+
+def _spread(D: list, C: list, S: list, lam: float) -> dict:
+    from xcalib.monitor import stats
+
     D, C = np.array(D), np.array(C)
     emp, nom = D.std(0), np.sqrt(np.median(np.diagonal(C, axis1=1, axis2=2), 0))
-    return {"tests": len(D), "mean_chi2_6dof": float(np.mean(S)),
+    return {"tests": len(D), "mean_chi2_6dof": float(np.mean(S)), "max_chi2_6dof": float(np.max(S)),
+            "share_above_chi2_6dof_1pct": float(np.mean(np.array(S) > 16.81)),
             "empirical_sd_per_axis": [*np.degrees(emp[:3]).tolist(), *emp[3:].tolist()],
             "stated_sd_per_axis": [*np.degrees(nom[:3]).tolist(), *nom[3:].tolist()],
             "stated_over_empirical_variance": dict(zip(AXES, (nom ** 2 / emp ** 2).tolist())),
-            "detectable_tz_median_m": float(np.median([stats.detectable_change(c, cm.lam)[5] for c in C]))}
+            "detectable_tz_median_m": float(np.median([stats.detectable_change(c, lam)[5] for c in C]))}
+
+
+def monitor_spread(cal, frames, every: int = 20, L: int = 40, ref: int = 250, windows=(20, 40, 80)) -> dict:
+    """The monitor's own test on a drift-free stream: empirical vs stated spread of d (the last
+    ``L`` frames against the ``ref`` before them, every ``every`` frames), and, per window length
+    in ``windows`` (``by_window``), the same for the monitor's covariance ("model": the noise model
+    scaled by the weighted residuals' variance, times the adjacent-window inflation) and for the
+    pairs' sandwich (``_pairs_sandwich``, times the same inflation): which one is right, on which axis."""
+    from xcalib.monitor import Monitor, MonitorConfig, stats
+    from xcalib.monitor.core import _Sums
+
+    Lmax = max(max(windows), L)
+    mon = Monitor(cal, MonitorConfig(latch=False, history=max(len(frames), 600), false_alarm_rate=1e-12))
+    cm = next(iter(mon.cameras.values()))
+    D, C, S = [], [], []
+    by = {(w, kind): ([], [], []) for w in windows for kind in ("model", "pairs")}
+    phis = []
+    for i, f in enumerate(frames):
+        mon.update(f)
+        if i + 1 >= Lmax + ref and (i + 1 - Lmax - ref) % every == 0:
+            recs = list(cm.recs)[-(Lmax + ref):]
+            sums = _Sums(recs)
+            m, phi = len(recs), cm.inflation
+            phis.append(phi)
+            fa, fb = sums.fit(m - L, m, phi), sums.fit(m - L - ref, m - L, phi)
+            if fa is not None and fb is not None:
+                D.append(fa.x - fb.x)
+                C.append(fa.cov + fb.cov)
+                S.append(stats.chi2_stat(D[-1], C[-1]))
+            for w in windows:
+                a0, a1, b1 = m - w - ref, m - w, m
+                fa, fb = sums.fit(a1, b1, phi), sums.fit(a0, a1, phi)
+                if fa is None or fb is None:
+                    continue
+                d = fa.x - fb.x
+                cp = phi * (_pairs_sandwich(recs, a1, b1, sums.H[b1] - sums.H[a1], fa.x)
+                            + _pairs_sandwich(recs, a0, a1, sums.H[a1] - sums.H[a0], fb.x))
+                for kind, cov in (("model", fa.cov + fb.cov), ("pairs", cp)):
+                    q = by[(w, kind)]
+                    q[0].append(d)
+                    q[1].append(cov)
+                    q[2].append(stats.chi2_stat(d, cov))
+    out = _spread(D, C, S, cm.lam)
+    out["inflation_median"] = float(np.median(phis)) if phis else None
+    out["by_window"] = {f"{kind}_window_{w}": _spread(*by[(w, kind)], cm.lam) for (w, kind) in by if by[(w, kind)][0]}
+    return out

@@ -469,3 +469,43 @@ def test_view_filter_drops_only_boxes_the_camera_cannot_see():
     assert maybe_in_view(boxes, R, t, Kd, (1920, 1200))[5]  # 50 m below at 30 m: within a whole extra image
     assert maybe_in_view(boxes, R, t, K, None).all()
     assert maybe_in_view(boxes, R, t, object(), (1920, 1200)).all()
+
+
+def test_points_near_keeps_exactly_the_points_of_each_box_band():
+    """``points_near``'s cell and band prefilters (per-cell z bands, float32 candidate masks) drop
+    no point a box's own x-y circle and side band holds and add none: boxes at different heights
+    (a sloped road, a truck beside a car) sharing grid cells, a float32 cloud, points on a band's
+    edges."""
+    from xcalib.monitor.fastyaw import points_near
+
+    rng = np.random.default_rng(27)
+    boxes = np.array([[10.0, 2.0, -6.0, 4.5, 1.9, 1.6, 0.3], [12.5, 3.0, -4.0, 10.0, 2.5, 3.5, 0.0],
+                      [40.0, -20.0, -8.5, 4.2, 1.8, 1.5, 1.2], [41.0, -18.5, -8.4, 0.8, 0.8, 1.8, 0.0]])
+    pts = np.column_stack([rng.uniform(0, 50, 60000), rng.uniform(-30, 10, 60000),
+                           rng.uniform(-10, -1, 60000)]).astype(np.float32)
+    bottom = boxes[:, 2] - boxes[:, 5] / 2
+    pts[:50, 2] = (bottom[0] + 0.3).astype(np.float32)  # on the band's lower edge
+    pts[:50, :2] = boxes[0, :2]
+    for dz in (0.0, 480.0):  # and a cloud in heights above sea level (float32 rounds at 3e-5 m there)
+        b = boxes + [0, 0, dz, 0, 0, 0, 0]
+        q = pts.copy()
+        q[:, 2] += np.float32(dz)
+        bi, qx, qy = points_near(q, b)
+        p = q.astype(np.float64)
+        half = np.hypot(b[:, 3], b[:, 4]) / 2 + 0.3
+        bot = b[:, 2] - b[:, 5] / 2
+        lo_z, hi_z = bot + 0.3, bot + np.maximum(0.7 * b[:, 5], 0.6)
+        for k in range(len(b)):  # brute force, box by box
+            d2 = (p[:, 0] - b[k, 0]) ** 2 + (p[:, 1] - b[k, 1]) ** 2
+            want = (d2 < half[k] ** 2) & (p[:, 2] > lo_z[k]) & (p[:, 2] < hi_z[k])
+            assert want.sum() > 0
+            got = np.column_stack([qx[bi == k], qy[bi == k]])
+            assert np.array_equal(np.sort(got, axis=0), np.sort(p[want][:, :2], axis=0))
+
+
+
+def test_windows_are_the_configured_scales():
+    """``MonitorConfig.windows``: window * 2^k for k < scales; one test each and the calibration test."""
+    cfg = MonitorConfig()
+    assert cfg.windows == (20, 40, 80) and cfg.n_tests == 4 and cfg.threshold == threshold(1e-4, 5, 4)
+    assert MonitorConfig(window=10, scales=2, history=100).windows == (10, 20)

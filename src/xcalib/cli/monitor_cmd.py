@@ -76,7 +76,7 @@ def register(app: typer.Typer) -> None:
         n = min(len(v) for v in views.values())
         console.print(f"monitor: {n} frames, cameras {', '.join(views)}; false alarms <= {false_alarm_rate:g} per "
                       f"frame (chi-square threshold {config.threshold:.1f}, 6 dof, windows of "
-                      f"{', '.join(str(window * 2 ** k) for k in range(config.scales))} frames every {stride})")
+                      f"{', '.join(str(w) for w in config.windows)} frames every {stride})")
         lines = []
         with atomic_dir(out, overwrite=force) as tmp:
             with MonitorMcap(tmp / "monitor.mcap", monitor) as mcap, \

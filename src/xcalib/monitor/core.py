@@ -118,8 +118,13 @@ class MonitorConfig:
             raise ValueError(f"MonitorConfig.fps must be > 0, got {self.fps}")
 
     @property
+    def windows(self) -> tuple[int, ...]:
+        """The recent segments' lengths the decisions test (frames): window * 2^k, k < scales."""
+        return tuple(int(self.window) * 2 ** k for k in range(int(self.scales)))
+
+    @property
     def n_tests(self) -> int:
-        return int(self.scales) + 1
+        return len(self.windows) + 1
 
     @property
     def threshold(self) -> float:
@@ -443,7 +448,11 @@ class CameraMonitor:
 
     @property
     def pose_lin(self) -> Pose:
-        return self.pose0.moved(self.x_lin[:3], self.x_lin[3:])
+        key = self.x_lin.tobytes()
+        cached = getattr(self, "_pose_lin", None)
+        if cached is None or cached[0] != key:  # moved only at a detected change: computed once per pose
+            cached = self._pose_lin = (key, self.pose0.moved(self.x_lin[:3], self.x_lin[3:]))
+        return cached[1]
 
     def estimated_pose(self) -> Pose:
         """The camera pose the monitor currently believes (the calibration unless a drift was found)."""
@@ -558,7 +567,8 @@ class CameraMonitor:
             box7 = as_box7(check_boxes3d(b3, "bboxes_3d"))
             if np.all(np.isfinite(box7)):
                 # only the boxes the camera may see (at the pose frames are matched at) need a yaw
-                seen = maybe_in_view(box7, self.pose_lin.R, self.pose_lin.t, self.intr, self._size(frame))
+                pose = self.pose_lin
+                seen = maybe_in_view(box7, pose.R, pose.t, self.intr, self._size(frame))
                 b7, ambiguous = np.array(box7, dtype=np.float64), np.ones(len(box7), dtype=bool)
                 if np.any(seen):
                     b7[seen], ambiguous[seen] = fit_yaw_batch(box7[seen], pts)
@@ -600,7 +610,7 @@ class CameraMonitor:
             if len(ids) > int(cols.max()):
                 rec.objects = np.unique(ids[cols][ids[cols] >= 0])
         self.recs.append(rec)
-        keep = self.config.window * 2 ** (self.config.scales - 1) + self.config.stride
+        keep = max(self.config.windows) + self.config.stride
         if len(self.recs) > keep:
             self.recs[-keep - 1].cf = None
             self.recs[-keep - 1].ids3d = None
@@ -714,7 +724,7 @@ class CameraMonitor:
             return self._decide_latched(recs, sums)
         phi = self.inflation
         W = cfg.window
-        lengths = [W * 2 ** k for k in range(cfg.scales) if W * 2 ** k <= n] or [W]
+        lengths = [L for L in cfg.windows if L <= n] or [W]
         longest = lengths[-1]
         why = self._evidence(recs[-longest:])
         if why is not None:

@@ -3,8 +3,9 @@ points' capped distance to the nearest side of the turned rectangle; the side ba
 ground and below the roof) for all boxes of a frame in a few vectorised passes, so a frame at A9
 density costs about a millisecond instead of tens.
 
-Points: the cloud is first cut to the grid cells (``CELL_M``) the boxes touch (a table look-up),
-then to each box's half diagonal + margin in x-y and its side band in z. Headings: a
+Points: the cloud is first cut to the grid cells (``CELL_M``) the boxes touch and, per cell, to the
+side bands in z of the boxes touching it (a table look-up), then to each box's half diagonal +
+margin in x-y and its own side band in z. Headings: a
 ``step_deg`` grid over [0, 180) refined by a parabola. Contrast and ambiguity as in
 ``fit_yaw_to_points``.
 """
@@ -38,16 +39,28 @@ def points_near(pts: np.ndarray, box7: np.ndarray, margin: float = 0.3, clearanc
     if shape[0] * shape[1] > 4_000_000:  # boxes kilometres apart: no table, every point is a candidate
         cand = np.arange(len(p))
     else:
-        table = np.zeros(shape, dtype=bool)
-        for a, c in zip(lo - o, hi - o):
-            table[a[0]:c[0] + 1, a[1]:c[1] + 1] = True
-        inb = (z > lo_z.min()) & (z < hi_z.max())
-        inb &= (x >= o[0] * CELL_M) & (x < (o[0] + shape[0]) * CELL_M)
-        inb &= (y >= o[1] * CELL_M) & (y < (o[1] + shape[1]) * CELL_M)
+        # per cell, the side band's z range over the boxes touching it (empty: lo > hi): boxes at
+        # different heights (a sloped road, a truck beside a car) do not widen each other's band
+        zlo = np.full(shape, np.inf)
+        zhi = np.full(shape, -np.inf)
+        for a, c, zl, zh in zip(lo - o, hi - o, lo_z, hi_z):
+            cell = (slice(a[0], c[0] + 1), slice(a[1], c[1] + 1))
+            zlo[cell] = np.minimum(zlo[cell], zl)
+            zhi[cell] = np.maximum(zhi[cell], zh)
+        # in the points' own precision (Python floats: float32 clouds stay float32): the cell
+        # edges are multiples of CELL_M (exact); the z band is widened by a millimetre (and by
+        # float32's rounding at large heights), as the per-cell bands below and each box's own
+        # band decide in float64
+        zb0, zb1 = float(lo_z.min()), float(hi_z.max())
+        zb0, zb1 = zb0 - 1e-3 - 1e-6 * abs(zb0), zb1 + 1e-3 + 1e-6 * abs(zb1)
+        inb = (z > zb0) & (z < zb1)
+        inb &= (x >= float(o[0] * CELL_M)) & (x < float((o[0] + shape[0]) * CELL_M))
+        inb &= (y >= float(o[1] * CELL_M)) & (y < float((o[1] + shape[1]) * CELL_M))
         cand = np.flatnonzero(inb)
         i = np.floor(x[cand] / CELL_M).astype(np.int64) - o[0]
         j = np.floor(y[cand] / CELL_M).astype(np.int64) - o[1]
-        cand = cand[table[i, j]]
+        zc = z[cand]
+        cand = cand[(zc > zlo[i, j]) & (zc < zhi[i, j])]
     qx, qy, qz = (c[cand].astype(np.float64) for c in (x, y, z))
     dx = qx[None, :] - b[:, None, 0]
     dy = qy[None, :] - b[:, None, 1]
@@ -80,11 +93,27 @@ def fit_yaw_batch(box7: np.ndarray, pts: np.ndarray, *, step_deg: float = 4.0, m
         # fraction of the band's 0.3 m, far above float32's)
         cos_t, sin_t = np.cos(theta)[:, None].astype(np.float32), np.sin(theta)[:, None].astype(np.float32)
         dx, dy = (qx - b[bi, 0]).astype(np.float32), (qy - b[bi, 1]).astype(np.float32)
-        u = np.abs(cos_t * dx + sin_t * dy) - (b[bi, 3] / 2).astype(np.float32)
-        v = np.abs(cos_t * dy - sin_t * dx) - (b[bi, 4] / 2).astype(np.float32)
-        inside = (u <= 0) & (v <= 0)
-        d = np.where(inside, np.minimum(-u, -v), np.hypot(np.maximum(u, 0), np.maximum(v, 0)))
-        d = np.minimum(d, band_m) ** 2  # [T, K]
+        # u, v: the point's distance beyond the long / short side (negative inside); the squared
+        # distance to the outline is max(u, v)^2 inside and |(u, v)+|^2 outside, capped at the band
+        # (in place: the [T, K] temporaries are the pass's cost)
+        u = cos_t * dx
+        u += sin_t * dy
+        np.abs(u, out=u)
+        u -= (b[bi, 3] / 2).astype(np.float32)
+        v = cos_t * dy
+        v -= sin_t * dx
+        np.abs(v, out=v)
+        v -= (b[bi, 4] / 2).astype(np.float32)
+        m = np.maximum(u, v)
+        inside = m <= 0
+        np.maximum(u, 0, out=u)
+        np.maximum(v, 0, out=v)
+        u *= u
+        v *= v
+        u += v
+        m *= m
+        np.copyto(u, m, where=inside)
+        d = np.minimum(u, np.float32(band_m) ** 2, out=u)  # [T, K]
         boxes, starts = np.unique(bi, return_index=True)  # bi is sorted (np.nonzero is row-major)
         cost = np.add.reduceat(d, starts, axis=1, dtype=np.float64).T  # [B, T]
         T = len(theta)
