@@ -192,3 +192,70 @@ def test_third_members_same_triples_as_060(seed):
     assert got.shape[1] == 3 and got.tobytes() == want.tobytes()
     if len(got):
         assert np.all(C[got[:, 0], got[:, 2]] & C[got[:, 1], got[:, 2]])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_near_xy_same_points_as_kdtree(seed):
+    """``boxshape._NearXY`` (the yaw fit's disc query, issue 29: sorted x and bisection instead of a
+    k-d tree) returns exactly the rows ``cKDTree.query_ball_point`` does, ascending, points on the
+    circle included (integer grids put many exactly at the radius)."""
+    from scipy.spatial import cKDTree
+
+    from xcalib.calib.boxshape import _NearXY
+
+    r = np.random.default_rng(seed)
+    if seed % 2:
+        pts = np.c_[r.integers(-20, 20, (3000, 2)).astype(np.float64), r.normal(size=3000)]
+    else:
+        pts = np.c_[r.uniform(-50, 50, (5000, 2)), r.normal(size=5000)]
+    tree, near = cKDTree(pts[:, :2]), _NearXY(pts)
+    for x, y, rad in np.c_[r.integers(-25, 25, (40, 2)), r.integers(0, 6, 40)].astype(np.float64).tolist() + \
+            r.uniform([-60, -60, 0.1], [60, 60, 9.0], (40, 3)).tolist():
+        want = np.sort(np.asarray(tree.query_ball_point([x, y], rad), dtype=np.int64))
+        got = near.within(x, y, rad)
+        assert np.array_equal(got, want)
+    assert len(near.within(0.0, 0.0, 3.0)) > 0
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_fit_yaw_independent_of_point_order(seed):
+    """The yaw fit depends on the points near a box, not on their order (the disc query's order
+    changed from a k-d tree's to ascending rows): a shuffled cloud gives the same yaw to rounding."""
+    from xcalib.calib.boxshape import fit_yaw_to_points
+
+    r = np.random.default_rng(seed)
+    boxes, clouds = [], []
+    for k in range(6):  # L-shaped returns of turned boxes
+        x, y, yaw, ln, wd = r.uniform(-30, 30), r.uniform(-30, 30), r.uniform(0, np.pi), r.uniform(3.5, 5), 1.8
+        s = r.uniform(-0.5, 0.5, 80)
+        side = np.r_[np.c_[s * ln, np.full(80, wd / 2)], np.c_[np.full(80, ln / 2), s * wd]]
+        c, si = np.cos(yaw), np.sin(yaw)
+        xy = side @ np.array([[c, si], [-si, c]]) + [x, y] + r.normal(scale=0.03, size=(160, 2))
+        clouds.append(np.c_[xy, r.uniform(0.4, 1.0, 160)])
+        boxes.append([x, y, 0.75, ln, wd, 1.5, 0.0])
+    pts = np.concatenate(clouds + [r.uniform([-40, -40, -0.2], [40, 40, 2.0], (3000, 3))])
+    a = fit_yaw_to_points(np.array(boxes), pts)
+    b = fit_yaw_to_points(np.array(boxes), pts[r.permutation(len(pts))])
+    assert a.fitted.all() and np.array_equal(a.fitted, b.fitted) and np.array_equal(a.n_points, b.n_points)
+    assert np.allclose(a.boxes7, b.boxes7, rtol=0, atol=1e-12) and np.allclose(a.contrast, b.contrast, rtol=1e-12)
+
+
+def test_closed_form_search_same_poses():
+    """The bring-up's per-frame search fits its triples in closed form (``TripleSearch.closed_form``,
+    issue 29): on a seeded synthetic frame the same hypotheses as the SVD Kabsch, to 1e-9."""
+    from dataclasses import replace
+
+    from xcalib.calib.hypotheses import TripleSearch, frame_hypotheses
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.data.synth import generate_frames, sample_site
+
+    site = sample_site(0, preset="roadside")
+    frames = generate_frames(site, 3, seed=0, render_images=False, lidar=False)
+    cframes, intr, _ = prepare_frames(frames, site.intrinsics)
+    fr = max(cframes, key=lambda f: f.n2 * f.n3)
+    base = TripleSearch()
+    svd = frame_hypotheses(fr, intr, 0, rng=np.random.default_rng(3), search=base)
+    closed = frame_hypotheses(fr, intr, 0, rng=np.random.default_rng(3), search=replace(base, closed_form=True))
+    assert len(svd) > 5 and len(svd) == len(closed)
+    assert np.allclose(closed.R, svd.R, atol=1e-9) and np.allclose(closed.t, svd.t, atol=1e-9)
+    assert np.allclose(closed.score, svd.score, atol=1e-9)
