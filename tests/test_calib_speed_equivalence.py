@@ -259,3 +259,42 @@ def test_closed_form_search_same_poses():
     assert len(svd) > 5 and len(svd) == len(closed)
     assert np.allclose(closed.R, svd.R, atol=1e-9) and np.allclose(closed.t, svd.t, atol=1e-9)
     assert np.allclose(closed.score, svd.score, atol=1e-9)
+
+
+def _assign_lsa(iou, dist, valid, gate_iou, gate_dist):  # refine._assign before issue 29's shortcut, verbatim
+    from scipy.optimize import linear_sum_assignment
+
+    dist = np.where(valid[None], dist, np.inf)
+    allowed = (iou >= gate_iou) if gate_dist <= 0 else ((iou >= gate_iou) | (dist <= gate_dist))
+    allowed &= valid[None]
+    if not np.any(allowed):
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    cost = np.where(allowed, (1 - iou) + np.minimum(dist, 10.0), 1e6)
+    r, c = linear_sum_assignment(cost)
+    keep = allowed[r, c]
+    pairs = np.column_stack([r[keep], c[keep]]).astype(np.int64)
+    return pairs, iou[r[keep], c[keep]]
+
+
+def test_assign_same_pairs_as_assignment():
+    """``refine._assign`` takes the allowed pairs as they are when they share no box (issue 29):
+    the same pairs, in the same order, and IoUs as the assignment, on sparse gates (the shortcut)
+    and crowded ones (the assignment), with and without the centre-distance gate."""
+    from xcalib.calib.refine import _assign
+
+    short = 0
+    for seed in range(300):
+        r = np.random.default_rng(seed)
+        K, M = int(r.integers(1, 12)), int(r.integers(1, 15))
+        sparse = seed % 2 == 1
+        hit = r.random((K, M)) < (0.7 / max(K, M) if sparse else 0.5)
+        iou = np.where(hit, r.uniform(0.3, 1.0, (K, M)), r.uniform(0, 0.3, (K, M)))
+        dist = r.uniform(0, 3, (K, M))
+        valid = r.random(M) < 0.85
+        gate = (0.3, 0.0) if seed % 3 else (0.1, 0.4 if not sparse else 0.02)
+        got, want = _assign(iou, dist, valid, *gate), _assign_lsa(iou, dist, valid, *gate)
+        assert got[0].dtype == want[0].dtype and got[0].tobytes() == want[0].tobytes(), seed
+        assert got[1].tobytes() == want[1].tobytes(), seed
+        al = want[0]
+        short += bool(len(al) and (hit & valid[None]).sum(0).max() <= 1 and (hit & valid[None]).sum(1).max() <= 1)
+    assert 40 <= short <= 260  # both the shortcut and the assignment were taken

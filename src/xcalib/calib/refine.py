@@ -74,6 +74,12 @@ def _assign(iou: np.ndarray, dist: np.ndarray, valid: np.ndarray, gate_iou: floa
     allowed &= valid[None]
     if not np.any(allowed):
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    if allowed.sum(0).max() <= 1 and allowed.sum(1).max() <= 1:
+        # the allowed pairs share no box: the assignment takes every one of them (each left out
+        # would cost 1e6 more) and the rest of it is disallowed and dropped -- the same pairs, in
+        # row order, without the assignment's search
+        pairs = np.argwhere(allowed).astype(np.int64)
+        return pairs, iou[pairs[:, 0], pairs[:, 1]]
     cost = np.where(allowed, (1 - iou) + np.minimum(dist, 10.0), 1e6)
     r, c = linear_sum_assignment(cost)
     keep = allowed[r, c]
