@@ -298,3 +298,24 @@ def test_assign_same_pairs_as_assignment():
         al = want[0]
         short += bool(len(al) and (hit & valid[None]).sum(0).max() <= 1 and (hit & valid[None]).sum(1).max() <= 1)
     assert 40 <= short <= 260  # both the shortcut and the assignment were taken
+
+
+def test_score_poses_independent_of_the_batch():
+    """Each pose is scored on its own: one call over all hypotheses gives, bit for bit, the
+    concatenated scores of the searches' batches (the serial bring-up scores them together, issue 29)."""
+    from xcalib.calib.hypotheses import score_poses
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.data.synth import generate_frames, sample_site
+    from xcalib.geometry.rotations import rotvec_to_matrix
+
+    site = sample_site(1, preset="roadside")
+    frames = generate_frames(site, 2, seed=1, render_images=False, lidar=False)
+    cframes, intr, _ = prepare_frames(frames, site.intrinsics)
+    r = np.random.default_rng(0)
+    T = site.T_cam_lidar
+    R = np.stack([rotvec_to_matrix(v) @ T[:3, :3] for v in r.normal(scale=0.05, size=(250, 3))])
+    t = T[:3, 3] + r.normal(scale=0.5, size=(250, 3))
+    for fr in cframes:
+        whole = score_poses(fr, intr, R, t)
+        parts = np.concatenate([score_poses(fr, intr, R[s:s + 25], t[s:s + 25]) for s in range(0, 250, 25)])
+        assert whole.max() > 1.0 and whole.tobytes() == parts.tobytes()
