@@ -192,3 +192,130 @@ def test_third_members_same_triples_as_060(seed):
     assert got.shape[1] == 3 and got.tobytes() == want.tobytes()
     if len(got):
         assert np.all(C[got[:, 0], got[:, 2]] & C[got[:, 1], got[:, 2]])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_near_xy_same_points_as_kdtree(seed):
+    """``boxshape._NearXY`` (the yaw fit's disc query, issue 29: sorted x and bisection instead of a
+    k-d tree) returns exactly the rows ``cKDTree.query_ball_point`` does, ascending, points on the
+    circle included (integer grids put many exactly at the radius)."""
+    from scipy.spatial import cKDTree
+
+    from xcalib.calib.boxshape import _NearXY
+
+    r = np.random.default_rng(seed)
+    if seed % 2:
+        pts = np.c_[r.integers(-20, 20, (3000, 2)).astype(np.float64), r.normal(size=3000)]
+    else:
+        pts = np.c_[r.uniform(-50, 50, (5000, 2)), r.normal(size=5000)]
+    tree, near = cKDTree(pts[:, :2]), _NearXY(pts)
+    for x, y, rad in np.c_[r.integers(-25, 25, (40, 2)), r.integers(0, 6, 40)].astype(np.float64).tolist() + \
+            r.uniform([-60, -60, 0.1], [60, 60, 9.0], (40, 3)).tolist():
+        want = np.sort(np.asarray(tree.query_ball_point([x, y], rad), dtype=np.int64))
+        got = near.within(x, y, rad)
+        assert np.array_equal(got, want)
+    assert len(near.within(0.0, 0.0, 3.0)) > 0
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_fit_yaw_independent_of_point_order(seed):
+    """The yaw fit depends on the points near a box, not on their order (the disc query's order
+    changed from a k-d tree's to ascending rows): a shuffled cloud gives the same yaw to rounding."""
+    from xcalib.calib.boxshape import fit_yaw_to_points
+
+    r = np.random.default_rng(seed)
+    boxes, clouds = [], []
+    for k in range(6):  # L-shaped returns of turned boxes
+        x, y, yaw, ln, wd = r.uniform(-30, 30), r.uniform(-30, 30), r.uniform(0, np.pi), r.uniform(3.5, 5), 1.8
+        s = r.uniform(-0.5, 0.5, 80)
+        side = np.r_[np.c_[s * ln, np.full(80, wd / 2)], np.c_[np.full(80, ln / 2), s * wd]]
+        c, si = np.cos(yaw), np.sin(yaw)
+        xy = side @ np.array([[c, si], [-si, c]]) + [x, y] + r.normal(scale=0.03, size=(160, 2))
+        clouds.append(np.c_[xy, r.uniform(0.4, 1.0, 160)])
+        boxes.append([x, y, 0.75, ln, wd, 1.5, 0.0])
+    pts = np.concatenate(clouds + [r.uniform([-40, -40, -0.2], [40, 40, 2.0], (3000, 3))])
+    a = fit_yaw_to_points(np.array(boxes), pts)
+    b = fit_yaw_to_points(np.array(boxes), pts[r.permutation(len(pts))])
+    assert a.fitted.all() and np.array_equal(a.fitted, b.fitted) and np.array_equal(a.n_points, b.n_points)
+    assert np.allclose(a.boxes7, b.boxes7, rtol=0, atol=1e-12) and np.allclose(a.contrast, b.contrast, rtol=1e-12)
+
+
+def test_closed_form_search_same_poses():
+    """The bring-up's per-frame search fits its triples in closed form (``TripleSearch.closed_form``,
+    issue 29): on a seeded synthetic frame the same hypotheses as the SVD Kabsch, to 1e-9."""
+    from dataclasses import replace
+
+    from xcalib.calib.hypotheses import TripleSearch, frame_hypotheses
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.data.synth import generate_frames, sample_site
+
+    site = sample_site(0, preset="roadside")
+    frames = generate_frames(site, 3, seed=0, render_images=False, lidar=False)
+    cframes, intr, _ = prepare_frames(frames, site.intrinsics)
+    fr = max(cframes, key=lambda f: f.n2 * f.n3)
+    base = TripleSearch()
+    svd = frame_hypotheses(fr, intr, 0, rng=np.random.default_rng(3), search=base)
+    closed = frame_hypotheses(fr, intr, 0, rng=np.random.default_rng(3), search=replace(base, closed_form=True))
+    assert len(svd) > 5 and len(svd) == len(closed)
+    assert np.allclose(closed.R, svd.R, atol=1e-9) and np.allclose(closed.t, svd.t, atol=1e-9)
+    assert np.allclose(closed.score, svd.score, atol=1e-9)
+
+
+def _assign_lsa(iou, dist, valid, gate_iou, gate_dist):  # refine._assign before issue 29's shortcut, verbatim
+    from scipy.optimize import linear_sum_assignment
+
+    dist = np.where(valid[None], dist, np.inf)
+    allowed = (iou >= gate_iou) if gate_dist <= 0 else ((iou >= gate_iou) | (dist <= gate_dist))
+    allowed &= valid[None]
+    if not np.any(allowed):
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    cost = np.where(allowed, (1 - iou) + np.minimum(dist, 10.0), 1e6)
+    r, c = linear_sum_assignment(cost)
+    keep = allowed[r, c]
+    pairs = np.column_stack([r[keep], c[keep]]).astype(np.int64)
+    return pairs, iou[r[keep], c[keep]]
+
+
+def test_assign_same_pairs_as_assignment():
+    """``refine._assign`` takes the allowed pairs as they are when they share no box (issue 29):
+    the same pairs, in the same order, and IoUs as the assignment, on sparse gates (the shortcut)
+    and crowded ones (the assignment), with and without the centre-distance gate."""
+    from xcalib.calib.refine import _assign
+
+    short = 0
+    for seed in range(300):
+        r = np.random.default_rng(seed)
+        K, M = int(r.integers(1, 12)), int(r.integers(1, 15))
+        sparse = seed % 2 == 1
+        hit = r.random((K, M)) < (0.7 / max(K, M) if sparse else 0.5)
+        iou = np.where(hit, r.uniform(0.3, 1.0, (K, M)), r.uniform(0, 0.3, (K, M)))
+        dist = r.uniform(0, 3, (K, M))
+        valid = r.random(M) < 0.85
+        gate = (0.3, 0.0) if seed % 3 else (0.1, 0.4 if not sparse else 0.02)
+        got, want = _assign(iou, dist, valid, *gate), _assign_lsa(iou, dist, valid, *gate)
+        assert got[0].dtype == want[0].dtype and got[0].tobytes() == want[0].tobytes(), seed
+        assert got[1].tobytes() == want[1].tobytes(), seed
+        al = want[0]
+        short += bool(len(al) and (hit & valid[None]).sum(0).max() <= 1 and (hit & valid[None]).sum(1).max() <= 1)
+    assert 40 <= short <= 260  # both the shortcut and the assignment were taken
+
+
+def test_score_poses_independent_of_the_batch():
+    """Each pose is scored on its own: one call over all hypotheses gives, bit for bit, the
+    concatenated scores of the searches' batches (the serial bring-up scores them together, issue 29)."""
+    from xcalib.calib.hypotheses import score_poses
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.data.synth import generate_frames, sample_site
+    from xcalib.geometry.rotations import rotvec_to_matrix
+
+    site = sample_site(1, preset="roadside")
+    frames = generate_frames(site, 2, seed=1, render_images=False, lidar=False)
+    cframes, intr, _ = prepare_frames(frames, site.intrinsics)
+    r = np.random.default_rng(0)
+    T = site.T_cam_lidar
+    R = np.stack([rotvec_to_matrix(v) @ T[:3, :3] for v in r.normal(scale=0.05, size=(250, 3))])
+    t = T[:3, 3] + r.normal(scale=0.5, size=(250, 3))
+    for fr in cframes:
+        whole = score_poses(fr, intr, R, t)
+        parts = np.concatenate([score_poses(fr, intr, R[s:s + 25], t[s:s + 25]) for s in range(0, 250, 25)])
+        assert whole.max() > 1.0 and whole.tobytes() == parts.tobytes()

@@ -50,7 +50,7 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
     X += t[:, :, None]  # the arithmetic below runs in place on X (same operations, same values)
     z = X[:, 2].reshape(H, M, S)
     ahead = z > MIN_DEPTH_M
-    front = np.all(ahead, axis=2)
+    front = ahead.all(axis=2)
     inv = np.full(z.shape, np.nan)
     np.divide(1.0, z, out=inv, where=ahead)
     x = np.multiply(X[:, 0].reshape(H, M, S), inv, out=X[:, 0].reshape(H, M, S))
@@ -72,13 +72,19 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
 
 
 def _corner_extremes(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """[H,M,4] (u.min, v.min, u.max, v.max over the last axis) of u, v [H,M,S]. Many rectangles:
-    corner by corner with np.minimum / np.maximum (a reduction over a short last axis is slow);
+    """[H,M,4] (u.min, v.min, u.max, v.max over the last axis) of u, v [H,M,S]. Few rectangles: each
+    a reduction over the corners as the outer axis (written into the result, no stacking); many:
+    corner by corner with np.minimum / np.maximum (a reduction over a short last axis is slow).
     min and max are exact and propagate NaN either way, so the values are the same."""
     H, M, S = u.shape
-    if H * M < 4096:
-        return np.stack([u.min(2), v.min(2), u.max(2), v.max(2)], axis=-1)
     rect = np.empty((H, M, 4))
+    if H * M < 4096:
+        ut, vt = u.transpose(0, 2, 1), v.transpose(0, 2, 1)
+        np.minimum.reduce(ut, axis=1, out=rect[..., 0])
+        np.minimum.reduce(vt, axis=1, out=rect[..., 1])
+        np.maximum.reduce(ut, axis=1, out=rect[..., 2])
+        np.maximum.reduce(vt, axis=1, out=rect[..., 3])
+        return rect
     for k, (a, red) in enumerate(((u, np.minimum), (v, np.minimum), (u, np.maximum), (v, np.maximum))):
         rect[..., k] = a[..., 0]
         for j in range(1, S):

@@ -73,6 +73,26 @@ class YawFitSettings:
     min_aspect: float = 1.3
 
 
+class _NearXY:
+    """The points [P,>=2] within a distance of a point in x-y (a disc query): the points sorted by x
+    once, each query an x-window by bisection and the exact test there (a k-d tree's build cost
+    more than all of one frame's queries). Returns the rows in ascending order."""
+
+    def __init__(self, pts: np.ndarray):
+        self.x, self.y = pts[:, 0], pts[:, 1]
+        self.order = np.argsort(self.x, kind="stable")
+        self.xs = self.x[self.order]
+
+    def within(self, x: float, y: float, r: float) -> np.ndarray:
+        """Rows with (px - x)^2 + (py - y)^2 <= r^2, ascending."""
+        pad = r + 1e-9 * (1.0 + abs(x) + r)  # the window a little wider: the exact test decides
+        lo = int(np.searchsorted(self.xs, x - pad, side="left"))
+        hi = int(np.searchsorted(self.xs, x + pad, side="right"))
+        rows = self.order[lo:hi]
+        dx, dy = self.x[rows] - x, self.y[rows] - y
+        return np.sort(rows[dx * dx + dy * dy <= r * r])
+
+
 def fit_yaw_to_points(boxes7: np.ndarray, points: np.ndarray, settings: YawFitSettings | None = None,
                       **changes: Any) -> YawFit:
     """Fit the yaw of each box7 [M,7] (LiDAR frame, m) to the LiDAR points [P,>=3] around it.
@@ -98,16 +118,13 @@ def fit_yaw_to_points(boxes7: np.ndarray, points: np.ndarray, settings: YawFitSe
     contrast = np.zeros(M)
     pts = np.zeros((0, 3)) if points is None else np.asarray(points, dtype=np.float64).reshape(-1, np.shape(points)[-1])[:, :3]
     if M and len(pts):
-        from scipy.spatial import cKDTree
-
-        tree = cKDTree(pts[:, :2])
+        near = _NearXY(pts)
         theta = np.radians(np.arange(0.0, 180.0, step_deg))
         cos_t, sin_t = np.cos(theta), np.sin(theta)
         away = np.abs((np.degrees(theta)[:, None] - np.degrees(theta)[None, :] + 90) % 180 - 90) > ambiguity_deg
         for j in range(M):  # one small point set per box
             x, y, z, ln, wd, h = b[j, :6]
-            idx = tree.query_ball_point([x, y], float(np.hypot(ln, wd) / 2 + margin_m))
-            p = pts[idx]
+            p = pts[near.within(x, y, float(np.hypot(ln, wd) / 2 + margin_m))]
             bottom = z - h / 2
             p = p[(p[:, 2] > bottom + ground_clearance_m) & (p[:, 2] < bottom + max(side_top * h, ground_clearance_m + 0.3))]
             n_used[j] = len(p)

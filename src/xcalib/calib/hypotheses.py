@@ -503,18 +503,30 @@ def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nd
     if len(R) > chunk:
         return np.concatenate([_centre_hits(fr, intr, R[s:s + chunk], t[s:s + chunk], max_elems=max_elems)
                                for s in range(0, len(R), chunk)])
-    Xc = np.matmul(fr.boxes3d[:, :3], np.transpose(R, (0, 2, 1)))  # [H,M,3] (BLAS, not einsum)
-    Xc += t[:, None, :]
-    z = Xc[..., 2]
+    H, M = len(R), fr.n3
     if not isinstance(intr, CameraIntrinsics):  # camera-model dispatch
+        Xc = np.matmul(fr.boxes3d[:, :3], np.transpose(R, (0, 2, 1)))  # [H,M,3] (BLAS, not einsum)
+        Xc += t[:, None, :]
         uv, ok = intr.project(Xc.reshape(-1, 3))
         ok &= np.linalg.norm(Xc.reshape(-1, 3), axis=1) > 0.5
-        u = np.where(ok, uv[:, 0], np.nan).reshape(z.shape)
-        v = np.where(ok, uv[:, 1], np.nan).reshape(z.shape)
+        u = np.where(ok, uv[:, 0], np.nan).reshape(H, M)
+        v = np.where(ok, uv[:, 1], np.nan).reshape(H, M)
     else:
+        # camera-frame coordinates as [M,3,H] planes (pose last): one matrix product for all poses,
+        # the translation added along H, and every mask below along H too, its any() over the
+        # M rows (the same products, sums and comparisons as [H,M,3] rows, whose stacked product,
+        # broadcast add over a last axis of 3 and any() over a short last axis cost 2-3x more)
+        Xc = (fr.boxes3d[:, :3] @ R.transpose(2, 1, 0).reshape(3, 3 * H)).reshape(M, 3, H)
+        Xc += t.T[None]
+        x, y, z = Xc[:, 0], Xc[:, 1], Xc[:, 2]
+        ahead = z > 0.5
         with np.errstate(divide="ignore", invalid="ignore"):
-            u = np.where(z > 0.5, Xc[..., 0] / z * intr.fx + intr.cx, np.nan)
-            v = np.where(z > 0.5, Xc[..., 1] / z * intr.fy + intr.cy, np.nan)
+            u = np.where(ahead, x / z * intr.fx + intr.cx, np.nan)
+            v = np.where(ahead, y / z * intr.fy + intr.cy, np.nan)
+        hits = np.zeros(H, dtype=np.int64)
+        for x0, y0, x1, y1 in np.asarray(fr.boxes2d, dtype=np.float64).tolist():
+            hits += ((u >= x0) & (u <= x1) & (v >= y0) & (v <= y1)).any(0)
+        return hits.astype(np.float64)
     hits = np.zeros(len(R), dtype=np.int64)
     for x0, y0, x1, y1 in np.asarray(fr.boxes2d, dtype=np.float64).tolist():  # box by box: [H,M] masks stay in cache
         hits += ((u >= x0) & (u <= x1) & (v >= y0) & (v <= y1)).any(1)

@@ -82,6 +82,12 @@ def _assign(iou: np.ndarray, dist: np.ndarray, valid: np.ndarray, gate_iou: floa
     rows = np.flatnonzero(allowed.any(axis=1))
     if not len(rows):
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    if allowed.sum(0).max() <= 1 and allowed.sum(1).max() <= 1:
+        # the allowed pairs share no box: the assignment takes every one of them (each left out
+        # would cost 1e6 more) and the rest of it is disallowed and dropped -- the same pairs, in
+        # row order, without the assignment's search
+        pairs = np.argwhere(allowed).astype(np.int64)
+        return pairs, iou[pairs[:, 0], pairs[:, 1]]
     cols = np.flatnonzero(allowed.any(axis=0))
     if len(rows) == len(iou) and len(cols) == iou.shape[1]:  # nothing to drop (small frames)
         sub, iou_s, dist_s = allowed, iou, dist

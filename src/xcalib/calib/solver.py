@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.linalg import svd
+from scipy.linalg import get_lapack_funcs, svd
 
 __all__ = ["TrfResult", "trf", "LOSSES"]
 
@@ -44,6 +44,28 @@ class TrfResult:
 def _residuals(fun, x: np.ndarray) -> np.ndarray:
     """``fun`` at a copy of ``x``, as an array of our own (the solver scales it in place)."""
     return np.array(fun(x.copy()), ndmin=1, copy=True)
+
+
+_GESDD: list = []  # (gesdd, gesdd_lwork) for float64, looked up on first use
+
+
+def _svd_thin(a: np.ndarray):
+    """``scipy.linalg.svd(a, full_matrices=False)`` of a float64 [m, n] matrix: the same LAPACK
+    routine (gesdd) with the same work size and the same finiteness check, without scipy's
+    per-call wrapping (the routine looked up once; ~40 % of the call at a pose fit's size)."""
+    a = np.asarray_chkfinite(a)  # scipy's check_finite: ValueError on inf / NaN
+    if a.ndim != 2 or a.size == 0 or a.dtype != np.float64:
+        return svd(a, full_matrices=False)
+    if not _GESDD:
+        _GESDD.extend(get_lapack_funcs(("gesdd", "gesdd_lwork"), (a,), ilp64="preferred"))
+    gesdd, gesdd_lwork = _GESDD
+    work, info = gesdd_lwork(a.shape[0], a.shape[1], compute_uv=1, full_matrices=0)
+    if info != 0:
+        return svd(a, full_matrices=False)
+    u, s, v, info = gesdd(a, compute_uv=1, lwork=int(work.real), full_matrices=0, overwrite_a=0)
+    if info != 0:  # scipy's own errors (no convergence, NaN)
+        return svd(a, full_matrices=False)
+    return u, s, v
 
 
 def _norm(v: np.ndarray) -> float:
@@ -204,7 +226,7 @@ def trf(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], np.
         d = scale
         g_h = d * g
         J_h = J * d
-        U, s, V = svd(J_h, full_matrices=False)
+        U, s, V = _svd_thin(J_h)
         V = V.T
         uf = U.T.dot(f)
         actual_reduction = -1

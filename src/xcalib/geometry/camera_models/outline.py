@@ -173,10 +173,11 @@ def no_rects(H: int, single: bool):
 def finish_rects(rect: np.ndarray, front: np.ndarray, size: tuple[int, int], clip: bool) -> np.ndarray:
     """Clip rects [...,4] (px) to the image ``size`` (W, H) when ``clip``, in place; return valid
     [...]: ``front`` and wider and taller than 1 px; invalid rects become NaN (in place)."""
-    if clip:
+    if clip:  # in place on the strided views of the x and y edges (the same clip, no gather / scatter copies)
         W, Hh = size
-        rect[..., [0, 2]] = np.clip(rect[..., [0, 2]], 0.0, W)
-        rect[..., [1, 3]] = np.clip(rect[..., [1, 3]], 0.0, Hh)
+        xs, ys = rect[..., 0::2], rect[..., 1::2]
+        np.clip(xs, 0.0, W, out=xs)
+        np.clip(ys, 0.0, Hh, out=ys)
     with np.errstate(invalid="ignore"):
         valid = front & (rect[..., 2] - rect[..., 0] > 1.0) & (rect[..., 3] - rect[..., 1] > 1.0)
     rect[~valid] = np.nan
