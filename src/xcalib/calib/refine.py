@@ -20,12 +20,12 @@ from .boxproj import iou_batched, iou_planes, project_rects
 from .context import F_SCALE, FitContext, RefineOptions
 from .cost import INWARD, BoxEdgeTerm, CostModel, Occlusion, _pair_features, edge_sigma
 from .diagnostics import NoiseModel
-from .inputs import CalibFrame
+from .inputs import CalibFrame, box_scores
 from .pose import Pose
 from .terms import CostSpec, TermContext, occlusion_of
 
 __all__ = ["build_cost", "box_edges", "RefineResult", "match_frame", "match_all", "project_frames", "refine_pose", "pair_metrics", "estimate_noise", "lsq",
-           "edge_term", "DEFAULT_NOISE", "F_SCALE", "FitContext", "RefineOptions"]
+           "edge_term", "pair_scores", "DEFAULT_NOISE", "F_SCALE", "FitContext", "RefineOptions"]
 
 
 @dataclass
@@ -157,8 +157,22 @@ def edge_term(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraInt
     occlusion = occlusion_of(occlusion)
     outlines, obs = _stack(frames, pairs)
     sigma = edge_sigma(obs, outlines, intr, pose, DEFAULT_NOISE if noise is None else noise,
-                       _outline_sigma(frames, pairs))
+                       _outline_sigma(frames, pairs), pair_scores(frames, pairs))
     return BoxEdgeTerm(outlines, obs, frames[0].size, sigma, occlusion)
+
+
+def pair_scores(frames: list[CalibFrame], pairs: list[np.ndarray]) -> np.ndarray | None:
+    """The detector score of each matched pair's 2D box, in ``_stack`` order; None unless every
+    frame with matches carries scores (``CalibFrame.scores2d_input``)."""
+    parts = []
+    for fr, p in zip(frames, pairs):
+        if not len(p):
+            continue
+        q = box_scores(fr)
+        if q is None:
+            return None
+        parts.append(q[p[:, 0]])
+    return np.concatenate(parts) if parts else None
 
 
 def _outline_sigma(frames: list[CalibFrame], pairs: list[np.ndarray]) -> np.ndarray:
@@ -176,6 +190,12 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
     square is half the edge variance. Non-negative least squares on those squares, trimmed
     twice at 8x the fitted variance (false matches); each term is floored at DEFAULT_NOISE
     (exact 3D boxes keep the default model; noisy 3D detections widen it).
+
+    When every matched 2D box carries a detector score and the scores differ, one more term
+    ``(sigma_score s (q_ref - q))^2`` is fitted with them (floor 0; ``q_ref``: the highest matched
+    score): how much noisier, relative to its size, a box is per unit of score below the most
+    confident one, measured on this run's own residuals (a detector whose low scores are not
+    noisier gets 0). Without scores, or with all scores equal, the model is the 3-term one.
     """
     from scipy.optimize import nnls
 
@@ -187,13 +207,18 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
     W, H = frames[0].size
     e = rects - obs
     s, fz = _pair_features(obs, corners, intr, pose)
-    X = np.repeat(np.column_stack([np.ones(len(s)), fz ** 2, s ** 2]), 4, axis=0)
+    cols = [np.ones(len(s)), fz ** 2, s ** 2]
+    q = pair_scores(frames, pairs)
+    q_ref = None if q is None or not len(q) or float(np.ptp(q)) <= 0 else float(q.max())
+    if q_ref is not None:  # scores that differ: a box's noise may grow as its score falls
+        cols.append((s * (q_ref - q)) ** 2)
+    X = np.repeat(np.column_stack(cols), 4, axis=0)
     border = np.column_stack([rects[:, 0] <= 0.5, rects[:, 1] <= 0.5, rects[:, 2] >= W - 0.5, rects[:, 3] >= H - 0.5])
     out = valid[:, None] & ~border & np.isfinite(e) & (np.nan_to_num(e) * INWARD < 0)
     out &= (_outline_sigma(frames, pairs) == 0)[:, None]  # outlines with their own error (open yaw) say nothing of it
     y = 2.0 * np.nan_to_num(e).ravel() ** 2
     use = out.ravel()
-    floor = np.array(DEFAULT_NOISE) ** 2
+    floor = np.array(DEFAULT_NOISE[:3] + ((0.0,) if q_ref is not None else ())) ** 2
     coef = floor.copy()
     for _ in range(3):
         if use.sum() < 12:
@@ -202,7 +227,10 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
         c, _ = nnls(X[use] / scale[:, None], y[use] / scale)
         coef = np.maximum(c, floor)
         use = out.ravel() & (y <= 8.0 * 2.0 * (X @ coef))
-    return NoiseModel(*(float(v) for v in np.sqrt(coef)))
+    if q_ref is None:
+        return NoiseModel(*(float(v) for v in np.sqrt(coef)))
+    sp, s3, ss, sq = (float(v) for v in np.sqrt(coef))
+    return NoiseModel(sp, s3, ss, sq, q_ref if sq > 0 else 1.0)
 
 
 def box_edges(ctx: TermContext, *, occlusion_tau: float = 1.5, occlusion_slope: float = 0.2) -> BoxEdgeTerm:
