@@ -191,11 +191,14 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
     twice at 8x the fitted variance (false matches); each term is floored at DEFAULT_NOISE
     (exact 3D boxes keep the default model; noisy 3D detections widen it).
 
-    When every matched 2D box carries a detector score and the scores differ, one more term
-    ``(sigma_score s (q_ref - q))^2`` is fitted with them (floor 0; ``q_ref``: the highest matched
-    score): how much noisier, relative to its size, a box is per unit of score below the most
+    When every matched 2D box carries a detector score, a second fit adds one more term
+    ``(sigma_score s (q_ref - q))^2`` (floor 0; ``q_ref``: the highest score among the kept
+    pairs): how much noisier, relative to its size, a box is per unit of score below the most
     confident one, measured on this run's own residuals (a detector whose low scores are not
-    noisier gets 0). Without scores, or with all scores equal, the model is the 3-term one.
+    noisier gets 0). It is fitted on the edges the 3-term fit kept (its trimming may drop more,
+    never re-admit one): false matches stay outliers for the robust loss instead of making the
+    score term, which describes the noise of right matches. Without scores, or when the kept
+    pairs' scores are all equal, the model is the 3-term one.
     """
     from scipy.optimize import nnls
 
@@ -207,18 +210,13 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
     W, H = frames[0].size
     e = rects - obs
     s, fz = _pair_features(obs, corners, intr, pose)
-    cols = [np.ones(len(s)), fz ** 2, s ** 2]
-    q = pair_scores(frames, pairs)
-    q_ref = None if q is None or not len(q) or float(np.ptp(q)) <= 0 else float(q.max())
-    if q_ref is not None:  # scores that differ: a box's noise may grow as its score falls
-        cols.append((s * (q_ref - q)) ** 2)
-    X = np.repeat(np.column_stack(cols), 4, axis=0)
+    X = np.repeat(np.column_stack([np.ones(len(s)), fz ** 2, s ** 2]), 4, axis=0)
     border = np.column_stack([rects[:, 0] <= 0.5, rects[:, 1] <= 0.5, rects[:, 2] >= W - 0.5, rects[:, 3] >= H - 0.5])
     out = valid[:, None] & ~border & np.isfinite(e) & (np.nan_to_num(e) * INWARD < 0)
     out &= (_outline_sigma(frames, pairs) == 0)[:, None]  # outlines with their own error (open yaw) say nothing of it
     y = 2.0 * np.nan_to_num(e).ravel() ** 2
     use = out.ravel()
-    floor = np.array(DEFAULT_NOISE[:3] + ((0.0,) if q_ref is not None else ())) ** 2
+    floor = np.array(DEFAULT_NOISE[:3]) ** 2
     coef = floor.copy()
     for _ in range(3):
         if use.sum() < 12:
@@ -227,10 +225,35 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
         c, _ = nnls(X[use] / scale[:, None], y[use] / scale)
         coef = np.maximum(c, floor)
         use = out.ravel() & (y <= 8.0 * 2.0 * (X @ coef))
-    if q_ref is None:
-        return NoiseModel(*(float(v) for v in np.sqrt(coef)))
+    plain = NoiseModel(*(float(v) for v in np.sqrt(coef)))
+    q = pair_scores(frames, pairs)
+    return plain if q is None else _score_noise(plain, X, y, use, s, q)
+
+
+def _score_noise(plain: NoiseModel, X: np.ndarray, y: np.ndarray, use: np.ndarray, s: np.ndarray,
+                 q: np.ndarray) -> NoiseModel:
+    """``plain`` (the 3-term model fitted on the edges ``use``) with the score term fitted on those
+    edges (see ``estimate_noise``): X [4n,3] its regressors, y [4n] twice the squared edge residuals,
+    s [n] the boxes' sizes (px), q [n] their scores."""
+    from scipy.optimize import nnls
+
+    kept = use.reshape(-1, 4).any(axis=1)
+    if not kept.any() or float(np.ptp(q[kept])) <= 0:
+        return plain
+    q_ref = float(q[kept].max())
+    X4 = np.column_stack([X, np.repeat((s * np.clip(q_ref - q, 0.0, None)) ** 2, 4)])
+    floor = np.append(np.array(DEFAULT_NOISE[:3]) ** 2, 0.0)
+    coef = np.append(np.array(plain[:3]) ** 2, 0.0)
+    keep = use.copy()
+    for _ in range(3):
+        if keep.sum() < 12:
+            return plain
+        scale = np.maximum(X4[keep] @ coef, 1e-6)
+        c, _ = nnls(X4[keep] / scale[:, None], y[keep] / scale)
+        coef = np.maximum(c, floor)
+        keep = use & (y <= 8.0 * 2.0 * (X4 @ coef))
     sp, s3, ss, sq = (float(v) for v in np.sqrt(coef))
-    return NoiseModel(sp, s3, ss, sq, q_ref if sq > 0 else 1.0)
+    return NoiseModel(sp, s3, ss, sq, q_ref) if sq > 0 else plain
 
 
 def box_edges(ctx: TermContext, *, occlusion_tau: float = 1.5, occlusion_slope: float = 0.2) -> BoxEdgeTerm:
