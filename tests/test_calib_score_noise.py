@@ -53,7 +53,7 @@ def _scene(seed: int, scores: str = "informative", rel: float = 0.25):
 
 
 def _fit(frames, T):
-    cframes, intr, _ = prepare_frames(frames, frames[0].intrinsics)
+    cframes, intr, _ = prepare_frames(frames, frames[0].intrinsics, scores=True)
     pairs = _truth_pairs(frames, cframes)
     pose0 = Pose(T[:3, :3], T[:3, 3])
     noise = DEFAULT_NOISE
@@ -69,7 +69,9 @@ def _fit(frames, T):
 
 def test_scores_reach_the_calib_frames():
     frames, _ = _scene(0)
-    cframes, _, _ = prepare_frames(frames, frames[0].intrinsics)
+    off, _, _ = prepare_frames(frames, frames[0].intrinsics)  # CalibConfig.detector_scores is off by default
+    assert all(cf.scores2d_input is None for cf in off)
+    cframes, _, _ = prepare_frames(frames, frames[0].intrinsics, scores=True)
     for f, cf in zip(frames, cframes):
         q = np.asarray(f.meta["detections"]["scores_2d"])
         assert np.array_equal(box_scores(cf), q[cf.idx2d])

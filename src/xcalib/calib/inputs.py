@@ -137,7 +137,8 @@ def _image_size(image, intr: CameraIntrinsics, meta: dict) -> tuple[int, int]:
 
 
 def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool = "auto",
-                   box_model: str = "auto", min_box_px: float = 2.0, workers: Workers = 1) -> tuple[list[CalibFrame], CameraIntrinsics, str | None]:
+                   box_model: str = "auto", min_box_px: float = 2.0, workers: Workers = 1,
+                   scores: bool = False) -> tuple[list[CalibFrame], CameraIntrinsics, str | None]:
     """Normalise ``frames`` -> (CalibFrames, intrinsics, problem message or None).
 
     The message is set (and the list may be partial) when frames come from different
@@ -145,7 +146,8 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
     "always" or "never" (True/False accepted). ``box_model``: "corners" (the 8 box corners), "points" (hull of the LiDAR points in
     each box; corners where too few) or "auto" (points for yaw-less [M,6] boxes when a cloud is
     given, corners otherwise). ``workers``: processes for the per-frame yaw fits and point hulls
-    (the frames come back the same whatever the number). Raises ValueError for impossible
+    (the frames come back the same whatever the number). ``scores``: keep the 2D boxes' detector
+    scores (``CalibFrame.scores2d_input``, see :func:`input_scores`; ``CalibConfig.detector_scores``). Raises ValueError for impossible
     intrinsics or malformed boxes.
     """
     if not isinstance(frames, (list, tuple)):
@@ -207,7 +209,8 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
         if use_pts and has_pts and scan_step is None:  # one LiDAR for all frames: its scan pattern once
             scan_step = scan_step_of(p, meta)
         rows.append((i, image, cam, key, gt, meta, b2[idx2].astype(np.float64), box7, idx2, idx3, p, size,
-                     (bool(redo and has_pts), not had_yaw, bool(use_pts and has_pts)), input_scores(meta, len(b2), i)))
+                     (bool(redo and has_pts), not had_yaw, bool(use_pts and has_pts)),
+                     input_scores(meta, len(b2), i) if scores else None))
     # the per-frame outline work (yaw fits, point hulls) on up to ``workers`` processes (frames in order)
     shaped = parallel_map(_frame_outlines, [(r[7], r[10], r[12], scan_step) for r in rows],
                           workers if any(r[12][0] or r[12][2] for r in rows) else 1)
