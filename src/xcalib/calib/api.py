@@ -460,7 +460,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
                progress: Progress | None) -> CalibrationResult:
     t0 = time.perf_counter()
     cframes, intr, problem = prepare_frames(frames_in, intr_in, reestimate_yaw=config.reestimate_yaw,
-                                            box_model=config.box_model, workers=config.workers)
+                                            box_model=config.box_model, workers=config.workers,
+                                            scores=config.detector_scores)
     diag = CalibDiagnostics(n_2d=sum(f.n2 for f in cframes), n_3d=sum(f.n3 for f in cframes),
                             max_baseline_m=config.max_baseline_m)
     diag.selfcal.intrinsics_mode, diag.selfcal.intrinsics_given = config.refine_intrinsics, intr.to_dict()

@@ -171,6 +171,12 @@ class CalibConfig:
         reestimate_yaw: "auto" (re-estimate yaw from the points for yaw-less [M,6] boxes),
             "always", "never".
         box_model: "auto" | "corners" | "points" (outline of each 3D box, see ``inputs``).
+        detector_scores: weigh the 2D boxes by their detector scores (``meta["scores_2d"]``): the
+            per-edge error model gains a score term fitted on the run's residuals
+            (``refine.estimate_noise``). Off by default: on the realism suite it made two wrong
+            successes in 120 detector runs (``detector_all`` site 18, ``detector_truncation`` site
+            14) and moved the A9 detector-box pose 0.34 deg from the labelled one
+            (docs/calibration.md, "Boxes from a camera detector").
     Bring-up:
         max_baseline_m: assume the camera within this distance of the LiDAR-frame origin (retried
             without it when the search fails); None: never assume it.
@@ -226,6 +232,7 @@ class CalibConfig:
     uncertainty: UncertaintyMode = "clusters"
     reestimate_yaw: YawMode = "auto"
     box_model: BoxModel = "auto"
+    detector_scores: bool = False
     max_baseline_m: float | None = 8.0
     max_hyp_frames: int = 10
     max_refine: int = 6

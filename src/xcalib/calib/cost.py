@@ -128,14 +128,19 @@ def _pair_features(obs: np.ndarray, outlines: np.ndarray, intr: CameraIntrinsics
 
 
 def edge_sigma(obs: np.ndarray, outlines: np.ndarray, intr: CameraIntrinsics, pose: Pose,
-               noise: NoiseModel, outline_sigma_m: np.ndarray | None = None) -> np.ndarray:
+               noise: NoiseModel, outline_sigma_m: np.ndarray | None = None,
+               scores: np.ndarray | None = None) -> np.ndarray:
     """Per-pair 1-sigma (px) of an edge residual at ``pose`` under the error model ``noise``, plus
     each outline's own uncertainty ``outline_sigma_m`` [n] (m, seen at depth Z; e.g. a 3D box
-    whose yaw the LiDAR points leave open)."""
+    whose yaw the LiDAR points leave open) and, where ``noise.sigma_score`` > 0, the part that grows
+    as the 2D box's detector score ``scores`` [n] falls below ``noise.score_ref`` (None: no scores)."""
     s, fz = _pair_features(obs, outlines, intr, pose)
     var = noise.sigma_px ** 2 + (fz * noise.sigma_3d_m) ** 2 + (noise.sigma_size * s) ** 2
     if outline_sigma_m is not None:
         var = var + (fz * np.asarray(outline_sigma_m, dtype=np.float64)) ** 2
+    if scores is not None and noise.sigma_score > 0:
+        deficit = np.clip(noise.score_ref - np.asarray(scores, dtype=np.float64), 0.0, None)
+        var = var + (noise.sigma_score * s * deficit) ** 2
     return np.sqrt(var)
 
 

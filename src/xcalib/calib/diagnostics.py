@@ -17,12 +17,17 @@ __all__ = ["NoiseModel", "CandidateSummary", "FrameSummary", "FrameSelectionSumm
 
 class NoiseModel(NamedTuple):
     """Per-edge disagreement model of a matched pair: ``sigma^2 = sigma_px^2 + (f sigma_3d_m / Z)^2
-    + (sigma_size s)^2`` (2D box noise px; 3D centre error m seen at depth Z; relative 3D size error
-    of a box s px large)."""
+    + (sigma_size s)^2 + (sigma_score s (score_ref - q))^2`` (2D box noise px; 3D centre error m
+    seen at depth Z; relative 3D size error of a box s px large; relative 2D box noise per unit of
+    the detector score ``q`` below ``score_ref``, the most confident matched box's score: a
+    detector's less confident boxes are noisier, fitted per calibration by ``refine.estimate_noise``;
+    0 when the boxes carry no scores or all the same)."""
 
     sigma_px: float = 1.0
     sigma_3d_m: float = 0.03
     sigma_size: float = 0.01
+    sigma_score: float = 0.0
+    score_ref: float = 1.0
 
 
 @dataclass
@@ -204,6 +209,9 @@ class CalibDiagnostics:
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["noise_model"] = dict(self.noise_model._asdict())
+        if not d["noise_model"]["sigma_score"]:  # no score term: the record as before scores were used
+            d["noise_model"].pop("sigma_score")
+            d["noise_model"].pop("score_ref")
         return _jsonable(d)
 
     @classmethod

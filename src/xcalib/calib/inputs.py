@@ -19,7 +19,7 @@ from .boxshape import fit_yaw_to_points, lidar_angular_step, shapes_from_points
 from .parallel import Workers, parallel_map
 
 __all__ = ["CalibFrame", "as_intrinsics", "prepare_frames", "with_corner_outlines", "with_point_outlines",
-           "YAW_OPEN_SIGMA", "lean_frames", "SCAN_STEP_KEY", "scan_step_of"]
+           "YAW_OPEN_SIGMA", "lean_frames", "SCAN_STEP_KEY", "scan_step_of", "box_scores", "input_scores"]
 
 #: ``Frame.meta`` key of the LiDAR scan step (:func:`~.boxmodel.lidar_angular_step`) of the frame's
 #: whole cloud, set where the frame carries only part of its cloud (``xcalib.site.stream``: the
@@ -53,6 +53,9 @@ class CalibFrame:
     on it), which makes such a box count little in the fit while it still counts in matching and
     scoring. idx2d [K] / idx3d [M] map rows back to the input numbering.
     size = (width, height) px. points: [P,3] LiDAR-frame cloud or None (overlays, yaw).
+    scores2d_input: the 2D detector's confidence per *input* 2D box (the caller's numbering, so
+    it stays right when rows of ``boxes2d`` are dropped with their ``idx2d``; None: no scores);
+    :func:`box_scores` gives them per row of ``boxes2d``.
     """
 
     key: str
@@ -71,6 +74,7 @@ class CalibFrame:
     image: np.ndarray | None = None
     gt: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    scores2d_input: np.ndarray | None = None
 
     @property
     def n2(self) -> int:
@@ -133,7 +137,8 @@ def _image_size(image, intr: CameraIntrinsics, meta: dict) -> tuple[int, int]:
 
 
 def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool = "auto",
-                   box_model: str = "auto", min_box_px: float = 2.0, workers: Workers = 1) -> tuple[list[CalibFrame], CameraIntrinsics, str | None]:
+                   box_model: str = "auto", min_box_px: float = 2.0, workers: Workers = 1,
+                   scores: bool = False) -> tuple[list[CalibFrame], CameraIntrinsics, str | None]:
     """Normalise ``frames`` -> (CalibFrames, intrinsics, problem message or None).
 
     The message is set (and the list may be partial) when frames come from different
@@ -141,7 +146,8 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
     "always" or "never" (True/False accepted). ``box_model``: "corners" (the 8 box corners), "points" (hull of the LiDAR points in
     each box; corners where too few) or "auto" (points for yaw-less [M,6] boxes when a cloud is
     given, corners otherwise). ``workers``: processes for the per-frame yaw fits and point hulls
-    (the frames come back the same whatever the number). Raises ValueError for impossible
+    (the frames come back the same whatever the number). ``scores``: keep the 2D boxes' detector
+    scores (``CalibFrame.scores2d_input``, see :func:`input_scores`; ``CalibConfig.detector_scores``). Raises ValueError for impossible
     intrinsics or malformed boxes.
     """
     if not isinstance(frames, (list, tuple)):
@@ -203,12 +209,13 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
         if use_pts and has_pts and scan_step is None:  # one LiDAR for all frames: its scan pattern once
             scan_step = scan_step_of(p, meta)
         rows.append((i, image, cam, key, gt, meta, b2[idx2].astype(np.float64), box7, idx2, idx3, p, size,
-                     (bool(redo and has_pts), not had_yaw, bool(use_pts and has_pts))))
+                     (bool(redo and has_pts), not had_yaw, bool(use_pts and has_pts)),
+                     input_scores(meta, len(b2), i) if scores else None))
     # the per-frame outline work (yaw fits, point hulls) on up to ``workers`` processes (frames in order)
     shaped = parallel_map(_frame_outlines, [(r[7], r[10], r[12], scan_step) for r in rows],
                           workers if any(r[12][0] or r[12][2] for r in rows) else 1)
-    for (i, image, cam, key, gt, meta, b2, box7, idx2, idx3, p, size, _), (box7, ambiguous, shapes, corners8,
-                                                                          from_pts, extra) in zip(rows, shaped):
+    for (i, image, cam, key, gt, meta, b2, box7, idx2, idx3, p, size, _, q), (box7, ambiguous, shapes, corners8,
+                                                                             from_pts, extra) in zip(rows, shaped):
         meta = {**meta, **extra}
         out.append(CalibFrame(
             key=str(key), camera=cam, boxes2d=b2, boxes3d=box7,
@@ -217,9 +224,43 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
                                                                    YAW_OPEN_SIGMA * np.abs(box7[:, 3] - box7[:, 4]), 0.0),
             idx2d=idx2, idx3d=idx3,
             size=size, points=p, image=None if image is None else np.asarray(image),
-            gt=None if gt is None else np.asarray(gt, dtype=np.float64), meta=meta,
+            gt=None if gt is None else np.asarray(gt, dtype=np.float64), meta=meta, scores2d_input=q,
         ))
     return out, intr, problem
+
+
+def input_scores(meta: dict | None, n: int, i: int = 0) -> np.ndarray | None:
+    """The 2D detector's score of each of a frame's ``n`` input 2D boxes, from ``meta["scores_2d"]``
+    or ``meta["detections"]["scores_2d"]`` (the convention of ``xcalib detect``), or None when the
+    frame has none. Scores of another length than the boxes, or not finite, are not used (a
+    warning names frame ``i`` and the problem): they cannot be told apart from another frame's."""
+    if not meta:
+        return None
+    q = meta.get("scores_2d")
+    det = meta.get("detections")
+    if q is None and isinstance(det, dict):
+        q = det.get("scores_2d")
+    if q is None:
+        return None
+    try:
+        q = np.asarray(q, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        q = None
+    problem = ("not numbers" if q is None else f"{len(q)} scores for {n} 2D boxes" if len(q) != n
+               else "NaN/Inf values" if not np.all(np.isfinite(q)) else None)
+    if problem is not None:
+        import warnings
+
+        warnings.warn(f"frames[{i}].meta scores_2d: {problem}; the frame's detector scores are not used", stacklevel=3)
+        return None
+    return q
+
+
+def box_scores(fr: CalibFrame) -> np.ndarray | None:
+    """The detector score of each row of ``fr.boxes2d`` (None: the frame has no scores)."""
+    if fr.scores2d_input is None:
+        return None
+    return fr.scores2d_input[fr.idx2d]
 
 
 def _frame_outlines(job):

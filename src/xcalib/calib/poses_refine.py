@@ -29,7 +29,7 @@ from .context import F_SCALE, RefineOptions
 from .cost import INWARD, Occlusion, _distort_with_jacobian, _distortion, edge_sigma
 from .inputs import CalibFrame
 from .pose import Pose
-from .refine import DEFAULT_NOISE, _assign, estimate_noise, refine_pose
+from .refine import DEFAULT_NOISE, _assign, estimate_noise, pair_scores, refine_pose
 
 __all__ = ["PosesFit", "refine_poses", "match_poses"]
 
@@ -270,7 +270,8 @@ def refine_poses(fr: CalibFrame, intr: CameraIntrinsics, R0, t0, options: Refine
                 noise[h] = estimate_noise([fr], [pairs[h]], intr, R[h], t[h])
             p = pairs[h]
             own = fr.outline_sigma_m[p[:, 1]] if fr.outline_sigma_m is not None else np.zeros(len(p))
-            sig.append(edge_sigma(fr.boxes2d[p[:, 0]], fr.corners[p[:, 1]], intr, Pose(R[h], t[h]), noise[h], own))
+            sig.append(edge_sigma(fr.boxes2d[p[:, 0]], fr.corners[p[:, 1]], intr, Pose(R[h], t[h]), noise[h], own,
+                                  pair_scores([fr], [p])))
         batch = _Batch(fr, pairs, sig, intr, occlusion)
         R_old, t_old = R.copy(), t.copy()
         R, t, r = _fit(batch, R, t, fs, live, options.max_nfev)

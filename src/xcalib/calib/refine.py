@@ -20,12 +20,12 @@ from .boxproj import iou_batched, iou_planes, project_rects
 from .context import F_SCALE, FitContext, RefineOptions
 from .cost import INWARD, BoxEdgeTerm, CostModel, Occlusion, _pair_features, edge_sigma
 from .diagnostics import NoiseModel
-from .inputs import CalibFrame
+from .inputs import CalibFrame, box_scores
 from .pose import Pose
 from .terms import CostSpec, TermContext, occlusion_of
 
 __all__ = ["build_cost", "box_edges", "RefineResult", "match_frame", "match_all", "project_frames", "refine_pose", "pair_metrics", "estimate_noise", "lsq",
-           "edge_term", "DEFAULT_NOISE", "F_SCALE", "FitContext", "RefineOptions"]
+           "edge_term", "pair_scores", "DEFAULT_NOISE", "F_SCALE", "FitContext", "RefineOptions"]
 
 
 @dataclass
@@ -182,8 +182,22 @@ def edge_term(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraInt
     occlusion = occlusion_of(occlusion)
     outlines, obs = _stack(frames, pairs)
     sigma = edge_sigma(obs, outlines, intr, pose, DEFAULT_NOISE if noise is None else noise,
-                       _outline_sigma(frames, pairs))
+                       _outline_sigma(frames, pairs), pair_scores(frames, pairs))
     return BoxEdgeTerm(outlines, obs, frames[0].size, sigma, occlusion)
+
+
+def pair_scores(frames: list[CalibFrame], pairs: list[np.ndarray]) -> np.ndarray | None:
+    """The detector score of each matched pair's 2D box, in ``_stack`` order; None unless every
+    frame with matches carries scores (``CalibFrame.scores2d_input``)."""
+    parts = []
+    for fr, p in zip(frames, pairs):
+        if not len(p):
+            continue
+        q = box_scores(fr)
+        if q is None:
+            return None
+        parts.append(q[p[:, 0]])
+    return np.concatenate(parts) if parts else None
 
 
 def _outline_sigma(frames: list[CalibFrame], pairs: list[np.ndarray]) -> np.ndarray:
@@ -201,6 +215,15 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
     square is half the edge variance. Non-negative least squares on those squares, trimmed
     twice at 8x the fitted variance (false matches); each term is floored at DEFAULT_NOISE
     (exact 3D boxes keep the default model; noisy 3D detections widen it).
+
+    When every matched 2D box carries a detector score, a second fit adds one more term
+    ``(sigma_score s (q_ref - q))^2`` (floor 0; ``q_ref``: the highest score among the kept
+    pairs): how much noisier, relative to its size, a box is per unit of score below the most
+    confident one, measured on this run's own residuals (a detector whose low scores are not
+    noisier gets 0). It is fitted on the edges the 3-term fit kept (its trimming may drop more,
+    never re-admit one): false matches stay outliers for the robust loss instead of making the
+    score term, which describes the noise of right matches. Without scores, or when the kept
+    pairs' scores are all equal, the model is the 3-term one.
     """
     from scipy.optimize import nnls
 
@@ -218,7 +241,7 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
     out &= (_outline_sigma(frames, pairs) == 0)[:, None]  # outlines with their own error (open yaw) say nothing of it
     y = 2.0 * np.nan_to_num(e).ravel() ** 2
     use = out.ravel()
-    floor = np.array(DEFAULT_NOISE) ** 2
+    floor = np.array(DEFAULT_NOISE[:3]) ** 2
     coef = floor.copy()
     for _ in range(3):
         if use.sum() < 12:
@@ -227,7 +250,35 @@ def estimate_noise(frames, pairs, intr: CameraIntrinsics, R, t) -> NoiseModel:
         c, _ = nnls(X[use] / scale[:, None], y[use] / scale)
         coef = np.maximum(c, floor)
         use = out.ravel() & (y <= 8.0 * 2.0 * (X @ coef))
-    return NoiseModel(*(float(v) for v in np.sqrt(coef)))
+    plain = NoiseModel(*(float(v) for v in np.sqrt(coef)))
+    q = pair_scores(frames, pairs)
+    return plain if q is None else _score_noise(plain, X, y, use, s, q)
+
+
+def _score_noise(plain: NoiseModel, X: np.ndarray, y: np.ndarray, use: np.ndarray, s: np.ndarray,
+                 q: np.ndarray) -> NoiseModel:
+    """``plain`` (the 3-term model fitted on the edges ``use``) with the score term fitted on those
+    edges (see ``estimate_noise``): X [4n,3] its regressors, y [4n] twice the squared edge residuals,
+    s [n] the boxes' sizes (px), q [n] their scores."""
+    from scipy.optimize import nnls
+
+    kept = use.reshape(-1, 4).any(axis=1)
+    if not kept.any() or float(np.ptp(q[kept])) <= 0:
+        return plain
+    q_ref = float(q[kept].max())
+    X4 = np.column_stack([X, np.repeat((s * np.clip(q_ref - q, 0.0, None)) ** 2, 4)])
+    floor = np.append(np.array(DEFAULT_NOISE[:3]) ** 2, 0.0)
+    coef = np.append(np.array(plain[:3]) ** 2, 0.0)
+    keep = use.copy()
+    for _ in range(3):
+        if keep.sum() < 12:
+            return plain
+        scale = np.maximum(X4[keep] @ coef, 1e-6)
+        c, _ = nnls(X4[keep] / scale[:, None], y[keep] / scale)
+        coef = np.maximum(c, floor)
+        keep = use & (y <= 8.0 * 2.0 * (X4 @ coef))
+    sp, s3, ss, sq = (float(v) for v in np.sqrt(coef))
+    return NoiseModel(sp, s3, ss, sq, q_ref) if sq > 0 else plain
 
 
 def box_edges(ctx: TermContext, *, occlusion_tau: float = 1.5, occlusion_slope: float = 0.2) -> BoxEdgeTerm:
