@@ -298,6 +298,13 @@ def _at_or_after(commit: str | None, base: str = POOL_SINCE) -> bool:
     return p.returncode == 0
 
 
+def _by_date(doc: dict) -> list[tuple[str, dict]]:
+    """The runs of ``doc`` oldest first (provenance ``date_utc``; undated first, in file order): a
+    re-run of a (row, seed) replaces the earlier record whatever its label's place in the file."""
+    items = [(k, v) for k, v in doc.items() if isinstance(v, dict)]
+    return sorted(items, key=lambda kv: str((kv[1].get("provenance") or {}).get("date_utc") or ""))
+
+
 def pooled(doc: dict) -> tuple[list[dict], list[str], list[str]]:
     """The Done-when table of issue 26 pooled over every run in ``doc`` made at or after
     ``POOL_SINCE`` (one record per row and site: the newest run's): summarise()'s columns plus
@@ -305,7 +312,7 @@ def pooled(doc: dict) -> tuple[list[dict], list[str], list[str]]:
     (rows, labels pooled, labels left out as stale)."""
     recs: dict[tuple, dict] = {}
     used, stale = [], []
-    for label, run in doc.items():
+    for label, run in _by_date(doc):
         if not run.get("records"):
             continue
         if not _at_or_after((run.get("provenance") or {}).get("git_commit")):
@@ -365,7 +372,7 @@ def shared_sites(doc: dict) -> dict:
     import itertools
 
     recs: dict[tuple, dict] = {}
-    for label, run in doc.items():
+    for label, run in _by_date(doc):
         if run.get("records") and _at_or_after((run.get("provenance") or {}).get("git_commit")):
             for r in run["records"]:
                 if "z_axes" in r and r.get("model") in ALL_MODELS and not r["row"].endswith("as pinhole"):

@@ -106,6 +106,28 @@ def test_result_round_trip_keeps_the_model(tmp_path):
         assert np.isnan(z["dist_coeffs"]).all() and np.isnan(z["projection"]).all()  # never a pinhole K + D
 
 
+def test_result_json_has_no_pinhole_projection_for_a_wide_angle_model(tmp_path):
+    """calibration.json: a fisheye's ``projection`` is null with a note naming the model (K [R|t] is
+    no projection of its image); a pinhole result keeps K [R|t] and gets no new key."""
+    import json
+
+    T = np.eye(4)
+    T[:3, 3] = [0.1, -0.2, 0.3]
+    res = CalibrationResult(success=True, intrinsics=KB, rotation=T[:3, :3], translation=T[:3, 3], message="")
+    d = json.loads((res.save(tmp_path / "kb.json")).read_text())
+    assert d["projection"] is None and "kannala_brandt" in d["projection_note"] and "intrinsics" in d["projection_note"]
+    assert not res.has_projection_matrix
+    with pytest.raises(ValueError, match="kannala_brandt"):
+        res.projection
+    back = CalibrationResult.load(tmp_path / "kb.json")
+    assert back.intrinsics == KB and np.allclose(back.extrinsics, T)
+    pin = CalibrationResult(success=True, intrinsics=CameraIntrinsics(500, 500, 320, 240, None, 640, 480),
+                            rotation=T[:3, :3], translation=T[:3, 3], message="")
+    d = pin.to_dict()
+    assert "projection_note" not in d and pin.has_projection_matrix
+    np.testing.assert_allclose(d["projection"], pin.K @ T[:3], atol=1e-12)
+
+
 def test_project_points_dispatches_on_a_model():
     P = np.array([[1.0, 0.0, -0.2], [0.0, 0.0, 4.0]])
     uv, depth = project_points(P, KB)

@@ -94,9 +94,30 @@ class CalibrationResult:
 
     @property
     def projection(self) -> np.ndarray:
-        """[3,4] ``P = K [R|t]`` (LiDAR-frame points -> pixels, distortion excluded)."""
+        """[3,4] ``P = K [R|t]`` (LiDAR-frame points -> pixels, distortion excluded). A wide-angle
+        camera model (``kannala_brandt``, ``unified``, ``ucm``, ``eucm``, ``double_sphere``) has no
+        such matrix: ValueError naming the model (use :meth:`project`, or the ``intrinsics``)."""
         self._require_pose("projection")
+        if not self.has_projection_matrix:
+            raise ValueError(f"projection: a {self.intrinsics.name} camera is not K [R|t] (its lens is no pinhole "
+                             "with distortion); project with result.project(points) or the camera model in "
+                             "result.intrinsics")
         return projection_matrix(self.K, self.rotation, self.translation)
+
+    @property
+    def has_projection_matrix(self) -> bool:
+        """Whether ``projection`` (K [R|t]) describes the camera: a pinhole camera (with or without
+        OpenCV distortion, which it leaves out); False for a wide-angle model and without intrinsics."""
+        return isinstance(self.intrinsics, CameraIntrinsics) or \
+            getattr(self.intrinsics, "name", None) in ("pinhole", "pinhole_radtan")
+
+    def _projection_note(self) -> str | None:
+        """calibration.json's ``projection_note``: why ``projection`` is null for a wide-angle model."""
+        if self.intrinsics is None or self.has_projection_matrix:
+            return None
+        return (f"no K [R|t] for a {self.intrinsics.name} camera: project LiDAR points with the camera model in "
+                f"'intrinsics' (model '{self.intrinsics.name}') and 'extrinsics_T_cam_lidar' "
+                "(xcalib.CalibrationResult.project)")
 
     @property
     def bound95(self) -> tuple[float, float]:
@@ -186,7 +207,9 @@ class CalibrationResult:
             "rotation": None if self.rotation is None else self.rotation.tolist(),
             "translation": None if self.translation is None else self.translation.tolist(),
             "extrinsics_T_cam_lidar": None if self.rotation is None else self.extrinsics.tolist(),
-            "projection": None if self.intrinsics is None or self.rotation is None else self.projection.tolist(),
+            "projection": None if not self.has_projection_matrix or self.rotation is None else self.projection.tolist(),
+            # a wide-angle model: projection is null, and this says why (pinhole results: no such key)
+            **({"projection_note": self._projection_note()} if self._projection_note() else {}),
             "n_correspondences": int(self.n_correspondences),
             "n_inliers": int(self.n_inliers),
             "reproj_error_px": _num(self.reproj_error_px),

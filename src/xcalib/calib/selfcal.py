@@ -30,7 +30,8 @@ from .motion import MOVING_MPS, BoxMotion, shift_frames
 from .pose import Pose
 from .refine import F_SCALE, build_cost, estimate_noise, match_all
 
-__all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "MIN_MOVING_PAIRS"]
+__all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "MIN_MOVING_PAIRS",
+           "focal_choice_weight"]
 
 MIN_MOVING_PAIRS = 3
 GATES = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0))
@@ -242,8 +243,11 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
     if fit is None:
         _fill_used(diag, intr)
         return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag)
+    inflation = fit.pose_inflation
     if cfg.refine_intrinsics != "none":
         diag.focal_scale, diag.focal_scale_std, diag.focal_estimated = fit.focal_scale, fit.focal_log_sd * repeat, True
+        if config.refine_intrinsics == "auto":
+            inflation = _with_focal_choice(inflation, fit, pose, fit.focal_log_sd * repeat, diag)
     if fit.principal_shift_px is not None:
         diag.principal_shift_px = [float(v) for v in fit.principal_shift_px]
         diag.principal_std_px = [float(v) for v in fit.principal_sd_px]
@@ -253,7 +257,39 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
         diag.n_moving_pairs = fit.n_moving_pairs
         frames = shift_frames(cframes, motion.velocity, fit.dt_s)
     _fill_used(diag, fit.intr)
-    return SelfCalChoice(fit.intr, frames, fit.pose, fit.pose_inflation, "; ".join(refusals), diag)
+    return SelfCalChoice(fit.intr, frames, fit.pose, inflation, "; ".join(refusals), diag)
+
+
+def focal_choice_weight(z: float) -> float:
+    """Posterior weight (0-1) of the given focal length against the fitted one, ``z`` = |log scale| /
+    1-sigma: their log-likelihood ratio z^2 / 2 (linear, Gaussian), equal prior odds (as the box
+    model's choice of outline, ``uncertainty.box_model_odds``). 0.12 at 2 sigmas, 0.011 at 3, < 1e-5 at 5."""
+    return float(1.0 / (1.0 + np.exp(min(0.5 * z * z, 700.0))))
+
+
+def _with_focal_choice(inflation: np.ndarray, fit: SelfCalFit, pose: Pose, sd: float | None,
+                       diag: SelfCalDiagnostics) -> np.ndarray:
+    """``inflation`` widened by the model choice of refine_intrinsics="auto": it uses the fitted focal
+    length only when that disagrees with the given one beyond 2 sigma, so a right given focal length
+    is replaced by one at least 2 sigma off (about 1 site in 20) and the pose moves with it; the
+    1-sigma propagation of the fitted focal does not cover that selection. The expected squared
+    error of choosing one of two models is w x shift^2 (w the other model's posterior weight,
+    :func:`focal_choice_weight`; shift the pose's move from the given focal length's pose): a clear
+    focal error (z of 5 and more) adds nothing, a 2-sigma switch about a third of the shift. Issue 26:
+    a fresh 150-degree Kannala-Brandt site switched to x0.9921 (2.02 sigma) with the exact focal given,
+    pose 3.1 / 3.4 sigma off (0.74 / 1.13 with refine_intrinsics="none")."""
+    if sd is None or not np.isfinite(sd) or sd <= 0:
+        return inflation
+    w = focal_choice_weight(abs(float(np.log(fit.focal_scale))) / sd)
+    shift = np.abs(pose.delta(fit.pose))
+    extra = np.sqrt(w) * shift
+    if not np.all(np.isfinite(extra)) or float(np.max(extra)) <= 0:
+        return inflation
+    _note(diag, f"refine_intrinsics='auto': the given focal length keeps a posterior weight of {w:.3f}; the pose's "
+                f"move to the fitted one ({float(np.linalg.norm(shift[:3])):.3f} deg / {float(np.linalg.norm(shift[3:])):.3f} m)"
+                " counts in the sigma by sqrt of it", warn=False)
+    base = np.zeros(6) if inflation is None else np.where(np.isfinite(inflation), inflation, np.inf)
+    return np.sqrt(base ** 2 + extra ** 2)
 
 
 def _focal_agrees(cframes, intr, pose: Pose, config: CalibConfig, diag: SelfCalDiagnostics,
