@@ -642,6 +642,8 @@ def _pp_flagged(d: np.ndarray, sd_xy: np.ndarray, W: int) -> bool:
                 or (abs(d[0]) > PP_TOL_FRAC * W and abs(d[0]) > PP_X_SIGMAS * sd_xy[0]))
 
 
+#: the principal-point detail's words for an unflagged shift that turns the camera beyond ``PP_CHECK_DEG``
+_PP_ASKED = "neither confirmed nor ruled out"
 #: a 2D box edge within this many pixels of the image border is the border's, not the object's
 PP_BORDER_PX = 1.0
 
@@ -668,19 +670,16 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
     """:func:`principal_point_check_all`, and when it names a misfit (or a shift it cannot check)
     while some matched 2D boxes touch the image border, the same check without them (truncated
     boxes do not vote): a shift those boxes alone asked for is no misfit (the second look only
-    ever clears or turns a misfit into "not verifiable"; a cropped image moves every box). A shift
-    the first look found not verifiable stays so: fewer boxes cannot verify what all of them could
-    not (``PP_X_UNVERIFIED_SIGMAS``, ``_pp_object_sd``). Realism
+    ever clears or turns a misfit into "not verifiable"; a cropped image moves every box). An
+    unflagged shift that turns the camera beyond ``PP_CHECK_DEG`` (not verifiable,
+    ``PP_X_UNVERIFIED_SIGMAS``) is cleared only when the boxes inside the image do not ask for such
+    a shift either (the border boxes made it); otherwise it stays not verifiable: fewer boxes
+    cannot verify what all of them could not. (A shift not verifiable because the objects scatter,
+    ``_pp_object_sd``, is judged again as a flag: truncated objects scatter most.) Realism
     ``detector_truncation`` (objects cut by the border, their visible outline): shifts of 70-170 px
     in x that the boxes inside the image do not ask for."""
     chk, msg = principal_point_check_all(ctx, draws=draws, seed=seed, places=places)
     if msg is None:  # nothing flagged: nothing to clear
-        return chk, msg
-    if msg.startswith("not verifiable"):
-        # "cannot be verified" is about the objects and the size of the shift they leave open, not
-        # about which boxes vote: fewer boxes can only widen that (realism principal point +3 % W,
-        # 4 px, site 18: all boxes fit (-35, -44) px, x at 3.3 sigmas; without its 4 border boxes
-        # (-41, -56) px at 2.7 sigmas, which cleared it, and the pose was delivered 1.55 deg off)
         return chk, msg
     inner = inner_pairs(ctx.frames, ctx.pairs)
     n_in, n = sum(len(p) for p in inner), sum(len(p) for p in ctx.pairs)
@@ -689,6 +688,13 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
     chk2, msg2 = principal_point_check_all(ctx.with_pairs(inner), draws=draws, seed=seed, places=places)
     if chk2.detail == "too few matches or frames" or (msg2 or "").startswith("model misfit") \
             or (msg2 is not None and not msg.startswith("model misfit")):
+        return chk, msg
+    if _PP_ASKED in chk.detail and chk2.statistic > _pp_need(ctx.intr):
+        # all boxes asked for a shift that turns the camera beyond PP_CHECK_DEG (unflagged, not
+        # verifiable) and the inner boxes still ask for one: the border boxes did not make it, and
+        # fewer boxes cannot verify what all of them could not (realism principal point +3 % W, 4 px,
+        # site 18: all boxes fit (-35, -44) px, x at 3.3 sigmas; without its 4 border boxes (-41, -56)
+        # px at 2.7 sigmas cleared it, and the pose was delivered 1.55 deg / 0.49 m off)
         return chk, msg
     note = f"without the {n - n_in} matched 2D boxes at the image border (of {n}): "
     return replace(chk2, detail=note + chk2.detail + f"; with them: {chk.detail}"), msg2
@@ -790,8 +796,7 @@ def principal_point_check_all(ctx: FitContext, *, draws: int = 5, seed: int = 0,
         # the given cx, cy and the one with the fitted shift differ beyond the wrong-pose line, and the
         # data cannot choose between them
         detail += (f"; not verifiable: the shift turns the camera by {np.degrees(np.arctan(shift / min(intr.fx, intr.fy))):.2f}"
-                   f" deg (limit {PP_CHECK_DEG:g} deg, {need:.0f} px), not flagged: neither confirmed "
-                   "nor ruled out")
+                   f" deg (limit {PP_CHECK_DEG:g} deg, {need:.0f} px), not flagged: {_PP_ASKED}")
         msg = (f"not verifiable: the boxes fit best with the principal point moved by ({d[0]:+.0f}, {d[1]:+.0f}) px "
                f"(cx ~{intr.cx + d[0]:.0f} instead of {intr.cx:.0f}, cy ~{intr.cy + d[1]:.0f} instead of {intr.cy:.0f}), "
                f"which would turn the camera by {np.degrees(np.arctan(shift / min(intr.fx, intr.fy))):.1f} deg; these "
