@@ -37,7 +37,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, match
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSelectionSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, lean_frames, prepare_frames, with_corner_outlines, with_point_outlines
-from .misfit import box_frame_check, flipped_frames, lens_checks, focal_fit, focal_scale_check, focal_width_check, leftover_frames, match_bound, second_pose_check, second_pose_screen, mirror_check, mirror_screen, principal_point_check, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
+from .misfit import box_frame_check, flipped_frames, lens_checks, focal_box_model, focal_fit, focal_scale_check, focal_width_check, leftover_frames, match_bound, second_pose_check, second_pose_screen, mirror_check, mirror_screen, principal_point_check, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .parallel import Deferred, Workers, parallel_map, resolve_workers
 from .pose import Pose
@@ -390,6 +390,10 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
     if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
         fit = focal_fit(cframes, pairs, intr, pose, noise, f_scale, occlusion)
         chk, msg = focal_scale_check(fit, intr, n_matches=int(sum(len(p) for p in pairs)), places=places)
+        if msg:  # the box model first: a detector's tight outline mimics a shorter focal length
+            alt, note = focal_box_model(ctx, places)
+            if alt is not None:  # checkability is then judged on the fit with the outline free
+                chk, msg, fit = dataclasses.replace(chk, flagged=False, detail=chk.detail + note), None, alt
         found.append((chk, msg, "misfit_focal_length"))
         width = focal_width_check(fit, cframes, pairs, pose)
     time_chk, pp_unverifiable = None, None
