@@ -39,7 +39,7 @@ from .hypotheses import Hypotheses
 from .inputs import CalibFrame, lean_frames, prepare_frames, with_corner_outlines, with_point_outlines
 from .misfit import box_frame_check, flipped_frames, lens_checks, focal_fit, focal_scale_check, focal_width_check, leftover_frames, match_bound, second_pose_check, second_pose_screen, mirror_check, mirror_screen, principal_point_check, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
-from .parallel import Deferred, Workers, parallel_map, resolve_workers
+from .parallel import Deferred, WorkerPool, Workers, parallel_map, resolve_workers, shared
 from .pose import Pose
 from .refine import FitContext, RefineOptions, RefineResult, match_all, pair_metrics, refine_pose
 from .result import CalibrationResult
@@ -102,7 +102,8 @@ def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
     lean = lean_frames(cframes) if resolve_workers(workers) > 1 else cframes
     gated = None if max_candidates is None else gated_frames(lean, max_candidates)
     qf = lean if gated is None else gated
-    quick = parallel_map(_quick_refine, [(qf, intr, cand.R[k], cand.t[k], occlusion) for k in range(len(cand))],
+    sq = shared(qf, workers)  # pickled once for all the tasks
+    quick = parallel_map(_quick_refine, [(sq, intr, cand.R[k], cand.t[k], occlusion) for k in range(len(cand))],
                          workers)
     if progress:
         for k in range(len(cand)):
@@ -111,7 +112,8 @@ def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
     best0 = Pose(quick[0][1].R, quick[0][1].t)
     finals = [quick[0]] + [next((x for x in quick[1:] if Pose(x[1].R, x[1].t).distinct(best0, 1.0, 0.3)), None)]
     finals = [f for f in finals if f is not None]
-    refined = parallel_map(_full_refine, [(lean, intr, r0.R, r0.t, occlusion) for _, r0 in finals], workers)
+    sl = shared(lean, workers)
+    refined = parallel_map(_full_refine, [(sl, intr, r0.R, r0.t, occlusion) for _, r0 in finals], workers)
     if progress:
         for k in range(len(finals)):
             progress("refine", len(cand) + k + 1, len(cand) + len(finals))
@@ -319,9 +321,10 @@ def _misfit_searches(ctx: FitContext, config: CalibConfig, best_score: float | N
     if view is not None:  # crowded frames: the searches and the lens refits on the gate's view
         lean, pairs, best_score = view.frames, view.pairs, None if best_score is None else view.score
     places = len(matched_places(lean, pairs)[0])
-    return Deferred([(_second_pose, (lean, pairs, intr, pose, one, occlusion, best_score)),
-                     (_lens_check, (dataclasses.replace(ctx, frames=lean, pairs=pairs), places)),
-                     (_mirror_score, (lean, intr, one, occlusion, best_score, pose))], config.workers)
+    sl = shared(lean, config.workers)  # pickled once for the three tasks
+    return Deferred([(_second_pose, (sl, pairs, intr, pose, one, occlusion, best_score)),
+                     (_lens_check, (dataclasses.replace(ctx, frames=sl, pairs=pairs), places)),
+                     (_mirror_score, (sl, intr, one, occlusion, best_score, pose))], config.workers)
 
 
 @dataclass
@@ -620,8 +623,9 @@ def calibrate(frames, intrinsics=None, config: CalibConfig | None = None, *args,
     config = CalibConfig.from_kwargs(config, **legacy_kwargs) if legacy_kwargs else (config or CalibConfig())
     prior_pose = None if prior is None else Pose.parse(prior, "prior")
     frames_in, selection = _selected_frames(frames, intrinsics, config, progress)
-    res = _calibrate_retry(frames_in, intrinsics, config, matcher, prior_pose, progress)
-    res = _deliver_time_offset(res, frames_in, intrinsics, config, (matcher, prior_pose, progress))
+    with WorkerPool(config.workers):  # one pool of processes for every parallel stage of this call (and its retries)
+        res = _calibrate_retry(frames_in, intrinsics, config, matcher, prior_pose, progress)
+        res = _deliver_time_offset(res, frames_in, intrinsics, config, (matcher, prior_pose, progress))
     return _with_selection(res, selection)
 
 
