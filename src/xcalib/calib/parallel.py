@@ -28,9 +28,10 @@ import multiprocessing as mp
 import os
 import pickle
 import sys
+import threading
 from collections import OrderedDict
-from concurrent.futures import Future, ProcessPoolExecutor, wait
-from contextvars import ContextVar
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from contextvars import ContextVar, copy_context
 from typing import Any, Callable, Iterable, Literal, TypeVar, Union
 
 __all__ = ["Workers", "resolve_workers", "parallel_map", "available_cpus", "Deferred", "WorkerPool", "Shared",
@@ -153,15 +154,17 @@ class WorkerPool:
         self._pid = os.getpid()
         self._ex: ProcessPoolExecutor | None = None
         self._token = None
+        self._lock = threading.Lock()
 
     @property
     def started(self) -> bool:
         return self._ex is not None
 
     def executor(self) -> ProcessPoolExecutor:
-        if self._ex is None:
-            self._ex = _pool(self.n)
-        return self._ex
+        with self._lock:  # (stages on several threads: one pool)
+            if self._ex is None:
+                self._ex = _pool(self.n)
+            return self._ex
 
     def close(self) -> None:
         if self._ex is not None:
@@ -217,21 +220,41 @@ def _pool(n: int) -> ProcessPoolExecutor:
 
 class Deferred:
     """Calls ``[(fn, args), ...]`` started now on up to ``workers`` processes, or (one worker) run
-    here in order when their result is first asked for -- so the serial order of work is
+    here when their result is first asked for (a None call: none, never run) -- so the serial order of work is
     unchanged and the parallel one overlaps it with whatever the caller does meanwhile. Use as a
     context manager (on exit the calls not started are cancelled, the running ones waited for;
-    a pool started for it is shut down)."""
+    a pool started for it is shut down).
 
-    def __init__(self, calls: list[tuple[Callable, tuple]], workers: Workers = 1):
+    ``threads``: the indices of calls that run (with more than one worker) on a thread of this
+    process instead of as one task of the pool: a call made of parallel stages of its own (a
+    search, then refinements) whose pieces then run on the open pool's processes, several at a
+    time, where as one task it would run on one core. Their results are the same either way."""
+
+    def __init__(self, calls: list[tuple[Callable, tuple] | None], workers: Workers = 1, threads: Iterable[int] = ()):
         self._calls = list(calls)
         self._done: dict[int, object] = {}
-        n = min(resolve_workers(workers), len(self._calls))
+        n = min(resolve_workers(workers), sum(c is not None for c in self._calls))
         pool = _open_pool() if n > 1 else None
+        here = {k for k in threads if 0 <= k < len(self._calls)} if pool is not None else set()
         self._own = _pool(n) if n > 1 and pool is None else None
+        self._threads = ThreadPoolExecutor(len(here), thread_name_prefix="xcalib-deferred") if here else None
         ex = self._own if pool is None else pool.executor()
-        self._fut: list[Future] | None = [ex.submit(fn, *args) for fn, args in self._calls] if n > 1 else None
+        self._fut: list[Future] | None = None
+        if n > 1:
+            self._fut = [None if call is None else
+                         self._threads.submit(copy_context().run, call[0], *_local(tuple(call[1]))) if k in here
+                         else ex.submit(call[0], *call[1]) for k, call in enumerate(self._calls)]
+
+    def __len__(self) -> int:
+        return len(self._calls)
+
+    def has(self, k: int) -> bool:
+        """Whether call ``k`` exists (a None call stands for one that does not apply: never run)."""
+        return 0 <= k < len(self._calls) and self._calls[k] is not None
 
     def result(self, k: int):
+        if self._calls[k] is None:
+            raise ValueError(f"Deferred: call {k} is None (not a call)")
         if self._fut is not None:
             return self._fut[k].result()
         if k not in self._done:
@@ -241,9 +264,13 @@ class Deferred:
 
     def close(self) -> None:
         if self._fut is not None:
-            for f in self._fut:
+            live = [f for f in self._fut if f is not None]
+            for f in live:
                 f.cancel()
-            wait(self._fut)
+            wait(live)
+        if self._threads is not None:
+            self._threads.shutdown(wait=True)
+            self._threads = None
         if self._own is not None:
             self._own.shutdown(wait=True, cancel_futures=True)
             self._own = None
