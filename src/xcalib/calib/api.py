@@ -327,12 +327,13 @@ def _misfit_searches(ctx: FitContext, config: CalibConfig, best_score: float | N
     if view is not None:  # crowded frames: the searches and the lens refits on the gate's view
         lean, pairs, best_score = view.frames, view.pairs, None if best_score is None else view.score
     places = len(matched_places(lean, pairs)[0])
-    # the two searches run on threads here, their own searches and refinements on the pool's processes
-    # (as one task each, the second-pose search alone outlasted everything else); the lens refit is a task
+    # the two searches and the lens refit run on threads here, their own searches, refinements and fits on the
+    # pool's processes (as one task each, the second-pose search on A9 and the lens refit on 200 frames alone
+    # outlasted everything else); the other refits are tasks
     return Deferred([(_second_pose, (lean, pairs, intr, pose, config, occlusion, best_score)),
                      (_lens_check, (dataclasses.replace(ctx, frames=lean, pairs=pairs), places)),
                      (_mirror_score, (lean, intr, config, occlusion, best_score, pose))] + refit_calls,
-                    config.workers, threads=(0, 2))
+                    config.workers, threads=(0, 1, 2))
 
 
 def _refit_calls(ctx: FitContext, config: CalibConfig, refits: tuple, lean: list) -> list:

@@ -39,7 +39,7 @@ __all__ = ["Workers", "resolve_workers", "parallel_map", "available_cpus", "Defe
 
 T = TypeVar("T")
 R = TypeVar("R")
-Workers = Union[int, Literal["auto"]]
+Workers = Union[int, Literal["auto", "pool"]]
 
 
 def available_cpus() -> int:
@@ -72,7 +72,11 @@ def _nested() -> bool:
 def resolve_workers(workers: Workers) -> int:
     """The number of processes ``workers`` stands for here (>= 1): "auto" is the CPUs this process
     may use; both forms are 1 inside a pool's worker (nested pools fall back to one process),
-    without ``fork``, and ("auto") once torch is loaded."""
+    without ``fork``, and ("auto") once torch is loaded. "pool": the open :class:`WorkerPool`'s
+    processes (1 without one)."""
+    if workers == "pool":
+        pool = _open_pool()
+        return 1 if pool is None else pool.n
     if workers == "auto":
         if _nested() or not _fork_ok() or "torch" in sys.modules:
             return 1
@@ -191,13 +195,18 @@ def _open_pool() -> WorkerPool | None:
 def parallel_map(fn: Callable[[T], R], items: Iterable[T], workers: Workers = 1) -> list[R]:
     """``[fn(x) for x in items]``, on up to ``workers`` processes when there are two or more items
     (on the open :class:`WorkerPool`'s processes, else on a pool started for this call).
+    ``workers="pool"``: every item (one too) on the open pool's processes, none started for it: for a
+    stage that a thread of this process runs beside others (its work then leaves this process's
+    interpreter lock to them); here without an open pool.
     ``fn`` and the items must pickle (module-level functions, arrays, dataclasses); the results
     come back in the order of the items. An exception in a task is raised here."""
     items = list(items)
+    pool = _open_pool()
+    if workers == "pool" and pool is not None and items:  # even one item: off this process's GIL
+        return list(pool.executor().map(fn, items))
     n = min(resolve_workers(workers), len(items))
     if n <= 1:
         return [fn(_local(x)) for x in items]
-    pool = _open_pool()
     if pool is not None:
         return list(pool.executor().map(fn, items))
     with _pool(n) as ex:
