@@ -147,3 +147,34 @@ def test_deferred_threads_use_the_open_pool_and_give_the_same_results():
 
 
 # a Ray worker runs one process (nested pools fall back): tests/test_batch.py::test_ray_cluster_gives_the_same_table
+
+
+@needs_fork
+def test_searches_started_before_the_self_calibration_are_dropped_when_it_moves_the_intrinsics(monkeypatch):
+    """With several workers the misfit checks' searches start before the self-calibration; a focal
+    length given 15 % off is estimated there, so they are given up and started again: the same
+    result as one worker (which starts nothing early)."""
+    from dataclasses import replace
+
+    import xcalib.calib.api as api
+
+    seen, kept = [], api._kept
+
+    def counted(early, state, refits):
+        out = kept(early, state, refits)
+        if early is not None:
+            seen.append(out is not None)  # True: the early searches were used
+        return out
+
+    monkeypatch.setattr(api, "_kept", counted)
+    frames, _ = sim_frames(seed=1, n_frames=6)
+    given = replace(INTR, fx=INTR.fx * 1.15, fy=INTR.fy * 1.15)
+    one = calibrate(frames, given, CalibConfig(workers=1))
+    two = calibrate(frames, given, CalibConfig(workers=2))
+    assert seen == [False]  # started early (two workers only), then given up
+    assert one.diagnostics.selfcal.focal_estimated and two.diagnostics.selfcal.focal_estimated
+    assert (one.success, one.diagnostics.refusal, one.message) == (two.success, two.diagnostics.refusal, two.message)
+    assert one.success and np.array_equal(one.extrinsics, two.extrinsics)
+    assert [(m.name, m.statistic, m.detail) for m in one.diagnostics.misfit] == \
+        [(m.name, m.statistic, m.detail) for m in two.diagnostics.misfit]
+    assert mp.active_children() == []

@@ -359,6 +359,34 @@ def _pp_check(ctx: FitContext, seed: int, places: int):
     return principal_point_check(ctx, seed=seed, places=places)
 
 
+def _early_searches(frames_in, state: tuple, occlusion: Occlusion, config: CalibConfig,
+                    diag: CalibDiagnostics) -> tuple:
+    """``_misfit_searches`` started on ``state`` = (frames, intrinsics, refined candidates) before the
+    self-calibration: (state, the refits' inputs, the searches), for ``_kept``."""
+    cframes, intr, ref = state
+    best, pose = ref.best, Pose(ref.best.R, ref.best.t)
+    pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=config.gate_iou)
+    f_scale = max(0.5, 1.5 * float(np.median(np.abs(best.residuals)))) if len(best.residuals) else 2.0
+    refits = (*_frame_times(frames_in), diag.selfcal.focal_estimated)
+    fit = FitContext(cframes, pairs, intr, pose, best.noise, f_scale, occlusion)
+    return state, refits, _misfit_searches(fit, config, ref.best_score, refits)
+
+
+def _kept(early: tuple | None, state: tuple | None, refits: tuple) -> Deferred | None:
+    """The searches of ``_early_searches`` when they were started on this ``state`` (the same frames,
+    intrinsics and candidates: the same pose, matches and noise) and these refits' inputs; else
+    None, the early ones given up."""
+    if early is None:
+        return None
+    (frames0, intr0, ref0), refits0, searches = early
+    same = state is not None and state[0] is frames0 and state[1] is intr0 and state[2] is ref0 and \
+        len(refits) == len(refits0) and all(np.array_equal(a, b) for a, b in zip(refits, refits0))
+    if same:
+        return searches
+    searches.cancel()
+    return None
+
+
 @dataclass
 class _View:
     """The misfit searches' view of a crowded site: the frames through the search's gate, the
@@ -529,10 +557,15 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     ref = _refine_candidates(cframes, intr, cand, occlusion, progress, config.workers, config.max_candidates)
     cframes, ref = _choose_box_model(cframes, intr, cand, ref, occlusion, config, diag, progress)
     inflation = None
+    # several workers: the misfit checks' searches start before the self-calibration, at the pose it starts
+    # from; kept when it changes neither the intrinsics nor the frames (the pose is then that one)
+    early = _early_searches(frames_in, (cframes, intr, ref), occlusion, config, diag) \
+        if wants_selfcal(config) and config.misfit_check and resolve_workers(config.workers) > 1 else None
     if wants_selfcal(config):
         choice = decide_selfcal(cframes, intr, Pose(ref.best.R, ref.best.t), config, motion, occlusion, diag.selfcal)
         diag.selfcal = choice.diag
         if choice.refusal:
+            _kept(early, None, ())
             return _refused(Refusal("selfcal", choice.refusal), intr, cframes, config, diag)
         if choice.intr is not intr or choice.frames is not cframes:
             # every candidate again with the estimated intrinsics / moved 3D boxes (a fair runner-up)
@@ -554,7 +587,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     # the misfit checks' searches start now on the other cores (workers > 1), beside the uncertainty and
     # the verdict (one worker: they run only when the checks ask for them); closed before returning
     refits = (*_frame_times(frames_in), diag.selfcal.focal_estimated)  # the checks' refits start with the searches
-    searches = _misfit_searches(fit, config, ref.best_score, refits) if config.misfit_check else None
+    searches = _kept(early, (cframes, intr, ref), refits) or \
+        (_misfit_searches(fit, config, ref.best_score, refits) if config.misfit_check else None)
     unc = estimate_uncertainty(fit,
                                mode=config.uncertainty, track_ids=track_ids, seed=config.seed,
                                floor=inflation)

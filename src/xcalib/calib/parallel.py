@@ -159,6 +159,8 @@ class WorkerPool:
         self._ex: ProcessPoolExecutor | None = None
         self._token = None
         self._lock = threading.Lock()
+        self._closed = False
+        self._threads: list[ThreadPoolExecutor] = []  # of the Deferreds on this pool: waited for on close
 
     @property
     def started(self) -> bool:
@@ -166,11 +168,18 @@ class WorkerPool:
 
     def executor(self) -> ProcessPoolExecutor:
         with self._lock:  # (stages on several threads: one pool)
+            if self._closed:
+                raise RuntimeError("WorkerPool: closed")
             if self._ex is None:
                 self._ex = _pool(self.n)
             return self._ex
 
     def close(self) -> None:
+        for t in self._threads:  # threads of a Deferred given up (``Deferred.cancel``) end first
+            t.shutdown(wait=True)
+        self._threads = []
+        with self._lock:
+            self._closed = True
         if self._ex is not None:
             self._ex.shutdown(wait=True, cancel_futures=True)
             self._ex = None
@@ -247,6 +256,8 @@ class Deferred:
         here = {k for k in threads if 0 <= k < len(self._calls)} if pool is not None else set()
         self._own = _pool(n) if n > 1 and pool is None else None
         self._threads = ThreadPoolExecutor(len(here), thread_name_prefix="xcalib-deferred") if here else None
+        if self._threads is not None:
+            pool._threads.append(self._threads)
         ex = self._own if pool is None else pool.executor()
         self._fut: list[Future] | None = None
         if n > 1:
@@ -279,6 +290,22 @@ class Deferred:
             wait(live)
         if self._threads is not None:
             self._threads.shutdown(wait=True)
+            self._threads = None
+        if self._own is not None:
+            self._own.shutdown(wait=True, cancel_futures=True)
+            self._own = None
+
+    def cancel(self) -> None:
+        """Give the calls up: those not started never run; the running ones end in the background
+        (their results unused; the open pool waits for them when it closes)."""
+        if self._fut is not None:
+            for f in self._fut:
+                if f is not None:
+                    f.cancel()
+            self._fut = None
+        self._calls = [None] * len(self._calls)
+        if self._threads is not None:
+            self._threads.shutdown(wait=False)
             self._threads = None
         if self._own is not None:
             self._own.shutdown(wait=True, cancel_futures=True)
