@@ -66,6 +66,10 @@ def test_ray_cluster_gives_the_same_table(recordings, tmp_path):
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)  # a local cluster, started here
     try:
         on_ray = calibrate_many([str(recordings / "site*")], tmp_path / "r", executor="ray")
+        from xcalib.calib.parallel import resolve_workers
+
+        task = ray.remote(resolve_workers)  # a Ray worker runs one process (nested pools fall back)
+        assert ray.get([task.remote("auto"), task.remote(2)]) == [1, 1]
     finally:
         ray.shutdown()
     serial = calibrate_many([str(recordings / "site*")], tmp_path / "s", executor="serial")

@@ -11,7 +11,7 @@ from test_calib_support import INTR, sim_frames
 
 from xcalib.calib.api import calibrate
 from xcalib.calib.config import CalibConfig
-from xcalib.calib.parallel import Deferred, parallel_map, resolve_workers
+from xcalib.calib.parallel import Deferred, Shared, WorkerPool, parallel_map, resolve_workers
 
 needs_fork = pytest.mark.skipif("fork" not in mp.get_all_start_methods(), reason="no fork start method")
 
@@ -48,39 +48,133 @@ def test_same_result_for_one_and_two_workers():
     assert np.array_equal(one.extrinsics, two.extrinsics)
     assert np.array_equal(one.rotation_std_deg, two.rotation_std_deg)
     assert one.diagnostics.refusal == two.diagnostics.refusal
-    assert [m.statistic for m in one.diagnostics.misfit] == [m.statistic for m in two.diagnostics.misfit]
+    # every misfit check (the searches and refits that ran on the pool or its threads): the same figures
+    assert [(m.name, m.statistic, m.flagged, m.detail) for m in one.diagnostics.misfit] == \
+        [(m.name, m.statistic, m.flagged, m.detail) for m in two.diagnostics.misfit]
     assert two.config.workers == 2
+    assert mp.active_children() == []  # the calibration's pool is stopped when it returns
+
+
+def _pid_of(_):
+    import os
+
+    return os.getpid()
 
 
 @needs_fork
-def test_the_bring_up_search_is_the_same_on_two_workers():
-    from xcalib.calib.bringup import pose_hypotheses
-    from xcalib.calib.inputs import prepare_frames
+def test_one_pool_serves_every_stage_and_stops():
+    with WorkerPool(2) as pool:
+        assert not pool.started  # started by the first parallel stage, not before
+        first = set(parallel_map(_pid_of, range(8), 2))
+        with Deferred([(_pid_of, (0,)), (_pid_of, (1,))], 2) as d:
+            later = {d.result(0), d.result(1)}
+        again = set(parallel_map(_pid_of, range(8), 2))
+        assert pool.started and later | again <= first and len(first) <= 2
+        assert set(parallel_map(_pid_of, [0], "pool")) <= first  # "pool": even one item on the pool
+    assert not pool.started and mp.active_children() == []
+    assert parallel_map(_pid_of, [0], "pool") == [_pid_of(0)]  # no pool open: here
 
+
+def _nested_workers(_):
+    return resolve_workers("auto"), resolve_workers(2), resolve_workers("pool")
+
+
+@needs_fork
+def test_nested_pools_fall_back_to_one_process():
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1, mp_context=mp.get_context("fork")) as ex:  # e.g. calibrate-many's pool
+        assert ex.submit(_nested_workers, 0).result() == (1, 1, 1)
+    with WorkerPool(2):  # a pool's own workers see no pool to nest into
+        assert parallel_map(_nested_workers, range(2), 2) == [(1, 1, 1)] * 2
+
+
+class _Counted:
+    """A payload that counts how often it is pickled (in this process)."""
+
+    pickled = 0
+
+    def __init__(self, value):
+        self.value = value
+
+    def __reduce__(self):
+        type(self).pickled += 1
+        return _Counted, (self.value,)
+
+
+def _received_value(item):
+    import os
+
+    payload, k = item
+    return os.getpid(), id(payload), payload.value + k
+
+
+@needs_fork
+def test_shared_inputs_are_pickled_once_and_unpickled_once_per_worker():
+    _Counted.pickled = 0
+    shared = Shared(_Counted(10))
+    with WorkerPool(2):
+        out = parallel_map(_received_value, [(shared, k) for k in range(12)], 2)
+    assert [v for _, _, v in out] == [10 + k for k in range(12)]
+    assert _Counted.pickled == 1
+    per_worker = {}
+    for pid, ident, _ in out:
+        per_worker.setdefault(pid, set()).add(ident)
+    assert all(len(ids) == 1 for ids in per_worker.values())  # one object per worker, not one per task
+    # run here (one worker, or one item): the task gets the object itself
+    assert parallel_map(_received_value, [(shared, 1)], 2)[0][1:] == (id(shared.obj), 11)
+
+
+def _twice(x):
+    return 2 * x
+
+
+def _thread_stage(xs, workers):
+    return parallel_map(_twice, xs, workers)
+
+
+@needs_fork
+def test_deferred_threads_use_the_open_pool_and_give_the_same_results():
+    calls = [(_thread_stage, ([1, 2, 3], 2)), (_twice, (5,)), None, (_twice, (Shared(7),))]
+    with Deferred(calls, 1, threads=(0,)) as one:
+        serial = [one.result(k) for k in (0, 1, 3)]
+        assert not one.has(2) and one.has(3) and len(one) == 4
+    with WorkerPool(2), Deferred(calls, 2, threads=(0,)) as two:
+        assert [two.result(k) for k in (0, 1, 3)] == serial == [[2, 4, 6], 10, 14]
+        with pytest.raises(ValueError, match="None"):
+            two.result(2)
+    assert mp.active_children() == []
+
+
+# a Ray worker runs one process (nested pools fall back): tests/test_batch.py::test_ray_cluster_gives_the_same_table
+
+
+@needs_fork
+def test_searches_started_before_the_self_calibration_are_dropped_when_it_moves_the_intrinsics(monkeypatch):
+    """With several workers the misfit checks' searches start before the self-calibration; a focal
+    length given 15 % off is estimated there, so they are given up and started again: the same
+    result as one worker (which starts nothing early)."""
+    from dataclasses import replace
+
+    import xcalib.calib.api as api
+
+    seen, kept = [], api._kept
+
+    def counted(early, state, refits):
+        out = kept(early, state, refits)
+        if early is not None:
+            seen.append(out is not None)  # True: the early searches were used
+        return out
+
+    monkeypatch.setattr(api, "_kept", counted)
     frames, _ = sim_frames(seed=1, n_frames=6)
-    cf, intr, _ = prepare_frames(frames, INTR)
-    one = pose_hypotheses(cf, intr, CalibConfig(workers=1))
-    two = pose_hypotheses(cf, intr, CalibConfig(workers=2))
-    assert len(one.hyps) > 10
-    for k in ("R", "t", "score", "frame"):
-        assert np.array_equal(getattr(one.hyps, k), getattr(two.hyps, k)), k
-    assert (one.split_searches, one.pooled_search) == (two.split_searches, two.pooled_search)
-
-
-def test_drawn_searches_solved_later_are_the_frame_search():
-    """``frame_hypotheses`` = ``draw_triples`` then ``solve_triples``: two searches drawn one after
-    the other from one generator, solved afterwards in reverse order, give what two searches in a
-    row give (the draws take every random number)."""
-    from xcalib.calib.hypotheses import draw_triples, frame_hypotheses, solve_triples
-    from xcalib.calib.inputs import prepare_frames
-
-    frames, _ = sim_frames(seed=2, n_frames=2)
-    cf, intr, _ = prepare_frames(frames, INTR)
-    rng = np.random.default_rng(3)
-    direct = [frame_hypotheses([f], intr, k, rng=rng) for k, f in enumerate(cf)]
-    rng = np.random.default_rng(3)
-    draws = [draw_triples([f], intr, rng=rng) for f in cf]
-    later = [solve_triples([cf[k]], intr, k, draws[k]) for k in (1, 0)][::-1]
-    assert all(len(h) for h in direct)
-    for a, b in zip(direct, later):
-        assert np.array_equal(a.R, b.R) and np.array_equal(a.t, b.t) and np.array_equal(a.score, b.score)
+    given = replace(INTR, fx=INTR.fx * 1.15, fy=INTR.fy * 1.15)
+    one = calibrate(frames, given, CalibConfig(workers=1))
+    two = calibrate(frames, given, CalibConfig(workers=2))
+    assert seen == [False]  # started early (two workers only), then given up
+    assert one.diagnostics.selfcal.focal_estimated and two.diagnostics.selfcal.focal_estimated
+    assert (one.success, one.diagnostics.refusal, one.message) == (two.success, two.diagnostics.refusal, two.message)
+    assert one.success and np.array_equal(one.extrinsics, two.extrinsics)
+    assert [(m.name, m.statistic, m.detail) for m in one.diagnostics.misfit] == \
+        [(m.name, m.statistic, m.detail) for m in two.diagnostics.misfit]
+    assert mp.active_children() == []

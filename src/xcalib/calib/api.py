@@ -39,7 +39,7 @@ from .hypotheses import Hypotheses
 from .inputs import CalibFrame, lean_frames, prepare_frames, with_corner_outlines, with_point_outlines
 from .misfit import box_frame_check, flipped_frames, lens_checks, focal_box_model, focal_fit, focal_scale_check, focal_width_check, leftover_frames, match_bound, second_pose_check, second_pose_screen, mirror_check, mirror_screen, principal_point_check, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
-from .parallel import Deferred, Workers, parallel_map, resolve_workers
+from .parallel import Deferred, WorkerPool, Workers, parallel_map, resolve_workers, shared
 from .pose import Pose
 from .refine import FitContext, RefineOptions, RefineResult, match_all, pair_metrics, refine_pose
 from .result import CalibrationResult
@@ -102,7 +102,8 @@ def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
     lean = lean_frames(cframes) if resolve_workers(workers) > 1 else cframes
     gated = None if max_candidates is None else gated_frames(lean, max_candidates)
     qf = lean if gated is None else gated
-    quick = parallel_map(_quick_refine, [(qf, intr, cand.R[k], cand.t[k], occlusion) for k in range(len(cand))],
+    sq = shared(qf, workers)  # pickled once for all the tasks
+    quick = parallel_map(_quick_refine, [(sq, intr, cand.R[k], cand.t[k], occlusion) for k in range(len(cand))],
                          workers)
     if progress:
         for k in range(len(cand)):
@@ -111,7 +112,8 @@ def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
     best0 = Pose(quick[0][1].R, quick[0][1].t)
     finals = [quick[0]] + [next((x for x in quick[1:] if Pose(x[1].R, x[1].t).distinct(best0, 1.0, 0.3)), None)]
     finals = [f for f in finals if f is not None]
-    refined = parallel_map(_full_refine, [(lean, intr, r0.R, r0.t, occlusion) for _, r0 in finals], workers)
+    sl = shared(lean, workers)
+    refined = parallel_map(_full_refine, [(sl, intr, r0.R, r0.t, occlusion) for _, r0 in finals], workers)
     if progress:
         for k in range(len(finals)):
             progress("refine", len(cand) + k + 1, len(cand) + len(finals))
@@ -266,8 +268,8 @@ def _mirror_score(cframes, intr, config: CalibConfig, occlusion: Occlusion, best
                          rng=np.random.default_rng(config.seed))
     if len(bu.hyps) == 0:
         return 0.0, 0, None
-    ref = _refine_candidates(flipped, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None, 1,
-                             config.max_candidates)
+    ref = _refine_candidates(flipped, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None,
+                             config.workers, config.max_candidates)
     matched = match_all(flipped, intr, ref.best.R, ref.best.t, gate_iou=config.gate_iou)
     return ref.best_score, int(sum(len(p) for p in matched)), None
 
@@ -288,8 +290,8 @@ def _second_pose(cframes, pairs, intr, pose: Pose, config: CalibConfig, occlusio
     bu = pose_hypotheses(left, intr, small, max_baseline_m=config.max_baseline_m, rng=np.random.default_rng(config.seed))
     if len(bu.hyps) == 0:
         return 0.0, 0, None, False, None
-    ref = _refine_candidates(left, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None, 1,
-                             config.max_candidates)
+    ref = _refine_candidates(left, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None,
+                             config.workers, config.max_candidates)
     p2, cap = Pose(ref.best.R, ref.best.t), config.max_baseline_m
     n2 = int(sum(len(p) for p in match_all(left, intr, p2.R, p2.t, gate_iou=config.gate_iou)))
     admissible = cap is None or np.linalg.norm(pose.t) > cap or np.linalg.norm(p2.t) <= cap
@@ -304,24 +306,85 @@ def _frame_times(frames_in) -> tuple[np.ndarray, str]:
     return np.arange(len(frames_in), dtype=np.float64), "frames"
 
 
-def _misfit_searches(ctx: FitContext, config: CalibConfig, best_score: float | None = None) -> Deferred:
-    """The misfit checks' searches and refits that need no other check (second pose, lens, mirror),
-    started now on up to ``config.workers`` processes, the longest first (the second-pose search on a
-    few frames; the lens refit, numeric derivatives, on long recordings: ~4.5 s of a 200-frame
-    selection's 5.5 s of checks). With one worker each runs here when its result is first asked for,
-    so the serial order of work is unchanged. Close it (or use it as a context manager). ``best_score``:
-    the best pose's score; the second-pose and mirror searches that could not flag whatever they
-    found are then not run (exact screens, ``misfit.second_pose_screen`` / ``mirror_screen``)."""
+def _misfit_searches(ctx: FitContext, config: CalibConfig, best_score: float | None = None,
+                     refits: tuple | None = None) -> Deferred:
+    """The misfit checks' searches and refits that need no other check (second pose, lens, mirror;
+    with ``refits``: the focal-length, time-offset and principal-point refits too), started now on up
+    to ``config.workers`` processes, the longest first (the second-pose search on a few frames; the
+    lens refit, numeric derivatives, on long recordings: ~4.5 s of a 200-frame selection's 5.5 s of
+    checks). With one worker each runs here when its result is first asked for, so the serial order
+    of work is unchanged. Close it (or use it as a context manager). ``best_score``: the best pose's
+    score; the second-pose and mirror searches that could not flag whatever they found are then not
+    run (exact screens, ``misfit.second_pose_screen`` / ``mirror_screen``). ``refits``: (frame
+    times, their unit, whether the focal length was estimated) -- calls 3, 4, 5 are then
+    ``focal_fit``, ``time_offset_check`` and ``principal_point_check`` on every frame (None where the
+    check does not apply), as ``_misfit_checks`` would call them."""
     cframes, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
                                                              ctx.f_scale, ctx.occlusion)
-    lean, one = lean_frames(cframes), config.replace(workers=1)
+    lean = lean_frames(cframes)
+    refit_calls = [] if refits is None else _refit_calls(ctx, config, refits, lean)
     view = _search_view(ctx.with_frames(lean), config)
     if view is not None:  # crowded frames: the searches and the lens refits on the gate's view
         lean, pairs, best_score = view.frames, view.pairs, None if best_score is None else view.score
     places = len(matched_places(lean, pairs)[0])
-    return Deferred([(_second_pose, (lean, pairs, intr, pose, one, occlusion, best_score)),
+    # the two searches and the lens refit run on threads here, their own searches, refinements and fits on the
+    # pool's processes (as one task each, the second-pose search on A9 and the lens refit on 200 frames alone
+    # outlasted everything else); the other refits are tasks
+    return Deferred([(_second_pose, (lean, pairs, intr, pose, config, occlusion, best_score)),
                      (_lens_check, (dataclasses.replace(ctx, frames=lean, pairs=pairs), places)),
-                     (_mirror_score, (lean, intr, one, occlusion, best_score, pose))], config.workers)
+                     (_mirror_score, (lean, intr, config, occlusion, best_score, pose))] + refit_calls,
+                    config.workers, threads=(0, 1, 2))
+
+
+def _refit_calls(ctx: FitContext, config: CalibConfig, refits: tuple, lean: list) -> list:
+    """``_misfit_searches``' calls 3-5 (see there): the checks' refits on every frame, with the
+    frames' point clouds and images left out where they run on other processes."""
+    times, unit, focal_estimated = refits
+    full = ctx if resolve_workers(config.workers) == 1 else ctx.with_frames(lean)
+    places = len(matched_places(ctx.frames, ctx.pairs)[0])
+    focal = None if focal_estimated else (focal_fit, (full.frames, full.pairs, full.intr, full.pose, full.noise,
+                                                      full.f_scale, full.occlusion))
+    time_chk = (_time_check, (full, times, unit, config.seed)) if config.time_offset is None else None
+    pp = (_pp_check, (full, config.seed, places)) if config.refine_intrinsics != "focal+center" else None
+    return [focal, time_chk, pp]
+
+
+def _time_check(ctx: FitContext, times: np.ndarray, unit: str, seed: int):
+    """``misfit.time_offset_check`` (a task of ``_misfit_searches``)."""
+    return time_offset_check(ctx, times, unit, seed=seed)
+
+
+def _pp_check(ctx: FitContext, seed: int, places: int):
+    """``misfit.principal_point_check`` (a task of ``_misfit_searches``)."""
+    return principal_point_check(ctx, seed=seed, places=places)
+
+
+def _early_searches(frames_in, state: tuple, occlusion: Occlusion, config: CalibConfig,
+                    diag: CalibDiagnostics) -> tuple:
+    """``_misfit_searches`` started on ``state`` = (frames, intrinsics, refined candidates) before the
+    self-calibration: (state, the refits' inputs, the searches), for ``_kept``."""
+    cframes, intr, ref = state
+    best, pose = ref.best, Pose(ref.best.R, ref.best.t)
+    pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=config.gate_iou)
+    f_scale = max(0.5, 1.5 * float(np.median(np.abs(best.residuals)))) if len(best.residuals) else 2.0
+    refits = (*_frame_times(frames_in), diag.selfcal.focal_estimated)
+    fit = FitContext(cframes, pairs, intr, pose, best.noise, f_scale, occlusion)
+    return state, refits, _misfit_searches(fit, config, ref.best_score, refits)
+
+
+def _kept(early: tuple | None, state: tuple | None, refits: tuple) -> Deferred | None:
+    """The searches of ``_early_searches`` when they were started on this ``state`` (the same frames,
+    intrinsics and candidates: the same pose, matches and noise) and these refits' inputs; else
+    None, the early ones given up."""
+    if early is None:
+        return None
+    (frames0, intr0, ref0), refits0, searches = early
+    same = state is not None and state[0] is frames0 and state[1] is intr0 and state[2] is ref0 and \
+        len(refits) == len(refits0) and all(np.array_equal(a, b) for a, b in zip(refits, refits0))
+    if same:
+        return searches
+    searches.cancel()
+    return None
 
 
 @dataclass
@@ -368,6 +431,12 @@ def _lens_check(ctx: FitContext, places: int):
     return lens_checks(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, ctx.f_scale, ctx.occlusion, places=places)
 
 
+def _started(searches, k: int, fn, *args):
+    """The refit started as ``searches``' call ``k`` (``_misfit_searches`` with ``refits``), or
+    ``fn(*args)`` run here where the searches hold no such call."""
+    return searches.result(k) if getattr(searches, "has", lambda _: False)(k) else fn(*args)
+
+
 def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag: CalibDiagnostics, frames_in,
                    refusal: Refusal | None, searches: Deferred) -> Refusal | None:
     cframes, pairs, intr, pose, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
@@ -388,7 +457,7 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
     found.append((chk_lens, msg, "misfit_lens"))
     width = None
     if not diag.selfcal.focal_estimated:  # an estimated focal length needs no check against the given one
-        fit = focal_fit(cframes, pairs, intr, pose, noise, f_scale, occlusion)
+        fit = _started(searches, 3, focal_fit, cframes, pairs, intr, pose, noise, f_scale, occlusion)
         chk, msg = focal_scale_check(fit, intr, n_matches=int(sum(len(p) for p in pairs)), places=places)
         if msg:  # the box model first: a detector's tight outline mimics a shorter focal length
             alt, note = focal_box_model(ctx, places)
@@ -399,9 +468,9 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
     time_chk, pp_unverifiable = None, None
     if config.time_offset is None:  # a fixed or estimated offset is already in the model
         times, unit = _frame_times(frames_in)
-        time_chk = time_offset_check(ctx, times, unit, seed=config.seed)
+        time_chk = _started(searches, 4, _time_check, ctx, times, unit, config.seed)
     if config.refine_intrinsics != "focal+center":
-        chk, msg = principal_point_check(ctx, seed=config.seed, places=places)
+        chk, msg = _started(searches, 5, _pp_check, ctx, config.seed, places)
         if msg and time_chk is not None and time_chk[1]:
             # both fit: a shift that the fitted time offset, applied, leaves unflagged is the time
             # offset's doing (PandaSet's projected cuboids carry a real -0.05 s: 81 px otherwise). Only
@@ -493,10 +562,15 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     ref = _refine_candidates(cframes, intr, cand, occlusion, progress, config.workers, config.max_candidates)
     cframes, ref = _choose_box_model(cframes, intr, cand, ref, occlusion, config, diag, progress)
     inflation = None
+    # several workers: the misfit checks' searches start before the self-calibration, at the pose it starts
+    # from; kept when it changes neither the intrinsics nor the frames (the pose is then that one)
+    early = _early_searches(frames_in, (cframes, intr, ref), occlusion, config, diag) \
+        if wants_selfcal(config) and config.misfit_check and resolve_workers(config.workers) > 1 else None
     if wants_selfcal(config):
         choice = decide_selfcal(cframes, intr, Pose(ref.best.R, ref.best.t), config, motion, occlusion, diag.selfcal)
         diag.selfcal = choice.diag
         if choice.refusal:
+            _kept(early, None, ())
             return _refused(Refusal("selfcal", choice.refusal), intr, cframes, config, diag)
         if choice.intr is not intr or choice.frames is not cframes:
             # every candidate again with the estimated intrinsics / moved 3D boxes (a fair runner-up)
@@ -517,7 +591,9 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     fit = FitContext(cframes, pairs, intr, pose, best.noise, f_scale, occlusion)
     # the misfit checks' searches start now on the other cores (workers > 1), beside the uncertainty and
     # the verdict (one worker: they run only when the checks ask for them); closed before returning
-    searches = _misfit_searches(fit, config, ref.best_score) if config.misfit_check else None
+    refits = (*_frame_times(frames_in), diag.selfcal.focal_estimated)  # the checks' refits start with the searches
+    searches = _kept(early, (cframes, intr, ref), refits) or \
+        (_misfit_searches(fit, config, ref.best_score, refits) if config.misfit_check else None)
     unc = estimate_uncertainty(fit,
                                mode=config.uncertainty, track_ids=track_ids, seed=config.seed,
                                floor=inflation)
@@ -535,7 +611,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         fit = fit.with_pose(pose)
         if searches is not None:  # searched from the plain pose: again from the moved one
             searches.close()
-            searches = _misfit_searches(fit, config, ref.best_score)
+            searches = _misfit_searches(fit, config, ref.best_score, refits)
     px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     diag.uncertainty = unc.parts  # its selfcal part: the pose spread the estimated intrinsics / offset add
     # a runner-up within 2 sigma of the best is the same solution (the decision then bounds the
@@ -625,8 +701,9 @@ def calibrate(frames, intrinsics=None, config: CalibConfig | None = None, *args,
     config = CalibConfig.from_kwargs(config, **legacy_kwargs) if legacy_kwargs else (config or CalibConfig())
     prior_pose = None if prior is None else Pose.parse(prior, "prior")
     frames_in, selection = _selected_frames(frames, intrinsics, config, progress)
-    res = _calibrate_retry(frames_in, intrinsics, config, matcher, prior_pose, progress)
-    res = _deliver_time_offset(res, frames_in, intrinsics, config, (matcher, prior_pose, progress))
+    with WorkerPool(config.workers):  # one pool of processes for every parallel stage of this call (and its retries)
+        res = _calibrate_retry(frames_in, intrinsics, config, matcher, prior_pose, progress)
+        res = _deliver_time_offset(res, frames_in, intrinsics, config, (matcher, prior_pose, progress))
     return _with_selection(res, selection)
 
 

@@ -22,7 +22,7 @@ from .config import CalibConfig
 from .hypotheses import (Hypotheses, TripleSearch, draw_triples, frame_hypotheses, informative_view, score_poses,
                          solve_triples)
 from .inputs import CalibFrame, lean_frames
-from .parallel import parallel_map, resolve_workers
+from .parallel import parallel_map, resolve_workers, shared
 from .pose import Pose
 
 __all__ = ["BringUp", "pose_hypotheses", "distinct_best", "pooled_groups", "matcher_similarities", "gated_frames",
@@ -200,6 +200,7 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
     groups, n_before, sparse_scene = _search_groups(cframes, config.max_hyp_frames)
     workers = resolve_workers(config.workers)
     lean = lean_frames(cframes) if workers > 1 else cframes
+    every = shared(lean, workers)  # the frames every search is scored on: pickled once for all the tasks
     jobs, budget = [], config.max_hyp_frames
     for k, g in enumerate(groups):
         if k < n_before and len(g) == 1 and crowded[g[0]] and budget <= 0:
@@ -220,7 +221,7 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
                 h = frame_hypotheses(frs, intr, g[0], rng=rng, search=search)
             jobs.append((False, h))
         else:
-            jobs.append((True, (frs, intr, g[0], draw, wide, lean)))
+            jobs.append((True, (frs, intr, g[0], draw, wide, every)))
     # the draws took every random number in order: the searches are solved (and their hypotheses
     # scored on every frame) in parallel, with the same result
     # (each job is (to_solve, job): a search solved already is its hypotheses)

@@ -210,11 +210,11 @@ class CalibConfig:
             places, image cells, depths and bearings, spread over time); with fewer, every frame
             is used (no selection). None: always every frame.
     Speed:
-        workers: processes for the independent parts of one calibration (the quick refinement of
-            each candidate, the full one of the two finalists, the second-pose search, lens refit
-            and mirrored-image search of the misfit checks):
-            "auto" (the CPUs this process may use; 1 inside a worker of a pool, e.g. a batch of
-            calibrations) or an int >= 1. The result is the same for every value.
+        workers: processes for the independent parts of one calibration (the per-frame outlines,
+            the pose search, the quick refinement of each candidate, the full one of the two
+            finalists, the misfit checks' searches and refits), one pool for the whole call:
+            "auto" (the CPUs this process may use) or an int >= 1; either is 1 inside a worker of a
+            pool (a batch of calibrations, a Ray worker). The result is the same for every value.
     seed: seeds every random choice.
     """
 

@@ -55,6 +55,7 @@ from .inputs import CalibFrame
 from .pose import Pose
 from .boxmodel import outline_edge_term
 from .context import FitContext
+from .parallel import parallel_map, shared
 from .refine import build_cost, lsq, match_all
 from .uncertainty import jackknife_sd, leave_frames_out, object_groups
 
@@ -855,17 +856,28 @@ def _wide_fit(frames, pairs, intr, pose: Pose, noise, f_scale, occlusion, lens: 
     fixed, starts = lens[:2]
     n_always = lens[2] if len(lens) > 2 else len(starts)
     best, ended = None, []
-    for k, (x0, s0) in enumerate(starts[:1] if fixed is not None else starts):
+    todo = starts[:1] if fixed is not None else starts
+    shared_frames = shared(frames, "pool")
+    items = [(shared_frames, pairs, intr, pose, noise, f_scale, occlusion, (fixed, x0, s0)) for x0, s0 in todo]
+    # the starts that always run are independent: on the open pool's processes where there is one
+    first = parallel_map(_lens_start, items[:n_always], "pool")
+    for k, (x0, s0) in enumerate(todo):
         if k >= n_always and not _lens_open(ended):
             break
-        lens_base = replace(intr, fx=intr.fx * s0, fy=intr.fy * s0)
-        fit = build_cost(frames, pairs, intr, pose, noise, occlusion,
-                         extra=(WideLensTerm(lens_base, fixed, 0.0 if fixed is not None else x0),
-                                FocalScaleTerm())).fit(f_scale=f_scale, max_nfev=60)
+        fit = first[k] if k < len(first) else parallel_map(_lens_start, items[k:k + 1], "pool")[0]
         ended.append(float(fit.params[WideLensTerm.name][0]))
         if best is None or fit.cost < best[2]:
             best = (ended[-1], s0 * float(np.exp(fit.params[FocalScaleTerm.name][0])), float(fit.cost), fit.pose)
     return best
+
+
+def _lens_start(item):
+    """One start of :func:`_wide_fit`: the fitted cost model (a task of ``parallel_map``)."""
+    frames, pairs, intr, pose, noise, f_scale, occlusion, (fixed, x0, s0) = item
+    lens_base = replace(intr, fx=intr.fx * s0, fy=intr.fy * s0)
+    return build_cost(frames, pairs, intr, pose, noise, occlusion,
+                      extra=(WideLensTerm(lens_base, fixed, 0.0 if fixed is not None else x0),
+                             FocalScaleTerm())).fit(f_scale=f_scale, max_nfev=60)
 
 
 def _lens_open(ended_xi: list[float]) -> bool:

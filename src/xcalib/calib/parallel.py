@@ -7,24 +7,39 @@ its inputs (and any random seed) from the item itself, never from a shared gener
 
 ``workers``: an int (1: in this process) or "auto": the CPUs this process may run on, but 1
 inside a worker process of a pool (a batch of calibrations already uses the cores; nested pools
-would only oversubscribe them), where ``fork`` is unavailable, and once torch is loaded (forking
-a process whose torch thread pools have started can hang the child).
+would only oversubscribe them; a daemonic process may not start any), where ``fork`` is
+unavailable, and once torch is loaded (forking a process whose torch thread pools have started
+can hang the child).
+
+One pool per calibration: ``calibrate`` opens a :class:`WorkerPool` (``with WorkerPool(n):``) and
+every :func:`parallel_map` and :class:`Deferred` of its stages runs on that pool's processes,
+started at the first parallel stage and stopped when the calibration returns (or raises). The
+pool is a resource, not a setting: which pieces run in parallel and their results depend only on
+the ``workers`` the stage is given; without an open pool each stage starts (and stops) its own.
+Large read-only inputs that several tasks share (the frames) travel as :class:`Shared`: pickled
+once in the parent, unpickled once per worker process.
 """
 
 from __future__ import annotations
 
 import gc
+import itertools
 import multiprocessing as mp
 import os
+import pickle
 import sys
-from concurrent.futures import ProcessPoolExecutor
-from typing import Callable, Iterable, Literal, TypeVar, Union
+import threading
+from collections import OrderedDict
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from contextvars import ContextVar, copy_context
+from typing import Any, Callable, Iterable, Literal, TypeVar, Union
 
-__all__ = ["Workers", "resolve_workers", "parallel_map", "available_cpus", "Deferred"]
+__all__ = ["Workers", "resolve_workers", "parallel_map", "available_cpus", "Deferred", "WorkerPool", "Shared",
+           "shared"]
 
 T = TypeVar("T")
 R = TypeVar("R")
-Workers = Union[int, Literal["auto"]]
+Workers = Union[int, Literal["auto", "pool"]]
 
 
 def available_cpus() -> int:
@@ -39,26 +54,170 @@ def _fork_ok() -> bool:
     return "fork" in mp.get_all_start_methods()
 
 
+def _nested() -> bool:
+    """Whether this process is itself a worker of a pool (multiprocessing's, concurrent.futures',
+    a daemonic process, a Ray worker): a pool here would only oversubscribe the cores the outer
+    pool already uses (and a daemonic process may not start children)."""
+    if mp.parent_process() is not None or mp.current_process().daemon:
+        return True
+    ray = sys.modules.get("ray")
+    if ray is not None:
+        try:
+            return bool(ray.is_initialized()) and ray.get_runtime_context().worker.mode == ray.WORKER_MODE
+        except Exception:  # an old or partial Ray: assume no Ray worker
+            return False
+    return False
+
+
 def resolve_workers(workers: Workers) -> int:
-    """The number of processes ``workers`` stands for here (>= 1)."""
+    """The number of processes ``workers`` stands for here (>= 1): "auto" is the CPUs this process
+    may use; both forms are 1 inside a pool's worker (nested pools fall back to one process),
+    without ``fork``, and ("auto") once torch is loaded. "pool": the open :class:`WorkerPool`'s
+    processes (1 without one)."""
+    if workers == "pool":
+        pool = _open_pool()
+        return 1 if pool is None else pool.n
     if workers == "auto":
-        if mp.parent_process() is not None or mp.current_process().daemon or not _fork_ok() or "torch" in sys.modules:
+        if _nested() or not _fork_ok() or "torch" in sys.modules:
             return 1
         return available_cpus()
     n = int(workers)
     if n < 1:
         raise ValueError(f"workers: expected 'auto' or an int >= 1, got {workers!r}")
-    return n if _fork_ok() else 1
+    return n if n == 1 or (_fork_ok() and not _nested()) else 1
+
+
+# --------------------------------------------------------------------------- shared inputs
+
+_KEYS = itertools.count()
+#: worker side: the Shared objects this process unpickled, by key (the most recent few)
+_RECEIVED: "OrderedDict[str, Any]" = OrderedDict()
+_RECEIVED_MAX = 8
+
+
+class Shared:
+    """A read-only input that several tasks carry (the frames): pickled once here, whatever the
+    number of tasks, and unpickled once per worker process (a task receives the object itself).
+    A task run in this process gets the object through :func:`parallel_map` / :class:`Deferred`
+    (a ``Shared`` item, or one in an item's tuple, is replaced by its object)."""
+
+    __slots__ = ("obj", "key", "_blob")
+
+    def __init__(self, obj):
+        self.obj = obj
+        self.key = f"{os.getpid()}:{next(_KEYS)}"
+        self._blob: bytes | None = None
+
+    def __reduce__(self):
+        if self._blob is None:
+            self._blob = pickle.dumps(self.obj, protocol=pickle.HIGHEST_PROTOCOL)
+        return _received, (self.key, self._blob)
+
+
+def _received(key: str, blob: bytes):
+    """(worker side) the object of a :class:`Shared`, unpickled on its first arrival only."""
+    if key in _RECEIVED:
+        _RECEIVED.move_to_end(key)
+        return _RECEIVED[key]
+    obj = pickle.loads(blob)
+    _RECEIVED[key] = obj
+    while len(_RECEIVED) > _RECEIVED_MAX:
+        _RECEIVED.popitem(last=False)
+    return obj
+
+
+def shared(obj: T, workers: Workers) -> T:
+    """``obj`` as a :class:`Shared` when ``workers`` stands for more than one process, else ``obj``
+    itself (typed as ``obj``: tasks receive the object either way)."""
+    return Shared(obj) if resolve_workers(workers) > 1 else obj  # type: ignore[return-value]
+
+
+def _local(x):
+    """An item (or the elements of a tuple item) with its :class:`Shared` inputs replaced by their objects."""
+    if isinstance(x, Shared):
+        return x.obj
+    if type(x) is tuple:
+        return tuple(v.obj if isinstance(v, Shared) else v for v in x)
+    return x
+
+
+# --------------------------------------------------------------------------- the pool
+
+_ACTIVE: ContextVar["WorkerPool | None"] = ContextVar("xcalib_worker_pool", default=None)
+
+
+class WorkerPool:
+    """The worker processes of one calibration, shared by all its parallel stages (a context
+    manager: ``with WorkerPool(config.workers):``). The processes start at the first parallel
+    stage (none when ``workers`` stands for one process or nothing runs in parallel) and stop on
+    exit, every task waited for; the stages find the open pool themselves (this thread's
+    context), so their results and their ``workers`` arguments are the same with or without it."""
+
+    def __init__(self, workers: Workers = 1):
+        self.n = resolve_workers(workers)
+        self._pid = os.getpid()
+        self._ex: ProcessPoolExecutor | None = None
+        self._token = None
+        self._lock = threading.Lock()
+        self._closed = False
+        self._threads: list[ThreadPoolExecutor] = []  # of the Deferreds on this pool: waited for on close
+
+    @property
+    def started(self) -> bool:
+        return self._ex is not None
+
+    def executor(self) -> ProcessPoolExecutor:
+        with self._lock:  # (stages on several threads: one pool)
+            if self._closed:
+                raise RuntimeError("WorkerPool: closed")
+            if self._ex is None:
+                self._ex = _pool(self.n)
+            return self._ex
+
+    def close(self) -> None:
+        for t in self._threads:  # threads of a Deferred given up (``Deferred.cancel``) end first
+            t.shutdown(wait=True)
+        self._threads = []
+        with self._lock:
+            self._closed = True
+        if self._ex is not None:
+            self._ex.shutdown(wait=True, cancel_futures=True)
+            self._ex = None
+
+    def __enter__(self) -> "WorkerPool":
+        self._token = _ACTIVE.set(self)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._token is not None:
+            _ACTIVE.reset(self._token)
+            self._token = None
+        self.close()
+
+
+def _open_pool() -> WorkerPool | None:
+    """The pool open in this thread's context, if any (and not one inherited by a forked child)."""
+    pool = _ACTIVE.get()
+    return pool if pool is not None and pool.n > 1 and pool._pid == os.getpid() else None
 
 
 def parallel_map(fn: Callable[[T], R], items: Iterable[T], workers: Workers = 1) -> list[R]:
-    """``[fn(x) for x in items]``, on up to ``workers`` processes when there are two or more items.
+    """``[fn(x) for x in items]``, on up to ``workers`` processes when there are two or more items
+    (on the open :class:`WorkerPool`'s processes, else on a pool started for this call).
+    ``workers="pool"``: every item (one too) on the open pool's processes, none started for it: for a
+    stage that a thread of this process runs beside others (its work then leaves this process's
+    interpreter lock to them); here without an open pool.
     ``fn`` and the items must pickle (module-level functions, arrays, dataclasses); the results
     come back in the order of the items. An exception in a task is raised here."""
     items = list(items)
+    pool = _open_pool()
+    if workers == "pool" and pool is not None and items:  # even one item: off this process's GIL
+        return list(pool.executor().map(fn, items))
     n = min(resolve_workers(workers), len(items))
     if n <= 1:
-        return [fn(x) for x in items]
+        return [fn(_local(x)) for x in items]
+    if pool is not None:
+        return list(pool.executor().map(fn, items))
     with _pool(n) as ex:
         return list(ex.map(fn, items))
 
@@ -70,7 +229,8 @@ def _pool(n: int) -> ProcessPoolExecutor:
     gc.freeze()
     try:
         ex = ProcessPoolExecutor(n, mp_context=mp.get_context("fork"))
-        ex.submit(int).result()  # the workers start now, while the heap is frozen
+        for f in [ex.submit(int) for _ in range(n)]:  # the workers start now, while the heap is frozen
+            f.result()
         return ex
     finally:
         gc.unfreeze()
@@ -78,29 +238,78 @@ def _pool(n: int) -> ProcessPoolExecutor:
 
 class Deferred:
     """Calls ``[(fn, args), ...]`` started now on up to ``workers`` processes, or (one worker) run
-    here in order when their result is first asked for -- so the serial order of work is
+    here when their result is first asked for (a None call: none, never run) -- so the serial order of work is
     unchanged and the parallel one overlaps it with whatever the caller does meanwhile. Use as a
-    context manager (the pool is shut down on exit)."""
+    context manager (on exit the calls not started are cancelled, the running ones waited for;
+    a pool started for it is shut down).
 
-    def __init__(self, calls: list[tuple[Callable, tuple]], workers: Workers = 1):
+    ``threads``: the indices of calls that run (with more than one worker) on a thread of this
+    process instead of as one task of the pool: a call made of parallel stages of its own (a
+    search, then refinements) whose pieces then run on the open pool's processes, several at a
+    time, where as one task it would run on one core. Their results are the same either way."""
+
+    def __init__(self, calls: list[tuple[Callable, tuple] | None], workers: Workers = 1, threads: Iterable[int] = ()):
         self._calls = list(calls)
         self._done: dict[int, object] = {}
-        n = min(resolve_workers(workers), len(self._calls))
-        self._ex = _pool(n) if n > 1 else None
-        self._fut = [self._ex.submit(fn, *args) for fn, args in self._calls] if self._ex is not None else None
+        n = min(resolve_workers(workers), sum(c is not None for c in self._calls))
+        pool = _open_pool() if n > 1 else None
+        here = {k for k in threads if 0 <= k < len(self._calls)} if pool is not None else set()
+        self._own = _pool(n) if n > 1 and pool is None else None
+        self._threads = ThreadPoolExecutor(len(here), thread_name_prefix="xcalib-deferred") if here else None
+        if self._threads is not None:
+            pool._threads.append(self._threads)
+        ex = self._own if pool is None else pool.executor()
+        self._fut: list[Future] | None = None
+        if n > 1:
+            self._fut = [None if call is None else
+                         self._threads.submit(copy_context().run, call[0], *_local(tuple(call[1]))) if k in here
+                         else ex.submit(call[0], *call[1]) for k, call in enumerate(self._calls)]
+
+    def __len__(self) -> int:
+        return len(self._calls)
+
+    def has(self, k: int) -> bool:
+        """Whether call ``k`` exists (a None call stands for one that does not apply: never run)."""
+        return 0 <= k < len(self._calls) and self._calls[k] is not None
 
     def result(self, k: int):
+        if self._calls[k] is None:
+            raise ValueError(f"Deferred: call {k} is None (not a call)")
         if self._fut is not None:
             return self._fut[k].result()
         if k not in self._done:
             fn, args = self._calls[k]
-            self._done[k] = fn(*args)
+            self._done[k] = fn(*_local(tuple(args)))
         return self._done[k]
 
     def close(self) -> None:
-        if self._ex is not None:
-            self._ex.shutdown(wait=True, cancel_futures=True)
-            self._ex = None
+        if self._fut is not None:
+            live = [f for f in self._fut if f is not None]
+            for f in live:
+                f.cancel()
+            wait(live)
+        if self._threads is not None:
+            self._threads.shutdown(wait=True)
+            self._threads = None
+        if self._own is not None:
+            self._own.shutdown(wait=True, cancel_futures=True)
+            self._own = None
+
+    def cancel(self) -> None:
+        """Give the calls up: those not started never run; the running ones end in the background
+        (their results unused; the open pool waits for them when it closes)."""
+        if self._fut is not None:
+            for f in self._fut:
+                if f is not None:
+                    f.cancel()
+            self._fut = None
+        self._calls = [None] * len(self._calls)
+        if self._threads is not None:
+            self._threads.shutdown(wait=False)
+            self._threads = None
+        if self._own is not None:
+            self._own.shutdown(wait=True, cancel_futures=True)
+            self._own = None
 
     def __enter__(self) -> "Deferred":
         return self
