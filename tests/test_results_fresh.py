@@ -38,11 +38,6 @@ REL_TOL = 1e-6  # sigmas, scores and other floats
 # then reports XPASS(strict) as a failure, and the entry goes. A crash still fails (only the
 # staleness failure is expected).
 KNOWN_STALE: dict[str, str] = {
-    "calibration.json": "the A9 sample's default calibration: only its sigma moved (box-model floor sqrt(w) x |shift|, w 0.0055: rotation y 0.3608 -> 0.3628 deg, translation x 0.2407 -> 0.2423 m; pose, pairs and verdict unchanged), issue 26 session 6 (s6-wide); not re-run on the shared 2-core machine: " "benchmarks/bench_calibration.py --parts a9",
-    "calibration_a9.json": "the A9 sample's default calibration: only its sigma moved (box-model floor sqrt(w) x |shift|, w 0.0055: rotation y 0.3608 -> 0.3628 deg, translation x 0.2407 -> 0.2423 m; pose, pairs and verdict unchanged), issue 26 session 6 (s6-wide); not re-run on the shared 2-core machine: " "benchmarks/bench_calibration_a9.py",
-    "calibration_detections.json": "the A9 sample's default calibration: only its sigma moved (box-model floor sqrt(w) x |shift|, w 0.0055: rotation y 0.3608 -> 0.3628 deg, translation x 0.2407 -> 0.2423 m; pose, pairs and verdict unchanged), issue 26 session 6 (s6-wide); not re-run on the shared 2-core machine: " "benchmarks/bench_calibration_detections.py",
-    "detect.json": "the A9 sample's default calibration: only its sigma moved (box-model floor sqrt(w) x |shift|, w 0.0055: rotation y 0.3608 -> 0.3628 deg, translation x 0.2407 -> 0.2423 m; pose, pairs and verdict unchanged), issue 26 session 6 (s6-wide); not re-run on the shared 2-core machine: " "benchmarks/bench_detect.py --datasets a9",
-    "monitor.json": "the A9 sample's default calibration: only its sigma moved (box-model floor sqrt(w) x |shift|, w 0.0055: rotation y 0.3608 -> 0.3628 deg, translation x 0.2407 -> 0.2423 m; pose, pairs and verdict unchanged), issue 26 session 6 (s6-wide); not re-run on the shared 2-core machine: " "benchmarks/bench_monitor.py (its command_a9)",
 }
 
 
