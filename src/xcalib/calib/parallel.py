@@ -119,6 +119,9 @@ def _received(key: str, blob: bytes):
     if key in _RECEIVED:
         _RECEIVED.move_to_end(key)
         return _RECEIVED[key]
+    # safe: ``blob`` is never read from a file or a user: Shared.__reduce__ pickled it in the parent
+    # process a moment ago and it reaches this forked worker only through the pool's own pipe (which
+    # multiprocessing already pickles); untrusted inputs are parsed by xcalib.io before any Shared exists
     obj = pickle.loads(blob)
     _RECEIVED[key] = obj
     while len(_RECEIVED) > _RECEIVED_MAX:
