@@ -193,12 +193,8 @@ def _edge_share_derivative(term, size: np.ndarray) -> np.ndarray:
 
 
 def _shape_slope(term, r: np.ndarray) -> np.ndarray:
-    """Slope [n,4] of the term's occlusion shaping at the weighted residuals ``r`` [n,4]."""
-    from .cost import INWARD
-
-    if term.occlusion is None:
-        return np.ones_like(r)
-    return np.where(r * INWARD > term.occlusion.tau, term.occlusion.slope, 1.0)
+    """Slope [n,4] of the term's occlusion shaping (and censoring) at the weighted residuals ``r`` [n,4]."""
+    return term.shape_slope(r)
 
 
 def object_outline_spread(term, groups: np.ndarray, state) -> tuple[np.ndarray, float, float]:
@@ -213,7 +209,7 @@ def object_outline_spread(term, groups: np.ndarray, state) -> tuple[np.ndarray, 
 
     n = len(term.obs)
     raw = np.where(np.isfinite(term.edges(state)), term.edges(state), 0.0) * term.w
-    r = term.occlusion.shape(raw) if term.occlusion is not None else raw
+    r = term.shape(raw)
     size = _box_size(term.obs)
     s_row = (_edge_share_derivative(term, size) * _shape_slope(term, raw)).ravel()
     r = r.ravel()
@@ -350,7 +346,7 @@ def _plain_covariance(term, state, groups: np.ndarray, tau: np.ndarray, sig: flo
     n = len(term.obs)
     Jp = term.jacobian(state, np.zeros(3), [])
     raw = np.where(np.isfinite(term.edges(state)), term.edges(state), 0.0) * term.w
-    r = (term.occlusion.shape(raw) if term.occlusion is not None else raw).ravel()
+    r = term.shape(raw).ravel()
     inl = np.any(Jp != 0, axis=1) & (np.abs(r) <= 3.0 * max(sig, 1e-9))
     J = Jp * inl[:, None]
     try:

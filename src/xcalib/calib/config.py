@@ -199,6 +199,10 @@ class CalibConfig:
     Cost:
         occlusion_tau / occlusion_slope: inward edge residuals beyond tau (sigma units) are
             compressed by slope (occlusion only ever shrinks a 2D box).
+        censor_occluded_edges: an edge of a matched 2D box that lies on the 2D box of a nearer
+            matched object (LiDAR range order; ``calib.censor``) counts only outward (a censored,
+            one-sided residual): a box of the visible part ends at its occluder, the hidden edge
+            lies further out. Default off (see docs/camera-models.md for its measurements).
         cost_terms: extra cost terms added to every fit of the calibration (refinement,
             self-calibration, misfit refits, uncertainty), each a :class:`TermSpec` (or its name,
             ``"name:key=value"`` or mapping): a term registered in the entry-point group
@@ -243,6 +247,7 @@ class CalibConfig:
     time_offset_max_std_s: float = 0.02
     occlusion_tau: float = 1.5
     occlusion_slope: float = 0.2
+    censor_occluded_edges: bool = False
     cost_terms: tuple[TermSpec, ...] = ()
     workers: int | Literal["auto"] = "auto"
     max_frames: int | None = 200

@@ -105,10 +105,15 @@ class Tangent:
 @dataclass(frozen=True)
 class Occlusion:
     """Occlusion (and a detector's truncation) only ever moves a 2D box edge *into* the projected
-    outline: inward residuals beyond ``tau`` (sigma units) are compressed by ``slope``."""
+    outline: inward residuals beyond ``tau`` (sigma units) are compressed by ``slope``.
+
+    ``censor``: an edge of a matched 2D box that lies on a nearer matched box's 2D box (LiDAR range
+    order, ``censor.occluded_edges``) is a bound, not a measurement: only its outward residual counts
+    (a hinge at 0; the edge term builds the mask, ``CalibConfig.censor_occluded_edges``)."""
 
     tau: float = 1.5
     slope: float = 0.2
+    censor: bool = False
 
     def shape(self, r: np.ndarray) -> np.ndarray:
         """Weighted edge residuals [n,4] (pred - obs) -> shaped [n,4]."""
@@ -174,8 +179,10 @@ class BoxEdgeTerm(CostTerm):
     name = "box_edges"
 
     def __init__(self, outlines: np.ndarray, obs: np.ndarray, size: tuple[int, int], sigma_px: np.ndarray,
-                 occlusion: Occlusion | None = Occlusion()):
+                 occlusion: Occlusion | None = Occlusion(), censored: np.ndarray | None = None):
         self.outlines, self.obs, self.size = outlines, obs, size
+        # [n,4] edges that are only a bound (hidden behind a nearer box): inward residuals cost 0
+        self.censored = None if censored is None or not np.any(censored) else np.asarray(censored, dtype=bool)
         self.w = (1.0 / np.asarray(sigma_px, dtype=np.float64))[:, None]
         self.occlusion = occlusion
         # an edge that cannot be projected (behind the camera) costs the box's own size
@@ -210,11 +217,26 @@ class BoxEdgeTerm(CostTerm):
         self._last = (key, out)
         return out
 
-    def residuals(self, state: PoseState) -> np.ndarray:
-        r = self.edges(state) * self.w
+    def shape(self, r: np.ndarray) -> np.ndarray:
+        """Weighted edge residuals [n,4] -> the cost's residuals [n,4]: the occlusion shaping, then
+        the censored edges' inward residuals set to 0 (only an outward one counts)."""
         if self.occlusion is not None:
             r = self.occlusion.shape(r)
-        return r.ravel()
+        if self.censored is not None:
+            r = np.where(self.censored & (r * INWARD > 0), 0.0, r)
+        return r
+
+    def shape_slope(self, r: np.ndarray) -> np.ndarray:
+        """d shape / d r [n,4] at the weighted residuals ``r`` [n,4]."""
+        g = np.ones_like(r)
+        if self.occlusion is not None:
+            g = np.where(r * INWARD > self.occlusion.tau, self.occlusion.slope, g)
+        if self.censored is not None:
+            g = np.where(self.censored & (r * INWARD > 0), 0.0, g)
+        return g
+
+    def residuals(self, state: PoseState) -> np.ndarray:
+        return self.shape(self.edges(state) * self.w).ravel()
 
     def clusters(self) -> np.ndarray:
         return np.repeat(np.arange(len(self.obs)), 4)
@@ -271,9 +293,9 @@ class BoxEdgeTerm(CostTerm):
                 col = col + np.einsum("nek,nk->ne", a, tg.shift @ R.T)
             D[..., 6 + k] = col
         D *= ((inside & valid[:, None]) * self.w)[..., None]
-        if self.occlusion is not None:
+        if self.occlusion is not None or self.censored is not None:
             r = np.where(valid[:, None], rects - self.obs, self.fallback) * self.w
-            D = np.where((r * INWARD > self.occlusion.tau)[..., None], self.occlusion.slope * D, D)
+            D = D * self.shape_slope(r)[..., None]
         return D.reshape(4 * n, P)
 
 
@@ -311,9 +333,9 @@ class BoxEdgeTerm(CostTerm):
                 col = col + np.einsum("nek,nk->ne", a, tg.shift @ R.T)
             D[..., 6 + k] = col
         D *= ((inside & good) * self.w)[..., None]
-        if self.occlusion is not None:
+        if self.occlusion is not None or self.censored is not None:
             r = np.where(valid[:, None], rects - self.obs, self.fallback) * self.w
-            D = np.where((r * INWARD > self.occlusion.tau)[..., None], self.occlusion.slope * D, D)
+            D = D * self.shape_slope(r)[..., None]
         return D.reshape(4 * n, P)
 
 

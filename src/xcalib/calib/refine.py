@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from ..geometry.boxes import box2d_centers
 from ..geometry.camera import CameraIntrinsics
 from .boxproj import iou_batched, iou_planes, project_rects
+from .censor import occluded_edges
 from .context import F_SCALE, FitContext, RefineOptions
 from .cost import INWARD, BoxEdgeTerm, CostModel, Occlusion, _pair_features, edge_sigma
 from .diagnostics import NoiseModel
@@ -183,7 +184,11 @@ def edge_term(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraInt
     outlines, obs = _stack(frames, pairs)
     sigma = edge_sigma(obs, outlines, intr, pose, DEFAULT_NOISE if noise is None else noise,
                        _outline_sigma(frames, pairs), pair_scores(frames, pairs))
-    return BoxEdgeTerm(outlines, obs, frames[0].size, sigma, occlusion)
+    censored = None
+    if occlusion is not None and occlusion.censor:  # edges hidden behind a nearer box: bounds only
+        frame_of = np.concatenate([np.full(len(p), k) for k, p in enumerate(pairs) if len(p)] or [np.zeros(0)])
+        censored = occluded_edges(outlines, obs, frame_of, -pose.R.T @ pose.t, sigma)
+    return BoxEdgeTerm(outlines, obs, frames[0].size, sigma, occlusion, censored)
 
 
 def pair_scores(frames: list[CalibFrame], pairs: list[np.ndarray]) -> np.ndarray | None:

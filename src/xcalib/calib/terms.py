@@ -95,7 +95,8 @@ class CostSpec:
 
     @classmethod
     def from_config(cls, config: CalibConfig) -> "CostSpec":
-        return cls(Occlusion(config.occlusion_tau, config.occlusion_slope), tuple(config.cost_terms))
+        return cls(Occlusion(config.occlusion_tau, config.occlusion_slope, config.censor_occluded_edges),
+                   tuple(config.cost_terms))
 
     @classmethod
     def of(cls, value: "CostSpec | Occlusion | None") -> "CostSpec":

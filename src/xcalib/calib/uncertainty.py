@@ -32,7 +32,7 @@ from .diagnostics import NoiseModel, UncertaintyParts, bound95
 from .inputs import CalibFrame
 from .pose import Pose
 from .refine import F_SCALE, build_cost, lsq
-from .terms import CostSpec, pose_block
+from .terms import CostSpec, occlusion_of, pose_block
 
 __all__ = ["pose_covariance", "object_sandwich", "pose_spread", "pose_jackknife", "frame_jackknife", "object_groups", "pose_object_bootstrap",
            "combine", "bound95", "outline_shift", "with_object_outline", "statistical_sd", "box_model_shift", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "Uncertainty", "estimate"]
@@ -73,13 +73,20 @@ class _Scores:
     M_pair: np.ndarray  # [n_pairs, 6, 6]: J^T J over each pair's inlier edges
 
 
+def _censor_only(occlusion) -> Occlusion:
+    """The default edge shaping, keeping the spec's censoring of hidden edges (a censored edge is a
+    bound: it carries no information inward, in the sigma as in the fit)."""
+    occl = occlusion_of(occlusion) if occlusion is not None else None
+    return Occlusion(censor=bool(getattr(occl, "censor", False)))
+
+
 def _scores(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel | None = None,
             occlusion=None) -> _Scores | None:
     if sum(len(p) for p in pairs) < 2:
         return None
     pose = Pose(R, t)
     # the config's cost terms (``occlusion``: a terms.CostSpec) with the default edge shaping
-    model = build_cost(frames, pairs, intr, pose, noise, CostSpec.of(occlusion).with_occlusion(Occlusion()))
+    model = build_cost(frames, pairs, intr, pose, noise, CostSpec.of(occlusion).with_occlusion(_censor_only(occlusion)))
     r0, J = model.jacobian(eps=eps)
     r0, J, info_rest = pose_block(r0, J, 4 * int(sum(len(p) for p in pairs)))  # other terms: profiled out
     # edges clipped at the image border carry no information (zero derivative) -> drop them
