@@ -101,3 +101,23 @@ def test_censoring_is_a_config_option_off_by_default():
     assert CostSpec.from_config(CalibConfig()).occlusion.censor is False
     spec = CostSpec.from_config(CalibConfig(censor_occluded_edges=True))
     assert spec.occlusion.censor is True and spec.occlusion.tau == CalibConfig().occlusion_tau
+
+
+def test_analytic_jacobian_of_censored_edges_matches_differences():
+    from test_calib_cost_jacobian import _scene
+    from test_calib_support import central_jacobian
+
+    from xcalib.calib.cost import BoxEdgeTerm, CostModel
+
+    base, pose, intr, r = _scene(1, None)
+    cens = r.random((len(base.obs), 4)) < 0.4
+    term = BoxEdgeTerm(base.outlines, base.obs, base.size, 1.0 / base.w[:, 0], base.occlusion, cens)
+    m = CostModel([term], pose, intr)
+    x = r.normal(0, 1e-3, m.n_params)
+    np.testing.assert_allclose(m.analytic_jacobian(x), central_jacobian(m.residuals, x), atol=1e-4, rtol=1e-4)
+    res = m.residuals(x).reshape(-1, 4)
+    plain = CostModel([base], pose, intr).residuals(x).reshape(-1, 4)
+    from xcalib.calib.cost import INWARD
+    hidden_in = cens & (plain * INWARD > 0)
+    assert hidden_in.sum() > 5 and np.all(res[hidden_in] == 0)  # a censored edge's inward residual costs nothing
+    np.testing.assert_array_equal(res[~hidden_in], plain[~hidden_in])  # everything else as before
