@@ -18,12 +18,17 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["occluded_edges", "COVER_SHARE", "TOUCH_SIGMAS"]
+__all__ = ["occluded_edges", "censor_evidence", "COVER_SHARE", "TOUCH_SIGMAS", "MIN_INWARD_SHIFT", "MIN_EVIDENCE_SE"]
 
 #: the least share of an edge's length that a nearer box must cover for the edge to be censored
 COVER_SHARE = 0.5
 #: how close (in 1-sigma of the two boxes' edge noise) an edge must lie to a nearer box to touch it
 TOUCH_SIGMAS = 2.0
+#: "auto" censors when the candidate edges lie inside the projection by at least this much more
+#: than the other edges (mean, in edge sigmas) ...
+MIN_INWARD_SHIFT = 0.5
+#: ... and by at least this many standard errors of that difference
+MIN_EVIDENCE_SE = 3.0
 
 
 def occluded_edges(outlines: np.ndarray, obs: np.ndarray, frame_of: np.ndarray, centre: np.ndarray,
@@ -64,3 +69,30 @@ def occluded_edges(outlines: np.ndarray, obs: np.ndarray, frame_of: np.ndarray, 
         for e, m in enumerate(hit):
             out[idx, e] = np.any(m & nearer, axis=1)
     return out
+
+
+def censor_evidence(z: np.ndarray, candidates: np.ndarray, valid: np.ndarray, size: tuple[int, int],
+                    rects: np.ndarray) -> bool:
+    """Whether this run's boxes are boxes of the visible part: the edges ``occluded_edges`` marks
+    (``candidates`` [n,4]) lie further inside the projected outlines than the other edges.
+
+    ``z`` [n,4]: edge residuals (projected - observed) in edge sigmas at the current pose;
+    ``valid`` [n]: projectable rows; ``rects`` [n,4]: the projected rectangles (edges on the image
+    border are left out). The inward residuals (clipped to +-3 sigma against false matches) of the
+    candidates and of the other edges are compared: censoring pays when the candidates' mean lies
+    ``MIN_INWARD_SHIFT`` sigma or more further in, beyond ``MIN_EVIDENCE_SE`` standard errors
+    (a labelled or amodal box's hidden edge is an exact observation: censoring it only loses
+    information; a visible-part box's is not).
+    """
+    from .cost import INWARD
+
+    W, H = size
+    ok = (np.asarray(valid, dtype=bool)[:, None] & np.isfinite(z) & np.isfinite(rects)
+          & (np.nan_to_num(rects) > 0.5) & (np.nan_to_num(rects) < np.array([W, H, W, H], dtype=np.float64) - 0.5))
+    zi = np.clip(np.nan_to_num(z) * INWARD, -3.0, 3.0)
+    a, b = zi[ok & candidates], zi[ok & ~candidates]
+    if len(a) < 8 or len(b) < 8:
+        return False
+    diff = float(a.mean() - b.mean())
+    se = float(np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b)))
+    return diff >= MIN_INWARD_SHIFT and diff >= MIN_EVIDENCE_SE * se

@@ -202,7 +202,10 @@ class CalibConfig:
         censor_occluded_edges: an edge of a matched 2D box that lies on the 2D box of a nearer
             matched object (LiDAR range order; ``calib.censor``) counts only outward (a censored,
             one-sided residual): a box of the visible part ends at its occluder, the hidden edge
-            lies further out. Default off (see docs/camera-models.md for its measurements).
+            lies further out. "auto": only when this run's own residuals show those edges lying
+            inside the projected outlines (``censor.censor_evidence``: boxes of the visible part);
+            edges that behave as exact observations (amodal boxes) are kept. Default off (see
+            docs/camera-models.md for its measurements).
         cost_terms: extra cost terms added to every fit of the calibration (refinement,
             self-calibration, misfit refits, uncertainty), each a :class:`TermSpec` (or its name,
             ``"name:key=value"`` or mapping): a term registered in the entry-point group
@@ -247,7 +250,7 @@ class CalibConfig:
     time_offset_max_std_s: float = 0.02
     occlusion_tau: float = 1.5
     occlusion_slope: float = 0.2
-    censor_occluded_edges: bool = False
+    censor_occluded_edges: bool | Literal["auto"] = False
     cost_terms: tuple[TermSpec, ...] = ()
     workers: int | Literal["auto"] = "auto"
     max_frames: int | None = 200
@@ -264,6 +267,9 @@ class CalibConfig:
                               ("refine_intrinsics", IntrinsicsMode)):
             if getattr(self, name) not in get_args(allowed):
                 raise ValueError(f"CalibConfig.{name}: expected one of {get_args(allowed)}, got {getattr(self, name)!r}")
+        if self.censor_occluded_edges not in (True, False, "auto"):
+            raise ValueError(f"CalibConfig.censor_occluded_edges: expected True, False or 'auto', "
+                             f"got {self.censor_occluded_edges!r}")
         if not (0.0 < self.gate_iou <= 1.0):
             raise ValueError(f"CalibConfig.gate_iou: expected an IoU in (0, 1], got {self.gate_iou}")
         for name in ("max_rot_std_deg", "max_trans_std_m", "max_rot_bound_deg", "max_trans_bound_m",

@@ -109,11 +109,12 @@ class Occlusion:
 
     ``censor``: an edge of a matched 2D box that lies on a nearer matched box's 2D box (LiDAR range
     order, ``censor.occluded_edges``) is a bound, not a measurement: only its outward residual counts
-    (a hinge at 0; the edge term builds the mask, ``CalibConfig.censor_occluded_edges``)."""
+    (a hinge at 0; the edge term builds the mask, ``CalibConfig.censor_occluded_edges``); "auto":
+    only where the residuals show those edges inside the projection (``censor.censor_evidence``)."""
 
     tau: float = 1.5
     slope: float = 0.2
-    censor: bool = False
+    censor: bool | str = False
 
     def shape(self, r: np.ndarray) -> np.ndarray:
         """Weighted edge residuals [n,4] (pred - obs) -> shaped [n,4]."""

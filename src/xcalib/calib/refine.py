@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 from ..geometry.boxes import box2d_centers
 from ..geometry.camera import CameraIntrinsics
 from .boxproj import iou_batched, iou_planes, project_rects
-from .censor import occluded_edges
+from .censor import censor_evidence, occluded_edges
 from .context import F_SCALE, FitContext, RefineOptions
 from .cost import INWARD, BoxEdgeTerm, CostModel, Occlusion, _pair_features, edge_sigma
 from .diagnostics import NoiseModel
@@ -188,6 +188,10 @@ def edge_term(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraInt
     if occlusion is not None and occlusion.censor:  # edges hidden behind a nearer box: bounds only
         frame_of = np.concatenate([np.full(len(p), k) for k, p in enumerate(pairs) if len(p)] or [np.zeros(0)])
         censored = occluded_edges(outlines, obs, frame_of, -pose.R.T @ pose.t, sigma)
+        if occlusion.censor == "auto" and censored.any():
+            rects, valid = project_rects(outlines, pose.R, pose.t, intr, frames[0].size)
+            if not censor_evidence((rects - obs) / sigma[:, None], censored, valid, frames[0].size, rects):
+                censored = None
     return BoxEdgeTerm(outlines, obs, frames[0].size, sigma, occlusion, censored)
 
 

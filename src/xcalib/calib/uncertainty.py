@@ -77,7 +77,7 @@ def _censor_only(occlusion) -> Occlusion:
     """The default edge shaping, keeping the spec's censoring of hidden edges (a censored edge is a
     bound: it carries no information inward, in the sigma as in the fit)."""
     occl = occlusion_of(occlusion) if occlusion is not None else None
-    return Occlusion(censor=bool(getattr(occl, "censor", False)))
+    return Occlusion(censor=getattr(occl, "censor", False))
 
 
 def _scores(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel | None = None,
