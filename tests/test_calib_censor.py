@@ -121,3 +121,22 @@ def test_analytic_jacobian_of_censored_edges_matches_differences():
     hidden_in = cens & (plain * INWARD > 0)
     assert hidden_in.sum() > 5 and np.all(res[hidden_in] == 0)  # a censored edge's inward residual costs nothing
     np.testing.assert_array_equal(res[~hidden_in], plain[~hidden_in])  # everything else as before
+
+
+def test_auto_censors_boxes_of_the_visible_part_and_keeps_amodal_boxes():
+    frames, T = sim_frames(seed=1, n_frames=8, n_objects=(14, 22), noise_px=1.0, miss=0.0, false_pos=0.0, extra_3d=0)
+    truth = Pose(T[:3, :3], T[:3, 3])
+    occ, _ = _occluded(frames, T)
+    decided = {}
+    for name, frs in (("amodal", frames), ("visible", occ)):
+        cframes, intr, _ = prepare_frames(frs, frs[0].intrinsics)
+        pairs = _truth_pairs(frs, cframes)
+        noise = estimate_noise(cframes, pairs, intr, T[:3, :3], T[:3, 3])
+        always = edge_term(cframes, pairs, intr, truth, noise, Occlusion(censor=True))
+        assert always.censored is not None and always.censored.sum() >= 10  # the same geometry: candidates in both
+        decided[name] = edge_term(cframes, pairs, intr, truth, noise, Occlusion(censor="auto")).censored is not None
+    assert decided == {"amodal": False, "visible": True}
+    assert CostSpec.from_config(CalibConfig(censor_occluded_edges="auto")).occlusion.censor == "auto"
+    import pytest
+    with pytest.raises(ValueError, match="censor_occluded_edges"):
+        CalibConfig(censor_occluded_edges="sometimes")
