@@ -204,8 +204,9 @@ class CalibConfig:
             one-sided residual): a box of the visible part ends at its occluder, the hidden edge
             lies further out. "auto": only when this run's own residuals show those edges lying
             inside the projected outlines (``censor.censor_evidence``: boxes of the visible part);
-            edges that behave as exact observations (amodal boxes) are kept. Default off (see
-            docs/camera-models.md for its measurements).
+            edges that behave as exact observations (amodal boxes) are kept. Default off: measured
+            on the shared real sets, True refuses correct A9 poses and "auto" made one wrong
+            success on an A9 detector subset (docs/camera-models.md); for visible-part boxes only.
         cost_terms: extra cost terms added to every fit of the calibration (refinement,
             self-calibration, misfit refits, uncertainty), each a :class:`TermSpec` (or its name,
             ``"name:key=value"`` or mapping): a term registered in the entry-point group
