@@ -1,0 +1,58 @@
+"""Matching on the candidate pairs only (issue 29, dense scenes) gives the pairs of the full arrays.
+
+``refine._match_frames`` switches to ``match_sparse.match_candidates`` from ``sparse_above`` padded
+IoU entries on; both paths are forced here on seeded busy-junction frames, at the truth and at
+rough poses, with the IoU gate alone and with the centre-distance gate, and compared pair by pair
+(and with the unpruned full-matrix reference of ``test_match_pruning``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from xcalib.calib.inputs import prepare_frames
+from xcalib.calib.match_sparse import _ranks, match_candidates
+from xcalib.calib.refine import _match_frames, project_frames
+
+from test_match_pruning import GATES, _junction, _poses, _reference
+
+
+@pytest.mark.parametrize("seed,per_side", [(0, 60), (1, 15)])
+def test_sparse_same_pairs_as_full_arrays(seed, per_side):
+    frames, T = _junction(seed, per_side, 4)
+    cfs, intr, problem = prepare_frames(frames, frames[0].intrinsics)
+    assert not problem
+    n_pairs = n_assigned = 0
+    for R, t in _poses(T, np.random.default_rng(seed), 4):
+        proj = project_frames(cfs, intr, R, t)
+        for gi, gd in GATES + ((0.05, 2.0),):
+            full = _match_frames(cfs, proj, gi, gd, sparse_above=10 ** 12)
+            sparse = _match_frames(cfs, proj, gi, gd, sparse_above=0)
+            for fr, a, b in zip(cfs, full, sparse):
+                assert a.dtype == b.dtype == np.int64
+                np.testing.assert_array_equal(a, b)
+                np.testing.assert_array_equal(b, _reference(fr, intr, R, t, gi, gd))
+                n_pairs += len(b)
+                n_assigned += int(len(np.unique(b[:, 0])) < len(b) or len(b) > 1)
+    assert n_pairs > 100 and n_assigned > 0
+
+
+def test_sparse_declines_without_an_iou_gate():
+    """gate_iou 0 allows every pair: no candidates to prune, the full arrays decide."""
+    rects = np.array([[[0.0, 0.0, 10.0, 10.0]]])
+    boxes = np.array([[[100.0, 100.0, 110.0, 110.0]]])
+    assert match_candidates(rects, [1], boxes, [1], 0.0, 0.0) is None
+    got = match_candidates(rects, [1], boxes, [1], 0.3, 0.0)
+    assert len(got) == 1 and got[0].shape == (0, 2)
+    # the centre-distance gate reaches a box whose rectangle does not overlap it
+    got = match_candidates(rects, [1], boxes, [1], 0.3, 10.0)
+    np.testing.assert_array_equal(got[0], [[0, 0]])
+
+
+def test_ranks_is_unique_with_inverse():
+    a = np.random.default_rng(0).integers(0, 50, 200)
+    vals, inv = _ranks(a, 60)
+    ref_vals, ref_inv = np.unique(a, return_inverse=True)
+    np.testing.assert_array_equal(vals, ref_vals)
+    np.testing.assert_array_equal(inv, ref_inv)
