@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from xcalib.calib.inputs import prepare_frames
-from xcalib.calib.match_sparse import _ranks, match_candidates
+from xcalib.calib.match_sparse import _ranks, explained_iou, match_candidates
 from xcalib.calib.refine import _match_frames, project_frames
 
 from test_match_pruning import GATES, _junction, _poses, _reference
@@ -56,3 +56,26 @@ def test_ranks_is_unique_with_inverse():
     ref_vals, ref_inv = np.unique(a, return_inverse=True)
     np.testing.assert_array_equal(vals, ref_vals)
     np.testing.assert_array_equal(inv, ref_inv)
+
+
+def test_explained_iou_is_the_full_arrays_maxima():
+    """``score_poses``' maxima from the overlapping pairs only equal those of ``iou_batched``'s full
+    [H,K,M] array, to the bit: rough poses of a seeded junction frame (many rectangles NaN or
+    outside every box), with boxes touching and exactly sharing edges."""
+    from xcalib.calib.boxproj import iou_batched, project_rects
+
+    frames, T = _junction(2, 40, 1)
+    cfs, intr, _ = prepare_frames(frames, frames[0].intrinsics)
+    fr = cfs[0]
+    poses = _poses(T, np.random.default_rng(7), 30)
+    R = np.stack([p[0] for p in poses])
+    t = np.stack([p[1] for p in poses])
+    rects, valid = project_rects(fr.box_corners, R, t, intr, fr.size)
+    assert (~valid).any() and valid.any()
+    boxes = np.concatenate([fr.boxes2d, rects[0][valid[0]][:3], rects[0][valid[0]][:3] + [5.0, 0.0, 5.0, 0.0]])
+    for b in (fr.boxes2d, boxes):
+        iou = iou_batched(rects, b)
+        best, col = explained_iou(rects, b)
+        np.testing.assert_array_equal(best, iou.max(2))
+        np.testing.assert_array_equal(col, iou.max(1))
+        assert (best > 0).any()

@@ -24,7 +24,7 @@ from scipy.optimize import linear_sum_assignment
 
 from .boxproj import iou_planes
 
-__all__ = ["match_candidates"]
+__all__ = ["match_candidates", "explained_iou"]
 
 #: relative slack of the candidate test (the exact gates decide on the candidates)
 SLACK = 1e-9
@@ -104,3 +104,31 @@ def _ranks(a: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     vals = np.flatnonzero(seen)
     rank = np.cumsum(seen) - 1
     return vals, rank[a]
+
+
+def explained_iou(rects: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pose: the best IoU of every 2D box [H,K] with any projected rectangle, and of every
+    rectangle [H,M] with any 2D box (``iou_batched(rects, boxes)`` [H,K,M] maxed over its last
+    and its middle axis) for rects [H,M,4] (NaN: not projected) and boxes [K,4]. A pair whose
+    rectangles do not overlap in both x and y (open intervals) has IoU exactly 0, as a NaN
+    rectangle has: the IoU is computed, with the same operations, only for the overlapping pairs,
+    and the maxima are those of the full array, to the bit."""
+    H, M = rects.shape[:2]
+    b = np.asarray(boxes, dtype=np.float64)
+    K = len(b)
+    rx0, ry0, rx1, ry1 = (np.ascontiguousarray(rects[..., j]).reshape(H, 1, M) for j in range(4))
+    bx0, by0, bx1, by1 = (b[:, j].reshape(1, K, 1) for j in range(4))
+    cand = rx0 < bx1
+    cand &= rx1 > bx0
+    cand &= ry0 < by1
+    cand &= ry1 > by0
+    hh, kk, mm = np.nonzero(cand)
+    best = np.zeros((H, K))
+    col = np.zeros((H, M))
+    if len(hh):
+        r = rects[hh, mm]
+        bb = b[kk]
+        iou = iou_planes(tuple(r[:, j] for j in range(4)), tuple(bb[:, j] for j in range(4)))
+        np.maximum.at(best, (hh, kk), iou)
+        np.maximum.at(col, (hh, mm), iou)
+    return best, col
