@@ -79,3 +79,40 @@ def test_explained_iou_is_the_full_arrays_maxima():
         np.testing.assert_array_equal(best, iou.max(2))
         np.testing.assert_array_equal(col, iou.max(1))
         assert (best > 0).any()
+
+
+def _angular_step_balanced(points, n_sample=500, k=48, min_range_m=3.0, seed=0):
+    """``boxshape.lidar_angular_step`` as it was (a median-balanced k-d tree)."""
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=np.float64)[:, :3]
+    p = p[np.linalg.norm(p, axis=1) > min_range_m]
+    ang = np.column_stack([np.arctan2(p[:, 1], p[:, 0]), np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))])
+    s = ang[np.random.default_rng(seed).choice(len(ang), size=min(n_sample, len(ang)), replace=False)]
+    return cKDTree(ang).query(s, k=min(k, len(ang)))
+
+
+def test_angular_step_tree_same_neighbours():
+    """The scan step's unbalanced k-d tree finds the same neighbours (distances and rows) as the
+    balanced one it replaced, on a seeded ring scan, so the same step."""
+    from scipy.spatial import cKDTree
+
+    from xcalib.calib.boxshape import lidar_angular_step
+
+    rng = np.random.default_rng(3)
+    az = np.arange(-np.pi, np.pi, np.radians(0.2))
+    el = np.radians(np.arange(-25.0, 5.0, 0.7))
+    A, E = np.meshgrid(az, el)
+    r = rng.uniform(4.0, 60.0, A.shape)
+    pts = np.stack([r * np.cos(E) * np.cos(A), r * np.cos(E) * np.sin(A), r * np.sin(E)], -1).reshape(-1, 3)
+    pts += rng.normal(0.0, 0.01, pts.shape)
+    dist, idx = _angular_step_balanced(pts)
+    p = pts[np.linalg.norm(pts, axis=1) > 3.0]
+    ang = np.column_stack([np.arctan2(p[:, 1], p[:, 0]), np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))])
+    s = ang[np.random.default_rng(0).choice(len(ang), size=500, replace=False)]
+    d2, i2 = cKDTree(ang, balanced_tree=False).query(s, k=48)
+    np.testing.assert_array_equal(dist, d2)
+    np.testing.assert_array_equal(idx, i2)
+    step = lidar_angular_step(pts)
+    assert step is not None
+    np.testing.assert_allclose(step, np.radians([0.2, 0.7]), rtol=0.1)
