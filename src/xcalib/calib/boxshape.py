@@ -162,7 +162,9 @@ def lidar_angular_step(points: np.ndarray, *, n_sample: int = 500, k: int = 48, 
     if len(p) < 50:
         return None
     ang = np.column_stack([np.arctan2(p[:, 1], p[:, 0]), np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))])
-    tree = cKDTree(ang)
+    # an unbalanced tree builds in about half the time of a median-balanced one and its k nearest
+    # neighbours are the same (a k-d tree's query is exact whatever its split points)
+    tree = cKDTree(ang, balanced_tree=False)
     s = ang[np.random.default_rng(seed).choice(len(ang), size=min(n_sample, len(ang)), replace=False)]
     dist, idx = tree.query(s, k=min(k, len(ang)))
     step = float(np.median(dist[:, 1]))

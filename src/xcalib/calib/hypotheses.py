@@ -17,8 +17,9 @@ from ..geometry.boxes import box2d_centers, box2d_sizes
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import pixels_per_metre as camera_pixels_per_metre
 from ..geometry.projection import undistort_pixels
-from .boxproj import iou_batched, project_rects
+from .boxproj import project_rects
 from .inputs import CalibFrame
+from .match_sparse import explained_iou
 
 __all__ = ["Hypotheses", "kabsch", "kabsch_triangles", "informative_view", "bearings", "frame_hypotheses", "TripleSearch",
            "score_poses", "TripleDraw", "draw_triples", "solve_triples"]
@@ -544,10 +545,10 @@ def score_poses(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nda
     for s in range(0, len(R), chunk):
         shape = fr.corners if fr.box_corners is None else fr.box_corners
         rects, _ = project_rects(shape, R[s:s + chunk], t[s:s + chunk], intr, fr.size)
-        iou = iou_batched(rects, fr.boxes2d)  # [h,K,M]
-        best = iou.max(2)
+        # the maxima of the [h,K,M] IoU over its 3D and its 2D boxes, computed on the overlapping
+        # pairs only (the others are 0): the same values as from ``iou_batched``'s full array
+        best, col = explained_iou(rects, fr.boxes2d)
         # a 2D box explained by a 3D box that another 2D box explains better counts once:
         # approximate one-to-one by also taking the column max.
-        col = iou.max(1).sum(1)
-        out[s:s + chunk] = np.minimum(best.sum(1), col)
+        out[s:s + chunk] = np.minimum(best.sum(1), col.sum(1))
     return out

@@ -22,11 +22,17 @@ from .context import F_SCALE, FitContext, RefineOptions
 from .cost import INWARD, BoxEdgeTerm, CostModel, Occlusion, _pair_features, edge_sigma
 from .diagnostics import NoiseModel
 from .inputs import CalibFrame, box_scores
+from .match_sparse import match_candidates
 from .pose import Pose
 from .terms import CostSpec, TermContext, occlusion_of
 
 __all__ = ["build_cost", "box_edges", "RefineResult", "match_frame", "match_all", "project_frames", "refine_pose", "pair_metrics", "estimate_noise", "lsq",
            "edge_term", "pair_scores", "DEFAULT_NOISE", "F_SCALE", "FitContext", "RefineOptions"]
+
+
+#: padded [frames, 2D, 3D] entries from which ``match_all`` works on the candidate pairs only
+#: (below, the full arrays cost less than the candidates' bookkeeping; both give the same pairs)
+SPARSE_ABOVE = 20_000
 
 
 @dataclass
@@ -102,12 +108,15 @@ def _assign(iou: np.ndarray, dist: np.ndarray, valid: np.ndarray, gate_iou: floa
     return pairs, iou_s[r[keep], c[keep]]
 
 
-def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_dist: float) -> list[np.ndarray]:
+def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_dist: float,
+                  sparse_above: int = SPARSE_ABOVE) -> list[np.ndarray]:
     """The pairs of every frame, the IoU and centre distances of all frames in one padded
     [F,K,M] computation (the same element-wise operations as ``iou_batched`` / ``_match_projected``,
     so the same values); the assignment frame by frame. Only the 3D boxes that project into the
     image (``valid``) enter the arrays: the others can match no box (``_assign`` forbids them), so
-    dropping them first changes no match (a 360-degree LiDAR's boxes behind the camera)."""
+    dropping them first changes no match (a 360-degree LiDAR's boxes behind the camera). From
+    ``sparse_above`` padded IoU entries on, on the candidate pairs only
+    (:func:`~.match_sparse.match_candidates`: the same pairs)."""
     out = [np.zeros((0, 2), dtype=np.int64) for _ in frames]
     live = [k for k, fr in enumerate(frames) if fr.n2 and fr.n3 and np.any(proj[k][1])]
     if not live:
@@ -119,6 +128,14 @@ def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_di
     for i, k in enumerate(live):
         rects[i, :len(cols[i])] = proj[k][0][cols[i]]
         boxes[i, :frames[k].n2] = frames[k].boxes2d
+    sparse = (match_candidates(rects, [len(c) for c in cols], boxes, [frames[k].n2 for k in live], gate_iou, gate_dist)
+              if L * K * M >= sparse_above else None)
+    if sparse is not None:  # the candidate pairs only (dense frames): the same pairs
+        for i, k in enumerate(live):
+            p = sparse[i]
+            p[:, 1] = cols[i][p[:, 1]]
+            out[k] = p
+        return out
     r = np.nan_to_num(rects, nan=0.0)
     rx0, ry0, rx1, ry1 = (np.ascontiguousarray(r[..., j])[:, None, :] for j in range(4))
     bx0, by0, bx1, by1 = (boxes[..., j][:, :, None] for j in range(4))
