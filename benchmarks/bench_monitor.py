@@ -170,10 +170,10 @@ JOBS = 1  # worker processes (``--jobs``)
 CONFIG: dict = {}  # MonitorConfig settings other than the defaults (``--set``)
 
 
-def _pmap(fn, items: list) -> list:
+def _pmap(fn, items: list):
     """``[fn(x) for x in items]``, in ``JOBS`` forked worker processes when JOBS > 1 (order kept)."""
     if JOBS <= 1 or len(items) <= 1:
-        return [fn(x) for x in items]
+        return map(fn, items)  # lazy: each result is logged as it is done
     import multiprocessing as mp
 
     with mp.get_context("fork").Pool(min(JOBS, len(items))) as pool:
