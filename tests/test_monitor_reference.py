@@ -77,3 +77,24 @@ def test_reference_settings_are_validated():
         MonitorConfig(reference_samples=-1)
     with pytest.raises(ValueError, match="reference_confidence"):
         MonitorConfig(reference_confidence=1.0)
+
+
+def test_cli_reference_calibrates_before_monitoring(tmp_path, stream, capsys):
+    import json
+
+    from xcalib.cli import main
+    from xcalib.io.frames import write_frame_folder
+
+    cal, frames = stream
+    small = [replace(f, image=np.zeros((1, 1, 3), np.uint8)) for f in frames[:100]]
+    write_frame_folder(tmp_path / "ref", small[:100], pcd_encoding="binary")
+    write_frame_folder(tmp_path / "live", small[:40], pcd_encoding="binary")
+    cal.save(tmp_path / "cal.json")
+    out = tmp_path / "watch"
+    rc = main(["monitor", str(tmp_path / "live"), "--calibration", str(tmp_path / "cal.json"), "--reference",
+               str(tmp_path / "ref"), "--out", str(out)])
+    assert rc == 0
+    ref = json.loads((out / "summary.json").read_text())["reference"]
+    (cam, q), = ref["cameras"].items()
+    assert ref["source"].endswith("ref") and q["alarms"] == 0 and q["window_20"]["samples"] >= 3
+    assert q["window_20"]["variance_factors"] is None  # fewer than reference_samples (12): the prior holds
