@@ -249,13 +249,14 @@ REF_CELLS = [("translation", 0.10, 50, 2), ("translation", 0.20, 20, 2), ("trans
 
 
 def _ref_runs(cell) -> list[dict]:
-    """One cell's runs in one arm: ``off`` (reference_samples=0: the single adjacent-window
-    inflation, the test as before), ``online`` (the defaults: the per-axis factors from the
-    stream's own decisions, ~250 frames before the change), ``reference`` (a copy of the monitor
+    """One cell's runs in one arm: ``off`` (reference_samples=0, the default: the single
+    adjacent-window inflation), ``online`` (reference_samples=REFERENCE_SAMPLES: the per-axis
+    factors from the stream's own decisions, ~250 frames before the change), ``reference`` (a copy of the monitor
     that learned the site's reference stretch first)."""
     import copy
 
     from xcalib.monitor import Monitor, MonitorConfig
+    from xcalib.monitor.core import REFERENCE_SAMPLES
 
     arm, kind, size, within, axis, runs = cell
     keys = list(_STREAMS)
@@ -267,7 +268,7 @@ def _ref_runs(cell) -> list[dict]:
         k0 = PRE + ((r // len(keys)) * 137) % max(len(frames) - PRE - POST, 1)
         seg = frames[k0 - PRE:k0 + POST]
         mon = (copy.deepcopy(learned) if arm == "reference" else
-               Monitor(cal, MonitorConfig(**{**CONFIG, **({"reference_samples": 0} if arm == "off" else {})})))
+               Monitor(cal, MonitorConfig(**{**CONFIG, "reference_samples": 0 if arm == "off" else REFERENCE_SAMPLES})))
         res.append(_run(cal, seg, k0=PRE, change=_change(kind, size, axis), monitor=mon))
     return res
 
@@ -278,12 +279,13 @@ def _reference(seeds: list[int], n_ref: int, n_stream: int, runs: int, log) -> d
     site's drift-free reference stretch (``Monitor.learn``), the steps are injected 250 frames
     into segments of the rest, in three arms (``_ref_runs``) on the same segments."""
     from xcalib.monitor import Monitor, MonitorConfig
+    from xcalib.monitor.core import REFERENCE_SAMPLES
 
     _STREAMS.clear()
     out = {"reference_frames": n_ref, "runs_per_cell": runs, "sites": seeds, "factors": {}}
     for s in seeds:
         site, frames = _synth_stream(s, n_ref + n_stream)
-        mon = Monitor(_synth_calibration(site), MonitorConfig(**CONFIG))
+        mon = Monitor(_synth_calibration(site), MonitorConfig(**{**CONFIG, "reference_samples": REFERENCE_SAMPLES}))
         summ = mon.learn(frames[:n_ref])
         out["factors"][f"site_{s}"] = summ
         log(f"site {s}: reference {n_ref} frames: " + "; ".join(

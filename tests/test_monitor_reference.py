@@ -49,9 +49,10 @@ def test_axis_factors_follow_each_axis_spread_and_wait_for_enough_samples(stream
     assert f[1] < f[0] and f[3] < f[4]  # per axis, not one scale
     cm._zs[20] = deque(z2 * 0.01, maxlen=400)
     assert np.all(cm.axis_factors(20) == MIN_AXIS_FACTOR)  # never below the floor
-    off = next(iter(Monitor(cal, MonitorConfig(reference_samples=0)).cameras.values()))
-    off._zs[20] = deque(z2, maxlen=400)
-    assert off.axis_factors(20) is None  # switched off
+    for cfg in (MonitorConfig(reference_samples=0), MonitorConfig()):  # off, and off by default
+        off = next(iter(Monitor(cal, cfg).cameras.values()))
+        off._zs[20] = deque(z2, maxlen=400)
+        assert off.axis_factors(20) is None
 
 
 def test_learn_measures_the_reference_and_starts_afresh(stream):

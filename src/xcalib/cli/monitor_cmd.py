@@ -55,13 +55,15 @@ def register(app: typer.Typer) -> None:
 
         from ..io.files import atomic_dir, atomic_write
         from ..monitor import Monitor, MonitorConfig, load_calibration
+        from ..monitor.core import REFERENCE_SAMPLES
         from ..monitor.output import MonitorLog, MonitorMcap, write_monitor_html
 
         if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
             raise FileExistsError(f"{out} already exists; pass --force to replace it")
         try:
             config = MonitorConfig(window=window, stride=stride, false_alarm_rate=false_alarm_rate, fps=fps,
-                                   history=max(600, 2 * window * 4))
+                                   history=max(600, 2 * window * 4),
+                                   reference_samples=REFERENCE_SAMPLES if reference is not None else 0)
         except ValueError as exc:
             raise typer.BadParameter(str(exc)) from None
         cals = load_calibration(calibration)

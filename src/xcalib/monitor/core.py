@@ -79,10 +79,12 @@ class MonitorConfig:
     model's), so a detector noisier than the calibration's noise model does not shrink every
     estimated change; reference_samples: the change test of each window length is calibrated
     per axis from the stream's own drift-free decisions (``CameraMonitor.axis_factors``) once it has
-    this many of them (non-overlapping recent windows; 0: off, the single adjacent-window
-    ``inflation`` throughout); reference_confidence: each axis's factor is the upper
-    ``reference_confidence`` bound of its measured variance ratio (few samples: a wider factor).
-    ``Monitor.learn(frames)`` takes a drift-free reference stretch of the site for it.
+    this many of them (non-overlapping recent windows; REFERENCE_SAMPLES = 12 is the setting
+    measured); 0 (the default): off, the single adjacent-window ``inflation`` throughout, as
+    before -- measured, the calibration lifted no detection (docs/monitor.md);
+    reference_confidence: each axis's factor is the upper ``reference_confidence`` bound of its
+    measured variance ratio (few samples: a wider factor). ``Monitor.learn(frames)`` takes a
+    drift-free reference stretch of the site for it.
     """
 
     window: int = 20
@@ -107,7 +109,7 @@ class MonitorConfig:
     leave_out_objects: int = 2
     leave_out_level: float = 0.01
     robust_scale: bool = True
-    reference_samples: int = 12
+    reference_samples: int = 0
     reference_confidence: float = 0.9
 
     def __post_init__(self) -> None:
@@ -1046,6 +1048,7 @@ SCALE_EVERY = 5  # ... recomputed every this many frames
 RELIN_ITERS = 3  # rounds of re-linearisation of the frames after a detected change
 RELIN_TOL = 0.5  # a frame linearised farther than this (sigma, any axis) from the estimate is re-linearised
 AXIS_SAMPLES = 400  # samples kept per window length (axis_factors)
+REFERENCE_SAMPLES = 12  # MonitorConfig.reference_samples where it is switched on (CLI --reference)
 MIN_AXIS_FACTOR = 0.25  # a test's variance is never taken below a quarter of the stated one on any axis
 MIN_DIFFS = 5  # adjacent window pairs before the measured inflation replaces the prior
 INFLATION_PRIOR = 2.0
