@@ -273,7 +273,8 @@ def _ref_runs(cell) -> list[dict]:
     return res
 
 
-def _reference(seeds: list[int], n_ref: int, n_stream: int, runs: int, log) -> dict:
+def _reference(seeds: list[int], n_ref: int, n_stream: int, runs: int, log,
+               arms: tuple[str, ...] = ("off", "online", "reference")) -> dict:
     """The per-axis calibration of the change test (``CameraMonitor.axis_factors``), measured: per
     site one stream of ``n_ref`` + ``n_stream`` generated frames; the first ``n_ref`` are the
     site's drift-free reference stretch (``Monitor.learn``), the steps are injected 250 frames
@@ -293,7 +294,7 @@ def _reference(seeds: list[int], n_ref: int, n_stream: int, runs: int, log) -> d
                                                 if v["variance_factors"] else "-")
             for k, v in next(iter(summ.values())).items() if k.startswith("window")), flush=True)
         _STREAMS[s] = (site, frames[n_ref:], mon)
-    for arm in ("off", "online", "reference"):
+    for arm in arms:
         log(f"-- arm {arm}")
         rows = [_summarise(f"{arm}: step {size:g} {'deg' if kind == 'rotation' else 'm'} {kind} {AXES[axis]}",
                            res, kind, size, axis, within, PRE, log)
@@ -540,6 +541,7 @@ def main() -> None:
                     help="run one part; its keys are merged into an existing results file")
     ap.add_argument("--reference-frames", type=int, default=2400,
                     help="--part reference: the drift-free reference stretch per site (frames)")
+    ap.add_argument("--arms", default="off,online,reference", help="--part reference: the arms to run")
     ap.add_argument("--info-frames", type=int, default=400, help="--part information: frames per site for the bound")
     ap.add_argument("--steps-only", action="store_true", help="--part synth: the steps only (no null streams, ramps)")
     ap.add_argument("--real-null", type=int, default=1600, help="real sequences: drift-free frames (looped)")
@@ -584,7 +586,8 @@ def main() -> None:
         _synthetic(result, seeds, n_null, args.runs, log, nulls=not args.steps_only)
     elif args.part == "reference":  # the per-axis calibration of the change test from a reference stretch
         log(f"== per-axis test calibration: {args.reference_frames}-frame reference per site, then steps")
-        result["reference_steps"] = _reference(seeds, args.reference_frames, args.null_frames, args.runs, log)
+        result["reference_steps"] = _reference(seeds, args.reference_frames, args.null_frames, args.runs, log,
+                                               tuple(a for a in args.arms.split(",") if a))
     elif args.part == "weak":  # does the monitor say which changes it cannot see within 50 frames?
         log("== the weak-axes statement: z steps at the size the issue asks for, x as the control")
         streams = {s: _synth_stream(s, n_null) for s in seeds}
