@@ -36,6 +36,12 @@ Prints tables and writes ``benchmarks/results/monitor.json`` (each part merges i
     ... --part a9 --real-null 1600 --real-frames 320
     ... --part real --real-null 1600 --real-frames 320
     ... --part weak --sites 2 --runs 8 --null-frames 800
+    ... --part reference --sites 2 --runs 8 --null-frames 800 --reference-frames 2400
+
+``--part reference``: the change test calibrated per axis and window length
+(``CameraMonitor.axis_factors``) from a drift-free reference stretch of each site
+(``Monitor.learn``), against the test without it and with only the stream's own ~250 frames, on
+the same step segments (z steps: the axis the covariance overstated most).
 """
 
 from __future__ import annotations
@@ -86,15 +92,16 @@ def _synth_calibration(site):
 
 
 def _run(cal, frames, *, k0: int | None = None, change=None, ramp: int = 0, latch: bool = True,
-         settle: tuple[int, ...] = (50, 100)) -> dict:
+         settle: tuple[int, ...] = (50, 100), monitor=None) -> dict:
     """Monitor ``frames`` (any iterable; a change from frame ``k0``: a step, or over ``ramp``
     frames a ramp). Returns the first detection, the step estimate at detection and ``settle``
     frames after the change (the latched estimate: the frames since the change point refitted),
-    states, alarms, CPU (``time.process_time`` of ``update`` only)."""
+    states, alarms, CPU (``time.process_time`` of ``update`` only). ``monitor``: a fresh
+    ``Monitor`` to use (one that learned a reference stretch) instead of a new one."""
     from xcalib.monitor import Monitor, MonitorConfig
     from xcalib.monitor.inject import inject_change
 
-    mon = Monitor(cal, MonitorConfig(**{"latch": latch, **CONFIG}))
+    mon = monitor if monitor is not None else Monitor(cal, MonitorConfig(**{"latch": latch, **CONFIG}))
     cm = next(iter(mon.cameras.values()))
     states = {"ok": 0, "drift": 0, "unknown": 0}
     weak: dict[str, int] = {}
@@ -170,10 +177,10 @@ JOBS = 1  # worker processes (``--jobs``)
 CONFIG: dict = {}  # MonitorConfig settings other than the defaults (``--set``)
 
 
-def _pmap(fn, items: list) -> list:
+def _pmap(fn, items: list):
     """``[fn(x) for x in items]``, in ``JOBS`` forked worker processes when JOBS > 1 (order kept)."""
     if JOBS <= 1 or len(items) <= 1:
-        return [fn(x) for x in items]
+        return map(fn, items)  # lazy: each result is logged as it is done
     import multiprocessing as mp
 
     with mp.get_context("fork").Pool(min(JOBS, len(items))) as pool:
@@ -236,6 +243,64 @@ def _summarise(name, res, kind, size, axis, within, k0, log) -> dict:
         f"(either {_f(row['est_err_either_at_plus_50'], 2)})  axis {row['axis_right'] * 100:.0f} %  early {early}  "
         f"stated weak {row['weak_axis_stated'] * 100:.0f} %")
     return row
+
+
+REF_CELLS = [("translation", 0.10, 50, 2), ("translation", 0.20, 20, 2), ("translation", 0.10, 50, 0)]
+
+
+def _ref_runs(cell) -> list[dict]:
+    """One cell's runs in one arm: ``off`` (reference_samples=0, the default: the single
+    adjacent-window inflation), ``online`` (reference_samples=REFERENCE_SAMPLES: the per-axis
+    factors from the stream's own decisions, ~250 frames before the change), ``reference`` (a copy of the monitor
+    that learned the site's reference stretch first)."""
+    import copy
+
+    from xcalib.monitor import Monitor, MonitorConfig
+    from xcalib.monitor.core import REFERENCE_SAMPLES
+
+    arm, kind, size, within, axis, runs = cell
+    keys = list(_STREAMS)
+    res = []
+    for r in range(runs):
+        seed = keys[r % len(keys)]
+        site, frames, learned = _STREAMS[seed]
+        cal = _synth_calibration(site)
+        k0 = PRE + ((r // len(keys)) * 137) % max(len(frames) - PRE - POST, 1)
+        seg = frames[k0 - PRE:k0 + POST]
+        mon = (copy.deepcopy(learned) if arm == "reference" else
+               Monitor(cal, MonitorConfig(**{**CONFIG, "reference_samples": 0 if arm == "off" else REFERENCE_SAMPLES})))
+        res.append(_run(cal, seg, k0=PRE, change=_change(kind, size, axis), monitor=mon))
+    return res
+
+
+def _reference(seeds: list[int], n_ref: int, n_stream: int, runs: int, log,
+               arms: tuple[str, ...] = ("off", "online", "reference")) -> dict:
+    """The per-axis calibration of the change test (``CameraMonitor.axis_factors``), measured: per
+    site one stream of ``n_ref`` + ``n_stream`` generated frames; the first ``n_ref`` are the
+    site's drift-free reference stretch (``Monitor.learn``), the steps are injected 250 frames
+    into segments of the rest, in three arms (``_ref_runs``) on the same segments."""
+    from xcalib.monitor import Monitor, MonitorConfig
+    from xcalib.monitor.core import REFERENCE_SAMPLES
+
+    _STREAMS.clear()
+    out = {"reference_frames": n_ref, "runs_per_cell": runs, "sites": seeds, "factors": {}}
+    for s in seeds:
+        site, frames = _synth_stream(s, n_ref + n_stream)
+        mon = Monitor(_synth_calibration(site), MonitorConfig(**{**CONFIG, "reference_samples": REFERENCE_SAMPLES}))
+        summ = mon.learn(frames[:n_ref])
+        out["factors"][f"site_{s}"] = summ
+        log(f"site {s}: reference {n_ref} frames: " + "; ".join(
+            f"{k} ({v['samples']} samples) " + (", ".join(f"{a} {x:.2f}" for a, x in v["variance_factors"].items())
+                                                if v["variance_factors"] else "-")
+            for k, v in next(iter(summ.values())).items() if k.startswith("window")), flush=True)
+        _STREAMS[s] = (site, frames[n_ref:], mon)
+    for arm in arms:
+        log(f"-- arm {arm}")
+        rows = [_summarise(f"{arm}: step {size:g} {'deg' if kind == 'rotation' else 'm'} {kind} {AXES[axis]}",
+                           res, kind, size, axis, within, PRE, log)
+                for (kind, size, within, axis), res in zip(REF_CELLS, _pmap(_ref_runs, [(arm, *c, runs) for c in REF_CELLS]))]
+        out[arm] = rows
+    return out
 
 
 def _f(v, d: int = 0) -> str:
@@ -472,8 +537,11 @@ def main() -> None:
     ap.add_argument("--null-seeds", default="", help="--part null: comma-separated site seeds (default: the first --null-sites)")
     ap.add_argument("--null-noise", choices=("both", "default", "noisy"), default="both",
                     help="--part null: which detection noise (two processes can share the work)")
-    ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak", "information"), default="all",
+    ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak", "information", "reference"), default="all",
                     help="run one part; its keys are merged into an existing results file")
+    ap.add_argument("--reference-frames", type=int, default=2400,
+                    help="--part reference: the drift-free reference stretch per site (frames)")
+    ap.add_argument("--arms", default="off,online,reference", help="--part reference: the arms to run")
     ap.add_argument("--info-frames", type=int, default=400, help="--part information: frames per site for the bound")
     ap.add_argument("--steps-only", action="store_true", help="--part synth: the steps only (no null streams, ramps)")
     ap.add_argument("--real-null", type=int, default=1600, help="real sequences: drift-free frames (looped)")
@@ -516,6 +584,10 @@ def main() -> None:
         result["information"] = _information(seeds, args.info_frames, args.null_frames, log)
     elif args.part in ("all", "synth"):
         _synthetic(result, seeds, n_null, args.runs, log, nulls=not args.steps_only)
+    elif args.part == "reference":  # the per-axis calibration of the change test from a reference stretch
+        log(f"== per-axis test calibration: {args.reference_frames}-frame reference per site, then steps")
+        result["reference_steps"] = _reference(seeds, args.reference_frames, args.null_frames, args.runs, log,
+                                               tuple(a for a in args.arms.split(",") if a))
     elif args.part == "weak":  # does the monitor say which changes it cannot see within 50 frames?
         log("== the weak-axes statement: z steps at the size the issue asks for, x as the control")
         streams = {s: _synth_stream(s, n_null) for s in seeds}

@@ -44,6 +44,8 @@ def register(app: typer.Typer) -> None:
         recalibrate: bool = typer.Option(False, "--recalibrate", help="After a drift, calibrate on the frames "
                                                                        "after the change point."),
         recalibrate_frames: int = typer.Option(20, "--recalibrate-frames", help="Frames --recalibrate uses."),
+        reference: Path = typer.Option(None, "--reference", help="A drift-free stretch of the same site (a frame "
+                                       "source): calibrates the change test per axis before SOURCE is monitored."),
         tolerance: float = typer.Option(0.05, "--tolerance", help="Bags: largest LiDAR/image stamp difference (s)."),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON line per window, then a summary line."),
         force: bool = typer.Option(False, "--force", help="Replace an existing output folder."),
@@ -53,13 +55,15 @@ def register(app: typer.Typer) -> None:
 
         from ..io.files import atomic_dir, atomic_write
         from ..monitor import Monitor, MonitorConfig, load_calibration
+        from ..monitor.core import REFERENCE_SAMPLES
         from ..monitor.output import MonitorLog, MonitorMcap, write_monitor_html
 
         if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
             raise FileExistsError(f"{out} already exists; pass --force to replace it")
         try:
             config = MonitorConfig(window=window, stride=stride, false_alarm_rate=false_alarm_rate, fps=fps,
-                                   history=max(600, 2 * window * 4))
+                                   history=max(600, 2 * window * 4),
+                                   reference_samples=REFERENCE_SAMPLES if reference is not None else 0)
         except ValueError as exc:
             raise typer.BadParameter(str(exc)) from None
         cals = load_calibration(calibration)
@@ -73,6 +77,8 @@ def register(app: typer.Typer) -> None:
         monitor = Monitor(cals, config)
         log = MonitorLog()
         console = Console(stderr=True)
+        learned = _learn(monitor, _open_views(reference, list(cals), None, tolerance, single=len(cals) == 1),
+                         console) if reference is not None else None
         n = min(len(v) for v in views.values())
         console.print(f"monitor: {n} frames, cameras {', '.join(views)}; false alarms <= {false_alarm_rate:g} per "
                       f"frame (chi-square threshold {config.threshold:.1f}, 6 dof, windows of "
@@ -106,6 +112,7 @@ def register(app: typer.Typer) -> None:
             summary = monitor.summary()
             summary["source"], summary["calibration"] = str(source), str(calibration)
             summary["recalibration"] = recal
+            summary["reference"] = None if learned is None else {"source": str(reference), "cameras": learned}
             atomic_write(tmp / "summary.json", [json.dumps(summary, indent=1).encode()])
             write_monitor_html(tmp / "report.html", monitor, log, title=f"xcalib monitor: {source}")
         if as_json:
@@ -144,6 +151,29 @@ def _human(st) -> str:
         return f"[red]frame {st.frame} ({st.time_s:.1f} s) {st.camera}: DRIFT[/red] {st.message}"
     return (f"frame {st.frame} {st.camera}: detectable change at this traffic (95 % power): rotation x/y/z "
             f"{_fmt3(st.detectable_rotation_deg)} deg, translation {_fmt3(st.detectable_translation_m, 100)} cm")
+
+
+def _learn(monitor, views: dict, console) -> dict:
+    """``Monitor.learn`` on a reference source's frames (every camera's, sweep by sweep)."""
+    n = min(len(v) for v in views.values())
+
+    def frames():
+        for i in range(n):
+            for cam, seq in views.items():
+                frame = seq[i]
+                if len(views) > 1 or not frame.camera_name:
+                    frame.camera_name = cam
+                yield frame
+
+    with console.status(f"reference: {n} frames"):
+        out = monitor.learn(frames())
+    for cam, q in out.items():
+        parts = [f"{k.split('_')[1]} frames: " + (", ".join(f"{a} {v:.2f}" for a, v in w["variance_factors"].items())
+                                                   if w["variance_factors"] else f"too few ({w['samples']} samples)")
+                 for k, w in q.items() if k.startswith("window_")]
+        console.print(f"reference {cam}: {n} frames, {q['alarms']} change(s) inside it; the test's variance per "
+                      f"axis x stated: {'; '.join(parts)}")
+    return out
 
 
 def _open_views(source: Path, cams: list[str], frame_range, tolerance: float, single: bool) -> dict:

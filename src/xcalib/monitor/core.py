@@ -77,7 +77,14 @@ class MonitorConfig:
     objects whose 3D boxes stay wrong for tens of frames are not a move of the camera; 0: off);
     robust_scale: the soft-L1 loss bends at the residuals' own robust scale (at least the noise
     model's), so a detector noisier than the calibration's noise model does not shrink every
-    estimated change.
+    estimated change; reference_samples: the change test of each window length is calibrated
+    per axis from the stream's own drift-free decisions (``CameraMonitor.axis_factors``) once it has
+    this many of them (non-overlapping recent windows; REFERENCE_SAMPLES = 12 is the setting
+    measured); 0 (the default): off, the single adjacent-window ``inflation`` throughout, as
+    before -- measured, the calibration lifted no detection (docs/monitor.md);
+    reference_confidence: each axis's factor is the upper ``reference_confidence`` bound of its
+    measured variance ratio (few samples: a wider factor). ``Monitor.learn(frames)`` takes a
+    drift-free reference stretch of the site for it.
     """
 
     window: int = 20
@@ -102,10 +109,16 @@ class MonitorConfig:
     leave_out_objects: int = 2
     leave_out_level: float = 0.01
     robust_scale: bool = True
+    reference_samples: int = 0
+    reference_confidence: float = 0.9
 
     def __post_init__(self) -> None:
         if int(self.leave_out_objects) < 0:
             raise ValueError(f"MonitorConfig.leave_out_objects must be >= 0, got {self.leave_out_objects}")
+        if int(self.reference_samples) < 0:
+            raise ValueError(f"MonitorConfig.reference_samples must be >= 0, got {self.reference_samples}")
+        if not 0.5 <= self.reference_confidence < 1.0:
+            raise ValueError(f"MonitorConfig.reference_confidence must be in [0.5, 1), got {self.reference_confidence}")
         if not 0.0 <= self.leave_out_level < 1.0:
             raise ValueError(f"MonitorConfig.leave_out_level must be in [0, 1), got {self.leave_out_level}")
         for name in ("window", "stride", "scales", "history", "min_pairs"):
@@ -422,6 +435,9 @@ class CameraMonitor:
         lvl = float(self.config.leave_out_level)
         self.h_out = stats.threshold(lvl, 1, 1) if lvl > 0 else self.h  # without the left-out objects
         self._diffs: deque[float] = deque(maxlen=200)  # successive windows' disagreement (chi2 / 6)
+        # per tested window length: drift-free decisions' squared standardised change per axis [6]
+        self._zs: dict[int, deque[np.ndarray]] = {}
+        self._z_at: dict[int, int] = {}  # ... and the frame count at the last one (non-overlapping windows)
         self._scales: deque[float] = deque(maxlen=SCALE_FRAMES)  # frames' robust residual scale
         self._anon = 0  # untracked pairs' object ids (-1, -2, ...)
         self._scale_at = [-1, 0, 1.0]  # residual_scale's cache: (frames in, uses since, value)
@@ -445,6 +461,30 @@ class CameraMonitor:
         self._last_pairs: np.ndarray | None = None
         self._last_block: _Fit | None = None
         self._block_end = -1
+
+    def restart(self) -> None:
+        """Start afresh after a reference stretch (``Monitor.learn``): history, decisions, events,
+        frame count and time forgotten; what the stretch measured (the residual scale, the
+        adjacent-window inflation, the per-axis factors of the change test) kept."""
+        self.reset()
+        self.events = []
+        self.statuses_seen = {"ok": 0, "drift": 0, "unknown": 0}
+        self.weak_seen = dict.fromkeys(AXIS_NAMES, 0)
+        self._power.clear()
+        self.n_seen = 0
+        self.last_time = None
+        self.last_status = None
+        self._z_at = {}
+        self._block_end, self._last_block = -1, None
+
+    def reference_summary(self) -> dict:
+        """Per tested window length: samples of the per-axis factors and the factors (None: too few)."""
+        out = {}
+        for L in self.config.windows:
+            f = self.axis_factors(L)
+            out[f"window_{L}"] = {"samples": len(self._zs.get(L, ())),
+                                  "variance_factors": None if f is None else dict(zip(AXIS_NAMES, _l(f)))}
+        return out
 
     @property
     def pose_lin(self) -> Pose:
@@ -704,6 +744,40 @@ class CameraMonitor:
             return INFLATION_PRIOR
         return max(1.0, float(np.quantile(self._diffs, 0.75)) / CHI2_6_Q75_OVER_6)
 
+    def axis_factors(self, length: int) -> np.ndarray | None:
+        """Per axis (rx .. tz), the factor on the variance the change test of a ``length``-frame
+        window states, measured on this stream's drift-free decisions: each sample is the test's
+        change divided by its stated 1-sigma per axis, one per non-overlapping recent window
+        (AXIS_SAMPLES kept); the factor is the upper ``reference_confidence`` bound of the mean
+        square (m samples: mean * m / chi2_m quantile), at least MIN_AXIS_FACTOR. None until
+        ``reference_samples`` samples are in (or when off): the single ``inflation`` holds then.
+        The box model's errors do not spread evenly over the axes (one site's traffic states
+        ry, rz, tx, tz 1.6-2.6 times too wide, rx and ty right): one scale cannot fit them."""
+        k = int(self.config.reference_samples)
+        z = self._zs.get(int(length))
+        if k == 0 or z is None or len(z) < k:
+            return None
+        Z = np.asarray(z)
+        v = stats.variance_upper(Z.sum(0), len(Z), self.config.reference_confidence)
+        return np.maximum(v, MIN_AXIS_FACTOR)
+
+    def _cov_scale(self, length: int, phi: float) -> tuple[np.ndarray, bool]:
+        """(1-sigma factors per axis [6], calibrated?) for the test of a ``length``-frame window."""
+        f = self.axis_factors(length)
+        return (np.sqrt(f), True) if f is not None else (np.full(6, math.sqrt(phi)), False)
+
+    def _sample_axes(self, pending: list[tuple[int, np.ndarray, np.ndarray]]) -> None:
+        """Keep a drift-free decision's tests as samples of ``axis_factors`` (one per window length
+        per ``length`` frames)."""
+        for L, d, C in pending:
+            if self.n_seen - self._z_at.get(L, -(10 ** 9)) < L:
+                continue
+            sd2 = np.diag(C)
+            if not np.all(np.isfinite(d)) or not np.all(sd2 > 0):
+                continue
+            self._zs.setdefault(L, deque(maxlen=AXIS_SAMPLES)).append(d * d / sd2)
+            self._z_at[L] = self.n_seen
+
     def _update_inflation(self, sums: _Sums, n: int) -> None:
         W = self.config.window
         if self.n_seen - self._block_end < W:
@@ -729,46 +803,52 @@ class CameraMonitor:
         why = self._evidence(recs[-longest:])
         if why is not None:
             return self._status("unknown", None, why[1], why[0], n_frames=longest)
-        fit_r = sums.fit(n - longest, n, phi)
+        fit_r = sums.fit(n - longest, n)
         if fit_r is None:
             return self._status("unknown", None, "the matched boxes do not determine the pose (degenerate geometry)",
                                 "degenerate", n_frames=longest)
         best_stat, best_len, det, det_t = 0.0, longest, None, None
-        tests: list[tuple[float, int, _Fit, _Fit | None]] = []
+        tests: list[tuple[float, int, _Fit, _Fit | None, np.ndarray]] = []
+        pending: list[tuple[int, np.ndarray, np.ndarray]] = []  # samples of axis_factors
         # weak axes are judged on the longest window tested within target_frames of a change
         L_t = max([L for L in lengths if L + cfg.stride <= cfg.target_frames] or [lengths[0]])
         for L in lengths:  # the change-point tests: each recent segment against the frames before it
             if sums.pairs(0, n - L) < cfg.min_pairs or sums.pairs(n - L, n) < cfg.min_pairs:
                 continue
-            fa, fb = sums.fit(n - L, n, phi), sums.fit(0, n - L, phi)
+            fa, fb = sums.fit(n - L, n), sums.fit(0, n - L)
             if fa is None or fb is None:
                 continue
-            C = fa.cov + fb.cov
+            S, _ = self._cov_scale(L, phi)
+            pending.append((L, fa.x - fb.x, fa.cov + fb.cov))
+            C = (fa.cov + fb.cov) * np.outer(S, S)
             s = stats.chi2_stat(fa.x - fb.x, C)
             if L == longest:
                 det = stats.detectable_change(C, self.lam)
             if L == L_t:
                 det_t = stats.detectable_change(C, self.lam)
-            tests.append((s, L, fa, fb))
+            tests.append((s, L, fa, fb, S))
             if s > best_stat:
                 best_stat, best_len = s, L
+        S_r, _ = self._cov_scale(longest, phi)
+        raw_r, fit_r = fit_r, replace(fit_r, cov=fit_r.cov * np.outer(S_r, S_r))
         s0 = stats.chi2_stat(fit_r.x, fit_r.cov + self.cov_cal)  # the offset from the calibration itself
-        tests.append((s0, 0, fit_r, None))
+        tests.append((s0, 0, raw_r, None, S_r))
         if s0 > best_stat:
             best_stat, best_len = s0, 0
         det = _to_units(det if det is not None else stats.detectable_change(fit_r.cov, self.lam))
         weak_det = (_to_units(det_t), L_t) if det_t is not None else None
         held = ""
         if best_stat > self.h:  # an alarm needs the change to hold without its most influential objects
-            for s, L, fa, fb in sorted(tests, key=lambda q: -q[0]):
+            for s, L, fa, fb, S in sorted(tests, key=lambda q: -q[0]):
                 if s <= self.h:
                     break
-                s_lo, dropped = self._without_objects(recs, n - (L or longest), fa, fb)
+                s_lo, dropped = self._without_objects(recs, n - (L or longest), fa, fb, S)
                 if s_lo > self.h_out:
                     return self._alarm(recs, sums, s, L, det)
                 held = held or (f"; a change (statistic {s:.1f}) rests on object(s) "
                                 f"{', '.join(str(o) for o in dropped)}: without them {s_lo:.1f} < {self.h_out:.1f}")
             best_stat = min(best_stat, self.h)
+        self._sample_axes(pending)
         if np.any(det[:3] > cfg.max_detectable_deg) or np.any(det[3:] > cfg.max_detectable_m):
             axes = [f"{a} {v:.2f} {'deg' if i < 3 else 'm'}" for i, (a, v) in
                     enumerate(zip(("rx", "ry", "rz", "tx", "ty", "tz"), det))
@@ -779,11 +859,13 @@ class CameraMonitor:
         return self._status("ok", fit_r, f"no change (statistic {best_stat:.1f} < threshold {self.h:.1f}){held}",
                             "one_object" if held else "", best_stat, det, longest, weak_det)
 
-    def _without_objects(self, recs: list[_Rec], a: int, fa: _Fit, fb: _Fit | None) -> tuple[float, list[int]]:
+    def _without_objects(self, recs: list[_Rec], a: int, fa: _Fit, fb: _Fit | None,
+                         scale: np.ndarray | None = None) -> tuple[float, list[int]]:
         """The test of the recent frames [a, n) (``fa``) against the frames before them (``fb``; None:
         against the calibration) with the ``leave_out_objects`` most influential objects left out
         of both, one at a time (each the one whose removal lowers the statistic most); returns the
-        statistic and the objects left out. An object left out that leaves too little to fit gives 0."""
+        statistic and the objects left out. An object left out that leaves too little to fit gives 0.
+        ``scale``: 1-sigma factors per axis on the two-segment covariance (the test's calibration)."""
         n = len(recs)
         k_out = int(self.config.leave_out_objects)
         ids_a, Ha, ga = _object_sums(recs, a, n)
@@ -798,8 +880,9 @@ class CameraMonitor:
             gb_a = np.where(inb[:, None], gb[pos] if len(ids_b) else 0.0, 0.0)
         fac_a = float(np.trace(fa.cov @ (Ta))) / 6.0  # the fit's covariance is inv(H) times this factor
         fac_b = float(np.trace(fb.cov @ Tb)) / 6.0 if fb is not None else 0.0
+        SS = np.ones((6, 6)) if scale is None else np.outer(scale, scale)
         stat, dropped = stats.chi2_stat(fa.x - (fb.x if fb is not None else 0.0),
-                                        fa.cov + (fb.cov if fb is not None else self.cov_cal)), []
+                                        (fa.cov + fb.cov) * SS if fb is not None else fa.cov * SS + self.cov_cal), []
         alive = np.ones(len(ids_a), dtype=bool)
         for _ in range(k_out):
             if not np.any(alive):
@@ -809,10 +892,10 @@ class CameraMonitor:
             if fb is not None:
                 HB, gB = Tb[None] - Hb_a, tb[None] - gb_a
                 xb, cb, okb = _solve_batch(HB, gB)
-                d, C = xa - xb, ca * fac_a + cb * fac_b
+                d, C = xa - xb, (ca * fac_a + cb * fac_b) * SS[None]
                 ok = oka & okb
             else:
-                d, C, ok = xa, ca * fac_a + self.cov_cal[None], oka
+                d, C, ok = xa, ca * fac_a * SS[None] + self.cov_cal[None], oka
             s_k = np.zeros(len(ids_a))
             if np.any(ok):
                 s_k[ok] = np.einsum("ki,ki->k", d[ok], np.linalg.solve(C[ok], d[ok][..., None])[..., 0])
@@ -964,6 +1047,9 @@ SCALE_FRAMES = 200  # frames the residual scale is the median over
 SCALE_EVERY = 5  # ... recomputed every this many frames
 RELIN_ITERS = 3  # rounds of re-linearisation of the frames after a detected change
 RELIN_TOL = 0.5  # a frame linearised farther than this (sigma, any axis) from the estimate is re-linearised
+AXIS_SAMPLES = 400  # samples kept per window length (axis_factors)
+REFERENCE_SAMPLES = 12  # MonitorConfig.reference_samples where it is switched on (CLI --reference)
+MIN_AXIS_FACTOR = 0.25  # a test's variance is never taken below a quarter of the stated one on any axis
 MIN_DIFFS = 5  # adjacent window pairs before the measured inflation replaces the prior
 INFLATION_PRIOR = 2.0
 CHI2_6_Q75_OVER_6 = 1.3068  # 75th percentile of chi-square(6) / 6
@@ -1077,6 +1163,24 @@ class Monitor:
                                  f"({', '.join(self.cameras)}) is in it (cameras: {', '.join(sorted(present))})")
         self.n_frames = max(self.n_frames, idx + 1)
         return out
+
+    def learn(self, frames: Iterable) -> dict:
+        """Take a drift-free reference stretch of the site (the hours after a calibration, say):
+        its frames calibrate each camera's change test per axis and window length
+        (``CameraMonitor.axis_factors``), then every camera starts afresh (``restart``); a change
+        found inside the stretch is forgotten at once (its decisions are no sample). Returns, per
+        camera, the alarms inside the stretch and the factors (``reference_summary``)."""
+        alarms = dict.fromkeys(self.cameras, 0)
+        for f in frames:
+            self.update(f)
+            for name, cm in self.cameras.items():
+                if cm.drift is not None:
+                    alarms[name] += 1
+                    cm.reset()
+        for cm in self.cameras.values():
+            cm.restart()
+        self.n_frames = 0
+        return {name: {"alarms": alarms[name], **cm.reference_summary()} for name, cm in self.cameras.items()}
 
     def run(self, frames: Iterable) -> Iterable[MonitorStatus]:
         for f in frames:

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.stats import chi2, ncx2
 
 __all__ = ["threshold", "detectable_lambda", "detectable_change", "chi2_stat", "select_model", "pure_models",
-           "sparse_step"]
+           "sparse_step", "variance_upper"]
 
 DOF = 6
 
@@ -136,3 +136,10 @@ def sparse_step(d: np.ndarray, cov: np.ndarray, axes, level: float = MODEL_LEVEL
         if best is not None:
             return best[1], best[2]
     return np.asarray(d, dtype=np.float64), axes
+
+
+def variance_upper(sum_sq: np.ndarray, m: int, confidence: float) -> np.ndarray:
+    """Upper ``confidence`` bound of a variance from ``m`` squared standardised samples summing to
+    ``sum_sq`` (per axis): ``sum_sq / chi2_m quantile at 1 - confidence`` (the samples taken as
+    independent normal)."""
+    return np.asarray(sum_sq, dtype=np.float64) / float(chi2.ppf(1.0 - confidence, max(int(m), 1)))
