@@ -182,7 +182,7 @@ def _objects_check(ev: Evidence) -> Refusal | None:
     focal +-5-20 %, principal point and time offset at 4 px), for 2 more clean successes per
     noise level (measured with ``MIN_OBJECTS = 3`` on every realism condition at sites 10, 20).
     Measured again in session 7 (issue 25), sites 10 and 20 with ``MIN_OBJECTS = 3``: clean, clean
-    4 px, focal -5 % and one 0.05 s offset delivered right (<= 0.13 deg / 0.11 m), but 3 of 12 runs
+    4 px, focal +-5 % and one 0.05 s offset delivered right (<= 0.13 deg / 0.11 m), but 3 of 14 runs
     wrong -- principal point +3 % W at 4 px (1.57 deg / 0.33 m and 0.61 m) and a 0.05 s offset at
     site 20 (2.35 deg / 1.82 m), with a reported 1-sigma of 0.1-0.2 deg: what the data hold at 3
     objects cannot tell these model errors from a right pose, so the count stays."""
