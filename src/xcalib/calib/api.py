@@ -344,14 +344,14 @@ def _refit_calls(ctx: FitContext, config: CalibConfig, refits: tuple, lean: list
     places = len(matched_places(ctx.frames, ctx.pairs)[0])
     focal = None if focal_estimated else (focal_fit, (full.frames, full.pairs, full.intr, full.pose, full.noise,
                                                       full.f_scale, full.occlusion))
-    time_chk = (_time_check, (full, times, unit, config.seed)) if config.time_offset is None else None
+    time_chk = (_time_check, (full, times, unit, config.seed, places)) if config.time_offset is None else None
     pp = (_pp_check, (full, config.seed, places)) if config.refine_intrinsics != "focal+center" else None
     return [focal, time_chk, pp]
 
 
-def _time_check(ctx: FitContext, times: np.ndarray, unit: str, seed: int):
+def _time_check(ctx: FitContext, times: np.ndarray, unit: str, seed: int, places: int | None = None):
     """``misfit.time_offset_check`` (a task of ``_misfit_searches``)."""
-    return time_offset_check(ctx, times, unit, seed=seed)
+    return time_offset_check(ctx, times, unit, seed=seed, places=places)
 
 
 def _pp_check(ctx: FitContext, seed: int, places: int):
@@ -468,7 +468,7 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
     time_chk, pp_unverifiable = None, None
     if config.time_offset is None:  # a fixed or estimated offset is already in the model
         times, unit = _frame_times(frames_in)
-        time_chk = _started(searches, 4, _time_check, ctx, times, unit, config.seed)
+        time_chk = _started(searches, 4, _time_check, ctx, times, unit, config.seed, places)
     if config.refine_intrinsics != "focal+center":
         chk, msg = _started(searches, 5, _pp_check, ctx, config.seed, places)
         if msg and time_chk is not None and time_chk[1]:
