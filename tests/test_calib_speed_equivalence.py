@@ -319,3 +319,56 @@ def test_score_poses_independent_of_the_batch():
         whole = score_poses(fr, intr, R, t)
         parts = np.concatenate([score_poses(fr, intr, R[s:s + 25], t[s:s + 25]) for s in range(0, 250, 25)])
         assert whole.max() > 1.0 and whole.tobytes() == parts.tobytes()
+
+
+def _match_frames_per_frame(frames, proj, gate_iou, gate_dist):  # refine._match_frames's assignment loop before s7
+    from xcalib.calib.refine import _assign, _match_projected
+
+    out = []
+    for fr, (rects, valid) in zip(frames, proj):
+        out.append(_match_projected(fr, rects, valid, gate_iou, gate_dist)[0] if fr.n2 and fr.n3 and np.any(valid)
+                   else np.zeros((0, 2), dtype=np.int64))
+    return out
+
+
+@pytest.mark.parametrize("gate", [(0.3, 0.0), (0.2, 0.5), (0.1, 1.0)])
+def test_match_frames_conflict_free_shortcut(gate):
+    """``refine._match_frames`` decides ``_assign``'s no-shared-box shortcut for all frames in one
+    array computation (issue 29, session 7): the same pairs, in the same order and dtype, as
+    matching each frame on its own, at poses near and far from the truth, on frames of several
+    sizes (padding) and with boxes behind the camera; both the shortcut and the assignment taken."""
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.calib.refine import _conflict_free, _match_frames, project_frames
+    from xcalib.data.synth import generate_frames, sample_site
+    from xcalib.geometry.rotations import rotvec_to_matrix
+
+    site = sample_site(2, preset="roadside")
+    frames = generate_frames(site, 12, seed=4, render_images=False, lidar=False, miss_rate_2d=0.2,
+                             false_positive_rate_2d=0.2, box_noise_px=3.0)
+    cframes, intr, _ = prepare_frames(frames, site.intrinsics)
+    T = site.T_cam_lidar
+    r = np.random.default_rng(7)
+    kinds = set()
+    for scale in (0.0, 0.01, 0.03, 0.08, 0.3):
+        R = rotvec_to_matrix(r.normal(scale=scale, size=3)) @ T[:3, :3]
+        t = T[:3, 3] + r.normal(scale=10 * scale, size=3)
+        proj = project_frames(cframes, intr, R, t)
+        got = _match_frames(cframes, proj, *gate)
+        want = _match_frames_per_frame(cframes, proj, *gate)
+        for g, w in zip(got, want):
+            assert g.dtype == w.dtype and g.shape == w.shape and g.tobytes() == w.tobytes()
+        kinds.update("shortcut" if len(w) else "none" for w in want)
+    # the batch decision itself on padded random blocks: the frames it keeps are exactly those
+    # whose allowed pairs share no box, with argwhere's pairs
+    rr = np.random.default_rng(1)
+    n2, n3 = [3, 7, 1, 5, 0], [4, 2, 6, 6, 3]
+    iou = rr.uniform(0, 1, (5, 7, 6)) ** 3
+    dist = rr.uniform(0, 2, (5, 7, 6))
+    simple = _conflict_free(iou, dist, n2, n3, *gate)
+    for i in range(5):
+        a = (iou[i, :n2[i], :n3[i]] >= gate[0]) | ((dist[i, :n2[i], :n3[i]] <= gate[1]) if gate[1] > 0 else False)
+        free = (a.sum(0).max(initial=0) <= 1) and (a.sum(1).max(initial=0) <= 1)
+        assert (i in simple) == free
+        if free:
+            assert simple[i].tobytes() == np.argwhere(a).astype(np.int64).tobytes()
+    assert kinds

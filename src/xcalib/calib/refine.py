@@ -126,12 +126,37 @@ def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_di
     c_pred = np.stack([(rects[..., 0] + rects[..., 2]) / 2, (rects[..., 1] + rects[..., 3]) / 2], -1)
     diag = np.hypot(boxes[..., 2] - boxes[..., 0], boxes[..., 3] - boxes[..., 1])
     dist = np.linalg.norm(c_obs[:, :, None] - c_pred[:, None], axis=3) / diag[..., None]
+    simple = _conflict_free(iou, dist, [frames[k].n2 for k in live], [len(c) for c in cols], gate_iou, gate_dist)
     for i, k in enumerate(live):
         n2, c = frames[k].n2, cols[i]
-        p = _assign(iou[i, :n2, :len(c)], dist[i, :n2, :len(c)], np.ones(len(c), bool), gate_iou, gate_dist)[0]
+        if i in simple:  # ``_assign``'s own shortcut, decided for all frames at once (the same pairs)
+            p = simple[i]
+        else:
+            p = _assign(iou[i, :n2, :len(c)], dist[i, :n2, :len(c)], np.ones(len(c), bool), gate_iou, gate_dist)[0]
         p[:, 1] = c[p[:, 1]]
         out[k] = p
     return out
+
+
+def _conflict_free(iou: np.ndarray, dist: np.ndarray, n2: list[int], n3: list[int], gate_iou: float,
+                   gate_dist: float) -> dict[int, np.ndarray]:
+    """The frames of the padded [L,K,M] ``iou`` / ``dist`` (frame i's real block: ``n2[i]`` rows,
+    ``n3[i]`` columns) whose allowed pairs share no box, each with its pairs [n,2] (rows of its block,
+    in row order) -- what ``_assign`` returns for such a frame (no allowed pair: no pairs; else every
+    allowed pair, ``np.argwhere`` order), found for all frames in one array computation instead of a
+    dozen small ones per frame. The allowed mask is ``_assign``'s (the same comparisons of the same
+    values, every column valid); the padding is masked out. Frames missing from the result have
+    allowed pairs that compete for a box and go through ``_assign``'s assignment."""
+    L, K, M = iou.shape
+    allowed = (iou >= gate_iou) if gate_dist <= 0 else ((iou >= gate_iou) | (dist <= gate_dist))
+    allowed &= np.arange(K)[None, :, None] < np.asarray(n2)[:, None, None]
+    allowed &= np.arange(M)[None, None, :] < np.asarray(n3)[:, None, None]
+    ok = (allowed.sum(1).max(1) <= 1) & (allowed.sum(2).max(1) <= 1)
+    if not ok.any():
+        return {}
+    idx = np.argwhere(allowed[ok])  # (frame among ok, row, column), frame by frame in row order
+    starts = np.searchsorted(idx[:, 0], np.arange(int(ok.sum()) + 1))
+    return {int(i): idx[starts[j]:starts[j + 1], 1:].astype(np.int64) for j, i in enumerate(np.flatnonzero(ok))}
 
 
 def project_frames(frames: list[CalibFrame], intr: CameraIntrinsics, R, t) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -335,7 +360,6 @@ def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *, optio
         n = sum(len(p) for p in pairs)
         if n < min_pairs:
             break
-        _, obs = _stack(frames, pairs)
         # robust scale from the current (weighted) residual level
         f_scale = F_SCALE if prev is None or not len(resid) else max(0.5, 1.5 * float(np.median(np.abs(resid))))
         R_old, t_old = R, t
