@@ -368,13 +368,18 @@ def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *, optio
         R, t, cost, resid, _ = lsq(FitContext(frames, pairs, intr, Pose(R, t), noise, f_scale, occlusion), max_nfev)
         per = cost / max(n, 1)
         history.append(per)
-        moved = np.linalg.norm(Rotation.from_matrix(R @ R_old.T).as_rotvec()) + np.linalg.norm(t - t_old) / 100.0
-        if it >= len(gates) - 1 and prev is not None and (abs(prev - per) <= tol * max(prev, 1e-9) or moved < 2e-6):
-            break
+        if it >= len(gates) - 1 and prev is not None and (abs(prev - per) <= tol * max(prev, 1e-9)
+                                                          or _moved(R, R_old, t, t_old) < 2e-6):
+            break  # (how far the pose moved is computed only where the test needs it: the same stop)
         prev = per
     pairs = match_all(frames, intr, R, t, gate_iou=gates[-1][0], gate_dist=gates[-1][1])
     return RefineResult(R=R, t=t, pairs=pairs, cost=history[-1] if history else np.inf, n_iter=it + 1,
                         residuals=resid, history=history, noise=noise)
+
+
+def _moved(R, R_old, t, t_old) -> float:
+    """How far a refinement step moved the pose: rotation angle (rad) + translation (m) / 100."""
+    return np.linalg.norm(Rotation.from_matrix(R @ R_old.T).as_rotvec()) + np.linalg.norm(t - t_old) / 100.0
 
 
 def pair_metrics(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, pairs: list[np.ndarray]):
