@@ -372,3 +372,72 @@ def test_match_frames_conflict_free_shortcut(gate):
         if free:
             assert simple[i].tobytes() == np.argwhere(a).astype(np.int64).tobytes()
     assert kinds
+
+
+def _seeded_edge_problem(seed: int):
+    """A seeded synthetic frame set, its matches at the truth, and a BoxEdgeTerm model (boxes cut by
+    the image border included)."""
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.calib.pose import Pose
+    from xcalib.calib.refine import build_cost, match_all
+    from xcalib.data.synth import generate_frames, sample_site
+
+    site = sample_site(seed, preset="roadside")
+    frames = generate_frames(site, 6, seed=seed, render_images=False, lidar=False, box_noise_px=2.0)
+    cframes, intr, _ = prepare_frames(frames, site.intrinsics)
+    T = site.T_cam_lidar
+    pairs = match_all(cframes, intr, T[:3, :3], T[:3, 3])
+    return cframes, intr, T, build_cost(cframes, pairs, intr, Pose(T[:3, :3], T[:3, 3]))
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_jacobian_clipped_edge_mask_from_clipped_rects(seed):
+    """``BoxEdgeTerm.jacobian`` takes the clipped-edge mask from the clipped rectangles (issue 29,
+    session 7): the same mask as the unclipped defining-corner edges strictly inside the image gave,
+    at poses that push boxes across the border."""
+    from xcalib.calib.cost import BoxEdgeTerm, PoseState
+    from xcalib.calib.pose import Pose
+    from xcalib.geometry.rotations import rotvec_to_matrix
+
+    _, intr, T, model = _seeded_edge_problem(seed)
+    term = next(t for t in model.terms if type(t) is BoxEdgeTerm)
+    r = np.random.default_rng(seed)
+    W, H = term.size
+    lim = np.array([W, H, W, H], dtype=np.float64)
+    clipped = 0
+    for _ in range(30):
+        R = rotvec_to_matrix(r.normal(scale=0.15, size=3)) @ T[:3, :3]
+        rects, valid, u, v = term._projection(PoseState(Pose(R, T[:3, 3] + r.normal(scale=1.0, size=3)), intr))
+        uu, vv = np.where(valid[:, None], u, 0.0), np.where(valid[:, None], v, 0.0)
+        rows = np.arange(len(uu))
+        ext = np.column_stack([uu[rows, uu.argmin(1)], vv[rows, vv.argmin(1)], uu[rows, uu.argmax(1)],
+                               vv[rows, vv.argmax(1)]])
+        old = (ext > 0.0) & (ext < lim)
+        with np.errstate(invalid="ignore"):
+            new = (rects > 0.0) & (rects < lim)
+        assert np.array_equal(old & valid[:, None], new & valid[:, None])
+        assert not new[~valid].any()
+        clipped += int((valid[:, None] & ~new).sum())
+    assert clipped > 0  # edges at the border were exercised
+
+
+def test_cost_model_state_cache_same_fit():
+    """``CostModel.state`` keeps its last state (issue 29, session 7): the fit, its residuals and
+    the Jacobians are bit for bit those of a model that rebuilds the state at every call."""
+    from xcalib.calib.cost import CostModel
+
+    class Uncached(CostModel):
+        def state(self, x):
+            self._last_state = None
+            return super().state(x)
+
+    _, _, _, model = _seeded_edge_problem(1)
+    plain = Uncached(model.terms, model.pose0, model.intr)
+    a, b = model.fit(f_scale=1.0, max_nfev=40), plain.fit(f_scale=1.0, max_nfev=40)
+    assert a.x.tobytes() == b.x.tobytes() and a.residuals.tobytes() == b.residuals.tobytes() and a.cost == b.cost
+    x = np.full(model.n_params, 1e-3)
+    assert model.residuals(x).tobytes() == plain.residuals(x).tobytes()
+    assert model.analytic_jacobian(x).tobytes() == plain.analytic_jacobian(x).tobytes()
+    x2 = x.copy()
+    x2[0] += 1e-4  # a new x: a new state
+    assert model.state(x2).pose.R.tobytes() != model.state(x).pose.R.tobytes()
