@@ -364,7 +364,7 @@ def test_match_frames_conflict_free_shortcut(gate):
     n2, n3 = [3, 7, 1, 5, 0], [4, 2, 6, 6, 3]
     iou = rr.uniform(0, 1, (5, 7, 6)) ** 3
     dist = rr.uniform(0, 2, (5, 7, 6))
-    simple = _conflict_free(iou, dist, n2, n3, *gate)
+    simple, _ = _conflict_free(iou, dist, n2, n3, *gate)
     for i in range(5):
         a = (iou[i, :n2[i], :n3[i]] >= gate[0]) | ((dist[i, :n2[i], :n3[i]] <= gate[1]) if gate[1] > 0 else False)
         free = (a.sum(0).max(initial=0) <= 1) and (a.sum(1).max(initial=0) <= 1)
