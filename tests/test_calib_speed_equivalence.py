@@ -319,3 +319,125 @@ def test_score_poses_independent_of_the_batch():
         whole = score_poses(fr, intr, R, t)
         parts = np.concatenate([score_poses(fr, intr, R[s:s + 25], t[s:s + 25]) for s in range(0, 250, 25)])
         assert whole.max() > 1.0 and whole.tobytes() == parts.tobytes()
+
+
+def _match_frames_per_frame(frames, proj, gate_iou, gate_dist):  # refine._match_frames's assignment loop before s7
+    from xcalib.calib.refine import _assign, _match_projected
+
+    out = []
+    for fr, (rects, valid) in zip(frames, proj):
+        out.append(_match_projected(fr, rects, valid, gate_iou, gate_dist)[0] if fr.n2 and fr.n3 and np.any(valid)
+                   else np.zeros((0, 2), dtype=np.int64))
+    return out
+
+
+@pytest.mark.parametrize("gate", [(0.3, 0.0), (0.2, 0.5), (0.1, 1.0)])
+def test_match_frames_conflict_free_shortcut(gate):
+    """``refine._match_frames`` decides ``_assign``'s no-shared-box shortcut for all frames in one
+    array computation (issue 29, session 7): the same pairs, in the same order and dtype, as
+    matching each frame on its own, at poses near and far from the truth, on frames of several
+    sizes (padding) and with boxes behind the camera; both the shortcut and the assignment taken."""
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.calib.refine import _conflict_free, _match_frames, project_frames
+    from xcalib.data.synth import generate_frames, sample_site
+    from xcalib.geometry.rotations import rotvec_to_matrix
+
+    site = sample_site(2, preset="roadside")
+    frames = generate_frames(site, 12, seed=4, render_images=False, lidar=False, miss_rate_2d=0.2,
+                             false_positive_rate_2d=0.2, box_noise_px=3.0)
+    cframes, intr, _ = prepare_frames(frames, site.intrinsics)
+    T = site.T_cam_lidar
+    r = np.random.default_rng(7)
+    kinds = set()
+    for scale in (0.0, 0.01, 0.03, 0.08, 0.3):
+        R = rotvec_to_matrix(r.normal(scale=scale, size=3)) @ T[:3, :3]
+        t = T[:3, 3] + r.normal(scale=10 * scale, size=3)
+        proj = project_frames(cframes, intr, R, t)
+        got = _match_frames(cframes, proj, *gate)
+        want = _match_frames_per_frame(cframes, proj, *gate)
+        for g, w in zip(got, want):
+            assert g.dtype == w.dtype and g.shape == w.shape and g.tobytes() == w.tobytes()
+        kinds.update("shortcut" if len(w) else "none" for w in want)
+    # the batch decision itself on padded random blocks: the frames it keeps are exactly those
+    # whose allowed pairs share no box, with argwhere's pairs
+    rr = np.random.default_rng(1)
+    n2, n3 = [3, 7, 1, 5, 0], [4, 2, 6, 6, 3]
+    iou = rr.uniform(0, 1, (5, 7, 6)) ** 3
+    dist = rr.uniform(0, 2, (5, 7, 6))
+    simple, _ = _conflict_free(iou, dist, n2, n3, *gate)
+    for i in range(5):
+        a = (iou[i, :n2[i], :n3[i]] >= gate[0]) | ((dist[i, :n2[i], :n3[i]] <= gate[1]) if gate[1] > 0 else False)
+        free = (a.sum(0).max(initial=0) <= 1) and (a.sum(1).max(initial=0) <= 1)
+        assert (i in simple) == free
+        if free:
+            assert simple[i].tobytes() == np.argwhere(a).astype(np.int64).tobytes()
+    assert kinds
+
+
+def _seeded_edge_problem(seed: int):
+    """A seeded synthetic frame set, its matches at the truth, and a BoxEdgeTerm model (boxes cut by
+    the image border included)."""
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.calib.pose import Pose
+    from xcalib.calib.refine import build_cost, match_all
+    from xcalib.data.synth import generate_frames, sample_site
+
+    site = sample_site(seed, preset="roadside")
+    frames = generate_frames(site, 6, seed=seed, render_images=False, lidar=False, box_noise_px=2.0)
+    cframes, intr, _ = prepare_frames(frames, site.intrinsics)
+    T = site.T_cam_lidar
+    pairs = match_all(cframes, intr, T[:3, :3], T[:3, 3])
+    return cframes, intr, T, build_cost(cframes, pairs, intr, Pose(T[:3, :3], T[:3, 3]))
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_jacobian_clipped_edge_mask_from_clipped_rects(seed):
+    """``BoxEdgeTerm.jacobian`` takes the clipped-edge mask from the clipped rectangles (issue 29,
+    session 7): the same mask as the unclipped defining-corner edges strictly inside the image gave,
+    at poses that push boxes across the border."""
+    from xcalib.calib.cost import BoxEdgeTerm, PoseState
+    from xcalib.calib.pose import Pose
+    from xcalib.geometry.rotations import rotvec_to_matrix
+
+    _, intr, T, model = _seeded_edge_problem(seed)
+    term = next(t for t in model.terms if type(t) is BoxEdgeTerm)
+    r = np.random.default_rng(seed)
+    W, H = term.size
+    lim = np.array([W, H, W, H], dtype=np.float64)
+    clipped = 0
+    for _ in range(30):
+        R = rotvec_to_matrix(r.normal(scale=0.15, size=3)) @ T[:3, :3]
+        rects, valid, u, v = term._projection(PoseState(Pose(R, T[:3, 3] + r.normal(scale=1.0, size=3)), intr))
+        uu, vv = np.where(valid[:, None], u, 0.0), np.where(valid[:, None], v, 0.0)
+        rows = np.arange(len(uu))
+        ext = np.column_stack([uu[rows, uu.argmin(1)], vv[rows, vv.argmin(1)], uu[rows, uu.argmax(1)],
+                               vv[rows, vv.argmax(1)]])
+        old = (ext > 0.0) & (ext < lim)
+        with np.errstate(invalid="ignore"):
+            new = (rects > 0.0) & (rects < lim)
+        assert np.array_equal(old & valid[:, None], new & valid[:, None])
+        assert not new[~valid].any()
+        clipped += int((valid[:, None] & ~new).sum())
+    assert clipped > 0  # edges at the border were exercised
+
+
+def test_cost_model_state_cache_same_fit():
+    """``CostModel.state`` keeps its last state (issue 29, session 7): the fit, its residuals and
+    the Jacobians are bit for bit those of a model that rebuilds the state at every call."""
+    from xcalib.calib.cost import CostModel
+
+    class Uncached(CostModel):
+        def state(self, x):
+            self._last_state = None
+            return super().state(x)
+
+    _, _, _, model = _seeded_edge_problem(1)
+    plain = Uncached(model.terms, model.pose0, model.intr)
+    a, b = model.fit(f_scale=1.0, max_nfev=40), plain.fit(f_scale=1.0, max_nfev=40)
+    assert a.x.tobytes() == b.x.tobytes() and a.residuals.tobytes() == b.residuals.tobytes() and a.cost == b.cost
+    x = np.full(model.n_params, 1e-3)
+    assert model.residuals(x).tobytes() == plain.residuals(x).tobytes()
+    assert model.analytic_jacobian(x).tobytes() == plain.analytic_jacobian(x).tobytes()
+    x2 = x.copy()
+    x2[0] += 1e-4  # a new x: a new state
+    assert model.state(x2).pose.R.tobytes() != model.state(x).pose.R.tobytes()

@@ -258,11 +258,13 @@ class BoxEdgeTerm(CostTerm):
         rows = np.arange(n)[:, None]
         uu, vv = np.where(valid[:, None], u, 0.0), np.where(valid[:, None], v, 0.0)  # (an invalid row has no derivative)
         idx = np.column_stack([uu.argmin(1), vv.argmin(1), uu.argmax(1), vv.argmax(1)])  # [n,4] defining corners
-        ext = np.column_stack([uu[rows[:, 0], idx[:, 0]], vv[rows[:, 0], idx[:, 1]], uu[rows[:, 0], idx[:, 2]],
-                               vv[rows[:, 0], idx[:, 3]]])
         W, H = self.size
         lim = np.array([W, H, W, H], dtype=np.float64)
-        inside = (ext > 0.0) & (ext < lim)  # an edge clipped to the image does not move
+        # an edge clipped to the image does not move: the unclipped edge e (the defining corner's u or
+        # v) lies strictly inside (0, lim) exactly where the rectangle, clipped to [0, lim], does (a
+        # clipped edge is 0 or lim; an invalid rectangle is NaN: False, as its zeroed e was)
+        with np.errstate(invalid="ignore"):
+            inside = (rects > 0.0) & (rects < lim)
         # derivatives at the defining corners only [n,4,...]
         sel = self.outlines[rows, idx]
         if state.shift_m is not None:
@@ -537,18 +539,27 @@ class CostModel:
 
     def __init__(self, terms: list[CostTerm], pose0: Pose, intr: CameraIntrinsics):
         self.terms, self.pose0, self.intr = list(terms), pose0, intr
+        self._last_state: tuple[bytes, PoseState] | None = None  # see state
 
     @property
     def n_params(self) -> int:
         return 6 + sum(t.n_params for t in self.terms)
 
     def state(self, x: np.ndarray) -> PoseState:
+        """The state at ``x``. The last one is kept, keyed by x's bytes: least squares asks for the
+        residuals and then the Jacobian at the same x (a state is only read once built: the terms
+        change it in ``apply`` alone)."""
+        x = np.array(x, dtype=np.float64)  # our own copy: the state keeps views of it
+        key = x.tobytes()
+        if self._last_state is not None and self._last_state[0] == key:
+            return self._last_state[1]
         st = PoseState(self.pose0.moved(x[:3], x[3:6]), self.intr)
         k = 6
         for term in self.terms:
             if term.n_params:
                 st = term.apply(st, x[k:k + term.n_params])
                 k += term.n_params
+        self._last_state = (key, st)
         return st
 
     def residuals(self, x: np.ndarray) -> np.ndarray:

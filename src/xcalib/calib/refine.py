@@ -95,7 +95,12 @@ def _assign(iou: np.ndarray, dist: np.ndarray, valid: np.ndarray, gate_iou: floa
         # row order, without the assignment's search
         pairs = np.argwhere(allowed).astype(np.int64)
         return pairs, iou[pairs[:, 0], pairs[:, 1]]
-    cols = np.flatnonzero(allowed.any(axis=0))
+    return _assign_allowed(allowed, iou, dist, rows, np.flatnonzero(allowed.any(axis=0)))
+
+
+def _assign_allowed(allowed: np.ndarray, iou: np.ndarray, dist: np.ndarray, rows: np.ndarray, cols: np.ndarray):
+    """``_assign``'s assignment given its allowed mask [K,M] (valid columns applied), IoU, centre
+    distance (invalid columns at inf) and the rows / columns [int64] with an allowed pair: (pairs, IoUs)."""
     if len(rows) == len(iou) and len(cols) == iou.shape[1]:  # nothing to drop (small frames)
         sub, iou_s, dist_s = allowed, iou, dist
     else:
@@ -104,7 +109,7 @@ def _assign(iou: np.ndarray, dist: np.ndarray, valid: np.ndarray, gate_iou: floa
     cost = np.where(sub, (1 - iou_s) + np.minimum(dist_s, 10.0), 1e6)
     r, c = linear_sum_assignment(cost)
     keep = sub[r, c]
-    pairs = np.column_stack([rows[r[keep]], cols[c[keep]]]).astype(np.int64)
+    pairs = np.stack((rows[r[keep]], cols[c[keep]]), axis=1)  # (rows, cols: int64, so the pairs are)
     return pairs, iou_s[r[keep], c[keep]]
 
 
@@ -144,12 +149,41 @@ def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_di
     c_pred = np.stack([(rects[..., 0] + rects[..., 2]) / 2, (rects[..., 1] + rects[..., 3]) / 2], -1)
     diag = np.hypot(boxes[..., 2] - boxes[..., 0], boxes[..., 3] - boxes[..., 1])
     dist = np.linalg.norm(c_obs[:, :, None] - c_pred[:, None], axis=3) / diag[..., None]
+    simple, allowed = _conflict_free(iou, dist, [frames[k].n2 for k in live], [len(c) for c in cols], gate_iou,
+                                     gate_dist)
     for i, k in enumerate(live):
         n2, c = frames[k].n2, cols[i]
-        p = _assign(iou[i, :n2, :len(c)], dist[i, :n2, :len(c)], np.ones(len(c), bool), gate_iou, gate_dist)[0]
+        if i in simple:  # ``_assign``'s own shortcut, decided for all frames at once (the same pairs)
+            p = simple[i]
+        else:  # ``_assign``'s assignment on the frame's block of the mask computed for all frames
+            a = allowed[i, :n2, :len(c)]
+            p = _assign_allowed(a, iou[i, :n2, :len(c)], dist[i, :n2, :len(c)], np.flatnonzero(a.any(axis=1)),
+                                np.flatnonzero(a.any(axis=0)))[0]
         p[:, 1] = c[p[:, 1]]
         out[k] = p
     return out
+
+
+def _conflict_free(iou: np.ndarray, dist: np.ndarray, n2: list[int], n3: list[int], gate_iou: float,
+                   gate_dist: float) -> tuple[dict[int, np.ndarray], np.ndarray]:
+    """The frames of the padded [L,K,M] ``iou`` / ``dist`` (frame i's real block: ``n2[i]`` rows,
+    ``n3[i]`` columns) whose allowed pairs share no box, each with its pairs [n,2] (rows of its block,
+    in row order) -- what ``_assign`` returns for such a frame (no allowed pair: no pairs; else every
+    allowed pair, ``np.argwhere`` order), found for all frames in one array computation instead of a
+    dozen small ones per frame. The allowed mask is ``_assign``'s (the same comparisons of the same
+    values, every column valid); the padding is masked out. Frames missing from the result have
+    allowed pairs that compete for a box and go through ``_assign``'s assignment. Also returned: the
+    allowed mask [L,K,M] (False on the padding)."""
+    L, K, M = iou.shape
+    allowed = (iou >= gate_iou) if gate_dist <= 0 else ((iou >= gate_iou) | (dist <= gate_dist))
+    allowed &= np.arange(K)[None, :, None] < np.asarray(n2)[:, None, None]
+    allowed &= np.arange(M)[None, None, :] < np.asarray(n3)[:, None, None]
+    ok = (allowed.sum(1).max(1) <= 1) & (allowed.sum(2).max(1) <= 1)
+    if not ok.any():
+        return {}, allowed
+    idx = np.argwhere(allowed[ok])  # (frame among ok, row, column), frame by frame in row order
+    starts = np.searchsorted(idx[:, 0], np.arange(int(ok.sum()) + 1))
+    return {int(i): idx[starts[j]:starts[j + 1], 1:].astype(np.int64) for j, i in enumerate(np.flatnonzero(ok))}, allowed
 
 
 def project_frames(frames: list[CalibFrame], intr: CameraIntrinsics, R, t) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -162,13 +196,27 @@ def project_frames(frames: list[CalibFrame], intr: CameraIntrinsics, R, t) -> li
         by_size.setdefault(tuple(fr.size), []).append(k)
     for size, ks in by_size.items():
         corners = [frames[k].corners for k in ks]
-        S = max(c.shape[1] for c in corners)
-        corners = [c if c.shape[1] == S else np.concatenate([c, np.repeat(c[:, :1], S - c.shape[1], 1)], 1)
-                   if len(c) else np.zeros((0, S, 3)) for c in corners]
-        rects, valid = project_rects(np.concatenate(corners), R, t, intr, size)
+        rects, valid = project_rects(_padded(corners), R, t, intr, size)
         offs = np.cumsum([0] + [len(c) for c in corners])
         for i, k in enumerate(ks):
             out[k] = (rects[offs[i]:offs[i + 1]], valid[offs[i]:offs[i + 1]])
+    return out
+
+
+def _padded(corners: list[np.ndarray]) -> np.ndarray:
+    """Outlines [m_i,S_i,3] of several frames as one [sum m_i, max S_i, 3] array, each outline padded
+    by repeating its first vertex (which changes no rectangle): written into one array, the values
+    of concatenating the padded pieces."""
+    S = max(c.shape[1] for c in corners)
+    if all(c.shape[1] == S for c in corners):
+        return np.concatenate(corners)
+    out = np.empty((sum(len(c) for c in corners), S, 3))
+    o = 0
+    for c in corners:
+        m, s = c.shape[:2]
+        out[o:o + m, :s] = c
+        out[o:o + m, s:] = c[:, :1]
+        o += m
     return out
 
 
@@ -183,11 +231,8 @@ def _stack(frames: list[CalibFrame], pairs: list[np.ndarray]):
     obs = [fr.boxes2d[p[:, 0]] for fr, p in zip(frames, pairs) if len(p)]
     if not corners:
         return np.zeros((0, 8, 3)), np.zeros((0, 4))
-    S = max(c.shape[1] for c in corners)
     # outlines may differ in length between frames: pad by repeating each box's first vertex
-    corners = [c if c.shape[1] == S else np.concatenate([c, np.repeat(c[:, :1], S - c.shape[1], 1)], 1)
-               for c in corners]
-    return np.concatenate(corners), np.concatenate(obs)
+    return _padded(corners), np.concatenate(obs)
 
 
 DEFAULT_NOISE = NoiseModel()
@@ -361,7 +406,6 @@ def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *, optio
         n = sum(len(p) for p in pairs)
         if n < min_pairs:
             break
-        _, obs = _stack(frames, pairs)
         # robust scale from the current (weighted) residual level
         f_scale = F_SCALE if prev is None or not len(resid) else max(0.5, 1.5 * float(np.median(np.abs(resid))))
         R_old, t_old = R, t
@@ -370,13 +414,18 @@ def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *, optio
         R, t, cost, resid, _ = lsq(FitContext(frames, pairs, intr, Pose(R, t), noise, f_scale, occlusion), max_nfev)
         per = cost / max(n, 1)
         history.append(per)
-        moved = np.linalg.norm(Rotation.from_matrix(R @ R_old.T).as_rotvec()) + np.linalg.norm(t - t_old) / 100.0
-        if it >= len(gates) - 1 and prev is not None and (abs(prev - per) <= tol * max(prev, 1e-9) or moved < 2e-6):
-            break
+        if it >= len(gates) - 1 and prev is not None and (abs(prev - per) <= tol * max(prev, 1e-9)
+                                                          or _moved(R, R_old, t, t_old) < 2e-6):
+            break  # (how far the pose moved is computed only where the test needs it: the same stop)
         prev = per
     pairs = match_all(frames, intr, R, t, gate_iou=gates[-1][0], gate_dist=gates[-1][1])
     return RefineResult(R=R, t=t, pairs=pairs, cost=history[-1] if history else np.inf, n_iter=it + 1,
                         residuals=resid, history=history, noise=noise)
+
+
+def _moved(R, R_old, t, t_old) -> float:
+    """How far a refinement step moved the pose: rotation angle (rad) + translation (m) / 100."""
+    return np.linalg.norm(Rotation.from_matrix(R @ R_old.T).as_rotvec()) + np.linalg.norm(t - t_old) / 100.0
 
 
 def pair_metrics(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, pairs: list[np.ndarray]):
