@@ -181,3 +181,52 @@ def test_searches_started_before_the_self_calibration_are_dropped_when_it_moves_
     assert [(m.name, m.statistic, m.detail) for m in one.diagnostics.misfit] == \
         [(m.name, m.statistic, m.detail) for m in two.diagnostics.misfit]
     assert mp.active_children() == []
+
+
+def test_chunks_cover_the_items_in_order():
+    from xcalib.calib.parallel import chunks
+
+    assert chunks(0, 2) == [] and chunks(5, 1) == [(0, 5)]
+    for n in (1, 3, 7, 200):
+        spans = chunks(n, 2)
+        assert spans[0][0] == 0 and spans[-1][1] == n and len(spans) <= 4
+        assert all(a[1] == b[0] for a, b in zip(spans, spans[1:])) and all(hi > lo for lo, hi in spans)
+
+
+@needs_fork
+def test_stream_gives_the_results_in_order_and_stops():
+    from xcalib.calib.parallel import Stream
+
+    for w in (1, 2):
+        with Stream(_square, w) as s:
+            for x in range(6):
+                s.put(x)
+            assert s.results() == [x * x for x in range(6)] and s.parallel == (w > 1)
+        assert mp.active_children() == []  # a pool started for the stream stops with it
+    with WorkerPool(2) as pool, Stream(_pid_of, 2) as s:  # on the open pool: none started for it
+        for x in range(4):
+            s.put(x)
+        assert set(s.results()) <= set(pool.executor()._processes)
+    assert mp.active_children() == []
+
+
+@needs_fork
+def test_hypotheses_solved_and_scored_on_the_pool_are_those_of_one_process():
+    """The bring-up's searches (solved as they are drawn) and the scoring of their hypotheses on
+    every frame (frames in ranges on the pool): bit-identical to one process."""
+    from xcalib.calib.bringup import frame_scores, pose_hypotheses
+    from xcalib.calib.inputs import prepare_frames
+
+    frames, _ = sim_frames(seed=2, n_frames=8)
+    cframes, intr, _ = prepare_frames(frames, INTR)
+    one = pose_hypotheses(cframes, intr, CalibConfig(workers=1), rng=np.random.default_rng(0))
+    with WorkerPool(2):
+        two = pose_hypotheses(cframes, intr, CalibConfig(workers=2), rng=np.random.default_rng(0))
+        assert len(one.hyps) > 0
+        per_frame = frame_scores(cframes, intr, one.hyps.R, one.hyps.t, 2)
+    for a, b in zip((one.hyps.R, one.hyps.t, one.hyps.score, one.hyps.frame), (two.hyps.R, two.hyps.t, two.hyps.score,
+                                                                                two.hyps.frame)):
+        assert np.array_equal(a, b)
+    assert len(per_frame) == len(cframes)
+    assert all(np.array_equal(a, b) for a, b in zip(per_frame, frame_scores(cframes, intr, one.hyps.R, one.hyps.t, 1)))
+    assert mp.active_children() == []

@@ -35,7 +35,7 @@ from contextvars import ContextVar, copy_context
 from typing import Any, Callable, Iterable, Literal, TypeVar, Union
 
 __all__ = ["Workers", "resolve_workers", "parallel_map", "available_cpus", "Deferred", "WorkerPool", "Shared",
-           "shared"]
+           "shared", "Stream", "chunks"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -223,6 +223,64 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], workers: Workers = 1)
         return list(pool.executor().map(fn, items))
     with _pool(n) as ex:
         return list(ex.map(fn, items))
+
+
+def chunks(n_items: int, workers: Workers, per_worker: int = 2) -> list[tuple[int, int]]:
+    """[lo, hi) ranges that cut ``n_items`` items (frames) into ``per_worker`` pieces per process
+    ``workers`` stands for (one range with one process; none for no items): a per-item stage split
+    for :func:`parallel_map`. The ranges follow the items' order, so results joined range by range
+    are those of one loop over the items, whatever the worker count."""
+    n = resolve_workers(workers)
+    k = 1 if n <= 1 else min(n_items, n * per_worker)
+    if n_items <= 0:
+        return []
+    edges = [n_items * j // k for j in range(k + 1)]
+    return [(edges[j], edges[j + 1]) for j in range(k) if edges[j + 1] > edges[j]]
+
+
+class Stream:
+    """``[fn(x) for x in items]`` for items that come one at a time (``put``): with more than one
+    worker each item starts on the pool's processes as it is put, so that the caller's work on the
+    next item (drawing it: random numbers, in order) overlaps the earlier items' tasks; with one
+    worker the items run here, in order, when :meth:`results` is asked for (the serial order of
+    work unchanged). The results, in the order of the items, are the same either way. Use as a
+    context manager (on exit the tasks not started are cancelled, the running ones waited for; a
+    pool started for it is shut down)."""
+
+    def __init__(self, fn: Callable[[T], R], workers: Workers = 1):
+        self._fn = fn
+        n = resolve_workers(workers)
+        pool = _open_pool() if n > 1 else None
+        self._own = _pool(n) if n > 1 and pool is None else None
+        self._ex = self._own if pool is None else pool.executor()
+        self._items: list = []
+
+    @property
+    def parallel(self) -> bool:
+        return self._ex is not None
+
+    def put(self, item: T) -> None:
+        self._items.append(self._ex.submit(self._fn, item) if self._ex is not None else item)
+
+    def results(self) -> list[R]:
+        if self._ex is None:
+            return [self._fn(_local(x)) for x in self._items]
+        return [f.result() for f in self._items]
+
+    def close(self) -> None:
+        if self._ex is not None:
+            for f in self._items:
+                f.cancel()
+            wait(self._items)
+        if self._own is not None:
+            self._own.shutdown(wait=True, cancel_futures=True)
+            self._own = None
+
+    def __enter__(self) -> "Stream":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def _pool(n: int) -> ProcessPoolExecutor:
