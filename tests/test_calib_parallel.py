@@ -230,3 +230,37 @@ def test_hypotheses_solved_and_scored_on_the_pool_are_those_of_one_process():
     assert len(per_frame) == len(cframes)
     assert all(np.array_equal(a, b) for a, b in zip(per_frame, frame_scores(cframes, intr, one.hyps.R, one.hyps.t, 1)))
     assert mp.active_children() == []
+
+
+def _slow(x):
+    import time
+
+    time.sleep(0.2)
+    return x
+
+
+def _stages(log, n):
+    """A thread's call of ``n`` parallel stages, logging each one it starts."""
+    for k in range(n):
+        log.append(k)
+        parallel_map(_slow, [k, k], 2)
+    return "done"
+
+
+@needs_fork
+def test_a_deferred_given_up_starts_no_more_stages():
+    """``Deferred.cancel``: a call running on a thread ends at its next parallel stage (``Cancelled``),
+    so the work of searches whose result is unused stops occupying the pool; one not given up ends."""
+    import time
+
+    log_kept, log_given_up = [], []
+    with WorkerPool(2):
+        with Deferred([(_stages, (log_kept, 3)), (_square, (2,))], 2, threads=(0,)) as kept:
+            assert kept.result(0) == "done"
+        d = Deferred([(_stages, (log_given_up, 50)), (_square, (2,))], 2, threads=(0,))
+        time.sleep(0.3)
+        d.cancel()
+    # the pool's close waited for the thread: it stopped after the stage it was in (without the stop
+    # flag it would have run all 50; each stage takes >= 0.2 s, so at most 2 began before the cancel)
+    assert log_kept == [0, 1, 2] and len(log_given_up) <= 4
+    assert mp.active_children() == []

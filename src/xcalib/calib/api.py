@@ -362,7 +362,7 @@ def _pp_check(ctx: FitContext, seed: int, places: int):
 def _early_searches(frames_in, state: tuple, occlusion: Occlusion, config: CalibConfig,
                     diag: CalibDiagnostics) -> tuple:
     """``_misfit_searches`` started on ``state`` = (frames, intrinsics, refined candidates) before the
-    self-calibration: (state, the refits' inputs, the searches), for ``_kept``."""
+    box-model choice and the self-calibration: (state, the refits' inputs, the searches), for ``_kept``."""
     cframes, intr, ref = state
     best, pose = ref.best, Pose(ref.best.R, ref.best.t)
     pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=config.gate_iou)
@@ -560,12 +560,13 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     diag.bringup_T = Pose(cand.R[0], cand.t[0]).T.tolist()
     occlusion = CostSpec.from_config(config)  # the box-edge shaping and the config's cost terms, for every fit
     ref = _refine_candidates(cframes, intr, cand, occlusion, progress, config.workers, config.max_candidates)
+    # several workers: the misfit checks' searches start now, before the box-model choice and the
+    # self-calibration, at the pose they start from; kept when neither changes the frames, the intrinsics
+    # or the candidates (the pose is then this one), else given up (``_kept``)
+    early = _early_searches(frames_in, (cframes, intr, ref), occlusion, config, diag) \
+        if config.misfit_check and resolve_workers(config.workers) > 1 else None
     cframes, ref = _choose_box_model(cframes, intr, cand, ref, occlusion, config, diag, progress)
     inflation = None
-    # several workers: the misfit checks' searches start before the self-calibration, at the pose it starts
-    # from; kept when it changes neither the intrinsics nor the frames (the pose is then that one)
-    early = _early_searches(frames_in, (cframes, intr, ref), occlusion, config, diag) \
-        if wants_selfcal(config) and config.misfit_check and resolve_workers(config.workers) > 1 else None
     if wants_selfcal(config):
         choice = decide_selfcal(cframes, intr, Pose(ref.best.R, ref.best.t), config, motion, occlusion, diag.selfcal)
         diag.selfcal = choice.diag
@@ -609,8 +610,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         unc = with_object_outline(unc, obj_fit.sd)
         pose = obj_fit.pose
         fit = fit.with_pose(pose)
-        if searches is not None:  # searched from the plain pose: again from the moved one
-            searches.close()
+        if searches is not None:  # searched from the plain pose: again from the moved one (those given up)
+            searches.cancel()
             searches = _misfit_searches(fit, config, ref.best_score, refits)
     px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     diag.uncertainty = unc.parts  # its selfcal part: the pose spread the estimated intrinsics / offset add
@@ -645,7 +646,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         # a refusal that a model misfit explains is replaced by the misfit's message (it names the cause)
         refusal = _misfit(fit, ref.best_score, config, diag, frames_in, refusal, searches) or refusal
     if searches is not None:
-        searches.close()  # (not asked for: the searches still running are waited for, the others cancelled)
+        searches.cancel()  # (what was not asked for is given up: not started, or ended at its next parallel stage)
     if refusal is not None and inflation is not None:
         refusal = Refusal(refusal.code, refusal.message + _selfcal_note(diag))
     diag.refusal = "" if refusal is None else refusal.code

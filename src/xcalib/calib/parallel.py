@@ -35,7 +35,7 @@ from contextvars import ContextVar, copy_context
 from typing import Any, Callable, Iterable, Literal, TypeVar, Union
 
 __all__ = ["Workers", "resolve_workers", "parallel_map", "available_cpus", "Deferred", "WorkerPool", "Shared",
-           "shared", "Stream", "chunks"]
+           "shared", "Stream", "chunks", "Cancelled"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -147,6 +147,25 @@ def _local(x):
 # --------------------------------------------------------------------------- the pool
 
 _ACTIVE: ContextVar["WorkerPool | None"] = ContextVar("xcalib_worker_pool", default=None)
+#: set (in the context of a thread of a :class:`Deferred`) when the Deferred is given up
+_STOP: ContextVar["threading.Event | None"] = ContextVar("xcalib_deferred_stop", default=None)
+
+
+class Cancelled(Exception):
+    """Raised in a thread of a :class:`Deferred` given up (``cancel``) at its next parallel stage:
+    its result would go unused, so it starts no more work on the pool (nothing reads it)."""
+
+
+def _check_stop() -> None:
+    ev = _STOP.get()
+    if ev is not None and ev.is_set():
+        raise Cancelled("the Deferred this work belongs to was given up")
+
+
+def _run_stoppable(stop: "threading.Event", fn, *args):
+    """``fn(*args)`` in a thread's own context with ``stop`` as its stop flag (see ``_STOP``)."""
+    _STOP.set(stop)
+    return fn(*args)
 
 
 class WorkerPool:
@@ -213,6 +232,7 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], workers: Workers = 1)
     ``fn`` and the items must pickle (module-level functions, arrays, dataclasses); the results
     come back in the order of the items. An exception in a task is raised here."""
     items = list(items)
+    _check_stop()
     pool = _open_pool()
     if workers == "pool" and pool is not None and items:  # even one item: off this process's GIL
         return list(pool.executor().map(fn, items))
@@ -260,6 +280,7 @@ class Stream:
         return self._ex is not None
 
     def put(self, item: T) -> None:
+        _check_stop()
         self._items.append(self._ex.submit(self._fn, item) if self._ex is not None else item)
 
     def results(self) -> list[R]:
@@ -321,9 +342,11 @@ class Deferred:
             pool._threads.append(self._threads)
         ex = self._own if pool is None else pool.executor()
         self._fut: list[Future] | None = None
+        self._stop = threading.Event()
         if n > 1:
             self._fut = [None if call is None else
-                         self._threads.submit(copy_context().run, call[0], *_local(tuple(call[1]))) if k in here
+                         self._threads.submit(copy_context().run, _run_stoppable, self._stop, call[0],
+                                              *_local(tuple(call[1]))) if k in here
                          else ex.submit(call[0], *call[1]) for k, call in enumerate(self._calls)]
 
     def __len__(self) -> int:
@@ -358,7 +381,9 @@ class Deferred:
 
     def cancel(self) -> None:
         """Give the calls up: those not started never run; the running ones end in the background
-        (their results unused; the open pool waits for them when it closes)."""
+        (their results unused; the open pool waits for them when it closes), a thread's call at its
+        next parallel stage (``Cancelled``: it starts no more tasks on the pool)."""
+        self._stop.set()
         if self._fut is not None:
             for f in self._fut:
                 if f is not None:
