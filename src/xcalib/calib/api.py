@@ -326,12 +326,11 @@ def _misfit_searches(ctx: FitContext, config: CalibConfig, best_score: float | N
     view = _search_view(ctx.with_frames(lean), config)
     if view is not None:  # crowded frames: the searches and the lens refits on the gate's view
         lean, pairs, best_score = view.frames, view.pairs, None if best_score is None else view.score
-    places = len(matched_places(lean, pairs)[0])
     # the two searches and the lens refit run on threads here, their own searches, refinements and fits on the
     # pool's processes (as one task each, the second-pose search on A9 and the lens refit on 200 frames alone
     # outlasted everything else); the other refits are tasks
     return Deferred([(_second_pose, (lean, pairs, intr, pose, config, occlusion, best_score)),
-                     (_lens_check, (dataclasses.replace(ctx, frames=lean, pairs=pairs), places)),
+                     (_lens_check, (dataclasses.replace(ctx, frames=lean, pairs=pairs), None)),
                      (_mirror_score, (lean, intr, config, occlusion, best_score, pose))] + refit_calls,
                     config.workers, threads=(0, 1, 2))
 
@@ -341,11 +340,10 @@ def _refit_calls(ctx: FitContext, config: CalibConfig, refits: tuple, lean: list
     frames' point clouds and images left out where they run on other processes."""
     times, unit, focal_estimated = refits
     full = ctx if resolve_workers(config.workers) == 1 else ctx.with_frames(lean)
-    places = len(matched_places(ctx.frames, ctx.pairs)[0])
     focal = None if focal_estimated else (focal_fit, (full.frames, full.pairs, full.intr, full.pose, full.noise,
                                                       full.f_scale, full.occlusion))
     time_chk = (_time_check, (full, times, unit, config.seed)) if config.time_offset is None else None
-    pp = (_pp_check, (full, config.seed, places)) if config.refine_intrinsics != "focal+center" else None
+    pp = (_pp_check, (full, config.seed, None)) if config.refine_intrinsics != "focal+center" else None
     return [focal, time_chk, pp]
 
 
@@ -354,8 +352,10 @@ def _time_check(ctx: FitContext, times: np.ndarray, unit: str, seed: int):
     return time_offset_check(ctx, times, unit, seed=seed)
 
 
-def _pp_check(ctx: FitContext, seed: int, places: int):
-    """``misfit.principal_point_check`` (a task of ``_misfit_searches``)."""
+def _pp_check(ctx: FitContext, seed: int, places: int | None):
+    """``misfit.principal_point_check`` (a task of ``_misfit_searches``; ``places``: the matched
+    places, None: counted here, in the task, rather than before the tasks start)."""
+    places = len(matched_places(ctx.frames, ctx.pairs)[0]) if places is None else places
     return principal_point_check(ctx, seed=seed, places=places)
 
 
@@ -425,9 +425,11 @@ def _misfit(ctx: FitContext, best_score: float, config: CalibConfig, diag: Calib
         return _misfit_checks(ctx, best_score, config, diag, frames_in, refusal, searches)
 
 
-def _lens_check(ctx: FitContext, places: int):
+def _lens_check(ctx: FitContext, places: int | None):
     """``misfit.lens_checks`` (a task of ``_misfit``'s deferred calls): (the lens check, the lens as
-    the alternative cause when the focal-length / principal-point check fires)."""
+    the alternative cause when the focal-length / principal-point check fires). ``places``: the
+    matched places, None: counted here (on the call's thread, not before the calls start)."""
+    places = len(matched_places(ctx.frames, ctx.pairs)[0]) if places is None else places
     return lens_checks(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, ctx.f_scale, ctx.occlusion, places=places)
 
 
