@@ -339,7 +339,9 @@ def _refit_calls(ctx: FitContext, config: CalibConfig, refits: tuple, lean: list
     """``_misfit_searches``' calls 3-5 (see there): the checks' refits on every frame, with the
     frames' point clouds and images left out where they run on other processes."""
     times, unit, focal_estimated = refits
-    full = ctx if resolve_workers(config.workers) == 1 else ctx.with_frames(lean)
+    # several workers: the refits are tasks on other processes, their frames one ``Shared`` (pickled once
+    # for the three, unpickled once per worker; a task receives the frames themselves)
+    full = ctx if resolve_workers(config.workers) == 1 else ctx.with_frames(shared(lean, config.workers))
     focal = None if focal_estimated else (focal_fit, (full.frames, full.pairs, full.intr, full.pose, full.noise,
                                                       full.f_scale, full.occlusion))
     time_chk = (_time_check, (full, times, unit, config.seed)) if config.time_offset is None else None
