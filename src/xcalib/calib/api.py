@@ -157,7 +157,7 @@ def _choose_box_model(cframes, intr, cand: Hypotheses, ref: _Refined, occlusion:
         return cframes, ref
     best = ref.best
     alt, hull_first = with_corner_outlines(cframes), True
-    if alt is None:
+    if alt is None and any(f.points is not None and len(f.points) for f in cframes):  # (no cloud: no hulls)
         alt, hull_first = with_point_outlines(cframes, _in_view(cframes, intr, best.R, best.t)), False
     if alt is None:
         diag.box_model = _outline_kind(cframes)
