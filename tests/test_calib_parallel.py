@@ -216,6 +216,9 @@ def test_stream_gives_the_results_in_order_and_stops():
                 s.put(x)
             assert s.results() == [x * x for x in range(6)] and s.parallel == (w > 1)
         assert mp.active_children() == []  # a pool started for the stream stops with it
+    with Stream(_square, 2) as s:  # no open pool, one item: run here, no pool started for it
+        s.put(3)
+        assert not s.parallel and s.results() == [9] and mp.active_children() == []
     with WorkerPool(2) as pool, Stream(_pid_of, 2) as s:  # on the open pool: none started for it
         for x in range(4):
             s.put(x)

@@ -260,7 +260,8 @@ def chunks(n_items: int, workers: Workers, per_worker: int = 2) -> list[tuple[in
 
 class Stream:
     """``[fn(x) for x in items]`` for items that come one at a time (``put``): with more than one
-    worker each item starts on the pool's processes as it is put, so that the caller's work on the
+    worker each item starts on the pool's processes as it is put (without an open pool: on a pool
+    started at the second item; a single item runs here), so that the caller's work on the
     next item (drawing it: random numbers, in order) overlaps the earlier items' tasks; with one
     worker the items run here, in order, when :meth:`results` is asked for (the serial order of
     work unchanged). The results, in the order of the items, are the same either way. Use as a
@@ -269,11 +270,11 @@ class Stream:
 
     def __init__(self, fn: Callable[[T], R], workers: Workers = 1):
         self._fn = fn
-        n = resolve_workers(workers)
-        pool = _open_pool() if n > 1 else None
-        self._own = _pool(n) if n > 1 and pool is None else None
-        self._ex = self._own if pool is None else pool.executor()
-        self._items: list = []
+        self._n = resolve_workers(workers)
+        pool = _open_pool() if self._n > 1 else None
+        self._own: ProcessPoolExecutor | None = None
+        self._ex = None if pool is None else pool.executor()
+        self._items: list = []  # futures once on processes, else the items
 
     @property
     def parallel(self) -> bool:
@@ -281,6 +282,10 @@ class Stream:
 
     def put(self, item: T) -> None:
         _check_stop()
+        if self._ex is None and self._n > 1 and len(self._items) == 1:
+            # no open pool: one started at the second item (as ``parallel_map``, none for a single item)
+            self._own = self._ex = _pool(self._n)
+            self._items = [self._ex.submit(self._fn, x) for x in self._items]
         self._items.append(self._ex.submit(self._fn, item) if self._ex is not None else item)
 
     def results(self) -> list[R]:
