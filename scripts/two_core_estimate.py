@@ -100,10 +100,21 @@ class Deferred(par.Deferred):
                     else: self._seen[k] = _take(f.result()); rec('wait', [self._ids[k]])
                     self._seen.setdefault(k, None)
         super().close()
+class Stream(par.Stream):
+    def put(self, item):
+        if not self.parallel: return super().put(item)
+        i = next(_n); rec('submit', [i])
+        self._items.append(self._ex.submit(_run, i, self._fn, item))
+    def results(self):
+        if not self.parallel: return super().results()
+        out = [f.result() for f in self._items]
+        rec('wait', [r[1][0] for r in out])
+        return [_take(r) for r in out]
 import xcalib.calib.api as api, xcalib.calib.bringup as bu, xcalib.calib.inputs as inp, xcalib.calib.misfit as mf
 for m in (api, bu, inp, mf):
     if hasattr(m, 'parallel_map'): m.parallel_map = parallel_map
 api.Deferred = Deferred
+bu.Stream = Stream
 from xcalib.calib.config import CalibConfig
 t0 = time.perf_counter(); c0 = time.process_time(); tm0 = time.thread_time()
 res = api.calibrate(frames, intr, CalibConfig(workers=W))

@@ -40,10 +40,23 @@ def test_workers_validated_and_resolved():
 
 
 @needs_fork
-def test_same_result_for_one_and_two_workers():
+def test_same_result_for_one_and_two_workers(monkeypatch):
+    import xcalib.calib.api as api
+
+    seen, kept = [], api._kept
+
+    def counted(early, state, refits):
+        out = kept(early, state, refits)
+        seen.append((early is not None, out is not None))  # (started early, kept)
+        return out
+
+    monkeypatch.setattr(api, "_kept", counted)
     frames, T = sim_frames(seed=1, n_frames=6)
     one = calibrate(frames, INTR, CalibConfig(workers=1))
     two = calibrate(frames, INTR, CalibConfig(workers=2))
+    # two workers: the misfit searches started before the box-model choice and were kept (it changed
+    # nothing on boxes with a yaw and no cloud); one worker starts nothing early
+    assert seen == [(False, False), (True, True)]
     assert one.success and two.success, (one.message, two.message)
     assert np.array_equal(one.extrinsics, two.extrinsics)
     assert np.array_equal(one.rotation_std_deg, two.rotation_std_deg)
@@ -180,4 +193,90 @@ def test_searches_started_before_the_self_calibration_are_dropped_when_it_moves_
     assert one.success and np.array_equal(one.extrinsics, two.extrinsics)
     assert [(m.name, m.statistic, m.detail) for m in one.diagnostics.misfit] == \
         [(m.name, m.statistic, m.detail) for m in two.diagnostics.misfit]
+    assert mp.active_children() == []
+
+
+def test_chunks_cover_the_items_in_order():
+    from xcalib.calib.parallel import chunks
+
+    assert chunks(0, 2) == [] and chunks(5, 1) == [(0, 5)]
+    for n in (1, 3, 7, 200):
+        spans = chunks(n, 2)
+        assert spans[0][0] == 0 and spans[-1][1] == n and len(spans) <= 4
+        assert all(a[1] == b[0] for a, b in zip(spans, spans[1:])) and all(hi > lo for lo, hi in spans)
+
+
+@needs_fork
+def test_stream_gives_the_results_in_order_and_stops():
+    from xcalib.calib.parallel import Stream
+
+    for w in (1, 2):
+        with Stream(_square, w) as s:
+            for x in range(6):
+                s.put(x)
+            assert s.results() == [x * x for x in range(6)] and s.parallel == (w > 1)
+        assert mp.active_children() == []  # a pool started for the stream stops with it
+    with Stream(_square, 2) as s:  # no open pool, one item: run here, no pool started for it
+        s.put(3)
+        assert not s.parallel and s.results() == [9] and mp.active_children() == []
+    with WorkerPool(2) as pool, Stream(_pid_of, 2) as s:  # on the open pool: none started for it
+        for x in range(4):
+            s.put(x)
+        assert set(s.results()) <= set(pool.executor()._processes)
+    assert mp.active_children() == []
+
+
+@needs_fork
+def test_hypotheses_solved_and_scored_on_the_pool_are_those_of_one_process():
+    """The bring-up's searches (solved as they are drawn) and the scoring of their hypotheses on
+    every frame (frames in ranges on the pool): bit-identical to one process."""
+    from xcalib.calib.bringup import frame_scores, pose_hypotheses
+    from xcalib.calib.inputs import prepare_frames
+
+    frames, _ = sim_frames(seed=2, n_frames=8)
+    cframes, intr, _ = prepare_frames(frames, INTR)
+    one = pose_hypotheses(cframes, intr, CalibConfig(workers=1), rng=np.random.default_rng(0))
+    with WorkerPool(2):
+        two = pose_hypotheses(cframes, intr, CalibConfig(workers=2), rng=np.random.default_rng(0))
+        assert len(one.hyps) > 0
+        per_frame = frame_scores(cframes, intr, one.hyps.R, one.hyps.t, 2)
+    for a, b in zip((one.hyps.R, one.hyps.t, one.hyps.score, one.hyps.frame), (two.hyps.R, two.hyps.t, two.hyps.score,
+                                                                                two.hyps.frame)):
+        assert np.array_equal(a, b)
+    assert len(per_frame) == len(cframes)
+    assert all(np.array_equal(a, b) for a, b in zip(per_frame, frame_scores(cframes, intr, one.hyps.R, one.hyps.t, 1)))
+    assert mp.active_children() == []
+
+
+def _slow(x):
+    import time
+
+    time.sleep(0.2)
+    return x
+
+
+def _stages(log, n):
+    """A thread's call of ``n`` parallel stages, logging each one it starts."""
+    for k in range(n):
+        log.append(k)
+        parallel_map(_slow, [k, k], 2)
+    return "done"
+
+
+@needs_fork
+def test_a_deferred_given_up_starts_no_more_stages():
+    """``Deferred.cancel``: a call running on a thread ends at its next parallel stage (``Cancelled``),
+    so the work of searches whose result is unused stops occupying the pool; one not given up ends."""
+    import time
+
+    log_kept, log_given_up = [], []
+    with WorkerPool(2):
+        with Deferred([(_stages, (log_kept, 3)), (_square, (2,))], 2, threads=(0,)) as kept:
+            assert kept.result(0) == "done"
+        d = Deferred([(_stages, (log_given_up, 50)), (_square, (2,))], 2, threads=(0,))
+        time.sleep(0.3)
+        d.cancel()
+    # the pool's close waited for the thread: it stopped after the stage it was in (without the stop
+    # flag it would have run all 50; each stage takes >= 0.2 s, so at most 2 began before the cancel)
+    assert log_kept == [0, 1, 2] and len(log_given_up) <= 4
     assert mp.active_children() == []

@@ -157,7 +157,7 @@ def _choose_box_model(cframes, intr, cand: Hypotheses, ref: _Refined, occlusion:
         return cframes, ref
     best = ref.best
     alt, hull_first = with_corner_outlines(cframes), True
-    if alt is None:
+    if alt is None and any(f.points is not None and len(f.points) for f in cframes):  # (no cloud: no hulls)
         alt, hull_first = with_point_outlines(cframes, _in_view(cframes, intr, best.R, best.t)), False
     if alt is None:
         diag.box_model = _outline_kind(cframes)
@@ -326,12 +326,11 @@ def _misfit_searches(ctx: FitContext, config: CalibConfig, best_score: float | N
     view = _search_view(ctx.with_frames(lean), config)
     if view is not None:  # crowded frames: the searches and the lens refits on the gate's view
         lean, pairs, best_score = view.frames, view.pairs, None if best_score is None else view.score
-    places = len(matched_places(lean, pairs)[0])
     # the two searches and the lens refit run on threads here, their own searches, refinements and fits on the
     # pool's processes (as one task each, the second-pose search on A9 and the lens refit on 200 frames alone
     # outlasted everything else); the other refits are tasks
     return Deferred([(_second_pose, (lean, pairs, intr, pose, config, occlusion, best_score)),
-                     (_lens_check, (dataclasses.replace(ctx, frames=lean, pairs=pairs), places)),
+                     (_lens_check, (dataclasses.replace(ctx, frames=lean, pairs=pairs), None)),
                      (_mirror_score, (lean, intr, config, occlusion, best_score, pose))] + refit_calls,
                     config.workers, threads=(0, 1, 2))
 
@@ -340,29 +339,34 @@ def _refit_calls(ctx: FitContext, config: CalibConfig, refits: tuple, lean: list
     """``_misfit_searches``' calls 3-5 (see there): the checks' refits on every frame, with the
     frames' point clouds and images left out where they run on other processes."""
     times, unit, focal_estimated = refits
-    full = ctx if resolve_workers(config.workers) == 1 else ctx.with_frames(lean)
-    places = len(matched_places(ctx.frames, ctx.pairs)[0])
+    # several workers: the refits are tasks on other processes, their frames one ``Shared`` (pickled once
+    # for the three, unpickled once per worker; a task receives the frames themselves)
+    full = ctx if resolve_workers(config.workers) == 1 else ctx.with_frames(shared(lean, config.workers))
     focal = None if focal_estimated else (focal_fit, (full.frames, full.pairs, full.intr, full.pose, full.noise,
                                                       full.f_scale, full.occlusion))
-    time_chk = (_time_check, (full, times, unit, config.seed, places)) if config.time_offset is None else None
-    pp = (_pp_check, (full, config.seed, places)) if config.refine_intrinsics != "focal+center" else None
+    time_chk = (_time_check, (full, times, unit, config.seed, None)) if config.time_offset is None else None
+    pp = (_pp_check, (full, config.seed, None)) if config.refine_intrinsics != "focal+center" else None
     return [focal, time_chk, pp]
 
 
 def _time_check(ctx: FitContext, times: np.ndarray, unit: str, seed: int, places: int | None = None):
-    """``misfit.time_offset_check`` (a task of ``_misfit_searches``)."""
+    """``misfit.time_offset_check`` (a task of ``_misfit_searches``; ``places``: the matched places,
+    None: counted here, in the task)."""
+    places = len(matched_places(ctx.frames, ctx.pairs)[0]) if places is None else places
     return time_offset_check(ctx, times, unit, seed=seed, places=places)
 
 
-def _pp_check(ctx: FitContext, seed: int, places: int):
-    """``misfit.principal_point_check`` (a task of ``_misfit_searches``)."""
+def _pp_check(ctx: FitContext, seed: int, places: int | None):
+    """``misfit.principal_point_check`` (a task of ``_misfit_searches``; ``places``: the matched
+    places, None: counted here, in the task, rather than before the tasks start)."""
+    places = len(matched_places(ctx.frames, ctx.pairs)[0]) if places is None else places
     return principal_point_check(ctx, seed=seed, places=places)
 
 
 def _early_searches(frames_in, state: tuple, occlusion: Occlusion, config: CalibConfig,
                     diag: CalibDiagnostics) -> tuple:
     """``_misfit_searches`` started on ``state`` = (frames, intrinsics, refined candidates) before the
-    self-calibration: (state, the refits' inputs, the searches), for ``_kept``."""
+    box-model choice and the self-calibration: (state, the refits' inputs, the searches), for ``_kept``."""
     cframes, intr, ref = state
     best, pose = ref.best, Pose(ref.best.R, ref.best.t)
     pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=config.gate_iou)
@@ -425,9 +429,11 @@ def _misfit(ctx: FitContext, best_score: float, config: CalibConfig, diag: Calib
         return _misfit_checks(ctx, best_score, config, diag, frames_in, refusal, searches)
 
 
-def _lens_check(ctx: FitContext, places: int):
+def _lens_check(ctx: FitContext, places: int | None):
     """``misfit.lens_checks`` (a task of ``_misfit``'s deferred calls): (the lens check, the lens as
-    the alternative cause when the focal-length / principal-point check fires)."""
+    the alternative cause when the focal-length / principal-point check fires). ``places``: the
+    matched places, None: counted here (on the call's thread, not before the calls start)."""
+    places = len(matched_places(ctx.frames, ctx.pairs)[0]) if places is None else places
     return lens_checks(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, ctx.f_scale, ctx.occlusion, places=places)
 
 
@@ -560,12 +566,13 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     diag.bringup_T = Pose(cand.R[0], cand.t[0]).T.tolist()
     occlusion = CostSpec.from_config(config)  # the box-edge shaping and the config's cost terms, for every fit
     ref = _refine_candidates(cframes, intr, cand, occlusion, progress, config.workers, config.max_candidates)
+    # several workers: the misfit checks' searches start now, before the box-model choice and the
+    # self-calibration, at the pose they start from; kept when neither changes the frames, the intrinsics
+    # or the candidates (the pose is then this one), else given up (``_kept``)
+    early = _early_searches(frames_in, (cframes, intr, ref), occlusion, config, diag) \
+        if config.misfit_check and resolve_workers(config.workers) > 1 else None
     cframes, ref = _choose_box_model(cframes, intr, cand, ref, occlusion, config, diag, progress)
     inflation = None
-    # several workers: the misfit checks' searches start before the self-calibration, at the pose it starts
-    # from; kept when it changes neither the intrinsics nor the frames (the pose is then that one)
-    early = _early_searches(frames_in, (cframes, intr, ref), occlusion, config, diag) \
-        if wants_selfcal(config) and config.misfit_check and resolve_workers(config.workers) > 1 else None
     if wants_selfcal(config):
         choice = decide_selfcal(cframes, intr, Pose(ref.best.R, ref.best.t), config, motion, occlusion, diag.selfcal)
         diag.selfcal = choice.diag
@@ -609,8 +616,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         unc = with_object_outline(unc, obj_fit.sd)
         pose = obj_fit.pose
         fit = fit.with_pose(pose)
-        if searches is not None:  # searched from the plain pose: again from the moved one
-            searches.close()
+        if searches is not None:  # searched from the plain pose: again from the moved one (those given up)
+            searches.cancel()
             searches = _misfit_searches(fit, config, ref.best_score, refits)
     px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     diag.uncertainty = unc.parts  # its selfcal part: the pose spread the estimated intrinsics / offset add
@@ -645,7 +652,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         # a refusal that a model misfit explains is replaced by the misfit's message (it names the cause)
         refusal = _misfit(fit, ref.best_score, config, diag, frames_in, refusal, searches) or refusal
     if searches is not None:
-        searches.close()  # (not asked for: the searches still running are waited for, the others cancelled)
+        searches.cancel()  # (what was not asked for is given up: not started, or ended at its next parallel stage)
     if refusal is not None and inflation is not None:
         refusal = Refusal(refusal.code, refusal.message + _selfcal_note(diag))
     diag.refusal = "" if refusal is None else refusal.code

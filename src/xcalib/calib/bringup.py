@@ -22,7 +22,7 @@ from .config import CalibConfig
 from .hypotheses import (Hypotheses, TripleSearch, draw_triples, frame_hypotheses, informative_view, score_poses,
                          solve_triples)
 from .inputs import CalibFrame, lean_frames
-from .parallel import parallel_map, resolve_workers, shared
+from .parallel import Stream, Workers, chunks, parallel_map, resolve_workers
 from .pose import Pose
 
 __all__ = ["BringUp", "pose_hypotheses", "distinct_best", "pooled_groups", "matcher_similarities", "gated_frames",
@@ -200,61 +200,65 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
     groups, n_before, sparse_scene = _search_groups(cframes, config.max_hyp_frames)
     workers = resolve_workers(config.workers)
     lean = lean_frames(cframes) if workers > 1 else cframes
-    every = shared(lean, workers)  # the frames every search is scored on: pickled once for all the tasks
     jobs, budget = [], config.max_hyp_frames
-    for k, g in enumerate(groups):
-        if k < n_before and len(g) == 1 and crowded[g[0]] and budget <= 0:
-            continue  # the per-frame searches' budget is spent (see ``search_cost``)
-        gs = [sims[i] for i in g]
-        big = (sparse_scene or k >= n_before) and len(g) > 1
-        # closed_form: each triple's Kabsch fit without an SVD (``hypotheses.kabsch_triangles``, the same
-        # poses to ~1e-12, 2.5x faster; the search's largest cost on sparse leftovers)
-        search = TripleSearch(max_baseline_m=max_baseline_m, max_candidates=config.max_candidates, closed_form=True)
-        wide = replace(search, max_triples=20000 if big else 3000, keep=60 if big else 25)
-        frs = [lean[i] for i in g]
-        draw = draw_triples(frs, intr, prior_sims=gs, rng=rng, search=wide)
-        if k < n_before and len(g) == 1:
-            budget -= search_cost(draw.n_windows, crowded[g[0]])
-        if any(x is not None for x in gs):  # matcher priors: solved now (a search without them may follow)
-            h = solve_triples(frs, intr, g[0], draw, wide)
-            if len(h) == 0:
-                h = frame_hypotheses(frs, intr, g[0], rng=rng, search=search)
-            jobs.append((False, h))
-        else:
-            jobs.append((True, (frs, intr, g[0], draw, wide, every)))
-    # the draws took every random number in order: the searches are solved (and their hypotheses
-    # scored on every frame) in parallel, with the same result
-    # (each job is (to_solve, job): a search solved already is its hypotheses)
-    if workers > 1:
-        todo = [j for to_solve, j in jobs if to_solve]
-        solved = iter(parallel_map(_solve_job, todo, workers))
-        parts = [next(solved) if to_solve else _rescored(j, lean, intr) for to_solve, j in jobs]
-        found = [h for h, _ in parts]
-    else:  # one process: every search solved, then all their hypotheses scored on each frame at once
-        found, parts = [solve_triples(*j[:5]) if to_solve else j for to_solve, j in jobs], None
+    # each search's triples are drawn here (every random number, in order) and solved as a task that
+    # starts as soon as it is drawn (several workers: while the next one is drawn; one: all after the
+    # draws, in order) -- the same hypotheses whatever the number
+    with Stream(_solve_job, workers) as stream:
+        for k, g in enumerate(groups):
+            if k < n_before and len(g) == 1 and crowded[g[0]] and budget <= 0:
+                continue  # the per-frame searches' budget is spent (see ``search_cost``)
+            gs = [sims[i] for i in g]
+            big = (sparse_scene or k >= n_before) and len(g) > 1
+            # closed_form: each triple's Kabsch fit without an SVD (``hypotheses.kabsch_triangles``, the same
+            # poses to ~1e-12, 2.5x faster; the search's largest cost on sparse leftovers)
+            search = TripleSearch(max_baseline_m=max_baseline_m, max_candidates=config.max_candidates,
+                                  closed_form=True)
+            wide = replace(search, max_triples=20000 if big else 3000, keep=60 if big else 25)
+            frs = [lean[i] for i in g]
+            draw = draw_triples(frs, intr, prior_sims=gs, rng=rng, search=wide)
+            if k < n_before and len(g) == 1:
+                budget -= search_cost(draw.n_windows, crowded[g[0]])
+            if any(x is not None for x in gs):  # matcher priors: solved now (a search without them may follow)
+                h = solve_triples(frs, intr, g[0], draw, wide)
+                if len(h) == 0:
+                    h = frame_hypotheses(frs, intr, g[0], rng=rng, search=search)
+                jobs.append(h)
+            else:
+                stream.put((frs, intr, g[0], draw, wide))
+                jobs.append(None)  # (the stream's next result)
+        solved = iter(stream.results())
+        found = [next(solved) if h is None else h for h in jobs]
     splits = sum(int(getattr(h, "n_searches", 1) > 1) for h in found)
     if progress:  # (the searches are solved together: reported once they are)
         for k in range(len(groups)):
             progress("hypotheses", k + 1, len(groups))
     hyps = Hypotheses.concat(found)
     if len(hyps):  # re-scored on every frame (static rig: one pose explains all), summed frame by frame
-        if parts is None:  # each pose is scored on its own: in one call per frame, the same values
-            hyps.score = sum(score_poses(fr, intr, hyps.R, hyps.t) for fr in lean)
-        else:
-            hyps.score = sum(np.concatenate([sc[f] for h, sc in parts if len(h)]) for f in range(len(lean)))
+        hyps.score = sum(frame_scores(lean, intr, hyps.R, hyps.t, workers))
     return BringUp(hyps, sparse_search=bool(sparse_scene), pooled_search=len(groups) > n_before, split_searches=splits)
 
 
-def _rescored(h: Hypotheses, frames: Sequence[CalibFrame], intr) -> tuple[Hypotheses, list[np.ndarray]]:
-    """``h`` and its hypotheses' scores on each of ``frames`` (each pose is scored on its own, so
-    scoring the searches' hypotheses apart and joining the scores gives the joint scoring's values)."""
-    return h, [score_poses(fr, intr, h.R, h.t) for fr in frames] if len(h) else []
+def frame_scores(frames: Sequence[CalibFrame], intr, R: np.ndarray, t: np.ndarray, workers: Workers = 1) -> list[np.ndarray]:
+    """``score_poses`` of the poses (R [H,3,3], t [H,3]) on each of ``frames``, in frame order: the
+    frames in ranges (``parallel.chunks``) on up to ``workers`` processes. Each frame's scores are
+    one call on all the poses either way, so the values are those of one loop over the frames."""
+    spans = chunks(len(frames), workers)
+    if len(spans) <= 1:
+        return [score_poses(fr, intr, R, t) for fr in frames]
+    parts = parallel_map(_score_span, [(list(frames[lo:hi]), intr, R, t) for lo, hi in spans], workers)
+    return [s for part in parts for s in part]
 
 
-def _solve_job(job) -> tuple[Hypotheses, list[np.ndarray]]:
-    """One drawn search solved and its hypotheses scored on every frame (a task of ``pose_hypotheses``)."""
-    frs, intr, fi, draw, search, frames = job
-    return _rescored(solve_triples(frs, intr, fi, draw, search), frames, intr)
+def _score_span(job) -> list[np.ndarray]:
+    """``score_poses`` on each frame of a range (a task of ``frame_scores``)."""
+    frames, intr, R, t = job
+    return [score_poses(fr, intr, R, t) for fr in frames]
+
+
+def _solve_job(job) -> Hypotheses:
+    """One drawn search solved (a task of ``pose_hypotheses``' stream)."""
+    return solve_triples(*job)
 
 
 def distinct_best(h: Hypotheses, n: int, rot_deg: float = 3.0, trans_m: float = 1.0) -> Hypotheses:

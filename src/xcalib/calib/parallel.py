@@ -35,7 +35,7 @@ from contextvars import ContextVar, copy_context
 from typing import Any, Callable, Iterable, Literal, TypeVar, Union
 
 __all__ = ["Workers", "resolve_workers", "parallel_map", "available_cpus", "Deferred", "WorkerPool", "Shared",
-           "shared"]
+           "shared", "Stream", "chunks", "Cancelled"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -147,6 +147,25 @@ def _local(x):
 # --------------------------------------------------------------------------- the pool
 
 _ACTIVE: ContextVar["WorkerPool | None"] = ContextVar("xcalib_worker_pool", default=None)
+#: set (in the context of a thread of a :class:`Deferred`) when the Deferred is given up
+_STOP: ContextVar["threading.Event | None"] = ContextVar("xcalib_deferred_stop", default=None)
+
+
+class Cancelled(Exception):
+    """Raised in a thread of a :class:`Deferred` given up (``cancel``) at its next parallel stage:
+    its result would go unused, so it starts no more work on the pool (nothing reads it)."""
+
+
+def _check_stop() -> None:
+    ev = _STOP.get()
+    if ev is not None and ev.is_set():
+        raise Cancelled("the Deferred this work belongs to was given up")
+
+
+def _run_stoppable(stop: "threading.Event", fn, *args):
+    """``fn(*args)`` in a thread's own context with ``stop`` as its stop flag (see ``_STOP``)."""
+    _STOP.set(stop)
+    return fn(*args)
 
 
 class WorkerPool:
@@ -213,6 +232,7 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], workers: Workers = 1)
     ``fn`` and the items must pickle (module-level functions, arrays, dataclasses); the results
     come back in the order of the items. An exception in a task is raised here."""
     items = list(items)
+    _check_stop()
     pool = _open_pool()
     if workers == "pool" and pool is not None and items:  # even one item: off this process's GIL
         return list(pool.executor().map(fn, items))
@@ -223,6 +243,70 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], workers: Workers = 1)
         return list(pool.executor().map(fn, items))
     with _pool(n) as ex:
         return list(ex.map(fn, items))
+
+
+def chunks(n_items: int, workers: Workers, per_worker: int = 2) -> list[tuple[int, int]]:
+    """[lo, hi) ranges that cut ``n_items`` items (frames) into ``per_worker`` pieces per process
+    ``workers`` stands for (one range with one process; none for no items): a per-item stage split
+    for :func:`parallel_map`. The ranges follow the items' order, so results joined range by range
+    are those of one loop over the items, whatever the worker count."""
+    n = resolve_workers(workers)
+    k = 1 if n <= 1 else min(n_items, n * per_worker)
+    if n_items <= 0:
+        return []
+    edges = [n_items * j // k for j in range(k + 1)]
+    return [(edges[j], edges[j + 1]) for j in range(k) if edges[j + 1] > edges[j]]
+
+
+class Stream:
+    """``[fn(x) for x in items]`` for items that come one at a time (``put``): with more than one
+    worker each item starts on the pool's processes as it is put (without an open pool: on a pool
+    started at the second item; a single item runs here), so that the caller's work on the
+    next item (drawing it: random numbers, in order) overlaps the earlier items' tasks; with one
+    worker the items run here, in order, when :meth:`results` is asked for (the serial order of
+    work unchanged). The results, in the order of the items, are the same either way. Use as a
+    context manager (on exit the tasks not started are cancelled, the running ones waited for; a
+    pool started for it is shut down)."""
+
+    def __init__(self, fn: Callable[[T], R], workers: Workers = 1):
+        self._fn = fn
+        self._n = resolve_workers(workers)
+        pool = _open_pool() if self._n > 1 else None
+        self._own: ProcessPoolExecutor | None = None
+        self._ex = None if pool is None else pool.executor()
+        self._items: list = []  # futures once on processes, else the items
+
+    @property
+    def parallel(self) -> bool:
+        return self._ex is not None
+
+    def put(self, item: T) -> None:
+        _check_stop()
+        if self._ex is None and self._n > 1 and len(self._items) == 1:
+            # no open pool: one started at the second item (as ``parallel_map``, none for a single item)
+            self._own = self._ex = _pool(self._n)
+            self._items = [self._ex.submit(self._fn, x) for x in self._items]
+        self._items.append(self._ex.submit(self._fn, item) if self._ex is not None else item)
+
+    def results(self) -> list[R]:
+        if self._ex is None:
+            return [self._fn(_local(x)) for x in self._items]
+        return [f.result() for f in self._items]
+
+    def close(self) -> None:
+        if self._ex is not None:
+            for f in self._items:
+                f.cancel()
+            wait(self._items)
+        if self._own is not None:
+            self._own.shutdown(wait=True, cancel_futures=True)
+            self._own = None
+
+    def __enter__(self) -> "Stream":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def _pool(n: int) -> ProcessPoolExecutor:
@@ -263,9 +347,11 @@ class Deferred:
             pool._threads.append(self._threads)
         ex = self._own if pool is None else pool.executor()
         self._fut: list[Future] | None = None
+        self._stop = threading.Event()
         if n > 1:
             self._fut = [None if call is None else
-                         self._threads.submit(copy_context().run, call[0], *_local(tuple(call[1]))) if k in here
+                         self._threads.submit(copy_context().run, _run_stoppable, self._stop, call[0],
+                                              *_local(tuple(call[1]))) if k in here
                          else ex.submit(call[0], *call[1]) for k, call in enumerate(self._calls)]
 
     def __len__(self) -> int:
@@ -300,7 +386,9 @@ class Deferred:
 
     def cancel(self) -> None:
         """Give the calls up: those not started never run; the running ones end in the background
-        (their results unused; the open pool waits for them when it closes)."""
+        (their results unused; the open pool waits for them when it closes), a thread's call at its
+        next parallel stage (``Cancelled``: it starts no more tasks on the pool)."""
+        self._stop.set()
         if self._fut is not None:
             for f in self._fut:
                 if f is not None:
