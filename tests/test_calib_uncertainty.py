@@ -236,3 +236,61 @@ def test_sigma_coverage_on_seeded_scenes():
     z = np.asarray(z)
     assert 0.8 <= np.mean(z <= 2) <= 1.0
     assert 0.5 <= np.sqrt(np.mean(z ** 2)) <= 1.6
+
+
+def _outline_and_noise(frames, T, shrink: float = 0.0):
+    """(outline shift, its sampling-noise sigma, |pose error| [6]) on ``frames`` whose 2D boxes are
+    shrunk by ``shrink`` of their size about the centre (a detector's tight outline: a common bias)."""
+    from xcalib.calib.cost import Occlusion
+    from xcalib.calib.diagnostics import NoiseModel
+    from xcalib.calib.uncertainty import _outline_fit, _pose_spread, _shift_noises
+
+    if shrink:
+        def tight(b):
+            c, s = (b[:, :2] + b[:, 2:]) / 2, (b[:, 2:] - b[:, :2]) * (1 - shrink) / 2
+            return np.column_stack([c - s, c + s])
+        frames = [dataclasses.replace(f, bboxes_2d=tight(np.asarray(f.bboxes_2d, float))) for f in frames]
+    cframes, pairs, intr, pose = _fit(frames, T)
+    ctx = FitContext(cframes, pairs, intr, pose, NoiseModel(sigma_px=1.0), 2.0, Occlusion())
+    fitted = _outline_fit(cframes, pairs, intr, pose, ctx.noise, f_scale=2.0, occlusion=ctx.occlusion)
+    _, free = _pose_spread(ctx)
+    _, noise = _shift_noises(ctx, free, fitted, object_groups(cframes, pairs))
+    return fitted[1].pose.delta(pose), noise
+
+
+def test_a_shift_that_is_only_noise_adds_nothing_and_a_common_bias_is_kept():
+    """The outline shift's own sampling noise (``shift_noise_sd``) has the scale of the shifts that
+    exact boxes with 1 px noise give (|shift| / noise sd: median near 0.67, the half-normal's), so
+    ``excess`` drops most of them; 2D boxes 12 % tighter than the 3D outline (one bias shared by all
+    objects) shift the pose far beyond that noise, and the excess keeps almost all of it."""
+    from xcalib.calib.uncertainty import excess
+
+    z, kept_noise, kept_bias = [], [], []
+    for seed in range(4):
+        frames, T = sim_frames(seed=seed, n_frames=4, noise_px=1.0, miss=0.0, false_pos=0.0, extra_3d=0)
+        shift, noise = _outline_and_noise(frames, T)
+        z.append(np.abs(shift) / noise)
+        kept_noise.append(np.linalg.norm(excess(shift, noise)) / np.linalg.norm(shift))
+        shift_b, noise_b = _outline_and_noise(frames, T, shrink=0.12)
+        kept_bias.append(np.linalg.norm(excess(shift_b, noise_b)) / np.linalg.norm(shift_b))
+    assert 0.35 <= np.median(z) <= 1.3  # the noise estimate has the shifts' scale
+    assert np.median(kept_noise) <= 0.6  # pure noise: most of the shift is dropped
+    assert min(kept_bias) >= 0.9  # a real common bias: kept
+
+
+def test_excess_and_shift_noise_sd_on_known_influences():
+    """``excess`` is sqrt(max(d^2 - sd^2, 0)) per axis (the whole shift without a noise estimate);
+    ``shift_noise_sd`` sums the pairs' influence differences per object and spreads them over objects."""
+    from xcalib.calib.uncertainty import excess, shift_noise_sd
+
+    assert np.allclose(excess([3.0, -1.0, 0.5], [4.0, 0.0, 0.3]), [0.0, 1.0, 0.4])
+    assert np.allclose(excess([-2.0], None), [2.0])
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(0, 1e-3, (400, 6)), np.zeros((400, 6))
+    per_pair = shift_noise_sd(a, b)
+    assert np.allclose(per_pair[3:], np.sqrt(400) * 1e-3, rtol=0.15)  # metres: sqrt(n) x the pair's spread
+    assert np.allclose(per_pair[:3], np.degrees(np.sqrt(400) * 1e-3), rtol=0.15)  # radians reported in degrees
+    same = np.repeat(np.arange(100), 4)  # 4 pairs per object with the same influence: objects, not pairs
+    a4 = np.repeat(rng.normal(0, 1e-3, (100, 6)), 4, axis=0)
+    assert np.allclose(shift_noise_sd(a4, b, same)[3:], 4 * np.sqrt(100) * 1e-3, rtol=0.2)
+    assert shift_noise_sd(a[:2], b[:2]) is None and shift_noise_sd(a, None) is None

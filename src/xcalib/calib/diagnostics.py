@@ -95,7 +95,9 @@ class UncertaintyParts:
     the corners' posterior weight, the pose shift to them; ``uncertainty.box_model_floor``);
     outline: the pose shift when common outline offsets are fitted; object_outline: the pose's
     sigma with every object's own outline offsets as random effects (``boxmodel.fit_object_outline``;
-    None where the objects' outlines do not differ beyond the noise)."""
+    None where the objects' outlines do not differ beyond the noise); occlusion_noise / outline_noise: the
+    1-sigma sampling noise of the occlusion / outline shift (``uncertainty.shift_noise_sd``): the reported
+    sigma counts of each shift only the part beyond it (``uncertainty.excess``)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -110,6 +112,8 @@ class UncertaintyParts:
     box_model: dict = field(default_factory=dict)
     outline: list[float] | None = None
     object_outline: list[float] | None = None
+    occlusion_noise: list[float] | None = None
+    outline_noise: list[float] | None = None
 
 
 @dataclass

@@ -35,7 +35,7 @@ from .refine import F_SCALE, build_cost, lsq
 from .terms import CostSpec, occlusion_of, pose_block
 
 __all__ = ["pose_covariance", "object_sandwich", "pose_spread", "pose_jackknife", "frame_jackknife", "object_groups", "pose_object_bootstrap",
-           "combine", "bound95", "outline_shift", "with_object_outline", "statistical_sd", "box_model_shift", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "Uncertainty", "estimate"]
+           "combine", "bound95", "outline_shift", "shift_noise_sd", "excess", "with_object_outline", "statistical_sd", "box_model_shift", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "Uncertainty", "estimate"]
 
 HALF_MIN_MATCHES = 6  # matches each half of the frames (or pairs) needs for the frame-halves check
 HALVES_MIN_MATCHES = 2 * HALF_MIN_MATCHES
@@ -104,6 +104,62 @@ def _scores(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel |
     g = ((J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 6)).sum(1)  # [n_pairs, 6]
     Jp = (J * inl[:, None]).reshape(-1, 4, 6)
     return _Scores(A, float(np.sum(r0[inl] ** 2) / dof), g, np.einsum("nki,nkj->nij", Jp, Jp))
+
+
+def _pair_influence(model, x: np.ndarray | None, n_pairs: int) -> np.ndarray | None:
+    """Each matched pair's influence on the pose a fit of ``model`` (a ``cost.CostModel``) reaches at
+    ``x`` (None: 0): ``A g_p`` [n_pairs, 6] (rad / m), with ``A`` the inverse of the pose's marginal
+    information (other parameters profiled out, ``terms.pose_block``) and ``g_p = J_p^T r_p`` over the
+    pair's inlier edges -- the linearised move of the pose that the pair's residuals cause (as
+    ``_scores``). None when the information is singular."""
+    r0, J = model.jacobian(x)
+    r0, J, info_rest = pose_block(r0, J, 4 * n_pairs)
+    informative = np.any(J != 0, axis=1)
+    if not np.any(informative):
+        return None
+    sigma = 1.4826 * np.median(np.abs(r0[informative]))
+    inl = informative & (np.abs(r0) <= 3 * max(sigma, 1e-9))
+    info = J[inl].T @ J[inl] + (0.0 if info_rest is None else info_rest)
+    try:
+        A = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        return None
+    g = ((J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 6)).sum(1)
+    return g @ A.T
+
+
+def shift_noise_sd(infl_used: np.ndarray | None, infl_alt: np.ndarray | None,
+                   groups: np.ndarray | None = None) -> np.ndarray | None:
+    """1-sigma (6-vector, deg / m) of the sampling noise in the pose shift between two fits of the
+    same matches (the fit in use and an alternative model's): the shift is ``sum_p (a_p - b_p)``
+    to first order, ``a_p`` / ``b_p`` each pair's influence under either fit (``_pair_influence``),
+    so its variance is the clustered spread of those differences, one cluster per object
+    (``groups``; None: per pair) -- ``G/(G-1) sum_c (D_c - mean)^2``. A shift no larger than this is
+    what two models fitted to the same noisy boxes differ by even when neither is biased (a
+    Hausman-type comparison, without assuming either fit efficient). None with fewer than 3 clusters."""
+    if infl_used is None or infl_alt is None or len(infl_used) != len(infl_alt):
+        return None
+    dif = np.asarray(infl_used) - np.asarray(infl_alt)
+    g = np.arange(len(dif)) if groups is None or len(groups) != len(dif) else np.asarray(groups, dtype=np.int64)
+    used, inv = np.unique(g, return_inverse=True)
+    G = len(used)
+    if G < 3:
+        return None
+    D = np.zeros((G, 6))
+    np.add.at(D, inv, dif)
+    D = D - D.mean(0)
+    return _sd6(G / (G - 1) * D.T @ D)
+
+
+def excess(shift, noise_sd) -> np.ndarray:
+    """Per axis the part of a pose shift beyond its own sampling noise, ``sqrt(max(shift^2 - sd^2, 0))``
+    (the unbiased estimate of a systematic shift's square): a shift that is only noise adds nothing
+    to the sigma (the statistical part already counts that noise), a real common bias is kept.
+    ``noise_sd`` None: the whole shift."""
+    d = np.abs(np.asarray(shift, dtype=np.float64))
+    if noise_sd is None:
+        return d
+    return np.sqrt(np.clip(d ** 2 - np.asarray(noise_sd, dtype=np.float64) ** 2, 0.0, None))
 
 
 def _sd6(cov: np.ndarray) -> np.ndarray:
@@ -208,6 +264,12 @@ def pose_spread(ctx: FitContext, *, max_nfev: int = 40):
     ``occlusion``: the ``cost.Occlusion`` of the fit (default: the default one).
     Returns (halves_delta [6] or None, occlusion_delta [6]).
     """
+    halves, free = _pose_spread(ctx, max_nfev)
+    return halves, free.delta(ctx.pose)
+
+
+def _pose_spread(ctx: FitContext, max_nfev: int = 40) -> tuple[np.ndarray | None, Pose]:
+    """``pose_spread``'s halves difference and the pose refitted without the occlusion model."""
     frames, pairs, intr, R, t, noise, f_scale, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose.R, ctx.pose.t,
                                                             ctx.noise, ctx.f_scale, ctx.occlusion)
     pose = Pose(R, t)
@@ -225,7 +287,7 @@ def pose_spread(ctx: FitContext, *, max_nfev: int = 40):
         po = _refit(frames, od, intr, pose, noise, f_scale, max_nfev, occl)
         halves = pe.delta(po)
     free = _refit(frames, pairs, intr, pose, noise, f_scale, max_nfev, CostSpec.of(occl).with_occlusion(None))
-    return halves, free.delta(pose)
+    return halves, free
 
 
 def jackknife_sd(deltas) -> np.ndarray:
@@ -495,6 +557,13 @@ def outline_shift(frames, pairs, intr, pose: Pose, noise: NoiseModel | None, *, 
     move it; exact boxes do not. Objects at several depths separate the offsets from the pose, so
     the shift is the data's estimate of the pose's bias from the outline model, an error common to
     all objects that no resampling of objects or frames can see. None with fewer than 12 matches."""
+    fitted = _outline_fit(frames, pairs, intr, pose, noise, f_scale=f_scale, occlusion=occlusion, max_nfev=max_nfev)
+    return None if fitted is None else fitted[1].pose.delta(pose)
+
+
+def _outline_fit(frames, pairs, intr, pose: Pose, noise: NoiseModel | None, *, f_scale: float, occlusion,
+                 max_nfev: int = 60):
+    """(model, fit) of ``outline_shift``'s refit with the outline offsets free; None as there."""
     from .boxmodel import outline_edge_term
 
     if int(sum(len(p) for p in pairs)) < 12:
@@ -505,7 +574,26 @@ def outline_shift(frames, pairs, intr, pose: Pose, noise: NoiseModel | None, *, 
         fit = model.fit(f_scale=f_scale, max_nfev=max_nfev)
     except (np.linalg.LinAlgError, ValueError):
         return None
-    return fit.pose.delta(pose)
+    return model, fit
+
+
+def _shift_noises(ctx: FitContext, free: Pose, outline_fit, groups) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Sampling-noise 1-sigma (``shift_noise_sd``) of the occlusion shift (the fit in use vs the refit
+    at ``free`` without the occlusion model) and of the outline shift (vs ``outline_fit``'s model and
+    optimum; None: not fitted)."""
+    frames, pairs, intr, pose, noise = ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise
+    occl = Occlusion() if ctx.occlusion is None else ctx.occlusion
+    n = int(sum(len(p) for p in pairs))
+    if n < 2:
+        return None, None
+    try:
+        used = _pair_influence(build_cost(frames, pairs, intr, pose, noise, occl), None, n)
+        no_occl = _pair_influence(build_cost(frames, pairs, intr, free, noise, CostSpec.of(occl).with_occlusion(None)),
+                                  None, n)
+        alt = None if outline_fit is None else _pair_influence(outline_fit[0], outline_fit[1].x, n)
+    except (np.linalg.LinAlgError, ValueError):
+        return None, None
+    return shift_noise_sd(used, no_occl, groups), shift_noise_sd(used, alt, groups)
 
 
 def _lst(v):
@@ -523,10 +611,12 @@ def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None 
                                                             ctx.f_scale, ctx.occlusion)
     rot_sd, tr_sd, _ = pose_covariance(frames, pairs, intr, pose.R, pose.t, noise=noise, occlusion=occlusion)
     jac = np.concatenate([rot_sd, tr_sd])
-    halves, occl = pose_spread(ctx)
+    halves, free = _pose_spread(ctx)
+    occl = free.delta(pose)
     jack = pose_jackknife(ctx) if halves is None else None
-    obj, clus, n_obj, misfit, box_info = None, None, 0, None, {}
-    outl = outline_shift(frames, pairs, intr, pose, noise, f_scale=f_scale, occlusion=occlusion)
+    obj, clus, n_obj, misfit, box_info, groups = None, None, 0, None, {}, None
+    outl_fit = _outline_fit(frames, pairs, intr, pose, noise, f_scale=f_scale, occlusion=occlusion)
+    outl = None if outl_fit is None else outl_fit[1].pose.delta(pose)
     if mode in ("clusters", "objects"):
         groups = object_groups(frames, pairs, track_ids=track_ids)
         n_obj = int(groups.max()) + 1 if len(groups) else 0
@@ -534,9 +624,13 @@ def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None 
         misfit, box_info = box_model_floor(ctx, n_objects=n_obj)
     if mode == "objects" and halves is not None:
         obj = pose_object_bootstrap(ctx, groups, seed=seed)
+    # the reported sigma counts of each model shift only what lies beyond its own sampling noise (the
+    # statistical part counts that noise already); the verdict's data sigma keeps the whole shifts
+    occl_noise, outl_noise = _shift_noises(ctx, free, outl_fit, groups)
     total_floor = None if floor is None and misfit is None else \
         np.sqrt((0.0 if floor is None else np.asarray(floor) ** 2) + (0.0 if misfit is None else misfit ** 2))
-    r, t = combine(jac, halves, occl, jack, obj, total_floor, clus, outl)
+    r, t = combine(jac, halves, excess(occl, occl_noise), jack, obj, total_floor, clus,
+                   None if outl is None else excess(outl, outl_noise))
     frames_sd = frame_jackknife(ctx) if halves is not None else None
     if frames_sd is not None:  # the verdict's sigma: the frame jackknife, not the one-sample halves
         r_data, t_data = combine(jac, None, occl, frames_sd, None, floor)
@@ -545,7 +639,7 @@ def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None 
     parts = UncertaintyParts(jacobian=_lst(jac), halves=_lst(halves), jackknife=_lst(jack), objects=_lst(obj),
                              occlusion=_lst(occl), floor=_lst(misfit), selfcal=_lst(floor), clusters=_lst(clus),
                              frames=_lst(frames_sd), n_objects=n_obj, box_model=box_info,
-                             outline=_lst(outl))
+                             outline=_lst(outl), occlusion_noise=_lst(occl_noise), outline_noise=_lst(outl_noise))
     return Uncertainty(r, t, parts, halves is not None, r_data, t_data)
 
 
