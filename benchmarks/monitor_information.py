@@ -215,3 +215,105 @@ def monitor_spread(cal, frames, every: int = 20, L: int = 40, ref: int = 250, wi
     out["inflation_median"] = float(np.median(phis)) if phis else None
     out["by_window"] = {f"{kind}_window_{w}": _spread(*by[(w, kind)], cm.lam) for (w, kind) in by if by[(w, kind)][0]}
     return out
+
+
+def efficient_rows(infos: np.ndarray, rate: float, stride: int, ref: int = 250,
+                   targets=((5, 0.10, 50), (5, 0.20, 20)), every: int = 10) -> dict:
+    """Settle whether a step can be seen at all: per target (axis, step, within W frames) and
+    placement (every ``every`` frames), the step's information over exactly the W frames after it
+    against the ``ref`` frames before it (the change point known: more than any monitor has),
+    ``Cd = I_after^-1 + I_before^-1``:
+
+    * ``crb_sigma``: the Cramer-Rao 1-sigma of the axis over the W frames alone (other five
+      axes free) and of the two-sample difference (``two_sample_sigma``), in m / deg;
+    * ``power_6dof``: an efficient test that does not know the direction (``d^T Cd^-1 d``, 6 dof;
+      non-centrality ``s^2 (Cd^-1)_kk``), one test every ``stride`` frames at the false-alarm
+      rate (``chi2.isf(rate * stride, 6)``: a single test a decision, less than the monitor's 4);
+    * ``power_axes_1dof``: six 1-dof tests, one per axis, others free (``d_k^2 / Cd_kk``,
+      threshold ``chi2.isf(rate * stride / 6, 1)``), for single-axis steps;
+    * ``power_oracle_1dof``: the test that knows the step's direction and time (1 dof,
+      non-centrality ``s^2 (Cd^-1)_kk``, threshold ``chi2.isf(rate * stride, 1)``): no test
+      at this false-alarm rate can do better with these observations (an upper bound, since the
+      information itself is an upper bound).
+    Means over placements, and the share of placements whose oracle power reaches 0.95."""
+    from scipy.stats import chi2, ncx2, norm
+
+    n = len(infos)
+    alpha = rate * stride
+    h6, h1, hax = chi2.isf(alpha, 6), chi2.isf(alpha, 1), chi2.isf(alpha / 6, 1)
+    out = {}
+    for axis, size, W in targets:
+        rows = {k: [] for k in ("crb", "two", "p6", "pax", "por")}
+        for a in range(0, n - ref - W + 1, every):
+            Ib, Ia = infos[a:a + ref].sum(0), infos[a + ref:a + ref + W].sum(0)
+            try:
+                Cd = np.linalg.inv(Ia) + np.linalg.inv(Ib)
+                Ci = np.linalg.inv(Cd)
+                crb = np.sqrt(np.linalg.inv(Ia)[axis, axis])
+            except np.linalg.LinAlgError:
+                continue
+            lam_c = size ** 2 * Ci[axis, axis]
+            z_m = size / np.sqrt(Cd[axis, axis])
+            rows["crb"].append(crb)
+            rows["two"].append(np.sqrt(Cd[axis, axis]))
+            rows["p6"].append(ncx2.sf(h6, 6, lam_c))
+            rows["pax"].append(norm.sf(np.sqrt(hax) - z_m) + norm.cdf(-np.sqrt(hax) - z_m))
+            rows["por"].append(norm.sf(np.sqrt(h1) - np.sqrt(lam_c)) + norm.cdf(-np.sqrt(h1) - np.sqrt(lam_c)))
+        if not rows["crb"]:
+            continue
+        unit = (lambda v: float(np.degrees(v))) if axis < 3 else float
+        out[f"{AXES[axis]}_{size:g}_within_{W}"] = {
+            "placements": len(rows["crb"]),
+            "crb_sigma_median": unit(np.median(rows["crb"])), "two_sample_sigma_median": unit(np.median(rows["two"])),
+            "power_6dof": float(np.mean(rows["p6"])), "power_axes_1dof": float(np.mean(rows["pax"])),
+            "power_oracle_1dof": float(np.mean(rows["por"])),
+            "share_oracle_ge_95": float(np.mean(np.array(rows["por"]) >= 0.95)),
+            "thresholds": {"6dof": float(h6), "axes_1dof": float(hax), "oracle_1dof": float(h1)}}
+    return out
+
+
+def site_geometry(cm, frames, T_world_cam: np.ndarray | None = None) -> dict:
+    """What a site's traffic looks like from the camera (``cm``: a ``CameraMonitor``): matched
+    pairs per frame, the matched boxes' depth along the view axis (median, 10-90 %), their spread
+    off the axis (|x / z|, the lever a view-axis shift moves them by), camera height above the
+    ground and pitch below the horizon (``T_world_cam``: the synthetic site's, z up, ground z=0;
+    else from a plane fitted to the boxes' lowest corners in the LiDAR frame)."""
+    from xcalib.calib.refine import match_frame
+
+    pose = cm.pose0
+    R, t = pose.R, pose.t
+    npairs, depth, lever, bottoms, spread = [], [], [], [], []
+    for f in frames:
+        cf = cm._prepare(f)
+        pairs, _, _ = match_frame(cf, cm.intr, R, t, gate_iou=0.2, gate_dist=0.5)
+        npairs.append(len(pairs))
+        if not len(pairs):
+            continue
+        c = np.asarray(cf.corners)[pairs[:, 1]]  # [m,S,3] LiDAR frame
+        pc = c.mean(1) @ R.T + t
+        depth.extend(pc[:, 2].tolist())
+        lever.extend(np.abs(pc[:, 0] / pc[:, 2]).tolist())
+        spread.append(float(np.ptp(pc[:, 2])) if len(pc) > 1 else 0.0)
+        for box in c:
+            bottoms.append(box[np.argmin(box[:, 2])])
+    if T_world_cam is not None:
+        height = float(T_world_cam[2, 3])
+        axis = T_world_cam[:3, 2]
+        pitch = float(np.degrees(np.arcsin(-axis[2])))
+    else:  # ground plane z = a x + b y + c in the LiDAR frame from the boxes' lowest corners
+        B = np.asarray(bottoms)
+        A = np.column_stack([B[:, 0], B[:, 1], np.ones(len(B))])
+        coef = np.linalg.lstsq(A, B[:, 2], rcond=None)[0]
+        nrm = np.array([-coef[0], -coef[1], 1.0])
+        nrm /= np.linalg.norm(nrm)
+        C = -R.T @ t  # the camera centre in the LiDAR frame
+        height = float(C @ nrm - coef[2] * nrm[2])
+        axis = R.T @ np.array([0.0, 0.0, 1.0])
+        pitch = float(np.degrees(np.arcsin(-axis @ nrm)))
+    d = np.asarray(depth)
+    return {"frames": len(frames), "pairs_per_frame": float(np.mean(npairs)),
+            "depth_m_median": float(np.median(d)) if len(d) else None,
+            "depth_m_p10_p90": [float(np.percentile(d, 10)), float(np.percentile(d, 90))] if len(d) else None,
+            "depth_spread_per_frame_m_median": float(np.median(spread)) if spread else None,
+            "off_axis_lever_median": float(np.median(lever)) if lever else None,
+            "camera_height_m": height, "camera_pitch_down_deg": pitch}
