@@ -30,8 +30,9 @@ TARGET = np.array([np.radians(0.25)] * 3 + [0.10] * 3)
 AXES = ("rx", "ry", "rz", "tx", "ty", "tz")
 
 
-def frame_information(cm, frames, s2d: float) -> np.ndarray:
-    """[n,6,6]: each frame's information about the pose change (rad / m) at the calibration."""
+def frame_information(cm, frames, s2d: float, sig: np.ndarray = SIG_NUISANCE) -> np.ndarray:
+    """[n,6,6]: each frame's information about the pose change (rad / m) at the calibration
+    (``sig``: the 3D boxes' 1-sigma: centre per axis m [3], relative size per axis [3], yaw rad)."""
     from xcalib.calib.boxproj import project_rects
     from xcalib.calib.refine import edge_term, match_frame
     from xcalib.monitor.core import _EPS, _perturbations
@@ -77,7 +78,7 @@ def frame_information(cm, frames, s2d: float) -> np.ndarray:
                 rows = np.any(J[p] != 0, axis=1) & np.all(np.isfinite(J[p]), 1) & np.all(np.isfinite(N[p]), 1)
                 if rows.any():
                     Jp, Np = J[p][rows], N[p][rows]
-                    Cp = s2d ** 2 * np.eye(int(rows.sum())) + Np @ np.diag(SIG_NUISANCE ** 2) @ Np.T
+                    Cp = s2d ** 2 * np.eye(int(rows.sum())) + Np @ np.diag(np.asarray(sig) ** 2) @ Np.T
                     info += Jp.T @ np.linalg.solve(Cp, Jp)
         out.append(info)
     return np.array(out)
