@@ -544,6 +544,8 @@ def main() -> None:
                     help="--part reference: the drift-free reference stretch per site (frames)")
     ap.add_argument("--arms", default="off,online,reference", help="--part reference: the arms to run")
     ap.add_argument("--info-frames", type=int, default=400, help="--part information: frames per site for the bound")
+    ap.add_argument("--bound-runs", action="store_true",
+                    help="--part bound: also the monitor's own z steps at each site (--runs runs per step)")
     ap.add_argument("--steps-only", action="store_true", help="--part synth: the steps only (no null streams, ramps)")
     ap.add_argument("--real-null", type=int, default=1600, help="real sequences: drift-free frames (looped)")
     ap.add_argument("--real-frames", type=int, default=320, help="real sequences: step streams (change at the middle)")
@@ -583,7 +585,7 @@ def main() -> None:
                                                      log, box_noise_px=4.0, miss_rate_2d=0.1)
     elif args.part == "bound":  # can any test see a 10 cm z step within 50 frames at these sites?
         bseeds = [int(v) for v in args.null_seeds.split(",") if v.strip()] if args.null_seeds else seeds
-        result["bound_s8"] = _bound(bseeds, args.info_frames, log)
+        result["bound_s8"] = _bound(bseeds, args.info_frames, log, args.runs if args.bound_runs else 0)
     elif args.part == "information":  # is the z step's power the boxes' information or the test?
         result["information"] = _information(seeds, args.info_frames, args.null_frames, log)
     elif args.part in ("all", "synth"):
@@ -650,12 +652,14 @@ def _information(seeds: list[int], n_bound: int, n_null: int, log) -> dict:
     return rows
 
 
-def _bound(seeds: list[int], n: int, log) -> dict:
+def _bound(seeds: list[int], n: int, log, runs: int = 0) -> dict:
     """The Cramer-Rao bound of the issue's steps and the power of efficient tests at the
     false-alarm rate (``monitor_information.efficient_rows``), per synthetic site and for A9's
     16 real frames (looped: their geometry under the generator's noise), beside each site's
     geometry (``site_geometry``): is ">= 95 % within 50 frames" possible with boxes alone, and
-    are the benchmark's sites like a real roadside site?"""
+    are the benchmark's sites like a real roadside site? ``runs`` > 0: beside the bound, the
+    monitor's own 10 cm / 50-frame and 20 cm / 20-frame z steps at each site (``runs`` runs each,
+    from frame 250 of an 800-frame stream, as ``--part synth``)."""
     from monitor_information import efficient_rows, frame_information, sequential_rows, site_geometry
 
     from xcalib.monitor import Monitor, MonitorConfig
@@ -679,13 +683,17 @@ def _bound(seeds: list[int], n: int, log) -> dict:
                 f"{q['power_oracle_1dof']:.2f} (placements >= 0.95: {100 * q['share_oracle_ge_95']:.0f} %)")
 
     for s in seeds:
-        site, frames = _synth_stream(s, n)
+        site, frames = _synth_stream(s, max(n, 800 if runs else 0))
         cm = next(iter(Monitor(_synth_calibration(site), cfg).cameras.values()))
-        infos = frame_information(cm, frames, float(site.config.box_noise_px))
+        infos = frame_information(cm, frames[:n], float(site.config.box_noise_px))
         rows[f"site_{s}"] = {"geometry": site_geometry(cm, frames[:100], site.T_world_cam),
                              "efficient": efficient_rows(infos, cfg.false_alarm_rate, cfg.stride, targets=targets),
                              "sequential": sequential_rows(infos, cfg.false_alarm_rate, cfg.stride)}
         show(f"site {s}", rows[f"site_{s}"])
+        if runs:
+            rows[f"site_{s}"]["monitor_steps"] = _steps({s: (site, frames)}, runs,
+                                                        lambda m, **k: log(f"  site {s} monitor: {m}", **k),
+                                                        [("translation", 0.10, 50, 2), ("translation", 0.20, 20, 2)])
     if A9.exists():
         from xcalib.calib.api import calibrate
         from xcalib.io.sources import open_source
