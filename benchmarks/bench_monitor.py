@@ -37,6 +37,12 @@ Prints tables and writes ``benchmarks/results/monitor.json`` (each part merges i
     ... --part real --real-null 1600 --real-frames 320
     ... --part weak --sites 2 --runs 8 --null-frames 800
     ... --part reference --sites 2 --runs 8 --null-frames 800 --reference-frames 2400
+    ... --part bound --null-seeds 3,5,7,11,13,17 --info-frames 500 --bound-runs --runs 8
+
+``--part bound``: per site (``--null-seeds``) and for A9, the Cramer-Rao bound of the z steps
+and the power of efficient tests at the false-alarm rate with the change time known
+(``monitor_information.efficient_rows``) and unknown (``sequential_rows``), beside the site's
+geometry (``site_geometry``) and, with ``--bound-runs``, the monitor's own z steps there.
 
 ``--part reference``: the change test calibrated per axis and window length
 (``CameraMonitor.axis_factors``) from a drift-free reference stretch of each site
