@@ -85,6 +85,45 @@ def test_consensus_refuses_too_few_boxes(site2_frames):
     assert searched_intrinsics(1000, 500, 90.0).fx == pytest.approx(500.0)
 
 
+
+def _match_frame_at(cm, frame):
+    """``refine.match_frame`` at the consensus pose (caller numbering): pairs (rows of the frame's
+    kept boxes mapped back) and the [K,M] IoU of every box with every projected outline."""
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.calib.refine import match_frame
+
+    fr = prepare_frames([frame], cm.intrinsics)[0][0]
+    pairs, _, rects = match_frame(fr, cm.intrinsics, cm.T_cam_lidar[:3, :3], cm.T_cam_lidar[:3, 3], gate_iou=cm.config.gate)
+    from xcalib.calib.boxproj import iou_batched
+
+    iou = np.zeros_like(cm.iou)
+    iou[np.ix_(fr.idx2d, fr.idx3d)] = iou_batched(rects[None], fr.boxes2d)[0]
+    return {(int(fr.idx2d[i]), int(fr.idx3d[j])) for i, j in pairs.tolist()}, iou
+
+
+def test_consensus_pairs_and_iou_are_match_frame_at_its_pose(site2_frames):
+    """The pairs (kept + ambiguous) and the IoU come from the refinement's last matching: they must
+    be ``match_frame``'s at the reported pose, to the bit -- on a seeded frame and on a crafted scene of 3 objects and a false 2D box, also with a margin no pose reaches (every match
+    ambiguous)."""
+    f = site2_frames[0]
+    i, j = np.nonzero(f.match_matrix)
+    w, h = f.image_size
+    false_box = np.array([[w * 0.45, h * 0.5, w * 0.45 + 40.0, h * 0.5 + 30.0]])
+    crafted = (f.image, f.point_cloud, np.concatenate([np.asarray(f.bboxes_2d, dtype=np.float64)[i[:3]], false_box]),
+               np.asarray(f.bboxes_3d)[j[:3]])
+    n_ambiguous = 0
+    for scene, cfg in (((f.image, f.point_cloud, f.bboxes_2d, f.bboxes_3d), None), (crafted, None),
+                       (crafted, ConsensusConfig(min_margin=1e6))):
+        cm = consensus_matches(scene, f.intrinsics, cfg)
+        assert cm.found
+        pairs, iou = _match_frame_at(cm, scene)
+        got = {tuple(p) for p in cm.pairs.tolist()} | {tuple(p) for p in cm.ambiguous.tolist()}
+        assert got == pairs and len(pairs) >= 3
+        np.testing.assert_array_equal(cm.iou, iou)
+        assert cm.score == pytest.approx(sum(iou[a, b] for a, b in pairs))
+        n_ambiguous += len(cm.ambiguous)
+    assert n_ambiguous >= 3
+
 def test_shipped_weights_out_of_domain_fall_back_to_geometry(site2_frames, caplog):
     m = Matcher.from_pretrained("fastmatch", site="synthetic", device="cpu")
     f = site2_frames[0]

@@ -38,11 +38,10 @@ import numpy as np
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import KannalaBrandt
 from ..geometry.rotations import rotation_angle
-from .boxproj import iou_batched
 from .hypotheses import TripleSearch, frame_hypotheses
 from .inputs import CalibFrame, as_intrinsics, prepare_frames
 from .poses_refine import refine_poses
-from .refine import RefineOptions, RefineResult, match_frame
+from .refine import RefineOptions, RefineResult
 
 __all__ = ["ConsensusConfig", "ConsensusMatches", "consensus_matches", "pair_margins", "searched_intrinsics"]
 
@@ -168,7 +167,8 @@ def _hypotheses(fr: CalibFrame, intr: CameraIntrinsics, cfg: ConsensusConfig):
 
 
 def _best_poses(fr: CalibFrame, intr: CameraIntrinsics, h, cfg: ConsensusConfig):
-    """Refine the ``n_refine`` best distinct hypotheses; [(summed IoU, RefineResult)] best first."""
+    """Refine the ``n_refine`` best distinct hypotheses; [(summed IoU, RefineResult, IoU [K,M])] best
+    first (the pairs and IoU of ``refine.match_frame`` at the pose, at gate ``cfg.gate``)."""
     keep: list[int] = []
     for i in np.argsort(-h.score, kind="stable"):
         if all(_distinct(h.R[i], h.t[i], h.R[k], h.t[k], 3.0, 1.0) for k in keep):
@@ -177,8 +177,8 @@ def _best_poses(fr: CalibFrame, intr: CameraIntrinsics, h, cfg: ConsensusConfig)
             break
     opts = RefineOptions(gates=((0.1, 1.0), (0.2, 0.5), (cfg.gate, 0.0)), max_nfev=15, max_outer=3)
     fit = refine_poses(fr, intr, h.R[keep], h.t[keep], opts)
-    out = [(float(fit.score[i]), RefineResult(fit.R[i], fit.t[i], [fit.pairs[i]], cost=float("nan"), n_iter=opts.max_outer))
-           for i in range(len(keep))]
+    out = [(float(fit.score[i]), RefineResult(fit.R[i], fit.t[i], [fit.pairs[i]], cost=float("nan"), n_iter=opts.max_outer),
+            fit.iou[i]) for i in range(len(keep))]
     out.sort(key=lambda x: -x[0])
     return out
 
@@ -224,14 +224,16 @@ def consensus_matches(frame, intrinsics=None, config: ConsensusConfig | None = N
                                 elapsed_s=time.perf_counter() - t0)
     tried = [(_best_poses(f, k, h, cfg), f, k) for f, k, h in cands]
     poses, fr, intr = max(tried, key=lambda x: x[0][0][0])
-    score, best = poses[0]
-    runner = next((s for s, r in poses[1:] if _distinct(r.R, r.t, best.R, best.t, 1.0, 0.3)), 0.0)
-    pairs, _, rects = match_frame(fr, intr, best.R, best.t, gate_iou=cfg.gate)
-    margin = pair_margins(pairs, score, [(s, r.pairs[0]) for s, r in poses[1:]])
+    score, best, best_iou = poses[0]
+    runner = next((s for s, r, _ in poses[1:] if _distinct(r.R, r.t, best.R, best.t, 1.0, 0.3)), 0.0)
+    # the refinement's last matching is ``match_frame`` at the refined pose with the gate: its pairs
+    # and IoU (tests/test_matching_consensus.py checks them against ``match_frame``)
+    pairs = best.pairs[0]
+    margin = pair_margins(pairs, score, [(s, r.pairs[0]) for s, r, _ in poses[1:]])
     sure = margin >= cfg.min_margin
     iou = np.zeros((K, M))
     if fr.n2 and fr.n3:
-        iou[np.ix_(fr.idx2d, fr.idx3d)] = iou_batched(rects[None], fr.boxes2d)[0]
+        iou[np.ix_(fr.idx2d, fr.idx3d)] = best_iou
     caller = (np.column_stack([fr.idx2d[pairs[:, 0]], fr.idx3d[pairs[:, 1]]]).astype(np.int64) if len(pairs)
               else np.zeros((0, 2), np.int64))
     T = np.eye(4)

@@ -122,13 +122,17 @@ def explained_iou(rects: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.
     cand &= rx1 > bx0
     cand &= ry0 < by1
     cand &= ry1 > by0
-    hh, kk, mm = np.nonzero(cand)
-    best = np.zeros((H, K))
-    col = np.zeros((H, M))
-    if len(hh):
-        r = rects[hh, mm]
-        bb = b[kk]
-        iou = iou_planes(tuple(r[:, j] for j in range(4)), tuple(bb[:, j] for j in range(4)))
-        np.maximum.at(best, (hh, kk), iou)
-        np.maximum.at(col, (hh, mm), iou)
-    return best, col
+    flat = np.flatnonzero(cand)  # (h, k, m) row-major
+    if not len(flat):
+        return np.zeros((H, K)), np.zeros((H, M))
+    hk, mm = np.divmod(flat, M)
+    hm = (hk // K) * M + mm
+    r = rects.reshape(H * M, 4)[hm]
+    bb = b[hk % K]
+    iou = iou_planes(tuple(r[:, j] for j in range(4)), tuple(bb[:, j] for j in range(4)))
+    # the IoU of the overlapping pairs scattered into the [H,K,M] array of zeros, maxed over its
+    # axes: max is exact, so the same values as ``np.maximum.at`` on the pairs (3x faster)
+    full = np.zeros(H * K * M)
+    full[flat] = iou
+    full = full.reshape(H, K, M)
+    return full.max(2), full.max(1)

@@ -40,12 +40,14 @@ COST_TOL = 1e-9  # as is a relative decrease of the robust cost below this
 @dataclass
 class PosesFit:
     """The refined poses R [H,3,3], t [H,3]; per pose the matches at the last gate (rows of the
-    frame's arrays) and their summed IoU ``score`` [H]."""
+    frame's arrays) and their summed IoU ``score`` [H]; ``iou`` [H,K,M] the IoU of every 2D box
+    with every projected outline at the refined poses (``match_poses``'; None: not kept)."""
 
     R: np.ndarray
     t: np.ndarray
     pairs: list[np.ndarray]
     score: np.ndarray
+    iou: np.ndarray | None = None
 
 
 def match_poses(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.ndarray, gate_iou: float,
@@ -242,7 +244,8 @@ def refine_poses(fr: CalibFrame, intr: CameraIntrinsics, R0, t0, options: Refine
         R = np.stack([o.R for o in out]) if out else R
         t = np.stack([o.t for o in out]) if out else t
         pairs, iou = match_poses(fr, intr, R, t, options.gates[-1][0], options.gates[-1][1])
-        return PosesFit(R, t, pairs, np.array([float(iou[h][p[:, 0], p[:, 1]].sum()) for h, p in enumerate(pairs)]))
+        return PosesFit(R, t, pairs, np.array([float(iou[h][p[:, 0], p[:, 1]].sum()) for h, p in enumerate(pairs)]),
+                        iou)
     gates = options.gates
     live = np.ones(H, bool)
     prev = np.full(H, np.nan)
@@ -286,7 +289,7 @@ def refine_poses(fr: CalibFrame, intr: CameraIntrinsics, R0, t0, options: Refine
             live &= ~done
         prev = np.where(live, per, prev)
     pairs, iou = match_poses(fr, intr, R, t, gates[-1][0], gates[-1][1])
-    return PosesFit(R, t, pairs, np.array([float(iou[h][p[:, 0], p[:, 1]].sum()) for h, p in enumerate(pairs)]))
+    return PosesFit(R, t, pairs, np.array([float(iou[h][p[:, 0], p[:, 1]].sum()) for h, p in enumerate(pairs)]), iou)
 
 
 def _exp(w: np.ndarray) -> np.ndarray:
