@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.boxes import take_rows
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import project_outline_rects
 from ..geometry.camera_models.outline import finish_rects, no_rects, pose_batch
@@ -75,12 +76,16 @@ def ragged_outlines(outlines: np.ndarray) -> RaggedOutlines:
     vertex that differs from its first one."""
     o = np.asarray(outlines, dtype=np.float64)
     n, S = o.shape[:2]
-    differs = np.any(o != o[:, :1], axis=2)  # [n,S]
-    lengths = np.where(differs.any(axis=1), S - np.argmax(differs[:, ::-1], axis=1), 1)
-    flat = np.ascontiguousarray(o[np.arange(S)[None, :] < lengths[:, None]])
-    starts = np.cumsum(lengths) - lengths
+    same = o[:, :, 0] == o[:, :1, 0]  # [n,S] a vertex equal to its outline's first (per coordinate: no
+    same &= o[:, :, 1] == o[:, :1, 1]  # reduction over a short last axis)
+    same &= o[:, :, 2] == o[:, :1, 2]
+    same[:, 0] = False  # the first vertex is kept
+    lengths = S - np.argmin(same[:, ::-1], axis=1)  # the trailing run of copies of the first vertex dropped
     col = np.arange(S)[None, :]
-    padded = starts[:, None] + np.where(col < lengths[:, None], col, 0)
+    keep = col < lengths[:, None]
+    flat = take_rows(np.ascontiguousarray(o).reshape(-1, 3), np.flatnonzero(keep))  # (row gathers, = o[keep])
+    starts = np.cumsum(lengths) - lengths
+    padded = starts[:, None] + np.where(keep, col, 0)
     return RaggedOutlines(flat, starts, lengths, padded)
 
 
