@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from xcalib.calib.boxproj import iou_batched
+from xcalib.calib.boxproj import iou_batched, project_rects
 from xcalib.calib.hypotheses import _pair_distances
 
 
@@ -408,6 +408,7 @@ def test_jacobian_clipped_edge_mask_from_clipped_rects(seed):
     for _ in range(30):
         R = rotvec_to_matrix(r.normal(scale=0.15, size=3)) @ T[:3, :3]
         rects, valid, u, v = term._projection(PoseState(Pose(R, T[:3, 3] + r.normal(scale=1.0, size=3)), intr))
+        u, v = u[term.ragged.padded], v[term.ragged.padded]  # the vertices' pixels as padded rows [n,S]
         uu, vv = np.where(valid[:, None], u, 0.0), np.where(valid[:, None], v, 0.0)
         rows = np.arange(len(uu))
         ext = np.column_stack([uu[rows, uu.argmin(1)], vv[rows, vv.argmin(1)], uu[rows, uu.argmax(1)],
@@ -441,3 +442,69 @@ def test_cost_model_state_cache_same_fit():
     x2 = x.copy()
     x2[0] += 1e-4  # a new x: a new state
     assert model.state(x2).pose.R.tobytes() != model.state(x).pose.R.tobytes()
+
+
+def _padded_outlines(r, n: int, S: int) -> np.ndarray:
+    """n random outlines [n,S,3] in front of / around a camera looking along +x (LiDAR frame), each
+    padded after a random length by repeating its first vertex (as ``refine._padded`` does)."""
+    c = r.normal(size=(n, 1, 3)) * np.array([4.0, 8.0, 1.0]) + np.array([12.0, 0.0, 0.0])
+    o = c + r.normal(scale=1.5, size=(n, S, 3))
+    o[: n // 5, :, 0] -= 14.0  # some outlines (partly) behind the camera
+    lengths = r.integers(1, S + 1, size=n)
+    for i, L in enumerate(lengths):
+        o[i, L:] = o[i, 0]
+    return o
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_project_ragged_matches_project_rects(seed):
+    """``boxproj.project_ragged`` of the outlines without their padding gives ``project_rects``'
+    rects and valid to the bit (issue 29, session 8), with and without distortion, with outlines
+    behind the camera and cut by the image border; the vertices' pixels are the padded rows'."""
+    from xcalib.calib.boxproj import project_ragged, ragged_outlines
+    from xcalib.geometry.camera import CameraIntrinsics
+    from xcalib.geometry.rotations import rotvec_to_matrix
+
+    r = np.random.default_rng(seed)
+    o = _padded_outlines(r, 60, 24)
+    rg = ragged_outlines(o)
+    assert len(rg.flat) < o.shape[0] * o.shape[1]
+    assert np.array_equal(rg.flat[rg.padded], o)
+    R0 = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # LiDAR x forward -> camera z
+    for dist in (None, [-0.3, 0.1, 0.001, -0.002, 0.0]):
+        intr = CameraIntrinsics(fx=900.0, fy=910.0, cx=640.0, cy=360.0, width=1280, height=720, distortion=dist)
+        for _ in range(5):
+            R = rotvec_to_matrix(r.normal(scale=0.2, size=3)) @ R0
+            t = r.normal(scale=0.5, size=3)
+            want = project_rects(o, R, t, intr, (1280, 720), corner_uv=True)
+            got = project_ragged(rg.flat, rg.starts, R, t, intr, (1280, 720))
+            assert want[0].tobytes() == got[0].tobytes() and np.array_equal(want[1], got[1])
+            assert 0 < want[1].sum() < len(o)  # some outlines valid, some not
+            for k in (2, 3):  # u, v: the same bits (NaN behind the camera)
+                assert np.array_equal(want[k], got[k][rg.padded], equal_nan=True)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_edge_term_defining_corners_unpadded(seed):
+    """``BoxEdgeTerm`` projects its outlines without the padding: the defining corner of every
+    edge (the point whose derivative the Jacobian takes) is the one the argmin / argmax over the
+    padded rows picked (session 7's code), and residuals and Jacobian are finite."""
+    from xcalib.calib.cost import BoxEdgeTerm, PoseState
+    from xcalib.calib.pose import Pose
+    from xcalib.geometry.rotations import rotvec_to_matrix
+
+    _, intr, T, model = _seeded_edge_problem(seed)
+    term = next(t for t in model.terms if type(t) is BoxEdgeTerm)
+    r = np.random.default_rng(seed)
+    for _ in range(20):
+        R = rotvec_to_matrix(r.normal(scale=0.15, size=3)) @ T[:3, :3]
+        st = PoseState(Pose(R, T[:3, 3] + r.normal(scale=1.0, size=3)), intr)
+        rects, valid, u, v = term._projection(st)
+        want_r, want_v, uu, vv = project_rects(term.outlines, st.pose.R, st.pose.t, intr, term.size, corner_uv=True)
+        assert rects.tobytes() == want_r.tobytes() and np.array_equal(valid, want_v)
+        uu, vv = np.where(valid[:, None], uu, 0.0), np.where(valid[:, None], vv, 0.0)
+        idx = np.column_stack([uu.argmin(1), vv.argmin(1), uu.argmax(1), vv.argmax(1)])
+        old = term.outlines[np.arange(len(idx))[:, None], idx]
+        new = term.ragged.flat[term._defining(u, v, valid)]
+        assert old.tobytes() == new.tobytes()
+        assert np.all(np.isfinite(term.jacobian(st, np.zeros(3), [])))

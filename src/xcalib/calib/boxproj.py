@@ -7,14 +7,17 @@ object behaves.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from ..geometry.boxes import take_rows
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import project_outline_rects
 from ..geometry.camera_models.outline import finish_rects, no_rects, pose_batch
 from ..geometry.projection import distort_normalized
 
-__all__ = ["project_rects", "iou_batched", "MIN_DEPTH_M"]
+__all__ = ["project_rects", "iou_batched", "MIN_DEPTH_M", "RaggedOutlines", "ragged_outlines", "project_ragged"]
 
 MIN_DEPTH_M = 0.3
 
@@ -45,12 +48,78 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
     if M == 0:
         out = no_rects(H, single)
         return out + (np.zeros((0, 0)),) * 2 if corner_uv else out
-    S = c.shape[1]
+    u, v, ahead = _corner_pixels(c, R, t, intr)
+    front = ahead.all(axis=2)
+    rect = _corner_extremes(u, v)
+    valid = finish_rects(rect, front, size, clip)
+    if corner_uv:
+        return (rect[0], valid[0], u[0], v[0]) if single else (rect, valid, u, v)
+    return (rect[0], valid[0]) if single else (rect, valid)
+
+
+@dataclass(frozen=True)
+class RaggedOutlines:
+    """Outlines [n,S,3] without their padding: ``flat`` [N,3] the vertices of every outline, row by
+    row (outline i: ``flat[starts[i]:starts[i] + lengths[i]]``, the first ``lengths[i]`` vertices
+    of its padded row). Padding is a trailing run of copies of an outline's first vertex (how
+    outlines of different lengths share one array, see ``refine._padded``): dropping it changes no
+    rectangle (min and max of the same points)."""
+
+    flat: np.ndarray
+    starts: np.ndarray
+    lengths: np.ndarray
+    padded: np.ndarray  # [n,S] the padded rows as indices into ``flat`` (padding: the row's first vertex)
+
+
+def ragged_outlines(outlines: np.ndarray) -> RaggedOutlines:
+    """The :class:`RaggedOutlines` of ``outlines`` [n,S,3] (n >= 1): each row cut after its last
+    vertex that differs from its first one."""
+    o = np.asarray(outlines, dtype=np.float64)
+    n, S = o.shape[:2]
+    same = o[:, :, 0] == o[:, :1, 0]  # [n,S] a vertex equal to its outline's first (per coordinate: no
+    same &= o[:, :, 1] == o[:, :1, 1]  # reduction over a short last axis)
+    same &= o[:, :, 2] == o[:, :1, 2]
+    same[:, 0] = False  # the first vertex is kept
+    lengths = S - np.argmin(same[:, ::-1], axis=1)  # the trailing run of copies of the first vertex dropped
+    col = np.arange(S)[None, :]
+    keep = col < lengths[:, None]
+    flat = take_rows(np.ascontiguousarray(o).reshape(-1, 3), np.flatnonzero(keep))  # (row gathers, = o[keep])
+    starts = np.cumsum(lengths) - lengths
+    padded = starts[:, None] + np.where(keep, col, 0)
+    return RaggedOutlines(flat, starts, lengths, padded)
+
+
+def project_ragged(points: np.ndarray, starts: np.ndarray, R: np.ndarray, t: np.ndarray, intr: CameraIntrinsics,
+                   size: tuple[int, int]):
+    """``project_rects(outlines, R, t, intr, size, corner_uv=True)`` for one pose and a
+    ``CameraIntrinsics`` from the outlines' vertices without padding (``points`` [N,3]: the
+    ``RaggedOutlines.flat`` vertices, moved as the outlines are; ``starts`` [n] where each outline
+    begins; n >= 1): the same rects [n,4] and valid [n] (each corner's pixels are computed as
+    ``project_rects`` computes them, the extremes are exact) and the pixels u, v [N] of every
+    vertex (NaN behind the camera)."""
+    u, v, ahead = _corner_pixels(points[None], np.asarray(R, dtype=np.float64).reshape(1, 3, 3),
+                                 np.asarray(t, dtype=np.float64).reshape(1, 3), intr)
+    u, v, ahead = u[0, 0], v[0, 0], ahead[0, 0]
+    front = np.logical_and.reduceat(ahead, starts)
+    rect = np.empty((len(starts), 4))
+    np.minimum.reduceat(u, starts, out=rect[:, 0])
+    np.minimum.reduceat(v, starts, out=rect[:, 1])
+    np.maximum.reduceat(u, starts, out=rect[:, 2])
+    np.maximum.reduceat(v, starts, out=rect[:, 3])
+    valid = finish_rects(rect, front, size, True)
+    return rect, valid, u, v
+
+
+def _corner_pixels(c: np.ndarray, R: np.ndarray, t: np.ndarray, intr: CameraIntrinsics):
+    """Pixels u, v [H,M,S] of the corners c [M,S,3] at the poses R [H,3,3], t [H,3] (NaN behind the
+    camera: depth <= ``MIN_DEPTH_M``) and ahead [H,M,S] (in front of it). Every value is computed
+    corner by corner (one batched matrix product, then element-wise), so a corner's pixels do not
+    depend on the other corners passed with it (``project_ragged`` relies on this)."""
+    H, M, S = len(R), len(c), c.shape[1]
     X = np.matmul(R, c.reshape(-1, 3).T)  # [H,3,M*S] (batched BLAS)
     X += t[:, :, None]  # the arithmetic below runs in place on X (same operations, same values)
     z = X[:, 2].reshape(H, M, S)
     ahead = z > MIN_DEPTH_M
-    front = ahead.all(axis=2)
     inv = np.full(z.shape, np.nan)
     np.divide(1.0, z, out=inv, where=ahead)
     x = np.multiply(X[:, 0].reshape(H, M, S), inv, out=X[:, 0].reshape(H, M, S))
@@ -64,11 +133,7 @@ def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: Camer
     u += intr.cx
     v = np.multiply(y, intr.fy, out=y)
     v += intr.cy
-    rect = _corner_extremes(u, v)
-    valid = finish_rects(rect, front, size, clip)
-    if corner_uv:
-        return (rect[0], valid[0], u[0], v[0]) if single else (rect, valid, u, v)
-    return (rect[0], valid[0]) if single else (rect, valid)
+    return u, v, ahead
 
 
 def _corner_extremes(u: np.ndarray, v: np.ndarray) -> np.ndarray:

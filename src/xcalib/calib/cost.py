@@ -35,7 +35,7 @@ from ..geometry.camera_models import CameraModel, Unified
 from ..geometry.camera_models import pixels_per_metre as camera_pixels_per_metre
 from ..geometry.camera_models.outline import outline_extremes
 from ..geometry.rotations import so3_left_jacobian
-from .boxproj import MIN_DEPTH_M, project_rects
+from .boxproj import MIN_DEPTH_M, project_ragged, project_rects, ragged_outlines
 from .diagnostics import NoiseModel
 from .pose import Pose
 from .solver import LOSSES, trf
@@ -189,34 +189,54 @@ class BoxEdgeTerm(CostTerm):
         # an edge that cannot be projected (behind the camera) costs the box's own size
         self.fallback = np.sqrt((obs[:, 2] - obs[:, 0]) * (obs[:, 3] - obs[:, 1]))[:, None]
         self._last = None  # the last projection (see _projection)
+        self._ragged = None  # the outlines without their padding (see _projection), made on first use
 
     def edges(self, state: PoseState) -> np.ndarray:
         """Unweighted, unshaped residuals [n,4] (px): projected rectangle - 2D box."""
-        rects, valid, _, _ = self._projection(state)
+        rects, valid = self._projection(state)[:2]
         return np.where(valid[:, None], rects - self.obs, self.fallback)
 
     def _projection(self, state: PoseState):
-        """``project_rects`` of the outlines at ``state`` (rects, valid, corner u, v), the last one
-        kept: least squares asks for the residuals and then the Jacobian at the same point, and the
-        Jacobian needs the corners' pixels. Keyed by everything the projection depends on."""
+        """The projection of the outlines at ``state``: (rects, valid, u, v). For a
+        ``CameraIntrinsics``, ``boxproj.project_ragged`` of the outlines without their padding
+        (the same rects and valid as ``project_rects``; a fit's outlines are padded to the longest
+        one, most of them several times over, and the padding was projected at every step), the
+        vertices' pixels u, v [N]; for another camera model,
+        ``project_rects``' rects and valid, the rest None. The last one is kept: least squares
+        asks for the residuals and then the Jacobian at the same point. Keyed by everything the
+        projection depends on."""
         intr = state.intr
-        outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
-        if not isinstance(intr, CameraIntrinsics):  # another camera model: rects only (see _model_jacobian)
+        if not isinstance(intr, CameraIntrinsics) or not len(self.obs):  # rects only (see _model_jacobian)
             key = (state.pose.R.tobytes(), state.pose.t.tobytes(), intr,
                    None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
             if self._last is not None and self._last[0] == key:
                 return self._last[1]
+            outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
             rect, valid = project_rects(outlines, state.pose.R, state.pose.t, intr, self.size)
             self._last = (key, (rect, valid, None, None))
-            return rect, valid, None, None
+            return self._last[1]
         key = (state.pose.R.tobytes(), state.pose.t.tobytes(), intr.fx, intr.fy, intr.cx, intr.cy,
                None if intr.distortion is None else np.asarray(intr.distortion, dtype=np.float64).tobytes(),
                None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
         if self._last is not None and self._last[0] == key:
             return self._last[1]
-        out = project_rects(outlines, state.pose.R, state.pose.t, state.intr, self.size, corner_uv=True)
+        out = project_ragged(self._points(state.shift_m), self.ragged.starts, state.pose.R, state.pose.t, intr,
+                             self.size)
         self._last = (key, out)
         return out
+
+    @property
+    def ragged(self):
+        """``boxproj.ragged_outlines`` of the outlines (made once)."""
+        if self._ragged is None:
+            self._ragged = ragged_outlines(self.outlines)
+        return self._ragged
+
+    def _points(self, shift_m) -> np.ndarray:
+        """The outlines' vertices without padding [N,3], each moved by its outline's ``shift_m``
+        [n,3] (None: not moved; the same sums as ``outlines + shift_m[:, None, :]``)."""
+        rg = self.ragged
+        return rg.flat if shift_m is None else rg.flat + np.repeat(np.asarray(shift_m), rg.lengths, axis=0)
 
     def shape(self, r: np.ndarray) -> np.ndarray:
         """Weighted edge residuals [n,4] -> the cost's residuals [n,4]: the occlusion shaping, then
@@ -255,18 +275,15 @@ class BoxEdgeTerm(CostTerm):
             return self._model_jacobian(state, rotvec, extra)
         R, t, intr = state.pose.R, state.pose.t, state.intr
         rects, valid, u, v = self._projection(state)
-        rows = np.arange(n)[:, None]
-        uu, vv = np.where(valid[:, None], u, 0.0), np.where(valid[:, None], v, 0.0)  # (an invalid row has no derivative)
-        idx = np.column_stack([uu.argmin(1), vv.argmin(1), uu.argmax(1), vv.argmax(1)])  # [n,4] defining corners
         W, H = self.size
         lim = np.array([W, H, W, H], dtype=np.float64)
         # an edge clipped to the image does not move: the unclipped edge e (the defining corner's u or
         # v) lies strictly inside (0, lim) exactly where the rectangle, clipped to [0, lim], does (a
-        # clipped edge is 0 or lim; an invalid rectangle is NaN: False, as its zeroed e was)
+        # clipped edge is 0 or lim; an invalid rectangle is NaN: False)
         with np.errstate(invalid="ignore"):
             inside = (rects > 0.0) & (rects < lim)
         # derivatives at the defining corners only [n,4,...]
-        sel = self.outlines[rows, idx]
+        sel = self._points(None)[self._defining(u, v, valid)]
         if state.shift_m is not None:
             sel = sel + np.asarray(state.shift_m)[:, None, :]
         Ys = _rows_matmul(sel, R.T)
@@ -302,6 +319,17 @@ class BoxEdgeTerm(CostTerm):
         return D.reshape(4 * n, P)
 
 
+    def _defining(self, u: np.ndarray, v: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """[n,4] rows of the unpadded vertices (``ragged.flat``) that define each rectangle's edges
+        (u min, v min, u max, v max): ``argmin`` / ``argmax`` over the padded row, the first vertex
+        at the extreme (never on the padding, a copy of the first vertex after the others);
+        an invalid rectangle's first vertex (its derivative is zeroed)."""
+        rg = self.ragged
+        uu, vv = u[rg.padded], v[rg.padded]  # [n,S] the padded rows' pixels
+        idx = np.column_stack([uu.argmin(1), vv.argmin(1), uu.argmax(1), vv.argmax(1)])  # (never on the padding)
+        idx += rg.starts[:, None]
+        return np.where(valid[:, None], idx, rg.starts[:, None])
+
     def _model_jacobian(self, state: PoseState, rotvec: np.ndarray, extra: list[Tangent]) -> np.ndarray:
         """:meth:`jacobian` for a camera model (``xcalib.geometry.camera_models``): each rectangle
         edge moves with the outline point that defines it (``outline_extremes``: the extreme of the
@@ -309,7 +337,7 @@ class BoxEdgeTerm(CostTerm):
         ``CameraIntrinsics``."""
         n, P = len(self.obs), 6 + len(extra)
         R, t, cam = state.pose.R, state.pose.t, state.intr
-        rects, valid, _, _ = self._projection(state)
+        rects, valid = self._projection(state)[:2]
         outlines = self.outlines if state.shift_m is None else self.outlines + np.asarray(state.shift_m)[:, None, :]
         sel = outline_extremes(outlines, R, t, cam)  # [n,4,3] the points defining u_min, v_min, u_max, v_max
         Ys = _rows_matmul(sel, R.T)
