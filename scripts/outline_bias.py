@@ -154,7 +154,7 @@ def run_synth(condition: str, seeds: list[int]) -> None:
         offs = "; ".join(f"{k} " + " ".join(f"{v:+.3f}" for v in o.values()) for k, o in kinds["offsets"].items())
         print(f"  site {seed:2d}: {sum(len(p) for p in pairs):3d} pairs  plain {errs[0][0]:.3f}/{errs[0][1]:.3f}  "
               f"common {errs[1][0]:.3f}/{errs[1][1]:.3f}  per kind {errs[2][0]:.3f}/{errs[2][1]:.3f}  "
-              f"(offsets sides top bottom: {offs})", flush=True)
+              f"(offsets sides height: {offs})", flush=True)
 
 
 def main(argv=None) -> int:
