@@ -19,7 +19,7 @@ __all__ = ["YawFit", "fit_yaw_to_points", "estimate_yaw_from_points", "lidar_ang
            "outline_edge_term", "fit_outline", "OUTLINE_PRIOR", "OUTLINE_PARAMS",
            "shapes_from_points", "ObjectOutlineFit", "object_outline_spread", "fit_object_outline",
            "outline_kinds", "kind_outline_edge_term", "fit_kind_outline", "OUTLINE_KIND_BOUNDS_M", "OUTLINE_KIND_NAMES",
-           "OUTLINE_KIND_MIN_OBJECTS", "KIND_OUTLINE_PARAMS",
+           "OUTLINE_KIND_MIN_OBJECTS", "KIND_OUTLINE_PARAMS", "outline_extent_kinds",
            "OBJECT_OUTLINE_P", "OBJECT_OUTLINE_MIN_OBJECTS", "EDGE_NAMES"]
 
 
@@ -141,17 +141,34 @@ def outline_kinds(frames, pairs, groups: np.ndarray) -> tuple[np.ndarray, list[s
     return remap[obj_kind[groups]], [OUTLINE_KIND_NAMES[k] for k in present]
 
 
-def kind_outline_edge_term(kinds: np.ndarray, n_kinds: int, prior: float = OUTLINE_PRIOR):
+def outline_extent_kinds(outlines: np.ndarray) -> tuple[np.ndarray, int]:
+    """(kind per outline [n] in 0..K-1, K) from the outlines themselves ([n,S,3] LiDAR-frame points
+    of each matched 3D box's outline): the longest horizontal extent of each against
+    ``OUTLINE_KIND_BOUNDS_M``, the kinds present numbered in order. For an edge term alone (no
+    object identities: every pair by its own size)."""
+    pts = np.asarray(outlines, dtype=np.float64)[:, :, :2]
+    if not len(pts):
+        return np.zeros(0, dtype=np.int64), 1
+    ext = np.nanmax(np.linalg.norm(pts[:, :, None, :] - pts[:, None, :, :], axis=3), axis=(1, 2))
+    raw = np.digitize(ext, OUTLINE_KIND_BOUNDS_M)
+    present = np.unique(raw)
+    return np.searchsorted(present, raw).astype(np.int64), len(present)
+
+
+def kind_outline_edge_term(kinds: np.ndarray | None = None, n_kinds: int | None = None, prior: float = OUTLINE_PRIOR):
     """A factory for ``refine.build_cost(edge=...)``: the box-edge term with two offsets per kind of
     object (``kinds``: kind per matched pair in 0..``n_kinds``-1, :func:`outline_kinds`):
     ``KIND_OUTLINE_PARAMS`` (sides: both vertical edges in by a share of the projected width;
-    height: top and bottom in by a share of the height), each with the Gaussian prior ``prior``."""
+    height: top and bottom in by a share of the height), each with the Gaussian prior ``prior``.
+    ``kinds`` None: each pair's kind from its own outline's extent (:func:`outline_extent_kinds`), so
+    that the factory serves any set of pairs (refits on resampled pairs)."""
     from .cost import BoxEdgeTerm
 
-    kinds = np.asarray(kinds, dtype=np.int64)
-    K = int(n_kinds)
-
     def make(base):
+        if kinds is None:
+            kind_of, K = outline_extent_kinds(base.outlines)
+        else:
+            kind_of, K = np.asarray(kinds, dtype=np.int64), int(n_kinds)
         class KindOutlineEdgeTerm(BoxEdgeTerm):
             name = "box_outline_kinds"
             n_params = 2 * K
@@ -170,7 +187,7 @@ def kind_outline_edge_term(kinds: np.ndarray, n_kinds: int, prior: float = OUTLI
                 a = state.params.get(self.name)
                 if a is None:
                     return e
-                a = np.asarray(a, dtype=np.float64).reshape(K, 2)[kinds]
+                a = np.asarray(a, dtype=np.float64).reshape(K, 2)[kind_of]
                 w = np.maximum(e[:, 2] - e[:, 0] + self.obs[:, 2] - self.obs[:, 0], 0.0)
                 h = np.maximum(e[:, 3] - e[:, 1] + self.obs[:, 3] - self.obs[:, 1], 0.0)
                 return e + np.column_stack([a[:, 0] * w, a[:, 1] * h, -a[:, 0] * w, -a[:, 1] * h])
