@@ -3,7 +3,8 @@ while a car's shrinks (rounded body, narrower roof), so one set of outline offse
 cannot represent it. ``boxmodel.outline_kinds`` sorts the matched objects into size kinds from
 their 3D boxes (label-free) and ``fit_kind_outline`` fits a width and a height share per kind with
 the pose (no vertical shift: within a kind it is the camera's height).
-A measured building block (``scripts/outline_bias.py``), not used by ``calibrate``."""
+A measured building block (``scripts/outline_bias.py``); of ``calibrate`` only the time-offset
+check's box-model test uses it (``misfit._time_box_models``)."""
 
 from __future__ import annotations
 
