@@ -89,3 +89,20 @@ def test_a_false_offset_from_detector_outlines_is_not_a_time_misfit_and_the_pose
     assert not res.success and res.diagnostics.refusal != "misfit_time_offset", res.message
     time_chk = next(c for c in res.diagnostics.misfit if c.name == "time_offset")
     assert not time_chk.flagged and "the box model explains it" in time_chk.detail, time_chk.detail
+
+
+def test_an_outline_that_differs_by_kind_of_object_is_no_time_misfit_but_a_real_offset_stays():
+    """Realism ``detector_outline`` site 18 (no offset): persons' boxes grow while cars' shrink, so
+    one set of outline offsets fits worse than a -0.07 s offset and the site was refused as
+    ``misfit_time_offset``. The outline per size kind of object (``boxmodel.kind_outline_edge_term``,
+    tried second) explains the boxes better and the offset refitted with it flags nothing. The same
+    site with a real 0.05 s offset stays flagged: no outline moves the objects along their motion."""
+    ctx, times, places = _truth_ctx("detector_outline", 18, 0.0)
+    chk, msg = misfit.time_offset_check(ctx, times, "s", places=places)
+    assert not chk.flagged and msg is None, chk.detail
+    assert "one outline: " in chk.detail and "outline per kind of object: " in chk.detail, chk.detail
+    assert chk.detail.rstrip(")").endswith("the box model explains it"), chk.detail
+    ctx, times, places = _truth_ctx("detector_outline", 18, -0.05)
+    chk, msg = misfit.time_offset_check(ctx, times, "s", places=places)
+    assert chk.flagged and msg is not None and "out of time" in msg, chk.detail
+    assert "outline per kind of object" in chk.detail and "the box model explains it" not in chk.detail, chk.detail
