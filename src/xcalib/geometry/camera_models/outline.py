@@ -55,11 +55,16 @@ def densify_box_edges(corners: np.ndarray, samples: int = EDGE_SAMPLES) -> np.nd
     c = np.asarray(corners, dtype=np.float64)
     if c.ndim != 3 or c.shape[1] != 8 or samples <= 0 or len(c) == 0:
         return c
-    ii, jj = (_EI, _EJ) if _box7_order(c) else (_I, _J)
+    return _densify(c, samples, *((_EI, _EJ) if _box7_order(c) else (_I, _J)))
+
+
+def _densify(c: np.ndarray, samples: int, ii: np.ndarray, jj: np.ndarray) -> np.ndarray:
+    """:func:`densify_box_edges` with the segments (ii -> jj) already chosen."""
+    if samples <= 0 or len(c) == 0:
+        return c
     w = (np.arange(1, samples + 1) / (samples + 1))[None, None, :, None]
     a, b = c[:, ii, None, :], c[:, jj, None, :]
-    seg = a + (b - a) * w  # [M,edges,samples,3]
-    return np.concatenate([c, seg.reshape(len(c), -1, 3)], axis=1)
+    return np.concatenate([c, (a + (b - a) * w).reshape(len(c), -1, 3)], axis=1)
 
 
 def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, camera: CameraModel,
@@ -120,11 +125,11 @@ def outline_extremes(corners: np.ndarray, R: np.ndarray, t: np.ndarray, camera: 
         return out
     geo = _Outline(camera, 0.0, M <= _COARSE_ABOVE, nan_as_zero=True)
     if camera.is_pinhole or c.shape[1] != 8:
-        return geo.extremes(c, R, t, None)[2][0]
+        return geo.extremes(c, R, t, None, points=True)[2][0]
     k = _samples_needed(c, R, t, COARSE_SAMPLES if M > _COARSE_ABOVE else EDGE_SAMPLES)
     for n in np.unique(k):  # as project_outline_rects for one pose
         sel = np.flatnonzero(k == n)
-        out[sel] = geo.extremes(c[sel], R, t, int(n))[2][0]
+        out[sel] = geo.extremes(c[sel], R, t, int(n), points=True)[2][0]
     return out
 
 
@@ -168,60 +173,78 @@ class _Outline:
             ok = ok & (np.einsum("ij,ij->i", P, P) > self.min_distance ** 2)
         return uv, ok
 
-    def extremes(self, c: np.ndarray, R: np.ndarray, t: np.ndarray, n: int | None):
+    def extremes(self, c: np.ndarray, R: np.ndarray, t: np.ndarray, n: int | None, points: bool = False):
         """``n``: points per edge of the 8 corners ``c`` [M,8,3] (None: ``c`` [M,S,3] as it is, no
-        refinement). Returns rect [H,M,4] (u min, v min, u max, v max, unclipped; NaN propagates
-        from a point that cannot be projected), front [H,M] (every point projectable) and the
-        outline points (frame of ``c``) [H,M,4,3] at which each extreme is taken."""
-        pts = c if n is None else densify_box_edges(c, n)
+        refinement). Returns rect [H,M,4] (u min, v min, u max, v max, unclipped; NaN where a
+        point cannot be projected, at least where ``front`` is False), front [H,M] (every point
+        projectable) and, with ``points``, the outline points (frame of ``c``) [H,M,4,3] at which
+        each extreme is taken (else None)."""
+        ii, jj = (_EI, _EJ) if n is None or _box7_order(c) else (_I, _J)
+        pts = c if n is None else _densify(c, n, ii, jj)
         H, M, S = len(R), len(c), pts.shape[1]
         X = np.matmul(R, pts.reshape(-1, 3).T) + t[:, :, None]  # [H,3,M*S]
         uv, ok = self._project(X.transpose(0, 2, 1).reshape(-1, 3))
         front = np.all(ok.reshape(H, M, S), axis=2)
         if self.nan_as_zero:
             uv = np.nan_to_num(uv, nan=0.0)
-        w = uv.reshape(H, M, S, 2)[..., _AXIS].transpose(0, 1, 3, 2) * -_SIGN[:, None]  # [H,M,4,S] to maximise
-        with np.errstate(invalid="ignore"):
-            idx = np.argmax(np.where(np.isnan(w), -np.inf, w), axis=3)  # [H,M,4]
-        best = np.take_along_axis(w, idx[..., None], axis=3)[..., 0]
-        nanrow = np.isnan(w).any(axis=3)
-        best[nanrow] = np.nan  # as min / max: NaN propagates (such an outline is invalid)
-        where = pts[np.arange(M)[None, :, None], idx]  # [H,M,4,3]
-        if n is not None and self.refine:
-            self._refine(c, R, t, n, w, best, where, ~nanrow)
+        u, v = uv[:, 0].reshape(H, M, S), uv[:, 1].reshape(H, M, S)
+        refine = n is not None and self.refine
+        if not refine and not points:  # NaN propagates through min / max (such an outline is invalid)
+            return np.stack([u.min(2), v.min(2), u.max(2), v.max(2)], axis=-1), front, None
+        w = np.empty((H, M, 4, S))  # the values to maximise: -u, -v, u, v
+        np.negative(u, out=w[:, :, 0])
+        np.negative(v, out=w[:, :, 1])
+        w[:, :, 2], w[:, :, 3] = u, v
+        if np.isnan(uv).any():  # an invalid outline: its extremes NaN as min / max gives them
+            w[np.isnan(w).any(axis=3)] = np.nan
+        best = w.max(axis=3)
+        where = None
+        if points:
+            with np.errstate(invalid="ignore"):
+                idx = np.argmax(np.nan_to_num(w, nan=-np.inf), axis=3)
+            where = pts[np.arange(M)[None, :, None], idx]  # [H,M,4,3]
+        if refine:
+            self._refine(c, (ii, jj, n), (R, t), w, best, where, front & np.isfinite(best).all(axis=2))
         return -_SIGN * best, front, where
 
-    def _refine(self, c, R, t, n, w, best, where, ok) -> None:
+    def _refine(self, c, edges, pose, w, best, where, ok) -> None:
         """Golden section along the segments that may hold each extreme, in place on ``best``
-        [H,M,4] (values to maximise) and ``where`` [H,M,4,3]. ``w`` [H,M,4,S]: the densified
-        points' values. A segment is refined where its samples' peak, or the vertex of the
-        parabola through the peak and its neighbours, reaches the sampled extreme; between the
-        peak's two neighbours (from an end sample: only where the image still rises leaving it)."""
-        ii, jj = (_EI, _EJ) if _box7_order(c) else (_I, _J)
+        [H,M,4] (values to maximise) and ``where`` [H,M,4,3] (None: not kept). ``w`` [H,M,4,S]:
+        the densified points' values; ``edges``: (ii, jj, n) the segments and their samples. A
+        segment is refined where its samples' peak, or the vertex of a parabola through three
+        neighbouring samples (within one sample of the middle one), reaches the sampled extreme:
+        around that sample (from an end sample: only where the image still rises leaving it)."""
+        ii, jj, n = edges
+        R, t = pose
         ne, L = len(ii), n + 2
         G = np.empty((ne, L), dtype=np.int64)  # each segment's samples in order: corner, n inside, corner
         G[:, 0], G[:, -1] = ii, jj
         G[:, 1:-1] = 8 + np.arange(ne)[:, None] * n + np.arange(n)[None, :]
-        seq = w[..., G]  # [H,M,4,ne,L]
-        seq = np.where(np.isnan(seq), -np.inf, seq)
-        p = np.argmax(seq, axis=4)
-        y1 = np.take_along_axis(seq, p[..., None], axis=4)[..., 0]
-        pm = np.clip(p, 1, L - 2)  # the parabola through three samples around the peak
-        y0 = np.take_along_axis(seq, (pm - 1)[..., None], axis=4)[..., 0]
-        yc = np.take_along_axis(seq, pm[..., None], axis=4)[..., 0]
-        y2 = np.take_along_axis(seq, (pm + 1)[..., None], axis=4)[..., 0]
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            curv = 2.0 * yc - y0 - y2
-            xv = (y2 - y0) / (2.0 * curv)  # vertex, in samples from pm
-            peak = yc + (y2 - y0) ** 2 / (8.0 * curv)
-            near = (curv > 0) & (np.abs(pm + xv - p) <= 1.0)
-            est = np.where(near & np.isfinite(peak), np.maximum(peak, y1), y1)
-            tol = 1e-9 * (1.0 + np.abs(best))
-            cand = ok[..., None] & np.isfinite(y1) & (est >= best[..., None] - tol[..., None])
-        h, m, k, e = np.nonzero(cand)
-        if not len(h):
+        seq = w[ok][:, :, G]  # [V,4,ne,L] the valid outlines only
+        p = seq.argmax(axis=3)
+        y1 = np.take_along_axis(seq, p[..., None], axis=3)[..., 0]
+        est = y1
+        if L >= 3:  # the parabola through three samples around the peak
+            pm = np.clip(p, 1, L - 2)[..., None]
+            y0 = np.take_along_axis(seq, pm - 1, axis=3)[..., 0]
+            yc = np.take_along_axis(seq, pm, axis=3)[..., 0]
+            y2 = np.take_along_axis(seq, pm + 1, axis=3)[..., 0]
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                curv = 2.0 * yc - y0 - y2
+                xv = (y2 - y0) / (2.0 * curv)  # vertex, in samples from pm
+                peak = yc + (y2 - y0) ** 2 / (8.0 * curv)
+                near = (curv > 0) & (np.abs(pm[..., 0] + xv - p) <= 1.0) & np.isfinite(peak)
+            est = np.where(near, np.maximum(peak, y1), y1)
+        bv = best[ok]
+        tol = 1e-9 * (1.0 + np.abs(bv))
+        cand = est >= (bv - tol)[..., None]
+        vi, k, e = np.nonzero(cand)
+        if not len(vi):
             return
-        pe = p[h, m, k, e]
+        hv, mv = np.nonzero(ok)
+        h, m = hv[vi], mv[vi]
+        y1c = y1[vi, k, e]
+        pe = p[vi, k, e]
         a, b = np.maximum(pe - 1, 0) / (n + 1.0), np.minimum(pe + 1, L - 1) / (n + 1.0)
         A, B = c[m, ii[e]], c[m, jj[e]]  # [N,3] the segment (frame of c)
         Rh, th = R[h], t[h]
@@ -238,7 +261,7 @@ class _Outline:
         if end.any():
             s0 = np.where(pe == 0, 0.0, 1.0)
             eps = np.where(pe == 0, 1e-6, -1e-6) / (n + 1.0)
-            keep = ~end | (f(s0 + eps) > y1[h, m, k, e])
+            keep = ~end | (f(s0 + eps) > y1c)
             h, m, k, a, b, A, B, Rh, th, ax, sg = (x[keep] for x in (h, m, k, a, b, A, B, Rh, th, ax, sg))
             if not len(h):
                 return
@@ -267,7 +290,8 @@ class _Outline:
         sel = order[first]
         h, m, k, bs, bf, A, B = (x[sel] for x in (h, m, k, bs, bf, A, B))
         best[h, m, k] = bf
-        where[h, m, k] = A + (B - A) * bs[:, None]
+        if where is not None:
+            where[h, m, k] = A + (B - A) * bs[:, None]
 
 
     def _newton(self, s, fs, seg, bracket):
@@ -282,19 +306,23 @@ class _Outline:
 
         def slope(x):
             X = np.einsum("nij,nj->ni", Rh, A + (B - A) * x[:, None]) + th
-            uv, J, okp = self.camera.project_jacobian(X)
-            g = -sg * np.einsum("nj,nj->n", J[rows, ax], D)
-            return np.where(okp, g, np.nan), np.where(okp, -sg * uv[rows, ax], -np.inf)
+            _, J, okp = self.camera.project_jacobian(X)
+            return np.where(okp, -sg * np.einsum("nj,nj->n", J[rows, ax], D), np.nan)
+
+        def value(x):
+            X = np.einsum("nij,nj->ni", Rh, A + (B - A) * x[:, None]) + th
+            uv, okp = self._project(X)
+            return np.where(okp, -sg * uv[rows, ax], -np.inf)
 
         step = 1e-7 * (hi - lo)
         for _ in range(NEWTON_STEPS):
-            g, _ = slope(s)
-            g2, _ = slope(s + step)
+            g = slope(s)
+            g2 = slope(s + step)
             with np.errstate(invalid="ignore", divide="ignore"):
                 nxt = s - g * step / (g2 - g)
             inside = np.isfinite(nxt) & (nxt >= lo) & (nxt <= hi) & ((g2 - g) < 0)
             nxt = np.where(inside, nxt, s)
-            _, fn = slope(nxt)
+            fn = value(nxt)
             up = inside & (fn >= fs - 1e-9 * (1.0 + np.abs(fs)))
             s, fs = np.where(up, nxt, s), np.where(up, fn, fs)
         return s, fs
