@@ -101,6 +101,8 @@ def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, cam
         rect, front, _ = geo.extremes(c, R, t, int(samples))
     else:
         k = _samples_needed(c, R, t, COARSE_SAMPLES if H * M > _COARSE_ABOVE else EDGE_SAMPLES)
+        if geo.refine:  # exact whatever the samples: one group (fewer, larger array operations)
+            k = np.full_like(k, k.max())
         rect, front = np.empty((H, M, 4)), np.empty((H, M), dtype=bool)
         for n in np.unique(k):
             sel = np.flatnonzero(k == n)
@@ -127,7 +129,9 @@ def outline_extremes(corners: np.ndarray, R: np.ndarray, t: np.ndarray, camera: 
     if camera.is_pinhole or c.shape[1] != 8:
         return geo.extremes(c, R, t, None, points=True)[2][0]
     k = _samples_needed(c, R, t, COARSE_SAMPLES if M > _COARSE_ABOVE else EDGE_SAMPLES)
-    for n in np.unique(k):  # as project_outline_rects for one pose
+    if geo.refine:  # as project_outline_rects for one pose
+        k = np.full_like(k, k.max())
+    for n in np.unique(k):
         sel = np.flatnonzero(k == n)
         out[sel] = geo.extremes(c[sel], R, t, int(n), points=True)[2][0]
     return out
