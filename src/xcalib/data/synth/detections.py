@@ -17,6 +17,7 @@ import numpy as np
 
 from ...geometry.boxes import box7_corners, box7_to_extents, extents_to_center_size
 from ...geometry.camera_models import CameraModel, densify_box_edges
+from ...geometry.camera_models.outline import outline_extremes
 from ...geometry.projection import project_points, undistort_pixels
 from .scene import CLASSES, SceneObjects, sample_sizes
 
@@ -122,13 +123,16 @@ def camera_view(site: Site, objs: SceneObjects) -> CameraView:
 
 
 def _model_view(site: Site, corners: np.ndarray):
-    """Under a camera model (wide-angle): the box edges projected densely (straight edges curve),
-    uv [N,S,2], distance [N,S] (m) and in_view [N] (every point in the model's valid region and
+    """Under a camera model (wide-angle): the box edges projected densely (straight edges curve)
+    and the points where each box's image is widest (``outline_extremes``, exact), uv [N,S,2], distance [N,S] (m) and in_view [N] (every point in the model's valid region and
     farther than ``_NEAR``)."""
     N = len(corners)
-    dense = densify_box_edges(corners)
-    S = dense.shape[1]
     T = site.T_cam_world
+    # the edges densely (for the hull that paints the mask) and the exact extremes of u and v over
+    # each box (the tight box of the projected solid, where a curved edge peaks between samples)
+    dense = np.concatenate([densify_box_edges(corners), outline_extremes(corners, T[:3, :3], T[:3, 3],
+                                                                         site.intrinsics)], axis=1) if N else corners
+    S = dense.shape[1]
     pc = dense.reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
     uv, ok = site.intrinsics.project(pc)
     dist = np.linalg.norm(pc, axis=1)
