@@ -187,7 +187,7 @@ def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: Nois
 
 
 def object_sandwich(ctx: FitContext, groups: np.ndarray, *, min_objects: int | None = None,
-                    exact: int | None = None, kind: str = "cr2") -> np.ndarray | None:
+                    exact: int | None = None, kind: str = "cr2", dof_out: np.ndarray | None = None) -> np.ndarray | None:
     """1-sigma of the pose (6-vector, deg / m) clustered by object: every pair of one object (the
     same car seen in many frames) shares its 3D-box error (size, yaw, centre), so objects, not
     pairs or frames, are the independent samples.
@@ -204,6 +204,9 @@ def object_sandwich(ctx: FitContext, groups: np.ndarray, *, min_objects: int | N
     one: per axis the sigma is scaled by ``t_{0.975, nu} / 1.96`` with ``nu`` the Bell-McCaffrey
     (Satterthwaite) degrees of freedom of that axis's variance, which counts how few objects carry
     it (one dominant object: nu near 1; G equal objects: nu near G - 1).
+
+    ``dof_out``: a 6-array that receives the Bell-McCaffrey degrees of freedom (``kind="cr2"``; left
+    as it is otherwise).
 
     ``kind="jackknife"``: the linearised leave-one-object-out jackknife (CR3-like; the sigma until
     0.6): without object c the pose moves by ``(J^T J - J_c^T J_c)^-1 J_c^T r_c``, spread
@@ -237,6 +240,8 @@ def object_sandwich(ctx: FitContext, groups: np.ndarray, *, min_objects: int | N
         if out is None:
             return np.full(6, np.inf)
         cov, nu = out
+        if dof_out is not None:
+            dof_out[:] = nu
         return _sd6(cov) * stdtrit(np.clip(nu, 1.0, None), 0.975) / 1.959964
     try:
         d = np.stack([np.linalg.solve(info - M[k], g[k]) for k in range(G)])
@@ -491,8 +496,9 @@ def combine(jac_sd: np.ndarray, halves: np.ndarray | None, occl: np.ndarray, jac
             clusters: np.ndarray | None = None, outline: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-axis 1-sigma (rotation deg, translation m) that also covers what the Jacobian misses.
 
-    Statistical part, each source of scatter counted once: with the object-clustered jackknife
-    (``clusters``; objects, not frames, are the independent samples) the larger of it and the
+    Statistical part, each source of scatter counted once: with the object-clustered sigma
+    (``clusters``, CR2 with Bell-McCaffrey degrees of freedom, :func:`object_sandwich`; objects, not
+    frames, are the independent samples) the larger of it and the
     Jacobian (sandwich) sigma, and of the object bootstrap; the frame halves / pair jackknife see
     the same scatter the objects do (the same objects recur over the frames) and are left out.
     Without it, the larger of the Jacobian sigma and half the difference of the two frame-half
@@ -533,7 +539,7 @@ def combine(jac_sd: np.ndarray, halves: np.ndarray | None, occl: np.ndarray, jac
 class Uncertainty:
     """The combined 1-sigma (reported) and its parts.
 
-    ``rot_sd`` / ``tr_sd``: everything (the object-clustered jackknife and the box-model floor
+    ``rot_sd`` / ``tr_sd``: everything (the object-clustered sigma and the box-model floor
     included in the "clusters" / "objects" modes); ``rot_sd_data`` / ``tr_sd_data``: the part
     the frames themselves verify (Jacobian, frame halves or pair jackknife, occlusion, estimated
     intrinsics) -- the 0.4 sigma, which the verdict uses to judge whether the pose is determined."""
@@ -679,13 +685,15 @@ def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None 
     halves, free = _pose_spread(ctx)
     occl = free.delta(pose)
     jack = pose_jackknife(ctx) if halves is None else None
-    obj, clus, n_obj, misfit, box_info, groups = None, None, 0, None, {}, None
+    obj, clus, clus_dof, n_obj, misfit, box_info, groups = None, None, None, 0, None, {}, None
     outl_fit = _outline_fit(frames, pairs, intr, pose, noise, f_scale=f_scale, occlusion=occlusion)
     outl = None if outl_fit is None else outl_fit[1].pose.delta(pose)
     if mode in ("clusters", "objects"):
         groups = object_groups(frames, pairs, track_ids=track_ids)
         n_obj = int(groups.max()) + 1 if len(groups) else 0
-        clus = object_sandwich(ctx, groups)
+        clus_dof = np.full(6, np.nan)
+        clus = object_sandwich(ctx, groups, dof_out=clus_dof)
+        clus_dof = None if clus is None or not np.all(np.isfinite(clus_dof)) else clus_dof
         misfit, box_info = box_model_floor(ctx, n_objects=n_obj)
     if mode == "objects" and halves is not None:
         obj = pose_object_bootstrap(ctx, groups, seed=seed)
@@ -704,7 +712,8 @@ def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None 
     parts = UncertaintyParts(jacobian=_lst(jac), halves=_lst(halves), jackknife=_lst(jack), objects=_lst(obj),
                              occlusion=_lst(occl), floor=_lst(misfit), selfcal=_lst(floor), clusters=_lst(clus),
                              frames=_lst(frames_sd), n_objects=n_obj, box_model=box_info,
-                             outline=_lst(outl), occlusion_noise=_lst(occl_noise), outline_noise=_lst(outl_noise))
+                             outline=_lst(outl), occlusion_noise=_lst(occl_noise), outline_noise=_lst(outl_noise),
+                             clusters_dof=_lst(clus_dof))
     return Uncertainty(r, t, parts, halves is not None, r_data, t_data)
 
 
