@@ -164,8 +164,8 @@ def test_exact_refits_replace_the_largest_linearised_moves():
     frames, T = _repeated_scene(seed=1, n_frames=8, bias_px=4.0)
     cframes, pairs, intr, pose = _fit(frames, T)
     groups = object_groups(cframes, pairs)
-    lin = object_sandwich(FitContext(cframes, pairs, intr, pose), groups, exact=0)
-    ref = object_sandwich(FitContext(cframes, pairs, intr, pose), groups, exact=3)
+    lin = object_sandwich(FitContext(cframes, pairs, intr, pose), groups, exact=0, kind="jackknife")
+    ref = object_sandwich(FitContext(cframes, pairs, intr, pose), groups, exact=3, kind="jackknife")
     assert np.all(np.isfinite(ref)) and not np.allclose(lin, ref)
     # a benign scene (no pair dominates): the refits agree with the linearisation within a factor 1.5
     assert 1 / 1.5 < np.linalg.norm(ref[:3]) / np.linalg.norm(lin[:3]) < 1.5
@@ -294,3 +294,67 @@ def test_excess_and_shift_noise_sd_on_known_influences():
     a4 = np.repeat(rng.normal(0, 1e-3, (100, 6)), 4, axis=0)
     assert np.allclose(shift_noise_sd(a4, b, same)[3:], 4 * np.sqrt(100) * 1e-3, rtol=0.2)
     assert shift_noise_sd(a[:2], b[:2]) is None and shift_noise_sd(a, None) is None
+
+
+def _clustered_regression(rng, G: int):
+    """A linear least-squares problem with G clusters of rows (6 parameters), each cluster with its own
+    mean regressor (uneven leverage): (rows per cluster, X blocks, A = (X^T X)^-1)."""
+    sizes = rng.integers(4, 16, G)
+    X = [(rng.normal(size=(n, 6)) + rng.normal(size=6)) * rng.uniform(0.3, 3, size=6) for n in sizes]
+    J = np.vstack(X)
+    return sizes, X, np.linalg.inv(J.T @ J)
+
+
+def test_cr2_covariance_is_the_bias_reduced_sandwich_with_bell_mccaffrey_dof():
+    from scipy.linalg import sqrtm
+
+    from xcalib.calib.uncertainty import cr2_covariance
+
+    rng = np.random.default_rng(0)
+    sizes, X, A = _clustered_regression(rng, 6)
+    J = np.vstack(X)
+    offs = np.cumsum([0, *sizes])
+    r = rng.normal(size=len(J))
+    r = r - J @ (A @ (J.T @ r))  # residuals at the least-squares optimum
+    g = np.stack([X[c].T @ r[offs[c]:offs[c + 1]] for c in range(6)])
+    M = np.stack([x.T @ x for x in X])
+    cov, nu = cr2_covariance(A, g, M)
+    # brute force in the residual space: (I - H_cc)^-1/2 per cluster, G = (I - H)_{.,c} (I - H_cc)^-1/2 J_c A e_k
+    IH = np.eye(len(J)) - J @ A @ J.T
+    adj = [np.real(np.linalg.inv(sqrtm(IH[offs[c]:offs[c + 1], offs[c]:offs[c + 1]]))) for c in range(6)]
+    meat = sum(np.outer(X[c].T @ adj[c] @ r[offs[c]:offs[c + 1]], X[c].T @ adj[c] @ r[offs[c]:offs[c + 1]])
+               for c in range(6))
+    np.testing.assert_allclose(cov, A @ meat @ A, rtol=1e-8, atol=1e-14)
+    for k in range(6):
+        Gm = np.stack([IH[:, offs[c]:offs[c + 1]] @ adj[c] @ X[c] @ A[:, k] for c in range(6)], 1)
+        lam = np.linalg.eigvalsh(Gm.T @ Gm)
+        assert nu[k] == pytest.approx(lam.sum() ** 2 / np.sum(lam ** 2), rel=1e-8)
+        assert 1.0 <= nu[k] <= 5.0  # at most G - 1
+
+
+def test_cr2_with_bell_mccaffrey_t_covers_95_percent_where_the_jackknife_overstates_the_variance():
+    from scipy.special import stdtrit
+
+    from xcalib.calib.uncertainty import cr2_covariance
+
+    rng = np.random.default_rng(1)
+    G = 6
+    sizes, X, A = _clustered_regression(rng, G)
+    J = np.vstack(X)
+    offs = np.cumsum([0, *sizes])
+    M = np.stack([x.T @ x for x in X])
+    info = J.T @ J
+    covered, ratio = [], []
+    for _ in range(400):  # errors shared within a cluster (one object's box error) plus per-row noise
+        e = np.concatenate([rng.normal() + 0.5 * rng.normal(size=n) for n in sizes])
+        b = A @ (J.T @ e)  # the estimate's error (truth 0)
+        r = e - J @ b
+        g = np.stack([X[c].T @ r[offs[c]:offs[c + 1]] for c in range(G)])
+        cov, nu = cr2_covariance(A, g, M)
+        sd = np.sqrt(np.diag(cov))
+        covered.append(np.abs(b) <= stdtrit(nu, 0.975) * sd)
+        d = np.stack([np.linalg.solve(info - M[c], g[c]) for c in range(G)])  # leave-one-cluster-out moves
+        jack = np.sqrt(np.diag((G - 1) / G * (d - d.mean(0)).T @ (d - d.mean(0))))
+        ratio.append(jack / sd)
+    assert 0.92 <= np.mean(covered) <= 0.985
+    assert np.median(ratio) > 1.1  # the jackknife (CR3) is wider than the unbiased CR2 before any t factor

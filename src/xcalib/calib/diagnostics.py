@@ -97,7 +97,9 @@ class UncertaintyParts:
     sigma with every object's own outline offsets as random effects (``boxmodel.fit_object_outline``;
     None where the objects' outlines do not differ beyond the noise); occlusion_noise / outline_noise: the
     1-sigma sampling noise of the occlusion / outline shift (``uncertainty.shift_noise_sd``): the reported
-    sigma counts of each shift only the part beyond it (``uncertainty.excess``)."""
+    sigma counts of each shift only the part beyond it (``uncertainty.excess``); clusters_dof: the
+    Bell-McCaffrey degrees of freedom of each axis of ``clusters`` (``clusters`` is the CR2 sigma times
+    t_{0.975, dof} / 1.96, so that 2 sigma stays a 95 % bound with few objects)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -114,6 +116,7 @@ class UncertaintyParts:
     object_outline: list[float] | None = None
     occlusion_noise: list[float] | None = None
     outline_noise: list[float] | None = None
+    clusters_dof: list[float] | None = None
 
 
 @dataclass
