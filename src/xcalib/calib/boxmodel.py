@@ -39,12 +39,23 @@ def outline_edge_term(base, prior: float = OUTLINE_PRIOR):
     smaller than the corner rectangles). A Gaussian prior (``prior``) keeps the offsets near 0
     where the data do not ask for them. Objects at several depths tell the offsets (a share of the
     box size) from a camera moved along the view or up (a shift that shrinks with depth)."""
+    def insets(a):  # one common (sides, top, bottom)
+        return a[0], a[1], a[2]
+
+    return _inset_edge_term(base, "box_outline", 3, insets, prior)
+
+
+def _inset_edge_term(base, term_name: str, n_offsets: int, insets, prior: float):
+    """The box-edge term ``base`` (``cost.BoxEdgeTerm``, its data shared, not copied) with
+    ``n_offsets`` outline offsets fitted with the pose under a Gaussian prior of 1-sigma ``prior``:
+    ``insets(a)`` turns the offsets into (sides, top, bottom) shares of the projected box's width /
+    height (scalars, or one per pair), by which the projected rectangle is moved in."""
     from .cost import BoxEdgeTerm
 
-    class OutlineEdgeTerm(BoxEdgeTerm):
-        name = "box_outline"
-        n_params = 3
-        x_scale = (1e-2, 1e-2, 1e-2)
+    class InsetEdgeTerm(BoxEdgeTerm):
+        name = term_name
+        n_params = n_offsets
+        x_scale = (1e-2,) * n_offsets
 
         def __init__(self):  # share the base term's data (no copy)
             self.__dict__.update(base.__dict__)
@@ -59,9 +70,10 @@ def outline_edge_term(base, prior: float = OUTLINE_PRIOR):
             a = state.params.get(self.name)
             if a is None:
                 return e
+            sides, top, bottom = insets(a)
             w = np.maximum(e[:, 2] - e[:, 0] + self.obs[:, 2] - self.obs[:, 0], 0.0)
             h = np.maximum(e[:, 3] - e[:, 1] + self.obs[:, 3] - self.obs[:, 1], 0.0)
-            return e + np.column_stack([a[0] * w, a[1] * h, -a[0] * w, -a[2] * h])
+            return e + np.column_stack([sides * w, top * h, -sides * w, -bottom * h])
 
         def residuals(self, state):
             r = super().residuals(state)
@@ -69,9 +81,9 @@ def outline_edge_term(base, prior: float = OUTLINE_PRIOR):
 
         def clusters(self):
             c = np.repeat(np.arange(len(self.obs)), 4)
-            return np.concatenate([c, len(self.obs) + np.arange(3)])
+            return np.concatenate([c, len(self.obs) + np.arange(n_offsets)])
 
-    return OutlineEdgeTerm()
+    return InsetEdgeTerm()
 
 
 def fit_outline(frames, pairs, intr, pose, noise, f_scale: float, occlusion) -> dict:
@@ -162,45 +174,17 @@ def kind_outline_edge_term(kinds: np.ndarray | None = None, n_kinds: int | None 
     height: top and bottom in by a share of the height), each with the Gaussian prior ``prior``.
     ``kinds`` None: each pair's kind from its own outline's extent (:func:`outline_extent_kinds`), so
     that the factory serves any set of pairs (refits on resampled pairs)."""
-    from .cost import BoxEdgeTerm
-
     def make(base):
         if kinds is None:
             kind_of, K = outline_extent_kinds(base.outlines)
         else:
             kind_of, K = np.asarray(kinds, dtype=np.int64), int(n_kinds)
-        class KindOutlineEdgeTerm(BoxEdgeTerm):
-            name = "box_outline_kinds"
-            n_params = 2 * K
-            x_scale = (1e-2,) * (2 * K)
 
-            def __init__(self):  # share the base term's data (no copy)
-                self.__dict__.update(base.__dict__)
-                self.prior = float(prior)
+        def insets(a):  # per pair its kind's (sides, height, height)
+            a = np.asarray(a, dtype=np.float64).reshape(K, 2)[kind_of]
+            return a[:, 0], a[:, 1], a[:, 1]
 
-            def apply(self, state, x):
-                state.params[self.name] = x
-                return state
-
-            def edges(self, state):
-                e = BoxEdgeTerm.edges(self, state)
-                a = state.params.get(self.name)
-                if a is None:
-                    return e
-                a = np.asarray(a, dtype=np.float64).reshape(K, 2)[kind_of]
-                w = np.maximum(e[:, 2] - e[:, 0] + self.obs[:, 2] - self.obs[:, 0], 0.0)
-                h = np.maximum(e[:, 3] - e[:, 1] + self.obs[:, 3] - self.obs[:, 1], 0.0)
-                return e + np.column_stack([a[:, 0] * w, a[:, 1] * h, -a[:, 0] * w, -a[:, 1] * h])
-
-            def residuals(self, state):
-                r = super().residuals(state)
-                return np.concatenate([r, np.asarray(state.params[self.name], dtype=np.float64) / self.prior])
-
-            def clusters(self):
-                c = np.repeat(np.arange(len(self.obs)), 4)
-                return np.concatenate([c, len(self.obs) + np.arange(2 * K)])
-
-        return KindOutlineEdgeTerm()
+        return _inset_edge_term(base, "box_outline_kinds", 2 * K, insets, prior)
 
     return make
 
