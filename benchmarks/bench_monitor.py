@@ -546,7 +546,7 @@ def main() -> None:
     ap.add_argument("--null-noise", choices=("both", "default", "noisy"), default="both",
                     help="--part null: which detection noise (two processes can share the work)")
     ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak", "information", "reference", "bound",
-                                       "relin"),
+                                       "relin", "relin_a9", "verdict"),
                     default="all",
                     help="run one part; its keys are merged into an existing results file")
     ap.add_argument("--reference-frames", type=int, default=2400,
@@ -558,6 +558,8 @@ def main() -> None:
     ap.add_argument("--step-seeds", default="3,5,11,17", help="--part relin: the step cells' sites")
     ap.add_argument("--relin-band", type=float, default=0.4,
                     help="--part relin: windows whose statistic reaches this share of the threshold are re-linearised")
+    ap.add_argument("--relin-factor", type=float, default=2.0,
+                    help="--part relin_a9: the re-linearised test's threshold factor")
     ap.add_argument("--steps-only", action="store_true", help="--part synth: the steps only (no null streams, ramps)")
     ap.add_argument("--real-null", type=int, default=1600, help="real sequences: drift-free frames (looped)")
     ap.add_argument("--real-frames", type=int, default=320, help="real sequences: step streams (change at the middle)")
@@ -609,6 +611,14 @@ def main() -> None:
             f"z steps at sites {sseeds} ({args.runs} runs)")
         result["relin_s9"] = _relin(nseeds, args.null_base, n_null, sseeds, args.runs, args.relin_band, log,
                                     prev.get("bound_s8"))
+    elif args.part == "verdict":  # each z step cell against what the boxes allow at its site (no monitor run)
+        import json
+
+        log("== each z step cell against the bound at its site")
+        result["bound_verdict_s9"] = _verdicts(json.loads(out.read_text()) if out.exists() else {}, log)
+    elif args.part == "relin_a9":  # its CPU per frame at A9 density
+        log(f"== re-linearised window test at A9 density (band {args.relin_band:g}, x{args.relin_factor:g})")
+        result["relin_a9_s9"] = _relin_a9(args.real_null, args.real_frames, args.relin_band, args.relin_factor, log)
     elif args.part == "information":  # is the z step's power the boxes' information or the test?
         result["information"] = _information(seeds, args.info_frames, args.null_frames, log)
     elif args.part in ("all", "synth"):
@@ -850,6 +860,71 @@ def _relin(null_seeds: list[int], n_base: int, n_null: int, step_seeds: list[int
                 for k, v in row.items()) + f"; ratio after the change {_f(cellrow['ratio_after_change_median'], 2)}"
                 + (f"; bound: {cellrow['bound']['verdict']} (6-dof time known {cellrow['bound']['bound_6dof_time_known']:.2f})"
                    if "bound" in cellrow else ""), flush=True)
+    return out
+
+
+def _verdicts(prev: dict, log) -> dict:
+    """Each z step cell the benchmark has run at each site (``bound_s8`` -> ``monitor_steps``, and
+    this session's ``relin_s9`` steps where present: the later run wins) against what the boxes
+    allow there (``bound_verdict``): detected / possible / impossible, with the monitor's rate and
+    the bound's powers. No monitor run: reads ``monitor.json``."""
+    bound = prev.get("bound_s8") or {}
+    rows: dict = {}
+    for site, b in bound.items():
+        if not site.startswith("site_"):
+            continue
+        for m in b.get("monitor_steps", []):
+            key = f"tz_{m['size']:g}_within_{m['within']}"
+            rows[f"{site}_{key}"] = {**bound_verdict(b, m["detected_within"], key, m["runs"]), "source": "bound_s8"}
+    for name, c in ((prev.get("relin_s9") or {}).get("steps") or {}).items():
+        if "bound" in c:
+            rows[name] = {**c["bound"], "source": "relin_s9"}
+    for name, v in sorted(rows.items(), key=lambda kv: (kv[0].split("_tz")[1], int(kv[0].split("_")[1]))):
+        log(f"{name:28s} monitor {100 * v['monitor']:4.0f} % of {v['runs']}  bound: 6-dof time known "
+            f"{_f(v['bound_6dof_time_known'], 2)}, oracle {_f(v['bound_oracle'], 2)}, fixed windows time unknown "
+            f"{_f(v['bound_fixed_windows_time_unknown'], 2)}  -> {v['verdict']}")
+    counts: dict = {}
+    for name, v in rows.items():
+        cell = "tz" + name.split("_tz")[1]
+        counts.setdefault(cell, {"detected": 0, "possible": 0, "impossible": 0, "unknown": 0})[v["verdict"]] += 1
+    for cell, c in counts.items():
+        log(f"{cell}: " + ", ".join(f"{k} {n}" for k, n in c.items() if n) + " (sites)")
+    return {"cells": rows, "counts": counts,
+            "rule": "impossible: an efficient 6-dof test knowing the change time stays below 95 % power at the "
+                    "false-alarm rate (the generator's boxes, optimistic); detected: the monitor reached 95 % of its "
+                    "runs; possible: neither"}
+
+
+def _relin_a9(n_null: int, n_step: int, band: float, factor: float, log) -> dict:
+    """CPU per frame of the re-linearised window test at A9 density (``_a9``'s looped frames, one
+    thread, the same run): a drift-free stream and a 10 cm z step at the middle of ``n_step``
+    frames, without the test, recording it (every window in the band re-linearised, never
+    alarming) and with it at ``factor`` times the threshold; alarms and decisions of each arm."""
+    from xcalib.calib.api import calibrate
+    from xcalib.io.sources import open_source
+
+    seq = open_source(A9)
+    raw = [seq[i] for i in range(len(seq))]
+    cal = calibrate(raw, None)
+    if not cal.success:
+        return {"calibration": cal.message}
+    out: dict = {"band": band, "factor": factor}
+    arms = (("off", {}), ("recording", {"relinearise_band": band, "relinearise_factor": RECORD_ONLY}),
+            (f"x{factor:g}", {"relinearise_band": band, "relinearise_factor": factor}))
+    for case, n, change in (("null", n_null, None), ("tz_0.1", n_step, _change("translation", 0.10, 2))):
+        for arm, cfg in arms:
+            CONFIG.clear()
+            CONFIG.update(cfg)
+            q = _run(cal, _replay(raw, n, 1 if change is None else 2), k0=None if change is None else n // 2,
+                     change=change, latch=change is not None)
+            row = {"frames": q["frames"], "cpu_ms_per_frame": q["cpu_ms"], "alarms": q["alarms"],
+                   "first_after_change": None if q["first"] is None or change is None else q["first"] - n // 2,
+                   "relinearised_tests": len(q["relin"]), "states": q["states"]}
+            out[f"{case}_{arm}"] = row
+            log(f"A9 {case} {arm}: {row['cpu_ms_per_frame']:.2f} ms/frame, {row['relinearised_tests']} re-linearised "
+                f"tests, alarms {row['alarms']}, first after the change {row['first_after_change']}, "
+                f"states {row['states']}", flush=True)
+    CONFIG.clear()
     return out
 
 
