@@ -85,8 +85,7 @@ class MonitorConfig:
     reference_confidence: each axis's factor is the upper ``reference_confidence`` bound of its
     measured variance ratio (few samples: a wider factor). ``Monitor.learn(frames)`` takes a
     drift-free reference stretch of the site for it. relinearise_band: the re-linearised window
-    test (0, the default: off): a decision none of whose tests crossed the threshold but some of
-    whose tests reached ``relinearise_band`` times it matches and linearises that window's frames
+    test (0, the default: off): a decision that raised no alarm but some of whose tests reached ``relinearise_band`` times it matches and linearises that window's frames
     again at the window's own estimate (the occlusion shaping pulls an estimate linearised at the
     calibration back towards it) and tests the refit against ``relinearise_factor`` times the
     threshold (re-linearising inflates the drift-free statistics too); relinearise_windows: at
