@@ -44,6 +44,16 @@ and the power of efficient tests at the false-alarm rate with the change time kn
 (``monitor_information.efficient_rows``) and unknown (``sequential_rows``), beside the site's
 geometry (``site_geometry``) and, with ``--bound-runs``, the monitor's own z steps there.
 
+``--part relin``: the re-linearised window test (``MonitorConfig.relinearise_band``) recorded
+without alarming on the long null streams and the z step cells (``--step-seeds``), read off per
+factor on the threshold (``_relin``); ``--part relin_a9``: its CPU at A9 density; ``--part
+verdict``: each z step cell against the bound at its site (detected / possible / impossible;
+reads ``monitor.json``, runs nothing).
+
+    ... --part relin --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,11,17 --runs 8
+    ... --part relin_a9 --real-null 800 --real-frames 320 --relin-band 0.4 --relin-factor 2
+    ... --part verdict
+
 ``--part reference``: the change test calibrated per axis and window length
 (``CameraMonitor.axis_factors``) from a drift-free reference stretch of each site
 (``Monitor.learn``), against the test without it and with only the stream's own ~250 frames, on
