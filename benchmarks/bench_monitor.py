@@ -44,6 +44,16 @@ and the power of efficient tests at the false-alarm rate with the change time kn
 (``monitor_information.efficient_rows``) and unknown (``sequential_rows``), beside the site's
 geometry (``site_geometry``) and, with ``--bound-runs``, the monitor's own z steps there.
 
+``--part relin``: the re-linearised window test (``MonitorConfig.relinearise_band``) recorded
+without alarming on the long null streams and the z step cells (``--step-seeds``), read off per
+factor on the threshold (``_relin``); ``--part relin_a9``: its CPU at A9 density; ``--part
+verdict``: each z step cell against the bound at its site (detected / possible / impossible;
+reads ``monitor.json``, runs nothing).
+
+    ... --part relin --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,11,17 --runs 8
+    ... --part relin_a9 --real-null 800 --real-frames 320 --relin-band 0.4 --relin-factor 2
+    ... --part verdict
+
 ``--part reference``: the change test calibrated per axis and window length
 (``CameraMonitor.axis_factors``) from a drift-free reference stretch of each site
 (``Monitor.learn``), against the test without it and with only the stream's own ~250 frames, on
@@ -140,7 +150,9 @@ def _run(cal, frames, *, k0: int | None = None, change=None, ramp: int = 0, latc
             "states": states, "alarms": alarms,
             "cpu_ms": 1e3 * cpu / max(n, 1), "frames": n, "weak": weak,
             "weak_before": weak_before,
-            "model": cm.events[0].model if cm.events else None}
+            "model": cm.events[0].model if cm.events else None,
+            "alarm_frames": [int(e.detected_frame) for e in cm.events],
+            "relin": [tuple(v) for v in cm.relin_trace], "threshold": float(cm.h)}
 
 
 def _rel_err(est, kind: str, size: float, axis: int) -> float | None:
@@ -543,7 +555,8 @@ def main() -> None:
     ap.add_argument("--null-seeds", default="", help="--part null: comma-separated site seeds (default: the first --null-sites)")
     ap.add_argument("--null-noise", choices=("both", "default", "noisy"), default="both",
                     help="--part null: which detection noise (two processes can share the work)")
-    ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak", "information", "reference", "bound"),
+    ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak", "information", "reference", "bound",
+                                       "relin", "relin_a9", "verdict"),
                     default="all",
                     help="run one part; its keys are merged into an existing results file")
     ap.add_argument("--reference-frames", type=int, default=2400,
@@ -552,6 +565,11 @@ def main() -> None:
     ap.add_argument("--info-frames", type=int, default=400, help="--part information: frames per site for the bound")
     ap.add_argument("--bound-runs", action="store_true",
                     help="--part bound: also the monitor's own z steps at each site (--runs runs per step)")
+    ap.add_argument("--step-seeds", default="3,5,11,17", help="--part relin: the step cells' sites")
+    ap.add_argument("--relin-band", type=float, default=0.4,
+                    help="--part relin: windows whose statistic reaches this share of the threshold are re-linearised")
+    ap.add_argument("--relin-factor", type=float, default=2.0,
+                    help="--part relin_a9: the re-linearised test's threshold factor")
     ap.add_argument("--steps-only", action="store_true", help="--part synth: the steps only (no null streams, ramps)")
     ap.add_argument("--real-null", type=int, default=1600, help="real sequences: drift-free frames (looped)")
     ap.add_argument("--real-frames", type=int, default=320, help="real sequences: step streams (change at the middle)")
@@ -592,6 +610,25 @@ def main() -> None:
     elif args.part == "bound":  # can any test see a 10 cm z step within 50 frames at these sites?
         bseeds = [int(v) for v in args.null_seeds.split(",") if v.strip()] if args.null_seeds else seeds
         result["bound_s8"] = _bound(bseeds, args.info_frames, log, args.runs if args.bound_runs else 0)
+    elif args.part == "relin":  # the re-linearised window test: false alarms and power per threshold factor
+        import json
+
+        nseeds = ([int(v) for v in args.null_seeds.split(",") if v.strip()] if args.null_seeds
+                  else [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites])
+        sseeds = [int(v) for v in args.step_seeds.split(",") if v.strip()]
+        prev = json.loads(out.read_text()) if out.exists() else {}
+        log(f"== re-linearised window test (band {args.relin_band:g}): null {n_null} frames x sites {nseeds}, "
+            f"z steps at sites {sseeds} ({args.runs} runs)")
+        result["relin_s9"] = _relin(nseeds, args.null_base, n_null, sseeds, args.runs, args.relin_band, log,
+                                    prev.get("bound_s8"))
+    elif args.part == "verdict":  # each z step cell against what the boxes allow at its site (no monitor run)
+        import json
+
+        log("== each z step cell against the bound at its site")
+        result["bound_verdict_s9"] = _verdicts(json.loads(out.read_text()) if out.exists() else {}, log)
+    elif args.part == "relin_a9":  # its CPU per frame at A9 density
+        log(f"== re-linearised window test at A9 density (band {args.relin_band:g}, x{args.relin_factor:g})")
+        result["relin_a9_s9"] = _relin_a9(args.real_null, args.real_frames, args.relin_band, args.relin_factor, log)
     elif args.part == "information":  # is the z step's power the boxes' information or the test?
         result["information"] = _information(seeds, args.info_frames, args.null_frames, log)
     elif args.part in ("all", "synth"):
@@ -731,6 +768,174 @@ def _bound(seeds: list[int], n: int, log, runs: int = 0) -> dict:
                 show(f"A9 (fitted noise: {nm.sigma_px:.1f} px, {nm.sigma_3d_m:.2f} m, {100 * nm.sigma_size:.0f} %)",
                      rows["a9_fitted_noise"])
     return rows
+
+
+RELIN_FACTORS = (1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 3.0)
+RELIN_CELLS = [("translation", 0.10, 50, 2), ("translation", 0.20, 20, 2)]
+RELIN_GAP = 100  # frames: exceedances closer than this to the last alarm are the same alarm (the monitor restarts)
+RECORD_ONLY = 1e6  # relinearise_factor that records the re-linearised statistics and never alarms on them
+
+
+def _alarm_frames(q: dict, factor: float | None) -> list[int]:
+    """The alarm frames of one recorded run (``relinearise_factor`` = RECORD_ONLY) as the monitor
+    with the re-linearised window test at ``factor`` times the threshold would raise them: its own
+    alarms and the frames whose re-linearised statistic exceeds ``factor * threshold``, merged
+    within RELIN_GAP frames (None: the monitor without the test). An upper bound: the recorded
+    exceedances skip the leave-out guard, which only removes alarms."""
+    ev = list(q["alarm_frames"])
+    if factor is not None:
+        ev += [int(t[0]) - 1 for t in q["relin"] if t[3] > factor * q["threshold"]]
+    out: list[int] = []
+    for e in sorted(ev):
+        if not out or e - out[-1] > RELIN_GAP:
+            out.append(e)
+    return out
+
+
+def _relin_steps(res: list[dict], factor: float | None, within: int) -> dict:
+    firsts = []
+    for q in res:
+        a = _alarm_frames(q, factor)
+        firsts.append(a[0] if a else None)
+    early = sum(1 for f in firsts if f is not None and f < PRE)
+    return {"detected_within": float(np.mean([f is not None and PRE <= f and f - PRE <= within for f in firsts])),
+            "alarm_before_change": early}
+
+
+def bound_verdict(bound: dict, detected: float, key: str, runs: int) -> dict:
+    """One step cell against what the boxes allow (``--part bound``'s rows of the site): ``impossible``
+    where even an efficient 6-dof test that knows when the change happened stays below 95 %
+    power at the false-alarm rate (``efficient``: the Cramer-Rao bound of the generator's boxes;
+    optimistic), ``detected`` where the monitor reached 95 % of ``runs``, else ``possible`` (the
+    information is there; the monitor does not reach it). Also the oracle (direction and time
+    known) and the best of the monitor's fixed windows with the time unknown (``sequential``)."""
+    e, q = bound.get("efficient", {}).get(key), bound.get("sequential", {}).get(key)
+    p6 = None if e is None else float(e["power_6dof"])
+    verdict = ("unknown" if p6 is None else "impossible" if p6 < 0.95 else
+               "detected" if detected >= 0.95 else "possible")
+    return {"verdict": verdict, "monitor": detected, "runs": runs, "bound_6dof_time_known": p6,
+            "bound_oracle": None if e is None else float(e["power_oracle_1dof"]),
+            "bound_fixed_windows_time_unknown": None if q is None else float(q["fixed"]),
+            "crb_sigma_m": None if e is None else float(e["crb_sigma_median"])}
+
+
+def _relin(null_seeds: list[int], n_base: int, n_null: int, step_seeds: list[int], runs: int, band: float,
+           log, bound: dict | None = None) -> dict:
+    """The re-linearised window test (``MonitorConfig.relinearise_band``), measured: the monitor
+    records, without alarming on them (``relinearise_factor`` = RECORD_ONLY), the re-linearised
+    statistic of every window whose statistic reaches ``band`` times the threshold on the long
+    null streams (default and noisy, as ``--part null``) and on the z step cells (``RELIN_CELLS``
+    at ``step_seeds``, as ``--part synth``); then, per factor on the threshold (RELIN_FACTORS),
+    the false alarms it would add (``_alarm_frames``) and the detection rate it would reach,
+    beside the monitor without it (its own alarms in the same runs), and each cell's verdict
+    against the bound (``bound_verdict``; ``bound``: ``--part bound``'s rows)."""
+    CONFIG.update({"relinearise_band": band, "relinearise_factor": RECORD_ONLY})
+    out: dict = {"band": band, "factors": list(RELIN_FACTORS), "null": {}, "steps": {}}
+    factors: list[float | None] = [None, *RELIN_FACTORS]
+    for name, noise in (("default", {}), ("noisy", {"box_noise_px": 4.0, "miss_rate_2d": 0.1})):
+        runs_n = [q for q in _pmap(_null_site, [(s, n_base, n_null, noise) for s in null_seeds])]
+        frames = sum(q["frames"] for q in runs_n)
+        fa = {("off" if f is None else f"x{f:g}"): sum(len(_alarm_frames(q, f)) for q in runs_n) for f in factors}
+        tr = [t for q in runs_n for t in q["relin"]]
+        ratio = [t[3] / t[2] for t in tr if t[2] > 0]
+        out["null"][name] = {"frames": frames, "sites": null_seeds, "false_alarms": fa,
+                             "relinearised_tests": len(tr), "ratio_median": _pct(ratio),
+                             "ratio_p90": float(np.quantile(ratio, 0.9)) if ratio else None,
+                             "max_relinearised_over_threshold": max((t[3] / q["threshold"] for q in runs_n
+                                                                     for t in q["relin"]), default=0.0),
+                             "cpu_ms_per_frame": float(np.mean([q["cpu_ms"] for q in runs_n]))}
+        log(f"null {name}: {frames} frames, {len(tr)} re-linearised tests (ratio median {_f(_pct(ratio), 2)}), "
+            f"false alarms " + ", ".join(f"{k} {v}" for k, v in fa.items())
+            + f"; cpu {out['null'][name]['cpu_ms_per_frame']:.2f} ms/frame", flush=True)
+    for s in step_seeds:
+        site, frames = _synth_stream(s, 800)
+        _STREAMS.clear()
+        _STREAMS[s] = (site, frames)
+        for cell in RELIN_CELLS:
+            kind, size, within, axis = cell
+            res = _step_runs((*cell, runs))
+            key = f"t{AXES[axis]}_{size:g}_within_{within}"
+            row = {("off" if f is None else f"x{f:g}"): _relin_steps(res, f, within) for f in factors}
+            tr = [t for q in res for t in q["relin"] if t[0] - 1 >= PRE]
+            base = _summarise(f"site {s} step {size:g} m z (monitor without the test)", res, kind, size, axis, within,
+                              PRE, log)
+            cellrow = {"by_factor": row, "monitor": base,
+                       "ratio_after_change_median": _pct([t[3] / t[2] for t in tr if t[2] > 0])}
+            if bound and f"site_{s}" in bound:
+                cellrow["bound"] = bound_verdict(bound[f"site_{s}"], base["detected_within"], key, runs)
+            out["steps"][f"site_{s}_{key}"] = cellrow
+            log(f"  site {s} {key}: within {within}: " + ", ".join(
+                f"{k} {100 * v['detected_within']:.0f} %" + (f" ({v['alarm_before_change']} early)"
+                                                            if v["alarm_before_change"] else "")
+                for k, v in row.items()) + f"; ratio after the change {_f(cellrow['ratio_after_change_median'], 2)}"
+                + (f"; bound: {cellrow['bound']['verdict']} (6-dof time known {cellrow['bound']['bound_6dof_time_known']:.2f})"
+                   if "bound" in cellrow else ""), flush=True)
+    return out
+
+
+def _verdicts(prev: dict, log) -> dict:
+    """Each z step cell the benchmark has run at each site (``bound_s8`` -> ``monitor_steps``, and
+    this session's ``relin_s9`` steps where present: the later run wins) against what the boxes
+    allow there (``bound_verdict``): detected / possible / impossible, with the monitor's rate and
+    the bound's powers. No monitor run: reads ``monitor.json``."""
+    bound = prev.get("bound_s8") or {}
+    rows: dict = {}
+    for site, b in bound.items():
+        if not site.startswith("site_"):
+            continue
+        for m in b.get("monitor_steps", []):
+            key = f"tz_{m['size']:g}_within_{m['within']}"
+            rows[f"{site}_{key}"] = {**bound_verdict(b, m["detected_within"], key, m["runs"]), "source": "bound_s8"}
+    for name, c in ((prev.get("relin_s9") or {}).get("steps") or {}).items():
+        if "bound" in c:
+            rows[name] = {**c["bound"], "source": "relin_s9"}
+    for name, v in sorted(rows.items(), key=lambda kv: (kv[0].split("_tz")[1], int(kv[0].split("_")[1]))):
+        log(f"{name:28s} monitor {100 * v['monitor']:4.0f} % of {v['runs']}  bound: 6-dof time known "
+            f"{_f(v['bound_6dof_time_known'], 2)}, oracle {_f(v['bound_oracle'], 2)}, fixed windows time unknown "
+            f"{_f(v['bound_fixed_windows_time_unknown'], 2)}  -> {v['verdict']}")
+    counts: dict = {}
+    for name, v in rows.items():
+        cell = "tz" + name.split("_tz")[1]
+        counts.setdefault(cell, {"detected": 0, "possible": 0, "impossible": 0, "unknown": 0})[v["verdict"]] += 1
+    for cell, c in counts.items():
+        log(f"{cell}: " + ", ".join(f"{k} {n}" for k, n in c.items() if n) + " (sites)")
+    return {"cells": rows, "counts": counts,
+            "rule": "impossible: an efficient 6-dof test knowing the change time stays below 95 % power at the "
+                    "false-alarm rate (the generator's boxes, optimistic); detected: the monitor reached 95 % of its "
+                    "runs; possible: neither"}
+
+
+def _relin_a9(n_null: int, n_step: int, band: float, factor: float, log) -> dict:
+    """CPU per frame of the re-linearised window test at A9 density (``_a9``'s looped frames, one
+    thread, the same run): a drift-free stream and a 10 cm z step at the middle of ``n_step``
+    frames, without the test, recording it (every window in the band re-linearised, never
+    alarming) and with it at ``factor`` times the threshold; alarms and decisions of each arm."""
+    from xcalib.calib.api import calibrate
+    from xcalib.io.sources import open_source
+
+    seq = open_source(A9)
+    raw = [seq[i] for i in range(len(seq))]
+    cal = calibrate(raw, None)
+    if not cal.success:
+        return {"calibration": cal.message}
+    out: dict = {"band": band, "factor": factor}
+    arms = (("off", {}), ("recording", {"relinearise_band": band, "relinearise_factor": RECORD_ONLY}),
+            (f"x{factor:g}", {"relinearise_band": band, "relinearise_factor": factor}))
+    for case, n, change in (("null", n_null, None), ("tz_0.1", n_step, _change("translation", 0.10, 2))):
+        for arm, cfg in arms:
+            CONFIG.clear()
+            CONFIG.update(cfg)
+            q = _run(cal, _replay(raw, n, 1 if change is None else 2), k0=None if change is None else n // 2,
+                     change=change, latch=change is not None)
+            row = {"frames": q["frames"], "cpu_ms_per_frame": q["cpu_ms"], "alarms": q["alarms"],
+                   "first_after_change": None if q["first"] is None or change is None else q["first"] - n // 2,
+                   "relinearised_tests": len(q["relin"]), "states": q["states"]}
+            out[f"{case}_{arm}"] = row
+            log(f"A9 {case} {arm}: {row['cpu_ms_per_frame']:.2f} ms/frame, {row['relinearised_tests']} re-linearised "
+                f"tests, alarms {row['alarms']}, first after the change {row['first_after_change']}, "
+                f"states {row['states']}", flush=True)
+    CONFIG.clear()
+    return out
 
 
 def _synthetic(result: dict, seeds: list[int], n_null: int, runs: int, log, nulls: bool = True) -> None:

@@ -84,7 +84,13 @@ class MonitorConfig:
     before -- measured, the calibration lifted no detection (docs/monitor.md);
     reference_confidence: each axis's factor is the upper ``reference_confidence`` bound of its
     measured variance ratio (few samples: a wider factor). ``Monitor.learn(frames)`` takes a
-    drift-free reference stretch of the site for it.
+    drift-free reference stretch of the site for it. relinearise_band: the re-linearised window
+    test (0, the default: off): a decision that raised no alarm but some of whose tests reached ``relinearise_band`` times it matches and linearises that window's frames
+    again at the window's own estimate (the occlusion shaping pulls an estimate linearised at the
+    calibration back towards it) and tests the refit against ``relinearise_factor`` times the
+    threshold (re-linearising inflates the drift-free statistics too); relinearise_windows: at
+    most this many windows (the highest statistics) per decision (CPU). Measured in
+    docs/monitor.md ("The re-linearised window test").
     """
 
     window: int = 20
@@ -111,6 +117,9 @@ class MonitorConfig:
     robust_scale: bool = True
     reference_samples: int = 0
     reference_confidence: float = 0.9
+    relinearise_band: float = 0.0
+    relinearise_factor: float = 2.0
+    relinearise_windows: int = 1
 
     def __post_init__(self) -> None:
         if int(self.leave_out_objects) < 0:
@@ -119,6 +128,12 @@ class MonitorConfig:
             raise ValueError(f"MonitorConfig.reference_samples must be >= 0, got {self.reference_samples}")
         if not 0.5 <= self.reference_confidence < 1.0:
             raise ValueError(f"MonitorConfig.reference_confidence must be in [0.5, 1), got {self.reference_confidence}")
+        if not 0.0 <= self.relinearise_band < 1.0:
+            raise ValueError(f"MonitorConfig.relinearise_band must be in [0, 1), got {self.relinearise_band}")
+        if not self.relinearise_factor >= 1.0:
+            raise ValueError(f"MonitorConfig.relinearise_factor must be >= 1, got {self.relinearise_factor}")
+        if int(self.relinearise_windows) < 1:
+            raise ValueError(f"MonitorConfig.relinearise_windows must be >= 1, got {self.relinearise_windows}")
         if not 0.0 <= self.leave_out_level < 1.0:
             raise ValueError(f"MonitorConfig.leave_out_level must be in [0, 1), got {self.leave_out_level}")
         for name in ("window", "stride", "scales", "history", "min_pairs"):
@@ -440,6 +455,8 @@ class CameraMonitor:
         self._z_at: dict[int, int] = {}  # ... and the frame count at the last one (non-overlapping windows)
         self._scales: deque[float] = deque(maxlen=SCALE_FRAMES)  # frames' robust residual scale
         self._anon = 0  # untracked pairs' object ids (-1, -2, ...)
+        # the re-linearised window test's tests: (frame count, window, statistic, re-linearised statistic)
+        self.relin_trace: deque[tuple[int, int, float, float]] = deque(maxlen=RELIN_TRACE)
         self._scale_at = [-1, 0, 1.0]  # residual_scale's cache: (frames in, uses since, value)
         self.reset()
         self.events: list[DriftEvent] = []
@@ -848,6 +865,10 @@ class CameraMonitor:
                 held = held or (f"; a change (statistic {s:.1f}) rests on object(s) "
                                 f"{', '.join(str(o) for o in dropped)}: without them {s_lo:.1f} < {self.h_out:.1f}")
             best_stat = min(best_stat, self.h)
+        if cfg.relinearise_band > 0:
+            st = self._relinearised_tests(recs, sums, tests, longest, det)
+            if st is not None:
+                return st
         self._sample_axes(pending)
         if np.any(det[:3] > cfg.max_detectable_deg) or np.any(det[3:] > cfg.max_detectable_m):
             axes = [f"{a} {v:.2f} {'deg' if i < 3 else 'm'}" for i, (a, v) in
@@ -858,6 +879,66 @@ class CameraMonitor:
                                 f"{cfg.max_detectable_m:g} m)", "weak_geometry", best_stat, det, longest, weak_det)
         return self._status("ok", fit_r, f"no change (statistic {best_stat:.1f} < threshold {self.h:.1f}){held}",
                             "one_object" if held else "", best_stat, det, longest, weak_det)
+
+    def _relinearised_tests(self, recs: list[_Rec], sums: _Sums, tests: list, longest: int,
+                            det: np.ndarray) -> MonitorStatus | None:
+        """The re-linearised window test (``MonitorConfig.relinearise_band``): the tests of this
+        decision whose statistic reached ``relinearise_band`` times the threshold (at most
+        ``relinearise_windows``, highest first) are repeated with their recent window matched and
+        linearised again at the window's own estimate (``_window_relinearised``; the frames before
+        it stay at the calibration: their estimate is near it); the refit's statistic against
+        ``relinearise_factor`` times the threshold (and, with the most influential objects left
+        out, ``relinearise_factor`` times the leave-out threshold) raises the alarm. Every such
+        test is kept in ``relin_trace``. None: no alarm."""
+        cfg = self.config
+        n = len(recs)
+        lo, fac = cfg.relinearise_band * self.h, cfg.relinearise_factor
+        todo = sorted((q for q in tests if q[0] >= lo), key=lambda q: -q[0])[:int(cfg.relinearise_windows)]
+        for s, L, fa, fb, S in todo:
+            a = n - (L or longest)
+            got = self._window_relinearised(recs, a, fa)
+            if got is None:
+                continue
+            out, fr = got
+            SS = np.outer(S, S)
+            if fb is not None:
+                s_r = stats.chi2_stat(fr.x - fb.x, (fr.cov + fb.cov) * SS)
+            else:
+                s_r = stats.chi2_stat(fr.x, fr.cov * SS + self.cov_cal)
+            self.relin_trace.append((self.n_seen, int(L), float(s), float(s_r)))
+            if s_r > fac * self.h:
+                s_lo, _ = self._without_objects(out, a, fr, fb, S)
+                if s_lo > fac * self.h_out:
+                    return self._alarm(recs, sums, s_r, L, det)
+        return None
+
+    def _window_relinearised(self, recs: list[_Rec], a: int, fit: _Fit) -> tuple[list[_Rec], _Fit] | None:
+        """Frames [a, n) matched and linearised again at ``fit``'s estimate (RELIN_WINDOW_ROUNDS
+        rounds, each at the last refit), as copies: the history, the linearisation pose and the
+        residual scale are left as they were. None where a frame no longer holds its boxes."""
+        n = len(recs)
+        if a < 0 or any(recs[j].cf is None for j in range(a, n)):
+            return None
+        saved = (self.x_lin, list(self._scales), list(self._scale_at), self._last_pairs)
+        out, x, fr = list(recs), fit.x, None
+        try:
+            for _ in range(RELIN_WINDOW_ROUNDS):
+                self.x_lin = np.array(x, dtype=np.float64)
+                for j in range(a, n):
+                    q = recs[j]
+                    new = self._linearise(q.cf, q.ids3d)
+                    new.index, new.time_s, new.cf, new.objects = q.index, q.time_s, q.cf, q.objects
+                    out[j] = new
+                f = _Sums(out).fit(a, n)
+                if f is None:
+                    return None
+                fr, x = f, f.x
+        finally:
+            self.x_lin, self._last_pairs = saved[0], saved[3]
+            self._scales.clear()
+            self._scales.extend(saved[1])
+            self._scale_at = saved[2]
+        return out, fr
 
     def _without_objects(self, recs: list[_Rec], a: int, fa: _Fit, fb: _Fit | None,
                          scale: np.ndarray | None = None) -> tuple[float, list[int]]:
@@ -1046,6 +1127,8 @@ POWER_DECISIONS = 2000  # ok decisions the power statement is the median over
 SCALE_FRAMES = 200  # frames the residual scale is the median over
 SCALE_EVERY = 5  # ... recomputed every this many frames
 RELIN_ITERS = 3  # rounds of re-linearisation of the frames after a detected change
+RELIN_WINDOW_ROUNDS = 1  # rounds of the re-linearised window test (MonitorConfig.relinearise_band)
+RELIN_TRACE = 20000  # the re-linearised window test's tests kept (CameraMonitor.relin_trace)
 RELIN_TOL = 0.5  # a frame linearised farther than this (sigma, any axis) from the estimate is re-linearised
 AXIS_SAMPLES = 400  # samples kept per window length (axis_factors)
 REFERENCE_SAMPLES = 12  # MonitorConfig.reference_samples where it is switched on (CLI --reference)
