@@ -25,6 +25,13 @@ of one frame per model, field of view and site, in the model's own image (the mo
 the intrinsics searched with equidistant lenses at the widest field of view), precision and
 recall against the true matches.
 
+**Bias or spread** (``--resample K``, instead of calibrating): each site's traffic with K fresh
+draws of its detection noise (``generate_frames(noise_seed=k)``), each fitted with its true matches
+from the true pose with the calibration's own cost; per site the mean error (its bias), the spread,
+the linearised 1-sigma of the 2D and 3D centre noise, every draw's error in it (z), and the error
+with all detection noise off (what no noise explains: occlusion, truncation). Stored under the
+label's ``resample`` / ``resample_summary`` (no calibration records).
+
 Results go to ``benchmarks/results/camera_models.json`` under ``--label`` (runs in parallel, e.g.
 one per model, save under a file lock); ``--summary`` prints the Done-when table pooled over the
 stored runs made at the current uncertainty (``POOL_SINCE``), one record per row and site.
@@ -33,7 +40,7 @@ stored runs made at the current uncertainty (``POOL_SINCE``), one record per row
         [--sites 1] [--first-seed 0] [--models kannala_brandt,double_sphere] [--fovs 120,150,185]
         [--frames 20] [--jobs 1] [--seed-major] [--no-calibration] [--pinhole-check-only]
         [--no-pinhole-rows] [--no-pinhole-check] [--round-trips] [--bag kannala_brandt:185:0] [--matching]
-        [--label run] [--summary]
+        [--resample K] [--label run] [--summary]
 
 The whole Done-when grid (20 sites per cell; ~15-20 s of CPU per wide-angle calibration with
 ``--jobs 1``, so ~2 CPU-hours in all), one process per model:
