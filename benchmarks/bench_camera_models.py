@@ -25,6 +25,13 @@ of one frame per model, field of view and site, in the model's own image (the mo
 the intrinsics searched with equidistant lenses at the widest field of view), precision and
 recall against the true matches.
 
+**Bias or spread** (``--resample K``, instead of calibrating): each site's traffic with K fresh
+draws of its detection noise (``generate_frames(noise_seed=k)``), each fitted with its true matches
+from the true pose with the calibration's own cost; per site the mean error (its bias), the spread,
+the linearised 1-sigma of the 2D and 3D centre noise, every draw's error in it (z), and the error
+with all detection noise off (what no noise explains: occlusion, truncation). Stored under the
+label's ``resample`` / ``resample_summary`` (no calibration records).
+
 Results go to ``benchmarks/results/camera_models.json`` under ``--label`` (runs in parallel, e.g.
 one per model, save under a file lock); ``--summary`` prints the Done-when table pooled over the
 stored runs made at the current uncertainty (``POOL_SINCE``), one record per row and site.
@@ -33,7 +40,7 @@ stored runs made at the current uncertainty (``POOL_SINCE``), one record per row
         [--sites 1] [--first-seed 0] [--models kannala_brandt,double_sphere] [--fovs 120,150,185]
         [--frames 20] [--jobs 1] [--seed-major] [--no-calibration] [--pinhole-check-only]
         [--no-pinhole-rows] [--no-pinhole-check] [--round-trips] [--bag kannala_brandt:185:0] [--matching]
-        [--label run] [--summary]
+        [--resample K] [--label run] [--summary]
 
 The whole Done-when grid (20 sites per cell; ~15-20 s of CPU per wide-angle calibration with
 ``--jobs 1``, so ~2 CPU-hours in all), one process per model:
@@ -261,6 +268,89 @@ def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole:
     return rec
 
 
+def _true_pair_fit(site, raw, true, levels: tuple[float, float]):
+    """Fit of synthetic frames ``raw`` with their true matches from the true pose ``true``, with the
+    calibration's own cost (per-edge noise model fitted to the residuals, occlusion shaping,
+    soft-L1): (pose error [6] deg / m, linearised 1-sigma [6] of that fit under the generator's 2D
+    edge noise and isotropic 3D centre noise ``levels`` = (px, m), each edge and each box
+    independent)."""
+    from xcalib.calib.context import F_SCALE, FitContext
+    from xcalib.calib.cost import Occlusion
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.calib.pose import Pose
+    from xcalib.calib.refine import build_cost, estimate_noise, lsq
+
+    frames, intr, _ = prepare_frames(raw, site.intrinsics, box_model="corners")
+    pairs = []
+    for f, r in zip(frames, raw):
+        i, j = np.nonzero(np.asarray(r.match_matrix)[np.ix_(f.idx2d, f.idx3d)])
+        pairs.append(np.column_stack([i, j]).astype(int))
+    noise = estimate_noise(frames, pairs, intr, true.R, true.t)
+    R, t, *_ = lsq(FitContext(frames, pairs, intr, true, noise, F_SCALE, Occlusion()), 100)
+    fit = Pose(R, t)
+    model = build_cost(frames, pairs, intr, fit, noise, Occlusion())
+    _, J = model.jacobian()
+    n = len(model.terms[0].obs)
+    J = J[:4 * n]  # the box-edge rows
+    Jt = J[:, 3:6].reshape(n, 4, 3)  # d residual / d (a shift of the box in the camera frame)
+    G = (-np.linalg.pinv(J.T @ J) @ J.T).reshape(-1, n, 4)  # d pose / d residual
+    w = np.broadcast_to(model.terms[0].w, (n, 4)) * (np.abs(Jt).sum(2) > 0)  # clipped edges: no noise
+    C = levels[0] ** 2 * np.einsum("pne,qne->pq", G * w, G * w)
+    A = np.einsum("pne,nej->pnj", G, Jt)
+    C = C + levels[1] ** 2 * np.einsum("pnj,qnj->pq", A, A)
+    sd = np.sqrt(np.diag(C))[:6]
+    d = fit.delta(true)
+    return d, np.concatenate([np.degrees(sd[:3]), sd[3:]])
+
+
+def resample_case(model: str, fov: float, seed: int, n_frames: int, draws: int) -> dict:
+    """Bias or spread? One site's traffic with ``draws`` fresh draws of its detection noise
+    (``generate_frames(noise_seed=k)``), each fitted with its true matches from the true pose
+    (``_true_pair_fit``): per axis the mean error over the draws (the site's bias), their spread,
+    the mean linearised 1-sigma (what the 2D and 3D centre noise alone explain) and each draw's
+    error in it (z), and the error of the same traffic with every detection noise off (the part
+    no noise explains: occlusion, truncation, the box model)."""
+    from xcalib.calib.pose import Pose
+    from xcalib.data.synth import generate_frames, sample_site
+
+    site = sample_site(seed, camera_model=model, hfov_deg=fov, width=1280, height=800, box_noise_px=1.0)
+    true = Pose(np.asarray(site.T_cam_lidar)[:3, :3], np.asarray(site.T_cam_lidar)[:3, 3])
+    levels = (float(site.config.box_noise_px), float(site.config.center_noise_m))
+    t0 = time.process_time()
+    quiet = dict(box_noise_px=0.0, center_noise_m=0.0, size_noise_frac=0.0, yaw_noise_deg=0.0)
+    d0, _ = _true_pair_fit(site, generate_frames(site, n_frames, seed, render_images=False, lidar=False, **quiet),
+                           true, levels)
+    D, S = [], []
+    for k in range(draws):
+        raw = generate_frames(site, n_frames, seed, render_images=False, lidar=False, noise_seed=k)
+        d, sd = _true_pair_fit(site, raw, true, levels)
+        D.append(d)
+        S.append(sd)
+    D, S = np.array(D), np.array(S)
+    Z = D / np.maximum(S, 1e-12)
+    return {"row": f"{model} {fov:g} deg", "model_name": model, "hfov_deg": fov, "seed": seed, "draws": draws,
+            "noise_levels": list(levels), "noise_free": [float(v) for v in d0],
+            "mean": [float(v) for v in D.mean(0)], "spread": [float(v) for v in D.std(0)],
+            "sd_linear": [float(v) for v in S.mean(0)], "z_rms": [float(v) for v in np.sqrt((Z ** 2).mean(0))],
+            "z_mean": [float(v) for v in Z.mean(0)], "z": Z.round(4).tolist(), "cpu_s": time.process_time() - t0}
+
+
+def summarise_resample(recs: list[dict]) -> list[dict]:
+    """Per row, pooled over its sites and draws, per axis: RMS z (1 when the error is the modelled
+    noise alone), the share of |z| <= 2 (0.954 then), and the RMS of the sites' mean z (their
+    bias in sigmas)."""
+    out = []
+    for row in dict.fromkeys(r["row"] for r in recs):
+        rs = [r for r in recs if r["row"] == row]
+        Z = np.concatenate([np.asarray(r["z"]) for r in rs])
+        M = np.array([r["z_mean"] for r in rs])
+        out.append({"row": row, "sites": len(rs), "draws": int(len(Z)),
+                    "z_rms": [float(v) for v in np.sqrt((Z ** 2).mean(0))],
+                    "within_2": [float(v) for v in (np.abs(Z) <= 2).mean(0)],
+                    "bias_z_rms": [float(v) for v in np.sqrt((M ** 2).mean(0))]})
+    return out
+
+
 def summarise(recs: list[dict]) -> list[dict]:
     rows: dict[str, list[dict]] = {}
     for r in recs:
@@ -452,6 +542,9 @@ def main(argv=None) -> int:
     ap.add_argument("--matching", action="store_true",
                     help="geometric consensus matching of one frame per --models x --fovs x --sites (given model; "
                          "searched intrinsics at the widest field of view)")
+    ap.add_argument("--resample", type=int, default=0, metavar="K",
+                    help="instead of calibrating: K fresh draws of each site's detection noise, fitted with the true "
+                         "matches from the true pose; per site its bias, spread and linearised sigma (resample_case)")
     ap.add_argument("--label", default="run")
     ap.add_argument("--summary", action="store_true",
                     help="only print the table pooled over the stored runs (see POOL_SINCE) and store it as 'pooled'")
@@ -508,7 +601,26 @@ def main(argv=None) -> int:
                 print(f"matching, intrinsics {kind}: {len(rs)} frames, precision {c / max(n, 1):.3f}, "
                       f"recall {c / max(tp_, 1):.3f}")
     recs: list[dict] = []
-    if not a.no_calibration:
+    if a.resample > 0:
+        extra["resample"] = rs = []
+        models = [m for m in a.models.split(",") if m]
+        fovs = [float(f) for f in a.fovs.split(",") if f]
+        cases = [] if a.no_pinhole_rows else [("pinhole", 90.0, s) for s in range(a.first_seed, a.first_seed + a.sites)]
+        cases += [(m, f, s) for m in models for f in sorted(fovs, reverse=True)
+                  for s in range(a.first_seed, a.first_seed + a.sites)]
+        for m, f, sd in cases:
+            r = resample_case(m, f, sd, a.frames, a.resample)
+            rs.append(r)
+            extra["resample_summary"] = summarise_resample(rs)
+            _save(a, tp, [], [], extra)
+            print(f"resample {r['row']} seed {sd}: noise-free rot {np.round(r['noise_free'][:3], 3)} deg, mean "
+                  f"{np.round(r['mean'][:3], 3)}, spread {np.round(r['spread'][:3], 3)}, linear sd "
+                  f"{np.round(r['sd_linear'][:3], 3)}, z rms {np.round(r['z_rms'][:3], 2)} mean "
+                  f"{np.round(r['z_mean'][:3], 2)} ({r['cpu_s']:.0f} s CPU)", flush=True)
+        for r in extra.get("resample_summary", []):
+            print(f"{r['row']:24s} {r['sites']} sites x draws ({r['draws']}): z rms {np.round(r['z_rms'], 2)}, "
+                  f"|z|<=2 {np.round(r['within_2'], 2)}, sites' mean z rms {np.round(r['bias_z_rms'], 2)}")
+    if not a.no_calibration and a.resample <= 0:
         seeds = range(a.first_seed, a.first_seed + a.sites)
         workers = a.jobs if a.jobs == "auto" else int(a.jobs)
         models = [m for m in a.models.split(",") if m]

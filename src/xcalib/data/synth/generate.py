@@ -30,7 +30,7 @@ def blank_image(site: Site) -> np.ndarray:
 
 
 def iter_frames(site: Site, n_frames: int, seed: int = 0, *, render_images: bool = True, lidar: bool = True,
-                start: int = 0, **noise) -> Iterator[Frame]:
+                start: int = 0, noise_seed: int | None = None, **noise) -> Iterator[Frame]:
     """Yield ``n_frames`` consecutive frames (10 Hz by default) of one traffic sequence.
 
     Labels depend only on (site, seed, frame index): ``render_images`` / ``lidar`` / ``n_frames``
@@ -52,12 +52,19 @@ def iter_frames(site: Site, n_frames: int, seed: int = 0, *, render_images: bool
 
     The 2D boxes see the scene at the camera time, the 3D boxes and points at the LiDAR time;
     ``image_mirrored`` flips the image and the 2D boxes (u -> W - u).
+
+    ``noise_seed``: None (default) draws the detections' randomness (2D and 3D box noise, misses,
+    false positives) from (site, seed, frame index) alone; an integer draws it afresh for the same
+    traffic (the scene, the true boxes and the point clouds stay as they are): repeated noise
+    draws of one scene, e.g. to tell a pose's bias from its spread.
     """
     unknown = sorted(set(noise) - set(NOISE_FIELDS))
     if unknown:
         raise TypeError(f"iter_frames: unknown noise parameter(s) {unknown}; expected some of {NOISE_FIELDS}")
     if n_frames < 0:
         raise ValueError(f"n_frames must be >= 0, got {n_frames}")
+    if noise_seed is not None and int(noise_seed) < 0:
+        raise ValueError(f"noise_seed: expected None or an integer >= 0, got {noise_seed}")
     c = site.config
     tracks = simulate_traffic(site, start + n_frames, np.random.default_rng([site.seed, int(seed), 11]))
     T = site.T_cam_lidar
@@ -68,8 +75,8 @@ def iter_frames(site: Site, n_frames: int, seed: int = 0, *, render_images: bool
         objs3 = tracks.at(k)
         objs = objs3 if t_cam == t_lidar else tracks.at_time(t_cam)
         view = camera_view(site, objs)
-        det = detect(site, objs, np.random.default_rng([site.seed, int(seed), k, 22]), view=view, noise=noise,
-                     objs_3d=objs3)
+        det_seed = [site.seed, int(seed), k, 22] + ([] if noise_seed is None else [int(noise_seed)])
+        det = detect(site, objs, np.random.default_rng(det_seed), view=view, noise=noise, objs_3d=objs3)
         b2, clean2 = det.boxes_2d, det.clean_2d
         if c.image_mirrored:
             b2, clean2 = mirror_boxes(b2, site.width), mirror_boxes(clean2, site.width)
