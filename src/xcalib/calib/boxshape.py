@@ -199,9 +199,10 @@ def lidar_angular_step(points: np.ndarray, *, n_sample: int = 500, k: int = 48, 
     ang = np.empty((len(x), 2))
     ang[:, 0] = np.arctan2(y, x)
     ang[:, 1] = np.arctan2(z, np.hypot(x, y))
-    # an unbalanced tree builds in about half the time of a median-balanced one and its k nearest
-    # neighbours are the same (a k-d tree's query is exact whatever its split points)
-    tree = cKDTree(ang, balanced_tree=False)
+    # an unbalanced tree builds in about half the time of a median-balanced one, and one whose
+    # nodes keep their split bounds (not shrunk to their points) in about 3/4 of that, with the
+    # same k nearest neighbours (a k-d tree's query is exact whatever its split points and bounds)
+    tree = cKDTree(ang, balanced_tree=False, compact_nodes=False)
     s = ang[np.random.default_rng(seed).choice(len(ang), size=min(n_sample, len(ang)), replace=False)]
     dist, idx = tree.query(s, k=min(k, len(ang)))
     step = float(np.median(dist[:, 1]))
