@@ -9,6 +9,7 @@ is biased: 11.6 deg median error on the synthetic no-yaw sites against 0.2 deg f
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -46,12 +47,32 @@ class YawFit:
 def _rect_cost(dx: np.ndarray, dy: np.ndarray, half_l: float, half_w: float, cos_t: np.ndarray,
                sin_t: np.ndarray, band_m: float) -> np.ndarray:
     """Robust cost [T] of points (dx, dy offsets from the centre, m) lying on the outline of a
-    half_l x half_w rectangle turned by each angle: distance to the nearest side, capped at band_m."""
-    u = np.abs(np.outer(cos_t, dx) + np.outer(sin_t, dy)) - half_l
-    v = np.abs(np.outer(-sin_t, dx) + np.outer(cos_t, dy)) - half_w
-    inside = (u <= 0) & (v <= 0)
-    d = np.where(inside, np.minimum(-u, -v), np.hypot(np.maximum(u, 0), np.maximum(v, 0)))
-    return (np.minimum(d, band_m) ** 2).sum(1)
+    half_l x half_w rectangle turned by each angle: distance to the nearest side, capped at band_m.
+
+    With u, v the point's distances outside the two pairs of sides (negative inside), the distance
+    is -max(u, v) inside, the positive one of u, v when only one is (``hypot(u, 0) == |u|``
+    exactly) and ``hypot(u, v)`` beyond a corner (both positive): so |max(u, v)| everywhere but
+    beyond the corners, where ``hypot`` is taken only for the points nearer than ``band_m`` (it is
+    >= max(u, v), so the others are capped anyway). The same values, to the bit, as taking
+    ``hypot(max(u, 0), max(v, 0))`` outside and ``min(-u, -v)`` inside for every point."""
+    c, s = cos_t[:, None], sin_t[:, None]  # np.outer's own products, without its wrapper
+    u = c * dx
+    u += s * dy
+    np.abs(u, out=u)
+    u -= half_l
+    v = c * dy
+    v -= s * dx  # (-sin) dx + cos dy, the same bits
+    np.abs(v, out=v)
+    v -= half_w
+    m = np.maximum(u, v)
+    corner = np.minimum(u, v) > 0
+    corner &= m < band_m
+    d = np.abs(m, out=m)
+    np.minimum(d, band_m, out=d)
+    if corner.any():
+        d[corner] = np.minimum(np.hypot(u[corner], v[corner]), band_m)
+    d *= d
+    return d.sum(1)
 
 
 @dataclass(frozen=True)
@@ -74,20 +95,34 @@ class YawFitSettings:
 
 
 class _NearXY:
-    """The points [P,>=2] within a distance of a point in x-y (a disc query): the points sorted by x
-    once, each query an x-window by bisection and the exact test there (a k-d tree's build cost
-    more than all of one frame's queries). Returns the rows in ascending order."""
+    """The points [P,>=2] within a distance of a point in x-y (a disc query): the points bucketed by
+    x once (``cell_m`` wide buckets, a stable radix sort of 16-bit bucket numbers instead of a sort
+    of the coordinates), each query the buckets its x-window touches, found by bisection, and the
+    exact test there (a k-d tree's build cost more than all of one frame's queries). The bucket of
+    a point is a monotonic function of its x, so the window's buckets hold every point of the
+    window. Returns the rows in ascending order."""
 
-    def __init__(self, pts: np.ndarray):
+    def __init__(self, pts: np.ndarray, cell_m: float = 0.5):
         self.x, self.y = pts[:, 0], pts[:, 1]
-        self.order = np.argsort(self.x, kind="stable")
-        self.xs = self.x[self.order]
+        self.cell = float(cell_m)
+        keys = self._bucket(self.x)
+        self.order = np.argsort(keys, kind="stable")
+        self.keys = keys[self.order]
+
+    def _bucket(self, x: np.ndarray) -> np.ndarray:
+        return np.clip(np.floor(x / self.cell), -32000, 32000).astype(np.int16)
+
+    def _bucket_of(self, x: float) -> int:
+        """``_bucket`` of one coordinate (Python's float division and floor are the same IEEE ones)."""
+        return min(max(math.floor(x / self.cell), -32000), 32000) if math.isfinite(x) else (
+            32000 if x > 0 else -32000)
 
     def within(self, x: float, y: float, r: float) -> np.ndarray:
         """Rows with (px - x)^2 + (py - y)^2 <= r^2, ascending."""
         pad = r + 1e-9 * (1.0 + abs(x) + r)  # the window a little wider: the exact test decides
-        lo = int(np.searchsorted(self.xs, x - pad, side="left"))
-        hi = int(np.searchsorted(self.xs, x + pad, side="right"))
+        lo_key, hi_key = self._bucket_of(x - pad), self._bucket_of(x + pad)
+        lo = int(np.searchsorted(self.keys, lo_key, side="left"))
+        hi = int(np.searchsorted(self.keys, hi_key, side="right"))
         rows = self.order[lo:hi]
         dx, dy = self.x[rows] - x, self.y[rows] - y
         return np.sort(rows[dx * dx + dy * dy <= r * r])
@@ -157,14 +192,24 @@ def lidar_angular_step(points: np.ndarray, *, n_sample: int = 500, k: int = 48, 
     column (among the ``k`` nearest in angle). None with < 50 points or no such neighbours."""
     from scipy.spatial import cKDTree
 
-    p = np.asarray(points, dtype=np.float64).reshape(-1, np.shape(points)[-1])[:, :3]
-    p = p[np.linalg.norm(p, axis=1) > min_range_m]
-    if len(p) < 50:
+    q = np.asarray(points).reshape(-1, np.shape(points)[-1])
+    # one contiguous float64 column per axis: the range is ``np.linalg.norm(p, axis=1)``'s
+    # sqrt((x * x + y * y) + z * z), the same bits without the strided [P,3] passes
+    x, y, z = (np.asarray(q[:, j], dtype=np.float64) for j in range(3))
+    r2 = x * x
+    r2 += y * y
+    r2 += z * z
+    near = np.sqrt(r2, out=r2) > min_range_m
+    x, y, z = x[near], y[near], z[near]
+    if len(x) < 50:
         return None
-    ang = np.column_stack([np.arctan2(p[:, 1], p[:, 0]), np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))])
-    # an unbalanced tree builds in about half the time of a median-balanced one and its k nearest
-    # neighbours are the same (a k-d tree's query is exact whatever its split points)
-    tree = cKDTree(ang, balanced_tree=False)
+    ang = np.empty((len(x), 2))
+    ang[:, 0] = np.arctan2(y, x)
+    ang[:, 1] = np.arctan2(z, np.hypot(x, y))
+    # an unbalanced tree builds in about half the time of a median-balanced one, and one whose
+    # nodes keep their split bounds (not shrunk to their points) in about 3/4 of that, with the
+    # same k nearest neighbours (a k-d tree's query is exact whatever its split points and bounds)
+    tree = cKDTree(ang, balanced_tree=False, compact_nodes=False)
     s = ang[np.random.default_rng(seed).choice(len(ang), size=min(n_sample, len(ang)), replace=False)]
     dist, idx = tree.query(s, k=min(k, len(ang)))
     step = float(np.median(dist[:, 1]))
@@ -230,31 +275,49 @@ def shapes_from_points(boxes7: np.ndarray, corners: np.ndarray, points: np.ndarr
     grown[:, 2] += ground_clearance_m / 2 + 0.05  # lift the bottom, add 0.1 m at the top
     grown[:, 5] += 0.1 - ground_clearance_m
     mask = points_in_boxes(points, grown)
-    rows: list[np.ndarray] = []
     used = np.zeros(M, dtype=bool)
+    # first the hull of each box's points, then (with a scan step) one growth of all the boxes'
+    # hull vertices at once (``expand_by_scan_gap`` works point by point: the same values as box
+    # by box), then each box's hull of its vertices and their growth
+    hulls: list[np.ndarray | None] = [None] * M
     for j in range(M):  # one hull per box (boxes, not points, are looped over)
         p = points[mask[j], :3].astype(np.float64)
-        v = corners[j]
         if len(p) >= min_points:
             try:
-                hv = p[ConvexHull(p).vertices]
-                if scan_step_rad is not None:
-                    grown_hv = np.concatenate([hv, expand_by_scan_gap(hv, scan_step_rad)])
-                    hv = grown_hv[ConvexHull(grown_hv).vertices]
-                if len(hv) > max_vertices:
-                    # keep the extremes along many directions
-                    dirs = _DIRS[: max(max_vertices // 2, 3)]
-                    proj = hv @ dirs.T
-                    keep = np.unique(np.concatenate([proj.argmax(0), proj.argmin(0)]))
-                    hv = hv[keep]
-                # the object stands on the ground: add the hull's shadow on the box bottom, which
-                # the LiDAR rarely sees (wheels, occluded lower parts) but the camera box includes
-                foot = hv.copy()
-                foot[:, 2] = b[j, 2] - b[j, 5] / 2
-                v = np.concatenate([hv, foot])
-                used[j] = True
+                hulls[j] = p[ConvexHull(p).vertices]
             except (QhullError, ValueError):
                 pass
+    if scan_step_rad is not None and any(h is not None for h in hulls):
+        firsts = [h for h in hulls if h is not None]
+        grown_all = expand_by_scan_gap(np.concatenate(firsts), scan_step_rad).reshape(4, -1, 3)
+        ends = np.cumsum([len(h) for h in firsts])
+        k = 0
+        for j in range(M):
+            if hulls[j] is None:
+                continue
+            hv = hulls[j]
+            grown_hv = np.concatenate([hv, grown_all[:, ends[k] - len(hv): ends[k]].reshape(-1, 3)])
+            k += 1
+            try:
+                hulls[j] = grown_hv[ConvexHull(grown_hv).vertices]
+            except (QhullError, ValueError):
+                hulls[j] = None
+    rows: list[np.ndarray] = []
+    for j in range(M):
+        hv, v = hulls[j], corners[j]
+        if hv is not None:
+            if len(hv) > max_vertices:
+                # keep the extremes along many directions
+                dirs = _DIRS[: max(max_vertices // 2, 3)]
+                proj = hv @ dirs.T
+                keep = np.unique(np.concatenate([proj.argmax(0), proj.argmin(0)]))
+                hv = hv[keep]
+            # the object stands on the ground: add the hull's shadow on the box bottom, which
+            # the LiDAR rarely sees (wheels, occluded lower parts) but the camera box includes
+            foot = hv.copy()
+            foot[:, 2] = b[j, 2] - b[j, 5] / 2
+            v = np.concatenate([hv, foot])
+            used[j] = True
         rows.append(v)
     S = max(len(r) for r in rows)
     out = np.empty((M, S, 3))

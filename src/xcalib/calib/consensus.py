@@ -156,6 +156,37 @@ def _distinct(Ra, ta, Rb, tb, rot_deg: float, trans_m: float) -> bool:
     return rotation_angle(Ra, Rb, degrees=True) > rot_deg or float(np.linalg.norm(ta - tb)) > trans_m
 
 
+#: how far (deg, m) a batched angle or distance must be from ``_distinct``'s thresholds to decide
+#: without ``_distinct`` itself (their rounding differs by some 1e-14; nearer: ``_distinct`` decides)
+_SURE = (1e-6, 1e-9)
+
+
+def _distinct_best(R: np.ndarray, t: np.ndarray, order: np.ndarray, n: int, apart: tuple[float, float]) -> list[int]:
+    """The first ``n`` poses in ``order`` that are ``_distinct`` (by ``apart`` = (deg, m)) from every
+    pose kept before them: each candidate is compared with all the kept poses in one batch
+    (the angle from trace(R_a R_b^T) = sum of R_a * R_b, the distance from the summed squares),
+    and ``_distinct`` itself decides the pairs within ``_SURE`` of a threshold: the same poses as
+    calling ``_distinct`` on every pair."""
+    rot_deg, trans_m = apart
+    keep: list[int] = []
+    for i in order:
+        if keep:
+            k = np.asarray(keep)
+            c = np.clip(((R[k] * R[i]).sum((1, 2)) - 1.0) / 2.0, -1.0, 1.0)
+            ang = np.degrees(np.arccos(c))
+            dt = np.sqrt(((t[k] - t[i]) ** 2).sum(1))
+            apart_sure = (ang > rot_deg + _SURE[0]) | (dt > trans_m + _SURE[1])
+            near_sure = (ang < rot_deg - _SURE[0]) & (dt < trans_m - _SURE[1])
+            if near_sure.any():
+                continue
+            if not all(_distinct(R[i], t[i], R[j], t[j], rot_deg, trans_m) for j in k[~apart_sure].tolist()):
+                continue
+        keep.append(int(i))
+        if len(keep) >= n:
+            break
+    return keep
+
+
 def _hypotheses(fr: CalibFrame, intr: CameraIntrinsics, cfg: ConsensusConfig):
     rng = np.random.default_rng(cfg.seed)
     keep = max(cfg.keep, cfg.score_budget // max(8 * fr.n2 * fr.n3, 1))  # frame_hypotheses IoU-scores 8 x keep
@@ -169,12 +200,7 @@ def _hypotheses(fr: CalibFrame, intr: CameraIntrinsics, cfg: ConsensusConfig):
 def _best_poses(fr: CalibFrame, intr: CameraIntrinsics, h, cfg: ConsensusConfig):
     """Refine the ``n_refine`` best distinct hypotheses; [(summed IoU, RefineResult, IoU [K,M])] best
     first (the pairs and IoU of ``refine.match_frame`` at the pose, at gate ``cfg.gate``)."""
-    keep: list[int] = []
-    for i in np.argsort(-h.score, kind="stable"):
-        if all(_distinct(h.R[i], h.t[i], h.R[k], h.t[k], 3.0, 1.0) for k in keep):
-            keep.append(int(i))
-        if len(keep) >= cfg.n_refine:
-            break
+    keep = _distinct_best(h.R, h.t, np.argsort(-h.score, kind="stable"), cfg.n_refine, (3.0, 1.0))
     opts = RefineOptions(gates=((0.1, 1.0), (0.2, 0.5), (cfg.gate, 0.0)), max_nfev=15, max_outer=3)
     fit = refine_poses(fr, intr, h.R[keep], h.t[keep], opts)
     out = [(float(fit.score[i]), RefineResult(fit.R[i], fit.t[i], [fit.pairs[i]], cost=float("nan"), n_iter=opts.max_outer),

@@ -116,8 +116,10 @@ def explained_iou(rects: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.
     H, M = rects.shape[:2]
     b = np.asarray(boxes, dtype=np.float64)
     K = len(b)
-    rx0, ry0, rx1, ry1 = (np.ascontiguousarray(rects[..., j]).reshape(H, 1, M) for j in range(4))
-    bx0, by0, bx1, by1 = (b[:, j].reshape(1, K, 1) for j in range(4))
+    edges = [np.ascontiguousarray(rects[..., j]) for j in range(4)]  # [H,M] each
+    cols = [np.ascontiguousarray(b[:, j]) for j in range(4)]  # [K] each
+    rx0, ry0, rx1, ry1 = (e.reshape(H, 1, M) for e in edges)
+    bx0, by0, bx1, by1 = (c.reshape(1, K, 1) for c in cols)
     cand = rx0 < bx1
     cand &= rx1 > bx0
     cand &= ry0 < by1
@@ -126,13 +128,15 @@ def explained_iou(rects: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.
     if not len(flat):
         return np.zeros((H, K)), np.zeros((H, M))
     hk, mm = np.divmod(flat, M)
-    hm = (hk // K) * M + mm
-    r = rects.reshape(H * M, 4)[hm]
-    bb = b[hk % K]
-    iou = iou_planes(tuple(r[:, j] for j in range(4)), tuple(bb[:, j] for j in range(4)))
-    # the IoU of the overlapping pairs scattered into the [H,K,M] array of zeros, maxed over its
-    # axes: max is exact, so the same values as ``np.maximum.at`` on the pairs (3x faster)
-    full = np.zeros(H * K * M)
-    full[flat] = iou
-    full = full.reshape(H, K, M)
-    return full.max(2), full.max(1)
+    h, k = np.divmod(hk, K)
+    hm = h * M + mm
+    iou = iou_planes(tuple(e.reshape(-1)[hm] for e in edges), tuple(c[k] for c in cols))
+    # the maxima of the full array (zeros but at the overlapping pairs; IoU >= 0): over m, one
+    # ``maximum.reduceat`` over the runs of equal (h, k) (``flat`` is sorted); over k, an
+    # unbuffered ``maximum.at`` into zeros. max is exact: the same values as the full array's
+    per_box = np.zeros(H * K)
+    starts = np.flatnonzero(np.r_[True, hk[1:] != hk[:-1]])
+    per_box[hk[starts]] = np.maximum.reduceat(iou, starts)
+    per_rect = np.zeros(H * M)
+    np.maximum.at(per_rect, hm, iou)
+    return per_box.reshape(H, K), per_rect.reshape(H, M)
