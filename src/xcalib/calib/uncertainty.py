@@ -66,7 +66,7 @@ BOX_MODEL_MAX_COST_RATIO = 2.0
 # plain positive part (1 sd), while the statistical part already counts the noise. Realism suite, the
 # 7 detector-like conditions x 20 sites (s8_cr2_20sites, rebuilt from the stored parts): share of axes
 # above the median expected for their degrees of freedom .44 -> .47 (0.5 = right), 95 % coverage .925
-# unchanged; a real common bias (boxes 12 % tighter, tests) is kept (see notes/sigma.md)
+# unchanged; a real common bias (boxes 12 % tighter, tests) is kept
 SHIFT_NOISE_Z = 1.959964
 
 
