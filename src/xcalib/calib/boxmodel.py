@@ -311,20 +311,13 @@ def _shape_slope(term, r: np.ndarray) -> np.ndarray:
 
 
 def object_outline_spread(term, groups: np.ndarray, state) -> tuple[np.ndarray, float, float]:
-    """(tau [4], edge-noise scale, p-value): the spread of the objects' own outline offsets.
+    """(tau [4], residual scale, p-value): the spread of the objects' own outline offsets.
 
     Each object's offset per edge is estimated from its inlier residuals at ``state`` (linearised,
     the pose held); their robust spread (MAD over objects; left and right edges pooled, one spread
     for both sides) less the share the edge noise explains is ``tau`` (method of moments, 0 where
-    the noise explains it all). The edge noise is the scatter of the residuals about their own
-    object's offset (the within-object variance, one degree of freedom per estimated offset, as in
-    a one-way analysis of variance), not the residuals' whole scale: where the objects' outlines
-    differ, that whole scale already holds their spread, and an object seen in one frame (its offset
-    is its one residual) would then have "noise" as large as its offset -- with most objects seen
-    once or twice (A9 detector boxes: 13 of 24) the spread less that noise was 0 whatever the
-    outlines did, while the chi-square test, led by the objects seen in every frame, gave p = 1e-30.
-    The p-value tests the per-object offsets against the noise alone (chi-square over objects and
-    edges). The scale returned is the edge noise (the random-effects fit's residual scale)."""
+    the noise explains it all). The p-value tests the
+    per-object offsets against the noise alone (chi-square over objects and edges)."""
     from scipy.special import chdtrc
 
     n = len(term.obs)
@@ -345,15 +338,6 @@ def object_outline_spread(term, groups: np.ndarray, state) -> tuple[np.ndarray, 
     np.add.at(den, (obj, edge), np.where(inl, s_row ** 2, 0.0))
     ok = den > 1e-12
     a = np.where(ok, -num / np.where(ok, den, 1.0), 0.0)
-    # the edge noise: each inlier residual less its object's offset on that edge (r ~ -s a), its
-    # variance with one degree of freedom spent per estimated offset
-    r_within = np.where(inl, r + s_row * a[obj, edge], 0.0)
-    n_free = int(inl.sum()) - int(ok.sum())
-    if n_free < 1:
-        return np.zeros(4), sig, 1.0
-    sig = float(np.sqrt(np.sum(r_within ** 2) / n_free))
-    if not sig > 0:
-        return np.zeros(4), sig, 1.0
     nv = np.where(ok, sig ** 2 / np.where(ok, den, 1.0), np.inf)
     tau2 = np.zeros(4)
     for ks in ((0, 2), (1,), (3,)):  # left and right pooled: a detector has no preferred side
@@ -476,11 +460,7 @@ def _plain_covariance(term, state, groups: np.ndarray, tau: np.ndarray, sig: flo
     Jp = term.jacobian(state, np.zeros(3), [])
     raw = np.where(np.isfinite(term.edges(state)), term.edges(state), 0.0) * term.w
     r = term.shape(raw).ravel()
-    informative = np.any(Jp != 0, axis=1)
-    # the inliers as ``object_outline_spread`` chose them: within 3x the residuals' whole scale (``sig``
-    # is the edge noise about each object's own offset, smaller where the outlines differ)
-    whole = 1.4826 * float(np.median(np.abs(r[informative]))) if np.any(informative) else sig
-    inl = informative & (np.abs(r) <= 3.0 * max(whole, 1e-9))
+    inl = np.any(Jp != 0, axis=1) & (np.abs(r) <= 3.0 * max(sig, 1e-9))
     J = Jp * inl[:, None]
     try:
         A = np.linalg.inv(J.T @ J)
