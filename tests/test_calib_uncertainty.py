@@ -358,3 +358,22 @@ def test_cr2_with_bell_mccaffrey_t_covers_95_percent_where_the_jackknife_oversta
         ratio.append(jack / sd)
     assert 0.92 <= np.mean(covered) <= 0.985
     assert np.median(ratio) > 1.1  # the jackknife (CR3) is wider than the unbiased CR2 before any t factor
+
+
+def test_a_shift_counts_only_beyond_the_95_percent_point_of_its_noise():
+    """``estimate`` counts of a model shift (occlusion, outline) only the part beyond ``SHIFT_NOISE_Z``
+    of its own noise sigmas: where the shift is only noise, the plain positive part (z = 1) adds
+    E[(chi2_1 - 1)+] = 0.48 noise^2 to the variance that the statistical part already holds, the
+    95 % point 0.09; a shift far beyond its noise (a common bias) is kept almost whole."""
+    from xcalib.calib.uncertainty import SHIFT_NOISE_Z, excess
+
+    assert abs(SHIFT_NOISE_Z - 1.96) < 1e-3
+    rng = np.random.default_rng(0)
+    sd = np.full(6, 0.01)
+    noise_only = rng.normal(0.0, 0.01, (20000, 6))
+    plain = np.mean([excess(d, sd) ** 2 for d in noise_only[:4000]]) / 0.01 ** 2
+    at95 = np.mean([excess(d, sd, SHIFT_NOISE_Z) ** 2 for d in noise_only[:4000]]) / 0.01 ** 2
+    assert 0.42 < plain < 0.54 and 0.06 < at95 < 0.12, (plain, at95)
+    bias = np.full(6, 0.08)  # 8 noise sigmas: a detector's tight outline
+    assert np.all(excess(bias, sd, SHIFT_NOISE_Z) > 0.96 * bias)  # sqrt(64 - 3.84) / 8
+    assert np.allclose(excess([0.03, -0.01], [0.01, 0.01], 2.0), [np.sqrt(0.03 ** 2 - 0.02 ** 2), 0.0])
