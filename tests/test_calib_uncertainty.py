@@ -358,3 +358,48 @@ def test_cr2_with_bell_mccaffrey_t_covers_95_percent_where_the_jackknife_oversta
         ratio.append(jack / sd)
     assert 0.92 <= np.mean(covered) <= 0.985
     assert np.median(ratio) > 1.1  # the jackknife (CR3) is wider than the unbiased CR2 before any t factor
+
+
+def test_a_shift_counts_only_beyond_the_95_percent_point_of_its_noise():
+    """``estimate`` counts of a model shift (occlusion, outline) only the part beyond ``SHIFT_NOISE_Z``
+    of its own noise sigmas: where the shift is only noise, the plain positive part (z = 1) adds
+    E[(chi2_1 - 1)+] = 0.48 noise^2 to the variance that the statistical part already holds, the
+    95 % point 0.09; a shift far beyond its noise (a common bias) is kept almost whole."""
+    from xcalib.calib.uncertainty import SHIFT_NOISE_Z, excess
+
+    assert abs(SHIFT_NOISE_Z - 1.96) < 1e-3
+    rng = np.random.default_rng(0)
+    sd = np.full(6, 0.01)
+    noise_only = rng.normal(0.0, 0.01, (20000, 6))
+    plain = np.mean([excess(d, sd) ** 2 for d in noise_only[:4000]]) / 0.01 ** 2
+    at95 = np.mean([excess(d, sd, SHIFT_NOISE_Z) ** 2 for d in noise_only[:4000]]) / 0.01 ** 2
+    assert 0.42 < plain < 0.54 and 0.06 < at95 < 0.12, (plain, at95)
+    bias = np.full(6, 0.08)  # 8 noise sigmas: a detector's tight outline
+    assert np.all(excess(bias, sd, SHIFT_NOISE_Z) > 0.96 * bias)  # sqrt(64 - 3.84) / 8
+    assert np.allclose(excess([0.03, -0.01], [0.01, 0.01], 2.0), [np.sqrt(0.03 ** 2 - 0.02 ** 2), 0.0])
+
+
+def test_the_reported_sigma_is_rebuilt_from_the_stored_parts():
+    """``scripts/sigma_parts.py`` measures changes of how the sigma's parts combine on stored realism
+    runs: its rebuild gives the reported sigma of the run made at this code (s9_sigma_outline_all,
+    shifts beyond ``SHIFT_NOISE_Z``) and, with ``z = 1``, of the run made before (s8_cr2_20sites)."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    from xcalib.calib.uncertainty import SHIFT_NOISE_Z
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("sigma_parts", root / "scripts" / "sigma_parts.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    runs = json.loads(mod.RESULTS.read_text())["runs"]
+    checked = 0
+    for label, z in (("s9_sigma_outline_all", SHIFT_NOISE_Z), ("s8_cr2_20sites", 1.0)):
+        if label not in runs:
+            continue
+        for cond in runs[label]["conditions"]:
+            for rec in (r for r in cond["per_site"] if r["success"] and "sigma_parts" in r):
+                assert np.allclose(mod.rebuild(rec["sigma_parts"], z), rec["sigma_axes"], rtol=1e-9, atol=0), (label, rec["seed"])
+                checked += 1
+    assert checked >= 20 or not runs.get("s9_sigma_outline_all")
