@@ -100,3 +100,61 @@ def test_miss_stats_change_no_draw():
         else:
             assert sb[2] is None
     assert counted > 0
+
+
+def _leftover_site():
+    """16 frames of a synthetic site with 2 of each frame's 2D boxes (a second camera's few boxes
+    among the leftovers: a sparse scene, searched over every frame and in pooled groups) and every
+    3D box; the site's pose and intrinsics."""
+    from dataclasses import replace
+
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.calib.pose import Pose
+    from xcalib.data.synth import generate_frames, sample_site
+
+    site = sample_site(1, preset="roadside")
+    cf = prepare_frames(generate_frames(site, 16, seed=1, render_images=False, lidar=False), site.intrinsics)[0]
+    r = np.random.default_rng(0)
+    left = []
+    for f in cf:
+        keep = np.sort(r.choice(f.n2, min(2, f.n2), replace=False))
+        left.append(replace(f, boxes2d=f.boxes2d[keep], idx2d=f.idx2d[keep]))
+    T = np.asarray(site.T_cam_lidar)
+    return left, site.intrinsics, Pose(T[:3, :3], T[:3, 3])
+
+
+def test_the_second_pose_is_found_and_flagged_as_with_the_pooled_groups(monkeypatch):
+    """A crafted sparse leftover set where the second pose must be found: with the support a flag
+    needs (best score 100: 20 matches) the pooled group is skipped (miss bound <= 1 %), and the
+    search finds the second camera and flags it as the search with every group does."""
+    from xcalib.calib import api, bringup
+    from xcalib.calib.config import CalibConfig
+    from xcalib.calib.cost import Occlusion
+    from xcalib.calib.misfit import second_pose_check
+    from xcalib.calib.pose import Pose
+    from xcalib.geometry.rotations import rotvec_to_matrix
+
+    left, intr, truth = _leftover_site()
+    assert sum(f.n2 for f in left) <= bringup.SPARSE_SCENE_MAX_2D
+    main = Pose(rotvec_to_matrix(np.array([0.0, 0.6, 0.0])) @ truth.R, truth.t + np.array([0.5, 0.0, 0.0]))
+    pairs = [np.zeros((0, 2), dtype=np.int64) for _ in left]
+    seen = []
+    real = bringup.pose_hypotheses
+
+    def spy(*a, **k):
+        out = real(*a, **k)
+        seen.append((k.get("support"), out.pooled_skipped))
+        return out
+
+    monkeypatch.setattr(api, "pose_hypotheses", spy)
+    cfg = CalibConfig(workers=1)
+    fast = api._second_pose(left, pairs, intr, main, cfg, Occlusion(), 100.0)
+    monkeypatch.setattr(api, "second_pose_support", lambda best: None)  # the search with every group
+    full = api._second_pose(left, pairs, intr, main, cfg, Occlusion(), 100.0)
+    assert seen == [(20, 1), (None, 0)]
+    for score, n2, dist, admissible, screened in (fast, full):
+        assert screened is None and admissible and n2 >= 20
+        assert dist[0] > 20.0  # (from the main pose, ~34 deg away)
+    chk_fast = second_pose_check(100.0, 140, *fast[:4])[0]
+    chk_full = second_pose_check(100.0, 140, *full[:4])[0]
+    assert chk_fast.flagged and chk_full.flagged

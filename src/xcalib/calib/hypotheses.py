@@ -521,8 +521,8 @@ def _triples(c: _Candidates, rng: np.random.Generator, max_triples: int, min_alt
     Cs = C | C.T
     common = None
     if miss_stats and len(Cs) <= MISS_STATS_MAX_CANDIDATES:
-        F = Cs.astype(np.float64)
-        common = -np.sort(-(F @ F)[C])[:MISS_STATS_KEEP]  # (integer counts: exact in float)
+        F = Cs.astype(np.float32)  # (integer counts below 2^24: exact in float32)
+        common = -np.sort(-(F @ F)[C].astype(np.float64))[:MISS_STATS_KEEP]
     stats = (n_pairs, len(pq), common)
     tri = _third_members(Cs, pq, rng, c.w if have_prior else None)
     if len(tri) == 0:
