@@ -37,7 +37,7 @@ from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, match
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSelectionSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, lean_frames, prepare_frames, with_corner_outlines, with_point_outlines
-from .misfit import box_frame_check, flipped_frames, lens_checks, focal_box_model, focal_fit, focal_scale_check, focal_width_check, leftover_frames, match_bound, second_pose_check, second_pose_screen, mirror_check, mirror_screen, principal_point_check, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
+from .misfit import box_frame_check, flipped_frames, lens_checks, focal_box_model, focal_fit, focal_scale_check, focal_width_check, leftover_frames, match_bound, second_pose_check, second_pose_screen, second_pose_support, mirror_check, mirror_screen, principal_point_check, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .parallel import Deferred, WorkerPool, Workers, parallel_map, resolve_workers, shared
 from .pose import Pose
@@ -287,7 +287,10 @@ def _second_pose(cframes, pairs, intr, pose: Pose, config: CalibConfig, occlusio
     if why is not None:
         return float(match_bound(left)), match_bound(left), None, False, why
     small = config.replace(max_hyp_frames=min(config.max_hyp_frames, 4), max_refine=min(config.max_refine, 3))
-    bu = pose_hypotheses(left, intr, small, max_baseline_m=config.max_baseline_m, rng=np.random.default_rng(config.seed))
+    # a pose with fewer matches than a flag needs is not looked for (the pooled groups are skipped where
+    # the search over every leftover frame finds one with that many with probability >= 99 %)
+    bu = pose_hypotheses(left, intr, small, max_baseline_m=config.max_baseline_m, rng=np.random.default_rng(config.seed),
+                         support=second_pose_support(best_score))
     if len(bu.hyps) == 0:
         return 0.0, 0, None, False, None
     ref = _refine_candidates(left, intr, distinct_best(bu.hyps, small.max_refine), occlusion, None,

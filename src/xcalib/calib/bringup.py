@@ -20,7 +20,7 @@ import numpy as np
 from ..geometry.camera import CameraIntrinsics
 from .config import CalibConfig
 from .hypotheses import (Hypotheses, TripleSearch, draw_triples, frame_hypotheses, informative_view, score_poses,
-                         solve_triples)
+                         solve_triples, triple_miss_bound)
 from .inputs import CalibFrame, lean_frames
 from .parallel import Stream, Workers, chunks, parallel_map, resolve_workers
 from .pose import Pose
@@ -31,6 +31,9 @@ __all__ = ["BringUp", "pose_hypotheses", "distinct_best", "pooled_groups", "matc
 log = logging.getLogger("xcalib.calib")
 
 SPARSE_SCENE_MAX_2D = 80  # with at most this many 2D boxes in all, search (nearly) exhaustively
+#: with a requested support, the pooled groups are skipped where the search over every frame misses a
+#: pose of that support with at most this probability (``hypotheses.triple_miss_bound``)
+SEARCH_MISS = 0.01
 
 
 @dataclass
@@ -41,6 +44,9 @@ class BringUp:
     sparse_search: bool = False
     pooled_search: bool = False
     split_searches: int = 0
+    #: pooled groups not searched: the search over every frame already finds a pose of the
+    #: requested support with probability >= 1 - ``SEARCH_MISS`` (see ``pose_hypotheses``' ``support``)
+    pooled_skipped: int = 0
 
 
 def matcher_similarities(matcher, frames_in, cframes: list[CalibFrame]) -> list[np.ndarray | None]:
@@ -186,12 +192,18 @@ def search_cost(n_windows: int, crowded: bool) -> int:
 def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, config: CalibConfig = CalibConfig(), *,
                     similarities: list | None = None, max_baseline_m: float | None = None,
                     rng: np.random.Generator | None = None,
-                    progress: Callable[[str, int, int], None] | None = None) -> BringUp:
+                    progress: Callable[[str, int, int], None] | None = None, support: int | None = None) -> BringUp:
     """Pose hypotheses (LiDAR -> camera) from the detections of ``cframes``, scored on every frame.
 
     ``similarities``: optional per-frame [K,M] matcher scores (rows/cols of the CalibFrames) that
     rank candidate pairs; ``max_baseline_m`` overrides ``config.max_baseline_m`` (None in the
     config means never assume a co-located rig). Memory is bounded by ``config.max_candidates``.
+    ``support``: only poses that at least this many box pairs agree with are wanted (a caller that
+    ignores the others, e.g. the second-pose search: ``misfit.second_pose_support``). In a sparse
+    scene the pooled groups (subsets of the frames of the search over every frame, drawn after it)
+    are then drawn only while that search's miss bound for such a pose (``hypotheses.triple_miss_bound``, one
+    azimuth window, no matcher priors) is above ``SEARCH_MISS``: where it is not, they would add
+    hypotheses for a pose that the search over every frame finds with probability >= 99 % already.
     """
     rng = np.random.default_rng(config.seed) if rng is None else rng
     sims = [None] * len(cframes) if similarities is None else list(similarities)
@@ -200,7 +212,7 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
     groups, n_before, sparse_scene = _search_groups(cframes, config.max_hyp_frames)
     workers = resolve_workers(config.workers)
     lean = lean_frames(cframes) if workers > 1 else cframes
-    jobs, budget = [], config.max_hyp_frames
+    jobs, budget, covered, skipped = [], config.max_hyp_frames, False, 0
     # each search's triples are drawn here (every random number, in order) and solved as a task that
     # starts as soon as it is drawn (several workers: while the next one is drawn; one: all after the
     # draws, in order) -- the same hypotheses whatever the number
@@ -208,17 +220,23 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
         for k, g in enumerate(groups):
             if k < n_before and len(g) == 1 and crowded[g[0]] and budget <= 0:
                 continue  # the per-frame searches' budget is spent (see ``search_cost``)
+            if k >= n_before and covered:
+                skipped += 1  # the search over every frame already finds a pose of the support wanted
+                continue
             gs = [sims[i] for i in g]
             big = (sparse_scene or k >= n_before) and len(g) > 1
             # closed_form: each triple's Kabsch fit without an SVD (``hypotheses.kabsch_triangles``, the same
             # poses to ~1e-12, 2.5x faster; the search's largest cost on sparse leftovers)
+            everywhere = support is not None and sparse_scene and k == n_before - 1  # (the search over every frame)
             search = TripleSearch(max_baseline_m=max_baseline_m, max_candidates=config.max_candidates,
-                                  closed_form=True)
+                                  closed_form=True, miss_stats=everywhere)
             wide = replace(search, max_triples=20000 if big else 3000, keep=60 if big else 25)
             frs = [lean[i] for i in g]
             draw = draw_triples(frs, intr, prior_sims=gs, rng=rng, search=wide)
             if k < n_before and len(g) == 1:
                 budget -= search_cost(draw.n_windows, crowded[g[0]])
+            if everywhere:
+                covered = _covers(draw, support)
             if any(x is not None for x in gs):  # matcher priors: solved now (a search without them may follow)
                 h = solve_triples(frs, intr, g[0], draw, wide)
                 if len(h) == 0:
@@ -236,7 +254,16 @@ def pose_hypotheses(cframes: Sequence[CalibFrame], intr: CameraIntrinsics, confi
     hyps = Hypotheses.concat(found)
     if len(hyps):  # re-scored on every frame (static rig: one pose explains all), summed frame by frame
         hyps.score = sum(frame_scores(lean, intr, hyps.R, hyps.t, workers))
-    return BringUp(hyps, sparse_search=bool(sparse_scene), pooled_search=len(groups) > n_before, split_searches=splits)
+    return BringUp(hyps, sparse_search=bool(sparse_scene), pooled_search=len(groups) > n_before + skipped,
+                   split_searches=splits, pooled_skipped=skipped)
+
+
+def _covers(draw, support: int) -> bool:
+    """Whether a drawn search (one azimuth window, no matcher priors) misses a pose that ``support``
+    of its candidate pairs agree with with probability <= ``SEARCH_MISS`` (``triple_miss_bound``)."""
+    if draw.have_prior or draw.n_windows != 1 or not draw.pair_stats:
+        return False
+    return triple_miss_bound(support, draw.pair_stats[0]) <= SEARCH_MISS
 
 
 def frame_scores(frames: Sequence[CalibFrame], intr, R: np.ndarray, t: np.ndarray, workers: Workers = 1) -> list[np.ndarray]:

@@ -22,7 +22,7 @@ from .inputs import CalibFrame
 from .match_sparse import explained_iou
 
 __all__ = ["Hypotheses", "kabsch", "kabsch_triangles", "informative_view", "bearings", "frame_hypotheses", "TripleSearch",
-           "score_poses", "TripleDraw", "draw_triples", "solve_triples"]
+           "score_poses", "TripleDraw", "draw_triples", "solve_triples", "triple_miss_bound"]
 
 
 @dataclass
@@ -248,7 +248,9 @@ class TripleSearch:
     with an altitude of at least ``min_altitude_m`` (m), the ``keep`` best hypotheses kept, a camera
     within ``max_baseline_m`` of the LiDAR (None: anywhere), at most ``max_candidates`` candidate
     pairs per azimuth window; ``closed_form``: each triple's Kabsch fit by :func:`kabsch_triangles`
-    (no SVD; the same poses up to rounding) rather than :func:`kabsch`."""
+    (no SVD; the same poses up to rounding) rather than :func:`kabsch`; ``miss_stats``: also count
+    each consistent pair's common partners (``TripleDraw.pair_stats``, for :func:`triple_miss_bound`;
+    the same draws)."""
 
     max_triples: int = 3000
     min_altitude_m: float = 0.8
@@ -256,6 +258,7 @@ class TripleSearch:
     max_baseline_m: float | None = None
     max_candidates: int = 1500
     closed_form: bool = False
+    miss_stats: bool = False
 
 
 @dataclass
@@ -270,6 +273,9 @@ class TripleDraw:
     cand: "_Candidates | None"
     windows: list
     have_prior: bool = False
+    #: per window, (consistent pairs of pairs, how many of them were drawn, the most consistent
+    #: partners of one pair) or None (no consistent pair): what :func:`triple_miss_bound` needs
+    pair_stats: list | None = None
 
     @property
     def n_windows(self) -> int:
@@ -295,8 +301,49 @@ def draw_triples(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, *, 
         X=np.concatenate([frs[p[0]].boxes3d[p[2], :3] for p in parts]))  # LiDAR centre of each pair
     have_prior = any(ps is not None for ps in prior_sims)
     windows = _azimuth_windows(cand.X, search.max_candidates, rng, cand.w if have_prior else None)
-    return TripleDraw(cand, [(idx, _triples(cand.take(idx), rng, search.max_triples, search.min_altitude_m, have_prior))
-                             for idx in windows], have_prior)
+    drawn, stats = [], []
+    for idx in windows:
+        tri, st = _triples(cand.take(idx), rng, search.max_triples, search.min_altitude_m, have_prior,
+                           search.miss_stats)
+        drawn.append((idx, tri))
+        stats.append(st)
+    return TripleDraw(cand, drawn, have_prior, stats)
+
+
+def triple_miss_bound(support: int, stats: tuple | None) -> float:
+    """An upper bound on the probability that a drawn search (one azimuth window, no matcher
+    priors; ``stats``: its ``TripleDraw.pair_stats`` entry) holds no triple of three pairs of one
+    pose that ``support`` = k of its candidate pairs agree with (its inliers). 1.0 where the
+    numbers allow no bound.
+
+    Model: the inliers are candidate pairs, mutually consistent (the premise of the search itself).
+    The search draws n_drawn of its n_pairs consistent pairs of pairs uniformly, then two third
+    members of a drawn pair uniformly among the T pairs consistent with both. An inlier pair of
+    pairs has k-2 inlier partners among its T, so its two thirds miss them all with probability
+    miss(T) = C(T-k+2,2)/C(T,2), which grows with T: with the C(k,2) inlier pairs of pairs taken as
+    those with the largest T (the worst case), one draw finds an inlier triple with probability
+    p >= sum(1 - miss(T_i)) / n_pairs, and n_drawn draws (without replacement: no more often
+    missed than with) miss with probability <= (1 - p)^n_drawn; with every pair of pairs drawn,
+    <= prod(miss(T_i))."""
+    k = int(support)
+    if stats is None or len(stats) < 3 or stats[2] is None or k < 3:
+        return 1.0
+    n_pairs, n_drawn, common = int(stats[0]), int(stats[1]), np.asarray(stats[2], dtype=np.float64)
+    inl = k * (k - 1) // 2
+    if n_pairs <= 0 or n_drawn <= 0 or inl > n_pairs or len(common) < min(inl, n_pairs):
+        return 1.0
+    T = common[:inl]  # the largest counts first
+    with np.errstate(divide="ignore", invalid="ignore"):
+        miss = np.where(T >= k, (T - k + 2) * (T - k + 1) / (T * (T - 1)), 0.0)
+    if n_drawn >= n_pairs:
+        return float(np.prod(miss))
+    return float((1.0 - np.sum(1.0 - miss) / n_pairs) ** n_drawn)
+
+
+#: ``TripleSearch.miss_stats``: windows of at most this many candidates count their pairs' common
+#: partners (one [n,n] matrix product), and the largest this many counts are kept
+MISS_STATS_MAX_CANDIDATES = 800
+MISS_STATS_KEEP = 2000
 
 
 def solve_triples(frs: CalibFrame | list[CalibFrame], intr: CameraIntrinsics, fi: int, draw: TripleDraw,
@@ -435,11 +482,14 @@ def _top2(keys: np.ndarray) -> np.ndarray:
 
 
 def _triples(c: _Candidates, rng: np.random.Generator, max_triples: int, min_altitude_m: float,
-             have_prior: bool) -> np.ndarray | None:
+             have_prior: bool, miss_stats: bool = False) -> tuple[np.ndarray | None, tuple | None]:
     """The consistent, well-shaped triples [T,3] of candidates c (rows), or None; every random
-    number of a window's search is drawn here."""
+    number of a window's search is drawn here. Also (consistent pairs of pairs, pairs drawn, with
+    ``miss_stats`` the largest ``MISS_STATS_KEEP`` counts of partners consistent with both pairs of
+    a consistent pair, descending, else None), or None without a consistent pair
+    (``TripleDraw.pair_stats``)."""
     if len(c.ii) < 3:
-        return None
+        return None, None
     X, ray, lam = c.X, c.ray, c.lam
     Xc = lam[:, None] * ray
     dc = _pair_distances(Xc)
@@ -460,23 +510,30 @@ def _triples(c: _Candidates, rng: np.random.Generator, max_triples: int, min_alt
     C = np.triu(C, 1)
     pq = np.argwhere(C)
     if len(pq) == 0:
-        return None
+        return None, None
+    n_pairs = len(pq)
     max_pq = max(max_triples // 2, 1)
     if len(pq) > max_pq:  # keep the enumeration bounded on crowded frames
         if have_prior:
             pq = pq[np.argsort(-(c.w[pq[:, 0]] + c.w[pq[:, 1]]), kind="stable")[:max_pq]]
         else:
             pq = pq[rng.choice(len(pq), max_pq, replace=False)]
-    tri = _third_members(C | C.T, pq, rng, c.w if have_prior else None)
+    Cs = C | C.T
+    common = None
+    if miss_stats and len(Cs) <= MISS_STATS_MAX_CANDIDATES:
+        F = Cs.astype(np.float32)  # (integer counts below 2^24: exact in float32)
+        common = -np.sort(-(F @ F)[C].astype(np.float64))[:MISS_STATS_KEEP]
+    stats = (n_pairs, len(pq), common)
+    tri = _third_members(Cs, pq, rng, c.w if have_prior else None)
     if len(tri) == 0:
-        return None
+        return None, stats
     # reject thin 3D triangles (collinear boxes leave the roll about their line free)
     P3 = X[tri]
     e1, e2, e3 = P3[:, 1] - P3[:, 0], P3[:, 2] - P3[:, 0], P3[:, 2] - P3[:, 1]
     area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
     longest = np.maximum(np.maximum(np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)), np.linalg.norm(e3, axis=1))
     tri = tri[area2 / np.maximum(longest, 1e-9) >= min_altitude_m]
-    return tri if len(tri) else None
+    return (tri if len(tri) else None), stats
 
 
 def _triple_solve(c: _Candidates, tri: np.ndarray, closed_form: bool = False):

@@ -59,7 +59,7 @@ from .parallel import parallel_map, shared
 from .refine import build_cost, lsq, match_all
 from .uncertainty import jackknife_sd, leave_frames_out, object_groups
 
-__all__ = ["MisfitVerdict", "lens_check", "lens_checks", "LENS_ALT_GAIN", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "focal_box_model", "FOCAL_MIN_GAIN", "FOCAL_BOX_ALT_GAIN", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "second_pose_screen", "mirror_screen", "match_bound", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "principal_point_check_all", "inner_pairs", "time_offset_check", "TIME_BOX_ALT_GAIN", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
+__all__ = ["MisfitVerdict", "lens_check", "lens_checks", "LENS_ALT_GAIN", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "focal_box_model", "FOCAL_MIN_GAIN", "FOCAL_BOX_ALT_GAIN", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "second_pose_screen", "second_pose_support", "mirror_screen", "match_bound", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "principal_point_check_all", "inner_pairs", "time_offset_check", "TIME_BOX_ALT_GAIN", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
            "FOCAL_MAX_UNCHECKED"]
 
 FOCAL_TOL = 0.03          # |fitted focal scale - 1| beyond this (and 2 sigma) is a misfit
@@ -325,6 +325,17 @@ def second_pose_screen(best_score: float, left: list[CalibFrame]) -> str | None:
         return None
     return (f"not searched: the unmatched 2D boxes allow at most {bound} matches (a second pose needs "
             f"{SECOND_POSE_MIN_PAIRS}+ scoring {SECOND_POSE_SHARE:g} x {best_score:.1f})")
+
+
+def second_pose_support(best_score: float | None) -> int:
+    """The fewest matches of a second pose that :func:`second_pose_check` can flag: at least
+    ``SECOND_POSE_MIN_PAIRS``, and its score (a sum of IoUs <= 1 over its matches, see
+    :func:`match_bound`) must reach ``SECOND_POSE_SHARE`` of ``best_score`` (None: unknown). The
+    second-pose search need find no pose with fewer (``bringup.pose_hypotheses``' ``support``)."""
+    need = SECOND_POSE_MIN_PAIRS
+    if best_score is not None and np.isfinite(best_score):
+        need = max(need, int(np.ceil(SECOND_POSE_SHARE * float(best_score) - 1e-9)))
+    return int(need)
 
 
 def second_pose_check(best_score: float, n_best: int, second_score: float, n_second: int,
