@@ -53,6 +53,7 @@ def test_examples_are_found_for_every_command():
     shown = {argv[0] for _, argv in EXAMPLES}
     root = typer.main.get_command(app)
     assert set(root.commands) <= shown, f"commands whose --help shows no example: {set(root.commands) - shown}"
+    assert any(_LINE.match(ln.strip()) for ln in root.help.splitlines()), "`xcalib --help` shows no example"
 
 
 @pytest.mark.parametrize("where,argv", EXAMPLES, ids=[" ".join(a[:2]) for _, a in EXAMPLES])

@@ -16,7 +16,9 @@ import typer
 
 app = typer.Typer(
     name="xcalib",
-    help="Camera-LiDAR matching and targetless extrinsic calibration.",
+    help="Camera-LiDAR matching and targetless extrinsic calibration.\n\n"
+         "Example: xcalib demo --out xcalib-demo   (a synthetic site end to end, then the A9 sample when "
+         "../shared/data/a9_sample exists; each command's --help shows its own example; docs/cli.md)",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
