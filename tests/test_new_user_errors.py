@@ -75,6 +75,26 @@ def test_an_intrinsics_file_that_is_not_a_camera_file(folder, tmp_path, capsys):
     assert "K.json" in msg and "not a camera file" in msg and "'hello'" in msg and "YAML mapping, got" not in msg
 
 
+def test_intrinsics_of_another_resolution_are_refused_before_a_pose(folder, tmp_path, capsys):
+    """The intrinsics file of another camera (a 640x480 one) for frames of 960x600 images: said
+    up front, not fitted into a misleading model misfit."""
+    from xcalib.io.images import read_image
+
+    man = json.loads((folder / "manifest.json").read_text())
+    det = json.loads((folder / man["frames"][0]["detections"]).read_text())
+    h, w = read_image(folder / Path(man["frames"][0]["detections"]).parent / det["image"]).shape[:2]
+    p = tmp_path / "vga.json"
+    p.write_text(json.dumps({"fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480}))
+    msg = _error(capsys, ["calibrate", str(folder), "--intrinsics", str(p), "--out", str(tmp_path / "o")])
+    assert "for a 640x480 image, but frame" in msg and f"image is {w}x{h}" in msg
+    # the same camera's intrinsics with its size: no such error (a few rows cropped is fine)
+    from xcalib.calib.inputs import _check_declared_size
+    from xcalib.geometry.camera import CameraIntrinsics
+
+    _check_declared_size(CameraIntrinsics(fx=900.0, fy=900.0, cx=w / 2, cy=h / 2, width=w, height=h), (w, h - 8), 0)
+    _check_declared_size(CameraIntrinsics(fx=900.0, fy=900.0, cx=w / 2, cy=h / 2), (w, h), 0)
+
+
 def test_a_calibration_file_that_is_not_a_calibration(folder, tmp_path, capsys):
     p = tmp_path / "K.json"
     p.write_text(json.dumps({"fx": 1000.0, "fy": 1000.0, "cx": 480.0, "cy": 300.0}))
