@@ -105,6 +105,7 @@ def test_a_calibration_file_that_is_not_a_calibration(folder, tmp_path, capsys):
 @pytest.mark.parametrize("argv,says", [
     (["calibrate", "{tmp}/no_such_dir"], "frame source not found"),
     (["calibrate", "{tmp}/empty"], "not a recognised frame source; supported:"),
+    (["calibrate", "{tmp}/empty"], "(the folder is empty)"),
     (["calibrate", "{folder}", "--intrinsics", "{tmp}/nothere.json"], "intrinsics file not found"),
     (["convert", "{tmp}/missing.json", "--to", "kitti"], "not found"),
 ])
@@ -113,6 +114,19 @@ def test_wrong_paths_and_empty_folders(folder, tmp_path, capsys, argv, says):
     argv = [a.format(tmp=tmp_path, folder=folder) for a in argv]
     msg = _error(capsys, argv + (["--out", str(tmp_path / "o")] if argv[0] == "calibrate" else []))
     assert says in msg
+
+
+def test_a_dataset_root_names_the_recordings_inside_it(folder, tmp_path, capsys):
+    """A user gives the folder above the recordings: the error lists those it would read."""
+    import shutil
+
+    root = tmp_path / "dataset"
+    for name in ("day1", "day2"):
+        shutil.copytree(folder, root / name)
+    (root / "notes").mkdir()
+    msg = _error(capsys, ["calibrate", str(root), "--out", str(tmp_path / "o")])
+    assert "not a recognised frame source" in msg and "frame sources inside it:" in msg
+    assert f"{root / 'day1'} (frame-folder)" in msg and f"{root / 'day2'} (frame-folder)" in msg and "notes" not in msg
 
 
 def test_a_bag_without_camera_info_says_what_to_pass(folder, tmp_path, capsys):
