@@ -101,3 +101,10 @@ def test_convert_example_runs_on_the_shared_data(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path / "work")
     argv = next(a for _, a in EXAMPLES if a[0] == "convert")
     assert main(argv) == 0 and (tmp_path / "work" / "calib.json").exists()
+
+
+def test_version_flag_prints_what_the_version_command_prints(capsys):
+    assert main(["--version"]) == 0
+    flag = capsys.readouterr().out
+    assert main(["version"]) == 0
+    assert flag == capsys.readouterr().out and flag.startswith("xcalib ")

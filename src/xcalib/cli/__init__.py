@@ -57,8 +57,19 @@ def _load_commands() -> list[str]:
 
 
 
+def _print_version(value: bool) -> None:
+    """``xcalib --version``: what ``xcalib version`` prints, then exit 0."""
+    if value:
+        from .. import __version__
+        from ..protocol import PROTOCOL_VERSION
+
+        typer.echo(f"xcalib {__version__} (input protocol v{PROTOCOL_VERSION})")
+        raise typer.Exit(0)
+
+
 @app.callback()
-def _root() -> None:
+def _root(version: bool = typer.Option(False, "--version", is_eager=True, callback=_print_version,
+                                       help="Print the package and input-protocol versions and exit.")) -> None:
     """Camera-LiDAR matching and targetless extrinsic calibration."""
 
 
