@@ -16,3 +16,22 @@ def test_summary_frame_table_aligns_long_frame_keys():
     assert table[0].split() == ["frame", "2D", "3D", "pairs", "px", "med", "IoU", "med"]
     assert len({len(ln) for ln in table}) == 1, table  # every row as wide as the header
     assert table[-1].endswith("0.658") and table[1].startswith("1700000000000000000")
+
+
+def test_summary_states_the_frames_used_once():
+    """A success's summary() says "frames = N of M used"; summary.txt does not repeat it (a
+    refusal's, which has no such line, gets it once)."""
+    import numpy as np
+
+    from xcalib.calib.diagnostics import CalibDiagnostics, FrameSelectionSummary
+
+    diag = CalibDiagnostics(selection=FrameSelectionSummary(n_frames_given=2, n_frames_used=2, n_objects=4,
+                                                            n_objects_used=4, object_identity="positions"))
+    ok = CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3), residual_px_median=1.0,
+                           iou_median=0.8, rotation_std_deg=np.full(3, 0.1), translation_std_m=np.full(3, 0.01),
+                           frame_keys=["a", "b"], pairs=[np.zeros((3, 2), int)] * 2, n_inliers=5, reproj_error_px=1.0,
+                           diagnostics=diag)
+    no = CalibrationResult(success=False, message="ambiguous", diagnostics=diag)
+    for res in (ok, no):
+        text = _summary_text(res, [])
+        assert text.count("2 of 2 used (4 of 4 distinct objects") == 1, text

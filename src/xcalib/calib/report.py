@@ -108,7 +108,7 @@ def _summary_text(result: CalibrationResult, rows: list[dict]) -> str:
     if d is not None and d.selfcal.notes:
         lines += [f"  self-calibration: {n}" for n in d.selfcal.notes] + [""]
     line = result.frames_line()
-    if line:
+    if line and not result.success:  # a success's summary() holds it already ("frames        = ...")
         lines += [f"  frames: {line}", ""]
     w = max([12] + [len(str(r["frame"])) for r in rows])  # a bag's frames are nanosecond stamps (19 digits)
     lines.append(f"{'frame':>{w}} {'2D':>4} {'3D':>4} {'pairs':>5} {'px med':>7} {'IoU med':>7}")
