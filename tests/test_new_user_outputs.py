@@ -35,3 +35,19 @@ def test_summary_states_the_frames_used_once():
     for res in (ok, no):
         text = _summary_text(res, [])
         assert text.count("2 of 2 used (4 of 4 distinct objects") == 1, text
+
+
+def test_demo_table_says_coarse_as_calibrate_does():
+    """The demo's tables carry the precision line: a COARSE success (the A9 sample's) is not shown
+    as a bare "success"."""
+    import numpy as np
+
+    from xcalib.cli.demo_cmd import _precision_cell
+
+    def res(rot_std, trans_std):
+        return CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3),
+                                 rotation_std_deg=np.full(3, rot_std), translation_std_m=np.full(3, trans_std))
+
+    assert _precision_cell(res(0.05, 0.01)).startswith("fine: 95 % bound")
+    coarse = _precision_cell(res(0.35, 0.3))
+    assert "COARSE" in coarse and "a starting point" in coarse
