@@ -152,3 +152,10 @@ def test_a_bag_without_camera_info_says_what_to_pass(folder, tmp_path, capsys):
         w.finish()
     msg = _error(capsys, ["calibrate", str(bare), "--out", str(tmp_path / "o")])
     assert "bare.mcap" in msg and "no CameraInfo topic" in msg and "--intrinsics" in msg
+
+
+def test_calibrate_many_with_a_pattern_naming_nothing_says_so_before_any_progress(tmp_path, capsys):
+    rc = main(["calibrate-many", str(tmp_path / "recordings" / "*"), "--out", str(tmp_path / "batch")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "no recording matches" in err
+    assert "0/?" not in err and "calibrate" not in err.split("error:")[0]
