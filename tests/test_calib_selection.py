@@ -165,7 +165,7 @@ def test_recording_calibrates_from_the_chosen_frames_and_says_so(tmp_path):
 
     paths = write_report(res, frames, tmp_path, max_overlays=2, bringup_overlays=False)
     text = paths.summary.read_text()
-    assert "frames: 24 of 300 used" in text
+    assert text.count("24 of 300 used") == 1  # the summary's "frames        = ..." line, once
     used_keys = {frames[i].frame_key for i in s.used_indices}
     rows = [ln.split()[0] for ln in text.splitlines() if ln.strip() and ln.split()[0] in {f.frame_key for f in frames}]
     assert set(rows) == used_keys and len(rows) == 24

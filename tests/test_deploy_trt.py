@@ -129,3 +129,20 @@ def test_trtexec_failure_names_the_log(tmp_path, matcher):
     fake = _fake_trtexec(tmp_path / "bin", rc=3)
     with pytest.raises(TrtBuildError, match=r"code 3.*log: .*image_embed\.fp16\.log"):
         matcher.build("trt", tmp_path / "e", site="s1", trtexec=fake, verify=False, site_folder=True)
+
+
+def test_export_trt_says_trtexec_is_missing_before_loading_the_model(tmp_path, monkeypatch, capsys):
+    """`xcalib export --format trt` without TensorRT: exit 1 naming trtexec, before the model is
+    loaded (no torch import, no wait)."""
+    from xcalib.cli import main
+    from xcalib.engine import matcher as matcher_mod
+
+    def _never(*a, **k):
+        raise AssertionError("the model was loaded first")
+
+    monkeypatch.setattr(matcher_mod.Matcher, "from_pretrained", classmethod(_never))
+    rc = main(["export", "--model", "crlite", "--format", "trt", "--out", str(tmp_path / "engines"),
+               "--trtexec", str(tmp_path / "missing" / "trtexec")])
+    assert rc == 1
+    err = capsys.readouterr().err
+    assert "trtexec" in err and "loaded first" not in err and not (tmp_path / "engines").exists()

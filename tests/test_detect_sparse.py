@@ -105,3 +105,26 @@ def test_refusal_from_weak_lidar_detections_names_them():
     frames, _, K = _frames(2)
     bare = CalibrationResult(success=False, message="too few pairs")
     assert explain_refusal(bare, frames, K).message.startswith("too few LiDAR objects detected: 8 LiDAR boxes")
+
+
+def test_refusal_when_the_detectors_found_almost_nothing_does_not_tell_to_run_detect():
+    """`calibrate --detect` on frames where the camera detector finds nothing (a synthetic render,
+    a night image): the calibration's own hint ("`xcalib calibrate --detect` makes them") would
+    tell the user to do what they did; the refusal names the detector that found too few."""
+    import dataclasses
+
+    from xcalib.calib.result import CalibrationResult
+
+    frames, _, K = _frames(2)
+    blind = [dataclasses.replace(f, bboxes_2d=np.zeros((0, 4))) for f in frames]
+    res = CalibrationResult(success=False, message="too few detections: 0 valid 2D and 8 3D boxes over 2 frame(s); "
+                            "the frames carry no 2D boxes: `xcalib calibrate --detect` (or `xcalib detect`) makes them")
+    out = explain_refusal(res, blind, K)
+    assert out.message.startswith("too few objects detected to calibrate")
+    assert "camera detector" in out.message and "found 0 object(s) in 4 image(s)" in out.message
+    assert "LiDAR detector" not in out.message and "--detect`" not in out.message
+    assert out.meta["detection_coverage"]["boxes_2d"] == 0
+    # the LiDAR side found too few as well: both are named
+    none3 = [dataclasses.replace(f, bboxes_2d=np.zeros((0, 4)), bboxes_3d=f.bboxes_3d[:1]) for f in frames]
+    both = explain_refusal(res, none3[:1], K).message
+    assert "camera detector" in both and "LiDAR detector found 1 object(s) in 1 cloud(s)" in both

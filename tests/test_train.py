@@ -101,6 +101,17 @@ def test_no_usable_frames_is_a_clear_error(tmp_path):
         train("fastmatch", [f], None, config=TINY["fastmatch"], epochs=1, output_dir=tmp_path, progress=False)
 
 
+def test_an_empty_training_cache_is_named(tmp_path):
+    """`xcalib synth ... --train 0` writes an empty train.h5: training on it names the file and
+    says it is empty, not that its frames lack positives."""
+    from xcalib.io.hdf5 import write_cache
+
+    write_cache(tmp_path / "train.h5", [], camera_names=["camera"])
+    empty = tmp_path / "train.h5"
+    with pytest.raises(ValueError, match=r"train\.h5: no training frames \(an empty cache\)"):
+        train("fastmatch", empty, None, config=TINY["fastmatch"], epochs=1, output_dir=tmp_path / "run", progress=False)
+
+
 def test_torchrun_two_cpu_processes(tmp_path):
     script = tmp_path / "ddp_train.py"
     script.write_text(textwrap.dedent(f"""

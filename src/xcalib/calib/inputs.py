@@ -136,6 +136,24 @@ def _image_size(image, intr: CameraIntrinsics, meta: dict) -> tuple[int, int]:
     return int(round(2 * intr.cx)), int(round(2 * intr.cy))
 
 
+#: the image may differ from the size the intrinsics declare by this share (a crop of a few rows)
+_SIZE_SLACK = 0.1
+
+
+def _check_declared_size(intr: CameraIntrinsics, size: tuple[int, int], key) -> None:
+    """Refuse intrinsics that declare an image size (``width``/``height``) other than the frames'
+    images by more than ``_SIZE_SLACK``: they belong to another camera or resolution (their focal
+    length and principal point are in another pixel grid), and a pose fitted through them is wrong."""
+    iw, ih = getattr(intr, "width", None), getattr(intr, "height", None)
+    if not iw or not ih:
+        return
+    w, h = size
+    if abs(w - iw) > _SIZE_SLACK * iw or abs(h - ih) > _SIZE_SLACK * ih:
+        raise ValueError(f"intrinsics: they are for a {iw}x{ih} image, but frame {key}'s image is "
+                         f"{w}x{h}: the intrinsics of another camera or resolution? Give this camera's intrinsics "
+                         "(--intrinsics), scaled to the images' size")
+
+
 def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool = "auto",
                    box_model: str = "auto", min_box_px: float = 2.0, workers: Workers = 1,
                    scores: bool = False) -> tuple[list[CalibFrame], CameraIntrinsics, str | None]:
@@ -182,6 +200,7 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
     rows = []
     for i, (image, pts, b2, b3, cam, key, gt, _fi, meta) in enumerate(raw):
         size = _image_size(image, intr, meta)
+        _check_declared_size(intr, size, key if key is not None else i)
         intr.check_image_size(*size)
         b2 = check_boxes2d(b2, f"frames[{i}].bboxes_2d")[:, :4]
         b3 = check_boxes3d(b3, f"frames[{i}].bboxes_3d")

@@ -108,13 +108,14 @@ def _summary_text(result: CalibrationResult, rows: list[dict]) -> str:
     if d is not None and d.selfcal.notes:
         lines += [f"  self-calibration: {n}" for n in d.selfcal.notes] + [""]
     line = result.frames_line()
-    if line:
+    if line and not result.success:  # a success's summary() holds it already ("frames        = ...")
         lines += [f"  frames: {line}", ""]
-    lines.append(f"{'frame':>12} {'2D':>4} {'3D':>4} {'pairs':>5} {'px med':>7} {'IoU med':>7}")
+    w = max([12] + [len(str(r["frame"])) for r in rows])  # a bag's frames are nanosecond stamps (19 digits)
+    lines.append(f"{'frame':>{w}} {'2D':>4} {'3D':>4} {'pairs':>5} {'px med':>7} {'IoU med':>7}")
     for r in rows:
         px = "-" if r["px_median"] is None else f"{r['px_median']:.2f}"
         iou = "-" if r["iou_median"] is None else f"{r['iou_median']:.3f}"
-        lines.append(f"{r['frame']:>12} {r['n_2d']:>4} {r['n_3d']:>4} {r['pairs']:>5} {px:>7} {iou:>7}")
+        lines.append(f"{r['frame']:>{w}} {r['n_2d']:>4} {r['n_3d']:>4} {r['pairs']:>5} {px:>7} {iou:>7}")
     return "\n".join(lines) + "\n"
 
 

@@ -315,7 +315,9 @@ class CalibrationResult:
             raise FormatError(path, f"expected a JSON object, got {type(d).__name__}")
         for key in ("success", "rotation", "translation"):
             if key not in d:
-                raise FormatError(path, "missing key", key)
+                raise FormatError(path, "missing key: not an xcalib calibration (the calibration.json of xcalib "
+                                        "calibrate; another format: xcalib convert FILE --to json --out calibration.json)",
+                                  key)
         if not isinstance(d["success"], bool):
             raise FormatError(path, f"expected true or false, got {d['success']!r:.40}", "success")
         if d["success"] and (d["rotation"] is None or d["translation"] is None):

@@ -16,7 +16,9 @@ import typer
 
 app = typer.Typer(
     name="xcalib",
-    help="Camera-LiDAR matching and targetless extrinsic calibration.",
+    help="Camera-LiDAR matching and targetless extrinsic calibration.\n\n"
+         "Example: xcalib demo --out xcalib-demo   (a synthetic site end to end, then the A9 sample when "
+         "../shared/data/a9_sample exists; each command's --help shows its own example; docs/cli.md)",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -55,8 +57,19 @@ def _load_commands() -> list[str]:
 
 
 
+def _print_version(value: bool) -> None:
+    """``xcalib --version``: what ``xcalib version`` prints, then exit 0."""
+    if value:
+        from .. import __version__
+        from ..protocol import PROTOCOL_VERSION
+
+        typer.echo(f"xcalib {__version__} (input protocol v{PROTOCOL_VERSION})")
+        raise typer.Exit(0)
+
+
 @app.callback()
-def _root() -> None:
+def _root(version: bool = typer.Option(False, "--version", is_eager=True, callback=_print_version,
+                                       help="Print the package and input-protocol versions and exit.")) -> None:
     """Camera-LiDAR matching and targetless extrinsic calibration."""
 
 

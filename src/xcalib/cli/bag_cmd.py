@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 _INFO_EX = "Example: xcalib bag info site.mcap"
-_FRAMES_EX = "Example: xcalib bag frames site.mcap --lidar /lidar/points --camera front --tolerance 0.05"
+_FRAMES_EX = "Example: xcalib bag frames site.mcap --lidar /lidar/points --camera camera --tolerance 0.05"
 _WRITE_EX = ("Example: xcalib bag write ../shared/data/nuscenes/mmdet3d_demo/n015-2018-07-24-11-22-45+0800.pkl "
              "nus.mcap --camera CAM_FRONT --camera CAM_BACK")
 

@@ -46,7 +46,8 @@ def register(app: typer.Typer) -> None:
         prior: Path = typer.Option(None, "--prior", help="Initial guess: a calibration file of any "
                                                          "format xcalib convert reads (skips bring-up; one camera)."),
         box_model: str = typer.Option("auto", "--box-model", help="auto | corners | points (3D box outline)."),
-        max_overlays: int = typer.Option(8, "--max-overlays", help="Overlay PNGs to draw per camera (0: none)."),
+        max_overlays: int = typer.Option(8, "--max-overlays", help="Overlay PNGs to draw per camera (0: none); "
+                                         "review.mcap holds the first N frames (at least 1)."),
         limit: int = typer.Option(0, "--limit", help="Use only the first N frames (0: all)."),
         max_frames: int = typer.Option(None, "--max-frames", help="Most frames one calibration uses (default 200): a "
                                                                  "longer recording is reduced to its informative "

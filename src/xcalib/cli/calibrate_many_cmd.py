@@ -41,7 +41,7 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from ..batch import calibrate_many
+        from ..batch import calibrate_many, expand_recordings
         from ..calib.config import CalibConfig
 
         if executor not in ("process", "ray", "serial"):
@@ -50,6 +50,7 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter("expected >= 0", param_hint="--jobs")
         if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
             raise FileExistsError(f"{out} already exists; pass --force to write into it")
+        recordings = [str(p) for p in expand_recordings(recordings)]  # a pattern naming nothing: said before the bar
         console = Console(stderr=True)
         with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                       console=console, disable=as_json) as bar:

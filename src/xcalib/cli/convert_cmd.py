@@ -10,7 +10,8 @@ import typer
 
 from ..errors import FormatError
 
-_EX = ("Example: xcalib convert cam03/lucid_calib.json --to calib_json --out calib.json\n\n"
+_EX = ("Example: xcalib convert ../shared/data/calibanything/format_examples/lucid_calib.json --to calib_json "
+       "--out calib.json\n\n"
        "Formats: kitti, calib_json, lucid, calib_txt, opencalib, openlabel, ros, urdf, tf_static, nuscenes, json, npz "
        "(waymo .tfrecord, mmdetection3d KITTI .pkl and SUSTechPOINTS calib/camera/<cam>.json as input only). Every reader returns and every "
        "writer takes T_cam_lidar (LiDAR -> OpenCV camera); each format's own direction is documented "

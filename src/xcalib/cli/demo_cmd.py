@@ -129,6 +129,15 @@ figure {{ display: inline-block; margin: 8px; width: 45%; }} img {{ width: 100%;
     return out / "index.html"
 
 
+def _precision_cell(r) -> str:
+    """The demo table's precision row: fine, or COARSE (a starting point, not a pose for fusing the
+    sensors), with the 95 % bound, as `xcalib calibrate` prints it."""
+    rot, trans = r.bound95
+    if r.coarse:
+        return f"[yellow]COARSE[/]: 95 % bound {rot:.2f} deg / {trans:.2f} m (a starting point)"
+    return f"fine: 95 % bound {rot:.2f} deg / {trans:.2f} m"
+
+
 def register(app: typer.Typer) -> None:
     @app.command("demo", help="End-to-end demo: synthetic site -> matching -> calibration with no labels and no "
                               "initial guess -> HTML report; then the real A9 sample frames when present.\n\n"
@@ -267,6 +276,7 @@ def register(app: typer.Typer) -> None:
             t.add_row("translation error", f"{syn.translation_error_m:.3f} m")
             t.add_row("residual (median)", f"{r.residual_px_median:.2f} px, IoU {r.iou_median:.3f}")
             t.add_row("pairs correct / recovered", f"{syn.pair_precision:.1%} / {syn.pair_recall:.1%} ({r.n_pairs} pairs)")
+            t.add_row("precision", _precision_cell(r))
             t.add_row("calibration time", f"{syn.seconds:.1f} s")
         else:
             t.add_row("calibration", f"[red]failed[/]: {syn.message}")
@@ -284,6 +294,7 @@ def register(app: typer.Typer) -> None:
                 rt.add_row("IoU projected 3D vs 2D (median)", f"{rr.iou_median:.3f}")
                 rt.add_row("box-centre offset (median)", f"{_fmt(off, '.1f', ' px')} (reference: ~30 px)")
                 rt.add_row("1-sigma rot / trans", f"{max(rr.rotation_std_deg):.3f} deg / {max(rr.translation_std_m):.3f} m")
+                rt.add_row("precision", _precision_cell(rr))
                 rt.add_row("calibration time", f"{real_out.seconds:.1f} s")
                 rs = summary["calibrations"][real_dir.name]
                 if "matcher_agreement" in rs:

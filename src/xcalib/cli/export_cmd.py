@@ -34,6 +34,10 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         if fmt not in ("onnx", "trt"):
             raise typer.BadParameter(f"--format must be onnx or trt, got {fmt!r}", param_hint="--format")
+        if fmt == "trt":  # before the ONNX export: a missing trtexec is said at once, not after it
+            from ..deploy.trt import find_trtexec
+
+            find_trtexec(trtexec)
         from rich.console import Console
 
         from ..engine.matcher import Matcher

@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 
 _EXAMPLE = ("Example: xcalib match ../shared/data/a9_sample --index 0 --model fastmatch --site synthetic --json\n\n"
-            "         xcalib match site/test.h5 --key 00042 --assignment hungarian")
+            "         xcalib match site/test.h5 --key 000003 --assignment hungarian   (frame keys: xcalib cache info)")
 
 
 def load_matcher(model: str, site: str, weights: Optional[Path], config: Optional[Path], device: Optional[str]):

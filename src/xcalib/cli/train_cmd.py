@@ -11,8 +11,9 @@ import typer
 
 from ..engine.recipes import XCALIB_RECIPE
 
-_EXAMPLE = ("Example (a small labelled site first: xcalib synth --out site --frames 20 --no-images writes train.h5, "
-            "val.h5, test.h5): xcalib train --model fastmatch --train-data site/train.h5 --val-data site/val.h5 "
+_EXAMPLE = ("Example: xcalib synth --out labelled --frames 20 --no-images   (a small labelled site first: train.h5, "
+            "val.h5, test.h5)\n\n"
+            "Example: xcalib train --model fastmatch --train-data labelled/train.h5 --val-data labelled/val.h5 "
             "--epochs 2 --site mysite")
 
 

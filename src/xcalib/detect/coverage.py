@@ -21,6 +21,7 @@ __all__ = ["DetectionCoverage", "detection_coverage", "explain_refusal", "COVERA
 
 COVERAGE_MIN = 0.5  # below this share of 2D boxes with a LiDAR box, the LiDAR detections are named as the cause
 _IOU_MIN = 0.3
+_MIN_BOXES = 3  # fewer boxes of a kind than this: the calibration refuses before any search (calib.decision)
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,27 @@ class DetectionCoverage:
         return (f"{head}; {lidar}. Its label-free boxes miss objects with few points (far, dark, or under a sparse or "
                 "high-mounted LiDAR): give the recording's own 3D detections (Detection3DArray or Autoware "
                 "DetectedObjects topics), more frames with near objects, or calibrate from labelled boxes")
+
+
+    def found_too_few(self) -> bool:
+        """True when xcalib's detectors found fewer than 3 boxes of a kind over all frames: no
+        calibration can start, whatever the pose."""
+        return self.boxes_2d < _MIN_BOXES or self.boxes_3d < _MIN_BOXES
+
+    def found_too_few_refusal(self) -> str:
+        """What the detectors found when it is too few to calibrate (for a refusal's message)."""
+        f = self.frames
+        what = []
+        if self.boxes_2d < _MIN_BOXES:
+            what.append(f"the camera detector (shipped YOLOX-Nano unless --detector-2d) found {self.boxes_2d} "
+                        f"object(s) in {f} image(s): it sees traffic (person, bicycle, car, motorcycle, bus, "
+                        "truck) in camera images, not synthetic renders; look at its boxes with `xcalib detect "
+                        "SOURCE --out detected.mcap --score-min 0.2`")
+        if self.boxes_3d < _MIN_BOXES:
+            what.append(f"the label-free LiDAR detector found {self.boxes_3d} object(s) in {f} cloud(s): it keeps "
+                        "traffic-sized clusters standing on the ground (try --lidar-mode moving or static)")
+        return ("too few objects detected to calibrate (at least 3 camera and 3 LiDAR boxes over all frames): "
+                + "; ".join(what) + ". Give more frames with traffic, or the recording's own detections")
 
 
 def _project(b7: np.ndarray, T: np.ndarray, K: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -125,6 +147,8 @@ def explain_refusal(result, frames: Sequence, intrinsics=None):
         T = result.extrinsics
     cov = detection_coverage(frames, T, intrinsics)
     meta = {**(result.meta or {}), "detection_coverage": dataclasses.asdict(cov) | {"share": cov.share}}
+    if not result.success and cov.found_too_few():  # the calibration's own hint ("--detect makes them") misleads here
+        return dataclasses.replace(result, meta=meta, message=cov.found_too_few_refusal())
     if result.success or not cov.too_few():
         return dataclasses.replace(result, meta=meta)
     return dataclasses.replace(result, meta=meta, message=f"{cov.refusal()} (the calibration's verdict: {result.message})")

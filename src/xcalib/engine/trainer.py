@@ -314,7 +314,11 @@ def train(model, train_data, val_data=None, *, options: TrainOptions | None = No
     train_s, skip_t = prepare_samples(train_data, cfg, limit_train_frames, split="train")
     val_s, skip_v = prepare_samples(val_data, cfg, limit_val_frames, split="val") if val_data is not None else ([], 0)
     if not train_s:
-        raise ValueError("train: no usable training frame (each needs a match_matrix with a positive among "
+        where = f"{train_data}" if isinstance(train_data, (str, Path)) else "train"
+        if not skip_t:  # an empty cache, e.g. the train.h5 of `xcalib synth ... --train 0`
+            raise ValueError(f"{where}: no training frames (an empty cache); write a labelled site with "
+                             "`xcalib synth --out site --frames 20 --no-images` or `xcalib cache build`")
+        raise ValueError(f"{where}: no usable training frame (each needs a match_matrix with a positive among "
                          f"the kept detections; {skip_t} skipped)")
     if rank == 0:
         log.info("train %s: %d train frames (%d skipped), %d val frames (%d skipped), cropped in %.1fs",

@@ -193,7 +193,8 @@ def _yaml_mapping(text: str, path) -> dict:
     except (yaml.YAMLError, RecursionError, ValueError, TypeError) as exc:
         raise FormatError(path, f"not valid YAML ({type(exc).__name__}: {str(exc)[:200]})") from None
     if not isinstance(d, dict):
-        raise FormatError(path, f"expected a YAML mapping, got {type(d).__name__}")
+        raise FormatError(path, "not a camera file: expected a JSON object or a YAML mapping of keys, got "
+                                f"{type(d).__name__} {str(d)[:40]!r}")
     return d
 
 

@@ -54,6 +54,12 @@ def _load_json(path: Path) -> dict:
     return obj
 
 
+def _numeric_row(row, widths: tuple[int, ...]) -> bool:
+    """True for a list of ``widths`` numbers (not bools, not strings)."""
+    return (isinstance(row, list) and len(row) in widths
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row))
+
+
 def _box_array(path: Path, key: str, value, widths: tuple[int, ...]) -> np.ndarray:
     """A JSON list of rows -> float32 [N, w]; w in ``widths``."""
     want = " or ".join(str(w) for w in widths)
@@ -64,9 +70,10 @@ def _box_array(path: Path, key: str, value, widths: tuple[int, ...]) -> np.ndarr
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        lens = sorted({len(r) if isinstance(r, list) else -1 for r in value})
-        raise FormatError(path, f"rows must be lists of {want} numbers; found rows of length(s) {lens} "
-                                "or non-numeric entries", field=key) from None
+        bad = next(((i, r) for i, r in enumerate(value) if not _numeric_row(r, widths)), None)
+        what = (f"row {bad[0]} is {str(bad[1])[:80]}" if bad is not None
+                else f"rows of different lengths {sorted({len(r) for r in value})}")
+        raise FormatError(path, f"rows must be lists of {want} numbers; {what}", field=key) from None
     if arr.ndim != 2 or arr.shape[1] not in widths:
         raise FormatError(path, f"expected shape [N, {want}], got {list(arr.shape)}", field=key)
     return arr.astype(np.float32)

@@ -95,7 +95,38 @@ def find_source(path) -> FrameSource:
     for src in frame_sources():
         if src.detect(p):
             return src
-    raise FormatError(p, "not a recognised frame source; supported: " + ", ".join(s.name for s in frame_sources()))
+    raise FormatError(p, "not a recognised frame source; supported: " + ", ".join(s.name for s in frame_sources())
+                      + _inside_hint(p))
+
+
+_PEEK = 64  # entries of an unrecognised folder looked at for sources inside it
+
+
+def _inside_hint(p: Path) -> str:
+    """For an unrecognised folder: that it is empty, or which of its entries are frame sources
+    (a dataset's root holding recordings), so the message says what to give instead."""
+    if not p.is_dir():
+        return ""
+    try:
+        kids = sorted(p.iterdir())[:_PEEK]
+    except OSError:
+        return ""
+    if not kids:
+        return " (the folder is empty)"
+    found = []
+    for k in kids:
+        for src in frame_sources():
+            try:
+                hit = src.detect(k)
+            except (OSError, ValueError):
+                hit = False
+            if hit:
+                found.append(f"{k} ({src.name})")
+                break
+    if not found:
+        return ""
+    more = f" and {len(found) - 6} more" if len(found) > 6 else ""
+    return "; frame sources inside it: " + ", ".join(found[:6]) + more + " (give one of them)"
 
 
 def parse_frame_range(spec, count: int, *, where="frames") -> list[int]:

@@ -512,7 +512,7 @@ class BagFrames(Sequence):
         }
         if topics["camera_info"] is None and intrinsics is None:
             raise FormatError(self.path, f"no CameraInfo topic for camera {cam.name} ({cam.image_topic}); pass "
-                                         "--intrinsics K.json (intrinsics=)", cam.image_topic)
+                                         "--intrinsics K.json (Python: intrinsics=)", cam.image_topic)
         return topics
 
     # ---------------------------------------------------------------- indexing and pairing
