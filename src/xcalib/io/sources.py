@@ -94,6 +94,7 @@ def find_source(path) -> FrameSource:
         raise FileNotFoundError(f"frame source not found: {p}")
     for src in frame_sources():
         if src.detect(p):
+            _check_single_dataset(p)
             return src
     raise FormatError(p, "not a recognised frame source; supported: " + ", ".join(s.name for s in frame_sources())
                       + _inside_hint(p))
@@ -102,27 +103,54 @@ def find_source(path) -> FrameSource:
 _PEEK = 64  # entries of an unrecognised folder looked at for sources inside it
 
 
-def _inside_hint(p: Path) -> str:
-    """For an unrecognised folder: that it is empty, or which of its entries are frame sources
-    (a dataset's root holding recordings), so the message says what to give instead."""
-    if not p.is_dir():
-        return ""
+def _sources_inside(p: Path, *, dirs_only: bool = False) -> list[tuple[Path, str]]:
+    """(entry, source name) for the first ``_PEEK`` entries of folder ``p`` that a source detects."""
     try:
         kids = sorted(p.iterdir())[:_PEEK]
     except OSError:
-        return ""
-    if not kids:
-        return " (the folder is empty)"
+        return []
     found = []
     for k in kids:
+        if dirs_only and not k.is_dir():
+            continue
         for src in frame_sources():
             try:
                 hit = src.detect(k)
             except (OSError, ValueError):
                 hit = False
             if hit:
-                found.append(f"{k} ({src.name})")
+                found.append((k, src.name))
                 break
+    return found
+
+
+def _check_single_dataset(p: Path) -> None:
+    """Refuse a folder whose subfolders are frame sources of two or more kinds (a root holding several
+    datasets, e.g. ``data/`` with ``kitti/`` and ``a9_sample/``): a source that accepts it because one
+    subfolder qualifies would read one dataset and silently leave the others out."""
+    if not p.is_dir():
+        return
+    found = _sources_inside(p, dirs_only=True)
+    if len({name for _, name in found}) < 2:
+        return
+    listed = ", ".join(f"{k} ({name})" for k, name in found[:6])
+    more = f" and {len(found) - 6} more" if len(found) > 6 else ""
+    raise FormatError(p, f"holds frame sources of {len({n for _, n in found})} kinds: {listed}{more}; "
+                         "give one of them")
+
+
+def _inside_hint(p: Path) -> str:
+    """For an unrecognised folder: that it is empty, or which of its entries are frame sources
+    (a dataset's root holding recordings), so the message says what to give instead."""
+    if not p.is_dir():
+        return ""
+    try:
+        empty = not any(True for _ in p.iterdir())
+    except OSError:
+        return ""
+    if empty:
+        return " (the folder is empty)"
+    found = [f"{k} ({name})" for k, name in _sources_inside(p)]
     if not found:
         return ""
     more = f" and {len(found) - 6} more" if len(found) > 6 else ""
