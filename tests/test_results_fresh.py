@@ -38,9 +38,6 @@ REL_TOL = 1e-6  # sigmas, scores and other floats
 # then reports XPASS(strict) as a failure, and the entry goes. A crash still fails (only the
 # staleness failure is expected).
 KNOWN_STALE: dict[str, str] = {
-    "camera_models.json": "only sigmas moved (issue 25 session 9, s9-sigma: a model shift counts beyond 1.96 of its noise sigmas, uncertainty.SHIFT_NOISE_Z; poses, pairs and verdicts unchanged -- A9 default 1-sigma rotation y 0.318 -> 0.284 deg, translation y 0.306 -> 0.231 m; KITTI 1-5 x0.98-1.0); not re-run on the shared 2-core machine: " "benchmarks/bench_camera_models.py (its newest label's command)",
-    "selfcal.json": "only sigmas moved (issue 25 session 9, s9-sigma: a model shift counts beyond 1.96 of its noise sigmas, uncertainty.SHIFT_NOISE_Z; poses, pairs and verdicts unchanged -- A9 default 1-sigma rotation y 0.318 -> 0.284 deg, translation y 0.306 -> 0.231 m; KITTI 1-5 x0.98-1.0); not re-run on the shared 2-core machine: " "benchmarks/bench_selfcal.py --sites 10 --tables 1 (table 1 verdicts cannot move: every refusal there is a misfit or not-verifiable one, none through the 95 % bound)",
-    "calibration_recording.json": "only sigmas moved (issue 25 session 9, s9-sigma: a model shift counts beyond 1.96 of its noise sigmas, uncertainty.SHIFT_NOISE_Z; poses, pairs and verdicts unchanged -- A9 default 1-sigma rotation y 0.318 -> 0.284 deg, translation y 0.306 -> 0.231 m; KITTI 1-5 x0.98-1.0); not re-run on the shared 2-core machine: " "benchmarks/bench_calibration_recording.py --cases 100 1000 2000 5000 1000:positions 1000:all --scaling",
 }
 
 
