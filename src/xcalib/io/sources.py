@@ -131,12 +131,15 @@ def _check_single_dataset(p: Path) -> None:
     if not p.is_dir():
         return
     found = _sources_inside(p, dirs_only=True)
-    if len({name for _, name in found}) < 2:
-        return
-    listed = ", ".join(f"{k} ({name})" for k, name in found[:6])
-    more = f" and {len(found) - 6} more" if len(found) > 6 else ""
-    raise FormatError(p, f"holds frame sources of {len({n for _, n in found})} kinds: {listed}{more}; "
-                         "give one of them")
+    kinds = len({name for _, name in found})
+    if kinds >= 2:
+        raise FormatError(p, f"holds frame sources of {kinds} kinds: {_listed(found)}; give one of them")
+
+
+def _listed(found: list[tuple[Path, str]], most: int = 6) -> str:
+    """``"a (kitti), b (bag) and 3 more"``: the first ``most`` of ``found`` and how many more."""
+    more = f" and {len(found) - most} more" if len(found) > most else ""
+    return ", ".join(f"{k} ({name})" for k, name in found[:most]) + more
 
 
 def _inside_hint(p: Path) -> str:
@@ -150,11 +153,8 @@ def _inside_hint(p: Path) -> str:
         return ""
     if empty:
         return " (the folder is empty)"
-    found = [f"{k} ({name})" for k, name in _sources_inside(p)]
-    if not found:
-        return ""
-    more = f" and {len(found) - 6} more" if len(found) > 6 else ""
-    return "; frame sources inside it: " + ", ".join(found[:6]) + more + " (give one of them)"
+    found = _sources_inside(p)
+    return f"; frame sources inside it: {_listed(found)} (give one of them)" if found else ""
 
 
 def parse_frame_range(spec, count: int, *, where="frames") -> list[int]:
