@@ -62,9 +62,10 @@ def expected_median(rec: dict, sd: np.ndarray) -> np.ndarray:
     t(0.975, nu) / 1.96) is the largest part, else the normal 0.674."""
     from scipy import stats
 
-    if not rec.get("clusters_dof"):
+    dof = rec.get("clusters_dof") or rec["sigma_parts"].get("clusters_dof")  # top level: the s8 wrapper's records
+    if not dof:
         return np.full(6, 0.6745)
-    nu = np.clip(_a(rec["clusters_dof"]), 1.0, None)
+    nu = np.clip(_a(dof), 1.0, None)
     em = stats.t.ppf(0.75, nu) * 1.959964 / stats.t.ppf(0.975, nu)
     return np.where(_a(rec["sigma_parts"]["clusters"]) / sd > 0.9, em, 0.6745)
 
