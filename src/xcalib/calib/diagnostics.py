@@ -179,18 +179,21 @@ def bound95(sd3, *, cov=None, dof: float = np.inf) -> float:
     the data determine). Infinite when any variance is."""
     from scipy.special import chdtri, fdtri  # chi2.isf / f.ppf without importing scipy.stats (seconds)
 
-    if cov is None:
-        cov = np.diag(np.asarray(sd3, dtype=np.float64) ** 2)
-    cov = np.asarray(cov, dtype=np.float64)
-    if not np.all(np.isfinite(cov)) or not np.isfinite(np.trace(cov)) or np.isnan(dof):
-        return float("inf")
-    s2, s4 = float(np.trace(cov)), float(np.sum(cov * cov))
+    if cov is None:  # independent axes: the sums as before, bit for bit
+        v = np.asarray(sd3, dtype=np.float64) ** 2
+        if not np.all(np.isfinite(v)) or np.isnan(dof):
+            return float("inf")
+        s2, s4 = float(v.sum()), float((v ** 2).sum())
+    else:
+        cov = np.asarray(cov, dtype=np.float64)
+        if not np.all(np.isfinite(cov)) or np.isnan(dof):
+            return float("inf")
+        s2, s4 = float(np.trace(cov)), float(np.sum(cov * cov))
     if s2 <= 0:
         return 0.0
-    d = s2 * s2 / s4
     if not np.isfinite(dof):
-        return float(np.sqrt(s2 / d * chdtri(d, 0.05)))
-    return float(np.sqrt(s2 * fdtri(d, max(float(dof), 0.5), 0.95)))
+        return float(np.sqrt(s4 / s2 * chdtri(s2 * s2 / s4, 0.05)))
+    return float(np.sqrt(s2 * fdtri(s2 * s2 / s4, max(float(dof), 0.5), 0.95)))
 
 
 @dataclass
