@@ -78,3 +78,36 @@ def test_bound_dof():
     assert bound_dof([2.0, 0.0, 0.0], [1.0, 0.0, 0.0], S) == pytest.approx(8.0)
     v = np.array([1.0, 1.0, 1.0])
     assert bound_dof(v, v, S) == pytest.approx(9.0 / float(v @ S @ v))
+
+
+def test_sigma_parts_bounds_on_the_stored_s10_run():
+    """``scripts/sigma_parts.py bound`` on ``s10_bound`` (its records keep the CR2 correlation and
+    cross-axis dofs): the old bound is the one the run reported (``within_95``), the new one is
+    finite wherever the old one is, and the CR2 part unstretched is never above the stretched one."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    from xcalib.calib.uncertainty import SHIFT_NOISE_Z
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("sigma_parts", root / "scripts" / "sigma_parts.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    run = json.loads(mod.RESULTS.read_text())["runs"].get("s10_bound")
+    if run is None:
+        pytest.skip("no s10_bound run in calibration_realism.json")
+    checked = 0
+    for cond in run["conditions"]:
+        for rec in (r for r in cond["per_site"] if r["success"]):
+            assert rec["sigma_parts"]["clusters_dof_cross"] is not None
+            err = np.asarray(rec["z_axes"]) * np.asarray(rec["sigma_axes"])
+            old = mod.bounds(rec, SHIFT_NOISE_Z, "old")
+            new = mod.bounds(rec, SHIFT_NOISE_Z, "new")
+            inside = bool(np.linalg.norm(err[:3]) <= old[0] and np.linalg.norm(err[3:]) <= old[1])
+            assert inside == rec["within_95"], (cond["condition"], rec["seed"])
+            assert np.all(np.isfinite(new)) == np.all(np.isfinite(old))
+            var, rand, _ = mod.bound_inputs(rec, SHIFT_NOISE_Z)
+            assert np.all(rand <= var + 1e-15) and np.all(var <= np.asarray(rec["sigma_axes"]) ** 2 * (1 + 1e-9))
+            checked += 1
+    assert checked >= 30
