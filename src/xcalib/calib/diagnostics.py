@@ -99,7 +99,10 @@ class UncertaintyParts:
     1-sigma sampling noise of the occlusion / outline shift (``uncertainty.shift_noise_sd``): the reported
     sigma counts of each shift only the part beyond it (``uncertainty.excess``); clusters_dof: the
     Bell-McCaffrey degrees of freedom of each axis of ``clusters`` (``clusters`` is the CR2 sigma times
-    t_{0.975, dof} / 1.96, so that 2 sigma stays a 95 % bound with few objects)."""
+    t_{0.975, dof} / 1.96, so that 2 sigma stays a 95 % bound with few objects); clusters_corr: the
+    6x6 correlation of the (raw) CR2 covariance; clusters_dof_cross: the 6x6 relative covariance of
+    its six variance estimates (1 / ``clusters_dof`` on the diagonal; ``uncertainty.cr2_covariance``),
+    from which the degrees of freedom of any sum of its variances follow (``uncertainty.bound_dof``)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -117,6 +120,8 @@ class UncertaintyParts:
     occlusion_noise: list[float] | None = None
     outline_noise: list[float] | None = None
     clusters_dof: list[float] | None = None
+    clusters_corr: list[list[float]] | None = None
+    clusters_dof_cross: list[list[float]] | None = None
 
 
 @dataclass
@@ -160,21 +165,35 @@ class SelfCalDiagnostics:
     notes: list[str] = field(default_factory=list)
 
 
-def bound95(sd3) -> float:
-    """Radius (same unit) within which a 3-vector error with independent per-axis 1-sigma ``sd3``
-    lies with 95 % probability: ``|e|^2`` as a scaled chi-square (Welch-Satterthwaite: scale
-    ``sum s^4 / sum s^2``, ``(sum s^2)^2 / sum s^4`` degrees of freedom). One dominant axis gives
-    1.96 sigma, three equal ones 2.80 sigma (``2 |sd|`` would say 3.46 sigma: a 99.3 % bound that
-    refuses poses the data determine). Infinite when any sigma is."""
-    from scipy.special import chdtri  # chi2.isf without importing scipy.stats (seconds)
+def bound95(sd3, *, cov=None, dof: float = np.inf) -> float:
+    """Radius (same unit) within which a 3-vector error lies with 95 % probability.
 
-    v = np.asarray(sd3, dtype=np.float64) ** 2
-    if not np.all(np.isfinite(v)):
-        return float("inf")
-    s2, s4 = float(v.sum()), float((v ** 2).sum())
+    ``|e|^2`` is taken as a scaled chi-square (Welch-Satterthwaite): with ``T`` the trace of the
+    error's covariance and ``d = T^2 / |cov|_F^2`` its effective degrees of freedom, ``|e|^2 ~ (T/d)
+    chi2_d``. The covariance is ``cov`` (3x3, correlations included) or, when None, independent axes
+    with 1-sigma ``sd3``. When ``T`` is itself estimated with ``dof`` (Satterthwaite) degrees of
+    freedom (few objects, ``uncertainty.bound_dof``) the ratio is an F: radius^2 = ``T F_{0.95}(d,
+    dof)``, the multivariate form of the t interval (one dominant axis: ``t_{0.975, dof}`` sigma; many
+    degrees of freedom: the chi-square bound). One dominant axis gives 1.96 sigma, three equal
+    independent ones 2.80 sigma (``2 |sd|`` would say 3.46 sigma: a 99.3 % bound that refuses poses
+    the data determine). Infinite when any variance is."""
+    from scipy.special import chdtri, fdtri  # chi2.isf / f.ppf without importing scipy.stats (seconds)
+
+    if cov is None:  # independent axes: the sums as before, bit for bit
+        v = np.asarray(sd3, dtype=np.float64) ** 2
+        if not np.all(np.isfinite(v)) or np.isnan(dof):
+            return float("inf")
+        s2, s4 = float(v.sum()), float((v ** 2).sum())
+    else:
+        cov = np.asarray(cov, dtype=np.float64)
+        if not np.all(np.isfinite(cov)) or np.isnan(dof):
+            return float("inf")
+        s2, s4 = float(np.trace(cov)), float(np.sum(cov * cov))
     if s2 <= 0:
         return 0.0
-    return float(np.sqrt(s4 / s2 * chdtri(s2 * s2 / s4, 0.05)))
+    if not np.isfinite(dof):
+        return float(np.sqrt(s4 / s2 * chdtri(s2 * s2 / s4, 0.05)))
+    return float(np.sqrt(s2 * fdtri(s2 * s2 / s4, max(float(dof), 0.5), 0.95)))
 
 
 @dataclass

@@ -35,7 +35,7 @@ from .refine import F_SCALE, build_cost, lsq
 from .terms import CostSpec, occlusion_of, pose_block
 
 __all__ = ["pose_covariance", "object_sandwich", "cr2_covariance", "pose_spread", "pose_jackknife", "frame_jackknife", "object_groups", "pose_object_bootstrap",
-           "combine", "bound95", "outline_shift", "shift_noise_sd", "excess", "SHIFT_NOISE_Z", "with_object_outline", "statistical_sd", "box_model_shift", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "Uncertainty", "estimate"]
+           "combine", "bound95", "bound_dof", "outline_shift", "shift_noise_sd", "excess", "SHIFT_NOISE_Z", "with_object_outline", "statistical_sd", "box_model_shift", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "Uncertainty", "estimate"]
 
 HALF_MIN_MATCHES = 6  # matches each half of the frames (or pairs) needs for the frame-halves check
 HALVES_MIN_MATCHES = 2 * HALF_MIN_MATCHES
@@ -197,7 +197,8 @@ def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: Nois
 
 
 def object_sandwich(ctx: FitContext, groups: np.ndarray, *, min_objects: int | None = None,
-                    exact: int | None = None, kind: str = "cr2", dof_out: np.ndarray | None = None) -> np.ndarray | None:
+                    exact: int | None = None, kind: str = "cr2", dof_out: np.ndarray | None = None,
+                    extra_out: dict | None = None) -> np.ndarray | None:
     """1-sigma of the pose (6-vector, deg / m) clustered by object: every pair of one object (the
     same car seen in many frames) shares its 3D-box error (size, yaw, centre), so objects, not
     pairs or frames, are the independent samples.
@@ -216,7 +217,9 @@ def object_sandwich(ctx: FitContext, groups: np.ndarray, *, min_objects: int | N
     it (one dominant object: nu near 1; G equal objects: nu near G - 1).
 
     ``dof_out``: a 6-array that receives the Bell-McCaffrey degrees of freedom (``kind="cr2"``; left
-    as it is otherwise).
+    as it is otherwise). ``extra_out``: a dict that receives (``kind="cr2"``) ``"corr"``, the 6x6
+    correlation of the CR2 covariance, and ``"cross"``, the relative covariance of its 6 variance
+    estimates (``cr2_covariance``'s ``cross_out``).
 
     ``kind="jackknife"``: the linearised leave-one-object-out jackknife (CR3-like; the sigma until
     0.6): without object c the pose moves by ``(J^T J - J_c^T J_c)^-1 J_c^T r_c``, spread
@@ -246,12 +249,16 @@ def object_sandwich(ctx: FitContext, groups: np.ndarray, *, min_objects: int | N
     if any(np.linalg.cond(info - M[k]) > MAX_REST_COND for k in range(G)):  # the others leave the pose undetermined
         return np.full(6, np.inf)
     if kind == "cr2":
-        out = cr2_covariance(sc.A, g, M)
+        cross = np.full((6, 6), np.nan)
+        out = cr2_covariance(sc.A, g, M, cross_out=None if extra_out is None else cross)
         if out is None:
             return np.full(6, np.inf)
         cov, nu = out
         if dof_out is not None:
             dof_out[:] = nu
+        if extra_out is not None:
+            sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+            extra_out.update(corr=np.clip(cov / np.outer(sd, sd), -1.0, 1.0), cross=cross)
         return _sd6(cov) * stdtrit(np.clip(nu, 1.0, None), 0.975) / 1.959964
     try:
         d = np.stack([np.linalg.solve(info - M[k], g[k]) for k in range(G)])
@@ -283,14 +290,20 @@ def _psd_powers(M: np.ndarray, C_of) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return half @ inv_sqrt @ pinv_half, half @ inv_sqrt @ half, half @ inv @ half
 
 
-def cr2_covariance(A: np.ndarray, g: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+def cr2_covariance(A: np.ndarray, g: np.ndarray, M: np.ndarray,
+                   cross_out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """The CR2 covariance ``A (sum_c g~_c g~_c^T) A`` (``g~_c = J_c^T (I - H_cc)^-1/2 r_c``) and the
     Bell-McCaffrey degrees of freedom of each of its 6 diagonal entries, from the objects' scores
     ``g`` [G, 6] and informations ``M`` [G, 6, 6] and ``A`` the inverse of the pose's information.
     The degrees of freedom: ``(sum lambda)^2 / sum lambda^2`` with lambda the eigenvalues of
     ``G^T G``, ``G_c = (I - H)_{., c} (I - H_cc)^-1/2 J_c A e_k``; with ``I - H`` idempotent,
     ``G^T G = diag(e^T A Q_c A e) - U A U^T`` (``U_c = P_c A e``, ``P_c`` / ``Q_c`` below), all in the
-    6-space. None when one object alone fixes a direction of the pose."""
+    6-space. None when one object alone fixes a direction of the pose.
+
+    ``cross_out``: a 6x6 array that receives the relative covariance of the 6 variance estimates under
+    the same working model, ``cov(V_k, V_l) / (E V_k E V_l) / 2 = |G_k^T G_l|_F^2 / (tr G_k^T G_k tr
+    G_l^T G_l)`` (``1 / dof`` on the diagonal): a sum of variances ``sum w_k V_k`` has
+    ``(sum w_k V_k)^2 / (w V)^T S (w V)`` degrees of freedom (``bound_dof``)."""
     Gn = len(g)
     meat = np.zeros((6, 6))
     P = np.zeros((Gn, 6, 6))
@@ -310,6 +323,14 @@ def cr2_covariance(A: np.ndarray, g: np.ndarray, M: np.ndarray) -> tuple[np.ndar
         GtG = np.diag(np.einsum("i,cij,j->c", a, Qm, a)) - U @ A @ U.T
         lam = np.clip(np.linalg.eigvalsh(0.5 * (GtG + GtG.T)), 0.0, None)
         nu[k] = lam.sum() ** 2 / max(float(np.sum(lam ** 2)), 1e-300) if lam.sum() > 0 else 1.0
+    if cross_out is not None:  # B_kl = G_k^T G_l = diag(D_kl) - U_k A U_l^T, its norms in O(G) memory
+        U = np.einsum("cij,jk->kci", P, A)  # [6, G, 6]: U_c = P_c A e_k per axis k
+        D = np.einsum("ik,cij,jl->klc", A, Qm, A)  # [6, 6, G]
+        W = np.einsum("kci,ij,lcj->klc", U, A, U)  # [6, 6, G]: diagonal of U_k A U_l^T
+        AUU = np.einsum("ij,kcj,kcl->kil", A, U, U)  # [6, 6, 6]: A U_k^T U_k
+        F = np.einsum("kij,lji->kl", AUU, AUU)  # |U_k A U_l^T|_F^2 = tr(A U_k^T U_k A U_l^T U_l)
+        tr = np.clip(np.einsum("kkc->k", D - W), 1e-300, None)
+        cross_out[:] = ((D ** 2).sum(-1) - 2.0 * (D * W).sum(-1) + F) / np.outer(tr, tr)
     return cov, nu
 
 
@@ -545,6 +566,16 @@ def combine(jac_sd: np.ndarray, halves: np.ndarray | None, occl: np.ndarray, jac
     return sd[:3], sd[3:]
 
 
+def bound_dof(var, rand, cross) -> float:
+    """Satterthwaite degrees of freedom of the trace ``sum var`` of a block's variances (``bound95``'s
+    ``dof``) when the part ``rand`` (<= ``var`` per axis) of them is the CR2 estimate, whose variance
+    estimates have the relative covariance ``cross`` (``cr2_covariance``'s ``cross_out``; the rest is
+    taken as known): ``(sum var)^2 / (rand^T cross rand)``. Infinite when nothing is estimated."""
+    var, rand = np.asarray(var, dtype=np.float64), np.asarray(rand, dtype=np.float64)
+    q = float(rand @ np.asarray(cross, dtype=np.float64) @ rand)
+    return float(var.sum() ** 2 / q) if q > 0 and np.isfinite(q) else float("inf")
+
+
 @dataclass
 class Uncertainty:
     """The combined 1-sigma (reported) and its parts.
@@ -681,6 +712,10 @@ def _lst(v):
     return None if v is None else [float(x) for x in np.asarray(v).ravel()]
 
 
+def _mat(m):
+    return None if m is None or not np.all(np.isfinite(m)) else [[float(x) for x in row] for row in np.asarray(m)]
+
+
 def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None = None, seed: int = 0,
              floor: np.ndarray | None = None) -> Uncertainty:
     """All parts at ``pose`` with the matches ``pairs`` held fixed, combined (see the module docstring).
@@ -701,9 +736,11 @@ def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None 
     if mode in ("clusters", "objects"):
         groups = object_groups(frames, pairs, track_ids=track_ids)
         n_obj = int(groups.max()) + 1 if len(groups) else 0
-        clus_dof = np.full(6, np.nan)
-        clus = object_sandwich(ctx, groups, dof_out=clus_dof)
+        clus_dof, clus_extra = np.full(6, np.nan), {}
+        clus = object_sandwich(ctx, groups, dof_out=clus_dof, extra_out=clus_extra)
         clus_dof = None if clus is None or not np.all(np.isfinite(clus_dof)) else clus_dof
+        if clus_dof is None:
+            clus_extra = {}
         misfit, box_info = box_model_floor(ctx, n_objects=n_obj)
     if mode == "objects" and halves is not None:
         obj = pose_object_bootstrap(ctx, groups, seed=seed)
@@ -723,7 +760,8 @@ def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None 
                              occlusion=_lst(occl), floor=_lst(misfit), selfcal=_lst(floor), clusters=_lst(clus),
                              frames=_lst(frames_sd), n_objects=n_obj, box_model=box_info,
                              outline=_lst(outl), occlusion_noise=_lst(occl_noise), outline_noise=_lst(outl_noise),
-                             clusters_dof=_lst(clus_dof))
+                             clusters_dof=_lst(clus_dof), clusters_corr=_mat(clus_extra.get("corr")),
+                             clusters_dof_cross=_mat(clus_extra.get("cross")))
     return Uncertainty(r, t, parts, halves is not None, r_data, t_data)
 
 
