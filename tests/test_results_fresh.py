@@ -620,7 +620,7 @@ def test_coverage_real_json():
     doc = load("coverage_real.json")
     label = list(doc["runs"])[-1]
     rec = next(r for r in doc["runs"][label]["records"] if r["case"].startswith("KITTI"))
-    fresh = b.kitti()[0]
+    fresh = b.kitti(full=False)[0]
     assert_fresh("coverage_real.json", f"{label}: {rec['case']}", rec, fresh,
                  exact=("success", "refusal", "n_pairs", "frames", "covered_norm"),
                  close=("delta", "sigma", "err_deg", "err_m"),
