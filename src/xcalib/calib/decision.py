@@ -185,7 +185,12 @@ def _objects_check(ev: Evidence) -> Refusal | None:
     4 px, focal +-5 % and one 0.05 s offset delivered right (<= 0.13 deg / 0.11 m), but 3 of 14 runs
     wrong -- principal point +3 % W at 4 px (1.57 deg / 0.33 m and 0.61 m) and a 0.05 s offset at
     site 20 (2.35 deg / 1.82 m), with a reported 1-sigma of 0.1-0.2 deg: what the data hold at 3
-    objects cannot tell these model errors from a right pose, so the count stays."""
+    objects cannot tell these model errors from a right pose, so the count stays. Session 10 (issue
+    25), the same 14 runs: again 4 right poses gained and 3 wrong delivered (the same three), and the
+    information says why -- the true matches refitted with cx 3 % of the width off raise the robust
+    cost by only 0.2-0.45 per object at sites 10 / 20 (a 2-sigma difference needs ~2), against 6-120
+    at sites with 18-39 objects (``scripts/refusal_audit.py pairs``: each such right refusal sits where
+    the wrong-intrinsics pose is refused by this rule too)."""
     if ev.n_objects is None or ev.n_objects >= MIN_OBJECTS:
         return None
     return Refusal("few_objects", f"not verifiable: the {ev.n_pairs} matches come from only {ev.n_objects} distinct "
