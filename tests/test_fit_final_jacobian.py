@@ -1,7 +1,7 @@
-"""Fits that no longer evaluate a Jacobian nobody uses (issue 29): ``solver.trf_fit`` (no Jacobian
-at the accepted point that ends a fit) against ``solver.trf`` (scipy's evaluations), and
-``poses_refine._fit`` (no Jacobian for a pose that has just settled, nor after the last step)
-against the loop it replaces, written out below: the same poses, residuals and costs, bit for bit."""
+"""A fit that no longer evaluates a Jacobian nobody uses (issue 29): ``poses_refine._fit`` (no
+Jacobian for a pose that has just settled, nor after the last step) against the loop it replaces,
+written out below: the same poses and residuals, bit for bit. (``solver.trf_fit`` against
+``solver.trf``: ``tests/test_calib_solver.py``.)"""
 
 from __future__ import annotations
 
@@ -13,55 +13,8 @@ from xcalib.calib.cost import Occlusion, edge_sigma
 from xcalib.calib.inputs import prepare_frames
 from xcalib.calib.pose import Pose
 from xcalib.calib.refine import DEFAULT_NOISE, pair_scores
-from xcalib.calib.solver import trf, trf_fit
 from xcalib.data.synth import generate_frames, sample_site
 from xcalib.geometry.rotations import so3_exp
-
-
-def _curve_problem(seed: int):
-    """A seeded robust curve fit (5 parameters, 5 % gross outliers)."""
-    rng = np.random.default_rng(seed)
-    t = np.linspace(0, 6, 120)
-    p = np.array([2.0, 0.7, 0.5, 2.1, 0.3]) * (1 + 0.2 * rng.standard_normal(5))
-    y = p[0] * np.exp(-p[1] * t) + p[2] * np.sin(p[3] * t) + p[4] + 0.02 * rng.standard_normal(len(t))
-    out = rng.random(len(t)) < 0.05
-    y[out] += rng.normal(0, 2, out.sum())
-
-    def fun(q):
-        return (q[0] * np.exp(-q[1] * t) + q[2] * np.sin(q[3] * t) + q[4] - y) / 0.02
-
-    def jac(q):
-        e = np.exp(-q[1] * t)
-        return np.column_stack([e, -q[0] * t * e, np.sin(q[3] * t), q[2] * t * np.cos(q[3] * t), np.ones_like(t)]) / 0.02
-
-    return fun, jac, p * (1 + 0.15 * rng.standard_normal(5))
-
-
-@pytest.mark.parametrize("seed", range(6))
-@pytest.mark.parametrize("loss,f_scale,max_nfev", [("soft_l1", 2.0, 60), ("soft_l1", 0.7, 6), ("linear", 1.0, 40),
-                                                   ("soft_l1", 1.0, 3)])
-def test_trf_fit_is_trf_without_the_last_jacobian(seed, loss, f_scale, max_nfev):
-    fun, jac, x0 = _curve_problem(seed)
-    calls = {"full": 0, "lean": 0}
-
-    def counted(kind):
-        def j(x):
-            calls[kind] += 1
-            return jac(x)
-        return j
-
-    x_scale = np.array([0.1, 0.05, 0.1, 0.05, 0.1])
-    ref = trf(fun, counted("full"), x0, x_scale, loss=loss, f_scale=f_scale, max_nfev=max_nfev)
-    got = trf_fit(fun, counted("lean"), x0, x_scale, loss=loss, f_scale=f_scale, max_nfev=max_nfev)
-    np.testing.assert_array_equal(got.x, ref.x)
-    np.testing.assert_array_equal(got.fun, ref.fun)
-    assert got.cost == ref.cost and got.nfev == ref.nfev
-    # the one Jacobian left out is the one at the accepted point where the fit ended
-    assert calls["lean"] == got.njev and ref.njev - got.njev in (0, 1)
-    if got.status in (2, 4):  # ended by ftol: on an accepted step (its ratio > 0.25), whose Jacobian is left out
-        assert got.njev == ref.njev - 1
-    if max_nfev >= 40:
-        assert got.status in (2, 4)  # (these converge by ftol: the saving is exercised)
 
 
 def _old_fit(batch, R, t, fs, active, max_iter):
