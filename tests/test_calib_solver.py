@@ -1,6 +1,7 @@
 """``calib.solver.trf`` is scipy's ``least_squares(method="trf")`` without bounds (dense analytic
 Jacobian, exact trust-region solver): on seeded problems it takes the same steps, asks for the same
-evaluations and ends at the same minimum as scipy."""
+evaluations and ends at the same minimum as scipy. ``trf_fit`` (what ``CostModel.fit`` runs) is
+``trf`` without the Jacobian at the point where the fit ends: the same x, fun, cost, one Jacobian fewer."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from xcalib.calib.solver import trf
+from xcalib.calib.solver import trf, trf_fit
 
 
 def _curve_problem(seed: int):
@@ -81,3 +82,30 @@ def test_trf_refuses_what_scipy_refuses():
         trf(fun, lambda p: jac(p)[:, :3], x0, np.ones(5))
     with pytest.raises(ValueError, match="loss"):
         trf(fun, jac, x0, np.ones(5), loss="cauchy")
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("loss,f_scale,max_nfev", [("soft_l1", 2.0, 60), ("soft_l1", 0.7, 6), ("linear", 1.0, 40),
+                                                   ("soft_l1", 1.0, 3)])
+def test_trf_fit_is_trf_without_the_last_jacobian(seed, loss, f_scale, max_nfev):
+    fun, jac, x0 = _curve_problem(seed)
+    calls = {"full": 0, "lean": 0}
+
+    def counted(kind):
+        def j(x):
+            calls[kind] += 1
+            return jac(x)
+        return j
+
+    x_scale = np.array([0.1, 0.05, 0.1, 0.05, 0.1])
+    ref = trf(fun, counted("full"), x0, x_scale, loss=loss, f_scale=f_scale, max_nfev=max_nfev)
+    got = trf_fit(fun, counted("lean"), x0, x_scale, loss=loss, f_scale=f_scale, max_nfev=max_nfev)
+    np.testing.assert_array_equal(got.x, ref.x)
+    np.testing.assert_array_equal(got.fun, ref.fun)
+    assert got.cost == ref.cost and got.nfev == ref.nfev
+    # the one Jacobian left out is the one at the accepted point where the fit ended
+    assert calls["lean"] == got.njev and ref.njev - got.njev in (0, 1)
+    if got.status in (2, 4):  # ended by ftol: on an accepted step (its ratio > 0.25), whose Jacobian is left out
+        assert got.njev == ref.njev - 1
+    if max_nfev >= 40:
+        assert got.status in (2, 4)  # (these converge by ftol: the saving is exercised)

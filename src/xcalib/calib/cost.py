@@ -38,7 +38,7 @@ from ..geometry.rotations import so3_left_jacobian
 from .boxproj import MIN_DEPTH_M, project_ragged, project_rects, ragged_outlines
 from .diagnostics import NoiseModel
 from .pose import Pose
-from .solver import LOSSES, trf
+from .solver import LOSSES, trf_fit
 
 __all__ = ["shift_principal_point", "PoseState", "CostTerm", "Occlusion", "BoxEdgeTerm", "PosePriorTerm", "FocalScaleTerm",
            "PrincipalPointTerm", "TimeOffsetTerm", "WideLensTerm", "CostModel", "Tangent", "CostFit", "edge_sigma", "INWARD", "POSE_X_SCALE"]
@@ -611,11 +611,11 @@ class CostModel:
 
     def fit(self, *, f_scale: float, max_nfev: int, loss: str = "soft_l1") -> CostFit:
         """The robust fit from x = 0: scipy's trust-region least squares (``method="trf"``), run by
-        ``solver.trf`` (the same algorithm and iterates, without scipy's per-call machinery) where
+        ``solver.trf_fit`` (the same algorithm and iterates, without scipy's per-call machinery) where
         the Jacobian is analytic, by scipy itself where it is numeric."""
         if self.has_analytic_jacobian() and loss in LOSSES:
-            res = trf(self.residuals, self.analytic_jacobian, np.zeros(self.n_params), self.x_scale(), loss=loss,
-                      f_scale=f_scale, max_nfev=max_nfev)
+            res = trf_fit(self.residuals, self.analytic_jacobian, np.zeros(self.n_params), self.x_scale(), loss=loss,
+                          f_scale=f_scale, max_nfev=max_nfev)
         else:
             jac = self.analytic_jacobian if self.has_analytic_jacobian() else "2-point"
             res = least_squares(self.residuals, np.zeros(self.n_params), jac=jac, loss=loss, f_scale=f_scale,

@@ -200,7 +200,7 @@ def _fit(batch: _Batch, R: np.ndarray, t: np.ndarray, fs: np.ndarray, active: np
     live = active.copy()
     J = batch.jacobian(t, raw, proj)
     eye = np.eye(6)
-    for _ in range(max_iter):
+    for it in range(max_iter):
         idx = np.flatnonzero(live)
         if not len(idx):
             break
@@ -225,10 +225,13 @@ def _fit(batch: _Batch, R: np.ndarray, t: np.ndarray, fs: np.ndarray, active: np
             b = idx[better]
             R[b], t[b] = Rn[better], tn[better]
             r[b], raw[b], wts[b], cost[b] = rn[better], rawn[better], wn[better], cn[better]
-            kb = np.flatnonzero(better)
-            J[b] = (sub if len(kb) == n else sub.take(kb)).jacobian(tn[kb], rawn[kb], tuple(a[kb] for a in projn))
         lam[idx] = np.where(better, np.maximum(lam[idx] / 3.0, 1e-9), lam[idx] * 4.0)
         live[idx] &= ~settled & (lam[idx] < 1e8)
+        # the Jacobian at the new pose only where another step will use it: not for a pose that has
+        # just settled, nor after the last step (the returned poses and residuals are the same)
+        kb = np.flatnonzero(better & live[idx]) if it + 1 < max_iter else np.zeros(0, np.int64)
+        if len(kb):
+            J[idx[kb]] = (sub if len(kb) == n else sub.take(kb)).jacobian(tn[kb], rawn[kb], tuple(a[kb] for a in projn))
     return R, t, r
 
 

@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 from scipy.linalg import get_lapack_funcs, svd
 
-__all__ = ["TrfResult", "trf", "LOSSES"]
+__all__ = ["TrfResult", "trf", "trf_fit", "LOSSES"]
 
 EPS = np.finfo(float).eps
 LOSSES = ("linear", "soft_l1")
@@ -184,6 +184,24 @@ def trf(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], np.
     gtol = tol)`` does with no bounds (``jac``: the dense [m, n] Jacobian). Raises ValueError
     where scipy does: residuals not finite at ``x0``, a Jacobian of the wrong shape, or (its SVD)
     not finite."""
+    return _trf(fun, jac, x0, x_scale, (loss, f_scale, max_nfev, tol, True))
+
+
+def trf_fit(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
+            x_scale: np.ndarray, *, loss: str = "soft_l1", f_scale: float = 1.0,
+            max_nfev: int | None = None) -> TrfResult:
+    """:func:`trf` (default tolerances) without the Jacobian at the accepted point that ends the fit
+    (a termination test passed or ``max_nfev`` reached): scipy evaluates it there only for one
+    more gradient test, which cannot move the point. ``x``, ``cost``, ``fun`` and ``nfev`` are
+    :func:`trf`'s, bit for bit; ``njev`` is one less where the fit ended on an accepted step, and
+    ``status`` the test that stopped it (scipy may report 1, gtol, there instead). What a fit
+    (``CostModel.fit``) uses of the result is x, cost and fun."""
+    return _trf(fun, jac, x0, x_scale, (loss, f_scale, max_nfev, (1e-8, 1e-8, 1e-8), False))
+
+
+def _trf(fun, jac, x0: np.ndarray, x_scale: np.ndarray, settings: tuple) -> TrfResult:
+    """:func:`trf`; ``settings``: (loss, f_scale, max_nfev, tol, final_jacobian)."""
+    loss, f_scale, max_nfev, tol, final_jacobian = settings
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     ftol, xtol, gtol = tol
@@ -260,6 +278,8 @@ def trf(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], np.
             f = f_new
             f_true = f.copy()
             cost = cost_new
+            if not final_jacobian and (status is not None or nfev == max_nfev):
+                break  # the fit ends here: that Jacobian would feed only scipy's last gtol test
             J = np.atleast_2d(jac(x.copy())).astype(np.float64, copy=True)
             njev += 1
             if loss_function is not None:
