@@ -57,9 +57,9 @@ def collect(cal, frames, config=None) -> dict:
     from xcalib.monitor import Monitor, MonitorConfig
 
     # no alarm may reset the history (the statistics below do not depend on the threshold)
-    mon = Monitor(cal, config or MonitorConfig(latch=False, false_alarm_rate=1e-12))
+    mon = Monitor(cal, config or MonitorConfig(latch=True, false_alarm_rate=1e-12))
     cm = next(iter(mon.cameras.values()))
-    H, g, c, nres, objs, infl = [], [], [], [], [], []
+    H, g, c, nres, objs, infl, rows = [], [], [], [], [], [], []
     t0 = time.process_time()
     n = 0
     for f in frames:
@@ -70,12 +70,14 @@ def collect(cal, frames, config=None) -> dict:
         g.append(np.array(q.g))
         c.append(float(q.c))
         nres.append(int(q.n_res))
+        rows.append(q.row.copy())
         objs.append((None if q.obj is None else np.array(q.obj), None if q.obj_H is None else np.array(q.obj_H),
                      None if q.obj_g is None else np.array(q.obj_g)))
         if sts:
             infl.append(float(cm.inflation))
     return {"H": np.array(H), "g": np.array(g), "c": np.array(c), "n_res": np.array(nres), "objects": objs,
-            "inflation": infl, "alarms": len(cm.events), "cpu_ms": 1e3 * (time.process_time() - t0) / max(n, 1)}
+            "inflation": infl, "alarms": len(cm.events), "rows": np.array(rows).reshape(-1, 46),
+            "threshold": float(cm.h), "cov_cal": np.array(cm.cov_cal), "cpu_ms": 1e3 * (time.process_time() - t0) / max(n, 1)}
 
 
 def _fit(Hs, gs, cs, ns):
@@ -185,7 +187,93 @@ def per_object_share(d: dict, L: int = 80) -> dict | None:
     return {"objects": len(ids), "L": L, "ratio_before": before["ratio"], "ratio_objects_removed": after["ratio"]}
 
 
+# ---------------------------------------------------------------- the change test replayed offline
+# The default test's decisions recomputed from the recorded frames (``_Rec.row``: H, g, c, n_res,
+# n_pairs), with the inflation's floor or a factor on the covariance changed: one recording gives
+# every variant's false alarms and detections on the same frames. The leave-objects-out guard is not
+# replayed (it only removes alarms), so a variant's false alarms here are an upper bound.
+
+VARIANTS = {"default": {}, "min_inflation=0.75": {"floor": 0.75}, "min_inflation=0.5": {"floor": 0.5},
+            "x0.8": {"factor": 0.8}, "x0.7": {"factor": 0.7}, "x0.6": {"factor": 0.6}}
+
+
+def _cums(rows: np.ndarray) -> dict:
+    C = np.concatenate([np.zeros((1, 46)), np.cumsum(rows, 0)])
+    return {"H": C[:, :36].reshape(-1, 6, 6), "g": C[:, 36:42], "c": C[:, 42], "n": C[:, 43], "p": C[:, 44]}
+
+
+def _seg_fit(C: dict, a: int, b: int):
+    """``_Sums.fit`` over frames [a, b): x, covariance (residual variance factor at least 1), or None."""
+    H, g, nres = C["H"][b] - C["H"][a], C["g"][b] - C["g"][a], C["n"][b] - C["n"][a]
+    if C["p"][b] - C["p"][a] < 2 or nres < 7:
+        return None
+    try:
+        Hi = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(Hi)) or np.linalg.cond(H) > 1e14:
+        return None
+    x = -Hi @ g
+    return x, Hi * max(float(C["c"][b] - C["c"][a] + x @ g) / max(nres - 6, 1), 1.0)
+
+
+def decision_statistics(rows: np.ndarray, cov_cal: np.ndarray, floor: float = 1.0, factor: float = 1.0,
+                        config=None) -> list[tuple[int, float, float]]:
+    """(last frame index, the decision's largest statistic, inflation) at every decision of the
+    default change test (``CameraMonitor._decide``: each recent window against the frames before it
+    in the history, and the longest window's offset from the calibration), the adjacent-window
+    inflation floored at ``floor`` and multiplied by ``factor``."""
+    from xcalib.monitor import MonitorConfig
+    from xcalib.monitor.core import CHI2_6_Q75_OVER_6, INFLATION_PRIOR, MIN_DIFFS
+
+    cfg = config or MonitorConfig()
+    W, stride, hist, minp = cfg.window, cfg.stride, cfg.history, cfg.min_pairs
+    C = _cums(rows)
+    out, diffs, last, end = [], [], None, -10 ** 9
+    for e in range(W, len(rows) + 1, stride):
+        if e - end >= W:
+            f = _seg_fit(C, e - W, e) if C["p"][e] - C["p"][e - W] >= minp else None
+            if f is not None and last is not None and end == e - W:
+                d = f[0] - last[0]
+                diffs = (diffs + [float(d @ np.linalg.solve(f[1] + last[1], d)) / 6])[-200:]
+            last, end = f, e
+        phi = INFLATION_PRIOR if len(diffs) < MIN_DIFFS else max(floor, float(np.quantile(diffs, 0.75)) / CHI2_6_Q75_OVER_6)
+        phi *= factor
+        s = max(0, e - hist)
+        lengths = [L for L in cfg.windows if L <= e - s] or [W]
+        best = 0.0
+        for L in lengths:
+            if C["p"][e - L] - C["p"][s] < minp or C["p"][e] - C["p"][e - L] < minp:
+                continue
+            fa, fb = _seg_fit(C, e - L, e), _seg_fit(C, s, e - L)
+            if fa is not None and fb is not None:
+                d = fa[0] - fb[0]
+                best = max(best, float(d @ np.linalg.solve((fa[1] + fb[1]) * phi, d)))
+        fr = _seg_fit(C, e - lengths[-1], e)
+        if fr is not None:
+            best = max(best, float(fr[0] @ np.linalg.solve(fr[1] * phi + cov_cal, fr[0])))
+        out.append((e - 1, best, phi))
+    return out
+
+
+def null_alarms(rows: np.ndarray, cov_cal: np.ndarray, h: float, **kw) -> tuple[int, float]:
+    """Alarms of a variant on a drift-free recording (after one, ``window`` frames pass before the
+    next decision can alarm, as after the monitor's restart), and its median inflation."""
+    dec = decision_statistics(rows, cov_cal, **kw)
+    alarms, quiet = 0, -1
+    for fr, st, _ in dec:
+        if fr >= quiet and st > h:
+            alarms, quiet = alarms + 1, fr + 20
+    return alarms, float(np.median([p for _, _, p in dec])) if dec else float("nan")
+
+
+def first_detection(rows: np.ndarray, cov_cal: np.ndarray, h: float, **kw) -> int | None:
+    """Frame index of a variant's first alarm on a recording, or None."""
+    return next((fr for fr, st, _ in decision_statistics(rows, cov_cal, **kw) if st > h), None)
+
+
 def analyse(d: dict) -> dict:
+    """The persistence figures of one recording (``collect``)."""
     return {"frames": len(d["g"]), "alarms": d["alarms"], "cpu_ms_per_frame": round(d["cpu_ms"], 2),
             "inflation_median": round(float(np.median(d["inflation"])), 3) if d["inflation"] else None,
             "block_var_ratio": block_var_ratio(d), "acf_5frame_blocks": acf(d),
