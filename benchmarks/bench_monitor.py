@@ -54,6 +54,15 @@ reads ``monitor.json``, runs nothing).
     ... --part relin_a9 --real-null 800 --real-frames 320 --relin-band 0.4 --relin-factor 2
     ... --part verdict
 
+``--part persist``: do the frames' errors persist over frames (``monitor_persistence``: block
+variance against the stated one per window length and axis, autocorrelation, the tests' null
+spread) on the null streams, the z step cells (``PERSIST_CELLS``, ``--runs`` per ``--step-seeds``
+site) and the looped real sets (``--real-null`` frames); the change test's variants
+(``monitor_persistence.VARIANTS``: the inflation's floor lowered, a factor on the covariance)
+replayed offline on the same recorded frames (``monitor.json`` ``persist_s10``).
+
+    ... --part persist --null-frames 2400 --null-base 1200 --null-seeds 3,5,11,17 --step-seeds 3,11,17 --runs 2 --real-null 480 --jobs 2
+
 ``--part reference``: the change test calibrated per axis and window length
 (``CameraMonitor.axis_factors``) from a drift-free reference stretch of each site
 (``Monitor.learn``), against the test without it and with only the stream's own ~250 frames, on

@@ -52,8 +52,10 @@ PRIOR_INFO = np.diag(1.0 / np.array([np.radians(0.1)] * 3 + [0.05] * 3) ** 2)
 
 
 def collect(cal, frames, config=None) -> dict:
-    """Run a fresh monitor (``latch=False``) over ``frames``; per frame its normal equations and the
-    per-object shares; the monitor's inflation at every decision; alarms."""
+    """Run a fresh monitor that cannot alarm (``false_alarm_rate`` 1e-12 unless ``config`` is given) over
+    ``frames``; per frame its normal equations and the per-object shares; the monitor's inflation at
+    every decision. ``threshold``: the test threshold of the default settings (or of ``config``): the
+    one the replayed variants are held to, never the recording monitor's own."""
     from xcalib.monitor import Monitor, MonitorConfig
 
     # no alarm may reset the history (the statistics below do not depend on the threshold)
@@ -77,7 +79,8 @@ def collect(cal, frames, config=None) -> dict:
             infl.append(float(cm.inflation))
     return {"H": np.array(H), "g": np.array(g), "c": np.array(c), "n_res": np.array(nres), "objects": objs,
             "inflation": infl, "alarms": len(cm.events), "rows": np.array(rows).reshape(-1, 46),
-            "threshold": float(cm.h), "cov_cal": np.array(cm.cov_cal), "cpu_ms": 1e3 * (time.process_time() - t0) / max(n, 1)}
+            "threshold": float((config or MonitorConfig()).threshold),
+            "cov_cal": np.array(cm.cov_cal), "cpu_ms": 1e3 * (time.process_time() - t0) / max(n, 1)}
 
 
 def _fit(Hs, gs, cs, ns):

@@ -73,3 +73,21 @@ def test_persistence_measure_sees_errors_that_last_and_not_independent_ones():
             assert grow > 4 and lag1 > 0.5  # the block variance grows with L; neighbouring blocks agree
         else:
             assert 0.5 < grow < 2 and abs(lag1) < 0.2
+
+
+def test_replay_is_held_to_the_default_threshold_not_the_recorders():
+    import monitor_persistence as mp
+
+    rng = np.random.default_rng(5)
+    n = 200
+    H = np.tile(np.eye(6) * 1e4, (n, 1, 1))
+    rows = np.concatenate([H.reshape(n, 36), rng.standard_normal((n, 6)) * 100.0,
+                           np.full((n, 1), 24.0), np.full((n, 1), 24.0), np.full((n, 1), 30.0), np.zeros((n, 1))], 1)
+    cov_cal = np.eye(6) * 1e-6
+    dec = mp.decision_statistics(rows, cov_cal)
+    assert len(dec) == (n - 20) // 5 + 1 and all(s >= 0 for _, s, _ in dec)
+    h = MonitorConfig().threshold
+    rows[120:, 36:42] += 2e4  # a step: x = -g / 1e4 = -2 per axis from frame 120
+    first = mp.first_detection(rows, cov_cal, h)
+    assert first is not None and 120 <= first < 140
+    assert mp.first_detection(rows, cov_cal, MonitorConfig(false_alarm_rate=1e-12).threshold * 1e6) is None
