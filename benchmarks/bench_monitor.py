@@ -502,6 +502,12 @@ def _pandaset(n_null: int, n_step: int, log) -> dict:
     root = SHARED / "pandaset_002"
     if not root.exists():
         return {"skipped": f"data not found: {root}"}
+    base, cal = _pandaset_base(root)
+    return _real_case("PandaSet", base, cal, n_null, n_step, log, jitter_px=0.5)
+
+
+def _pandaset_base(root: Path) -> tuple[list, object]:
+    """``_pandaset``'s frames (three draws of 2D boxes per frame, rebased) and calibration."""
     from xcalib.data.boxes2d import synthetic_2d_boxes
     from xcalib.formats.pandaset import PandaSetFrames
 
@@ -514,8 +520,7 @@ def _pandaset(n_null: int, n_step: int, log) -> dict:
                                 point_cloud=np.zeros((0, 3), np.float32)))
     base, T0 = _rebased(base)
     cal = _gt_calibration(base, T0, base[0].camera_name or "front_camera")
-    base = [replace(f, extrinsics=None, camera_name=cal.camera_name) for f in base]
-    return _real_case("PandaSet", base, cal, n_null, n_step, log, jitter_px=0.5)
+    return [replace(f, extrinsics=None, camera_name=cal.camera_name) for f in base], cal
 
 
 def _kitti(n_null: int, n_step: int, log) -> dict:
@@ -525,6 +530,12 @@ def _kitti(n_null: int, n_step: int, log) -> dict:
     root = SHARED / "kitti" / "openpcdet_pr653" / "training"
     if not root.exists():
         return {"skipped": f"data not found: {root}"}
+    base, cal = _kitti_base(root)
+    return _real_case("KITTI", base, cal, n_null, n_step, log)
+
+
+def _kitti_base(root: Path) -> tuple[list, object]:
+    """``_kitti``'s frames (one camera, rebased) and calibration."""
     from xcalib.formats.kitti import kitti_frames
 
     seq = kitti_frames(root)
@@ -539,8 +550,7 @@ def _kitti(n_null: int, n_step: int, log) -> dict:
         same.append(replace(f, bboxes_2d=b2.astype(np.float32), intrinsics=k0, image=np.zeros((1, 1, 3), np.uint8)))
     base, T0 = _rebased(same)
     cal = _gt_calibration(base, T0, base[0].camera_name or "image_2")
-    base = [replace(f, extrinsics=None, camera_name=cal.camera_name) for f in base]
-    return _real_case("KITTI", base, cal, n_null, n_step, log)
+    return [replace(f, extrinsics=None, camera_name=cal.camera_name) for f in base], cal
 
 
 def _value(v: str):

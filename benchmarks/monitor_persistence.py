@@ -83,13 +83,13 @@ def collect(cal, frames, config=None) -> dict:
             "cov_cal": np.array(cm.cov_cal), "cpu_ms": 1e3 * (time.process_time() - t0) / max(n, 1)}
 
 
-def _fit(Hs, gs, cs, ns):
+def _fit(Hs, gs, cs, ns, cond_max: float = 1e12):
     """x, stated covariance (with the residual variance factor, as ``_Sums.fit``), or None."""
     try:
         Hi = np.linalg.inv(Hs)
     except np.linalg.LinAlgError:
         return None
-    if not np.all(np.isfinite(Hi)) or np.linalg.cond(Hs) > 1e12:
+    if not np.all(np.isfinite(Hi)) or np.linalg.cond(Hs) > cond_max:
         return None
     x = -Hi @ gs
     s2 = max(float(cs + x @ gs) / max(ns - 6, 1), 1.0)
@@ -207,17 +207,9 @@ def _cums(rows: np.ndarray) -> dict:
 
 def _seg_fit(C: dict, a: int, b: int):
     """``_Sums.fit`` over frames [a, b): x, covariance (residual variance factor at least 1), or None."""
-    H, g, nres = C["H"][b] - C["H"][a], C["g"][b] - C["g"][a], C["n"][b] - C["n"][a]
-    if C["p"][b] - C["p"][a] < 2 or nres < 7:
+    if C["p"][b] - C["p"][a] < 2 or C["n"][b] - C["n"][a] < 7:
         return None
-    try:
-        Hi = np.linalg.inv(H)
-    except np.linalg.LinAlgError:
-        return None
-    if not np.all(np.isfinite(Hi)) or np.linalg.cond(H) > 1e14:
-        return None
-    x = -Hi @ g
-    return x, Hi * max(float(C["c"][b] - C["c"][a] + x @ g) / max(nres - 6, 1), 1.0)
+    return _fit(C["H"][b] - C["H"][a], C["g"][b] - C["g"][a], C["c"][b] - C["c"][a], C["n"][b] - C["n"][a], 1e14)
 
 
 def decision_statistics(rows: np.ndarray, cov_cal: np.ndarray, floor: float = 1.0, factor: float = 1.0,
@@ -313,11 +305,12 @@ def synthetic(seeds, n, log) -> dict:
 
 
 def real(n: int, log) -> dict:
+    """The looped real sets of ``bench_monitor.py`` (A9 with its own calibration, PandaSet 002 and
+    KITTI rebased to one pose), ``n`` frames each; a set whose data is absent is left out."""
     import bench_monitor as bm
-    from dataclasses import replace
 
     out = {}
-    try:
+    if bm.A9.exists():
         from xcalib.calib.api import calibrate
         from xcalib.io.sources import open_source
 
@@ -325,57 +318,16 @@ def real(n: int, log) -> dict:
         raw = [seq[i] for i in range(len(seq))]
         cal = calibrate(raw, None)
         if cal.success:
-            r = analyse(collect(cal, bm._replay(raw, n, 1, 1.0)))
-            _print("A9 (16 frames looped)", r, log)
-            out["a9"] = r
-    except FileNotFoundError as e:
-        log(f"A9 skipped: {e}")
-    for name, fn in (("pandaset", _pandaset_base), ("kitti", _kitti_base)):
-        got = fn(bm, replace)
-        if got is None:
+            out["a9"] = analyse(collect(cal, bm._replay(raw, n, 1, 1.0)))
+            _print("A9 (16 frames looped)", out["a9"], log)
+    for name, root, make, jit in (("pandaset", bm.SHARED / "pandaset_002", bm._pandaset_base, 0.5),
+                                  ("kitti", bm.SHARED / "kitti" / "openpcdet_pr653" / "training", bm._kitti_base, 1.0)):
+        if not root.exists():
             continue
-        base, cal, jit = got
-        r = analyse(collect(cal, bm._replay(base, n, 1, jit)))
-        _print(f"{name} (looped)", r, log)
-        out[name] = r
+        base, cal = make(root)
+        out[name] = analyse(collect(cal, bm._replay(base, n, 1, jit)))
+        _print(f"{name} (looped)", out[name], log)
     return out
-
-
-def _pandaset_base(bm, replace):
-    root = bm.SHARED / "pandaset_002"
-    if not root.exists():
-        return None
-    from xcalib.data.boxes2d import synthetic_2d_boxes
-    from xcalib.formats.pandaset import PandaSetFrames
-
-    seq = PandaSetFrames(root, read_images=False)
-    frames = [seq[i] for i in range(len(seq))]
-    base = [replace(synthetic_2d_boxes(f, seed=100 * dr + i), match_matrix=None, point_cloud=np.zeros((0, 3), np.float32))
-            for dr in range(3) for i, f in enumerate(frames)]
-    base, T0 = bm._rebased(base)
-    cal = bm._gt_calibration(base, T0, base[0].camera_name or "front_camera")
-    return [replace(f, extrinsics=None, camera_name=cal.camera_name) for f in base], cal, 0.5
-
-
-def _kitti_base(bm, replace):
-    root = bm.SHARED / "kitti" / "openpcdet_pr653" / "training"
-    if not root.exists():
-        return None
-    from xcalib.formats.kitti import kitti_frames
-
-    seq = kitti_frames(root)
-    frames = [seq[i] for i in range(len(seq))]
-    k0 = frames[0].intrinsics
-    same = []
-    for f in frames:
-        k = f.intrinsics
-        b2 = np.asarray(f.bboxes_2d, dtype=np.float64).reshape(-1, 4)
-        sx, sy = k0.fx / k.fx, k0.fy / k.fy
-        b2 = (b2 - [k.cx, k.cy, k.cx, k.cy]) * [sx, sy, sx, sy] + [k0.cx, k0.cy, k0.cx, k0.cy]
-        same.append(replace(f, bboxes_2d=b2.astype(np.float32), intrinsics=k0, image=np.zeros((1, 1, 3), np.uint8)))
-    base, T0 = bm._rebased(same)
-    cal = bm._gt_calibration(base, T0, base[0].camera_name or "image_2")
-    return [replace(f, extrinsics=None, camera_name=cal.camera_name) for f in base], cal, 1.0
 
 
 def main(argv=None) -> int:
