@@ -1,0 +1,154 @@
+"""Session 10's new-user pass: the review file spread over the whole recording, the plain-words
+verdict of ``calibrate``, the synthetic contact sheet's legend, ``match --site`` on data the
+weights do not fit, and hostile input to the readers a user points at."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from xcalib.calib.result import CalibrationResult
+from xcalib.geometry.camera import CameraIntrinsics
+from xcalib.types import Frame
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "xcalib"
+K = CameraIntrinsics(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480)
+T = np.array([[0, -1, 0, 0.1], [0, 0, -1, 0.2], [1, 0, 0, -0.3], [0, 0, 0, 1]], dtype=np.float64)
+
+
+def _frames(n: int, stamps: bool = True) -> list[Frame]:
+    rng = np.random.default_rng(0)
+    out = []
+    for i in range(n):
+        cloud = np.column_stack([rng.uniform(5, 30, 200), rng.uniform(-8, 8, 200), rng.uniform(-1.5, 1, 200)])
+        b3 = np.array([[10.0 + i, -1.0, -0.8, 4.5, 1.8, 1.5, 0.1]], np.float32)
+        b2 = np.array([[200, 200, 300, 260]], np.float32)
+        img = rng.integers(0, 255, (48, 64, 3), dtype=np.uint8)
+        meta = {"lidar_stamp_ns": 1_700_000_000_000_000_000 + i * 100_000_000} if stamps else {}
+        out.append(Frame(img, cloud.astype(np.float32), b2, b3, frame_key=f"{i:04d}", intrinsics=K, meta=meta))
+    return out
+
+
+# ------------------------------------------------------------------ review.mcap: spread, bounded
+def test_review_indices_spread_over_the_whole_recording():
+    from xcalib.viz.review import review_indices
+
+    assert review_indices(200, 5) == [0, 50, 100, 149, 199]  # first and last included
+    assert review_indices(16, 50) == list(range(16)) and review_indices(16, 0) == list(range(16))
+    assert review_indices(0, 8) == [] and review_indices(1, 8) == [0]
+    got = review_indices(1000, 50)
+    assert len(got) == 50 and got[0] == 0 and got[-1] == 999 and max(np.diff(got)) <= 21
+
+
+@pytest.mark.parametrize("stamps", [True, False])
+def test_review_file_holds_frames_from_the_whole_recording(tmp_path, stamps):
+    from mcap.reader import make_reader
+
+    from xcalib.site import calibrate_site
+    from xcalib.viz.review import write_review_mcap
+
+    def ok(frames, intrinsics, progress=None, **_):
+        return CalibrationResult(success=True, intrinsics=intrinsics, rotation=T[:3, :3], translation=T[:3, 3],
+                                 camera_name="front", pairs=[np.array([[0, 0]])] * len(frames),
+                                 rotation_std_deg=np.full(3, 0.1), translation_std_m=np.full(3, 0.02))
+
+    frames = _frames(12, stamps)
+    site, loaded = calibrate_site({"front": frames}, calibrate=ok)
+    path = write_review_mcap(tmp_path / "r.mcap", site, loaded, max_frames=4)
+    with open(path, "rb") as f:
+        times = [m.log_time for _, c, m in make_reader(f).iter_messages(topics=["/lidar/points"])]
+    picked = [0, 4, 7, 11]  # not the first four: the last frame is there
+    want = ([frames[i].meta["lidar_stamp_ns"] for i in picked] if stamps
+            else [1_000_000_000 + i * 100_000_000 for i in picked])  # the index's time: gaps show
+    assert times == want
+    path = write_review_mcap(tmp_path / "all.mcap", site, loaded, max_frames=0)
+    with open(path, "rb") as f:
+        assert sum(1 for _ in make_reader(f).iter_messages(topics=["/front/image"])) == 12
+
+
+def test_calibrate_states_what_the_review_file_holds():
+    from xcalib.cli.calibrate_cmd import _review_line
+
+    assert "all 16 frame(s)" in _review_line(16, 16)
+    line = _review_line(50, 300)
+    assert "50 of the recording's 300 frames" in line and "--review-frames 0" in line
+
+
+# ------------------------------------------------------------------ plain words on a verdict
+def _refusal_codes() -> set[str]:
+    codes = set()
+    for p in SRC.rglob("*.py"):
+        text = p.read_text()
+        codes |= set(re.findall(r'Refusal\("([a-z_0-9]+)"', text))
+        codes |= set(re.findall(r'found\.append\(\([^)]*"(misfit_[a-z_]+)"\)\)', text))
+    return codes
+
+
+def test_every_refusal_reason_has_plain_advice():
+    from xcalib.viz.advice import ADVICE
+
+    codes = _refusal_codes()
+    assert len(codes) >= 20  # the scan finds them
+    assert sorted(codes - set(ADVICE)) == []
+    for means, todo in ADVICE.values():
+        assert means and todo and "statistic" not in means and "sigma" not in todo
+
+
+def test_plain_advice_says_what_to_do():
+    from xcalib.calib.diagnostics import CalibDiagnostics
+    from xcalib.viz.advice import plain_advice
+
+    d = CalibDiagnostics()
+    d.refusal = "misfit_focal_length"
+    lines = plain_advice(CalibrationResult(success=False, message="model misfit: ...", diagnostics=d))
+    assert "(misfit_focal_length)" in lines[0] and lines[1].startswith("What to do:") and "--intrinsics" in lines[1]
+    d2 = CalibDiagnostics()
+    d2.refusal = "some_future_reason"
+    assert "What to do:" in plain_advice(CalibrationResult(success=False, diagnostics=d2))[1]
+    coarse = CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3),
+                               rotation_std_deg=np.full(3, 2.0), translation_std_m=np.full(3, 1.0))
+    assert coarse.coarse and "COARSE" in plain_advice(coarse)[0] and "What to do" in plain_advice(coarse)[1]
+    fine = CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3),
+                             rotation_std_deg=np.full(3, 0.05), translation_std_m=np.full(3, 0.01))
+    assert not fine.coarse and "fine" in plain_advice(fine)[0]
+
+
+# ------------------------------------------------------------------ contact sheet legend
+def test_contact_sheet_has_a_legend(tmp_path):
+    import cv2
+
+    from xcalib.data.synth.contact import contact_sheet, legend
+
+    strip = legend(960)
+    assert strip.shape == (96, 960, 3) and strip.dtype == np.uint8
+    assert (np.abs(strip.astype(int) - 24).sum(axis=2) > 0).mean() > 0.02  # something is drawn on it
+    f = _frames(1)[0]
+    path = contact_sheet([f, f], tmp_path / "s.png", cols=2, tile_width=320)
+    im = cv2.imread(str(path))
+    assert im.shape == (240 + 96, 640, 3)
+
+
+# ------------------------------------------------------------------ match --site: weights that do not fit
+def test_match_warns_when_chosen_weights_do_not_fit(tmp_path, monkeypatch, a9_dir):
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from xcalib.cli import app
+    from xcalib.engine.checkpoint import packaged_weights_dir
+
+    site = tmp_path / "home" / "sites" / "othersite"  # a user site whose weights were made elsewhere
+    site.mkdir(parents=True)
+    for p in (packaged_weights_dir() / "generic").glob("fastmatch.*"):
+        shutil.copy(p, site / p.name)
+    monkeypatch.setenv("XCALIB_HOME", str(tmp_path / "home"))
+    r = CliRunner().invoke(app, ["match", str(a9_dir), "--index", "0", "--site", "othersite", "--json",
+                                 "--validate", "off"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["source"] == "model" and "--site othersite do not fit this frame" in out["weights_misfit"]
+    assert "no confident pair" in out["weights_misfit"] or "collapsed" in out["weights_misfit"]
