@@ -115,6 +115,14 @@ def test_plain_advice_says_what_to_do():
     fine = CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3),
                              rotation_std_deg=np.full(3, 0.05), translation_std_m=np.full(3, 0.01))
     assert not fine.coarse and "fine" in plain_advice(fine)[0]
+    from xcalib.calib.diagnostics import MisfitCheck
+
+    d3 = CalibDiagnostics()
+    d3.misfit = [MisfitCheck("mirrored", 0.8, 1.25, False), MisfitCheck("lens", 12.0, 10.0, True)]
+    lines = plain_advice(CalibrationResult(success=True, rotation=np.eye(3), translation=np.zeros(3),
+                                           rotation_std_deg=np.full(3, 0.05), translation_std_m=np.full(3, 0.01),
+                                           diagnostics=d3))
+    assert any("1 of 2 checks for a model misfit flagged (lens)" in line for line in lines)
 
 
 # ------------------------------------------------------------------ contact sheet legend

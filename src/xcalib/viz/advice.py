@@ -89,13 +89,27 @@ def plain_advice(result) -> list[str]:
     """Two or three plain lines for ``result`` (a :class:`CalibrationResult`): the verdict, what it
     means, what to do. The machine-readable reason is named in brackets for a refusal."""
     if result.success:
+        checks = _checks_line(result)
         if not getattr(result, "coarse", False):
-            return ["In short: a usable pose (fine): the files under ros/ can be used as they are."]
+            return ["In short: a usable pose (fine): the files under ros/ can be used as they are."] + checks
         return ["In short: a rough pose (COARSE): good as a starting point, not precise enough to fuse the "
-                "sensors' data.",
-                f"What to do: to make it fine, {_MORE}."]
+                "sensors' data."] + checks + [f"What to do: to make it fine, {_MORE}."]
     code = ""
     if result.diagnostics is not None:
         code = getattr(result.diagnostics, "refusal", "") or ""
     means, todo = ADVICE.get(code, ("the frames do not determine the pose reliably, so none is reported", _MORE))
     return [f"In short: no pose was delivered ({code or 'refused'}): {means}.", f"What to do: {todo}."]
+
+
+def _checks_line(result) -> list[str]:
+    """One line on the misfit checks of a success: how many ran, which (if any) flagged."""
+    d = result.diagnostics
+    checks = list(getattr(d, "misfit", None) or []) if d is not None else []
+    if not checks:
+        return []
+    flagged = [c.name for c in checks if c.flagged]
+    if not flagged:
+        return [f"Checks: the {len(checks)} checks for a model misfit (wrong focal length or image centre, a "
+                "mirrored image, mixed cameras, sensors out of time, a second pose, ...) found nothing wrong."]
+    return [f"Checks: {len(flagged)} of {len(checks)} checks for a model misfit flagged ({', '.join(flagged)}): "
+            "read their lines above (summary.txt) before using the pose."]
