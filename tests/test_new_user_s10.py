@@ -160,3 +160,65 @@ def test_match_warns_when_chosen_weights_do_not_fit(tmp_path, monkeypatch, a9_di
     out = json.loads(r.stdout.strip().splitlines()[-1])
     assert out["source"] == "model" and "--site othersite do not fit this frame" in out["weights_misfit"]
     assert "no confident pair" in out["weights_misfit"] or "collapsed" in out["weights_misfit"]
+
+
+# ------------------------------------------------------------------ hostile frame folders
+def _folder(tmp_path: Path, det_edit=None, intr_edit=None) -> Path:
+    from xcalib.io.frames import write_frame_folder
+
+    small = CameraIntrinsics(fx=60.0, fy=60.0, cx=32.0, cy=24.0, width=64, height=48)
+    f = _frames(1, stamps=False)[0]
+    f = Frame(f.image, f.point_cloud, np.array([[10, 10, 30, 26]], np.float32), f.bboxes_3d, frame_key="0000",
+              intrinsics=small)
+    root = write_frame_folder(tmp_path / "ff", [f], camera="front", intrinsics=small).parent
+    if det_edit:
+        p = next(root.glob("*/detections.json"))
+        d = json.loads(p.read_text())
+        det_edit(d)
+        p.write_text(json.dumps(d))
+    if intr_edit:
+        p = root / "intrinsics.json"
+        d = json.loads(p.read_text())
+        intr_edit(d)
+        p.write_text(json.dumps(d))
+    return root
+
+
+@pytest.mark.parametrize("value", [[1, 2], {"a": 1}, True, 1.5, float("nan")])
+@pytest.mark.parametrize("field", ["frame_key", "camera_name"])
+def test_frame_names_must_be_names(tmp_path, field, value):
+    from xcalib.errors import FormatError
+    from xcalib.io.frames import FrameFolder
+
+    root = _folder(tmp_path, lambda d: d.__setitem__(field, value))
+    with pytest.raises(FormatError, match=rf"detections\.json.*{field}.*expected a name"):
+        FrameFolder(root)[0]
+
+
+def test_integer_frame_key_still_reads(tmp_path):
+    from xcalib.io.frames import FrameFolder
+
+    root = _folder(tmp_path, lambda d: d.__setitem__("frame_key", 7))
+    assert FrameFolder(root)[0].frame_key == "7"
+
+
+def test_box_beyond_float32_is_named_not_inf(tmp_path, recwarn):
+    from xcalib.errors import FormatError
+    from xcalib.io.frames import FrameFolder
+
+    def edit(d):
+        d["bboxes_2d"][0][2] = 1e300
+
+    with pytest.raises(FormatError, match=r"bboxes_2d.*row 0 holds 1e\+300, beyond a 32-bit float"):
+        FrameFolder(_folder(tmp_path, edit))[0]
+    assert not [w for w in recwarn if "overflow" in str(w.message)]
+
+
+def test_principal_point_outside_the_image_names_intrinsics_json(tmp_path):
+    from xcalib.errors import FormatError
+    from xcalib.io.frames import FrameFolder
+
+    root = _folder(tmp_path, intr_edit=lambda d: (d.__setitem__("cx", 1e12), d.pop("width", None),
+                                                  d.pop("height", None)))
+    with pytest.raises(FormatError, match=r"intrinsics\.json.*cx, cy.*principal point .* far outside the 64x48"):
+        FrameFolder(root)[0]
