@@ -222,3 +222,35 @@ def test_principal_point_outside_the_image_names_intrinsics_json(tmp_path):
                                                   d.pop("height", None)))
     with pytest.raises(FormatError, match=r"intrinsics\.json.*cx, cy.*principal point .* far outside the 64x48"):
         FrameFolder(root)[0]
+
+
+def test_box_beyond_the_lidar_range_is_named(tmp_path):
+    from xcalib.errors import FormatError
+    from xcalib.io.frames import FrameFolder
+
+    def edit(d):
+        d["bboxes_3d"][0][0] = 1e12
+
+    with pytest.raises(FormatError, match=r"bboxes_3d.*row 0: a 3D box coordinate or size beyond 100000 m"):
+        FrameFolder(_folder(tmp_path, edit))[0]
+
+
+@pytest.mark.parametrize("where,value,match", [
+    (("psr", "position", "x"), 1e12, r"\[0\]\.psr\.position.*beyond 100000 m"),
+    (("psr", "scale", "y"), True, r"\[0\]\.psr\.scale\.y.*expected a number, got True"),
+])
+def test_sustech_labels_refuse_absurd_or_mistyped_values(tmp_path, where, value, match):
+    from xcalib.errors import FormatError
+    from xcalib.formats.sustech import read_sustech_labels
+
+    obj = {"psr": {"position": {"x": 4.0, "y": -5.0, "z": 1.0}, "scale": {"x": 4.5, "y": 1.8, "z": 1.6},
+                   "rotation": {"x": 0.0, "y": 0.0, "z": 1.4}}, "obj_type": "Car", "obj_id": "8"}
+    assert read_sustech_labels(_write(tmp_path / "ok.json", [obj]))["box7"].shape == (1, 7)
+    obj["psr"][where[1]][where[2]] = value
+    with pytest.raises(FormatError, match=match):
+        read_sustech_labels(_write(tmp_path / "bad.json", [obj]))
+
+
+def _write(path: Path, obj) -> Path:
+    path.write_text(json.dumps(obj))
+    return path

@@ -60,7 +60,9 @@ def require_numbers(values, path, field: str, *, integral: bool = False):
 
 
 def as_float(value, path, field: str) -> float:
-    """A finite float, or a FormatError naming the field."""
+    """A finite float, or a FormatError naming the field (a JSON true / false is not a number)."""
+    if isinstance(value, (bool, np.bool_)):
+        raise FormatError(path, f"expected a number, got {value!r}", field)
     try:
         v = float(value)
     except (TypeError, ValueError):
