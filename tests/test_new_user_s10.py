@@ -254,3 +254,32 @@ def test_sustech_labels_refuse_absurd_or_mistyped_values(tmp_path, where, value,
 def _write(path: Path, obj) -> Path:
     path.write_text(json.dumps(obj))
     return path
+
+
+# ------------------------------------------------------------------ KITTI calib.txt: absurd values named
+_KITTI = """P0: 7.2e+02 0 6.1e+02 0 0 7.2e+02 1.7e+02 0 0 0 1 0
+P1: 7.2e+02 0 6.1e+02 -3.9e+02 0 7.2e+02 1.7e+02 0 0 0 1 0
+P2: 7.2e+02 0 6.1e+02 4.5e+01 0 7.2e+02 1.7e+02 2.2e-01 0 0 1 2.7e-03
+P3: 7.2e+02 0 6.1e+02 -3.4e+02 0 7.2e+02 1.7e+02 2.3e+00 0 0 1 3.7e-03
+R0_rect: 1 0 0 0 1 0 0 0 1
+Tr_velo_to_cam: 0 -1 0 -4.1e-03 0 0 -1 -7.6e-02 1 0 0 -2.7e-01
+"""
+
+
+@pytest.mark.parametrize("old,new,match", [
+    ("-4.1e-03", "1e12", r"Tr_velo_to_cam.*translation .* beyond 10000 m"),
+    ("P2: 7.2e+02", "P2: 1e300", r"P2.*fx=1e\+300.*beyond 1e\+06 px"),
+    ("P2: 7.2e+02 0 6.1e+02 4.5e+01", "P2: 7.2e+02 0 6.1e+02 1e12", r"P2 \(its offset.*beyond 10000 m"),
+    ("7.2e+02 1.7e+02 2.2e-01", "7.2e+02 1e12 2.2e-01", r"P2.*cy=1e\+12.*beyond 1e\+06 px"),
+])
+def test_kitti_calibration_refuses_absurd_values(tmp_path, old, new, match):
+    from xcalib.errors import FormatError
+    from xcalib.formats.kitti import load_kitti_calibration
+
+    good = tmp_path / "calib.txt"
+    good.write_text(_KITTI)
+    assert load_kitti_calibration(good).K(2)[0, 0] == pytest.approx(720.0)
+    bad = tmp_path / "bad.txt"
+    bad.write_text(_KITTI.replace(old, new, 1))
+    with pytest.raises(FormatError, match=r"bad\.txt.*" + match):
+        load_kitti_calibration(bad)
