@@ -283,3 +283,43 @@ def test_kitti_calibration_refuses_absurd_values(tmp_path, old, new, match):
     bad.write_text(_KITTI.replace(old, new, 1))
     with pytest.raises(FormatError, match=r"bad\.txt.*" + match):
         load_kitti_calibration(bad)
+
+
+# ------------------------------------------------------------------ camera files: absurd numbers named
+_CAM = CameraIntrinsics(fx=1000.0, fy=1001.0, cx=640.0, cy=360.0, distortion=np.array([-0.1, 0.01, 0.001, 0, 0]),
+                        width=1280, height=720)
+
+
+@pytest.mark.parametrize("fmt", ["camera_info", "kalibr", "opencv_yaml", "opencv_json"])
+@pytest.mark.parametrize("old,match", [
+    ("1000.0", r"1e\+12"),  # fx
+    ("640.0", r"principal point \(1000000000000\.0, 360\.0\) px lies far outside"),
+])
+def test_camera_files_refuse_absurd_numbers_naming_the_file(tmp_path, fmt, old, match):
+    from xcalib.errors import FormatError
+    from xcalib.formats.cameras import camera_text, read_intrinsics
+
+    text = camera_text(_CAM, fmt)
+    ext = ".json" if "json" in fmt else ".yaml"
+    good = tmp_path / f"good{ext}"
+    good.write_text(text)
+    assert read_intrinsics(good).fx == pytest.approx(1000.0)
+    if old not in text:
+        old = old[:-1]  # OpenCV's YAML writes 1000. and 640.
+    assert old in text
+    bad = tmp_path / f"bad{ext}"
+    bad.write_text(text.replace(old, "1e12", 1))
+    with pytest.raises(FormatError, match=rf"bad{ext}.*{match}"):
+        read_intrinsics(bad)
+
+
+@pytest.mark.parametrize("value", [".nan", "100000000", "-5", "abc"])
+def test_opencv_matrix_size_checked_before_opencv_allocates(tmp_path, value):
+    from xcalib.errors import FormatError
+    from xcalib.formats.cameras import camera_text, read_intrinsics
+
+    text = camera_text(_CAM, "opencv_yaml")
+    bad = tmp_path / "cv.yaml"
+    bad.write_text(text.replace("rows: 3", f"rows: {value}", 1))
+    with pytest.raises(FormatError, match=r"cv\.yaml.*camera_matrix\.rows.*rows must be an integer 1\.\.16"):
+        read_intrinsics(bad)
