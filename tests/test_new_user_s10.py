@@ -323,3 +323,23 @@ def test_opencv_matrix_size_checked_before_opencv_allocates(tmp_path, value):
     bad.write_text(text.replace("rows: 3", f"rows: {value}", 1))
     with pytest.raises(FormatError, match=r"cv\.yaml.*camera_matrix\.rows.*rows must be an integer 1\.\.16"):
         read_intrinsics(bad)
+
+
+# ------------------------------------------------------------------ calibration files: absurd cameras named
+@pytest.mark.parametrize("fmt", ["calib_json", "lucid", "calib_txt", "nuscenes", "json"])
+def test_calibration_files_refuse_an_absurd_camera(tmp_path, fmt):
+    from xcalib.errors import FormatError
+    from xcalib.formats.export import export_calibration, read_calibration
+    from xcalib.geometry.rotations import euler_to_matrix
+
+    cam = CameraIntrinsics(fx=1000.0, fy=1001.0, cx=640.0, cy=360.0, width=1280, height=720)
+    res = CalibrationResult(success=True, intrinsics=cam, rotation=euler_to_matrix([-90.5, 0.3, -89.7], "xyz",
+                                                                                     degrees=True),
+                            translation=np.array([0.11, -0.32, 0.25]), camera_name="cam")
+    path = export_calibration(res, fmt, tmp_path / "good")[0]
+    assert read_calibration(path, fmt).intrinsics.fx == pytest.approx(1000.0)
+    text = path.read_text()
+    bad = path.with_name("bad" + path.suffix)
+    bad.write_text(text.replace("1000.0", "1e12", 1).replace("1001.0", "1e12", 1))
+    with pytest.raises(FormatError, match=r"bad.*(beyond 1e\+06 px|implausible)"):
+        read_calibration(bad, fmt)
