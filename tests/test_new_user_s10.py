@@ -343,3 +343,38 @@ def test_calibration_files_refuse_an_absurd_camera(tmp_path, fmt):
     bad.write_text(text.replace("1000.0", "1e12", 1).replace("1001.0", "1e12", 1))
     with pytest.raises(FormatError, match=r"bad.*(beyond 1e\+06 px|implausible)"):
         read_calibration(bad, fmt)
+
+
+@pytest.mark.parametrize("old,new,match", [
+    ("1.65 1.67 3.64", "1.65 1.67 1e300", r"row 1: dimensions / location \(m\) = 1e\+300 is out of range"),
+    ("587.01 173.33", "1e12 173.33", r"row 1: bbox = 1e\+12 is out of range"),
+])
+def test_kitti_labels_refuse_absurd_values(tmp_path, old, new, match):
+    from xcalib.errors import FormatError
+    from xcalib.formats.kitti import load_kitti_labels
+
+    row = "Car 0.00 0 -1.58 587.01 173.33 614.12 200.12 1.65 1.67 3.64 -0.65 1.71 46.70 -1.59\n"
+    good = tmp_path / "000000.txt"
+    good.write_text(row)
+    assert len(load_kitti_labels(good).bboxes_2d) == 1
+    bad = tmp_path / "000001.txt"
+    bad.write_text(row.replace(old, new))
+    with pytest.raises(FormatError, match=r"000001\.txt.*" + match):
+        load_kitti_labels(bad)
+
+
+@pytest.mark.parametrize("edit,match", [
+    (lambda d: d["cam_K"]["data"][0].__setitem__(0, 1e12), r"cam_K / cam_dist.*(beyond 1e\+06 px|fx/fy)"),
+    (lambda d: d["cam_dist"]["data"].__setitem__(0, -1e300), r"cam_K / cam_dist.*distortion"),
+])
+def test_calibanything_calib_json_refuses_an_absurd_camera(tmp_path, edit, match):
+    from xcalib.errors import FormatError
+    from xcalib.formats.calibanything import read_calib_json
+
+    d = {"cam_K": {"rows": 3, "cols": 3, "data": [[1070.2, 0.0, 961.7], [0.0, 1070.5, 524.8], [0.0, 0.0, 1.0]]},
+         "cam_dist": {"cols": 5, "data": [0, 0, 0, 0, 0]},
+         "T_lidar_to_cam": {"rows": 4, "cols": 4, "data": [[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]]}}
+    assert read_calib_json(_write(tmp_path / "calib.json", d)).intrinsics.fx == pytest.approx(1070.2)
+    edit(d)
+    with pytest.raises(FormatError, match=r"bad\.json.*" + match):
+        read_calib_json(_write(tmp_path / "bad.json", d))

@@ -34,6 +34,7 @@ from ..errors import FormatError
 from ..geometry.camera_models import (EUCM, UCM, CameraModel, DoubleSphere, KannalaBrandt, Pinhole,
                                       PinholeRadtan, Unified, as_camera_model, model_from_dict)
 from ..io.files import MAX_TEXT_BYTES, atomic_write, read_text
+from ._checks import plausible_camera
 
 __all__ = ["CAMERA_FORMATS", "UnsupportedModelError", "read_camera", "read_intrinsics", "write_camera", "camera_text",
            "detect_camera_format", "formats_for", "read_kalibr_camchain", "split_camera_ref"]
@@ -519,11 +520,12 @@ def read_camera(path, fmt: str | None = None, *, camera: str | None = None) -> C
     cam = _DECODERS[fmt](text, path, camera)
     if cam.is_pinhole:  # a real camera's numbers (focal lengths, principal point, distortion), named
         try:
-            cam.to_intrinsics().check_plausible()
+            intr = cam.to_intrinsics()
         except ValueError as exc:
             if isinstance(exc, FormatError):
                 raise
             raise FormatError(path, str(exc)) from None
+        plausible_camera(intr, path, "camera")
     return cam
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 from ..calib.result import CalibrationResult
 from ..errors import FormatError
 from ..io.files import MAX_TEXT_BYTES, load_json, read_bytes
+from ._checks import plausible_camera
 
 __all__ = ["CalibFormat", "FORMATS", "calib_formats", "format_names", "export_calibration", "read_calibration",
            "detect_format", "default_filename"]
@@ -467,26 +468,7 @@ def read_calibration(path, fmt: str | None = None, *, repair: bool = False) -> C
     except (ValueError, TypeError, OverflowError, RecursionError, IndexError, AttributeError) as exc:
         raise FormatError(path, f"not a readable {fmt} calibration ({type(exc).__name__}: {str(exc)[:200]})") from None
     validate_loaded(result, path)
-    _check_camera(result.intrinsics, path)
+    plausible_camera(result.intrinsics, path)  # a camera's numbers, not corrupt ones
     return result
 
 
-#: Largest focal length or |principal point| (px) a calibration file may hold (images are at most
-#: ~1e5 px wide; beyond that the numbers are corrupt, not a camera).
-MAX_PIXELS = 1.0e6
-
-
-def _check_camera(intr, path) -> None:
-    """A pinhole camera of a calibration file: plausible numbers (``CameraIntrinsics.check_plausible``:
-    focal lengths against the image size, square-ish pixels, distortion) within :data:`MAX_PIXELS`;
-    else a FormatError naming the file."""
-    if intr is None or not hasattr(intr, "check_plausible") or not hasattr(intr, "fx"):
-        return
-    big = max(abs(float(intr.fx)), abs(float(intr.fy)), abs(float(intr.cx)), abs(float(intr.cy)))
-    if not big <= MAX_PIXELS:
-        raise FormatError(path, f"fx={intr.fx:g}, fy={intr.fy:g}, cx={intr.cx:g}, cy={intr.cy:g}: beyond "
-                                f"{MAX_PIXELS:g} px (corrupt data)", "intrinsics")
-    try:
-        intr.check_plausible()
-    except ValueError as exc:
-        raise FormatError(path, str(exc), "intrinsics") from None

@@ -387,11 +387,15 @@ def _check_label_ranges(num: np.ndarray, path) -> None:
     checks = (("truncated", num[:, 0], (num[:, 0] >= -1) & (num[:, 0] <= 1)),
               ("occluded", num[:, 1], (num[:, 1] == np.round(num[:, 1])) & (num[:, 1] >= -1) & (num[:, 1] <= 3)),
               ("alpha", num[:, 2], (np.abs(num[:, 2]) <= 2 * np.pi + 1e-6) | (num[:, 2] == -10)),
-              ("rotation_y", num[:, 13], (np.abs(num[:, 13]) <= 2 * np.pi + 1e-6) | (num[:, 13] == -10)))
+              ("rotation_y", num[:, 13], (np.abs(num[:, 13]) <= 2 * np.pi + 1e-6) | (num[:, 13] == -10)),
+              # beyond these a value is corrupt, not a box (as float32 1e300 would become inf)
+              ("bbox", np.abs(num[:, 3:7]).max(axis=1), np.abs(num[:, 3:7]).max(axis=1) <= MAX_PIXELS),
+              ("dimensions / location (m)", np.abs(num[:, 7:13]).max(axis=1),
+               np.abs(num[:, 7:13]).max(axis=1) <= MAX_TRANSLATION_M))
     for name, col, ok in checks:
         if not np.all(ok):
             i = int(np.flatnonzero(~ok)[0])
-            raise FormatError(path, f"row {i + 1}: {name} = {col[i]!r} is out of range (a missing or extra number "
+            raise FormatError(path, f"row {i + 1}: {name} = {float(col[i]):g} is out of range (a missing or extra number "
                                     "shifts the columns)", name)
 
 

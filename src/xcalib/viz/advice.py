@@ -73,12 +73,14 @@ ADVICE: dict[str, tuple[str, str]] = {
                                      "is this camera's own file"),
     "misfit_focal_length": ("the boxes fit a different focal length than the one given: the intrinsics are "
                             "probably wrong (another camera's file, or another image size)",
-                            "check `--intrinsics`, or let xcalib estimate the focal length "
-                            "(`--refine-intrinsics focal`)"),
+                            "check that `--intrinsics` is this camera's own file for this image size; if it is, "
+                            "add frames with other objects at other places and depths and run again, and only "
+                            "then let xcalib estimate the focal length (`--refine-intrinsics focal`)"),
     "misfit_principal_point": ("the boxes fit a different image centre (principal point) than the one given: "
                                "the intrinsics are probably wrong (e.g. for a cropped image)",
-                               "check `--intrinsics`, or let xcalib estimate it (`--refine-intrinsics "
-                               "focal+center`)"),
+                               "check that `--intrinsics` is this camera's own file for this image size; if it "
+                               "is, add frames with objects across the whole image, and only then let xcalib "
+                               "estimate it (`--refine-intrinsics focal+center`)"),
     "misfit_mirrored": ("the boxes fit a left-right mirrored image much better: the image (or the LiDAR's "
                         "axes) is probably flipped",
                         "check that the images are not mirrored and that the LiDAR frame is right-handed, z up"),
