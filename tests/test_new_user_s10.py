@@ -378,3 +378,22 @@ def test_calibanything_calib_json_refuses_an_absurd_camera(tmp_path, edit, match
     edit(d)
     with pytest.raises(FormatError, match=r"bad\.json.*" + match):
         read_calib_json(_write(tmp_path / "bad.json", d))
+
+
+def test_site_index_page_says_each_cameras_verdict_in_plain_words(tmp_path):
+    from xcalib.calib.diagnostics import CalibDiagnostics
+    from xcalib.site import calibrate_site
+    from xcalib.viz.site_report import write_site_report
+
+    def fake(frames, intrinsics, progress=None, **_):
+        d = CalibDiagnostics()
+        d.refusal = "ambiguous"
+        return CalibrationResult(success=False, message="ambiguous: two poses", diagnostics=d)
+
+    small = CameraIntrinsics(fx=60.0, fy=60.0, cx=32.0, cy=24.0, width=64, height=48)
+    frames = [Frame(f.image, f.point_cloud, np.array([[10, 10, 30, 26]], np.float32), f.bboxes_3d,
+                    frame_key=f.frame_key, intrinsics=small) for f in _frames(3)]
+    site, loaded = calibrate_site({"front": frames, "left": list(frames)}, calibrate=fake)
+    paths = write_site_report(tmp_path / "out", site, loaded, max_overlays=0, review_frames=2)
+    page = paths.html.read_text()
+    assert page.count("In short: no pose was delivered (ambiguous)") == 2 and "What to do: add frames" in page

@@ -68,8 +68,12 @@ def site_table(site) -> list[str]:
 
 def _index_html(title: str, site, cams: dict[str, Path], out: Path) -> str:
     rows = site_table(site)
+    from .advice import plain_advice
+
+    results = {c.camera: c.result for c in site.cameras}
     links = "".join(f'<li><a href="{html.escape(p.relative_to(out).as_posix())}/report.html">'
-                    f"{html.escape(c)}</a></li>" for c, p in cams.items())
+                    f"{html.escape(c)}</a>: {'<br>'.join(html.escape(line) for line in plain_advice(results[c]))}</li>"
+                    for c, p in cams.items())
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title></head><body>"
             f"<h1>{html.escape(title)}</h1><p>Transforms: LiDAR frame <code>{html.escape(site.lidar_frame)}</code> "
             "-&gt; each camera's OpenCV optical frame <code>&lt;camera&gt;_optical_frame</code> (x right, y down, "
