@@ -397,3 +397,31 @@ def test_site_index_page_says_each_cameras_verdict_in_plain_words(tmp_path):
     paths = write_site_report(tmp_path / "out", site, loaded, max_overlays=0, review_frames=2)
     page = paths.html.read_text()
     assert page.count("In short: no pose was delivered (ambiguous)") == 2 and "What to do: add frames" in page
+
+
+# ------------------------------------------------------------------ HDF5 caches
+@pytest.mark.parametrize("dataset,value,match", [
+    ("calibration/camera/intrinsics", 1e12, r"/calibration/camera/intrinsics.*beyond 1e\+06 px"),
+    ("labels/camera/000000/lidar_bbox_7", np.nan, r"lidar_bbox_7.*NaN/Inf in a 3D box"),
+])
+def test_hdf5_cache_refuses_an_absurd_camera_and_nan_yawed_boxes(tmp_path, dataset, value, match):
+    import h5py
+
+    from xcalib.data.synth import write_site
+    from xcalib.errors import FormatError
+    from xcalib.io.sources import open_source
+
+    write_site(tmp_path / "s", 0, 0, 2, seed=3, render_images=False, lidar=False)
+    path = tmp_path / "s" / "test.h5"
+    assert len(open_source(path)[0].meta["box7"]) > 0
+    bad = tmp_path / "bad.h5"
+    bad.write_bytes(path.read_bytes())
+    with h5py.File(bad, "r+") as f:
+        a = np.array(f[dataset][()], dtype=np.float64)
+        attrs = dict(f[dataset].attrs)
+        a.flat[0] = value
+        del f[dataset]
+        f[dataset] = a
+        f[dataset].attrs.update(attrs)
+    with pytest.raises(FormatError, match=r"bad\.h5.*" + match):
+        open_source(bad)[0]
