@@ -65,6 +65,9 @@ def test_review_file_holds_frames_from_the_whole_recording(tmp_path, stamps):
     want = ([frames[i].meta["lidar_stamp_ns"] for i in picked] if stamps
             else [1_000_000_000 + i * 100_000_000 for i in picked])  # the index's time: gaps show
     assert times == want
+    with open(path, "rb") as f:
+        ann = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages(topics=["/front/annotations"])]
+    assert len(ann) == 4 and "green: 2D detections; orange: 3D boxes" in ann[0]["texts"][0]["text"]  # the key
     path = write_review_mcap(tmp_path / "all.mcap", site, loaded, max_frames=0)
     with open(path, "rb") as f:
         assert sum(1 for _ in make_reader(f).iter_messages(topics=["/front/image"])) == 12

@@ -3,7 +3,8 @@ channels with the ``foxglove.*`` JSON schemas).
 
 Per camera ``<cam>``: ``/<cam>/image`` (``foxglove.CompressedImage``, JPEG),
 ``/<cam>/annotations`` (``foxglove.ImageAnnotations``: LiDAR points projected with the
-calibration, coloured by depth; the projected 3D boxes (orange); the 2D detections (green)),
+calibration, coloured by depth (blue near, red far); the projected 3D boxes (orange); the 2D
+detections (green); a one-line key of these colours in the image's top-left corner),
 ``/<cam>/calibration`` (``foxglove.CameraCalibration``, the camera's optical frame). Shared:
 ``/lidar/points`` (``foxglove.PointCloud``, the LiDAR frame: the whole cloud unless ``max_points``
 is given) and ``/tf`` (``foxglove.FrameTransforms``: LiDAR -> each calibrated camera's optical
@@ -135,7 +136,12 @@ def _annotations(ns: int, frame, result, max_points: int) -> dict:
                     pts.append({"timestamp": _t(ns), "type": _LINE_LIST, "thickness": 1.5, "points": seg,
                                 "outline_color": _color(1.0, 0.55, 0.0), "outline_colors": [],
                                 "fill_color": _color(0, 0, 0, 0)})
-    return {"circles": [], "points": pts, "texts": []}
+    key = ("green: 2D detections" + ("; orange: 3D boxes and LiDAR points (blue near, red far) projected with "
+                                       "the calibration" if result is not None and result.success else
+                                       "; no pose: nothing projected"))
+    texts = [{"timestamp": _t(ns), "position": {"x": 8.0, "y": 20.0}, "text": key, "font_size": 16.0,
+              "text_color": _color(1, 1, 1), "background_color": _color(0, 0, 0, 0.6)}]
+    return {"circles": [], "points": pts, "texts": texts}
 
 
 def _calibration(ns: int, cam: str, result, frame, warned: set | None = None) -> dict | None:
