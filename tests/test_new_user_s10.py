@@ -428,3 +428,29 @@ def test_hdf5_cache_refuses_an_absurd_camera_and_nan_yawed_boxes(tmp_path, datas
         f[dataset].attrs.update(attrs)
     with pytest.raises(FormatError, match=r"bad\.h5.*" + match):
         open_source(bad)[0]
+
+
+@pytest.mark.parametrize("key,value,match", [
+    ("width", float("inf"), r"cameras\.front_camera\.width.*expected an image size"),
+    ("height", [1080], r"cameras\.front_camera\.height.*expected an image size"),
+    ("model", "fisheye", r"cameras\.front_camera\.model.*unsupported camera model 'fisheye'"),
+    ("distortion", [0.1, 0.0, 0.0, 0.0], r"cameras\.front_camera\.distortion.*undistorted"),
+    ("fx", 1e12, r"cameras\.front_camera\.fx"),
+])
+def test_pandaset_camera_fields_are_checked(tmp_path, key, value, match):
+    from conftest import shared_path
+
+    from xcalib.errors import FormatError
+    from xcalib.io.sources import open_source
+
+    src = shared_path("pandaset_002")
+    root = tmp_path / "pandaset_002"
+    root.mkdir()
+    for p in src.iterdir():
+        if p.name != "calibration.json":
+            (root / p.name).symlink_to(p)
+    cal = json.loads((src / "calibration.json").read_text())
+    cal["cameras"]["front_camera"][key] = value
+    (root / "calibration.json").write_text(json.dumps(cal))
+    with pytest.raises(FormatError, match=r"calibration\.json.*" + match):
+        open_source(root)[0]
