@@ -454,3 +454,24 @@ def test_pandaset_camera_fields_are_checked(tmp_path, key, value, match):
     (root / "calibration.json").write_text(json.dumps(cal))
     with pytest.raises(FormatError, match=r"calibration\.json.*" + match):
         open_source(root)[0]
+
+
+@pytest.mark.parametrize("value,match", [(1e12, r"T_cam_lidar.*(rotation|orthonormal|rigid)"),
+                                         (True, r"T_cam_lidar.*expected a number|T_cam_lidar")])
+def test_pandaset_recorded_pose_must_be_rigid(tmp_path, value, match):
+    from conftest import shared_path
+
+    from xcalib.errors import FormatError
+    from xcalib.io.sources import open_source
+
+    src = shared_path("pandaset_002")
+    root = tmp_path / "pandaset_002"
+    root.mkdir()
+    for p in src.iterdir():
+        if p.name != "calibration.json":
+            (root / p.name).symlink_to(p)
+    cal = json.loads((src / "calibration.json").read_text())
+    cal["cameras"]["front_camera"]["frames"]["00"]["T_cam_lidar"][0][1] = value
+    (root / "calibration.json").write_text(json.dumps(cal))
+    with pytest.raises(FormatError, match=r"calibration\.json.*frames\.00\." + match):
+        open_source(root)[0]

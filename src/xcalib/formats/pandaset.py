@@ -34,7 +34,7 @@ from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..io.files import load_json
 from ..types import Frame
-from ._checks import as_float, as_matrix, plausible_camera, require
+from ._checks import as_float, as_matrix, checked_rotation, plausible_camera, require
 from ._media import load_cloud, load_rgb
 
 __all__ = ["is_pandaset_root", "PandaSetFrames", "pandaset_frames", "read_pandaset_cuboids"]
@@ -199,6 +199,10 @@ class PandaSetFrames(Sequence):
         cf = self._cam_frames[key]
         where = f"cameras.{self.camera}.frames.{key}."
         T = as_matrix(require(cf, "T_cam_lidar", self.cal_path, where), (4, 4), self.cal_path, where + "T_cam_lidar")
+        checked_rotation(T[:3, :3], self.cal_path, where + "T_cam_lidar")  # the recorded pose: a rigid transform
+        if np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-9 or np.abs(T[:3, 3]).max() > 1e4:
+            raise FormatError(self.cal_path, f"not a rigid transform within 1e4 m (last row {T[3].tolist()}, "
+                                             f"translation {T[:3, 3].tolist()})", where + "T_cam_lidar")
         t_cam = as_float(require(cf, "camera_timestamp", self.cal_path, where), self.cal_path, where + "camera_timestamp")
         t_lidar = self._lidar_time(key)
         cub = read_pandaset_cuboids(self.root / "cuboids" / f"{key}.json")
