@@ -60,7 +60,9 @@ def require_numbers(values, path, field: str, *, integral: bool = False):
 
 
 def as_float(value, path, field: str) -> float:
-    """A finite float, or a FormatError naming the field."""
+    """A finite float, or a FormatError naming the field (a JSON true / false is not a number)."""
+    if isinstance(value, (bool, np.bool_)):
+        raise FormatError(path, f"expected a number, got {value!r}", field)
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -126,3 +128,25 @@ def checked_quaternion(q, path, field: str, order: str = "xyzw") -> np.ndarray:
 
 def path_str(path: str | Path | None) -> str:
     return "<input>" if path is None else str(path)
+
+
+#: Largest focal length or |principal point| (px) a camera file may hold (images are at most ~1e5 px
+#: wide; beyond that the numbers are corrupt, not a camera).
+MAX_PIXELS = 1.0e6
+
+
+def plausible_camera(intr, path, field: str = "intrinsics"):
+    """``intr`` (a pinhole ``CameraIntrinsics``) when its numbers can be a real camera's
+    (``check_plausible``: focal lengths against the image size, square-ish pixels, distortion;
+    every value within :data:`MAX_PIXELS`), else a FormatError naming the file and ``field``."""
+    if intr is None or not hasattr(intr, "check_plausible") or not hasattr(intr, "fx"):
+        return intr
+    big = max(abs(float(intr.fx)), abs(float(intr.fy)), abs(float(intr.cx)), abs(float(intr.cy)))
+    if not big <= MAX_PIXELS:
+        raise FormatError(path, f"fx={intr.fx:g}, fy={intr.fy:g}, cx={intr.cx:g}, cy={intr.cy:g}: beyond "
+                                f"{MAX_PIXELS:g} px (corrupt data)", field)
+    try:
+        intr.check_plausible()
+    except ValueError as exc:
+        raise FormatError(path, str(exc), field) from None
+    return intr

@@ -367,8 +367,9 @@ class CacheReader(Sequence):
         for mkey, (dname, kind) in (_META_DATASETS.items() if self.read_extras else ()):
             if dname in g:
                 n = K if "2d" in kind else M
-                if kind == "f3d7":
-                    meta[mkey] = self._rows(g.read(dname), dname, M, 7, key, where, np.float64)
+                if kind == "f3d7":  # the yawed boxes the calibration uses: checked as the [M,6] ones
+                    meta[mkey] = check_boxes_3d(self.path, f"{where}/{dname}",
+                                                self._rows(g.read(dname), dname, M, 7, key, where, np.float64))
                 elif kind == "f2d4":
                     meta[mkey] = self._rows(g.read(dname), dname, K, 4, key, where, np.float64)
                 else:
@@ -539,6 +540,7 @@ class CacheReader(Sequence):
                 if isinstance(exc, FormatError):
                     raise
                 raise FormatError(self.path, str(exc), field=f"{where}/intrinsics") from None
+            _plausible(intr, self.path, f"{where}/intrinsics")
         T, per_frame = None, False
         if "extrinsics" in cg:
             e = cg["extrinsics"]
@@ -958,6 +960,25 @@ class CacheWriter:
         os.replace(self._tmp, self.path)
         self._finalizer.detach()
         return self.path
+
+
+#: Largest focal length or |principal point| (px) of a camera (images are at most ~1e5 px wide).
+_MAX_PIXELS = 1.0e6
+
+
+def _plausible(intr, path, field: str) -> None:
+    """A pinhole camera's numbers can be a real camera's (``check_plausible`` and within
+    ``_MAX_PIXELS``), else a FormatError naming the dataset."""
+    if intr is None or not hasattr(intr, "check_plausible") or not hasattr(intr, "fx"):
+        return
+    big = max(abs(float(intr.fx)), abs(float(intr.fy)), abs(float(intr.cx)), abs(float(intr.cy)))
+    if not big <= _MAX_PIXELS:
+        raise FormatError(path, f"fx={intr.fx:g}, fy={intr.fy:g}, cx={intr.cx:g}, cy={intr.cy:g}: beyond "
+                                f"{_MAX_PIXELS:g} px (corrupt data)", field=field)
+    try:
+        intr.check_plausible()
+    except ValueError as exc:
+        raise FormatError(path, str(exc), field=field) from None
 
 
 def _camera_model_attr(path, field: str, text, K: np.ndarray):
