@@ -99,7 +99,10 @@ class UncertaintyParts:
     1-sigma sampling noise of the occlusion / outline shift (``uncertainty.shift_noise_sd``): the reported
     sigma counts of each shift only the part beyond it (``uncertainty.excess``); clusters_dof: the
     Bell-McCaffrey degrees of freedom of each axis of ``clusters`` (``clusters`` is the CR2 sigma times
-    t_{0.975, dof} / 1.96, so that 2 sigma stays a 95 % bound with few objects)."""
+    t_{0.975, dof} / 1.96, so that 2 sigma stays a 95 % bound with few objects); hidden / hidden_noise:
+    the pose shift when the box edges that lie on a nearer matched box are censored (bounds, only their
+    outward residual counts; ``uncertainty.hidden_edge_shift``) and its sampling noise: a systematic part
+    added in quadrature beyond that noise (None: not computed, or the fit censors them already)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -117,6 +120,8 @@ class UncertaintyParts:
     occlusion_noise: list[float] | None = None
     outline_noise: list[float] | None = None
     clusters_dof: list[float] | None = None
+    hidden: list[float] | None = None
+    hidden_noise: list[float] | None = None
 
 
 @dataclass
