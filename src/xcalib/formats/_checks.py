@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FormatError
+from ..geometry.camera import check_camera_numbers
 from ..geometry.rotations import orthonormality_error, orthonormalize, quaternion_to_matrix
 
 __all__ = ["ROTATION_TOL", "REPAIR_TOL", "require_numbers", "as_matrix", "checked_rotation", "checked_quaternion",
@@ -130,23 +131,14 @@ def path_str(path: str | Path | None) -> str:
     return "<input>" if path is None else str(path)
 
 
-#: Largest focal length or |principal point| (px) a camera file may hold (images are at most ~1e5 px
-#: wide; beyond that the numbers are corrupt, not a camera).
-MAX_PIXELS = 1.0e6
-
-
 def plausible_camera(intr, path, field: str = "intrinsics"):
     """``intr`` (a pinhole ``CameraIntrinsics``) when its numbers can be a real camera's
-    (``check_plausible``: focal lengths against the image size, square-ish pixels, distortion;
-    every value within :data:`MAX_PIXELS`), else a FormatError naming the file and ``field``."""
+    (``geometry.camera.check_camera_numbers``: every value within ``MAX_PIXELS``, then
+    ``check_plausible``), else a FormatError naming the file and ``field``."""
     if intr is None or not hasattr(intr, "check_plausible") or not hasattr(intr, "fx"):
         return intr
-    big = max(abs(float(intr.fx)), abs(float(intr.fy)), abs(float(intr.cx)), abs(float(intr.cy)))
-    if not big <= MAX_PIXELS:
-        raise FormatError(path, f"fx={intr.fx:g}, fy={intr.fy:g}, cx={intr.cx:g}, cy={intr.cy:g}: beyond "
-                                f"{MAX_PIXELS:g} px (corrupt data)", field)
     try:
-        intr.check_plausible()
+        check_camera_numbers(intr)
     except ValueError as exc:
         raise FormatError(path, str(exc), field) from None
     return intr
