@@ -465,16 +465,18 @@ def test_pandaset_camera_fields_are_checked(tmp_path, key, value, match):
         open_source(root)[0]
 
 
-@pytest.mark.parametrize("value,match", [(1e12, r"T_cam_lidar.*(rotation|orthonormal|rigid)"),
-                                         (True, r"T_cam_lidar.*expected a number|T_cam_lidar")])
-def test_pandaset_recorded_pose_must_be_rigid(tmp_path, value, match):
+@pytest.mark.parametrize("entry,value,match", [((0, 1), 1e12, r"T_cam_lidar.*(rotation|orthonormal|rigid)"),
+                                               ((0, 1), True, r"T_cam_lidar.*(true / false|rotation)"),
+                                               # true where 1 stands was read as 1.0: a valid pose
+                                               ((3, 3), True, r"T_cam_lidar.*expected 4x4 numbers, got true / false")])
+def test_pandaset_recorded_pose_must_be_rigid(tmp_path, entry, value, match):
     from conftest import shared_path
 
     from xcalib.errors import FormatError
     from xcalib.io.sources import open_source
 
     def edit(cal):
-        cal["cameras"]["front_camera"]["frames"]["00"]["T_cam_lidar"][0][1] = value
+        cal["cameras"]["front_camera"]["frames"]["00"]["T_cam_lidar"][entry[0]][entry[1]] = value
 
     root = _pandaset_edited(tmp_path, shared_path("pandaset_002"), edit)
     with pytest.raises(FormatError, match=r"calibration\.json.*frames\.00\." + match):

@@ -77,7 +77,8 @@ def as_matrix(values, shape: tuple[int, ...], path, field: str, *, alt_shapes=()
     """Numbers -> float64 array of ``shape`` (flat lists are reshaped row-major).
 
     ``alt_shapes`` lists other accepted shapes (e.g. a [4,4] for a [3,4] whose last row is
-    ``0 0 0 1``); the result is always ``shape``.
+    ``0 0 0 1``); the result is always ``shape``. A JSON true / false is not a number (as in
+    :func:`as_float`; NumPy would read it as 1.0 / 0.0).
     """
     try:
         a = np.asarray(values, dtype=np.float64)
@@ -94,9 +95,20 @@ def as_matrix(values, shape: tuple[int, ...], path, field: str, *, alt_shapes=()
         else:
             accepted = " or ".join(_shape_str(s) for s in (shape, *alt_shapes))
             raise FormatError(path, f"expected {accepted} = {n} numbers, got {a.size} (shape {a.shape})", field)
+    if _holds_bool(values):  # checked once the values are known to be a small regular array
+        raise FormatError(path, f"expected {_shape_str(shape)} numbers, got true / false", field)
     if not np.all(np.isfinite(a)):
         raise FormatError(path, "matrix has NaN/Inf entries", field)
     return a
+
+
+def _holds_bool(values) -> bool:
+    """Whether ``values`` (a number, nested lists, an array) is or holds a bool."""
+    if isinstance(values, np.ndarray):
+        return values.dtype == np.bool_ or (values.dtype == object and any(map(_holds_bool, values.ravel())))
+    if isinstance(values, (list, tuple)):
+        return any(map(_holds_bool, values))
+    return isinstance(values, (bool, np.bool_))
 
 
 def _shape_str(shape) -> str:
