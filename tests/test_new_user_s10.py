@@ -447,6 +447,7 @@ def _pandaset_edited(tmp_path, src, edit):
 @pytest.mark.parametrize("key,value,match", [
     ("width", float("inf"), r"cameras\.front_camera\.width.*expected an image size"),
     ("height", [1080], r"cameras\.front_camera\.height.*expected an image size"),
+    ("width", False, r"cameras\.front_camera\.width.*expected an image size"),
     ("model", "fisheye", r"cameras\.front_camera\.model.*unsupported camera model 'fisheye'"),
     ("distortion", [0.1, 0.0, 0.0, 0.0], r"cameras\.front_camera\.distortion.*undistorted"),
     ("fx", 1e12, r"cameras\.front_camera\.fx"),
