@@ -331,7 +331,7 @@ def real(n: int, log) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--sites", default="3,5,11,17")
     ap.add_argument("--frames", type=int, default=800, help="frames per synthetic stream")
     ap.add_argument("--real-frames", type=int, default=800, help="frames per looped real stream (0: none)")

@@ -67,7 +67,8 @@ def test_review_file_holds_frames_from_the_whole_recording(tmp_path, stamps):
     assert times == want
     with open(path, "rb") as f:
         ann = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages(topics=["/front/annotations"])]
-    assert len(ann) == 4 and "green: 2D detections; orange: 3D boxes" in ann[0]["texts"][0]["text"]  # the key
+    key = ann[0]["texts"][0]["text"]  # the key: orange is the boxes' colour only, the points go by depth
+    assert len(ann) == 4 and "green: 2D detections; orange: 3D boxes;" in key and "points, blue near to red far" in key
     path = write_review_mcap(tmp_path / "all.mcap", site, loaded, max_frames=0)
     with open(path, "rb") as f:
         assert sum(1 for _ in make_reader(f).iter_messages(topics=["/front/image"])) == 12
@@ -430,9 +431,23 @@ def test_hdf5_cache_refuses_an_absurd_camera_and_nan_yawed_boxes(tmp_path, datas
         open_source(bad)[0]
 
 
+def _pandaset_edited(tmp_path, src, edit):
+    """A copy of the PandaSet folder ``src`` (its files linked) whose calibration.json ``edit`` changed."""
+    root = tmp_path / "pandaset_002"
+    root.mkdir()
+    for p in src.iterdir():
+        if p.name != "calibration.json":
+            (root / p.name).symlink_to(p)
+    cal = json.loads((src / "calibration.json").read_text())
+    edit(cal)
+    (root / "calibration.json").write_text(json.dumps(cal))
+    return root
+
+
 @pytest.mark.parametrize("key,value,match", [
     ("width", float("inf"), r"cameras\.front_camera\.width.*expected an image size"),
     ("height", [1080], r"cameras\.front_camera\.height.*expected an image size"),
+    ("width", False, r"cameras\.front_camera\.width.*expected an image size"),
     ("model", "fisheye", r"cameras\.front_camera\.model.*unsupported camera model 'fisheye'"),
     ("distortion", [0.1, 0.0, 0.0, 0.0], r"cameras\.front_camera\.distortion.*undistorted"),
     ("fx", 1e12, r"cameras\.front_camera\.fx"),
@@ -443,35 +458,27 @@ def test_pandaset_camera_fields_are_checked(tmp_path, key, value, match):
     from xcalib.errors import FormatError
     from xcalib.io.sources import open_source
 
-    src = shared_path("pandaset_002")
-    root = tmp_path / "pandaset_002"
-    root.mkdir()
-    for p in src.iterdir():
-        if p.name != "calibration.json":
-            (root / p.name).symlink_to(p)
-    cal = json.loads((src / "calibration.json").read_text())
-    cal["cameras"]["front_camera"][key] = value
-    (root / "calibration.json").write_text(json.dumps(cal))
+    def edit(cal):
+        cal["cameras"]["front_camera"][key] = value
+
+    root = _pandaset_edited(tmp_path, shared_path("pandaset_002"), edit)
     with pytest.raises(FormatError, match=r"calibration\.json.*" + match):
         open_source(root)[0]
 
 
-@pytest.mark.parametrize("value,match", [(1e12, r"T_cam_lidar.*(rotation|orthonormal|rigid)"),
-                                         (True, r"T_cam_lidar.*expected a number|T_cam_lidar")])
-def test_pandaset_recorded_pose_must_be_rigid(tmp_path, value, match):
+@pytest.mark.parametrize("entry,value,match", [((0, 1), 1e12, r"T_cam_lidar.*(rotation|orthonormal|rigid)"),
+                                               ((0, 1), True, r"T_cam_lidar.*(true / false|rotation)"),
+                                               # true where 1 stands was read as 1.0: a valid pose
+                                               ((3, 3), True, r"T_cam_lidar.*expected 4x4 numbers, got true / false")])
+def test_pandaset_recorded_pose_must_be_rigid(tmp_path, entry, value, match):
     from conftest import shared_path
 
     from xcalib.errors import FormatError
     from xcalib.io.sources import open_source
 
-    src = shared_path("pandaset_002")
-    root = tmp_path / "pandaset_002"
-    root.mkdir()
-    for p in src.iterdir():
-        if p.name != "calibration.json":
-            (root / p.name).symlink_to(p)
-    cal = json.loads((src / "calibration.json").read_text())
-    cal["cameras"]["front_camera"]["frames"]["00"]["T_cam_lidar"][0][1] = value
-    (root / "calibration.json").write_text(json.dumps(cal))
+    def edit(cal):
+        cal["cameras"]["front_camera"]["frames"]["00"]["T_cam_lidar"][entry[0]][entry[1]] = value
+
+    root = _pandaset_edited(tmp_path, shared_path("pandaset_002"), edit)
     with pytest.raises(FormatError, match=r"calibration\.json.*frames\.00\." + match):
         open_source(root)[0]

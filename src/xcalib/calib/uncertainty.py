@@ -782,6 +782,7 @@ def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None 
     occl = free.delta(pose)
     jack = pose_jackknife(ctx) if halves is None else None
     obj, clus, clus_dof, n_obj, misfit, box_info, groups = None, None, None, 0, None, {}, None
+    clus_extra: dict = {}  # the CR2 correlation / cross-dof (clusters / objects modes only)
     outl_fit = _outline_fit(frames, pairs, intr, pose, noise, f_scale=f_scale, occlusion=occlusion)
     outl = None if outl_fit is None else outl_fit[1].pose.delta(pose)
     if mode in ("clusters", "objects"):

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FormatError
+from ..geometry.camera import check_camera_numbers
 from ..geometry.rotations import orthonormality_error, orthonormalize, quaternion_to_matrix
 
 __all__ = ["ROTATION_TOL", "REPAIR_TOL", "require_numbers", "as_matrix", "checked_rotation", "checked_quaternion",
@@ -76,7 +77,8 @@ def as_matrix(values, shape: tuple[int, ...], path, field: str, *, alt_shapes=()
     """Numbers -> float64 array of ``shape`` (flat lists are reshaped row-major).
 
     ``alt_shapes`` lists other accepted shapes (e.g. a [4,4] for a [3,4] whose last row is
-    ``0 0 0 1``); the result is always ``shape``.
+    ``0 0 0 1``); the result is always ``shape``. A JSON true / false is not a number (as in
+    :func:`as_float`; NumPy would read it as 1.0 / 0.0).
     """
     try:
         a = np.asarray(values, dtype=np.float64)
@@ -93,9 +95,20 @@ def as_matrix(values, shape: tuple[int, ...], path, field: str, *, alt_shapes=()
         else:
             accepted = " or ".join(_shape_str(s) for s in (shape, *alt_shapes))
             raise FormatError(path, f"expected {accepted} = {n} numbers, got {a.size} (shape {a.shape})", field)
+    if _holds_bool(values):  # checked once the values are known to be a small regular array
+        raise FormatError(path, f"expected {_shape_str(shape)} numbers, got true / false", field)
     if not np.all(np.isfinite(a)):
         raise FormatError(path, "matrix has NaN/Inf entries", field)
     return a
+
+
+def _holds_bool(values) -> bool:
+    """Whether ``values`` (a number, nested lists, an array) is or holds a bool."""
+    if isinstance(values, np.ndarray):
+        return values.dtype == np.bool_ or (values.dtype == object and any(map(_holds_bool, values.ravel())))
+    if isinstance(values, (list, tuple)):
+        return any(map(_holds_bool, values))
+    return isinstance(values, (bool, np.bool_))
 
 
 def _shape_str(shape) -> str:
@@ -130,23 +143,14 @@ def path_str(path: str | Path | None) -> str:
     return "<input>" if path is None else str(path)
 
 
-#: Largest focal length or |principal point| (px) a camera file may hold (images are at most ~1e5 px
-#: wide; beyond that the numbers are corrupt, not a camera).
-MAX_PIXELS = 1.0e6
-
-
 def plausible_camera(intr, path, field: str = "intrinsics"):
     """``intr`` (a pinhole ``CameraIntrinsics``) when its numbers can be a real camera's
-    (``check_plausible``: focal lengths against the image size, square-ish pixels, distortion;
-    every value within :data:`MAX_PIXELS`), else a FormatError naming the file and ``field``."""
+    (``geometry.camera.check_camera_numbers``: every value within ``MAX_PIXELS``, then
+    ``check_plausible``), else a FormatError naming the file and ``field``."""
     if intr is None or not hasattr(intr, "check_plausible") or not hasattr(intr, "fx"):
         return intr
-    big = max(abs(float(intr.fx)), abs(float(intr.fy)), abs(float(intr.cx)), abs(float(intr.cy)))
-    if not big <= MAX_PIXELS:
-        raise FormatError(path, f"fx={intr.fx:g}, fy={intr.fy:g}, cx={intr.cx:g}, cy={intr.cy:g}: beyond "
-                                f"{MAX_PIXELS:g} px (corrupt data)", field)
     try:
-        intr.check_plausible()
+        check_camera_numbers(intr)
     except ValueError as exc:
         raise FormatError(path, str(exc), field) from None
     return intr

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import FormatError
 from ..geometry.boxes import box7_corners, box7_to_extents, boxes2d_from_points, check_boxes3d
-from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera import MAX_PIXELS, CameraIntrinsics
 from ..geometry.projection import project_points
 from ..geometry.transforms import invert_transform, make_transform
 from ..types import Frame
@@ -220,9 +220,9 @@ def parse_kitti_calibration(text: str, path=None, *, repair: bool = False) -> Ki
                             path=None if path is None else str(path))
 
 
-#: Bounds of a plausible calibration file: translations (m) and pixel values (px) beyond them are
-#: corrupt data or wrong units (camera-LiDAR rigs are metres apart, images at most 1e5 px wide).
-MAX_TRANSLATION_M, MAX_PIXELS = 1.0e4, 1.0e6
+#: Bound of a plausible calibration file: translations (m) beyond it are corrupt data or wrong units
+#: (camera-LiDAR rigs are metres apart); pixel values: ``geometry.camera.MAX_PIXELS``.
+MAX_TRANSLATION_M = 1.0e4
 
 
 def _translation(t: np.ndarray, path, key: str) -> np.ndarray:

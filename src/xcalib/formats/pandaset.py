@@ -90,7 +90,7 @@ def read_pandaset_cuboids(path) -> dict:
 def _size(cal_path: Path, cam: dict, key: str, pre: str) -> int | None:
     """An image width / height: a positive integer, or absent / null / 0 (unknown)."""
     v = cam.get(key)
-    if v is None or v == 0:
+    if v is None or (v == 0 and not isinstance(v, bool)):  # (false == 0 in Python: not a size either)
         return None
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v != int(v) or not 0 < v <= 1e5:
         raise FormatError(cal_path, f"expected an image size in pixels (an integer 1..100000), got {str(v)[:40]!r}",

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import FormatError
+from .pointcloud import MAX_COORD_M
 
 __all__ = ["check_boxes_2d", "check_boxes_3d", "check_rigid", "check_count", "RIGID_TOL"]
 
@@ -33,8 +34,8 @@ def check_boxes_2d(source, field: str, b: np.ndarray) -> np.ndarray:
     return b
 
 
-#: Largest |coordinate| or size (m) of a 3D box: the point clouds' own limit (``io.pointcloud.MAX_COORD_M``).
-MAX_BOX_M = 1.0e5
+#: Largest |coordinate| or size (m) of a 3D box: the point clouds' own limit.
+MAX_BOX_M = MAX_COORD_M
 
 
 def check_boxes_3d(source, field: str, b: np.ndarray) -> np.ndarray:

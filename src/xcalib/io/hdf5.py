@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError
-from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera import CameraIntrinsics, check_camera_numbers
 from ..types import DatasetFrame, Frame
 from .files import tmp_prefix, open_regular, sweep_stale
 from ._validate import check_boxes_2d, check_boxes_3d, check_count, check_rigid
@@ -962,21 +962,13 @@ class CacheWriter:
         return self.path
 
 
-#: Largest focal length or |principal point| (px) of a camera (images are at most ~1e5 px wide).
-_MAX_PIXELS = 1.0e6
-
-
 def _plausible(intr, path, field: str) -> None:
-    """A pinhole camera's numbers can be a real camera's (``check_plausible`` and within
-    ``_MAX_PIXELS``), else a FormatError naming the dataset."""
+    """A pinhole camera's numbers can be a real camera's (``geometry.camera.check_camera_numbers``),
+    else a FormatError naming the dataset."""
     if intr is None or not hasattr(intr, "check_plausible") or not hasattr(intr, "fx"):
         return
-    big = max(abs(float(intr.fx)), abs(float(intr.fy)), abs(float(intr.cx)), abs(float(intr.cy)))
-    if not big <= _MAX_PIXELS:
-        raise FormatError(path, f"fx={intr.fx:g}, fy={intr.fy:g}, cx={intr.cx:g}, cy={intr.cy:g}: beyond "
-                                f"{_MAX_PIXELS:g} px (corrupt data)", field=field)
     try:
-        intr.check_plausible()
+        check_camera_numbers(intr)
     except ValueError as exc:
         raise FormatError(path, str(exc), field=field) from None
 

@@ -136,8 +136,8 @@ def _annotations(ns: int, frame, result, max_points: int) -> dict:
                     pts.append({"timestamp": _t(ns), "type": _LINE_LIST, "thickness": 1.5, "points": seg,
                                 "outline_color": _color(1.0, 0.55, 0.0), "outline_colors": [],
                                 "fill_color": _color(0, 0, 0, 0)})
-    key = ("green: 2D detections" + ("; orange: 3D boxes and LiDAR points (blue near, red far) projected with "
-                                       "the calibration" if result is not None and result.success else
+    key = ("green: 2D detections" + ("; orange: 3D boxes; dots: LiDAR points, blue near to red far; both projected "
+                                       "with the calibration" if result is not None and result.success else
                                        "; no pose: nothing projected"))
     texts = [{"timestamp": _t(ns), "position": {"x": 8.0, "y": 20.0}, "text": key, "font_size": 16.0,
               "text_color": _color(1, 1, 1), "background_color": _color(0, 0, 0, 0.6)}]
