@@ -86,19 +86,23 @@ def _inset_edge_term(base, term_name: str, n_offsets: int, insets, prior: float)
     return InsetEdgeTerm()
 
 
-def fit_outline(frames, pairs, intr, pose, noise, f_scale: float, occlusion) -> dict:
+def fit_outline(frames, pairs, intr, pose, noise, f_scale: float, occlusion, fitted=None) -> dict:
     """The detector-outline offsets (``outline_edge_term``) fitted jointly with the pose at
     ``pose`` (matches held): what the 2D boxes say about how they relate to the 3D outlines in use.
     Returns {"sides", "top", "bottom": shares of the projected box size (positive: the 2D box lies
     inside), "sd": their 1-sigma (Jacobian), "pose_shift": [deg, m] the pose moves when they are
-    freed, "n_pairs"}; {} with fewer than 12 pairs."""
+    freed, "n_pairs"}; {} with fewer than 12 pairs. ``fitted``: (model, fit) of this very refit made
+    already (``uncertainty.outline_fit``, the same inputs and ``max_nfev``), used instead of refitting."""
     from .refine import build_cost
 
     n = int(sum(len(p) for p in pairs))
     if n < 12:
         return {}
-    model = build_cost(frames, pairs, intr, pose, noise, occlusion, edge=outline_edge_term)
-    fit = model.fit(f_scale=f_scale, max_nfev=60)
+    if fitted is None:
+        model = build_cost(frames, pairs, intr, pose, noise, occlusion, edge=outline_edge_term)
+        fit = model.fit(f_scale=f_scale, max_nfev=60)
+    else:
+        model, fit = fitted
     a = np.asarray(fit.params["box_outline"], dtype=np.float64)
     out = {k: float(v) for k, v in zip(OUTLINE_PARAMS, a)}
     try:
