@@ -80,6 +80,28 @@ def test_outline_fit_is_shared_by_the_uncertainty_and_the_diagnostics_bit_for_bi
     assert not again._results and again.f_scale == ctx.f_scale and again.pose.error(ctx.pose) == (0.0, 0.0)
 
 
+def test_outline_offsets_jacobian_is_analytic_and_matches_central_differences():
+    # issue 29: the outline-offset fits (common and per kind) ran scipy with "2-point" Jacobians; their
+    # term now gives its derivative (pose, offsets, occlusion shaping, prior rows)
+    from xcalib.calib.boxmodel import kind_outline_edge_term, outline_edge_term
+    from xcalib.calib.refine import build_cost
+
+    frames, T = sim_frames(seed=3, n_frames=6, noise_px=1.0, miss=0.0, false_pos=0.0, extra_3d=0)
+    cframes, pairs, intr, noise = _setup(_shrunk(frames, 0.06, 0.08, 0.02), T)
+    truth = Pose(T[:3, :3], T[:3, 3])
+    rng = np.random.default_rng(0)
+    for edge in (outline_edge_term, kind_outline_edge_term()):
+        for occl in (Occlusion(), None):
+            model = build_cost(cframes, pairs, intr, truth, noise, occl, edge=edge)
+            assert model.has_analytic_jacobian()
+            x = np.concatenate([rng.normal(0, 2e-3, 6), rng.normal(0, 0.05, model.n_params - 6)])
+            J = model.analytic_jacobian(x)
+            num = np.column_stack([(model.residuals(x + d) - model.residuals(x - d)) / 2e-7
+                                   for d in np.eye(model.n_params) * 1e-7])
+            assert J.shape == num.shape and np.abs(J[:, 6:]).max() > 1.0  # the offsets' columns are filled
+            assert np.allclose(J, num, rtol=1e-5, atol=1e-4)
+
+
 def test_box_model_odds_weigh_the_corner_outline_by_the_evidence_per_object():
     assert box_model_odds(100.0, 100.0, 120, 30) == 0.5  # equally good: half the shift counts, as before
     assert box_model_odds(100.0, 300.0, 120, 30) < 1e-6  # corners far worse: the floor vanishes
