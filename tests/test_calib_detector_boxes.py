@@ -84,15 +84,17 @@ def test_outline_offsets_jacobian_is_analytic_and_matches_central_differences():
     # issue 29: the outline-offset fits (common and per kind) ran scipy with "2-point" Jacobians; their
     # term now gives its derivative (pose, offsets, occlusion shaping, prior rows)
     from xcalib.calib.boxmodel import kind_outline_edge_term, outline_edge_term
+    from xcalib.calib.cost import FocalScaleTerm, PrincipalPointTerm
     from xcalib.calib.refine import build_cost
 
     frames, T = sim_frames(seed=3, n_frames=6, noise_px=1.0, miss=0.0, false_pos=0.0, extra_3d=0)
     cframes, pairs, intr, noise = _setup(_shrunk(frames, 0.06, 0.08, 0.02), T)
     truth = Pose(T[:3, :3], T[:3, 3])
     rng = np.random.default_rng(0)
-    for edge in (outline_edge_term, kind_outline_edge_term()):
+    for edge, extra in ((outline_edge_term, ()), (kind_outline_edge_term(), ()), (outline_edge_term, (FocalScaleTerm(),)),
+                        (outline_edge_term, (PrincipalPointTerm(),))):  # the misfit checks' refits too
         for occl in (Occlusion(), None):
-            model = build_cost(cframes, pairs, intr, truth, noise, occl, edge=edge)
+            model = build_cost(cframes, pairs, intr, truth, noise, occl, extra, edge=edge)
             assert model.has_analytic_jacobian()
             x = np.concatenate([rng.normal(0, 2e-3, 6), rng.normal(0, 0.05, model.n_params - 6)])
             J = model.analytic_jacobian(x)
