@@ -30,7 +30,9 @@ draws of its detection noise (``generate_frames(noise_seed=k)``), each fitted wi
 from the true pose with the calibration's own cost; per site the mean error (its bias), the spread,
 the linearised 1-sigma of the 2D and 3D centre noise, every draw's error in it (z), and the error
 with all detection noise off (what no noise explains: occlusion, truncation). Stored under the
-label's ``resample`` / ``resample_summary`` (no calibration records).
+label's ``resample`` / ``resample_summary`` (no calibration records). ``--hidden`` adds each draw's
+hidden-edge sigma part (its mean shift per site against the site's bias, the rms of its excess over
+its noise); ``--seeds 5,9,11`` picks sites.
 
 Results go to ``benchmarks/results/camera_models.json`` under ``--label`` (runs in parallel, e.g.
 one per model, save under a file lock); ``--summary`` prints the Done-when table pooled over the
@@ -40,7 +42,7 @@ stored runs made at the current uncertainty (``POOL_SINCE``), one record per row
         [--sites 1] [--first-seed 0] [--models kannala_brandt,double_sphere] [--fovs 120,150,185]
         [--frames 20] [--jobs 1] [--seed-major] [--no-calibration] [--pinhole-check-only]
         [--no-pinhole-rows] [--no-pinhole-check] [--round-trips] [--bag kannala_brandt:185:0] [--matching]
-        [--resample K] [--label run] [--summary]
+        [--resample K [--hidden] [--seeds 5,9]] [--label run] [--summary]
 
 The whole Done-when grid (20 sites per cell; ~15-20 s of CPU per wide-angle calibration with
 ``--jobs 1``, so ~2 CPU-hours in all), one process per model:
@@ -244,7 +246,8 @@ def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole:
     # what the sigma was made of (the coverage analysis of issue 26: which part is short, where)
     rec.update(n_objects=getattr(u, "n_objects", None), focal_estimated=bool(sc.focal_estimated),
                sigma_parts={k: getattr(u, k, None) for k in ("jacobian", "clusters", "frames", "occlusion", "floor",
-                                                              "selfcal", "outline", "object_outline")}
+                                                              "selfcal", "outline", "object_outline", "hidden",
+                                                              "hidden_noise")}
                if u is not None else None)
     # matches that pair a 2D box with another object's 3D box (the frames' true match matrices)
     rec["wrong_matches"] = int(sum(int(np.sum(np.asarray(f.match_matrix)[p[:, 0], p[:, 1]] <= 0))
@@ -268,12 +271,13 @@ def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole:
     return rec
 
 
-def _true_pair_fit(site, raw, true, levels: tuple[float, float]):
+def _true_pair_fit(site, raw, true, levels: tuple[float, float], hidden: bool = False):
     """Fit of synthetic frames ``raw`` with their true matches from the true pose ``true``, with the
     calibration's own cost (per-edge noise model fitted to the residuals, occlusion shaping,
     soft-L1): (pose error [6] deg / m, linearised 1-sigma [6] of that fit under the generator's 2D
     edge noise and isotropic 3D centre noise ``levels`` = (px, m), each edge and each box
-    independent)."""
+    independent); with ``hidden``, also the sigma's hidden-edge part at that fit
+    (``uncertainty.hidden_edge_shift``: (shift, its noise), clustered by object)."""
     from xcalib.calib.context import F_SCALE, FitContext
     from xcalib.calib.cost import Occlusion
     from xcalib.calib.inputs import prepare_frames
@@ -300,17 +304,24 @@ def _true_pair_fit(site, raw, true, levels: tuple[float, float]):
     C = C + levels[1] ** 2 * np.einsum("pnj,qnj->pq", A, A)
     sd = np.sqrt(np.diag(C))[:6]
     d = fit.delta(true)
+    if hidden:
+        from xcalib.calib.uncertainty import hidden_edge_shift, object_groups
+
+        ctx = FitContext(frames, pairs, intr, fit, noise, F_SCALE, Occlusion())
+        return d, np.concatenate([np.degrees(sd[:3]), sd[3:]]), hidden_edge_shift(ctx, object_groups(frames, pairs))
     return d, np.concatenate([np.degrees(sd[:3]), sd[3:]])
 
 
-def resample_case(model: str, fov: float, seed: int, n_frames: int, draws: int) -> dict:
+def resample_case(model: str, fov: float, seed: int, n_frames: int, draws: int, hidden: bool = False) -> dict:
     """Bias or spread? One site's traffic with ``draws`` fresh draws of its detection noise
     (``generate_frames(noise_seed=k)``), each fitted with its true matches from the true pose
     (``_true_pair_fit``): per axis the mean error over the draws (the site's bias), their spread,
     the mean linearised 1-sigma (what the 2D and 3D centre noise alone explain) and each draw's
     error in it (z), and the error of the same traffic with every detection noise off (the part
-    no noise explains: occlusion, truncation, the box model)."""
+    no noise explains: occlusion, truncation, the box model). ``hidden``: also per draw the sigma's
+    hidden-edge part (``--hidden``: its mean shift against the bias, its mean excess over its noise)."""
     from xcalib.calib.pose import Pose
+    from xcalib.calib.uncertainty import SHIFT_NOISE_Z, excess
     from xcalib.data.synth import generate_frames, sample_site
 
     site = sample_site(seed, camera_model=model, hfov_deg=fov, width=1280, height=800, box_noise_px=1.0)
@@ -320,15 +331,21 @@ def resample_case(model: str, fov: float, seed: int, n_frames: int, draws: int) 
     quiet = dict(box_noise_px=0.0, center_noise_m=0.0, size_noise_frac=0.0, yaw_noise_deg=0.0)
     d0, _ = _true_pair_fit(site, generate_frames(site, n_frames, seed, render_images=False, lidar=False, **quiet),
                            true, levels)
-    D, S = [], []
+    D, S, H, X = [], [], [], []
     for k in range(draws):
         raw = generate_frames(site, n_frames, seed, render_images=False, lidar=False, noise_seed=k)
-        d, sd = _true_pair_fit(site, raw, true, levels)
-        D.append(d)
-        S.append(sd)
+        out = _true_pair_fit(site, raw, true, levels, hidden)
+        D.append(out[0])
+        S.append(out[1])
+        if hidden and out[2][0] is not None:
+            H.append(out[2][0])
+            X.append(excess(out[2][0], out[2][1], SHIFT_NOISE_Z))
     D, S = np.array(D), np.array(S)
     Z = D / np.maximum(S, 1e-12)
-    return {"row": f"{model} {fov:g} deg", "model_name": model, "hfov_deg": fov, "seed": seed, "draws": draws,
+    extra = {} if not H else {"hidden_mean": [float(v) for v in np.mean(H, 0)],
+                              "hidden_excess_rms": [float(v) for v in np.sqrt(np.mean(np.square(X), 0))],
+                              "hidden": np.round(H, 5).tolist()}
+    return extra | {"row": f"{model} {fov:g} deg", "model_name": model, "hfov_deg": fov, "seed": seed, "draws": draws,
             "noise_levels": list(levels), "noise_free": [float(v) for v in d0],
             "mean": [float(v) for v in D.mean(0)], "spread": [float(v) for v in D.std(0)],
             "sd_linear": [float(v) for v in S.mean(0)], "z_rms": [float(v) for v in np.sqrt((Z ** 2).mean(0))],
@@ -545,6 +562,10 @@ def main(argv=None) -> int:
     ap.add_argument("--resample", type=int, default=0, metavar="K",
                     help="instead of calibrating: K fresh draws of each site's detection noise, fitted with the true "
                          "matches from the true pose; per site its bias, spread and linearised sigma (resample_case)")
+    ap.add_argument("--hidden", action="store_true",
+                    help="with --resample: also each draw's hidden-edge sigma part (uncertainty.hidden_edge_shift)")
+    ap.add_argument("--seeds", default="",
+                    help="with --resample: these site seeds (comma-separated) instead of --first-seed / --sites")
     ap.add_argument("--label", default="run")
     ap.add_argument("--summary", action="store_true",
                     help="only print the table pooled over the stored runs (see POOL_SINCE) and store it as 'pooled'")
@@ -605,11 +626,11 @@ def main(argv=None) -> int:
         extra["resample"] = rs = []
         models = [m for m in a.models.split(",") if m]
         fovs = [float(f) for f in a.fovs.split(",") if f]
-        cases = [] if a.no_pinhole_rows else [("pinhole", 90.0, s) for s in range(a.first_seed, a.first_seed + a.sites)]
-        cases += [(m, f, s) for m in models for f in sorted(fovs, reverse=True)
-                  for s in range(a.first_seed, a.first_seed + a.sites)]
+        seeds = [int(v) for v in a.seeds.split(",") if v] or list(range(a.first_seed, a.first_seed + a.sites))
+        cases = [] if a.no_pinhole_rows else [("pinhole", 90.0, s) for s in seeds]
+        cases += [(m, f, s) for m in models for f in sorted(fovs, reverse=True) for s in seeds]
         for m, f, sd in cases:
-            r = resample_case(m, f, sd, a.frames, a.resample)
+            r = resample_case(m, f, sd, a.frames, a.resample, a.hidden)
             rs.append(r)
             extra["resample_summary"] = summarise_resample(rs)
             _save(a, tp, [], [], extra)
@@ -617,6 +638,9 @@ def main(argv=None) -> int:
                   f"{np.round(r['mean'][:3], 3)}, spread {np.round(r['spread'][:3], 3)}, linear sd "
                   f"{np.round(r['sd_linear'][:3], 3)}, z rms {np.round(r['z_rms'][:3], 2)} mean "
                   f"{np.round(r['z_mean'][:3], 2)} ({r['cpu_s']:.0f} s CPU)", flush=True)
+            if "hidden_mean" in r:
+                print(f"    bias {np.round(r['mean'], 4)}; hidden-edge shift, mean {np.round(r['hidden_mean'], 4)}, "
+                      f"excess rms {np.round(r['hidden_excess_rms'], 4)}", flush=True)
         for r in extra.get("resample_summary", []):
             print(f"{r['row']:24s} {r['sites']} sites x draws ({r['draws']}): z rms {np.round(r['z_rms'], 2)}, "
                   f"|z|<=2 {np.round(r['within_2'], 2)}, sites' mean z rms {np.round(r['bias_z_rms'], 2)}")

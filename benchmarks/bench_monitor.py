@@ -54,6 +54,15 @@ reads ``monitor.json``, runs nothing).
     ... --part relin_a9 --real-null 800 --real-frames 320 --relin-band 0.4 --relin-factor 2
     ... --part verdict
 
+``--part persist``: do the frames' errors persist over frames (``monitor_persistence``: block
+variance against the stated one per window length and axis, autocorrelation, the tests' null
+spread) on the null streams, the z step cells (``PERSIST_CELLS``, ``--runs`` per ``--step-seeds``
+site) and the looped real sets (``--real-null`` frames); the change test's variants
+(``monitor_persistence.VARIANTS``: the inflation's floor lowered, a factor on the covariance)
+replayed offline on the same recorded frames (``monitor.json`` ``persist_s10``).
+
+    ... --part persist --null-frames 2400 --null-base 1200 --null-seeds 3,5,11,17 --step-seeds 3,11,17 --runs 2 --real-null 480 --jobs 2
+
 ``--part reference``: the change test calibrated per axis and window length
 (``CameraMonitor.axis_factors``) from a drift-free reference stretch of each site
 (``Monitor.learn``), against the test without it and with only the stream's own ~250 frames, on
@@ -493,6 +502,12 @@ def _pandaset(n_null: int, n_step: int, log) -> dict:
     root = SHARED / "pandaset_002"
     if not root.exists():
         return {"skipped": f"data not found: {root}"}
+    base, cal = _pandaset_base(root)
+    return _real_case("PandaSet", base, cal, n_null, n_step, log, jitter_px=0.5)
+
+
+def _pandaset_base(root: Path) -> tuple[list, object]:
+    """``_pandaset``'s frames (three draws of 2D boxes per frame, rebased) and calibration."""
     from xcalib.data.boxes2d import synthetic_2d_boxes
     from xcalib.formats.pandaset import PandaSetFrames
 
@@ -505,8 +520,7 @@ def _pandaset(n_null: int, n_step: int, log) -> dict:
                                 point_cloud=np.zeros((0, 3), np.float32)))
     base, T0 = _rebased(base)
     cal = _gt_calibration(base, T0, base[0].camera_name or "front_camera")
-    base = [replace(f, extrinsics=None, camera_name=cal.camera_name) for f in base]
-    return _real_case("PandaSet", base, cal, n_null, n_step, log, jitter_px=0.5)
+    return [replace(f, extrinsics=None, camera_name=cal.camera_name) for f in base], cal
 
 
 def _kitti(n_null: int, n_step: int, log) -> dict:
@@ -516,6 +530,12 @@ def _kitti(n_null: int, n_step: int, log) -> dict:
     root = SHARED / "kitti" / "openpcdet_pr653" / "training"
     if not root.exists():
         return {"skipped": f"data not found: {root}"}
+    base, cal = _kitti_base(root)
+    return _real_case("KITTI", base, cal, n_null, n_step, log)
+
+
+def _kitti_base(root: Path) -> tuple[list, object]:
+    """``_kitti``'s frames (one camera, rebased) and calibration."""
     from xcalib.formats.kitti import kitti_frames
 
     seq = kitti_frames(root)
@@ -530,8 +550,7 @@ def _kitti(n_null: int, n_step: int, log) -> dict:
         same.append(replace(f, bboxes_2d=b2.astype(np.float32), intrinsics=k0, image=np.zeros((1, 1, 3), np.uint8)))
     base, T0 = _rebased(same)
     cal = _gt_calibration(base, T0, base[0].camera_name or "image_2")
-    base = [replace(f, extrinsics=None, camera_name=cal.camera_name) for f in base]
-    return _real_case("KITTI", base, cal, n_null, n_step, log)
+    return [replace(f, extrinsics=None, camera_name=cal.camera_name) for f in base], cal
 
 
 def _value(v: str):
@@ -556,7 +575,7 @@ def main() -> None:
     ap.add_argument("--null-noise", choices=("both", "default", "noisy"), default="both",
                     help="--part null: which detection noise (two processes can share the work)")
     ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak", "information", "reference", "bound",
-                                       "relin", "relin_a9", "verdict"),
+                                       "relin", "relin_a9", "verdict", "persist"),
                     default="all",
                     help="run one part; its keys are merged into an existing results file")
     ap.add_argument("--reference-frames", type=int, default=2400,
@@ -621,6 +640,13 @@ def main() -> None:
             f"z steps at sites {sseeds} ({args.runs} runs)")
         result["relin_s9"] = _relin(nseeds, args.null_base, n_null, sseeds, args.runs, args.relin_band, log,
                                     prev.get("bound_s8"))
+    elif args.part == "persist":  # do the frames' errors persist; the test's null from the stream's own spread
+        nseeds = ([int(v) for v in args.null_seeds.split(",") if v.strip()] if args.null_seeds
+                  else [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites])
+        sseeds = [int(v) for v in args.step_seeds.split(",") if v.strip()]
+        log(f"== persistence and the test's null: null {n_null} frames x sites {nseeds}, z steps at {sseeds} "
+            f"({args.runs} runs per site)")
+        result["persist_s10"] = _persist(nseeds, args.null_base, n_null, sseeds, args.runs, log, args.real_null)
     elif args.part == "verdict":  # each z step cell against what the boxes allow at its site (no monitor run)
         import json
 
@@ -870,6 +896,100 @@ def _relin(null_seeds: list[int], n_base: int, n_null: int, step_seeds: list[int
                 for k, v in row.items()) + f"; ratio after the change {_f(cellrow['ratio_after_change_median'], 2)}"
                 + (f"; bound: {cellrow['bound']['verdict']} (6-dof time known {cellrow['bound']['bound_6dof_time_known']:.2f})"
                    if "bound" in cellrow else ""), flush=True)
+    return out
+
+
+PERSIST_CELLS = [("translation", 0.10, 50, 2), ("translation", 0.20, 20, 2)]
+
+
+def _persist_null(job) -> dict:
+    """One drift-free stream (``_null_site``'s): the monitor's frames recorded once
+    (``monitor_persistence.collect``), their persistence measured on the generated (not yet
+    looped) frames, and every variant of the change test replayed on the whole stream."""
+    import monitor_persistence as mp
+
+    s, n_base, n, noise = job
+    site, base = _synth_stream(s, n_base, **noise)
+    d = mp.collect(_synth_calibration(site), _replay(base, n, s, 0.5, 0.05))
+    head = {k: (v[:n_base] if k in ("H", "g", "c", "n_res", "objects") else v) for k, v in d.items()}
+    fig = mp.analyse(head)
+    alarms, phis = {}, {}
+    for name, kw in mp.VARIANTS.items():
+        alarms[name], phis[name] = mp.null_alarms(d["rows"], d["cov_cal"], d["threshold"], **kw)
+    return {"frames": len(d["rows"]), "persistence": fig, "alarms": alarms, "inflation_median": phis,
+            "cpu_ms": d["cpu_ms"]}
+
+
+def _persist_steps(job) -> dict:
+    """One site's z step runs: each recorded once (no alarm may move the linearisation), each
+    variant's first detection replayed."""
+    import monitor_persistence as mp
+    from xcalib.monitor.inject import inject_change
+
+    s, runs = job
+    site, frames = _synth_stream(s, PRE + POST + 137 * max(runs - 1, 0) + 1)
+    cal = _synth_calibration(site)
+    out = {}
+    for kind, size, within, axis in PERSIST_CELLS:
+        r_, t_ = _change(kind, size, axis)
+        res = {name: [] for name in mp.VARIANTS}
+        for r in range(runs):
+            k0 = PRE + r * 137
+            seg = [inject_change(f, cal, r_, t_) if i >= PRE else f for i, f in enumerate(frames[k0 - PRE:k0 + POST])]
+            d = mp.collect(cal, seg)
+            for name, kw in mp.VARIANTS.items():
+                res[name].append(mp.first_detection(d["rows"], d["cov_cal"], d["threshold"], **kw))
+        out[f"t{AXES[axis]}_{size:g}_within_{within}"] = res
+    return out
+
+
+def _persist(null_seeds: list[int], n_base: int, n_null: int, step_seeds: list[int], runs: int, log,
+             real_frames: int = 0) -> dict:
+    """Do the monitor's per-frame errors persist over frames, and does a test that uses the
+    stream's own spread (the inflation's floor lowered, or a factor on the covariance) keep the
+    false-alarm rate while detecting more z steps? (``monitor_persistence``: the persistence
+    figures; the variants replayed offline on the same recorded frames.)"""
+    import monitor_persistence as mp
+
+    out = {"variants": {k: dict(v) for k, v in mp.VARIANTS.items()}, "null": {}, "persistence": {}, "steps": {},
+           "note": "variants replayed from the recorded frames without the leave-objects-out guard "
+                   "(which only removes alarms): their false alarms are upper bounds; 'default' is the monitor's test"}
+    for name, noise in (("default", {}), ("noisy", {"box_noise_px": 4.0, "miss_rate_2d": 0.1})):
+        tot = dict.fromkeys(mp.VARIANTS, 0)
+        per_site, frames = {}, 0
+        for s, q in zip(null_seeds, _pmap(_persist_null, [(s, n_base, n_null, noise) for s in null_seeds])):
+            frames += q["frames"]
+            for v in tot:
+                tot[v] += q["alarms"][v]
+            per_site[f"site_{s}"] = {"alarms": q["alarms"], "inflation_median": q["inflation_median"]}
+            out["persistence"][f"site_{s}_{name}"] = q["persistence"]
+            mp._print(f"site {s} {name}", q["persistence"], log)
+            log(f"  site {s} {name}: {q['frames']} frames; alarms per variant {q['alarms']}; inflation "
+                + " ".join(f"{k} {v:.2f}" for k, v in q["inflation_median"].items()), flush=True)
+        out["null"][name] = {"frames": frames, "sites": null_seeds, "alarms": tot,
+                             "alarms_per_10k": {k: v / frames * 1e4 for k, v in tot.items()}, "per_site": per_site}
+        log(f"== null {name}: {frames} frames; false alarms per variant {tot}")
+    cells: dict = {}
+    for s, q in zip(step_seeds, _pmap(_persist_steps, [(s, runs) for s in step_seeds])):
+        for cell, res in q.items():
+            within = int(cell.rsplit("_", 1)[1])
+            for v, firsts in res.items():
+                c = cells.setdefault(cell, {}).setdefault(v, {"runs": 0, "detected_within": 0, "early": 0, "per_site": {}})
+                hits = [f is not None and 0 <= f - PRE <= within for f in firsts]
+                c["runs"] += len(firsts)
+                c["detected_within"] += sum(hits)
+                c["early"] += sum(f is not None and f < PRE for f in firsts)
+                c["per_site"][f"site_{s}"] = float(np.mean(hits))
+    for cell, byv in cells.items():
+        for v, c in byv.items():
+            c["detected_within"] = c["detected_within"] / max(c["runs"], 1)
+        log(f"{cell}: " + "; ".join(f"{v} {c['detected_within'] * 100:.0f} % (early {c['early']}; "
+                                    + " ".join(f"{k[5:]} {x * 100:.0f}" for k, x in c["per_site"].items()) + ")"
+                                    for v, c in byv.items()))
+    out["steps"] = cells
+    out["runs_per_site"] = runs
+    if real_frames:
+        out["real"] = mp.real(real_frames, log)
     return out
 
 

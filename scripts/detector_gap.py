@@ -215,7 +215,7 @@ def _with_pair_boxes(ctx):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--flips", type=int, default=40, help="sign-flip draws per detector case")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)

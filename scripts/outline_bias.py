@@ -21,7 +21,6 @@ objects (``boxmodel.outline_edge_term``) and (c) one set per size kind of object
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import sys
@@ -32,7 +31,6 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("XCALIB_SHARED_DATA", REPO.parent / "shared" / "data"))
-TRAFFIC = ("person", "bicycle", "car", "motorcycle", "bus", "truck", "train")
 ANGLE_BINS = ((0, 20), (20, 45), (45, 70), (70, 91))
 DIST_BINS = ((0, 30), (30, 50), (50, 80), (80, 1000))
 
@@ -41,15 +39,9 @@ def _detector_frames(frames, score: float):
     root = SHARED / "a9_sample"
     man = json.loads((root / "manifest.json").read_text())
     folder = {str(e["frame_key"]): Path(e["detections"]).parent.name for e in man["frames"]}
-    out = []
-    for f in frames:
-        d = json.loads((SHARED / "real_detections" / "yolox_nano_1280" / "a9" / f"{folder[f.frame_key]}.json").read_text())
-        keep = [x for x in d["detections"] if x["class"] in TRAFFIC and float(x["score"]) >= score]
-        boxes = np.array([[x["x1"], x["y1"], x["x2"], x["y2"]] for x in keep], dtype=np.float32).reshape(-1, 4)
-        meta = {**(f.meta or {}), "scores_2d": np.array([float(x["score"]) for x in keep]),
-                "classes_2d": [x["class"] for x in keep]}
-        out.append(dataclasses.replace(f, bboxes_2d=boxes, match_matrix=None, meta=meta))
-    return out
+    from detector_gap import detector_frames  # scripts/ (this script's folder): one reader of the detections
+
+    return detector_frames(frames, folder, "1280", score)
 
 
 def edge_insets(frames, intr, pairs, R, t) -> list[dict]:

@@ -111,3 +111,17 @@ def test_sigma_parts_bounds_on_the_stored_s10_run():
             assert np.all(rand <= var + 1e-15) and np.all(var <= np.asarray(rec["sigma_axes"]) ** 2 * (1 + 1e-9))
             checked += 1
     assert checked >= 30
+
+
+def test_frames_mode_calibrates_without_the_cr2_parts():
+    """``CalibConfig(uncertainty="frames")`` (the 0.4 sigma) computes no object-clustered sandwich,
+    so it has no CR2 correlation to keep: the calibration still completes (it raised
+    UnboundLocalError once the correlation was stored) and stores none."""
+    from xcalib.calib import CalibConfig, calibrate
+    from xcalib.data.synth import generate_frames, sample_site
+
+    frames = generate_frames(sample_site(3), 6, seed=1, render_images=False, lidar=False, box_noise_px=1.0)
+    r = calibrate(frames, frames[0].intrinsics, config=CalibConfig(uncertainty="frames"))
+    parts = r.diagnostics.uncertainty
+    assert r.success and parts is not None
+    assert parts.clusters is None and parts.clusters_corr is None and parts.clusters_dof_cross is None

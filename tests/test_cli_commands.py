@@ -146,10 +146,19 @@ def test_calibrate_a_cache_writes_result_and_html_report(calib_site, tmp_path, c
     from xcalib.io.hdf5 import CacheReader
 
     out = tmp_path / "cal"
-    rc = main(["calibrate", str(calib_site / "test.h5"), "--out", str(out), "--max-overlays", "2"])
+    rc = main(["calibrate", str(calib_site / "test.h5"), "--out", str(out), "--max-overlays", "2",
+               "--review-frames", "3"])
     assert rc == 0
     printed = capsys.readouterr().out
     assert "calibration OK" in printed and "report.html" in printed
+    # the verdict in plain words, and what the review file holds: 3 frames spread over all 8
+    assert re.search(r"^In short: a (usable|rough) pose", printed, re.M)
+    assert "review.mcap holds 3 of the recording's 8 frames, spread evenly" in printed
+    from mcap.reader import make_reader
+
+    with open(out / "review.mcap", "rb") as f:
+        stamps = [m.log_time for _, _, m in make_reader(f).iter_messages(topics=["/lidar/points"])]
+    assert len(stamps) == 3
     res = CalibrationResult.load(out / "calibration.json")
     truth = CacheReader(calib_site / "test.h5")[0].extrinsics
     rot_deg, trans_m = res.pose_error(truth)

@@ -113,7 +113,8 @@ def test_report_frames_reread_the_drawn_frames_whole():
     s = stream_views({"cam": rec})["cam"]
     rf = s.for_report(3)
     assert isinstance(rf, ReportFrames) and len(rf) == 12
-    assert rf.whole == {0, 1, 2, 6, 11}  # the overlays (spread) and the review file's first frames
+    assert rf.whole == {0, 6, 11}  # the overlays, spread (the review file's frames by default too)
+    assert s.for_report(3, [0, 3, 7, 11]).whole == {0, 3, 6, 7, 11}  # and the review file's given frames
     assert rf[6].point_cloud.shape == (20_000, 4) and rf[6].image.shape[0] == rec.intrinsics.height
     assert rf[5].point_cloud.shape[0] < 20_000 and rf[5].image.size == 0
     np.testing.assert_array_equal(rf[6].bboxes_3d, s[6].bboxes_3d)

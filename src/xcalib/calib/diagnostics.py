@@ -102,7 +102,11 @@ class UncertaintyParts:
     t_{0.975, dof} / 1.96, so that 2 sigma stays a 95 % bound with few objects); clusters_corr: the
     6x6 correlation of the (raw) CR2 covariance; clusters_dof_cross: the 6x6 relative covariance of
     its six variance estimates (1 / ``clusters_dof`` on the diagonal; ``uncertainty.cr2_covariance``),
-    from which the degrees of freedom of any sum of its variances follow (``uncertainty.bound_dof``)."""
+    from which the degrees of freedom of any sum of its variances follow (``uncertainty.bound_dof``);
+    hidden / hidden_noise: the pose shift when the box edges that lie on a nearer matched box are
+    censored (bounds, only their outward residual counts; ``uncertainty.hidden_edge_shift``) and its
+    sampling noise: a systematic part added in quadrature beyond that noise (None: not computed, or
+    the fit censors them already)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -122,6 +126,8 @@ class UncertaintyParts:
     clusters_dof: list[float] | None = None
     clusters_corr: list[list[float]] | None = None
     clusters_dof_cross: list[list[float]] | None = None
+    hidden: list[float] | None = None
+    hidden_noise: list[float] | None = None
 
 
 @dataclass

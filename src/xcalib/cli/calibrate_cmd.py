@@ -46,8 +46,12 @@ def register(app: typer.Typer) -> None:
         prior: Path = typer.Option(None, "--prior", help="Initial guess: a calibration file of any "
                                                          "format xcalib convert reads (skips bring-up; one camera)."),
         box_model: str = typer.Option("auto", "--box-model", help="auto | corners | points (3D box outline)."),
-        max_overlays: int = typer.Option(8, "--max-overlays", help="Overlay PNGs to draw per camera (0: none); "
-                                         "review.mcap holds the first N frames (at least 1)."),
+        max_overlays: int = typer.Option(8, "--max-overlays", help="Overlay PNGs to draw per camera (0: none), "
+                                         "spread over the recording."),
+        review_frames: int = typer.Option(50, "--review-frames", min=0,
+                                          help="Frames in review.mcap, spread evenly over the whole recording "
+                                               "(first and last included; 0: every frame: about 1 MB each "
+                                               "with whole clouds, see --review-max-points)."),
         limit: int = typer.Option(0, "--limit", help="Use only the first N frames (0: all)."),
         max_frames: int = typer.Option(None, "--max-frames", help="Most frames one calibration uses (default 200): a "
                                                                  "longer recording is reduced to its informative "
@@ -103,6 +107,7 @@ def register(app: typer.Typer) -> None:
         from ..site import calibrate_site
         from ..site.calibration import is_frame_id
         from ..site.stream import StreamConfig, parse_memory, stream_views
+        from ..viz.review import review_indices
         from ..viz.site_report import site_table, write_site_report
 
         try:
@@ -183,12 +188,17 @@ def register(app: typer.Typer) -> None:
                                               calibrate=run, progress=progress, lidar_frame=lidar_frame,
                                               camera_frames=cam_frames, priors=priors)
                 with atomic_dir(out, overwrite=force) as tmp:  # the whole folder is swapped in at once
-                    drawn = {k: views[k].for_report(max_overlays) for k in loaded}  # drawn frames re-read whole
+                    n_seq = min(len(views[k]) for k in loaded)
+                    pick = review_indices(n_seq, review_frames)
+                    drawn = {k: views[k].for_report(max_overlays, pick) for k in loaded}  # drawn frames re-read whole
                     paths = write_site_report(tmp, site, drawn, max_overlays=max_overlays, progress=progress,
                                               title=f"xcalib calibrate: {frames}",
-                                              review_max_points=review_max_points or None)
+                                              review_max_points=review_max_points or None,
+                                              review_frames=review_frames)
                 paths = paths.relocated(tmp, out)
             _print(site, paths, as_json, site_table)
+            if not as_json:
+                typer.echo(_review_line(len(pick), n_seq))
             if not as_json:
                 for line in _recorded_lines(site):
                     typer.echo(line)
@@ -274,6 +284,14 @@ def _tf_priors(views: dict, source) -> dict:
     return out
 
 
+def _review_line(n_review: int, n_frames: int) -> str:
+    """What review.mcap holds: every frame, or a sample spread over the recording (and how to get all)."""
+    if n_review >= n_frames:
+        return f"review.mcap holds all {n_frames} frame(s) of the recording (open it in Foxglove)"
+    return (f"review.mcap holds {n_review} of the recording's {n_frames} frames, spread evenly from the first "
+            "to the last (--review-frames 0: every frame)")
+
+
 def _recorded_lines(site) -> list[str]:
     """One line per camera whose recording holds its own tf: how far it is from this calibration."""
     out = []
@@ -286,6 +304,8 @@ def _recorded_lines(site) -> list[str]:
 
 
 def _print(site, paths, as_json: bool, site_table) -> None:
+    from ..viz.advice import plain_advice
+
     if len(site.cameras) == 1:
         result = site.cameras[0].result
         if as_json:
@@ -293,6 +313,7 @@ def _print(site, paths, as_json: bool, site_table) -> None:
             return
         summary = next(iter(paths.cameras.values()))
         typer.echo(summary.read_text())
+        typer.echo("\n".join(plain_advice(result)) + "\n")
         typer.echo(f"wrote {summary.parent / 'calibration.json'}, {paths.site_json}, {paths.review_mcap} "
                    f"and {len(paths.ros)} ROS file(s) under {paths.site_json.parent / 'ros'}")
         typer.echo(f"report: {paths.html}")
@@ -301,5 +322,7 @@ def _print(site, paths, as_json: bool, site_table) -> None:
         typer.echo(json.dumps(json.loads(paths.site_json.read_text()), indent=1))
         return
     typer.echo("\n".join(site_table(site)))
+    for c in site.cameras:
+        typer.echo("\n".join([f"camera {c.camera}:"] + ["  " + line for line in plain_advice(c.result)]))
     typer.echo(f"wrote {paths.site_json}, {paths.review_mcap}, ros/ ({len(paths.ros)} files) and one folder per camera")
     typer.echo(f"report: {paths.html}")

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FormatError
+from ..geometry.camera import check_camera_numbers
 from ..geometry.rotations import orthonormality_error, orthonormalize, quaternion_to_matrix
 
 __all__ = ["ROTATION_TOL", "REPAIR_TOL", "require_numbers", "as_matrix", "checked_rotation", "checked_quaternion",
@@ -60,7 +61,9 @@ def require_numbers(values, path, field: str, *, integral: bool = False):
 
 
 def as_float(value, path, field: str) -> float:
-    """A finite float, or a FormatError naming the field."""
+    """A finite float, or a FormatError naming the field (a JSON true / false is not a number)."""
+    if isinstance(value, (bool, np.bool_)):
+        raise FormatError(path, f"expected a number, got {value!r}", field)
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -74,7 +77,8 @@ def as_matrix(values, shape: tuple[int, ...], path, field: str, *, alt_shapes=()
     """Numbers -> float64 array of ``shape`` (flat lists are reshaped row-major).
 
     ``alt_shapes`` lists other accepted shapes (e.g. a [4,4] for a [3,4] whose last row is
-    ``0 0 0 1``); the result is always ``shape``.
+    ``0 0 0 1``); the result is always ``shape``. A JSON true / false is not a number (as in
+    :func:`as_float`; NumPy would read it as 1.0 / 0.0).
     """
     try:
         a = np.asarray(values, dtype=np.float64)
@@ -91,9 +95,20 @@ def as_matrix(values, shape: tuple[int, ...], path, field: str, *, alt_shapes=()
         else:
             accepted = " or ".join(_shape_str(s) for s in (shape, *alt_shapes))
             raise FormatError(path, f"expected {accepted} = {n} numbers, got {a.size} (shape {a.shape})", field)
+    if _holds_bool(values):  # checked once the values are known to be a small regular array
+        raise FormatError(path, f"expected {_shape_str(shape)} numbers, got true / false", field)
     if not np.all(np.isfinite(a)):
         raise FormatError(path, "matrix has NaN/Inf entries", field)
     return a
+
+
+def _holds_bool(values) -> bool:
+    """Whether ``values`` (a number, nested lists, an array) is or holds a bool."""
+    if isinstance(values, np.ndarray):
+        return values.dtype == np.bool_ or (values.dtype == object and any(map(_holds_bool, values.ravel())))
+    if isinstance(values, (list, tuple)):
+        return any(map(_holds_bool, values))
+    return isinstance(values, (bool, np.bool_))
 
 
 def _shape_str(shape) -> str:
@@ -126,3 +141,16 @@ def checked_quaternion(q, path, field: str, order: str = "xyzw") -> np.ndarray:
 
 def path_str(path: str | Path | None) -> str:
     return "<input>" if path is None else str(path)
+
+
+def plausible_camera(intr, path, field: str = "intrinsics"):
+    """``intr`` (a pinhole ``CameraIntrinsics``) when its numbers can be a real camera's
+    (``geometry.camera.check_camera_numbers``: every value within ``MAX_PIXELS``, then
+    ``check_plausible``), else a FormatError naming the file and ``field``."""
+    if intr is None or not hasattr(intr, "check_plausible") or not hasattr(intr, "fx"):
+        return intr
+    try:
+        check_camera_numbers(intr)
+    except ValueError as exc:
+        raise FormatError(path, str(exc), field) from None
+    return intr

@@ -42,7 +42,7 @@ from ..geometry.rotations import matrix_to_quaternion, rotation_angle
 from ..geometry.transforms import invert_transform, make_transform
 from ..io.files import atomic_write, read_text
 from ..io.files import load_json as _load_json_file
-from ._checks import as_float, as_matrix, checked_quaternion, checked_rotation, require
+from ._checks import as_float, as_matrix, checked_quaternion, checked_rotation, plausible_camera, require
 from ._result import calibration_record, opencv_distortion, require_intrinsics, split_opencv_distortion
 
 __all__ = [
@@ -128,6 +128,7 @@ def read_lucid_calib(path, *, quaternion_tol_deg: float = _QUAT_TOL_DEG, repair:
         intr = CameraIntrinsics(fx, fy, cx, cy, dist, width, height)
     except (TypeError, ValueError) as exc:
         raise FormatError(path, str(exc), "intrinsic_params") from None
+    plausible_camera(intr, path, "intrinsic_params")
     coord = str(ext_d.get("camera_coordinate", "OPTICAL")).upper()
     if coord != "OPTICAL":
         raise FormatError(path, f"camera_coordinate {ext_d.get('camera_coordinate')!r} is not supported; "
@@ -247,6 +248,7 @@ def read_calib_json(path, *, use_gt: bool = False, repair: bool = False) -> Cali
         intr = CameraIntrinsics.from_matrix(K, dist)
     except (TypeError, ValueError) as exc:
         raise FormatError(path, str(exc), "cam_K") from None
+    plausible_camera(intr, path, "cam_K / cam_dist")
     shift = make_transform(np.eye(3), off)
     T_init = shift @ _rigid4(require(d, "T_lidar_to_cam", path), path, "T_lidar_to_cam", repair)
     gt_node = d.get("T_lidar_to_cam_gt")

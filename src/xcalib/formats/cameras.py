@@ -34,6 +34,7 @@ from ..errors import FormatError
 from ..geometry.camera_models import (EUCM, UCM, CameraModel, DoubleSphere, KannalaBrandt, Pinhole,
                                       PinholeRadtan, Unified, as_camera_model, model_from_dict)
 from ..io.files import MAX_TEXT_BYTES, atomic_write, read_text
+from ._checks import plausible_camera
 
 __all__ = ["CAMERA_FORMATS", "UnsupportedModelError", "read_camera", "read_intrinsics", "write_camera", "camera_text",
            "detect_camera_format", "formats_for", "read_kalibr_camchain", "split_camera_ref"]
@@ -397,7 +398,16 @@ def _dec_opencv(text: str, path, camera: str | None) -> CameraModel:
                 return None
             if not node.isMap():
                 raise FormatError(path, "expected an opencv-matrix", key)
-            m = node.mat()
+            for dim in ("rows", "cols"):  # checked before OpenCV allocates rows x cols (NaN: "insufficient memory")
+                d = node.getNode(dim)
+                if d.empty() or not d.isInt() or not 1 <= int(d.real()) <= 16:
+                    raise FormatError(path, f"{dim} must be an integer 1..16 (a camera matrix or distortion "
+                                            f"vector), got {d.real() if d.isReal() or d.isInt() else d.string()!r}",
+                                      f"{key}.{dim}")
+            try:
+                m = node.mat()
+            except cv2.error as exc:
+                raise FormatError(path, f"not a valid opencv-matrix ({str(exc).strip()[-120:]})", key) from None
             if m is None:
                 raise FormatError(path, "expected an opencv-matrix", key)
             return np.asarray(m, dtype=np.float64)
@@ -507,7 +517,16 @@ def read_camera(path, fmt: str | None = None, *, camera: str | None = None) -> C
     if camera is not None and fmt != "kalibr":
         raise FormatError(path, f"camera {camera!r} named, but this {fmt} file holds one camera (only a Kalibr "
                                 "camchain has cameras to pick: FILE#cam1); give the file alone")
-    return _DECODERS[fmt](text, path, camera)
+    cam = _DECODERS[fmt](text, path, camera)
+    if cam.is_pinhole:  # a real camera's numbers (focal lengths, principal point, distortion), named
+        try:
+            intr = cam.to_intrinsics()
+        except ValueError as exc:
+            if isinstance(exc, FormatError):
+                raise
+            raise FormatError(path, str(exc)) from None
+        plausible_camera(intr, path, "camera")
+    return cam
 
 
 def read_intrinsics(path, *, camera: str | None = None):

@@ -26,6 +26,7 @@ from pathlib import Path
 from ..calib.result import CalibrationResult
 from ..errors import FormatError
 from ..io.files import MAX_TEXT_BYTES, load_json, read_bytes
+from ._checks import plausible_camera
 
 __all__ = ["CalibFormat", "FORMATS", "calib_formats", "format_names", "export_calibration", "read_calibration",
            "detect_format", "default_filename"]
@@ -467,4 +468,7 @@ def read_calibration(path, fmt: str | None = None, *, repair: bool = False) -> C
     except (ValueError, TypeError, OverflowError, RecursionError, IndexError, AttributeError) as exc:
         raise FormatError(path, f"not a readable {fmt} calibration ({type(exc).__name__}: {str(exc)[:200]})") from None
     validate_loaded(result, path)
+    plausible_camera(result.intrinsics, path)  # a camera's numbers, not corrupt ones
     return result
+
+

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import FormatError
 from ..geometry.boxes import box7_corners, box7_to_extents, boxes2d_from_points, check_boxes3d
-from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera import MAX_PIXELS, CameraIntrinsics
 from ..geometry.projection import project_points
 from ..geometry.transforms import invert_transform, make_transform
 from ..types import Frame
@@ -214,16 +214,28 @@ def parse_kitti_calibration(text: str, path=None, *, repair: bool = False) -> Ki
         Tr = _rigid(nums("Tr_velo_to_cam"), path, "Tr_velo_to_cam", repair)
     elif "R" in raw and "T" in raw:  # raw-sequence calib_velo_to_cam.txt
         R = checked_rotation(as_matrix(nums("R"), (3, 3), path, "R"), path, "R", repair=repair)
-        Tr = make_transform(R, as_matrix(nums("T"), (3,), path, "T"))
+        Tr = make_transform(R, _translation(as_matrix(nums("T"), (3,), path, "T"), path, "T"))
     Timu = _rigid(nums("Tr_imu_to_velo"), path, "Tr_imu_to_velo", repair) if "Tr_imu_to_velo" in raw else None
     return KittiCalibration(P=P, R0_rect=R0, Tr_velo_to_cam=Tr, Tr_imu_to_velo=Timu,
                             path=None if path is None else str(path))
 
 
+#: Bound of a plausible calibration file: translations (m) beyond it are corrupt data or wrong units
+#: (camera-LiDAR rigs are metres apart); pixel values: ``geometry.camera.MAX_PIXELS``.
+MAX_TRANSLATION_M = 1.0e4
+
+
+def _translation(t: np.ndarray, path, key: str) -> np.ndarray:
+    if np.abs(t).max() > MAX_TRANSLATION_M:
+        raise FormatError(path, f"translation {np.array2string(np.asarray(t), precision=4)} m is beyond "
+                                f"{MAX_TRANSLATION_M:g} m (corrupt data or wrong units)", key)
+    return t
+
+
 def _rigid(values, path, key: str, repair: bool) -> np.ndarray:
     M = as_matrix(values, (3, 4), path, key, alt_shapes=[(4, 4)])
     R = checked_rotation(M[:, :3], path, key, repair=repair)
-    return make_transform(R, M[:, 3])
+    return make_transform(R, _translation(M[:, 3], path, key))
 
 
 def _check_projection(P: np.ndarray, path, key: str) -> None:
@@ -233,6 +245,10 @@ def _check_projection(P: np.ndarray, path, key: str) -> None:
                                 f"got left 3x3 {np.array2string(K, precision=4)}", key)
     if K[0, 0] <= 0 or K[1, 1] <= 0:
         raise FormatError(path, f"focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}", key)
+    if max(K[0, 0], K[1, 1], abs(K[0, 2]), abs(K[1, 2])) > MAX_PIXELS:
+        raise FormatError(path, f"fx={K[0, 0]:g}, fy={K[1, 1]:g}, cx={K[0, 2]:g}, cy={K[1, 2]:g}: beyond "
+                                f"{MAX_PIXELS:g} px (corrupt data)", key)
+    _translation(np.linalg.solve(K, P[:, 3]), path, key + " (its offset K^-1 P[:, 3])")
 
 
 def load_kitti_calibration(path, *, repair: bool = False) -> KittiCalibration:
@@ -371,11 +387,15 @@ def _check_label_ranges(num: np.ndarray, path) -> None:
     checks = (("truncated", num[:, 0], (num[:, 0] >= -1) & (num[:, 0] <= 1)),
               ("occluded", num[:, 1], (num[:, 1] == np.round(num[:, 1])) & (num[:, 1] >= -1) & (num[:, 1] <= 3)),
               ("alpha", num[:, 2], (np.abs(num[:, 2]) <= 2 * np.pi + 1e-6) | (num[:, 2] == -10)),
-              ("rotation_y", num[:, 13], (np.abs(num[:, 13]) <= 2 * np.pi + 1e-6) | (num[:, 13] == -10)))
+              ("rotation_y", num[:, 13], (np.abs(num[:, 13]) <= 2 * np.pi + 1e-6) | (num[:, 13] == -10)),
+              # beyond these a value is corrupt, not a box (as float32 1e300 would become inf)
+              ("bbox", np.abs(num[:, 3:7]).max(axis=1), np.abs(num[:, 3:7]).max(axis=1) <= MAX_PIXELS),
+              ("dimensions / location (m)", np.abs(num[:, 7:13]).max(axis=1),
+               np.abs(num[:, 7:13]).max(axis=1) <= MAX_TRANSLATION_M))
     for name, col, ok in checks:
         if not np.all(ok):
             i = int(np.flatnonzero(~ok)[0])
-            raise FormatError(path, f"row {i + 1}: {name} = {col[i]!r} is out of range (a missing or extra number "
+            raise FormatError(path, f"row {i + 1}: {name} = {float(col[i]):g} is out of range (a missing or extra number "
                                     "shifts the columns)", name)
 
 

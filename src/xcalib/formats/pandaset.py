@@ -34,7 +34,7 @@ from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..io.files import load_json
 from ..types import Frame
-from ._checks import as_float, as_matrix, require
+from ._checks import as_float, as_matrix, checked_rotation, plausible_camera, require
 from ._media import load_cloud, load_rgb
 
 __all__ = ["is_pandaset_root", "PandaSetFrames", "pandaset_frames", "read_pandaset_cuboids"]
@@ -87,13 +87,34 @@ def read_pandaset_cuboids(path) -> dict:
             "labels": labels, "stationary": np.asarray(stat, dtype=bool)}
 
 
+def _size(cal_path: Path, cam: dict, key: str, pre: str) -> int | None:
+    """An image width / height: a positive integer, or absent / null / 0 (unknown)."""
+    v = cam.get(key)
+    if v is None or (v == 0 and not isinstance(v, bool)):  # (false == 0 in Python: not a size either)
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v != int(v) or not 0 < v <= 1e5:
+        raise FormatError(cal_path, f"expected an image size in pixels (an integer 1..100000), got {str(v)[:40]!r}",
+                          pre + key)
+    return int(v)
+
+
 def _intrinsics(cal_path: Path, cam: dict, name: str) -> CameraIntrinsics:
     pre = f"cameras.{name}."
     vals = [as_float(require(cam, k, cal_path, pre), cal_path, pre + k) for k in ("fx", "fy", "cx", "cy")]
+    if cam.get("model") not in (None, "pinhole"):  # the converter writes pinhole; anything else would be dropped
+        raise FormatError(cal_path, f"unsupported camera model {str(cam.get('model'))[:40]!r}; PandaSet's images are "
+                                    "pinhole (expected \"pinhole\" or none)", pre + "model")
+    if cam.get("distortion") not in (None, []) and not (isinstance(cam["distortion"], list) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and v == 0 for v in cam["distortion"])):
+        raise FormatError(cal_path, f"PandaSet's images are undistorted; a distortion {str(cam['distortion'])[:60]} "
+                                    "would be ignored", pre + "distortion")
     try:
-        return CameraIntrinsics(*vals, None, int(cam.get("width") or 0) or None, int(cam.get("height") or 0) or None)
+        intr = CameraIntrinsics(*vals, None, _size(cal_path, cam, "width", pre), _size(cal_path, cam, "height", pre))
     except ValueError as exc:
+        if isinstance(exc, FormatError):
+            raise
         raise FormatError(cal_path, str(exc), pre + "fx") from None
+    return plausible_camera(intr, cal_path, pre + "fx")
 
 
 class PandaSetFrames(Sequence):
@@ -178,6 +199,10 @@ class PandaSetFrames(Sequence):
         cf = self._cam_frames[key]
         where = f"cameras.{self.camera}.frames.{key}."
         T = as_matrix(require(cf, "T_cam_lidar", self.cal_path, where), (4, 4), self.cal_path, where + "T_cam_lidar")
+        checked_rotation(T[:3, :3], self.cal_path, where + "T_cam_lidar")  # the recorded pose: a rigid transform
+        if np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-9 or np.abs(T[:3, 3]).max() > 1e4:
+            raise FormatError(self.cal_path, f"not a rigid transform within 1e4 m (last row {T[3].tolist()}, "
+                                             f"translation {T[:3, 3].tolist()})", where + "T_cam_lidar")
         t_cam = as_float(require(cf, "camera_timestamp", self.cal_path, where), self.cal_path, where + "camera_timestamp")
         t_lidar = self._lidar_time(key)
         cub = read_pandaset_cuboids(self.root / "cuboids" / f"{key}.json")

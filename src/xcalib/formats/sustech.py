@@ -29,6 +29,7 @@ from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.rotations import euler_to_matrix
 from ..io.files import load_json
+from ..io.pointcloud import MAX_COORD_M as MAX_BOX_M
 from ..types import Frame
 from ._checks import as_float, as_matrix, require
 from ._media import load_rgb
@@ -77,6 +78,10 @@ def read_sustech_labels(path) -> dict:
                           path, f"[{i}].psr.{k}.{a}") for a in "xyz"] for k in ("position", "scale", "rotation")}
         if min(v["scale"]) <= 0:
             raise FormatError(path, f"box sizes must be > 0 m, got {v['scale']}", f"[{i}].psr.scale")
+        for k in ("position", "scale"):
+            if max(abs(x) for x in v[k]) > MAX_BOX_M:
+                raise FormatError(path, f"beyond {MAX_BOX_M:g} m: {v[k]} (corrupt data or wrong units)",
+                                  f"[{i}].psr.{k}")
         box7.append([*v["position"], *v["scale"], v["rotation"][2]])
         rots.append(euler_to_matrix(v["rotation"], "XYZ"))  # THREE.js "XYZ": Rx @ Ry @ Rz
         ids.append(str(o.get("obj_id", "")))

@@ -9,9 +9,25 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["CameraIntrinsics"]
+__all__ = ["CameraIntrinsics", "MAX_PIXELS", "check_camera_numbers"]
 
 _DIST_LENGTHS = (0, 4, 5, 8, 12, 14)
+
+#: Largest focal length or |principal point| (px) a camera file may hold (images are at most ~1e5 px
+#: wide; beyond that the numbers are corrupt, not a camera).
+MAX_PIXELS = 1.0e6
+
+
+def check_camera_numbers(intr) -> None:
+    """Raise ValueError unless the numbers of ``intr`` (a pinhole ``CameraIntrinsics``) can be a real
+    camera's: fx, fy, |cx|, |cy| within :data:`MAX_PIXELS`, then :meth:`CameraIntrinsics.check_plausible`
+    (focal lengths against the image size, square-ish pixels, distortion). The readers' one rule
+    (``formats._checks.plausible_camera``, the HDF5 cache), each wrapping it in a FormatError."""
+    big = max(abs(float(intr.fx)), abs(float(intr.fy)), abs(float(intr.cx)), abs(float(intr.cy)))
+    if not big <= MAX_PIXELS:
+        raise ValueError(f"fx={intr.fx:g}, fy={intr.fy:g}, cx={intr.cx:g}, cy={intr.cy:g}: beyond "
+                         f"{MAX_PIXELS:g} px (corrupt data)")
+    intr.check_plausible()
 
 
 def _non_number(value, integral: bool = False):

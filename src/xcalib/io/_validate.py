@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import FormatError
+from .pointcloud import MAX_COORD_M
 
 __all__ = ["check_boxes_2d", "check_boxes_3d", "check_rigid", "check_count", "RIGID_TOL"]
 
@@ -33,6 +34,10 @@ def check_boxes_2d(source, field: str, b: np.ndarray) -> np.ndarray:
     return b
 
 
+#: Largest |coordinate| or size (m) of a 3D box: the point clouds' own limit.
+MAX_BOX_M = MAX_COORD_M
+
+
 def check_boxes_3d(source, field: str, b: np.ndarray) -> np.ndarray:
     """[M,6] (extents: max >= min; or centre + positive sizes) or [M,7] box7 (positive sizes); finite."""
     if len(b) == 0:
@@ -41,6 +46,11 @@ def check_boxes_3d(source, field: str, b: np.ndarray) -> np.ndarray:
     if not fin.all():
         i = _first_bad(fin)
         raise FormatError(source, f"row {i}: NaN/Inf in a 3D box {b[i].tolist()}", field)
+    far = (np.abs(b[:, :6]) > MAX_BOX_M).any(axis=1)
+    if far.any():
+        i = _first_bad(~far)
+        raise FormatError(source, f"row {i}: a 3D box coordinate or size beyond {MAX_BOX_M:g} m {b[i].tolist()} "
+                                  "(LiDAR frames are metres: corrupt data or wrong units)", field)
     sizes_ok = (b[:, 3:6] > 0).all(axis=1)
     ok = sizes_ok if b.shape[1] == 7 else ((b[:, 3:6] >= b[:, 0:3]).all(axis=1) | sizes_ok)
     if not ok.all():

@@ -76,7 +76,25 @@ def _box_array(path: Path, key: str, value, widths: tuple[int, ...]) -> np.ndarr
         raise FormatError(path, f"rows must be lists of {want} numbers; {what}", field=key) from None
     if arr.ndim != 2 or arr.shape[1] not in widths:
         raise FormatError(path, f"expected shape [N, {want}], got {list(arr.shape)}", field=key)
+    big = np.isfinite(arr) & (np.abs(arr) > np.finfo(np.float32).max)
+    if big.any():  # cast to float32 they would become inf (and warn): name the value instead
+        r, c = np.argwhere(big)[0]
+        raise FormatError(path, f"row {r} holds {arr[r, c]:g}, beyond a 32-bit float's range", field=key)
     return arr.astype(np.float32)
+
+
+def _name_field(path: Path, obj: dict, key: str, default: str = "") -> str:
+    """A name (frame key, camera name) of a JSON object: a string or an integer (written as its
+    digits); missing / null / "": ``default``; anything else (a number with a fraction, NaN, a
+    bool, a list, an object) is a FormatError naming the field."""
+    v = obj.get(key)
+    if v is None or v == "":
+        return default
+    if isinstance(v, str):
+        return v
+    if isinstance(v, int) and not isinstance(v, bool):
+        return str(v)
+    raise FormatError(path, f"expected a name (a string), got {str(v)[:60]!r} ({type(v).__name__})", field=key)
 
 
 def read_intrinsics_json(path) -> CameraIntrinsics:
@@ -148,8 +166,8 @@ def read_detections(path, *, default_key: str = "", default_camera: str = "",
     if pc.num_dropped:
         meta["points_dropped_nonfinite"] = pc.num_dropped
     return Frame(image=image, point_cloud=pc.points, bboxes_2d=b2, bboxes_3d=b3,
-                 camera_name=str(det.get("camera_name") or default_camera),
-                 frame_key=str(det.get("frame_key") or default_key),
+                 camera_name=_name_field(path, det, "camera_name", default_camera),
+                 frame_key=_name_field(path, det, "frame_key", default_key),
                  match_matrix=mm, intrinsics=intrinsics, extrinsics=ext,
                  point_fields=pc.fields, meta=meta, **timing)
 
@@ -191,7 +209,8 @@ class FrameFolder(Sequence):
         intr = self.root / "intrinsics.json"
         self.intrinsics: CameraIntrinsics | None = read_intrinsics_json(intr) if intr.exists() else None
         if not self.camera and self.intrinsics is not None:
-            self.camera = str(_load_json(intr).get("name") or "")
+            self.camera = _name_field(intr, _load_json(intr), "name")
+        self._size_checked = False
 
     def _read_manifest(self, path: Path) -> list[tuple[str, Path]]:
         man = _load_json(path)
@@ -204,7 +223,7 @@ class FrameFolder(Sequence):
             raise FormatError(path, "missing key", field="frames")
         if not isinstance(man["frames"], list):
             raise FormatError(path, f"expected a list, got {type(man['frames']).__name__}", field="frames")
-        self.camera = str(man.get("camera") or "")
+        self.camera = _name_field(path, man, "camera")
         self.site, self.split = man.get("site"), man.get("split")
         entries = []
         for i, fr in enumerate(man["frames"]):
@@ -214,7 +233,7 @@ class FrameFolder(Sequence):
                          allow_outside=self._allow_outside)
             if not det.is_file():
                 raise FormatError(path, f"detections file {det} does not exist", field=f"frames[{i}].detections")
-            entries.append((str(fr.get("frame_key", det.parent.name)), det))
+            entries.append((_name_field(path, fr, "frame_key", det.parent.name), det))
         return entries
 
     @property
@@ -231,8 +250,16 @@ class FrameFolder(Sequence):
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
         key, det = self._entries[index]
-        return read_detections(det, default_key=key, default_camera=self.camera, intrinsics=self.intrinsics,
-                               columns=self._columns, drop_nonfinite=self._drop, allow_outside=self._allow_outside)
+        frame = read_detections(det, default_key=key, default_camera=self.camera, intrinsics=self.intrinsics,
+                                columns=self._columns, drop_nonfinite=self._drop, allow_outside=self._allow_outside)
+        if not self._size_checked and self.intrinsics is not None and frame.image.size:
+            h, w = frame.image.shape[:2]
+            try:  # a principal point far outside the images: the file's problem, named as such
+                self.intrinsics.check_image_size(w, h)
+            except ValueError as exc:
+                raise FormatError(self.root / "intrinsics.json", f"{exc} (the image of {det})", field="cx, cy") from None
+            self._size_checked = True
+        return frame
 
     def __repr__(self) -> str:
         return f"FrameFolder({str(self.root)!r}, frames={len(self)}, camera={self.camera!r})"

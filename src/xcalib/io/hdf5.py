@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError
-from ..geometry.camera import CameraIntrinsics
+from ..geometry.camera import CameraIntrinsics, check_camera_numbers
 from ..types import DatasetFrame, Frame
 from .files import tmp_prefix, open_regular, sweep_stale
 from ._validate import check_boxes_2d, check_boxes_3d, check_count, check_rigid
@@ -367,8 +367,9 @@ class CacheReader(Sequence):
         for mkey, (dname, kind) in (_META_DATASETS.items() if self.read_extras else ()):
             if dname in g:
                 n = K if "2d" in kind else M
-                if kind == "f3d7":
-                    meta[mkey] = self._rows(g.read(dname), dname, M, 7, key, where, np.float64)
+                if kind == "f3d7":  # the yawed boxes the calibration uses: checked as the [M,6] ones
+                    meta[mkey] = check_boxes_3d(self.path, f"{where}/{dname}",
+                                                self._rows(g.read(dname), dname, M, 7, key, where, np.float64))
                 elif kind == "f2d4":
                     meta[mkey] = self._rows(g.read(dname), dname, K, 4, key, where, np.float64)
                 else:
@@ -539,6 +540,7 @@ class CacheReader(Sequence):
                 if isinstance(exc, FormatError):
                     raise
                 raise FormatError(self.path, str(exc), field=f"{where}/intrinsics") from None
+            _plausible(intr, self.path, f"{where}/intrinsics")
         T, per_frame = None, False
         if "extrinsics" in cg:
             e = cg["extrinsics"]
@@ -958,6 +960,17 @@ class CacheWriter:
         os.replace(self._tmp, self.path)
         self._finalizer.detach()
         return self.path
+
+
+def _plausible(intr, path, field: str) -> None:
+    """A pinhole camera's numbers can be a real camera's (``geometry.camera.check_camera_numbers``),
+    else a FormatError naming the dataset."""
+    if intr is None or not hasattr(intr, "check_plausible") or not hasattr(intr, "fx"):
+        return
+    try:
+        check_camera_numbers(intr)
+    except ValueError as exc:
+        raise FormatError(path, str(exc), field=field) from None
 
 
 def _camera_model_attr(path, field: str, text, K: np.ndarray):

@@ -90,7 +90,12 @@ class MonitorConfig:
     calibration back towards it) and tests the refit against ``relinearise_factor`` times the
     threshold (re-linearising inflates the drift-free statistics too); relinearise_windows: at
     most this many windows (the highest statistics) per decision (CPU). Measured in
-    docs/monitor.md ("The re-linearised window test").
+    docs/monitor.md ("The re-linearised window test"). min_inflation: the floor of the
+    adjacent-window ``inflation`` (1.0, the default: a window's covariance is never taken below
+    what its frames state). Below 1 the stream's own disagreement between adjacent windows may
+    narrow the stated covariance, which the weighted residuals' variance overstates where the
+    soft-L1 loss down-weights the 3D boxes' errors (measured in docs/monitor.md, "Do the frames'
+    errors persist?").
     """
 
     window: int = 20
@@ -120,6 +125,7 @@ class MonitorConfig:
     relinearise_band: float = 0.0
     relinearise_factor: float = 2.0
     relinearise_windows: int = 1
+    min_inflation: float = 1.0
 
     def __post_init__(self) -> None:
         if int(self.leave_out_objects) < 0:
@@ -134,6 +140,8 @@ class MonitorConfig:
             raise ValueError(f"MonitorConfig.relinearise_factor must be >= 1, got {self.relinearise_factor}")
         if int(self.relinearise_windows) < 1:
             raise ValueError(f"MonitorConfig.relinearise_windows must be >= 1, got {self.relinearise_windows}")
+        if not 0.25 <= self.min_inflation <= 1.0:
+            raise ValueError(f"MonitorConfig.min_inflation must be in [0.25, 1], got {self.min_inflation}")
         if not 0.0 <= self.leave_out_level < 1.0:
             raise ValueError(f"MonitorConfig.leave_out_level must be in [0, 1), got {self.leave_out_level}")
         for name in ("window", "stride", "scales", "history", "min_pairs"):
@@ -756,10 +764,10 @@ class CameraMonitor:
     def inflation(self) -> float:
         """Factor on every covariance: how much more successive windows disagree than their
         covariances say (75th percentile of d^T C^-1 d / 6 over adjacent non-overlapping windows,
-        relative to its value for chi-square 6, at least 1: robust to the rare real change); INFLATION_PRIOR until MIN_DIFFS pairs are in."""
+        relative to its value for chi-square 6, at least ``min_inflation``: robust to the rare real change); INFLATION_PRIOR until MIN_DIFFS pairs are in."""
         if len(self._diffs) < MIN_DIFFS:
             return INFLATION_PRIOR
-        return max(1.0, float(np.quantile(self._diffs, 0.75)) / CHI2_6_Q75_OVER_6)
+        return max(float(self.config.min_inflation), float(np.quantile(self._diffs, 0.75)) / CHI2_6_Q75_OVER_6)
 
     def axis_factors(self, length: int) -> np.ndarray | None:
         """Per axis (rx .. tz), the factor on the variance the change test of a ``length``-frame

@@ -279,14 +279,16 @@ class StreamedFrames(Sequence):
     def __getitem__(self, index):
         return self.frames[index]
 
-    def for_report(self, max_overlays: int) -> "ReportFrames":
+    def for_report(self, max_overlays: int, review: Sequence[int] = ()) -> "ReportFrames":
         """The frames as a report reads them: whole (re-read from the source) where it draws them
         (``xcalib.calib.report.write_report``'s overlays: up to ``max_overlays`` spread over the
-        sequence; the review file's first ``max_overlays``), slimmed elsewhere."""
+        sequence, which are also the review file's by default; its frames ``review`` where given),
+        slimmed elsewhere."""
         n = len(self.frames)
         k = max(int(max_overlays), 1)
         spread = np.unique(np.linspace(0, n - 1, min(k, n)).round().astype(int)) if n else []
-        return ReportFrames(self.source, self.frames, set(int(i) for i in spread) | set(range(min(k, n))))
+        extra = [int(i) for i in review if 0 <= int(i) < n]
+        return ReportFrames(self.source, self.frames, set(int(i) for i in spread) | set(extra))
 
 
 class ReportFrames(Sequence):

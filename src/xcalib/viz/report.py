@@ -300,6 +300,8 @@ def _render_html(title: str, result, nums: dict[str, Any], figures: list[ReportF
         f'<figure><a href="{e(f.path)}"><img src="{e(f.path)}" alt="{e(f.caption)}"></a>'
         f"<figcaption>{e(f.caption)}</figcaption></figure>" for f in figures)
     now = _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    from .advice import plain_advice
+
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{e(title)}</title>
 <style>
@@ -313,6 +315,7 @@ figcaption {{ color: #444; font-size: 0.92em; margin-top: 4px; }}
 </style></head><body>
 <h1>{e(title)} {badge}</h1>
 <p>{e(result.message or ("Camera<-LiDAR extrinsics estimated." if ok else ""))}</p>
+<p><b>{"<br>".join(e(line) for line in plain_advice(result))}</b></p>
 <p>xcalib {e(__version__)} · {e(now)} · camera {e(result.camera_name or "-")} · files: {links}</p>
 <h2>Numbers</h2>
 <table>{rows}</table>

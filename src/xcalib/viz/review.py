@@ -3,13 +3,16 @@ channels with the ``foxglove.*`` JSON schemas).
 
 Per camera ``<cam>``: ``/<cam>/image`` (``foxglove.CompressedImage``, JPEG),
 ``/<cam>/annotations`` (``foxglove.ImageAnnotations``: LiDAR points projected with the
-calibration, coloured by depth; the projected 3D boxes (orange); the 2D detections (green)),
+calibration, coloured by depth (blue near, red far); the projected 3D boxes (orange); the 2D
+detections (green); a one-line key of these colours in the image's top-left corner),
 ``/<cam>/calibration`` (``foxglove.CameraCalibration``, the camera's optical frame). Shared:
 ``/lidar/points`` (``foxglove.PointCloud``, the LiDAR frame: the whole cloud unless ``max_points``
 is given) and ``/tf`` (``foxglove.FrameTransforms``: LiDAR -> each calibrated camera's optical
 frame). Frame names are the site's (a recording's own ``header.frame_id``s when it had them);
 messages keep the recording's stamps (a bag's header stamps, else the frames' LiDAR times),
-so the file opens beside the source recording; frames without times get 1 s + 0.1 s x i.
+so the file opens beside the source recording; frames without times get 1 s + 0.1 s x i (i: the
+frame's index). The frames: up to ``max_frames`` spread evenly over the whole recording, first and
+last included (:func:`review_indices`), so a long recording is reviewed end to end in bounded size.
 Written to a temporary name and renamed.
 """
 
@@ -32,7 +35,7 @@ from ..io.files import sweep_stale, tmp_prefix
 from ..io.images import encode_jpeg
 from ..site.calibration import optical_frame
 
-__all__ = ["write_review_mcap", "REVIEW_SCHEMAS"]
+__all__ = ["write_review_mcap", "review_indices", "REVIEW_SCHEMAS"]
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
 _VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
@@ -133,7 +136,12 @@ def _annotations(ns: int, frame, result, max_points: int) -> dict:
                     pts.append({"timestamp": _t(ns), "type": _LINE_LIST, "thickness": 1.5, "points": seg,
                                 "outline_color": _color(1.0, 0.55, 0.0), "outline_colors": [],
                                 "fill_color": _color(0, 0, 0, 0)})
-    return {"circles": [], "points": pts, "texts": []}
+    key = ("green: 2D detections" + ("; orange: 3D boxes; dots: LiDAR points, blue near to red far; both projected "
+                                       "with the calibration" if result is not None and result.success else
+                                       "; no pose: nothing projected"))
+    texts = [{"timestamp": _t(ns), "position": {"x": 8.0, "y": 20.0}, "text": key, "font_size": 16.0,
+              "text_color": _color(1, 1, 1), "background_color": _color(0, 0, 0, 0.6)}]
+    return {"circles": [], "points": pts, "texts": texts}
 
 
 def _calibration(ns: int, cam: str, result, frame, warned: set | None = None) -> dict | None:
@@ -193,19 +201,29 @@ def _transforms(ns: int, site) -> dict:
     return {"transforms": items}
 
 
-def _stamps(frames: Sequence, n: int, period_s: float) -> tuple[list[int], bool]:
-    """Per frame the LiDAR stamp (ns) of the recording: a bag's header stamp, else the frame's
-    ``lidar_time_s``; (synthetic 1 s + period x i, False) when any is missing or they do not increase."""
+def review_indices(n: int, k: int) -> list[int]:
+    """The frames a review file holds: ``k`` of ``n`` indices spread evenly over the whole
+    sequence (the first and the last included), every one when ``k <= 0`` or ``k >= n``."""
+    if n <= 0:
+        return []
+    if k <= 0 or k >= n:
+        return list(range(n))
+    return [int(i) for i in np.unique(np.linspace(0, n - 1, k).round().astype(int))]
+
+
+def _stamps(frames: Sequence, pick: Sequence[int], period_s: float) -> tuple[list[int], bool]:
+    """Per picked frame the LiDAR stamp (ns) of the recording: a bag's header stamp, else the frame's
+    ``lidar_time_s``; (synthetic 1 s + period x index, False) when any is missing or they do not increase."""
     out = []
-    for i in range(n):
+    for i in pick:
         f = frames[i]
         ns = (f.meta or {}).get("lidar_stamp_ns") if isinstance(getattr(f, "meta", None), dict) else None
         if ns is None and f.lidar_time_s is not None and np.isfinite(f.lidar_time_s) and f.lidar_time_s > 0:
             ns = int(round(float(f.lidar_time_s) * 1e9))
         out.append(None if ns is None else int(ns))
-    if n and all(v is not None and v > 0 for v in out) and all(b > a for a, b in zip(out, out[1:])):
+    if pick and all(v is not None and v > 0 for v in out) and all(b > a for a, b in zip(out, out[1:])):
         return out, True
-    return [1_000_000_000 + int(round(i * period_s * 1e9)) for i in range(n)], False
+    return [1_000_000_000 + int(round(i * period_s * 1e9)) for i in pick], False
 
 
 def _camera_stamp(frame, lidar_ns: int, recorded: bool) -> int:
@@ -216,7 +234,8 @@ def _camera_stamp(frame, lidar_ns: int, recorded: bool) -> int:
 def write_review_mcap(path, site, frames_by_camera: dict[str, Sequence], *, max_frames: int = 8,
                       max_points: int | None = None, period_s: float = 0.1) -> Path:
     """Write the review file of ``site`` (a :class:`xcalib.site.SiteCalibration`) over up to
-    ``max_frames`` frames of each camera (frame ``i`` of each camera = the same LiDAR sweep).
+    ``max_frames`` frames of each camera spread evenly over the whole sequence (:func:`review_indices`;
+    0: every frame; frame ``i`` of each camera = the same LiDAR sweep).
     ``max_points``: decimate the cloud to about that many points (None: the whole cloud); the
     points projected into the images are decimated to 5000 per image."""
     from mcap.writer import Writer
@@ -230,14 +249,13 @@ def write_review_mcap(path, site, frames_by_camera: dict[str, Sequence], *, max_
             w = Writer(f)
             w.start(profile="", library="xcalib")
             out = _Out(w)
-            n = min([max_frames] + [len(v) for v in frames_by_camera.values()])
+            pick = review_indices(min(len(v) for v in frames_by_camera.values()), max_frames)
             first_cam = next(iter(frames_by_camera.values()))
-            stamps, recorded = _stamps(first_cam, n, period_s)
+            stamps, recorded = _stamps(first_cam, pick, period_s)
             t0 = stamps[0] if stamps else 1_000_000_000
             out.add("/tf", "foxglove.FrameTransforms", t0, _transforms(t0, site))
             warned: set = set()  # cameras whose model CameraCalibration cannot express: said once
-            for i in range(n):
-                ns = stamps[i]
+            for i, ns in zip(pick, stamps):
                 out.add("/lidar/points", "foxglove.PointCloud", ns,
                         _cloud(ns, first_cam[i], ros_name(site.lidar_frame, "lidar"), max_points))
                 for cam, frames in frames_by_camera.items():

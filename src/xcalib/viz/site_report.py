@@ -68,8 +68,12 @@ def site_table(site) -> list[str]:
 
 def _index_html(title: str, site, cams: dict[str, Path], out: Path) -> str:
     rows = site_table(site)
+    from .advice import plain_advice
+
+    results = {c.camera: c.result for c in site.cameras}
     links = "".join(f'<li><a href="{html.escape(p.relative_to(out).as_posix())}/report.html">'
-                    f"{html.escape(c)}</a></li>" for c, p in cams.items())
+                    f"{html.escape(c)}</a>: {'<br>'.join(html.escape(line) for line in plain_advice(results[c]))}</li>"
+                    for c, p in cams.items())
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title></head><body>"
             f"<h1>{html.escape(title)}</h1><p>Transforms: LiDAR frame <code>{html.escape(site.lidar_frame)}</code> "
             "-&gt; each camera's OpenCV optical frame <code>&lt;camera&gt;_optical_frame</code> (x right, y down, "
@@ -82,9 +86,10 @@ def _index_html(title: str, site, cams: dict[str, Path], out: Path) -> str:
 def write_site_report(out_dir, site, frames_by_camera: dict[str, Sequence], *, max_overlays: int = 8,
                       title: str = "xcalib site calibration",
                       progress: Callable[[str, int, int], None] | None = None,
-                      review_max_points: int | None = None) -> SiteReportPaths:
+                      review_max_points: int | None = None, review_frames: int | None = None) -> SiteReportPaths:
     """Write every report file of ``site`` (a :class:`xcalib.site.SiteCalibration`) from the
-    frames each camera was calibrated on; see the module docstring for the layout."""
+    frames each camera was calibrated on; see the module docstring for the layout. ``review_frames``:
+    frames in review.mcap, spread over the recording (0: every one; None: ``max_overlays``, at least 1)."""
     from ..calib.report import write_report
     from ..site import write_site_ros
     from ..site.calibration import camera_folders
@@ -108,7 +113,7 @@ def write_site_report(out_dir, site, frames_by_camera: dict[str, Sequence], *, m
         cams[c.camera], summaries[c.camera] = d, paths.summary
     site_json = site.save(out / "site_calibration.json")
     ros = write_site_ros(site, out / "ros")
-    review = write_review_mcap(out / "review.mcap", site, frames_by_camera, max_frames=max_overlays or 1,
+    review = write_review_mcap(out / "review.mcap", site, frames_by_camera, max_frames=(max_overlays or 1) if review_frames is None else review_frames,
                                max_points=review_max_points)
     if not single:
         page = atomic_write(out / "report.html", [_index_html(title, site, cams, out).encode()])

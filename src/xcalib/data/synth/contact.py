@@ -9,7 +9,7 @@ import numpy as np
 
 from ...types import Frame
 
-__all__ = ["contact_sheet", "draw_frame"]
+__all__ = ["contact_sheet", "draw_frame", "legend"]
 
 
 def draw_frame(frame: Frame, *, max_points: int = 40000) -> np.ndarray:
@@ -70,8 +70,35 @@ def draw_frame(frame: Frame, *, max_points: int = 40000) -> np.ndarray:
     return img
 
 
+def legend(sheet_width: int, *, max_depth_m: float = 80.0) -> np.ndarray:
+    """The key of :func:`draw_frame`'s colours, one RGB strip ``sheet_width`` wide: the box colours,
+    the depth scale of the points (the hue :func:`draw_frame` uses, 0 to ``max_depth_m``) and the
+    tile caption's letters."""
+    import cv2
+
+    h = 96
+    strip = np.full((h, sheet_width, 3), 24, np.uint8)
+    font, fs, white = cv2.FONT_HERSHEY_SIMPLEX, 0.5, (235, 235, 235)
+    x = 12
+    for col, text in (((0, 255, 0), "2D box matched to a 3D box"), ((255, 40, 40), "2D box without a 3D box"),
+                      ((255, 230, 0), "its 3D box, projected with the true calibration")):
+        cv2.rectangle(strip, (x, 12), (x + 26, 30), col, 2)
+        cv2.putText(strip, text, (x + 34, 27), font, fs, white, 1, cv2.LINE_AA)
+        x += 44 + cv2.getTextSize(text, font, fs, 1)[0][0]
+    bar_w = min(360, max(120, sheet_width // 3))
+    hue = np.linspace(0, 150, bar_w).astype(np.uint8)
+    hsv = np.stack([hue, np.full_like(hue, 255), np.full_like(hue, 255)], axis=1)[None]
+    strip[44:60, 12:12 + bar_w] = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0][None]
+    cv2.putText(strip, f"LiDAR points by depth: 0 m (left) to {max_depth_m:g}+ m (right)", (24 + bar_w, 57), font,
+                fs, white, 1, cv2.LINE_AA)
+    cv2.putText(strip, "caption: frame key, K = 2D boxes, M = 3D boxes, P = LiDAR points", (12, 84), font, fs,
+                white, 1, cv2.LINE_AA)
+    return strip
+
+
 def contact_sheet(frames: Sequence[Frame], path, *, cols: int = 3, tile_width: int = 640) -> Path:
-    """Write a PNG grid of annotated frames (see :func:`draw_frame`) to ``path``; returns the path."""
+    """Write a PNG grid of annotated frames (see :func:`draw_frame`), with a legend strip below it
+    (:func:`legend`), to ``path``; returns the path."""
     import cv2
 
     frames = list(frames)
@@ -88,7 +115,7 @@ def contact_sheet(frames: Sequence[Frame], path, *, cols: int = 3, tile_width: i
         row = [np.pad(t, ((0, th - t.shape[0]), (0, 0), (0, 0))) for t in tiles[r:r + cols]]
         row += [np.zeros((th, tile_width, 3), np.uint8)] * (cols - len(row))
         rows.append(np.hstack(row))
-    sheet = np.vstack(rows)
+    sheet = np.vstack(rows + [legend(sheet_width=cols * tile_width)])
     from ...io.files import atomic_write
     from ...io.images import encode_image
 
