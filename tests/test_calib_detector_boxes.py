@@ -59,6 +59,51 @@ def test_outline_offsets_recover_a_detectors_tight_boxes_and_keep_the_pose():
     assert max(abs(clean[k]) for k in ("sides", "top", "bottom")) < 0.02  # exact boxes: nothing to fit
 
 
+def test_outline_fit_is_shared_by_the_uncertainty_and_the_diagnostics_bit_for_bit():
+    # issue 29: the calibration reads ``uncertainty.outline_fit``'s refit (cached on the context) instead of
+    # refitting the same offsets in ``fit_outline``: the same dict, the fit made once per context
+    import pickle
+
+    from xcalib.calib.uncertainty import outline_fit
+
+    frames, T = sim_frames(seed=3, n_frames=6, noise_px=1.0, miss=0.0, false_pos=0.0, extra_3d=0)
+    cframes, pairs, intr, noise = _setup(_shrunk(frames, 0.06, 0.08, 0.02), T)
+    truth = Pose(T[:3, :3], T[:3, 3])
+    ctx = FitContext(cframes, pairs, intr, truth, noise, 2.0, Occlusion())
+    shared = outline_fit(ctx)
+    assert outline_fit(ctx) is shared  # once per context
+    assert fit_outline(cframes, pairs, intr, truth, noise, 2.0, Occlusion(), shared) == \
+        fit_outline(cframes, pairs, intr, truth, noise, 2.0, Occlusion())
+    moved = ctx.with_pose(truth.moved(np.array([1e-3, 0, 0]), np.zeros(3)))
+    assert outline_fit(moved) is not shared and not np.array_equal(outline_fit(moved)[1].x, shared[1].x)
+    again = pickle.loads(pickle.dumps(ctx))  # a worker's copy: the fields, not the cached fit
+    assert not again._results and again.f_scale == ctx.f_scale and again.pose.error(ctx.pose) == (0.0, 0.0)
+
+
+def test_outline_offsets_jacobian_is_analytic_and_matches_central_differences():
+    # issue 29: the outline-offset fits (common and per kind) ran scipy with "2-point" Jacobians; their
+    # term now gives its derivative (pose, offsets, occlusion shaping, prior rows)
+    from xcalib.calib.boxmodel import kind_outline_edge_term, outline_edge_term
+    from xcalib.calib.cost import FocalScaleTerm, PrincipalPointTerm
+    from xcalib.calib.refine import build_cost
+
+    frames, T = sim_frames(seed=3, n_frames=6, noise_px=1.0, miss=0.0, false_pos=0.0, extra_3d=0)
+    cframes, pairs, intr, noise = _setup(_shrunk(frames, 0.06, 0.08, 0.02), T)
+    truth = Pose(T[:3, :3], T[:3, 3])
+    rng = np.random.default_rng(0)
+    for edge, extra in ((outline_edge_term, ()), (kind_outline_edge_term(), ()), (outline_edge_term, (FocalScaleTerm(),)),
+                        (outline_edge_term, (PrincipalPointTerm(),))):  # the misfit checks' refits too
+        for occl in (Occlusion(), None):
+            model = build_cost(cframes, pairs, intr, truth, noise, occl, extra, edge=edge)
+            assert model.has_analytic_jacobian()
+            x = np.concatenate([rng.normal(0, 2e-3, 6), rng.normal(0, 0.05, model.n_params - 6)])
+            J = model.analytic_jacobian(x)
+            num = np.column_stack([(model.residuals(x + d) - model.residuals(x - d)) / 2e-7
+                                   for d in np.eye(model.n_params) * 1e-7])
+            assert J.shape == num.shape and np.abs(J[:, 6:]).max() > 1.0  # the offsets' columns are filled
+            assert np.allclose(J, num, rtol=1e-5, atol=1e-4)
+
+
 def test_box_model_odds_weigh_the_corner_outline_by_the_evidence_per_object():
     assert box_model_odds(100.0, 100.0, 120, 30) == 0.5  # equally good: half the shift counts, as before
     assert box_model_odds(100.0, 300.0, 120, 30) < 1e-6  # corners far worse: the floor vanishes

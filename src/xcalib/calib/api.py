@@ -46,7 +46,7 @@ from .result import CalibrationResult
 from .selection import FrameSelection, scan_frames, select_frames
 from .selfcal import decide as decide_selfcal, wants_selfcal
 from .uncertainty import estimate as estimate_uncertainty
-from .uncertainty import object_groups, statistical_sd, with_object_outline
+from .uncertainty import object_groups, outline_fit, statistical_sd, with_object_outline
 
 __all__ = ["calibrate", "calibrate_single", "METHOD"]
 
@@ -636,7 +636,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         places, off = matched_places(cframes, pairs)
         diag.matched_places, diag.matched_places_off_line = int(len(places)), int(np.sum(off > POOLED_OFF_LINE_M))
     diag.box_fit = {"outline": diag.box_model or "corners", "px_hulls_corners": diag.box_model_px,
-                    **fit_outline(cframes, pairs, intr, pose, best.noise, f_scale, occlusion)}
+                    **fit_outline(cframes, pairs, intr, pose, best.noise, f_scale, occlusion,
+                                  outline_fit(fit) if occlusion is not None else None)}
     if obj_fit is not None:
         diag.box_fit["objects"] = obj_fit.summary(pose_plain)
     centre_off = _centre_offsets(cframes, intr, pose.R, pose.t, pairs)

@@ -50,12 +50,13 @@ def _inset_edge_term(base, term_name: str, n_offsets: int, insets, prior: float)
     ``n_offsets`` outline offsets fitted with the pose under a Gaussian prior of 1-sigma ``prior``:
     ``insets(a)`` turns the offsets into (sides, top, bottom) shares of the projected box's width /
     height (scalars, or one per pair), by which the projected rectangle is moved in."""
-    from .cost import BoxEdgeTerm
+    from .cost import BoxEdgeTerm, Tangent
 
     class InsetEdgeTerm(BoxEdgeTerm):
         name = term_name
         n_params = n_offsets
         x_scale = (1e-2,) * n_offsets
+        has_pose_jacobian = True
 
         def __init__(self):  # share the base term's data (no copy)
             self.__dict__.update(base.__dict__)
@@ -83,22 +84,56 @@ def _inset_edge_term(base, term_name: str, n_offsets: int, insets, prior: float)
             c = np.repeat(np.arange(len(self.obs)), 4)
             return np.concatenate([c, len(self.obs) + np.arange(n_offsets)])
 
+        def tangents(self, state, x, base):  # the offsets move neither the camera nor the 3D outlines
+            return [Tangent()] * n_offsets
+
+        def pose_jacobian(self, state, rotvec, tangents, col):
+            """Analytic: the plain rectangle's edge derivative (``weighted_jacobian``) plus the
+            offsets' share of its moving width / height, and d/d offsets (``insets`` is linear in
+            them: a selection per pair), through the occlusion shaping at the moved edges; the
+            prior rows 1 / prior."""
+            n, P = len(self.obs), 6 + len(tangents)
+            D = self.weighted_jacobian(state, rotvec, tangents)  # [n,4,P] d (e w) / d x
+            e = BoxEdgeTerm.edges(self, state)
+            a = np.asarray(state.params.get(self.name, np.zeros(n_offsets)), dtype=np.float64)
+            w = e[:, 2] - e[:, 0] + self.obs[:, 2] - self.obs[:, 0]
+            h = e[:, 3] - e[:, 1] + self.obs[:, 3] - self.obs[:, 1]
+            sides, top, bottom = (np.broadcast_to(v, (n,)) for v in insets(a))
+            dw = (D[:, 2] - D[:, 0]) * (w > 0)[:, None]  # d (w x weight) / d x [n,P]
+            dh = (D[:, 3] - D[:, 1]) * (h > 0)[:, None]
+            D = D + np.stack([sides[:, None] * dw, top[:, None] * dh, -sides[:, None] * dw, -bottom[:, None] * dh], 1)
+            wp, hp = np.maximum(w, 0.0) * self.w[:, 0], np.maximum(h, 0.0) * self.w[:, 0]
+            for k in range(n_offsets):
+                unit = np.zeros(n_offsets)
+                unit[k] = 1.0
+                ds, dt, db = (np.broadcast_to(v, (n,)) for v in insets(unit))
+                D[:, :, col + k] += np.column_stack([ds * wp, dt * hp, -ds * wp, -db * hp])
+            if self.occlusion is not None or self.censored is not None:
+                D = D * self.shape_slope(self.edges(state) * self.w)[..., None]
+            prior = np.zeros((n_offsets, P))
+            prior[np.arange(n_offsets), col + np.arange(n_offsets)] = 1.0 / self.prior
+            return np.concatenate([D.reshape(4 * n, P), prior])
+
     return InsetEdgeTerm()
 
 
-def fit_outline(frames, pairs, intr, pose, noise, f_scale: float, occlusion) -> dict:
+def fit_outline(frames, pairs, intr, pose, noise, f_scale: float, occlusion, fitted=None) -> dict:
     """The detector-outline offsets (``outline_edge_term``) fitted jointly with the pose at
     ``pose`` (matches held): what the 2D boxes say about how they relate to the 3D outlines in use.
     Returns {"sides", "top", "bottom": shares of the projected box size (positive: the 2D box lies
     inside), "sd": their 1-sigma (Jacobian), "pose_shift": [deg, m] the pose moves when they are
-    freed, "n_pairs"}; {} with fewer than 12 pairs."""
+    freed, "n_pairs"}; {} with fewer than 12 pairs. ``fitted``: (model, fit) of this very refit made
+    already (``uncertainty.outline_fit``, the same inputs and ``max_nfev``), used instead of refitting."""
     from .refine import build_cost
 
     n = int(sum(len(p) for p in pairs))
     if n < 12:
         return {}
-    model = build_cost(frames, pairs, intr, pose, noise, occlusion, edge=outline_edge_term)
-    fit = model.fit(f_scale=f_scale, max_nfev=60)
+    if fitted is None:
+        model = build_cost(frames, pairs, intr, pose, noise, occlusion, edge=outline_edge_term)
+        fit = model.fit(f_scale=f_scale, max_nfev=60)
+    else:
+        model, fit = fitted
     a = np.asarray(fit.params["box_outline"], dtype=np.float64)
     out = {k: float(v) for k, v in zip(OUTLINE_PARAMS, a)}
     try:

@@ -10,8 +10,8 @@ new record with :meth:`FitContext.with_pairs` / :meth:`FitContext.with_frames`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable
 
 from .cost import Occlusion
 from .diagnostics import NoiseModel
@@ -41,6 +41,19 @@ class FitContext:
     noise: NoiseModel | None = None
     f_scale: float = F_SCALE
     occlusion: Any = Occlusion()
+    #: results computed from this record alone (``cached``); a new record (``with_*``) starts empty
+    _results: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def cached(self, key: str, make: Callable[[], Any]) -> Any:
+        """``make()`` computed once for this record: a result that depends only on its fields (and
+        ``key`` naming which), shared by the stages that need it (the fields are never changed in
+        place, so the record is its own key)."""
+        if key not in self._results:
+            self._results[key] = make()
+        return self._results[key]
+
+    def __reduce__(self):  # sent to a worker without the cached results (they need not pickle)
+        return (FitContext, (self.frames, self.pairs, self.intr, self.pose, self.noise, self.f_scale, self.occlusion))
 
     def with_pairs(self, pairs: list) -> "FitContext":
         """The same fit on other matches (a subset, a resample)."""

@@ -89,6 +89,15 @@ class CostTerm:
         only (``col``: where they start); None: not known (finite differences)."""
         return None
 
+    #: True for a term whose residuals depend on the pose and on its own parameters and that gives their
+    #: derivative (``pose_jacobian``): its parameters then leave the model's Jacobian analytic
+    has_pose_jacobian: bool = False
+
+    def pose_jacobian(self, state: PoseState, rotvec: np.ndarray, tangents: list["Tangent"], col: int) -> np.ndarray:
+        """d residuals / d x [n, 6 + len(tangents)] of a ``has_pose_jacobian`` term (``col``: where its own
+        parameters start; ``tangents``: every parameter's, as ``BoxEdgeTerm.jacobian`` takes them)."""
+        raise NotImplementedError
+
 
 @dataclass(frozen=True)
 class Tangent:
@@ -268,9 +277,17 @@ class BoxEdgeTerm(CostTerm):
         is clipped to the image or the box cannot be projected), through the distortion model and
         the occlusion shaping. ``rotvec``: the rotation part of x (the pose is exp([w]x) R0).
         Only the (at most 4) extreme corners of each outline are differentiated."""
+        D = self.weighted_jacobian(state, rotvec, extra)
+        if len(self.obs) and (self.occlusion is not None or self.censored is not None):
+            D = D * self.shape_slope(self.edges(state) * self.w)[..., None]
+        return D.reshape(4 * len(self.obs), D.shape[-1])
+
+    def weighted_jacobian(self, state: PoseState, rotvec: np.ndarray, extra: list[Tangent]) -> np.ndarray:
+        """:meth:`jacobian` before the occlusion shaping, per edge [n,4,6 + len(extra)]: d (edges x w) / d x
+        (a variant that moves the edges further, ``boxmodel``'s outline offsets, shapes its own edges)."""
         n, P = len(self.obs), 6 + len(extra)
         if n == 0:
-            return np.zeros((0, P))
+            return np.zeros((0, 4, P))
         if not isinstance(state.intr, CameraIntrinsics):
             return self._model_jacobian(state, rotvec, extra)
         R, t, intr = state.pose.R, state.pose.t, state.intr
@@ -313,10 +330,7 @@ class BoxEdgeTerm(CostTerm):
                 col = col + np.einsum("nek,nk->ne", a, tg.shift @ R.T)
             D[..., 6 + k] = col
         D *= ((inside & valid[:, None]) * self.w)[..., None]
-        if self.occlusion is not None or self.censored is not None:
-            r = np.where(valid[:, None], rects - self.obs, self.fallback) * self.w
-            D = D * self.shape_slope(r)[..., None]
-        return D.reshape(4 * n, P)
+        return D
 
 
     def _defining(self, u: np.ndarray, v: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -331,7 +345,7 @@ class BoxEdgeTerm(CostTerm):
         return np.where(valid[:, None], idx, rg.starts[:, None])
 
     def _model_jacobian(self, state: PoseState, rotvec: np.ndarray, extra: list[Tangent]) -> np.ndarray:
-        """:meth:`jacobian` for a camera model (``xcalib.geometry.camera_models``): each rectangle
+        """:meth:`weighted_jacobian` for a camera model (``xcalib.geometry.camera_models``): each rectangle
         edge moves with the outline point that defines it (``outline_extremes``: the extreme of the
         densified edges), through the model's own Jacobian ``project_jacobian``; the rest as for
         ``CameraIntrinsics``."""
@@ -364,10 +378,7 @@ class BoxEdgeTerm(CostTerm):
                 col = col + np.einsum("nek,nk->ne", a, tg.shift @ R.T)
             D[..., 6 + k] = col
         D *= ((inside & good) * self.w)[..., None]
-        if self.occlusion is not None or self.censored is not None:
-            r = np.where(valid[:, None], rects - self.obs, self.fallback) * self.w
-            D = D * self.shape_slope(r)[..., None]
-        return D.reshape(4 * n, P)
+        return D
 
 
 def _rows_matmul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -629,12 +640,13 @@ class CostModel:
 
     def has_analytic_jacobian(self) -> bool:
         """True when every parameterised term is one whose effect on the projection is known (each
-        at most once): focal scale, principal point, time offset -- or a ``NUMERIC_TERMS`` one,
-        whose own columns are then forward differences."""
+        at most once): focal scale, principal point, time offset, one with its own ``pose_jacobian``
+        (``boxmodel``'s outline offsets) -- or a ``NUMERIC_TERMS`` one, whose own columns are then
+        forward differences."""
         kinds = [type(t) for t in self.terms if t.n_params]
         # the derivative is the pinhole-radtan model's, or a camera model's own (project_jacobian)
         return (isinstance(self.intr, (CameraIntrinsics, CameraModel))
-                and all(k in self._TANGENT_TERMS + self.NUMERIC_TERMS for k in kinds)
+                and all(k in self._TANGENT_TERMS + self.NUMERIC_TERMS or k.has_pose_jacobian for k in kinds)
                 and len(set(kinds)) == len(kinds))
 
     def analytic_jacobian(self, x: np.ndarray) -> np.ndarray:
@@ -661,6 +673,9 @@ class CostModel:
         for term, col in zip(self.terms, cols):
             if type(term) is BoxEdgeTerm:
                 blocks.append(term.jacobian(st, x[:3], tangents))
+                continue
+            if term.has_pose_jacobian:
+                blocks.append(term.pose_jacobian(st, x[:3], tangents, col))
                 continue
             J = term.own_jacobian(st, n, col) if term.n_params else None
             if J is None:

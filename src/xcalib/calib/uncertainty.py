@@ -691,6 +691,13 @@ def _outline_fit(frames, pairs, intr, pose: Pose, noise: NoiseModel | None, *, f
     return model, fit
 
 
+def outline_fit(ctx: FitContext):
+    """(model, fit) of ``outline_shift``'s refit at ``ctx`` (None as there), computed once per context:
+    the calibration's ``boxmodel.fit_outline`` reads the same fit (``FitContext.cached``)."""
+    return ctx.cached("outline_fit", lambda: _outline_fit(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise,
+                                                          f_scale=ctx.f_scale, occlusion=ctx.occlusion))
+
+
 def _shift_noises(ctx: FitContext, free: Pose, outline_fit, groups) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Sampling-noise 1-sigma (``shift_noise_sd``) of the occlusion shift (the fit in use vs the refit
     at ``free`` without the occlusion model) and of the outline shift (vs ``outline_fit``'s model and
@@ -783,7 +790,7 @@ def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None 
     jack = pose_jackknife(ctx) if halves is None else None
     obj, clus, clus_dof, n_obj, misfit, box_info, groups = None, None, None, 0, None, {}, None
     clus_extra: dict = {}  # the CR2 correlation / cross-dof (clusters / objects modes only)
-    outl_fit = _outline_fit(frames, pairs, intr, pose, noise, f_scale=f_scale, occlusion=occlusion)
+    outl_fit = outline_fit(ctx)
     outl = None if outl_fit is None else outl_fit[1].pose.delta(pose)
     if mode in ("clusters", "objects"):
         groups = object_groups(frames, pairs, track_ids=track_ids)
