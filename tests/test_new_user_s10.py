@@ -228,6 +228,24 @@ def test_principal_point_outside_the_image_names_intrinsics_json(tmp_path):
         FrameFolder(root)[0]
 
 
+def test_a_one_pixel_placeholder_image_is_not_checked_against_the_principal_point(tmp_path):
+    """A 1x1 image is a placeholder whose size comes from the intrinsics (the calibration's
+    convention): a frame folder holding one reads, whatever the principal point."""
+    import numpy as np
+
+    from xcalib.io.frames import FrameFolder, write_frame_folder
+    from xcalib.types import Frame
+
+    from test_calib_support import INTR
+
+    frame = Frame(image=np.zeros((1, 1, 3), np.uint8), point_cloud=np.zeros((0, 3), np.float32),
+                  bboxes_2d=np.array([[100.0, 100.0, 200.0, 180.0]], np.float32),
+                  bboxes_3d=np.array([[1.0, 0.0, 10.0, 2.0, 1.5, 4.0]], np.float32))
+    root = write_frame_folder(tmp_path / "f", [frame], intrinsics=INTR)
+    read = FrameFolder(root)[0]
+    assert read.image.shape[:2] == (1, 1) and len(read.bboxes_2d) == 1
+
+
 def test_box_beyond_the_lidar_range_is_named(tmp_path):
     from xcalib.errors import FormatError
     from xcalib.io.frames import FrameFolder

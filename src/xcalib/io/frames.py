@@ -252,7 +252,9 @@ class FrameFolder(Sequence):
         key, det = self._entries[index]
         frame = read_detections(det, default_key=key, default_camera=self.camera, intrinsics=self.intrinsics,
                                 columns=self._columns, drop_nonfinite=self._drop, allow_outside=self._allow_outside)
-        if not self._size_checked and self.intrinsics is not None and frame.image.size:
+        # a 1-pixel image is a placeholder whose size comes from the intrinsics (the calibration's
+        # convention, ``calib.inputs``), not an image size to check the principal point against
+        if not self._size_checked and self.intrinsics is not None and min(frame.image.shape[:2], default=0) > 1:
             h, w = frame.image.shape[:2]
             try:  # a principal point far outside the images: the file's problem, named as such
                 self.intrinsics.check_image_size(w, h)
