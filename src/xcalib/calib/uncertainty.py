@@ -698,6 +698,15 @@ def outline_fit(ctx: FitContext):
                                                           f_scale=ctx.f_scale, occlusion=ctx.occlusion))
 
 
+def _influence_in_use(ctx: FitContext):
+    """``_pair_influence`` of the fit in use at ``ctx`` (its occlusion model; None: the default one),
+    computed once per context: the occlusion / outline and the hidden-edge shift noises share it."""
+    occl = Occlusion() if ctx.occlusion is None else ctx.occlusion
+    n = int(sum(len(p) for p in ctx.pairs))
+    return ctx.cached("influence_in_use", lambda: _pair_influence(
+        build_cost(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, occl), None, n))
+
+
 def _shift_noises(ctx: FitContext, free: Pose, outline_fit, groups) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Sampling-noise 1-sigma (``shift_noise_sd``) of the occlusion shift (the fit in use vs the refit
     at ``free`` without the occlusion model) and of the outline shift (vs ``outline_fit``'s model and
@@ -708,7 +717,7 @@ def _shift_noises(ctx: FitContext, free: Pose, outline_fit, groups) -> tuple[np.
     if n < 2:
         return None, None
     try:
-        used = _pair_influence(build_cost(frames, pairs, intr, pose, noise, occl), None, n)
+        used = _influence_in_use(ctx)
         no_occl = _pair_influence(build_cost(frames, pairs, intr, free, noise, CostSpec.of(occl).with_occlusion(None)),
                                   None, n)
         alt = None if outline_fit is None else _pair_influence(outline_fit[0], outline_fit[1].x, n)
@@ -747,7 +756,8 @@ def hidden_edge_shift(ctx: FitContext, groups: np.ndarray | None, *,
     spec = CostSpec.of(ctx.occlusion).with_occlusion(hidden)
     try:
         moved = _refit(frames, pairs, intr, pose, noise, ctx.f_scale, max_nfev, spec)
-        used = _pair_influence(build_cost(frames, pairs, intr, pose, noise, ctx.occlusion), None, n)
+        used = _pair_influence(build_cost(frames, pairs, intr, pose, noise, ctx.occlusion), None, n) \
+            if ctx.occlusion is None else _influence_in_use(ctx)
         alt = _pair_influence(build_cost(frames, pairs, intr, moved, noise, spec), None, n)
     except (np.linalg.LinAlgError, ValueError):
         return None, None
@@ -795,7 +805,7 @@ def estimate(ctx: FitContext, *, mode: str = "clusters", track_ids: list | None 
     if mode in ("clusters", "objects"):
         groups = object_groups(frames, pairs, track_ids=track_ids)
         n_obj = int(groups.max()) + 1 if len(groups) else 0
-        clus_dof, clus_extra = np.full(6, np.nan), {}
+        clus_dof = np.full(6, np.nan)
         clus = object_sandwich(ctx, groups, dof_out=clus_dof, extra_out=clus_extra)
         clus_dof = None if clus is None or not np.all(np.isfinite(clus_dof)) else clus_dof
         if clus_dof is None:
