@@ -279,9 +279,8 @@ def first_detection(rows: np.ndarray, cov_cal: np.ndarray, h: float, **kw) -> in
 #: the variants ``--part guard`` replays: the inflation's floor (``MonitorConfig.min_inflation``)
 #: and the objects the guard leaves out (``MonitorConfig.leave_out_objects``)
 GUARD_VARIANTS = {"default": {}, "min_inflation=0.75": {"floor": 0.75}, "min_inflation=0.5": {"floor": 0.5},
-                  "0.75,leave_out=3": {"floor": 0.75, "leave_out": 3}, "0.75,leave_out=4": {"floor": 0.75, "leave_out": 4},
-                  "0.5,leave_out=3": {"floor": 0.5, "leave_out": 3}, "0.5,leave_out=4": {"floor": 0.5, "leave_out": 4},
-                  "0.5,leave_out=6": {"floor": 0.5, "leave_out": 6}, "leave_out=4": {"leave_out": 4}}
+                  "0.75,leave_out=3": {"floor": 0.75, "leave_out": 3}, "0.5,leave_out=3": {"floor": 0.5, "leave_out": 3},
+                  "0.5,leave_out=4": {"floor": 0.5, "leave_out": 4}}
 
 
 def _obj_sums(rec: dict, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
