@@ -426,6 +426,21 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
     return alarms
 
 
+def step_recovery(rec: dict, k0: int, length: int, axis: int, true: float) -> dict:
+    """How much of a step of size ``true`` on ``axis`` (rad / m) injected at frame ``k0`` the
+    monitor's linearised frames recover: the ``length`` frames after it fitted against the ``k0``
+    before (``_seg_fit``, linearised at the calibration as the change test is): the estimate over
+    the truth, its z, the two-sample statistic, and the noncentrality the true step would have at
+    the same covariance (what an unshrunk estimate would give on average)."""
+    C = _cums(rec["rows"])
+    fb, fa = _seg_fit(C, 0, k0), _seg_fit(C, k0, k0 + length)
+    d, cov = fa[0] - fb[0], fa[1] + fb[1]
+    t = np.zeros(6)
+    t[axis] = true
+    return {"recovered": float(d[axis] / true), "z": float(d[axis] / np.sqrt(cov[axis, axis])),
+            "statistic": float(d @ np.linalg.solve(cov, d)), "noncentrality_true": float(t @ np.linalg.solve(cov, t))}
+
+
 def save_recording(path, d: dict) -> None:
     """One recording (``collect``) as a plain ``.npz`` (no pickle): the frames' rows, the
     per-object shares flattened (frame, id, H, g per matched object), cov_cal and the threshold."""
