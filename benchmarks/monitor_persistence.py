@@ -51,11 +51,14 @@ AXES6 = ("rx", "ry", "rz", "tx", "ty", "tz")
 PRIOR_INFO = np.diag(1.0 / np.array([np.radians(0.1)] * 3 + [0.05] * 3) ** 2)
 
 
-def collect(cal, frames, config=None) -> dict:
+def collect(cal, frames, config=None, lin_from: tuple[int, np.ndarray] | None = None) -> dict:
     """Run a fresh monitor that cannot alarm (``false_alarm_rate`` 1e-12 unless ``config`` is given) over
     ``frames``; per frame its normal equations and the per-object shares; the monitor's inflation at
     every decision. ``threshold``: the test threshold of the default settings (or of ``config``): the
-    one the replayed variants are held to, never the recording monitor's own."""
+    one the replayed variants are held to, never the recording monitor's own. ``lin_from`` = (k, x):
+    frames from the k-th on are matched and linearised at the pose change x (rad / m; e.g. an injected
+    step's truth) instead of the calibration (``step_recovery`` then shows what the linearisation
+    point costs)."""
     from xcalib.monitor import Monitor, MonitorConfig
 
     # no alarm may reset the history (the statistics below do not depend on the threshold)
@@ -65,6 +68,8 @@ def collect(cal, frames, config=None) -> dict:
     t0 = time.process_time()
     n = 0
     for f in frames:
+        if lin_from is not None and n == lin_from[0]:
+            cm.x_lin = np.array(lin_from[1], dtype=np.float64)
         n += 1
         sts = mon.update(f)
         q = cm.recs[-1]
