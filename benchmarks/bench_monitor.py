@@ -63,6 +63,13 @@ replayed offline on the same recorded frames (``monitor.json`` ``persist_s10``).
 
     ... --part persist --null-frames 2400 --null-base 1200 --null-seeds 3,5,11,17 --step-seeds 3,11,17 --runs 2 --real-null 480 --jobs 2
 
+``--part guard``: the inflation's floor (``MonitorConfig.min_inflation``) with the leave-objects-out
+guard's size (``leave_out_objects``), ``monitor_persistence.GUARD_VARIANTS``, replayed with the guard
+(``monitor_persistence.replay``) on recordings of the long null streams and of every step cell
+(``--recordings``: the .npz folder, reused when present) (``monitor.json`` ``guard_s11``).
+
+    ... --part guard --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,7,11,13,17 --runs 2
+
 ``--part reference``: the change test calibrated per axis and window length
 (``CameraMonitor.axis_factors``) from a drift-free reference stretch of each site
 (``Monitor.learn``), against the test without it and with only the stream's own ~250 frames, on
