@@ -7,6 +7,8 @@ from pathlib import Path
 
 import typer
 
+from ..errors import FormatError
+
 _HELP = """Estimate T_cam_lidar from the frames' 2D and 3D detections (no target, no labels, no guess).
 
 SOURCE is any frame source: frame folder, HDF5 cache, KITTI folder, nuScenes/mmdet3d pickle,
@@ -245,7 +247,7 @@ def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, ba
                                          "image topic (--camera /ns/image)", param_hint="--camera")
             views[name] = seq
     except ValueError as exc:
-        if type(exc).__name__ == "FormatError":
+        if isinstance(exc, FormatError):
             raise
         raise typer.BadParameter(str(exc), param_hint="--frames") from None
     return views

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import typer
 
+from ..errors import FormatError
+
 _HELP = """Watch a stream of frames against a calibration and say when the camera has moved, how far, and how sure.
 
 SOURCE is any frame source (frame folder, HDF5 cache, KITTI, nuScenes, ROS 1 .bag / ROS 2 .db3 /
@@ -190,14 +192,14 @@ def _open_views(source: Path, cams: list[str], frame_range, tolerance: float, si
             try:
                 seq = open_source(source, camera=c, frames=frame_range, **options)
             except (KeyError, ValueError) as exc:
-                if not single or type(exc).__name__ == "FormatError":
+                if not single or isinstance(exc, FormatError):
                     raise
                 seq = open_source(source, frames=frame_range, **options)  # a one-camera source named otherwise
             if len(seq) == 0:
                 raise typer.BadParameter(f"{source}: no frames found", param_hint="SOURCE")
             views[c] = seq
     except ValueError as exc:
-        if type(exc).__name__ == "FormatError":
+        if isinstance(exc, FormatError):
             raise
         raise typer.BadParameter(str(exc), param_hint="SOURCE / --camera / --frames") from None
     return views
