@@ -156,3 +156,41 @@ def test_cli_names_the_missing_image_field(tmp_path, capsys):
     assert main(["calibrate", str(root), "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err
     assert "error: " in err and "detections.json [image]: names the image 'abc', which does not exist" in err
+
+
+# ------------------------------------------------------------------ xcalib validate SOURCE: a source check
+def test_validate_source_checks_a_frame_folder(tmp_path, capsys):
+    from xcalib.cli import main
+
+    root = _folder(tmp_path)
+    assert main(["validate", str(root), "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert r["kind"] == "frame-folder" and r["frames"] == r["read"] == 1 and r["unreadable"] == 0
+    assert r["boxes_2d"]["max"] == 1 and r["boxes_3d"]["max"] == 1 and r["points"]["min"] == 200
+    assert r["with"]["intrinsics"] == 1 and r["missing"] == [] and r["readable"] is True
+    assert main(["validate", str(root)]) == 0
+    out = capsys.readouterr().out
+    assert "read 1, unreadable 0" in out and "Next: xcalib calibrate" in out and "--hdf5 CACHE evaluates" in out
+
+
+def test_validate_source_lists_unreadable_frames_and_what_is_missing(tmp_path, capsys):
+    from xcalib.cli import main
+
+    root = _folder(tmp_path, lambda d: d.__setitem__("image", "abc"))
+    assert main(["validate", str(root), "--json"]) == 1
+    r = json.loads(capsys.readouterr().out)
+    assert r["unreadable"] == 1 and r["readable"] is False and "names the image 'abc'" in r["errors"][0]
+    empty = _folder(tmp_path / "e", lambda d: d.update(bboxes_2d=[], match_matrix=None))
+    assert main(["validate", str(empty), "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert any(m.startswith("no 2D boxes in any frame: calibrate --detect") for m in r["missing"])
+
+
+@pytest.mark.parametrize("argv,match", [([], "give a frame SOURCE to check it"),
+                                        (["SRC", "--hdf5", "SRC"], "not both")])
+def test_validate_needs_a_source_or_a_cache(tmp_path, capsys, argv, match):
+    from xcalib.cli import main
+
+    root = str(_folder(tmp_path))
+    assert main(["validate", *[root if a == "SRC" else a for a in argv]]) == 2
+    assert match in capsys.readouterr().err

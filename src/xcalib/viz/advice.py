@@ -17,8 +17,9 @@ _MORE = ("record (or pass) more frames in which objects stand at other places in
 ADVICE: dict[str, tuple[str, str]] = {
     "too_few_detections": ("the frames hold too few boxes (2D boxes in the images or 3D boxes in the clouds) "
                            "to fix a pose",
-                           "check that the source carries its boxes where xcalib reads them (docs/formats.md; "
-                           "`xcalib bag info` for a recording), make them with `--detect` if it has none, and use "
+                           "check what the source carries (`xcalib validate SOURCE` counts the boxes of every "
+                           "frame; docs/formats.md says where xcalib reads them), make them with `--detect` if it "
+                           "has none, and use "
                            "frames with several vehicles or people seen by both sensors"),
     "collinear_3d": ("all objects lie along one line, which leaves a rotation about that line free",
                      "use frames in which objects also stand beside that line (other lanes, other places)"),
