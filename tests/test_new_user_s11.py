@@ -194,3 +194,37 @@ def test_validate_needs_a_source_or_a_cache(tmp_path, capsys, argv, match):
     root = str(_folder(tmp_path))
     assert main(["validate", *[root if a == "SRC" else a for a in argv]]) == 2
     assert match in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ --help as a new user reads it
+def _commands():
+    import typer.main
+
+    from xcalib.cli import app
+
+    def walk(cmd, path):
+        yield path, cmd
+        for name, sub in getattr(cmd, "commands", {}).items():
+            yield from walk(sub, path + [name])
+    return list(walk(typer.main.get_command(app), []))
+
+
+def test_help_paragraphs_are_not_broken_mid_sentence():
+    """A single newline inside a help paragraph prints as a ragged line break (rich keeps it and
+    wraps as well): every command's help is paragraphs joined by blank lines."""
+    import re
+
+    ragged = {" ".join(p): len(re.findall(r"(?<!\n)\n(?!\n)", c.help or "")) for p, c in _commands()}
+    assert {k: v for k, v in ragged.items() if v} == {}
+
+
+def test_help_text_in_brackets_is_printed(monkeypatch):
+    """Rich reads "[word]" as a markup tag and drops it: calibrate-many's help said
+    "pip install 'xcalib'" for "pip install 'xcalib[ray]'"."""
+    from typer.testing import CliRunner
+
+    from xcalib.cli import app
+
+    monkeypatch.setenv("COLUMNS", "200")
+    out = CliRunner().invoke(app, ["calibrate-many", "--help"]).output
+    assert "pip install 'xcalib[ray]'" in out and "[--ray-address ADDR]" in out
