@@ -4,6 +4,7 @@ a frame source; the plain advice of a refused calibration from xcalib's own dete
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -228,3 +229,71 @@ def test_help_text_in_brackets_is_printed(monkeypatch):
     monkeypatch.setenv("COLUMNS", "200")
     out = CliRunner().invoke(app, ["calibrate-many", "--help"]).output
     assert "pip install 'xcalib[ray]'" in out and "[--ray-address ADDR]" in out
+
+
+# ------------------------------------------------------------------ bags: the same bounds; xcalib's own boxes named
+def _bag_with_record(tmp_path: Path, edit, meta=None) -> Path:
+    """A small .mcap of the bag test frames (``meta`` added to each), its frame records edited."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from _bag_cases import rewrite_bag, sample_frames
+
+    from xcalib.io.bags import write_bag
+
+    frames = [dataclasses.replace(f, meta={**f.meta, **(meta or {})}) for f in sample_frames(2)]
+    src = write_bag(tmp_path / "src.mcap", frames)
+    if edit is None:
+        return src
+
+    def fn(topic, msgtype, k, msg):
+        if topic == "/xcalib/frames":
+            rec = json.loads(msg.data)
+            edit(rec)
+            msg.data = json.dumps(rec)
+        return [(topic, msg)]
+    return rewrite_bag(src, tmp_path / "bad.mcap", fn)
+
+
+@pytest.mark.parametrize("edit,match", [
+    (lambda r: r.update(lidar_time_s=1.7e12), r"frame record lidar_time_s: time 1\.7e\+12 s is beyond 1e\+11 s"),
+    (lambda r: next(iter(r["cameras"].values())).update(camera_time_s=-1e300), r"camera_time_s: time -1e\+300 s"),
+    (lambda r: r.update(velocities_3d=[[1e12, 0, 0], [0, 0, 0]], track_ids_3d=[1, 2]),
+     r"velocities_3d: a velocity of 1e\+12 m/s, beyond 1000 m/s"),
+    (lambda r: r.update(detections_source=["x"]), r"detections_source: expected 'xcalib detect' or nothing"),
+])
+def test_bag_frame_records_are_bounded_like_the_other_readers(tmp_path, edit, match):
+    from xcalib.io.sources import open_source
+
+    with pytest.raises(FormatError, match=r"bad\.mcap.*" + match):
+        open_source(_bag_with_record(tmp_path, edit))[0]
+
+
+def test_bag_written_from_own_detections_says_so(tmp_path):
+    """A bag written from frames with xcalib's own boxes (``xcalib detect``) carries that in its
+    frame records; read back, the frames say so (calibrate then explains a refusal by the boxes)."""
+    from xcalib.cli.calibrate_cmd import _own_detections
+    from xcalib.io.sources import open_source
+
+    own = open_source(_bag_with_record(tmp_path, None, meta={"detections": {"source": "xcalib detect"}}))
+    assert own[0].meta["detections"] == {"source": "xcalib detect"} and _own_detections(own)
+    plain = open_source(_bag_with_record(tmp_path / "p", None))
+    assert "detections" not in plain[0].meta and not _own_detections(plain)
+
+
+def test_focal_misfit_from_own_detections_advises_on_the_boxes():
+    """misfit_focal_length says "the intrinsics are probably wrong"; with xcalib's own boxes
+    (``meta["detection_coverage"]``, set by calibrate for them) the boxes are named as the likely
+    cause and the user is told to keep the intrinsics."""
+    from xcalib.viz.advice import plain_advice
+
+    @dataclasses.dataclass
+    class Diag:
+        refusal: str = "misfit_focal_length"
+
+    labelled = type("R", (), {"success": False, "diagnostics": Diag(), "meta": {}})()
+    own = type("R", (), {"success": False, "diagnostics": Diag(), "meta": {"detection_coverage": {}}})()
+    lab, mine = " ".join(plain_advice(labelled)), " ".join(plain_advice(own))
+    assert "the intrinsics are probably wrong" in lab
+    assert "xcalib's own label-free detectors" in mine and "keep the intrinsics" in mine
+    assert "probably wrong" not in mine and "(misfit_focal_length)" in mine

@@ -180,7 +180,7 @@ def register(app: typer.Typer) -> None:
                 def run(items, k, stage, prior=None):
                     res = calibrate(items, k, selfcal, prior=prior_res if prior is None else prior, box_model=box_model,
                                     seed=seed, progress=stage)
-                    if detect:  # a refusal names the weak detections where they are the cause
+                    if detect or _own_detections(items):  # a refusal names weak detections where they are the cause
                         from ..detect import explain_refusal
 
                         res = explain_refusal(res, items, k)
@@ -206,6 +206,14 @@ def register(app: typer.Typer) -> None:
                     typer.echo(line)
             if not all(c.result.success for c in site.cameras):
                 raise typer.Exit(1)
+
+
+def _own_detections(frames) -> bool:
+    """The frames' boxes were made by xcalib's own detectors (a bag `xcalib detect` wrote)."""
+    from ..io.bags.reader import OWN_DETECTIONS
+
+    made = (frames[0].meta or {}).get("detections") if len(frames) else None
+    return isinstance(made, dict) and made.get("source") == OWN_DETECTIONS
 
 
 def _check_camera_names(cameras) -> None:
