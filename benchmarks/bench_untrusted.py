@@ -92,7 +92,9 @@ class Pool:
 
 def fuzz(cases: int, timeout: float, names=None) -> dict:
     """``cases`` seeded mutations per reader (``names``: a subset of the readers; the seeds do not
-    depend on it) -> outcome counts per reader."""
+    depend on it) -> outcome counts per reader, and ``outcomes``: one letter per case in order
+    (o ok, c clear, u unclear, g garbage). The first n cases of a run are those of a run with
+    ``cases=n`` (each reader's seeds are drawn in order), so a prefix can be re-checked."""
     from _untrusted_cases import KINDS, READERS
 
     out = {}
@@ -101,16 +103,19 @@ def fuzz(cases: int, timeout: float, names=None) -> dict:
         for name in READERS if names is None else names:
             rnd = random.Random(f"bench-{name}")
             c: Counter = Counter()
+            letters: list[str] = []
             examples: list[str] = []
             t0 = time.perf_counter()
             for i in range(cases):
                 kind = KINDS[i % len(KINDS)]
                 outcome, detail = pool.run((name, kind, rnd.randrange(1 << 30), rnd.randrange(1 << 30)))
                 c[outcome] += 1
+                letters.append(outcome[0])
                 if outcome in ("unclear", "garbage") and len(examples) < 3:
                     examples.append(f"{kind}: {detail}")
             out[name] = {"tried": cases, "ok": c["ok"], "clear": c["clear"], "unclear": c["unclear"],
-                         "garbage": c["garbage"], "seconds": round(time.perf_counter() - t0, 2), "examples": examples}
+                         "garbage": c["garbage"], "seconds": round(time.perf_counter() - t0, 2), "examples": examples,
+                         "outcomes": "".join(letters)}
             print(f"  {name:22s} {dict(c)}", flush=True)
         pool.close()
     return out
@@ -460,7 +465,12 @@ def main() -> None:
     doc["machine"] = {"python": platform.python_version(), "platform": platform.platform(), "cpus": os.cpu_count()}
     from _provenance import provenance
 
+    if "provenance_recordings" not in doc and "--part recordings" in str(old.get("provenance", {}).get("command")):
+        doc["provenance_recordings"] = old["provenance"]  # files written before the per-part stamps
     doc["provenance"] = provenance()
+    for part in ("readers", "recordings"):
+        if args.part in ("all", part):
+            doc[f"provenance_{part}"] = doc["provenance"]
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps(doc, indent=1) + "\n")
     print(f"wrote {RESULTS.relative_to(REPO)}")

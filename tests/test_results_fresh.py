@@ -595,19 +595,28 @@ def test_synth_cache_json():
                  command=cmd)
 
 
+UNTRUSTED_PREFIX = 8  # cases per reader re-run: one of each mutation kind (KINDS)
+
+
 @stale_ok("untrusted.json")
 def test_untrusted_json():
     """untrusted.json: the fuzz campaign of the fastest reader (seeded mutations: the same outcome
-    counts)."""
+    counts), and the first cases of every reader (the same outcome, case by case)."""
     _bench()
     sys.path.insert(0, str(REPO / "tests"))
     import bench_untrusted as b
 
     doc = load("untrusted.json")
+    command = f"{RUN} benchmarks/bench_untrusted.py --part readers"
     name, rec = min(doc["fuzz"].items(), key=lambda kv: kv[1]["seconds"])
     fresh = b.fuzz(rec["tried"], 60.0, names=[name])[name]
     assert_fresh("untrusted.json", f"fuzz {name}", rec, fresh, exact=("tried", "ok", "clear", "unclear", "garbage"),
-                 command=f"{RUN} benchmarks/bench_untrusted.py --part readers")
+                 command=command, part="readers")
+    prefix = b.fuzz(UNTRUSTED_PREFIX, 60.0, names=list(doc["fuzz"]))
+    for name, rec in doc["fuzz"].items():
+        assert_fresh("untrusted.json", f"fuzz {name}, first {UNTRUSTED_PREFIX} cases",
+                     {"outcomes": rec.get("outcomes", "")[:UNTRUSTED_PREFIX]}, prefix[name], exact=("outcomes",),
+                     command=command, part="readers")
 
 
 @stale_ok("coverage_real.json")

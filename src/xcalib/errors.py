@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["XcalibError", "FormatError", "CalibrationFailedError", "MemoryLimitError"]
+__all__ = ["XcalibError", "FormatError", "MissingFileError", "CalibrationFailedError", "MemoryLimitError"]
 
 
 class XcalibError(Exception):
@@ -30,6 +30,11 @@ class FormatError(XcalibError, ValueError):
         if field:
             where += f" [{field}]"
         super().__init__(f"{where}: {problem}")
+
+
+class MissingFileError(FormatError, FileNotFoundError):
+    """A file named inside another file (``path``, at ``field``) does not exist: a FormatError
+    naming the file that names it, and a FileNotFoundError for callers that catch missing files."""
 
 
 class CalibrationFailedError(XcalibError, RuntimeError, ValueError):

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import typer
 
+from ..errors import FormatError
+
 _HELP = """Estimate T_cam_lidar from the frames' 2D and 3D detections (no target, no labels, no guess).
 
 SOURCE is any frame source: frame folder, HDF5 cache, KITTI folder, nuScenes/mmdet3d pickle,
@@ -178,7 +180,7 @@ def register(app: typer.Typer) -> None:
                 def run(items, k, stage, prior=None):
                     res = calibrate(items, k, selfcal, prior=prior_res if prior is None else prior, box_model=box_model,
                                     seed=seed, progress=stage)
-                    if detect:  # a refusal names the weak detections where they are the cause
+                    if detect or _own_detections(items):  # a refusal names weak detections where they are the cause
                         from ..detect import explain_refusal
 
                         res = explain_refusal(res, items, k)
@@ -204,6 +206,14 @@ def register(app: typer.Typer) -> None:
                     typer.echo(line)
             if not all(c.result.success for c in site.cameras):
                 raise typer.Exit(1)
+
+
+def _own_detections(frames) -> bool:
+    """The frames' boxes were made by xcalib's own detectors (a bag `xcalib detect` wrote)."""
+    from ..io.bags.reader import OWN_DETECTIONS
+
+    made = (frames[0].meta or {}).get("detections") if len(frames) else None
+    return isinstance(made, dict) and made.get("source") == OWN_DETECTIONS
 
 
 def _check_camera_names(cameras) -> None:
@@ -245,7 +255,7 @@ def _open_views(source: Path, cams: list[str], frame_range, limit: int, intr, ba
                                          "image topic (--camera /ns/image)", param_hint="--camera")
             views[name] = seq
     except ValueError as exc:
-        if type(exc).__name__ == "FormatError":
+        if isinstance(exc, FormatError):
             raise
         raise typer.BadParameter(str(exc), param_hint="--frames") from None
     return views

@@ -7,19 +7,21 @@ from pathlib import Path
 
 import typer
 
-_HELP = """Calibrate many recordings (sites, cameras, days) and collect the results in one table.
+# paragraphs reflowed (a single newline would show as a ragged line break); "\\[" keeps rich from
+# reading "[ray]" as a markup tag (it printed "pip install 'xcalib'")
+_HELP = "\n\n".join(" ".join(p.split("\n")) for p in """Calibrate many recordings (sites, cameras, days) and collect the results in one table.
 
-RECORDINGS are frame sources (any `xcalib calibrate` SOURCE), glob patterns ("runs/*/frames"),
+LIST_OR_GLOB are frame sources (any `xcalib calibrate` SOURCE), glob patterns ("runs/*/frames"),
 folders whose sub-folders are recordings, or list files (.txt/.lst/.list: one path per line,
 relative to the list's folder). Each is calibrated on its own (defaults; --camera / --intrinsics
 apply to all) on a local process pool (--executor process, --jobs N) or a Ray cluster
-(--executor ray [--ray-address ADDR]; pip install 'xcalib[ray]'). Writes DIR/<name>/calibration.json
-per recording and DIR/results.csv, DIR/results.json and DIR/index.html (a recording that cannot
+(--executor ray \\[--ray-address ADDR]; pip install 'xcalib\\[ray]'). Writes OUT/<name>/calibration.json
+per recording and OUT/results.csv, OUT/results.json and OUT/index.html (a recording that cannot
 be opened is a row with its error). Exit code 1 when any recording was refused or failed.
 
 Example: xcalib calibrate-many "recordings/*" --out runs/batch --jobs 2
-Example: xcalib calibrate-many recordings.txt --out runs/batch --executor ray
-"""
+
+Example: xcalib calibrate-many recordings.txt --out runs/batch --executor ray""".split("\n\n"))
 
 
 def register(app: typer.Typer) -> None:

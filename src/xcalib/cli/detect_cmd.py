@@ -7,6 +7,8 @@ from pathlib import Path
 
 import typer
 
+from ..errors import FormatError
+
 _HELP = (
     "Detect objects in every frame of SOURCE and write them, with the sensor data, to OUT.\n\n"
     "Camera: the shipped YOLOX-Nano (COCO, Apache-2.0) with ONNX Runtime on the CPU, or your own ONNX detector "
@@ -117,7 +119,7 @@ def open_sensors(source: Path, camera, frame_range, intr, tolerance: float):
     try:
         seq = open_source(source, camera=camera, frames=frame_range, **options)
     except ValueError as exc:
-        if type(exc).__name__ == "FormatError":
+        if isinstance(exc, FormatError):
             raise
         raise typer.BadParameter(str(exc), param_hint="--frames") from None
     if len(seq) == 0:

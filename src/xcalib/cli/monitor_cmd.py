@@ -7,26 +7,29 @@ from pathlib import Path
 
 import typer
 
-_HELP = """Watch a stream of frames against a calibration and say when the camera has moved, how far, and how sure.
+from ..errors import FormatError
+
+_HELP = "\n\n".join(" ".join(p.split("\n")) for p in """Watch a stream of frames against a calibration and say when the camera has moved, how far, and how sure.
 
 SOURCE is any frame source (frame folder, HDF5 cache, KITTI, nuScenes, ROS 1 .bag / ROS 2 .db3 /
-.mcap), read in time order. CAL is a calibration .json/.npz or a site_calibration.json (every
+.mcap), read in time order. --calibration is a calibration .json/.npz or a site_calibration.json (every
 calibrated camera is watched; --camera picks some). Over sliding windows of frames the pose change
 relative to the calibration is estimated with its uncertainty, and each window is ok, drift (with
 the change per axis and since when) or unknown (too few objects, and why). The change-point test
 keeps false alarms below --false-alarm-rate per frame; the change it can detect at the stream's
 traffic is printed, and the axes along which a change of the target size (0.25 deg / 10 cm) is
-not observable from that traffic (weak_axes: typically the view axis z). Writes DIR/monitor.jsonl, DIR/summary.json, DIR/report.html (the change over
-time) and DIR/monitor.mcap (diagnostic_msgs/DiagnosticArray on /diagnostics, the estimated pose
+not observable from that traffic (weak_axes: typically the view axis z).
+
+Writes OUT/monitor.jsonl, OUT/summary.json, OUT/report.html (the change over
+time) and OUT/monitor.mcap (diagnostic_msgs/DiagnosticArray on /diagnostics, the estimated pose
 on /tf, for Foxglove). --recalibrate runs calibrate on the frames after a change point
-(DIR/recalibration/<camera>.json). Exit code 0 ok, 3 drift, 1 could not tell.
+(OUT/recalibration/<camera>.json). Exit code 0 ok, 3 drift, 1 could not tell.
 
 Example: xcalib monitor ../shared/data/a9_sample --calibration runs/a9_calib/calibration.json --out runs/watch
-(after `xcalib calibrate ../shared/data/a9_sample --out runs/a9_calib`; its 16 frames are fewer than one
+ (after `xcalib calibrate ../shared/data/a9_sample --out runs/a9_calib`; its 16 frames are fewer than one
 window: the answer is unknown, exit 1; a recording of a few minutes decides)
 
-Example: xcalib monitor frames/ --calibration site_calibration.json --json > decisions.jsonl
-"""
+Example: xcalib monitor frames/ --calibration site_calibration.json --json > decisions.jsonl""".split("\n\n"))
 
 
 def register(app: typer.Typer) -> None:
@@ -190,14 +193,14 @@ def _open_views(source: Path, cams: list[str], frame_range, tolerance: float, si
             try:
                 seq = open_source(source, camera=c, frames=frame_range, **options)
             except (KeyError, ValueError) as exc:
-                if not single or type(exc).__name__ == "FormatError":
+                if not single or isinstance(exc, FormatError):
                     raise
                 seq = open_source(source, frames=frame_range, **options)  # a one-camera source named otherwise
             if len(seq) == 0:
                 raise typer.BadParameter(f"{source}: no frames found", param_hint="SOURCE")
             views[c] = seq
     except ValueError as exc:
-        if type(exc).__name__ == "FormatError":
+        if isinstance(exc, FormatError):
             raise
         raise typer.BadParameter(str(exc), param_hint="SOURCE / --camera / --frames") from None
     return views

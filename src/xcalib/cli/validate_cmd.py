@@ -10,19 +10,27 @@ import typer
 
 _EXAMPLE = ("Example: xcalib validate --model fastmatch --model crlite --hdf5 site/test.h5 "
             "--output report.json --site synthetic")
+_HELP = ("Evaluate matchers on a labelled HDF5 cache (--hdf5); or, given a frame SOURCE instead, check "
+         "that source: read every frame and say what a calibration will see (frames, 2D / 3D boxes, "
+         "points, intrinsics, recorded poses, labels, times) and what is missing.\n\n" + _EXAMPLE + "\n\n"
+         "Example: xcalib validate ../shared/data/a9_sample")
 
 
 def register(app: typer.Typer) -> None:
-    @app.command("validate", help="Evaluate matchers on a labelled HDF5 cache.\n\n" + _EXAMPLE)
+    @app.command("validate", help=_HELP)
     def validate(
+        source: Optional[Path] = typer.Argument(None, help="A frame source to check (frame folder, HDF5 cache, "
+                                                           "KITTI, bag, ...); leave out with --hdf5."),
         model: List[str] = typer.Option(["fastmatch"], "--model", help="Model name (repeatable)."),
-        hdf5: Path = typer.Option(..., "--hdf5", help="Labelled HDF5 cache (with match_matrix)."),
+        hdf5: Optional[Path] = typer.Option(None, "--hdf5", help="Labelled HDF5 cache (with match_matrix): "
+                                                                 "evaluate the matchers on it."),
+        camera: Optional[str] = typer.Option(None, "--camera", help="SOURCE: the camera of a multi-camera source."),
         output: Optional[Path] = typer.Option(None, "--output", help="Write the report JSON here."),
         site: str = typer.Option("synthetic", "--site", help="Site whose weights to use."),
         weights: Optional[Path] = typer.Option(None, "--weights", help="Weights file/dir (single model only)."),
         config: Optional[Path] = typer.Option(None, "--config", help="Model config YAML (single model only)."),
         device: Optional[str] = typer.Option("cpu", "--device", help="cpu, cuda or auto."),
-        limit_frames: Optional[int] = typer.Option(None, "--limit-frames", help="Evaluate the first N frames."),
+        limit_frames: Optional[int] = typer.Option(None, "--limit-frames", help="Evaluate (or, with SOURCE, check) the first N frames."),
         as_json: bool = typer.Option(False, "--json", help="Print the report JSON."),
         force: bool = typer.Option(False, "--force", help="Replace an existing --output file."),
         runtime: str = typer.Option("torch", "--runtime", help="torch, or onnx: torch-free ONNX Runtime over the "
@@ -30,6 +38,27 @@ def register(app: typer.Typer) -> None:
         onnx_dir: Optional[Path] = typer.Option(None, "--onnx-dir", help="--runtime onnx: export root (OUT of "
                                                                           "`xcalib export`) or a <model>_<site> folder."),
     ) -> None:
+        if source is not None and hdf5 is not None:
+            raise typer.BadParameter("give a frame SOURCE to check it, or --hdf5 CACHE to evaluate matchers on "
+                                     "it, not both", param_hint="SOURCE / --hdf5")
+        if source is None and hdf5 is None:
+            raise typer.BadParameter("give a frame SOURCE to check it (xcalib validate ../shared/data/a9_sample), "
+                                     "or --hdf5 CACHE to evaluate matchers on a labelled cache", param_hint="SOURCE")
+        if output is not None and output.exists() and not force:
+            raise FileExistsError(f"{output} already exists; pass --force to replace it")
+        if source is not None:
+            from .source_check import check_source, print_check
+
+            report = check_source(source, camera=camera, limit=limit_frames)
+            if output is not None:
+                from ..io.files import atomic_write
+
+                atomic_write(output, [json.dumps(report, indent=2).encode()])
+            if as_json:
+                typer.echo(json.dumps(report))
+            else:
+                print_check(report)
+            raise typer.Exit(0 if report["readable"] else 1)
         from rich.progress import Progress
 
         from ..engine.evaluate import REPORT_SCHEMA, evaluate_matcher, portable_path, report_entry
@@ -40,8 +69,6 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter(f"--runtime must be torch or onnx, got {runtime!r}", param_hint="--runtime")
         if runtime == "onnx" and onnx_dir is None:
             raise typer.BadParameter("--runtime onnx needs --onnx-dir", param_hint="--onnx-dir")
-        if output is not None and output.exists() and not force:
-            raise FileExistsError(f"{output} already exists; pass --force to replace it")
         if (weights or config) and len(model) > 1:
             raise typer.BadParameter("--weights/--config need exactly one --model", param_hint="--weights")
         results, dev = {}, None

@@ -27,7 +27,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from ..errors import FormatError
+from ..errors import FormatError, MissingFileError
 from ..geometry.camera import CameraIntrinsics
 from ..types import Frame
 from .files import atomic_dir, atomic_write, inside, load_json
@@ -160,6 +160,11 @@ def read_detections(path, *, default_key: str = "", default_camera: str = "",
     root = path.parent
     image_path = inside(root, det["image"], source=path, field="image", allow_outside=allow_outside)
     cloud_path = inside(root, det["point_cloud"], source=path, field="point_cloud", allow_outside=allow_outside)
+    for field, file in (("image", image_path), ("point_cloud", cloud_path)):
+        if not file.is_file():
+            what = "is not a file" if file.exists() else "does not exist"
+            raise MissingFileError(path, f"names the {field.replace('_', ' ')} {det[field]!r}, which {what} ({file})",
+                                   field)
     image = read_image(image_path)
     pc = read_point_cloud(cloud_path, columns=columns, drop_nonfinite=drop_nonfinite)
     meta = {"detections": str(path), "image_path": str(image_path), "point_cloud_path": str(cloud_path)}
@@ -232,7 +237,7 @@ class FrameFolder(Sequence):
             det = inside(path.parent, fr["detections"], source=path, field=f"frames[{i}].detections",
                          allow_outside=self._allow_outside)
             if not det.is_file():
-                raise FormatError(path, f"detections file {det} does not exist", field=f"frames[{i}].detections")
+                raise MissingFileError(path, f"detections file {det} does not exist", field=f"frames[{i}].detections")
             entries.append((_name_field(path, fr, "frame_key", det.parent.name), det))
         return entries
 

@@ -50,6 +50,7 @@ from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics, check_camera_numbers
 from ..types import DatasetFrame, Frame
 from .files import tmp_prefix, open_regular, sweep_stale
+from .pointcloud import MAX_COORD_M
 from ._validate import check_boxes_2d, check_boxes_3d, check_count, check_rigid
 from .timing import checked_timing, timing_of
 
@@ -439,7 +440,7 @@ class CacheReader(Sequence):
         if xyz.ndim != 2 or xyz.shape[1] < 3:
             raise FormatError(self.path, f"frame {key!r}: xyz has shape {xyz.shape}, expected [P, 3]",
                               field=f"{where}/xyz")
-        xyz = xyz.astype(np.float32, copy=False)
+        xyz = _checked_xyz(self.path, f"{where}/xyz", key, xyz)
         extra = pg.field_names()
         if not extra:
             return (xyz[:, :3] if xyz.shape[1] != 3 else xyz), ("x", "y", "z")
@@ -971,6 +972,27 @@ def _plausible(intr, path, field: str) -> None:
         check_camera_numbers(intr)
     except ValueError as exc:
         raise FormatError(path, str(exc), field=field) from None
+
+
+def _checked_xyz(path, field: str, key: str, xyz: np.ndarray) -> np.ndarray:
+    """A frame's stored points as float32, or a FormatError naming the dataset: NaN / Inf
+    coordinates (the protocol's point clouds are finite; a frame folder's PCD reader refuses them
+    too) and coordinates beyond ``MAX_COORD_M`` (the bound of every other cloud reader: a wrong
+    layout or unit, or corrupt data)."""
+    if xyz.dtype.kind not in "fiu":
+        raise FormatError(path, f"frame {key!r}: xyz holds {xyz.dtype} values, expected numbers", field=field)
+    c = xyz[:, :3]
+    if not np.isfinite(c.sum(dtype=np.float64)):  # finite for float32 values iff every value is
+        bad = ~np.isfinite(c).all(axis=1)
+        if bad.any():
+            raise FormatError(path, f"frame {key!r}: {int(bad.sum())} of {len(c)} point(s) have NaN/Inf in x, y, z "
+                                    f"(first at row {int(np.argmax(bad))}); a cache's points must be finite",
+                              field=field)
+    if c.size and np.abs(c).max() > MAX_COORD_M:
+        i = int(np.argmax(np.abs(c).max(axis=1)))
+        raise FormatError(path, f"frame {key!r}: point {i} has a coordinate of {float(np.abs(c[i]).max()):.3g} m, "
+                                f"beyond {MAX_COORD_M:g} m: corrupt data or not metres", field=field)
+    return xyz.astype(np.float32, copy=False)
 
 
 def _camera_model_attr(path, field: str, text, K: np.ndarray):

@@ -12,10 +12,19 @@ import numpy as np
 
 from ..errors import FormatError
 
-__all__ = ["TIMING_FIELDS", "checked_timing", "timing_of"]
+__all__ = ["MAX_SPEED_MPS", "MAX_TIME_S", "TIMING_FIELDS", "checked_timing", "timing_of"]
 
 #: The Frame fields (and the keys a frame folder's detections.json may carry).
 TIMING_FIELDS = ("lidar_time_s", "camera_time_s", "track_ids_3d", "velocities_3d")
+#: Largest |time| in seconds. A clock in seconds stays below it: Unix time is 1.7e9 s today, the
+#: largest unsigned 64-bit nanosecond stamp (ROS 2 / MCAP) is 1.8e10 s; a Unix time written in
+#: milliseconds exceeds it for every date after March 1973 (microseconds, nanoseconds even more):
+#: beyond it the value is a stamp in the wrong unit or corrupt.
+MAX_TIME_S = 1.0e11
+#: Largest |velocity| component (m/s) of a tracked object: 1000 m/s (3600 km/h) is three times the
+#: speed of sound, far above anything a LiDAR tracks near the ground; beyond it the value is in
+#: the wrong unit (mm/s) or corrupt. (The velocity moves a box by v x the LiDAR-camera time gap.)
+MAX_SPEED_MPS = 1.0e3
 
 
 def _time(path, field: str, value) -> float | None:
@@ -27,6 +36,9 @@ def _time(path, field: str, value) -> float | None:
     v = float(a.reshape(()))
     if not np.isfinite(v):
         raise FormatError(path, f"expected a finite time in seconds, got {v}", field)
+    if abs(v) > MAX_TIME_S:
+        raise FormatError(path, f"time {v:.6g} s is beyond {MAX_TIME_S:g} s in magnitude: not a clock in seconds "
+                                "(a stamp in milliseconds, microseconds or nanoseconds?) or corrupt", field)
     return v
 
 
@@ -61,6 +73,10 @@ def checked_timing(path, n_3d: int, *, lidar_time_s=None, camera_time_s=None, tr
                                     f"{list(v.shape)}", name["velocities_3d"])
         if not np.all(np.isfinite(v)):
             raise FormatError(path, "velocities must be finite (m/s)", name["velocities_3d"])
+        if v.size and np.abs(v).max() > MAX_SPEED_MPS:
+            r = int(np.argmax(np.abs(v).max(axis=1)))
+            raise FormatError(path, f"row {r} holds a velocity of {float(np.abs(v[r]).max()):.3g} m/s, beyond "
+                                    f"{MAX_SPEED_MPS:g} m/s: not m/s (mm/s?) or corrupt", name["velocities_3d"])
         out["velocities_3d"] = v
     return {k: v for k, v in out.items() if v is not None}
 

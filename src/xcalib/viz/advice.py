@@ -8,7 +8,7 @@ means, what to do. The reason names themselves are kept as they are (scripts rea
 
 from __future__ import annotations
 
-__all__ = ["plain_advice", "ADVICE"]
+__all__ = ["plain_advice", "ADVICE", "OWN_DETECTIONS_ADVICE"]
 
 _MORE = ("record (or pass) more frames in which objects stand at other places in the image and at other "
          "distances from the sensors, then run again")
@@ -17,8 +17,9 @@ _MORE = ("record (or pass) more frames in which objects stand at other places in
 ADVICE: dict[str, tuple[str, str]] = {
     "too_few_detections": ("the frames hold too few boxes (2D boxes in the images or 3D boxes in the clouds) "
                            "to fix a pose",
-                           "check that the source carries its boxes where xcalib reads them (docs/formats.md; "
-                           "`xcalib bag info` for a recording), make them with `--detect` if it has none, and use "
+                           "check what the source carries (`xcalib validate SOURCE` counts the boxes of every "
+                           "frame; docs/formats.md says where xcalib reads them), make them with `--detect` if it "
+                           "has none, and use "
                            "frames with several vehicles or people seen by both sensors"),
     "collinear_3d": ("all objects lie along one line, which leaves a rotation about that line free",
                      "use frames in which objects also stand beside that line (other lanes, other places)"),
@@ -87,6 +88,22 @@ ADVICE: dict[str, tuple[str, str]] = {
 }
 
 
+#: a focal length / image centre misfit when the boxes are xcalib's own (``calibrate --detect``, or a
+#: bag ``xcalib detect`` wrote; the result's ``meta["detection_coverage"]`` says so): the boxes, not
+#: the intrinsics, are the likely cause, and changing the intrinsics would fit the pose to them
+OWN_DETECTIONS_ADVICE: dict[str, tuple[str, str]] = {
+    code: (f"the boxes fit a different {what} than the one given; these boxes come from xcalib's own label-free "
+           "detectors, and there the boxes are the more likely cause than the intrinsics: a LiDAR box made "
+           "without labels covers only the part of an object the LiDAR sees, so its size and centre differ from "
+           "the object the camera's box outlines, and few distinct objects cannot tell such an error from a "
+           f"wrong {what}",
+           "keep the intrinsics if they are this camera's own (do not let xcalib estimate them from these "
+           "boxes); calibrate with the 3D boxes of your perception stack (tracked, whole objects) if you have "
+           "them (`xcalib validate SOURCE` shows what a source holds), or record longer, with moving traffic "
+           "at many places and depths, and run again")
+    for code, what in (("misfit_focal_length", "focal length"), ("misfit_principal_point", "image centre"))}
+
+
 def plain_advice(result) -> list[str]:
     """Two or three plain lines for ``result`` (a :class:`CalibrationResult`): the verdict, what it
     means, what to do. The machine-readable reason is named in brackets for a refusal."""
@@ -99,7 +116,9 @@ def plain_advice(result) -> list[str]:
     code = ""
     if result.diagnostics is not None:
         code = getattr(result.diagnostics, "refusal", "") or ""
-    means, todo = ADVICE.get(code, ("the frames do not determine the pose reliably, so none is reported", _MORE))
+    own = "detection_coverage" in (getattr(result, "meta", None) or {})  # boxes from xcalib's own detectors
+    means, todo = (OWN_DETECTIONS_ADVICE if own and code in OWN_DETECTIONS_ADVICE else ADVICE).get(
+        code, ("the frames do not determine the pose reliably, so none is reported", _MORE))
     return [f"In short: no pose was delivered ({code or 'refused'}): {means}.", f"What to do: {todo}."]
 
 

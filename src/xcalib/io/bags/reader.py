@@ -24,6 +24,7 @@ import numpy as np
 from ...errors import FormatError
 from ...options import Options, document, resolve
 from ..files import open_regular
+from ..timing import MAX_SPEED_MPS, MAX_TIME_S
 from .._validate import check_rigid
 from ...geometry.camera import CameraIntrinsics
 from ...geometry.transforms import invert_transform
@@ -33,7 +34,7 @@ from ._msgs import (CAMERA_INFO, COMPRESSED, DET2D, DET3D_TYPES, IMAGE, POINTCLO
                     typestore)
 from ._objects import MAX_TILT_DEG, boxes3d_any
 
-__all__ = ["BagReadOptions", "BAG_SUFFIXES", "MAX_BAG_BYTES", "MAX_MESSAGE_BYTES", "check_bag_input", "is_bag", "BagTopic", "BagInfo",
+__all__ = ["BagReadOptions", "BAG_SUFFIXES", "MAX_BAG_BYTES", "OWN_DETECTIONS", "MAX_MESSAGE_BYTES", "check_bag_input", "is_bag", "BagTopic", "BagInfo",
            "bag_info", "BagCamera", "bag_cameras", "Dropped", "PairingReport",
            "BagFrames", "pair_by_time", "META_TOPIC"]
 
@@ -52,6 +53,9 @@ def is_bag(path) -> bool:
     return (p.exists() or p.is_symlink()) and p.suffix.lower() in BAG_SUFFIXES
 
 
+#: ``Frame.meta["detections"]["source"]`` of boxes made by xcalib's own detectors (``xcalib.detect``);
+#: a bag written from such frames says so in its frame records, and the frames read back carry it.
+OWN_DETECTIONS = "xcalib detect"
 #: Largest bag file read (streamed, never loaded whole): a sanity limit, not a memory one.
 MAX_BAG_BYTES = 1 << 40
 #: Largest single message decoded (a 2M-point sweep of 8 float32 fields is 64 MB).
@@ -647,6 +651,9 @@ class BagFrames(Sequence):
             raise FormatError(self.path, f"message {index}: frame record needs an integer lidar_stamp_ns and a "
                                          "cameras mapping", META_TOPIC)
         _time(rec.get("lidar_time_s"), bad, "lidar_time_s")
+        if rec.get("detections_source") not in (None, OWN_DETECTIONS):
+            raise bad(f"expected {OWN_DETECTIONS!r} or nothing, got {rec['detections_source']!r:.40}",
+                      "detections_source")
         if not isinstance(rec.get("frame_key", ""), (str, int)) or isinstance(rec.get("frame_key"), bool):
             raise bad("expected a string", "frame_key")
         rows = rec.get("box3d_rows")
@@ -661,6 +668,9 @@ class BagFrames(Sequence):
             v = _numbers(vel, bad, "velocities_3d")
             if v.ndim != 2 or v.shape[1:] != (3,) or (tracks is not None and len(v) != len(tracks)):
                 raise bad(f"expected [M, 3] finite numbers, got shape {list(v.shape)}", "velocities_3d")
+            if v.size and np.abs(v).max() > MAX_SPEED_MPS:
+                raise bad(f"a velocity of {float(np.abs(v).max()):.3g} m/s, beyond {MAX_SPEED_MPS:g} m/s: not m/s "
+                          "(mm/s?) or corrupt", "velocities_3d")
         for cam, c in rec["cameras"].items():
             if not isinstance(c, dict):
                 raise bad("expected a mapping", f"cameras.{cam}")
@@ -857,6 +867,8 @@ class BagFrames(Sequence):
             extr = np.asarray(extr, dtype=np.float64)
         meta = {"source": "bag", "bag": str(self.path), "lidar_topic": tp["lidar"], "image_topic": tp["image"],
                 "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "detection_ids_2d": ids2}
+        if e.meta.get("detections_source") == OWN_DETECTIONS and e.det2d is not None:
+            meta["detections"] = {"source": OWN_DETECTIONS}  # the boxes of a bag `xcalib detect` wrote
         if n_bad:
             meta["points_dropped_nonfinite"] = n_bad
         if flattened:
@@ -896,6 +908,9 @@ def _time(value, bad, key: str) -> None:
         return
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise bad(f"expected a finite number of seconds, got {value!r:.40}", key)
+    if abs(value) > MAX_TIME_S:
+        raise bad(f"time {value:.6g} s is beyond {MAX_TIME_S:g} s in magnitude: not a clock in seconds (a stamp "
+                  "in milliseconds, microseconds or nanoseconds?) or corrupt", key)
 
 
 def _numbers(value, bad, key: str) -> np.ndarray:

@@ -35,7 +35,7 @@ from ...options import Options, document, resolve
 from ...types import Frame
 from . import _convert as cv
 from ._msgs import CAMERA_INFO, COMPRESSED, DET2D, DET3D, IMAGE, POINTCLOUD2, STRING, TF, typestore
-from .reader import BAG_SUFFIXES, META_TOPIC
+from .reader import BAG_SUFFIXES, META_TOPIC, OWN_DETECTIONS
 
 __all__ = ["write_bag", "BagWriteOptions", "topic_name"]
 
@@ -197,6 +197,9 @@ def _write_frames(sink: _Sink, store, frames, image_format, clock, lidar_frame, 
                   "lidar_time_s": frame.lidar_time_s, "track_ids_3d": tracks,
                   "velocities_3d": None if frame.velocities_3d is None else
                   np.asarray(frame.velocities_3d, dtype=np.float64).tolist()}
+        made = (frame.meta.get("detections") or {}) if isinstance(frame.meta.get("detections"), dict) else {}
+        if made.get("source") == OWN_DETECTIONS:  # read back, a refusal can name xcalib's own boxes as the cause
+            record["detections_source"] = OWN_DETECTIONS
         for c, cam in enumerate(_cameras(frame)):
             seg = topic_name(cam)
             cs = ls + int(round(camera_delay_s * 1e9)) + c * 1_000_000  # camera c: 1 ms after camera c-1
