@@ -32,7 +32,10 @@ the linearised 1-sigma of the 2D and 3D centre noise, every draw's error in it (
 with all detection noise off (what no noise explains: occlusion, truncation). Stored under the
 label's ``resample`` / ``resample_summary`` (no calibration records). ``--hidden`` adds each draw's
 hidden-edge sigma part (its mean shift per site against the site's bias, the rms of its excess over
-its noise); ``--seeds 5,9,11`` picks sites.
+its noise); ``--sources yaw,centre`` fits every draw again with each named noise source off (the
+other sources' draws unchanged: ``SOURCES``) and gives per site each source's part of the error
+(``source_effects``: is a site's error the 3D boxes' yaw, their centres, sizes or the 2D boxes?);
+``--seeds 5,9,11`` picks sites.
 
 Results go to ``benchmarks/results/camera_models.json`` under ``--label`` (runs in parallel, e.g.
 one per model, save under a file lock); ``--summary`` prints the Done-when table pooled over the
@@ -42,7 +45,7 @@ stored runs made at the current uncertainty (``POOL_SINCE``), one record per row
         [--sites 1] [--first-seed 0] [--models kannala_brandt,double_sphere] [--fovs 120,150,185]
         [--frames 20] [--jobs 1] [--seed-major] [--no-calibration] [--pinhole-check-only]
         [--no-pinhole-rows] [--no-pinhole-check] [--round-trips] [--bag kannala_brandt:185:0] [--matching]
-        [--resample K [--hidden] [--seeds 5,9]] [--label run] [--summary]
+        [--resample K [--hidden] [--sources yaw,centre] [--seeds 5,9]] [--label run] [--summary]
 
 The whole Done-when grid (20 sites per cell; ~15-20 s of CPU per wide-angle calibration with
 ``--jobs 1``, so ~2 CPU-hours in all), one process per model:
@@ -247,7 +250,7 @@ def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole:
     rec.update(n_objects=getattr(u, "n_objects", None), focal_estimated=bool(sc.focal_estimated),
                sigma_parts={k: getattr(u, k, None) for k in ("jacobian", "clusters", "frames", "occlusion", "floor",
                                                               "selfcal", "outline", "object_outline", "hidden",
-                                                              "hidden_noise")}
+                                                              "hidden_noise", "centre_model")}
                if u is not None else None)
     # matches that pair a 2D box with another object's 3D box (the frames' true match matrices)
     rec["wrong_matches"] = int(sum(int(np.sum(np.asarray(f.match_matrix)[p[:, 0], p[:, 1]] <= 0))
@@ -312,14 +315,37 @@ def _true_pair_fit(site, raw, true, levels: tuple[float, float], hidden: bool = 
     return d, np.concatenate([np.degrees(sd[:3]), sd[3:]])
 
 
-def resample_case(model: str, fov: float, seed: int, n_frames: int, draws: int, hidden: bool = False) -> dict:
+#: ``--sources`` names -> the noise field each switches off (``iter_frames`` noise overrides; the random
+#: streams are drawn whatever the level, so the other sources' draws stay the same)
+SOURCES = {"px": "box_noise_px", "centre": "center_noise_m", "size": "size_noise_frac", "yaw": "yaw_noise_deg"}
+
+
+def source_effects(D: np.ndarray, off: dict[str, list], S: np.ndarray) -> dict:
+    """Per noise source switched off (``off[name]``: each draw's error [draws, 6] with that source at 0,
+    the other sources' draws unchanged), the part of each draw's error ``D`` [draws, 6] that source
+    made (``D - off``): its RMS per axis (deg / m), in the draws' linear sigmas ``S`` [draws, 6]
+    (``z_rms``) and its share of the error's mean square (``share``: sum (D - off)^2 / sum D^2; the
+    parts of independent sources add up to about 1 when their effects are linear)."""
+    out = {}
+    for name, E in off.items():
+        P = D - np.asarray(E)
+        out[name] = {"rms": [float(v) for v in np.sqrt((P ** 2).mean(0))],
+                     "z_rms": [float(v) for v in np.sqrt(((P / np.maximum(S, 1e-12)) ** 2).mean(0))],
+                     "share": [float(v) for v in (P ** 2).sum(0) / np.maximum((D ** 2).sum(0), 1e-300)]}
+    return out
+
+
+def resample_case(model: str, fov: float, seed: int, n_frames: int, draws: int, hidden: bool = False,
+                  sources: tuple[str, ...] = ()) -> dict:
     """Bias or spread? One site's traffic with ``draws`` fresh draws of its detection noise
     (``generate_frames(noise_seed=k)``), each fitted with its true matches from the true pose
     (``_true_pair_fit``): per axis the mean error over the draws (the site's bias), their spread,
     the mean linearised 1-sigma (what the 2D and 3D centre noise alone explain) and each draw's
     error in it (z), and the error of the same traffic with every detection noise off (the part
     no noise explains: occlusion, truncation, the box model). ``hidden``: also per draw the sigma's
-    hidden-edge part (``--hidden``: its mean shift against the bias, its mean excess over its noise)."""
+    hidden-edge part (``--hidden``: its mean shift against the bias, its mean excess over its noise).
+    ``sources`` (names of ``SOURCES``): each draw fitted again with that noise source off, the other
+    sources' draws the same (``source_effects``: which source made the error, e.g. the 3D boxes' yaw)."""
     from xcalib.calib.pose import Pose
     from xcalib.calib.uncertainty import SHIFT_NOISE_Z, excess
     from xcalib.data.synth import generate_frames, sample_site
@@ -332,11 +358,16 @@ def resample_case(model: str, fov: float, seed: int, n_frames: int, draws: int, 
     d0, _ = _true_pair_fit(site, generate_frames(site, n_frames, seed, render_images=False, lidar=False, **quiet),
                            true, levels)
     D, S, H, X = [], [], [], []
+    off: dict[str, list] = {name: [] for name in sources}
     for k in range(draws):
         raw = generate_frames(site, n_frames, seed, render_images=False, lidar=False, noise_seed=k)
         out = _true_pair_fit(site, raw, true, levels, hidden)
         D.append(out[0])
         S.append(out[1])
+        for name in sources:
+            raw0 = generate_frames(site, n_frames, seed, render_images=False, lidar=False, noise_seed=k,
+                                   **{SOURCES[name]: 0.0})
+            off[name].append(_true_pair_fit(site, raw0, true, levels)[0])
         if hidden and out[2][0] is not None:
             H.append(out[2][0])
             X.append(excess(out[2][0], out[2][1], SHIFT_NOISE_Z))
@@ -345,6 +376,8 @@ def resample_case(model: str, fov: float, seed: int, n_frames: int, draws: int, 
     extra = {} if not H else {"hidden_mean": [float(v) for v in np.mean(H, 0)],
                               "hidden_excess_rms": [float(v) for v in np.sqrt(np.mean(np.square(X), 0))],
                               "hidden": np.round(H, 5).tolist()}
+    if sources:
+        extra["sources"] = source_effects(D, off, S)
     return extra | {"row": f"{model} {fov:g} deg", "model_name": model, "hfov_deg": fov, "seed": seed, "draws": draws,
             "noise_levels": list(levels), "noise_free": [float(v) for v in d0],
             "mean": [float(v) for v in D.mean(0)], "spread": [float(v) for v in D.std(0)],
@@ -361,10 +394,15 @@ def summarise_resample(recs: list[dict]) -> list[dict]:
         rs = [r for r in recs if r["row"] == row]
         Z = np.concatenate([np.asarray(r["z"]) for r in rs])
         M = np.array([r["z_mean"] for r in rs])
-        out.append({"row": row, "sites": len(rs), "draws": int(len(Z)),
-                    "z_rms": [float(v) for v in np.sqrt((Z ** 2).mean(0))],
-                    "within_2": [float(v) for v in (np.abs(Z) <= 2).mean(0)],
-                    "bias_z_rms": [float(v) for v in np.sqrt((M ** 2).mean(0))]})
+        rec = {"row": row, "sites": len(rs), "draws": int(len(Z)),
+               "z_rms": [float(v) for v in np.sqrt((Z ** 2).mean(0))],
+               "within_2": [float(v) for v in (np.abs(Z) <= 2).mean(0)],
+               "bias_z_rms": [float(v) for v in np.sqrt((M ** 2).mean(0))]}
+        names = [n for n in SOURCES if all(n in r.get("sources", {}) for r in rs)]
+        if names:  # per source, pooled: RMS of its part of the error in linear sigmas
+            rec["sources_z_rms"] = {n: [float(v) for v in np.sqrt(np.mean(
+                [np.square(r["sources"][n]["z_rms"]) for r in rs], axis=0))] for n in names}
+        out.append(rec)
     return out
 
 
@@ -564,6 +602,9 @@ def main(argv=None) -> int:
                          "matches from the true pose; per site its bias, spread and linearised sigma (resample_case)")
     ap.add_argument("--hidden", action="store_true",
                     help="with --resample: also each draw's hidden-edge sigma part (uncertainty.hidden_edge_shift)")
+    ap.add_argument("--sources", default="",
+                    help="with --resample: also fit each draw with these noise sources off, one at a time "
+                         f"(comma-separated of {','.join(SOURCES)}): which source made each site's error")
     ap.add_argument("--seeds", default="",
                     help="with --resample: these site seeds (comma-separated) instead of --first-seed / --sites")
     ap.add_argument("--label", default="run")
@@ -622,6 +663,9 @@ def main(argv=None) -> int:
                 print(f"matching, intrinsics {kind}: {len(rs)} frames, precision {c / max(n, 1):.3f}, "
                       f"recall {c / max(tp_, 1):.3f}")
     recs: list[dict] = []
+    sources = tuple(v for v in a.sources.split(",") if v)
+    if set(sources) - set(SOURCES):
+        ap.error(f"--sources: unknown {sorted(set(sources) - set(SOURCES))}; expected some of {', '.join(SOURCES)}")
     if a.resample > 0:
         extra["resample"] = rs = []
         models = [m for m in a.models.split(",") if m]
@@ -630,7 +674,7 @@ def main(argv=None) -> int:
         cases = [] if a.no_pinhole_rows else [("pinhole", 90.0, s) for s in seeds]
         cases += [(m, f, s) for m in models for f in sorted(fovs, reverse=True) for s in seeds]
         for m, f, sd in cases:
-            r = resample_case(m, f, sd, a.frames, a.resample, a.hidden)
+            r = resample_case(m, f, sd, a.frames, a.resample, a.hidden, sources)
             rs.append(r)
             extra["resample_summary"] = summarise_resample(rs)
             _save(a, tp, [], [], extra)
@@ -638,12 +682,17 @@ def main(argv=None) -> int:
                   f"{np.round(r['mean'][:3], 3)}, spread {np.round(r['spread'][:3], 3)}, linear sd "
                   f"{np.round(r['sd_linear'][:3], 3)}, z rms {np.round(r['z_rms'][:3], 2)} mean "
                   f"{np.round(r['z_mean'][:3], 2)} ({r['cpu_s']:.0f} s CPU)", flush=True)
+            for name, v in r.get("sources", {}).items():
+                print(f"    {name} off: its part of the error rms {np.round(v['rms'], 4)}, in linear sigmas "
+                      f"{np.round(v['z_rms'], 2)}, share of the mean square {np.round(v['share'], 2)}", flush=True)
             if "hidden_mean" in r:
                 print(f"    bias {np.round(r['mean'], 4)}; hidden-edge shift, mean {np.round(r['hidden_mean'], 4)}, "
                       f"excess rms {np.round(r['hidden_excess_rms'], 4)}", flush=True)
         for r in extra.get("resample_summary", []):
             print(f"{r['row']:24s} {r['sites']} sites x draws ({r['draws']}): z rms {np.round(r['z_rms'], 2)}, "
                   f"|z|<=2 {np.round(r['within_2'], 2)}, sites' mean z rms {np.round(r['bias_z_rms'], 2)}")
+            for name, v in r.get("sources_z_rms", {}).items():
+                print(f"{'':24s} {name} noise's part of the error, rms in linear sigmas {np.round(v, 2)}")
     if not a.no_calibration and a.resample <= 0:
         seeds = range(a.first_seed, a.first_seed + a.sites)
         workers = a.jobs if a.jobs == "auto" else int(a.jobs)

@@ -82,3 +82,36 @@ def test_resample_summary_pools_draws_and_sites(bench):
     assert row["sites"] == 2 and row["draws"] == 4
     assert np.allclose(row["z_rms"], np.sqrt(3.0)) and np.allclose(row["within_2"], 0.75)
     assert np.allclose(row["bias_z_rms"], np.sqrt(2.0))
+
+
+def test_a_noise_source_switched_off_keeps_every_other_draw(bench):
+    """``--sources``' premise: a noise field at 0 changes that source only (the random streams are
+    drawn whatever the level), so full minus source-off is exactly what that source did."""
+    site = sample_site(3, **SMALL)
+    full = generate_frames(site, 2, seed=1, lidar=False, render_images=False, noise_seed=2)
+    no_yaw = generate_frames(site, 2, seed=1, lidar=False, render_images=False, noise_seed=2,
+                             **{bench.SOURCES["yaw"]: 0.0})
+    no_centre = generate_frames(site, 2, seed=1, lidar=False, render_images=False, noise_seed=2,
+                                **{bench.SOURCES["centre"]: 0.0})
+    for f, fy, fc in zip(full, no_yaw, no_centre):
+        assert np.array_equal(f.bboxes_2d, fy.bboxes_2d) and np.array_equal(f.bboxes_2d, fc.bboxes_2d)
+        b, by, bc, gt = f.meta["box7"], fy.meta["box7"], fc.meta["box7"], f.meta["box7_gt"]
+        real = f.meta["ids_3d"] >= 0
+        assert np.array_equal(b[:, :6], by[:, :6]) and not np.allclose(b[real, 6], by[real, 6])
+        assert np.allclose(by[real, 6], gt[real, 6])  # yaw off: the true heading
+        assert np.array_equal(b[:, 3:], bc[:, 3:]) and np.allclose(bc[real, :3], gt[real, :3])
+
+
+def test_source_effects_split_the_error_by_source(bench):
+    D = np.array([[2.0, 0, 0, 0, 0, 1.0], [-2.0, 0, 0, 0, 0, 1.0]])
+    off = {"yaw": D - np.array([[1.0, 0, 0, 0, 0, 0]] * 2), "centre": np.zeros((2, 6))}
+    S = np.full((2, 6), 0.5)
+    out = bench.source_effects(D, off, S)
+    assert out["yaw"]["rms"][0] == pytest.approx(1.0) and out["yaw"]["z_rms"][0] == pytest.approx(2.0)
+    assert out["yaw"]["share"][0] == pytest.approx(0.25) and out["yaw"]["share"][5] == 0.0
+    assert out["centre"]["share"] == pytest.approx([1.0, 0, 0, 0, 0, 1.0])
+    recs = [{"row": "r", "z": [[1.0] * 6], "z_mean": [1.0] * 6, "sources": out},
+            {"row": "r", "z": [[1.0] * 6], "z_mean": [1.0] * 6, "sources": {"yaw": {"z_rms": [0.0] * 6}}}]
+    (row,) = bench.summarise_resample(recs)
+    assert list(row["sources_z_rms"]) == ["yaw"]  # centre is not in every site's record
+    assert row["sources_z_rms"]["yaw"][0] == pytest.approx(np.sqrt(2.0))

@@ -106,7 +106,9 @@ class UncertaintyParts:
     hidden / hidden_noise: the pose shift when the box edges that lie on a nearer matched box are
     censored (bounds, only their outward residual counts; ``uncertainty.hidden_edge_shift``) and its
     sampling noise: a systematic part added in quadrature beyond that noise (None: not computed, or
-    the fit censors them already)."""
+    the fit censors them already); centre_model: the pose's 1-sigma under the fitted noise model with
+    its 3D centre error as a rigid shift of each box (``uncertainty.centre_model_sd``; measured, not
+    part of the reported sigma)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -128,6 +130,7 @@ class UncertaintyParts:
     clusters_dof_cross: list[list[float]] | None = None
     hidden: list[float] | None = None
     hidden_noise: list[float] | None = None
+    centre_model: list[float] | None = None
 
 
 @dataclass
