@@ -9,9 +9,13 @@ import numpy as np
 
 from .geometry.camera import CameraIntrinsics
 
-__all__ = ["Frame", "MatchResult", "MatchSource", "DatasetFrame", "as_frame"]
+__all__ = ["Frame", "MatchResult", "MatchSource", "DatasetFrame", "as_frame", "OWN_DETECTIONS"]
 
 MatchSource = Literal["model", "fused", "geometry"]
+
+#: ``Frame.meta["detections"]["source"]`` of boxes made by xcalib's own detectors (``xcalib.detect``);
+#: a bag written from such frames says so in its frame records, and the frames read back carry it.
+OWN_DETECTIONS = "xcalib detect"
 
 
 @dataclass

@@ -122,6 +122,19 @@ def _pair_influence(model, x: np.ndarray | None, n_pairs: int) -> np.ndarray | N
     information (other parameters profiled out, ``terms.pose_block``) and ``g_p = J_p^T r_p`` over the
     pair's inlier edges -- the linearised move of the pose that the pair's residuals cause (as
     ``_scores``). None when the information is singular."""
+    lin = _inlier_information(model, x, n_pairs)
+    if lin is None:
+        return None
+    r0, J, inl, A = lin
+    g = ((J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 6)).sum(1)
+    return g @ A.T
+
+
+def _inlier_information(model, x: np.ndarray | None, n_pairs: int):
+    """``model``'s pose-block residuals and Jacobian at ``x`` (other parameters profiled out,
+    ``terms.pose_block``), the inlier edges (a derivative, and within 3 robust sigmas) and ``A``, the
+    inverse of the pose's marginal information over them: (r0, J, inl, A), or None when no edge is
+    informative or the information is singular."""
     r0, J = model.jacobian(x)
     r0, J, info_rest = pose_block(r0, J, 4 * n_pairs)
     informative = np.any(J != 0, axis=1)
@@ -134,8 +147,7 @@ def _pair_influence(model, x: np.ndarray | None, n_pairs: int) -> np.ndarray | N
         A = np.linalg.inv(info)
     except np.linalg.LinAlgError:
         return None
-    g = ((J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 6)).sum(1)
-    return g @ A.T
+    return r0, J, inl, A
 
 
 def shift_noise_sd(infl_used: np.ndarray | None, infl_alt: np.ndarray | None,
@@ -891,17 +903,13 @@ def centre_model_sd(ctx: FitContext) -> np.ndarray | None:
         return None
     try:
         model = build_cost(frames, pairs, intr, pose, noise, ctx.occlusion)
-        r0, J = model.jacobian(None)
-        r0, J, info_rest = pose_block(r0, J, 4 * n)
-        informative = np.any(J != 0, axis=1)
-        if not np.any(informative):
-            return None
-        sigma = 1.4826 * np.median(np.abs(r0[informative]))
-        inl = informative & (np.abs(r0) <= 3 * max(sigma, 1e-9))
-        Ji = J * inl[:, None]
-        A = np.linalg.inv(Ji.T @ Ji + (0.0 if info_rest is None else info_rest))
-    except (np.linalg.LinAlgError, ValueError):
+        lin = _inlier_information(model, None, n)
+    except ValueError:
         return None
+    if lin is None:
+        return None
+    _, J, inl, A = lin
+    Ji = J * inl[:, None]
     term = model.terms[0]
     w = np.broadcast_to(np.asarray(term.w, dtype=np.float64), (n, 4))
     st = model.state(np.zeros(model.n_params))

@@ -210,7 +210,7 @@ def register(app: typer.Typer) -> None:
 
 def _own_detections(frames) -> bool:
     """The frames' boxes were made by xcalib's own detectors (a bag `xcalib detect` wrote)."""
-    from ..io.bags.reader import OWN_DETECTIONS
+    from ..types import OWN_DETECTIONS
 
     made = (frames[0].meta or {}).get("detections") if len(frames) else None
     return isinstance(made, dict) and made.get("source") == OWN_DETECTIONS

@@ -74,7 +74,9 @@ def _missing(r: dict) -> list[str]:
     """What a calibration of these frames lacks, each with what to do."""
     read, out = r["read"], []
     if read == 0:
-        return ["no frame could be read" if r["checked"] else "the source holds no frames"]
+        if r["checked"]:
+            return ["no frame could be read"]
+        return ["no frame checked (--limit-frames 0)" if r["frames"] else "the source holds no frames"]
     if r["boxes_2d"]["frames_without"] == read:
         out.append("no 2D boxes in any frame: calibrate --detect (or xcalib detect SOURCE --out FILE.mcap) "
                    "detects them")

@@ -19,8 +19,9 @@ _HELP = ("Evaluate matchers on a labelled HDF5 cache (--hdf5); or, given a frame
 def register(app: typer.Typer) -> None:
     @app.command("validate", help=_HELP)
     def validate(
-        source: Optional[Path] = typer.Argument(None, help="A frame source to check (frame folder, HDF5 cache, "
-                                                           "KITTI, bag, ...); leave out with --hdf5."),
+        source: Optional[Path] = typer.Argument(None, metavar="SOURCE",
+                                                help="A frame source to check (frame folder, HDF5 cache, "
+                                                     "KITTI, bag, ...); leave out with --hdf5."),
         model: List[str] = typer.Option(["fastmatch"], "--model", help="Model name (repeatable)."),
         hdf5: Optional[Path] = typer.Option(None, "--hdf5", help="Labelled HDF5 cache (with match_matrix): "
                                                                  "evaluate the matchers on it."),

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..types import Frame
+from ..types import OWN_DETECTIONS, Frame
 from .camera import Detector2D, Detector2DConfig, load_detector
 from .lidar import Background, GroundPlane, LidarDetectConfig, build_background, fit_ground, is_static_recording, \
     lidar_boxes
@@ -58,7 +58,7 @@ def detect_frame(frame: Frame, detector: Detector2D, config: LidarDetectConfig, 
         d = detector(frame.image)
         b2, per_det, scores, names = d.boxes, None, d.scores.tolist(), list(d.class_names)
     b3 = lidar_boxes(frame.point_cloud, config, ground=ground, background=background)
-    meta["detections"] = {"source": "xcalib detect", "scores_2d": scores, "classes_2d": names,
+    meta["detections"] = {"source": OWN_DETECTIONS, "scores_2d": scores, "classes_2d": names,
                           "detector_2d": str(detector.path.name), "lidar_mode": "static" if background else "moving"}
     return dataclasses.replace(frame, bboxes_2d=b2.astype(np.float32), bboxes_3d=b3, match_matrix=None,
                                camera_per_det=per_det, track_ids_3d=None, velocities_3d=None, meta=meta)

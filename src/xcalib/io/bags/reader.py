@@ -28,7 +28,7 @@ from ..timing import MAX_SPEED_MPS, MAX_TIME_S
 from .._validate import check_rigid
 from ...geometry.camera import CameraIntrinsics
 from ...geometry.transforms import invert_transform
-from ...types import Frame
+from ...types import OWN_DETECTIONS, Frame
 from . import _convert as cv
 from ._msgs import (CAMERA_INFO, COMPRESSED, DET2D, DET3D_TYPES, IMAGE, POINTCLOUD2, STRING, SUPPORTED_TYPES, TF_TYPES,
                     typestore)
@@ -53,9 +53,6 @@ def is_bag(path) -> bool:
     return (p.exists() or p.is_symlink()) and p.suffix.lower() in BAG_SUFFIXES
 
 
-#: ``Frame.meta["detections"]["source"]`` of boxes made by xcalib's own detectors (``xcalib.detect``);
-#: a bag written from such frames says so in its frame records, and the frames read back carry it.
-OWN_DETECTIONS = "xcalib detect"
 #: Largest bag file read (streamed, never loaded whole): a sanity limit, not a memory one.
 MAX_BAG_BYTES = 1 << 40
 #: Largest single message decoded (a 2M-point sweep of 8 float32 fields is 64 MB).

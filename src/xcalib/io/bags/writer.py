@@ -63,8 +63,11 @@ def _view(frame: Frame, cam: str):
 
 
 def _box7_and_rows(b3) -> tuple[np.ndarray, list[str] | None]:
-    b = np.asarray(b3, dtype=np.float64).reshape(len(b3), -1)
-    if b.shape[1] == 7 or len(b) == 0:
+    b = np.asarray(b3, dtype=np.float64)
+    if b.size == 0:  # no box ([0, 7] or [0, 6]: reshape(0, -1) cannot infer the width)
+        return np.zeros((0, 7)), None
+    b = b.reshape(len(b), -1)
+    if b.shape[1] == 7:
         return (b if b.shape[1] == 7 else np.zeros((0, 7))), None
     rows = detect_box3d_convention(b.astype(np.float32)).tolist()
     cs = np.empty((len(b), 6))
