@@ -217,6 +217,28 @@ def _seg_fit(C: dict, a: int, b: int):
     return _fit(C["H"][b] - C["H"][a], C["g"][b] - C["g"][a], C["c"][b] - C["c"][a], C["n"][b] - C["n"][a], 1e14)
 
 
+def _adjacent_diffs(C: dict, e: int, W: int, minp: int, diffs: list, last, end: int):
+    """The monitor's adjacent-window inflation step (``monitor.core._update_inflation``) at window end
+    ``e``: when a new disjoint window of ``W`` frames is complete, its fit (None below ``minp``
+    matches) and, if it follows the last one directly, their chi-square per degree of freedom appended
+    to ``diffs`` (the last 200 kept). Returns (diffs, last fit, its end)."""
+    if e - end >= W:
+        f = _seg_fit(C, e - W, e) if C["p"][e] - C["p"][e - W] >= minp else None
+        if f is not None and last is not None and end == e - W:
+            d = f[0] - last[0]
+            diffs = (diffs + [float(d @ np.linalg.solve(f[1] + last[1], d)) / 6])[-200:]
+        last, end = f, e
+    return diffs, last, end
+
+
+def _inflation(diffs: list, floor: float) -> float:
+    """The covariance inflation of ``diffs`` (``monitor.core``): the prior below ``MIN_DIFFS``, else the
+    upper quartile over its chi-square value, at least ``floor``."""
+    from xcalib.monitor.core import CHI2_6_Q75_OVER_6, INFLATION_PRIOR, MIN_DIFFS
+
+    return INFLATION_PRIOR if len(diffs) < MIN_DIFFS else max(floor, float(np.quantile(diffs, 0.75)) / CHI2_6_Q75_OVER_6)
+
+
 def decision_statistics(rows: np.ndarray, cov_cal: np.ndarray, floor: float = 1.0, factor: float = 1.0,
                         config=None) -> list[tuple[int, float, float]]:
     """(last frame index, the decision's largest statistic, inflation) at every decision of the
@@ -224,21 +246,14 @@ def decision_statistics(rows: np.ndarray, cov_cal: np.ndarray, floor: float = 1.
     in the history, and the longest window's offset from the calibration), the adjacent-window
     inflation floored at ``floor`` and multiplied by ``factor``."""
     from xcalib.monitor import MonitorConfig
-    from xcalib.monitor.core import CHI2_6_Q75_OVER_6, INFLATION_PRIOR, MIN_DIFFS
 
     cfg = config or MonitorConfig()
     W, stride, hist, minp = cfg.window, cfg.stride, cfg.history, cfg.min_pairs
     C = _cums(rows)
     out, diffs, last, end = [], [], None, -10 ** 9
     for e in range(W, len(rows) + 1, stride):
-        if e - end >= W:
-            f = _seg_fit(C, e - W, e) if C["p"][e] - C["p"][e - W] >= minp else None
-            if f is not None and last is not None and end == e - W:
-                d = f[0] - last[0]
-                diffs = (diffs + [float(d @ np.linalg.solve(f[1] + last[1], d)) / 6])[-200:]
-            last, end = f, e
-        phi = INFLATION_PRIOR if len(diffs) < MIN_DIFFS else max(floor, float(np.quantile(diffs, 0.75)) / CHI2_6_Q75_OVER_6)
-        phi *= factor
+        diffs, last, end = _adjacent_diffs(C, e, W, minp, diffs, last, end)
+        phi = _inflation(diffs, floor) * factor
         s = max(0, e - hist)
         lengths = [L for L in cfg.windows if L <= e - s] or [W]
         best = 0.0
@@ -376,7 +391,6 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
     forgotten (the benchmark's ``latch=False``); ``first_only``: stop at the first."""
     from xcalib.monitor import MonitorConfig
     from xcalib.monitor import stats as mstats
-    from xcalib.monitor.core import CHI2_6_Q75_OVER_6, INFLATION_PRIOR, MIN_DIFFS
 
     cfg = config or MonitorConfig()
     W, stride, hist, minp = cfg.window, cfg.stride, cfg.history, cfg.min_pairs
@@ -393,14 +407,8 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
     e = W
     while e <= len(rows):
         s = max(start, e - hist)
-        if e - end >= W:  # the adjacent-window inflation (``_update_inflation``)
-            f = _seg_fit(C, e - W, e) if C["p"][e] - C["p"][e - W] >= minp else None
-            if f is not None and last is not None and end == e - W:
-                d = f[0] - last[0]
-                diffs = (diffs + [float(d @ np.linalg.solve(f[1] + last[1], d)) / 6])[-200:]
-            last, end = f, e
-        phi = INFLATION_PRIOR if len(diffs) < MIN_DIFFS else max(floor, float(np.quantile(diffs, 0.75)) / CHI2_6_Q75_OVER_6)
-        phi *= factor
+        diffs, last, end = _adjacent_diffs(C, e, W, minp, diffs, last, end)  # (``_update_inflation``)
+        phi = _inflation(diffs, floor) * factor
         lengths = [L for L in cfg.windows if L <= e - s] or [W]
         longest = lengths[-1]
         fr = None if _few_objects(rec, C, e - longest, e, cfg) else _seg_fit(C, e - longest, e)
