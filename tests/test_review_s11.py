@@ -69,3 +69,52 @@ def test_a_frame_without_3d_boxes_is_written_to_a_bag(tmp_path):
     back = open_source(write_bag(tmp_path / "x.mcap", [empty, f[1]]))
     assert [len(x.bboxes_3d) for x in back] == [0, len(f[1].bboxes_3d)]
     np.testing.assert_allclose(back[1].bboxes_3d, f[1].bboxes_3d, atol=1e-5)
+
+
+def _pandaset_with(tmp_path: Path, edit) -> Path:
+    """The shared PandaSet sequence's calibration and first cuboid file, ``edit``-ed (no points)."""
+    import shutil
+
+    from conftest import shared_path
+
+    src = shared_path("pandaset_002")
+    root = tmp_path / "ps"
+    (root / "lidar").mkdir(parents=True)
+    (root / "cuboids").mkdir()
+    shutil.copy(src / "cuboids" / "00.json", root / "cuboids" / "00.json")
+    cal = json.loads((src / "calibration.json").read_text())
+    edit(cal)
+    (root / "calibration.json").write_text(json.dumps(cal))
+    return root
+
+
+def test_pandaset_and_sustech_times_are_bounded_like_the_other_readers(tmp_path):
+    """The CHANGELOG said "any reader's times beyond 1e11 s" are refused; PandaSet's timestamps and
+    SUSTech's point times were read without the bound (``io.timing.checked_time`` now)."""
+    import pytest
+
+    from xcalib.errors import FormatError
+    from xcalib.formats.pandaset import PandaSetFrames
+    from xcalib.formats.sustech import _RECORD, read_sustech_pcd
+
+    def lidar_ms(cal):
+        cal["lidar"]["frames"]["00"]["timestamp"] *= 1000.0  # a Unix time in milliseconds
+
+    def camera_ms(cal):
+        cal["cameras"]["front_camera"]["frames"]["00"]["camera_timestamp"] *= 1000.0
+
+    for edit, field in ((lidar_ms, "lidar.frames.00.timestamp"), (camera_ms, "camera_timestamp")):
+        seq = PandaSetFrames(_pandaset_with(tmp_path / field, edit), read_images=False, read_points=False)
+        with pytest.raises(FormatError, match=r"calibration\.json \[.*" + field + r"\]: time 1\.\d+e\+12 s is beyond"):
+            seq[0]
+    ok = PandaSetFrames(_pandaset_with(tmp_path / "ok", lambda cal: None), read_images=False, read_points=False)[0]
+    assert 1e9 < ok.lidar_time_s < 1e11 and 1e9 < ok.camera_time_s < 1e11
+    rec = np.zeros(3, dtype=_RECORD)
+    rec["x"], rec["t"] = 5.0, [1.7e9, 1.7e9 + 0.05, 1.7e12]
+    pcd = tmp_path / "x.pcd"
+    pcd.write_bytes(b"VERSION 0.7\nPOINTS 3\nDATA binary\n" + rec.tobytes())
+    with pytest.raises(FormatError, match=r"x\.pcd \[t\]: time 1\.7e\+12 s is beyond"):
+        read_sustech_pcd(pcd)
+    rec["t"][2] = 1.7e9 + 0.1
+    pcd.write_bytes(b"VERSION 0.7\nPOINTS 3\nDATA binary\n" + rec.tobytes())
+    assert read_sustech_pcd(pcd)[1] == pytest.approx(1.7e9 + 0.1)

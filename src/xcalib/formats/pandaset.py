@@ -33,6 +33,7 @@ import numpy as np
 from ..errors import FormatError
 from ..geometry.camera import CameraIntrinsics
 from ..io.files import load_json
+from ..io.timing import checked_time
 from ..types import Frame
 from ._checks import as_float, as_matrix, checked_rotation, plausible_camera, require
 from ._media import load_cloud, load_rgb
@@ -166,8 +167,9 @@ class PandaSetFrames(Sequence):
                          self.cal_path, f"lidar.frames.{key}.T_world_lidar")
 
     def _lidar_time(self, key: str) -> float:
-        return as_float(require(self._lidar_frames[key], "timestamp", self.cal_path, f"lidar.frames.{key}."),
-                        self.cal_path, f"lidar.frames.{key}.timestamp")
+        field = f"lidar.frames.{key}.timestamp"
+        return checked_time(self.cal_path, field, as_float(require(self._lidar_frames[key], "timestamp", self.cal_path,
+                                                                   f"lidar.frames.{key}."), self.cal_path, field))
 
     def tracks(self) -> dict:
         """{"ids": {uuid: int}, "world": {uuid: [(t_s, centre_world [3])...]}} over every cuboid file
@@ -203,7 +205,9 @@ class PandaSetFrames(Sequence):
         if np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-9 or np.abs(T[:3, 3]).max() > 1e4:
             raise FormatError(self.cal_path, f"not a rigid transform within 1e4 m (last row {T[3].tolist()}, "
                                              f"translation {T[:3, 3].tolist()})", where + "T_cam_lidar")
-        t_cam = as_float(require(cf, "camera_timestamp", self.cal_path, where), self.cal_path, where + "camera_timestamp")
+        t_cam = checked_time(self.cal_path, where + "camera_timestamp",
+                             as_float(require(cf, "camera_timestamp", self.cal_path, where), self.cal_path,
+                                      where + "camera_timestamp"))
         t_lidar = self._lidar_time(key)
         cub = read_pandaset_cuboids(self.root / "cuboids" / f"{key}.json")
         T_wl = self._pose(key)

@@ -30,6 +30,7 @@ from ..geometry.camera import CameraIntrinsics
 from ..geometry.rotations import euler_to_matrix
 from ..io.files import load_json
 from ..io.pointcloud import MAX_COORD_M as MAX_BOX_M
+from ..io.timing import checked_time
 from ..types import Frame
 from ._checks import as_float, as_matrix, require
 from ._media import load_rgb
@@ -62,7 +63,7 @@ def read_sustech_pcd(path) -> tuple[np.ndarray, float]:
     pts = np.column_stack([rec["x"], rec["y"], rec["z"], rec["intensity"]]).astype(np.float32)
     ok = np.all(np.isfinite(pts[:, :3]), axis=1)
     t = rec["t"][np.isfinite(rec["t"])]
-    return pts[ok], float(t.max()) if len(t) else float("nan")
+    return pts[ok], checked_time(path, "t", float(t.max())) if len(t) else float("nan")
 
 
 def read_sustech_labels(path) -> dict:

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import FormatError
 
-__all__ = ["MAX_SPEED_MPS", "MAX_TIME_S", "TIMING_FIELDS", "checked_timing", "timing_of"]
+__all__ = ["MAX_SPEED_MPS", "MAX_TIME_S", "TIMING_FIELDS", "checked_time", "checked_timing", "timing_of"]
 
 #: The Frame fields (and the keys a frame folder's detections.json may carry).
 TIMING_FIELDS = ("lidar_time_s", "camera_time_s", "track_ids_3d", "velocities_3d")
@@ -40,6 +40,13 @@ def _time(path, field: str, value) -> float | None:
         raise FormatError(path, f"time {v:.6g} s is beyond {MAX_TIME_S:g} s in magnitude: not a clock in seconds "
                                 "(a stamp in milliseconds, microseconds or nanoseconds?) or corrupt", field)
     return v
+
+
+def checked_time(path, field: str, value) -> float | None:
+    """One time in seconds (None stays None): a finite number within ``MAX_TIME_S``, or a
+    FormatError naming ``path`` and ``field`` (the bound of :func:`checked_timing`, for readers
+    whose times come one at a time)."""
+    return _time(path, field, value)
 
 
 def checked_timing(path, n_3d: int, *, lidar_time_s=None, camera_time_s=None, track_ids_3d=None,
