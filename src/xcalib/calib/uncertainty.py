@@ -216,7 +216,7 @@ def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: Nois
                     occlusion=None):
     """1-sigma (rotation deg about camera x,y,z; translation m along camera x,y,z) from the
     Jacobian at the optimum: the larger (per parameter) of the classic (J^T J)^-1 * sigma^2
-    (sigma from the inlier residuals) and the cluster-robust sandwich with one cluster per
+    (sigma from the inlier residuals, per edge no smaller than the default error model's: ``_edge_floor``) and the cluster-robust sandwich with one cluster per
     matched pair (its 4 edges share the box-model error)."""
     nan3 = np.full(3, np.nan)
     sc = _scores(frames, pairs, intr, R, t, eps=eps, noise=noise, occlusion=occlusion)
