@@ -403,3 +403,20 @@ def test_the_reported_sigma_is_rebuilt_from_the_stored_parts():
                 assert np.allclose(mod.rebuild(rec["sigma_parts"], z), rec["sigma_axes"], rtol=1e-9, atol=0), (label, rec["seed"])
                 checked += 1
     assert checked >= 20 or not runs.get("s9_sigma_outline_all")
+
+
+def test_the_jacobian_sigma_keeps_the_default_edge_noise_on_near_exact_boxes():
+    """Issue 25: boxes that agree with their 3D boxes to far below a pixel (2D labels projected from
+    the 3D labels) must not shrink the sigma with their residuals: the per-edge variance is floored at
+    the default error model (1 px 2D), so 0 px and 0.05 px boxes give the same sigma, about what
+    1 px boxes give, while boxes noisier than the floor still widen it."""
+    sd = {}
+    for noise in (0.0, 0.05, 1.0, 4.0):
+        frames, T = sim_frames(seed=3, n_frames=2, noise_px=noise, miss=0.0, false_pos=0.0, extra_3d=0)
+        cframes, pairs, intr, pose = _fit(frames, T)
+        r, t, _ = pose_covariance(cframes, pairs, intr, pose.R, pose.t)
+        sd[noise] = np.concatenate([r, t])
+    assert np.all(np.isfinite(sd[0.0])) and np.all(sd[0.0] > 0)
+    np.testing.assert_allclose(sd[0.05], sd[0.0], rtol=0.05)
+    assert np.all(sd[0.0] > 0.5 * sd[1.0])
+    assert np.all(sd[4.0] > 1.2 * sd[0.0])

@@ -29,11 +29,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .context import FitContext
-from .cost import Occlusion
+from .cost import BoxEdgeTerm, Occlusion, edge_sigma
 from .diagnostics import NoiseModel, UncertaintyParts, bound95
 from .inputs import CalibFrame
 from .pose import Pose
-from .refine import F_SCALE, build_cost, lsq
+from .refine import DEFAULT_NOISE, F_SCALE, build_cost, lsq
 from .terms import CostSpec, occlusion_of, pose_block
 
 __all__ = ["pose_covariance", "object_sandwich", "cr2_covariance", "pose_spread", "pose_jackknife", "frame_jackknife", "object_groups", "pose_object_bootstrap",
@@ -70,6 +70,14 @@ BOX_MODEL_MAX_COST_RATIO = 2.0
 # above the median expected for their degrees of freedom .44 -> .47 (0.5 = right), 95 % coverage .925
 # unchanged; a real common bias (boxes 12 % tighter, tests) is kept
 SHIFT_NOISE_Z = 1.959964
+# The per-edge variance of the linearised fit never goes below the default error model's
+# (``refine.DEFAULT_NOISE``: 1 px of 2D box edge -- whole-pixel boxes, an outline's edge defined to
+# about a pixel -- 3 cm of 3D box centre, 1 % of size), the floor ``refine.estimate_noise`` keeps
+# for the noise model too. The residuals only measure how far the 2D and 3D boxes disagree: an error
+# both share (2D labels projected from the same 3D labels, one annotator drawing both) leaves them
+# near 0 whatever the pose's error, and a robust scale from a few dozen edges, most of them exact,
+# collapses with them (the Jacobian sigma and the 3-sigma inlier cut, which then drops the edges
+# that do disagree). See ``_edge_floor``.
 
 
 @dataclass
@@ -81,6 +89,7 @@ class _Scores:
     sigma2: float
     g_pair: np.ndarray
     M_pair: np.ndarray  # [n_pairs, 6, 6]: J^T J over each pair's inlier edges
+    cov: np.ndarray  # [6, 6] A J^T diag(max(sigma2, floor^2)) J A: the classic covariance, per-edge floored
 
 
 def _censor_only(occlusion) -> Occlusion:
@@ -99,10 +108,10 @@ def _scores(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel |
     model = build_cost(frames, pairs, intr, pose, noise, CostSpec.of(occlusion).with_occlusion(_censor_only(occlusion)))
     r0, J = model.jacobian(eps=eps)
     r0, J, info_rest = pose_block(r0, J, 4 * int(sum(len(p) for p in pairs)))  # other terms: profiled out
-    # edges clipped at the image border carry no information (zero derivative) -> drop them
-    informative = np.any(J != 0, axis=1)
-    sigma = 1.4826 * np.median(np.abs(r0[informative])) if np.any(informative) else np.nan
-    inl = informative & (np.abs(r0) <= 3 * max(sigma, 1e-9))
+    floor = _edge_floor(model, len(r0))
+    inl, sigma = _inliers(r0, J, floor)
+    if not np.isfinite(sigma):
+        return None
     dof = max(int(inl.sum()) - 6, 1)
     info = J[inl].T @ J[inl]
     if info_rest is not None:
@@ -113,7 +122,35 @@ def _scores(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel |
         return None
     g = ((J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 6)).sum(1)  # [n_pairs, 6]
     Jp = (J * inl[:, None]).reshape(-1, 4, 6)
-    return _Scores(A, float(np.sum(r0[inl] ** 2) / dof), g, np.einsum("nki,nkj->nij", Jp, Jp))
+    sigma2 = float(np.sum(r0[inl] ** 2) / dof)
+    # the per-edge variance never below the floor: A J^T diag(max(sigma2, floor^2)) J A
+    v = np.maximum(sigma2, floor[inl] ** 2)
+    cov = A @ ((J[inl] * v[:, None]).T @ J[inl] + (0.0 if info_rest is None else sigma2 * info_rest)) @ A
+    return _Scores(A, sigma2, g, np.einsum("nki,nkj->nij", Jp, Jp), cov)
+
+
+def _edge_floor(model, n_rows: int) -> np.ndarray:
+    """Per edge residual row [n_rows] the default error model's sigma (``DEFAULT_NOISE`` at the
+    model's reference pose) in the fit's whitened units (divided by the edge's own model sigma);
+    ones when the model has no box-edge term of that size."""
+    term = next((t for t in getattr(model, "terms", ()) if isinstance(t, BoxEdgeTerm) and 4 * len(t.obs) == n_rows),
+                None)
+    if term is None:
+        return np.ones(n_rows)
+    floor_px = edge_sigma(term.obs, term.outlines, model.intr, model.pose0, DEFAULT_NOISE)
+    return np.repeat(floor_px * np.asarray(term.w, dtype=np.float64).ravel(), 4)
+
+
+def _inliers(r0: np.ndarray, J: np.ndarray, floor: np.ndarray) -> tuple[np.ndarray, float]:
+    """Edges used by the linearised fit: informative ones (an edge clipped at the image border has
+    zero derivative) within 3 robust sigmas (1.4826 MAD), the sigma of each edge no smaller than its
+    ``floor`` (``_edge_floor``): an edge within 3 floors of the fit is no outlier. (inliers, MAD sigma;
+    nan when no edge is informative)."""
+    informative = np.any(J != 0, axis=1)
+    if not np.any(informative):
+        return informative, float("nan")
+    sigma = float(1.4826 * np.median(np.abs(r0[informative])))
+    return informative & (np.abs(r0) <= 3 * np.maximum(max(sigma, 1e-9), floor)), sigma
 
 
 def _pair_influence(model, x: np.ndarray | None, n_pairs: int) -> np.ndarray | None:
@@ -124,11 +161,9 @@ def _pair_influence(model, x: np.ndarray | None, n_pairs: int) -> np.ndarray | N
     ``_scores``). None when the information is singular."""
     r0, J = model.jacobian(x)
     r0, J, info_rest = pose_block(r0, J, 4 * n_pairs)
-    informative = np.any(J != 0, axis=1)
-    if not np.any(informative):
+    inl, sigma = _inliers(r0, J, _edge_floor(model, len(r0)))
+    if not np.isfinite(sigma):
         return None
-    sigma = 1.4826 * np.median(np.abs(r0[informative]))
-    inl = informative & (np.abs(r0) <= 3 * max(sigma, 1e-9))
     info = J[inl].T @ J[inl] + (0.0 if info_rest is None else info_rest)
     try:
         A = np.linalg.inv(info)
@@ -183,18 +218,18 @@ def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: Nois
                     occlusion=None):
     """1-sigma (rotation deg about camera x,y,z; translation m along camera x,y,z) from the
     Jacobian at the optimum: the larger (per parameter) of the classic (J^T J)^-1 * sigma^2
-    (sigma from the inlier residuals) and the cluster-robust sandwich with one cluster per
+    (sigma from the inlier residuals, per edge no smaller than the default error model's: ``_edge_floor``) and the cluster-robust sandwich with one cluster per
     matched pair (its 4 edges share the box-model error)."""
     nan3 = np.full(3, np.nan)
     sc = _scores(frames, pairs, intr, R, t, eps=eps, noise=noise, occlusion=occlusion)
     if sc is None:
         return nan3, nan3, np.full((6, 6), np.nan)
-    cov = sc.A * sc.sigma2
+    cov = sc.cov
     nc = int(np.sum(np.any(sc.g_pair != 0, axis=1)))
     cov_s = sc.A @ (sc.g_pair.T @ sc.g_pair * (nc / max(nc - 6, 1))) @ sc.A
     if np.trace(cov_s) > np.trace(cov):
         cov = cov_s
-    sd = np.sqrt(np.clip(np.maximum(np.diag(sc.A * sc.sigma2), np.diag(cov_s)), 0, None))
+    sd = np.sqrt(np.clip(np.maximum(np.diag(sc.cov), np.diag(cov_s)), 0, None))
     return np.degrees(sd[:3]), sd[3:], cov
 
 
