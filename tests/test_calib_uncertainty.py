@@ -420,3 +420,32 @@ def test_the_jacobian_sigma_keeps_the_default_edge_noise_on_near_exact_boxes():
     np.testing.assert_allclose(sd[0.05], sd[0.0], rtol=0.05)
     assert np.all(sd[0.0] > 0.5 * sd[1.0])
     assert np.all(sd[4.0] > 1.2 * sd[0.0])
+
+
+def test_the_edge_noise_floor_only_where_no_frame_level_part_exists():
+    """Issue 25: the default-model floor of the edge noise applies only where nothing sees an error
+    shared by a frame's edges (one frame, 2-3 frames, or too few matches per frame half:
+    ``frames_checkable`` false); with frame halves the residual scale is the measured noise, so
+    near-exact boxes over many frames keep their narrow sigma."""
+    from xcalib.calib.uncertainty import HALF_MIN_MATCHES, frames_checkable
+
+    def pairs_of(counts):
+        return [np.zeros((c, 2), dtype=np.int64) for c in counts]
+
+    assert not frames_checkable(pairs_of([40]))  # one frame: alternate-pair halves only
+    assert not frames_checkable(pairs_of([20, 20, 20]))  # fewer than 4 frames with matches
+    assert not frames_checkable(pairs_of([1, 1, 1, 1, 0, 0]))  # 4 frames, halves of 2 matches
+    assert frames_checkable(pairs_of([HALF_MIN_MATCHES // 2] * 4))  # halves of HALF_MIN_MATCHES each
+    assert frames_checkable(pairs_of([0, 3, 0, 3, 3, 3]))  # frames without matches do not count
+    sd = {}
+    for noise in (0.05, 1.0):
+        frames, T = sim_frames(seed=3, n_frames=6, noise_px=noise, miss=0.0, false_pos=0.0, extra_3d=0)
+        cframes, pairs, intr, pose = _fit(frames, T)
+        assert frames_checkable(pairs)
+        r, t, _ = pose_covariance(cframes, pairs, intr, pose.R, pose.t)
+        sd[noise] = np.concatenate([r, t])
+        one = [p if k == 0 else p[:0] for k, p in enumerate(pairs)]  # the first frame's matches alone
+        r1, t1, _ = pose_covariance(cframes, one, intr, pose.R, pose.t)
+        sd[noise, 1] = np.concatenate([r1, t1])
+    assert np.all(sd[0.05] < 0.25 * sd[1.0])  # many frames: the measured 0.05 px, not the floor
+    assert np.all(sd[0.05, 1] > 0.5 * sd[1.0, 1])  # one frame: floored at the default model

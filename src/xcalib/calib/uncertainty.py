@@ -37,7 +37,7 @@ from .refine import DEFAULT_NOISE, F_SCALE, build_cost, lsq
 from .terms import CostSpec, occlusion_of, pose_block
 
 __all__ = ["pose_covariance", "object_sandwich", "cr2_covariance", "pose_spread", "pose_jackknife", "frame_jackknife", "object_groups", "pose_object_bootstrap",
-           "combine", "bound95", "bound_dof", "outline_shift", "shift_noise_sd", "excess", "SHIFT_NOISE_Z", "with_object_outline", "statistical_sd", "box_model_shift", "hidden_edge_shift", "with_hidden_edges", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "Uncertainty", "estimate"]
+           "combine", "bound95", "bound_dof", "outline_shift", "shift_noise_sd", "excess", "SHIFT_NOISE_Z", "with_object_outline", "statistical_sd", "box_model_shift", "hidden_edge_shift", "with_hidden_edges", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "frames_checkable", "Uncertainty", "estimate"]
 
 HALF_MIN_MATCHES = 6  # matches each half of the frames (or pairs) needs for the frame-halves check
 HALVES_MIN_MATCHES = 2 * HALF_MIN_MATCHES
@@ -77,7 +77,14 @@ SHIFT_NOISE_Z = 1.959964
 # both share (2D labels projected from the same 3D labels, one annotator drawing both) leaves them
 # near 0 whatever the pose's error, and a robust scale from a few dozen edges, most of them exact,
 # collapses with them (the Jacobian sigma and the 3-sigma inlier cut, which then drops the edges
-# that do disagree). See ``_edge_floor``.
+# that do disagree). See ``_edge_floor``. Only where no frame-level part exists (``frames_checkable``
+# false: one frame, fewer than 4 frames with matches, or too few matches per frame half): an error
+# shared by every edge of one frame (the frame's timing or rolling shutter, labels drawn or projected
+# in one snapshot) is absorbed by the fit and invisible in its residuals when there is one frame; with
+# several frames it varies from frame to frame, the fit absorbs only its mean, and the residuals, the
+# objects' scores and the frame halves / frame jackknife see the rest -- there the residual scale is
+# the measured noise and is not overruled by the default model (exact labels stay as narrow as they
+# are measured: KITTI labels over 5 frames, the realism suite).
 
 
 @dataclass
@@ -108,7 +115,7 @@ def _scores(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel |
     model = build_cost(frames, pairs, intr, pose, noise, CostSpec.of(occlusion).with_occlusion(_censor_only(occlusion)))
     r0, J = model.jacobian(eps=eps)
     r0, J, info_rest = pose_block(r0, J, 4 * int(sum(len(p) for p in pairs)))  # other terms: profiled out
-    floor = _edge_floor(model, len(r0))
+    floor = None if frames_checkable(pairs) else _edge_floor(model, len(r0))
     inl, sigma = _inliers(r0, J, floor)
     if not np.isfinite(sigma):
         return None
@@ -123,9 +130,11 @@ def _scores(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel |
     g = ((J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 6)).sum(1)  # [n_pairs, 6]
     Jp = (J * inl[:, None]).reshape(-1, 4, 6)
     sigma2 = float(np.sum(r0[inl] ** 2) / dof)
-    # the per-edge variance never below the floor: A J^T diag(max(sigma2, floor^2)) J A
-    v = np.maximum(sigma2, floor[inl] ** 2)
-    cov = A @ ((J[inl] * v[:, None]).T @ J[inl] + (0.0 if info_rest is None else sigma2 * info_rest)) @ A
+    if floor is None:
+        cov = A * sigma2
+    else:  # the per-edge variance never below the floor: A J^T diag(max(sigma2, floor^2)) J A
+        v = np.maximum(sigma2, floor[inl] ** 2)
+        cov = A @ ((J[inl] * v[:, None]).T @ J[inl] + (0.0 if info_rest is None else sigma2 * info_rest)) @ A
     return _Scores(A, sigma2, g, np.einsum("nki,nkj->nij", Jp, Jp), cov)
 
 
@@ -141,27 +150,56 @@ def _edge_floor(model, n_rows: int) -> np.ndarray:
     return np.repeat(floor_px * np.asarray(term.w, dtype=np.float64).ravel(), 4)
 
 
-def _inliers(r0: np.ndarray, J: np.ndarray, floor: np.ndarray) -> tuple[np.ndarray, float]:
+def frames_checkable(pairs: list[np.ndarray]) -> bool:
+    """Whether the matches ``pairs`` (one array per frame) have a frame-level part of the sigma: at
+    least 4 frames with matches whose two interleaved halves hold ``HALF_MIN_MATCHES`` each (the
+    frame halves and the frame jackknife of ``estimate``). Without it (one frame, 2-3 frames, too few
+    matches per half) an error shared by a frame's edges is seen by nothing, and the edge noise is
+    floored at the default error model (``_edge_floor``)."""
+    halves = _frame_halves(pairs)
+    return halves is not None and halves[2]
+
+
+def _frame_halves(pairs: list[np.ndarray]) -> tuple[list, list, bool] | None:
+    """The two halves of the matches the halves check refits: the even and the odd frames with matches
+    when there are at least 4 such frames, else alternate pairs in every frame; (even, odd, by frames),
+    None when a half has fewer than ``HALF_MIN_MATCHES`` matches."""
+    nz = [k for k, p in enumerate(pairs) if len(p)]
+    by_frames = len(nz) >= 4
+    if by_frames:
+        ev = [p if (i in nz[0::2]) else p[:0] for i, p in enumerate(pairs)]
+        od = [p if (i in nz[1::2]) else p[:0] for i, p in enumerate(pairs)]
+    else:
+        ev = [p[0::2] for p in pairs]
+        od = [p[1::2] for p in pairs]
+    if sum(len(p) for p in ev) < HALF_MIN_MATCHES or sum(len(p) for p in od) < HALF_MIN_MATCHES:
+        return None
+    return ev, od, by_frames
+
+
+def _inliers(r0: np.ndarray, J: np.ndarray, floor: np.ndarray | None) -> tuple[np.ndarray, float]:
     """Edges used by the linearised fit: informative ones (an edge clipped at the image border has
     zero derivative) within 3 robust sigmas (1.4826 MAD), the sigma of each edge no smaller than its
-    ``floor`` (``_edge_floor``): an edge within 3 floors of the fit is no outlier. (inliers, MAD sigma;
-    nan when no edge is informative)."""
+    ``floor`` (``_edge_floor``; None: no floor): an edge within 3 floors of the fit is no outlier.
+    (inliers, MAD sigma; nan when no edge is informative)."""
     informative = np.any(J != 0, axis=1)
     if not np.any(informative):
         return informative, float("nan")
     sigma = float(1.4826 * np.median(np.abs(r0[informative])))
-    return informative & (np.abs(r0) <= 3 * np.maximum(max(sigma, 1e-9), floor)), sigma
+    scale = max(sigma, 1e-9) if floor is None else np.maximum(max(sigma, 1e-9), floor)
+    return informative & (np.abs(r0) <= 3 * scale), sigma
 
 
-def _pair_influence(model, x: np.ndarray | None, n_pairs: int) -> np.ndarray | None:
+def _pair_influence(model, x: np.ndarray | None, pairs: list[np.ndarray]) -> np.ndarray | None:
     """Each matched pair's influence on the pose a fit of ``model`` (a ``cost.CostModel``) reaches at
     ``x`` (None: 0): ``A g_p`` [n_pairs, 6] (rad / m), with ``A`` the inverse of the pose's marginal
     information (other parameters profiled out, ``terms.pose_block``) and ``g_p = J_p^T r_p`` over the
     pair's inlier edges -- the linearised move of the pose that the pair's residuals cause (as
-    ``_scores``). None when the information is singular."""
+    ``_scores``, whose inlier rule and edge-noise floor it shares; ``pairs``: the matches of ``model``).
+    None when the information is singular."""
     r0, J = model.jacobian(x)
-    r0, J, info_rest = pose_block(r0, J, 4 * n_pairs)
-    inl, sigma = _inliers(r0, J, _edge_floor(model, len(r0)))
+    r0, J, info_rest = pose_block(r0, J, 4 * int(sum(len(p) for p in pairs)))
+    inl, sigma = _inliers(r0, J, None if frames_checkable(pairs) else _edge_floor(model, len(r0)))
     if not np.isfinite(sigma):
         return None
     info = J[inl].T @ J[inl] + (0.0 if info_rest is None else info_rest)
@@ -218,7 +256,8 @@ def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: Nois
                     occlusion=None):
     """1-sigma (rotation deg about camera x,y,z; translation m along camera x,y,z) from the
     Jacobian at the optimum: the larger (per parameter) of the classic (J^T J)^-1 * sigma^2
-    (sigma from the inlier residuals, per edge no smaller than the default error model's: ``_edge_floor``) and the cluster-robust sandwich with one cluster per
+    (sigma from the inlier residuals; where no frame-level part exists, ``frames_checkable``, per edge
+    no smaller than the default error model's: ``_edge_floor``) and the cluster-robust sandwich with one cluster per
     matched pair (its 4 edges share the box-model error)."""
     nan3 = np.full(3, np.nan)
     sc = _scores(frames, pairs, intr, R, t, eps=eps, noise=noise, occlusion=occlusion)
@@ -413,14 +452,9 @@ def _pose_spread(ctx: FitContext, max_nfev: int = 40) -> tuple[np.ndarray | None
     pose = Pose(R, t)
     occl = Occlusion() if occlusion is None else occlusion
     halves = None
-    nz = [k for k, p in enumerate(pairs) if len(p)]
-    if len(nz) >= 4:
-        ev = [p if (i in nz[0::2]) else p[:0] for i, p in enumerate(pairs)]
-        od = [p if (i in nz[1::2]) else p[:0] for i, p in enumerate(pairs)]
-    else:
-        ev = [p[0::2] for p in pairs]
-        od = [p[1::2] for p in pairs]
-    if sum(len(p) for p in ev) >= HALF_MIN_MATCHES and sum(len(p) for p in od) >= HALF_MIN_MATCHES:
+    split = _frame_halves(pairs)
+    if split is not None:
+        ev, od, _ = split
         pe = _refit(frames, ev, intr, pose, noise, f_scale, max_nfev, occl)
         po = _refit(frames, od, intr, pose, noise, f_scale, max_nfev, occl)
         halves = pe.delta(po)
@@ -737,9 +771,8 @@ def _influence_in_use(ctx: FitContext):
     """``_pair_influence`` of the fit in use at ``ctx`` (its occlusion model; None: the default one),
     computed once per context: the occlusion / outline and the hidden-edge shift noises share it."""
     occl = Occlusion() if ctx.occlusion is None else ctx.occlusion
-    n = int(sum(len(p) for p in ctx.pairs))
     return ctx.cached("influence_in_use", lambda: _pair_influence(
-        build_cost(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, occl), None, n))
+        build_cost(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, occl), None, ctx.pairs))
 
 
 def _shift_noises(ctx: FitContext, free: Pose, outline_fit, groups) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -754,8 +787,8 @@ def _shift_noises(ctx: FitContext, free: Pose, outline_fit, groups) -> tuple[np.
     try:
         used = _influence_in_use(ctx)
         no_occl = _pair_influence(build_cost(frames, pairs, intr, free, noise, CostSpec.of(occl).with_occlusion(None)),
-                                  None, n)
-        alt = None if outline_fit is None else _pair_influence(outline_fit[0], outline_fit[1].x, n)
+                                  None, pairs)
+        alt = None if outline_fit is None else _pair_influence(outline_fit[0], outline_fit[1].x, pairs)
     except (np.linalg.LinAlgError, ValueError):
         return None, None
     return shift_noise_sd(used, no_occl, groups), shift_noise_sd(used, alt, groups)
@@ -791,9 +824,9 @@ def hidden_edge_shift(ctx: FitContext, groups: np.ndarray | None, *,
     spec = CostSpec.of(ctx.occlusion).with_occlusion(hidden)
     try:
         moved = _refit(frames, pairs, intr, pose, noise, ctx.f_scale, max_nfev, spec)
-        used = _pair_influence(build_cost(frames, pairs, intr, pose, noise, ctx.occlusion), None, n) \
+        used = _pair_influence(build_cost(frames, pairs, intr, pose, noise, ctx.occlusion), None, pairs) \
             if ctx.occlusion is None else _influence_in_use(ctx)
-        alt = _pair_influence(build_cost(frames, pairs, intr, moved, noise, spec), None, n)
+        alt = _pair_influence(build_cost(frames, pairs, intr, moved, noise, spec), None, pairs)
     except (np.linalg.LinAlgError, ValueError):
         return None, None
     shift = moved.delta(pose)
