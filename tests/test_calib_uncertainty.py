@@ -423,19 +423,19 @@ def test_the_jacobian_sigma_keeps_the_default_edge_noise_on_near_exact_boxes():
 
 
 def test_the_edge_noise_floor_only_where_no_frame_level_part_exists():
-    """Issue 25: the default-model floor of the edge noise applies only where nothing sees an error
-    shared by a frame's edges (one frame, 2-3 frames, or too few matches per frame half:
-    ``frames_checkable`` false); with frame halves the residual scale is the measured noise, so
-    near-exact boxes over many frames keep their narrow sigma."""
-    from xcalib.calib.uncertainty import HALF_MIN_MATCHES, frames_checkable
+    """Issue 25: the default-model floor of the edge noise applies only where the residuals cannot
+    see an error shared by a frame's edges: matches in fewer than ``MIN_FRAMES`` frames (one frame
+    absorbs it whole; ``frames_checkable`` false). Over more frames the residual scale is the
+    measured noise, so near-exact boxes over many frames keep their narrow sigma."""
+    from xcalib.calib.uncertainty import MIN_FRAMES, frames_checkable
 
     def pairs_of(counts):
         return [np.zeros((c, 2), dtype=np.int64) for c in counts]
 
-    assert not frames_checkable(pairs_of([40]))  # one frame: alternate-pair halves only
-    assert not frames_checkable(pairs_of([20, 20, 20]))  # fewer than 4 frames with matches
-    assert not frames_checkable(pairs_of([1, 1, 1, 1, 0, 0]))  # 4 frames, halves of 2 matches
-    assert frames_checkable(pairs_of([HALF_MIN_MATCHES // 2] * 4))  # halves of HALF_MIN_MATCHES each
+    assert MIN_FRAMES == 4
+    assert not frames_checkable(pairs_of([40]))  # one frame
+    assert not frames_checkable(pairs_of([20, 20, 20, 0, 0]))  # 3 frames with matches
+    assert frames_checkable(pairs_of([1, 1, 1, 1]))  # 4 frames, however few matches each
     assert frames_checkable(pairs_of([0, 3, 0, 3, 3, 3]))  # frames without matches do not count
     sd = {}
     for noise in (0.05, 1.0):

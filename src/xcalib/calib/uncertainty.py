@@ -42,6 +42,9 @@ __all__ = ["pose_covariance", "object_sandwich", "cr2_covariance", "pose_spread"
 HALF_MIN_MATCHES = 6  # matches each half of the frames (or pairs) needs for the frame-halves check
 HALVES_MIN_MATCHES = 2 * HALF_MIN_MATCHES
 FRAME_JACK_GROUPS = 10  # the frame jackknife leaves out one of at most this many groups of frames
+# fewest frames with matches that anything is estimated per frame from (the frame halves split frames,
+# the frame jackknife leaves frames out); below it the edge noise is floored (``frames_checkable``)
+MIN_FRAMES = 4
 # object jackknife: fewest objects it is computed with; when the information of all other objects
 # is singular (condition number above MAX_REST_COND) one object alone fixes some direction of the
 # pose -> infinite sigma
@@ -77,14 +80,13 @@ SHIFT_NOISE_Z = 1.959964
 # both share (2D labels projected from the same 3D labels, one annotator drawing both) leaves them
 # near 0 whatever the pose's error, and a robust scale from a few dozen edges, most of them exact,
 # collapses with them (the Jacobian sigma and the 3-sigma inlier cut, which then drops the edges
-# that do disagree). See ``_edge_floor``. Only where no frame-level part exists (``frames_checkable``
-# false: one frame, fewer than 4 frames with matches, or too few matches per frame half): an error
-# shared by every edge of one frame (the frame's timing or rolling shutter, labels drawn or projected
-# in one snapshot) is absorbed by the fit and invisible in its residuals when there is one frame; with
-# several frames it varies from frame to frame, the fit absorbs only its mean, and the residuals, the
-# objects' scores and the frame halves / frame jackknife see the rest -- there the residual scale is
-# the measured noise and is not overruled by the default model (exact labels stay as narrow as they
-# are measured: KITTI labels over 5 frames, the realism suite).
+# that do disagree). See ``_edge_floor``. Only where the matches span fewer than ``MIN_FRAMES`` frames
+# (``frames_checkable``): an error shared by every edge of one frame (the frame's timing or rolling
+# shutter, labels drawn or projected in one snapshot) is absorbed by the fit of that frame and
+# invisible in its residuals; over several frames it varies from frame to frame, the fit absorbs only
+# its mean, and the residuals carry the rest -- there the residual scale is the measured noise and is
+# not overruled by the default model. The line is the package's own for any frame-level estimate
+# (frame halves, frame jackknife), not a new threshold.
 
 
 @dataclass
@@ -151,30 +153,12 @@ def _edge_floor(model, n_rows: int) -> np.ndarray:
 
 
 def frames_checkable(pairs: list[np.ndarray]) -> bool:
-    """Whether the matches ``pairs`` (one array per frame) have a frame-level part of the sigma: at
-    least 4 frames with matches whose two interleaved halves hold ``HALF_MIN_MATCHES`` each (the
-    frame halves and the frame jackknife of ``estimate``). Without it (one frame, 2-3 frames, too few
-    matches per half) an error shared by a frame's edges is seen by nothing, and the edge noise is
-    floored at the default error model (``_edge_floor``)."""
-    halves = _frame_halves(pairs)
-    return halves is not None and halves[2]
-
-
-def _frame_halves(pairs: list[np.ndarray]) -> tuple[list, list, bool] | None:
-    """The two halves of the matches the halves check refits: the even and the odd frames with matches
-    when there are at least 4 such frames, else alternate pairs in every frame; (even, odd, by frames),
-    None when a half has fewer than ``HALF_MIN_MATCHES`` matches."""
-    nz = [k for k, p in enumerate(pairs) if len(p)]
-    by_frames = len(nz) >= 4
-    if by_frames:
-        ev = [p if (i in nz[0::2]) else p[:0] for i, p in enumerate(pairs)]
-        od = [p if (i in nz[1::2]) else p[:0] for i, p in enumerate(pairs)]
-    else:
-        ev = [p[0::2] for p in pairs]
-        od = [p[1::2] for p in pairs]
-    if sum(len(p) for p in ev) < HALF_MIN_MATCHES or sum(len(p) for p in od) < HALF_MIN_MATCHES:
-        return None
-    return ev, od, by_frames
+    """Whether the matches ``pairs`` (one array per frame) span at least ``MIN_FRAMES`` frames, the
+    fewest any frame-level estimate is made from. Below it (one frame, 2-3 frames) an error shared by
+    a frame's edges is absorbed by the fit and seen by nothing, and the edge noise is floored at the
+    default error model (``_edge_floor``); from it on, frame-to-frame differences of such errors are
+    in the residuals, whose scale is then kept as measured."""
+    return sum(1 for p in pairs if len(p)) >= MIN_FRAMES
 
 
 def _inliers(r0: np.ndarray, J: np.ndarray, floor: np.ndarray | None) -> tuple[np.ndarray, float]:
@@ -256,8 +240,8 @@ def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: Nois
                     occlusion=None):
     """1-sigma (rotation deg about camera x,y,z; translation m along camera x,y,z) from the
     Jacobian at the optimum: the larger (per parameter) of the classic (J^T J)^-1 * sigma^2
-    (sigma from the inlier residuals; where no frame-level part exists, ``frames_checkable``, per edge
-    no smaller than the default error model's: ``_edge_floor``) and the cluster-robust sandwich with one cluster per
+    (sigma from the inlier residuals; where the matches span fewer than ``MIN_FRAMES`` frames,
+    ``frames_checkable``, per edge no smaller than the default error model's: ``_edge_floor``) and the cluster-robust sandwich with one cluster per
     matched pair (its 4 edges share the box-model error)."""
     nan3 = np.full(3, np.nan)
     sc = _scores(frames, pairs, intr, R, t, eps=eps, noise=noise, occlusion=occlusion)
@@ -452,9 +436,14 @@ def _pose_spread(ctx: FitContext, max_nfev: int = 40) -> tuple[np.ndarray | None
     pose = Pose(R, t)
     occl = Occlusion() if occlusion is None else occlusion
     halves = None
-    split = _frame_halves(pairs)
-    if split is not None:
-        ev, od, _ = split
+    nz = [k for k, p in enumerate(pairs) if len(p)]
+    if len(nz) >= MIN_FRAMES:
+        ev = [p if (i in nz[0::2]) else p[:0] for i, p in enumerate(pairs)]
+        od = [p if (i in nz[1::2]) else p[:0] for i, p in enumerate(pairs)]
+    else:
+        ev = [p[0::2] for p in pairs]
+        od = [p[1::2] for p in pairs]
+    if sum(len(p) for p in ev) >= HALF_MIN_MATCHES and sum(len(p) for p in od) >= HALF_MIN_MATCHES:
         pe = _refit(frames, ev, intr, pose, noise, f_scale, max_nfev, occl)
         po = _refit(frames, od, intr, pose, noise, f_scale, max_nfev, occl)
         halves = pe.delta(po)
@@ -474,7 +463,7 @@ def leave_frames_out(pairs: list[np.ndarray], max_groups: int):
     matches left out, one list per group (the leave-frames-out jackknife's subsets); nothing with
     fewer than 4 such frames."""
     nz = [k for k, p in enumerate(pairs) if len(p)]
-    if len(nz) < 4:
+    if len(nz) < MIN_FRAMES:
         return
     G = min(len(nz), max_groups)
     for g in range(G):
