@@ -63,6 +63,13 @@ replayed offline on the same recorded frames (``monitor.json`` ``persist_s10``).
 
     ... --part persist --null-frames 2400 --null-base 1200 --null-seeds 3,5,11,17 --step-seeds 3,11,17 --runs 2 --real-null 480 --jobs 2
 
+``--part guard``: the inflation's floor (``MonitorConfig.min_inflation``) with the leave-objects-out
+guard's size (``leave_out_objects``), ``monitor_persistence.GUARD_VARIANTS``, replayed with the guard
+(``monitor_persistence.replay``) on recordings of the long null streams and of every step cell
+(``--recordings``: the .npz folder, reused when present) (``monitor.json`` ``guard_s11``).
+
+    ... --part guard --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,7,11,13,17 --runs 2
+
 ``--part reference``: the change test calibrated per axis and window length
 (``CameraMonitor.axis_factors``) from a drift-free reference stretch of each site
 (``Monitor.learn``), against the test without it and with only the stream's own ~250 frames, on
@@ -575,7 +582,7 @@ def main() -> None:
     ap.add_argument("--null-noise", choices=("both", "default", "noisy"), default="both",
                     help="--part null: which detection noise (two processes can share the work)")
     ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak", "information", "reference", "bound",
-                                       "relin", "relin_a9", "verdict", "persist"),
+                                       "relin", "relin_a9", "verdict", "persist", "guard"),
                     default="all",
                     help="run one part; its keys are merged into an existing results file")
     ap.add_argument("--reference-frames", type=int, default=2400,
@@ -592,6 +599,8 @@ def main() -> None:
     ap.add_argument("--steps-only", action="store_true", help="--part synth: the steps only (no null streams, ramps)")
     ap.add_argument("--real-null", type=int, default=1600, help="real sequences: drift-free frames (looped)")
     ap.add_argument("--real-frames", type=int, default=320, help="real sequences: step streams (change at the middle)")
+    ap.add_argument("--recordings", type=Path, default=None,
+                    help="--part guard: folder of the recorded streams (.npz; made when absent; default a temporary one)")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (null sites, step cells)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a MonitorConfig setting other than its default (repeatable; the results say so)")
@@ -647,6 +656,16 @@ def main() -> None:
         log(f"== persistence and the test's null: null {n_null} frames x sites {nseeds}, z steps at {sseeds} "
             f"({args.runs} runs per site)")
         result["persist_s10"] = _persist(nseeds, args.null_base, n_null, sseeds, args.runs, log, args.real_null)
+    elif args.part == "guard":  # the inflation's floor with the leave-objects-out guard, replayed on every cell
+        import tempfile
+
+        nseeds = ([int(v) for v in args.null_seeds.split(",") if v.strip()] if args.null_seeds
+                  else [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites])
+        sseeds = [int(v) for v in args.step_seeds.split(",") if v.strip()]
+        folder = args.recordings or Path(tempfile.mkdtemp(prefix="xcalib_guard_"))
+        log(f"== the guarded test's variants: null {n_null} frames x sites {nseeds} (both noises), every step cell "
+            f"at {sseeds} ({args.runs} runs per site); recordings in {folder}")
+        result["guard_s11"] = _guard(nseeds, args.null_base, n_null, sseeds, args.runs, folder, log)
     elif args.part == "verdict":  # each z step cell against what the boxes allow at its site (no monitor run)
         import json
 
@@ -990,6 +1009,97 @@ def _persist(null_seeds: list[int], n_base: int, n_null: int, step_seeds: list[i
     out["runs_per_site"] = runs
     if real_frames:
         out["real"] = mp.real(real_frames, log)
+    return out
+
+
+GUARD_NOISES = (("default", {}), ("noisy", {"box_noise_px": 4.0, "miss_rate_2d": 0.1}))
+
+
+def _guard_record(job) -> str:
+    """One recording of ``--part guard`` (``monitor_persistence.collect``, saved as ``.npz`` in the
+    recordings folder; reused when there): a drift-free stream (``_null_site``'s frames) or one
+    site's step runs of one cell (``_persist_steps``'s segments)."""
+    import monitor_persistence as mp
+    from xcalib.monitor.inject import inject_change
+
+    folder, kind = job[0], job[1]
+    if kind == "null":
+        _, _, noise_name, s, n_base, n = job
+        path = folder / f"null_{noise_name}_{s}.npz"
+        if not path.exists():
+            site, base = _synth_stream(s, n_base, **dict(GUARD_NOISES)[noise_name])
+            mp.save_recording(path, mp.collect(_synth_calibration(site), _replay(base, n, s, 0.5, 0.05)))
+        return str(path)
+    _, _, s, runs = job
+    todo = [(k, size, axis, r) for k, size, _ in STEPS for axis in range(3) for r in range(runs)
+            if not (folder / f"step_{k[0]}{AXES[axis]}_{size:g}_{s}_{r}.npz").exists()]
+    if todo:
+        site, frames = _synth_stream(s, PRE + POST + 137 * max(runs - 1, 0) + 1)
+        cal = _synth_calibration(site)
+        for k, size, axis, r in todo:
+            r_, t_ = _change(k, size, axis)
+            k0 = PRE + r * 137
+            seg = [inject_change(f, cal, r_, t_) if i >= PRE else f for i, f in enumerate(frames[k0 - PRE:k0 + POST])]
+            mp.save_recording(folder / f"step_{k[0]}{AXES[axis]}_{size:g}_{s}_{r}.npz", mp.collect(cal, seg))
+    return str(folder)
+
+
+def _poisson90(k: int, n: int) -> list[float]:
+    """k events in n frames: the rate per 10,000 frames and its 90 % Poisson interval."""
+    from scipy.stats import chi2
+
+    lo = 0.0 if k == 0 else float(chi2.ppf(0.05, 2 * k)) / 2
+    return [1e4 * k / n, 1e4 * lo / n, 1e4 * float(chi2.ppf(0.95, 2 * k + 2)) / 2 / n]
+
+
+def _guard(null_seeds: list[int], n_base: int, n_null: int, step_seeds: list[int], runs: int, folder: Path,
+           log) -> dict:
+    """The change test's variants with the leave-objects-out guard (``monitor_persistence.GUARD_VARIANTS``:
+    the inflation's floor, the objects left out), replayed (``monitor_persistence.replay``: the
+    monitor's decisions and alarms, the guard included) on recordings of the long null streams (as
+    ``--part null``, both noises) and of every step cell (rotation and translation, each axis, the
+    issue's four sizes; ``runs`` segments per ``step_seeds`` site, as ``--part persist``): false
+    alarms per 10,000 frames with their 90 % Poisson interval, the share of runs detected within
+    50 / 20 frames, alarms before the change. The recordings are ``folder``'s ``.npz`` files
+    (made when absent)."""
+    import monitor_persistence as mp
+
+    folder.mkdir(parents=True, exist_ok=True)
+    jobs = [(folder, "null", name, s, n_base, n_null) for name, _ in GUARD_NOISES for s in null_seeds]
+    jobs += [(folder, "steps", s, runs) for s in step_seeds]
+    for done in _pmap(_guard_record, jobs):
+        log(f"  recorded {done}", flush=True)
+    variants = mp.GUARD_VARIANTS
+    out: dict = {"variants": {k: dict(v) for k, v in variants.items()}, "null": {}, "steps": {},
+                 "null_seeds": null_seeds, "step_seeds": step_seeds, "runs_per_site": runs,
+                 "note": "replayed from recordings of the default monitor's frames (the replay reproduces the "
+                         "monitor's alarm frames, guard included); false alarms: the history forgotten after each"}
+    for name, _ in GUARD_NOISES:
+        recs = {s: mp.load_recording(folder / f"null_{name}_{s}.npz") for s in null_seeds}
+        frames = sum(len(r["rows"]) for r in recs.values())
+        for v, kw in variants.items():
+            where = {f"site_{s}": mp.replay(r, **kw) for s, r in recs.items()}
+            k = sum(len(a) for a in where.values())
+            out["null"][f"{name}/{v}"] = {"frames": frames, "false_alarms": k, "per_10k_and_90ci": _poisson90(k, frames),
+                                          "alarm_frames": {s: a for s, a in where.items() if a}}
+            log(f"null {name:7s} {v:16s} {frames} frames: {k} false alarms, per 10k "
+                + " ".join(f"{x:.2f}" for x in _poisson90(k, frames)) + f"  {out['null'][f'{name}/{v}']['alarm_frames']}",
+                flush=True)
+    for kind, size, within in STEPS:
+        for axis in range(3):
+            cell = f"{kind[0]}{AXES[axis]}_{size:g}_within_{within}"
+            recs = [(s, mp.load_recording(folder / f"step_{kind[0]}{AXES[axis]}_{size:g}_{s}_{r}.npz"))
+                    for s in step_seeds for r in range(runs)]
+            for v, kw in variants.items():
+                firsts = [(mp.replay(rec, first_only=True, **kw) or [None])[0] for _, rec in recs]
+                delays = [None if f is None else f - PRE for f in firsts]
+                hits = [d is not None and 0 <= d <= within for d in delays]
+                row = {"runs": len(hits), "detected_within": float(np.mean(hits)),
+                       "early": sum(d is not None and d < 0 for d in delays), "delays": delays,
+                       "missed_sites": sorted({s for (s, _), h in zip(recs, hits) if not h})}
+                out["steps"][f"{cell}/{v}"] = row
+                log(f"{cell:24s} {v:16s} {100 * row['detected_within']:5.1f} % of {row['runs']} (early {row['early']}; "
+                    f"missed at sites {row['missed_sites']})", flush=True)
     return out
 
 

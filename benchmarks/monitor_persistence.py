@@ -51,11 +51,14 @@ AXES6 = ("rx", "ry", "rz", "tx", "ty", "tz")
 PRIOR_INFO = np.diag(1.0 / np.array([np.radians(0.1)] * 3 + [0.05] * 3) ** 2)
 
 
-def collect(cal, frames, config=None) -> dict:
+def collect(cal, frames, config=None, lin_from: tuple[int, np.ndarray] | None = None) -> dict:
     """Run a fresh monitor that cannot alarm (``false_alarm_rate`` 1e-12 unless ``config`` is given) over
     ``frames``; per frame its normal equations and the per-object shares; the monitor's inflation at
     every decision. ``threshold``: the test threshold of the default settings (or of ``config``): the
-    one the replayed variants are held to, never the recording monitor's own."""
+    one the replayed variants are held to, never the recording monitor's own. ``lin_from`` = (k, x):
+    frames from the k-th on are matched and linearised at the pose change x (rad / m; e.g. an injected
+    step's truth) instead of the calibration (``step_recovery`` then shows what the linearisation
+    point costs)."""
     from xcalib.monitor import Monitor, MonitorConfig
 
     # no alarm may reset the history (the statistics below do not depend on the threshold)
@@ -65,6 +68,8 @@ def collect(cal, frames, config=None) -> dict:
     t0 = time.process_time()
     n = 0
     for f in frames:
+        if lin_from is not None and n == lin_from[0]:
+            cm.x_lin = np.array(lin_from[1], dtype=np.float64)
         n += 1
         sts = mon.update(f)
         q = cm.recs[-1]
@@ -265,6 +270,205 @@ def null_alarms(rows: np.ndarray, cov_cal: np.ndarray, h: float, **kw) -> tuple[
 def first_detection(rows: np.ndarray, cov_cal: np.ndarray, h: float, **kw) -> int | None:
     """Frame index of a variant's first alarm on a recording, or None."""
     return next((fr for fr, st, _ in decision_statistics(rows, cov_cal, **kw) if st > h), None)
+
+
+# ---------------------------------------------------------------- the change test with its guard
+# ``replay`` recomputes the default monitor's decisions (``CameraMonitor._decide`` with
+# ``latch=False``) from a recording (``load_recording``), the leave-objects-out guard included
+# (``CameraMonitor._without_objects``, from the recorded per-object shares): every alarm the
+# monitor would raise, the history forgotten after each (``reset``), as in the null benchmark.
+# Not replayed: the residual scale (it shapes the recorded frames, which do not depend on the
+# test) and the re-linearised test (off by default).
+
+
+#: the variants ``--part guard`` replays: the inflation's floor (``MonitorConfig.min_inflation``)
+#: and the objects the guard leaves out (``MonitorConfig.leave_out_objects``)
+GUARD_VARIANTS = {"default": {}, "min_inflation=0.75": {"floor": 0.75}, "min_inflation=0.5": {"floor": 0.5},
+                  "0.75,leave_out=3": {"floor": 0.75, "leave_out": 3}, "0.5,leave_out=3": {"floor": 0.5, "leave_out": 3},
+                  "0.5,leave_out=4": {"floor": 0.5, "leave_out": 4}}
+
+
+def _obj_sums(rec: dict, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per object over frames [a, b): sorted ids, H [K,6,6], g [K,6] (``core._object_sums``)."""
+    i0, i1 = np.searchsorted(rec["obj_frame"], [a, b])
+    u, inv = np.unique(rec["obj_id"][i0:i1], return_inverse=True)
+    H, g = np.zeros((len(u), 6, 6)), np.zeros((len(u), 6))
+    np.add.at(H, inv, rec["obj_H"][i0:i1])
+    np.add.at(g, inv, rec["obj_g"][i0:i1])
+    return u, H, g
+
+
+def _solve_rows(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """x = -H^-1 g, H^-1 and a usable flag per row (``core._solve_batch``)."""
+    ev = np.linalg.eigvalsh(H)
+    ok = (ev[:, 0] > 1e-10 * np.maximum(ev[:, -1], 1e-300)) & np.all(np.isfinite(ev), axis=1)
+    inv = np.linalg.inv(np.where(ok[:, None, None], H, np.eye(6)[None]))
+    return -np.einsum("kij,kj->ki", inv, g), inv, ok
+
+
+def _chi2(d: np.ndarray, C: np.ndarray) -> float:
+    try:
+        return float(d @ np.linalg.solve(C, d))
+    except np.linalg.LinAlgError:
+        return float("inf") if np.any(d != 0) else 0.0
+
+
+def _guarded(rec: dict, s: int, a: int, e: int, fa, fb, phi: float, cov_cal: np.ndarray, k_out: int,
+             h_out: float) -> float:
+    """The statistic of the test of frames [a, e) against [s, a) (``fb`` None: against the
+    calibration) with the ``k_out`` most influential objects of the recent frames left out of both,
+    one at a time, stopping once it is at most ``h_out`` (``core.CameraMonitor._without_objects``)."""
+    ids_a, Ha, ga = _obj_sums(rec, a, e)
+    Ta, ta = Ha.sum(0) if len(Ha) else np.zeros((6, 6)), ga.sum(0) if len(ga) else np.zeros(6)
+    fac_a = float(np.trace(fa[1] @ Ta)) / 6.0
+    if fb is not None:
+        ids_b, Hb, gb = _obj_sums(rec, s, a)
+        Tb, tb = Hb.sum(0) if len(Hb) else np.zeros((6, 6)), gb.sum(0) if len(gb) else np.zeros(6)
+        fac_b = float(np.trace(fb[1] @ Tb)) / 6.0
+        pos = np.clip(np.searchsorted(ids_b, ids_a), 0, max(len(ids_b) - 1, 0))
+        inb = (ids_b[pos] == ids_a) if len(ids_b) else np.zeros(len(ids_a), bool)
+        Hb_a = np.where(inb[:, None, None], Hb[pos] if len(ids_b) else 0.0, 0.0)
+        gb_a = np.where(inb[:, None], gb[pos] if len(ids_b) else 0.0, 0.0)
+        stat = _chi2(fa[0] - fb[0], (fa[1] + fb[1]) * phi)
+    else:
+        stat = _chi2(fa[0], fa[1] * phi + cov_cal)
+    alive = np.ones(len(ids_a), dtype=bool)
+    for _ in range(k_out):
+        if not np.any(alive):
+            break
+        xa, ca, ok = _solve_rows(Ta[None] - Ha, ta[None] - ga)
+        if fb is not None:
+            xb, cb, okb = _solve_rows(Tb[None] - Hb_a, tb[None] - gb_a)
+            d, C, ok = xa - xb, (ca * fac_a + cb * fac_b) * phi, ok & okb
+        else:
+            d, C = xa, ca * fac_a * phi + cov_cal[None]
+        s_k = np.zeros(len(ids_a))
+        if np.any(ok):
+            s_k[ok] = np.einsum("ki,ki->k", d[ok], np.linalg.solve(C[ok], d[ok][..., None])[..., 0])
+        s_k[~alive] = np.inf
+        j = int(np.argmin(s_k))
+        stat = float(s_k[j])
+        alive[j] = False
+        Ta, ta = Ta - Ha[j], ta - ga[j]
+        if fb is not None:
+            Tb, tb = Tb - Hb_a[j], tb - gb_a[j]
+        if stat <= h_out:
+            break
+    return stat
+
+
+def _few_objects(rec: dict, C: dict, a: int, b: int, cfg) -> bool:
+    """``CameraMonitor._evidence``: too few matched pairs, or too few distinct tracked objects."""
+    if C["p"][b] - C["p"][a] < cfg.min_pairs:
+        return True
+    i0, i1 = np.searchsorted(rec["obj_frame"], [a, b])
+    ids = rec["obj_id"][i0:i1]
+    ids = ids[ids >= 0]
+    return 0 < len(ids) and len(np.unique(ids)) < cfg.min_objects
+
+
+def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | None = None,
+           h_out: float | None = None, config=None, first_only: bool = False, threshold: float | None = None) -> list[int]:
+    """The frames (0-based) at which the monitor raises an alarm on the recording ``rec``
+    (``load_recording``), with the adjacent-window inflation floored at ``floor`` and multiplied
+    by ``factor``, ``leave_out`` objects left out by the guard (default: the config's) and the
+    leave-out threshold ``h_out`` (default: the config's); after each alarm the history is
+    forgotten (the benchmark's ``latch=False``); ``first_only``: stop at the first."""
+    from xcalib.monitor import MonitorConfig
+    from xcalib.monitor import stats as mstats
+    from xcalib.monitor.core import CHI2_6_Q75_OVER_6, INFLATION_PRIOR, MIN_DIFFS
+
+    cfg = config or MonitorConfig()
+    W, stride, hist, minp = cfg.window, cfg.stride, cfg.history, cfg.min_pairs
+    h = float(cfg.threshold if threshold is None else threshold)
+    k_out = int(cfg.leave_out_objects if leave_out is None else leave_out)
+    if h_out is None:
+        lvl = float(cfg.leave_out_level)
+        h_out = mstats.threshold(lvl, 1, 1) if lvl > 0 else h
+    rows, cov_cal = rec["rows"], rec["cov_cal"]
+    C = _cums(rows)
+    alarms: list[int] = []
+    diffs: list[float] = []
+    start, last, end = 0, None, -10 ** 9
+    e = W
+    while e <= len(rows):
+        s = max(start, e - hist)
+        if e - end >= W:  # the adjacent-window inflation (``_update_inflation``)
+            f = _seg_fit(C, e - W, e) if C["p"][e] - C["p"][e - W] >= minp else None
+            if f is not None and last is not None and end == e - W:
+                d = f[0] - last[0]
+                diffs = (diffs + [float(d @ np.linalg.solve(f[1] + last[1], d)) / 6])[-200:]
+            last, end = f, e
+        phi = INFLATION_PRIOR if len(diffs) < MIN_DIFFS else max(floor, float(np.quantile(diffs, 0.75)) / CHI2_6_Q75_OVER_6)
+        phi *= factor
+        lengths = [L for L in cfg.windows if L <= e - s] or [W]
+        longest = lengths[-1]
+        fr = None if _few_objects(rec, C, e - longest, e, cfg) else _seg_fit(C, e - longest, e)
+        alarm = False
+        if fr is not None:
+            tests = []
+            for L in lengths:
+                if C["p"][e - L] - C["p"][s] < minp or C["p"][e] - C["p"][e - L] < minp:
+                    continue
+                fa, fb = _seg_fit(C, e - L, e), _seg_fit(C, s, e - L)
+                if fa is not None and fb is not None:
+                    tests.append((_chi2(fa[0] - fb[0], (fa[1] + fb[1]) * phi), e - L, fa, fb))
+            tests.append((_chi2(fr[0], fr[1] * phi + cov_cal), e - longest, fr, None))
+            for st, a, fa, fb in sorted(tests, key=lambda q: -q[0]):
+                if st <= h:
+                    break
+                if _guarded(rec, s, a, e, fa, fb, phi, cov_cal, k_out, h_out) > h_out:
+                    alarm = True
+                    break
+        if alarm:
+            alarms.append(e - 1)
+            if first_only:
+                break
+            start, last, end = e, None, -10 ** 9  # ``CameraMonitor.reset`` (the inflation's pairs are kept)
+            e = start + W
+            continue
+        e += stride
+    return alarms
+
+
+def step_recovery(rec: dict, k0: int, length: int, axis: int, true: float) -> dict:
+    """How much of a step of size ``true`` on ``axis`` (rad / m) injected at frame ``k0`` the
+    monitor's linearised frames recover: the ``length`` frames after it fitted against the ``k0``
+    before (``_seg_fit``, linearised at the calibration as the change test is): the estimate over
+    the truth, its z, the two-sample statistic, and the noncentrality the true step would have at
+    the same covariance (what an unshrunk estimate would give on average)."""
+    C = _cums(rec["rows"])
+    fb, fa = _seg_fit(C, 0, k0), _seg_fit(C, k0, k0 + length)
+    d, cov = fa[0] - fb[0], fa[1] + fb[1]
+    t = np.zeros(6)
+    t[axis] = true
+    return {"recovered": float(d[axis] / true), "z": float(d[axis] / np.sqrt(cov[axis, axis])),
+            "statistic": float(d @ np.linalg.solve(cov, d)), "noncentrality_true": float(t @ np.linalg.solve(cov, t))}
+
+
+def save_recording(path, d: dict) -> None:
+    """One recording (``collect``) as a plain ``.npz`` (no pickle): the frames' rows, the
+    per-object shares flattened (frame, id, H, g per matched object), cov_cal and the threshold."""
+    fr, ids, oH, og = [], [], [], []
+    for k, (o, H, g) in enumerate(d["objects"]):
+        if o is None or not len(o):
+            continue
+        fr.append(np.full(len(o), k))
+        ids.append(np.asarray(o, dtype=np.int64))
+        oH.append(np.asarray(H).reshape(-1, 36))
+        og.append(np.asarray(g).reshape(-1, 6))
+    cat = lambda v, shape: np.concatenate(v) if v else np.zeros(shape)  # noqa: E731
+    np.savez_compressed(path, rows=d["rows"], cov_cal=d["cov_cal"], threshold=d["threshold"],
+                        obj_frame=cat(fr, (0,)).astype(np.int64), obj_id=cat(ids, (0,)).astype(np.int64),
+                        obj_H=cat(oH, (0, 36)), obj_g=cat(og, (0, 6)))
+
+
+def load_recording(path) -> dict:
+    """``save_recording``'s file back: rows, cov_cal, threshold and the per-object shares."""
+    z = np.load(path, allow_pickle=False)
+    return {"rows": z["rows"], "cov_cal": z["cov_cal"], "threshold": float(z["threshold"]),
+            "obj_frame": z["obj_frame"], "obj_id": z["obj_id"], "obj_H": z["obj_H"].reshape(-1, 6, 6),
+            "obj_g": z["obj_g"]}
 
 
 def analyse(d: dict) -> dict:

@@ -264,7 +264,7 @@ def shapes_from_points(boxes7: np.ndarray, corners: np.ndarray, points: np.ndarr
     """
     from scipy.spatial import ConvexHull, QhullError
 
-    from ..geometry.boxes import points_in_boxes
+    from ..geometry.boxes import box_point_pairs
 
     b = np.asarray(boxes7, dtype=np.float64)
     M = len(b)
@@ -274,14 +274,17 @@ def shapes_from_points(boxes7: np.ndarray, corners: np.ndarray, points: np.ndarr
     grown[:, 3:5] *= expansion
     grown[:, 2] += ground_clearance_m / 2 + 0.05  # lift the bottom, add 0.1 m at the top
     grown[:, 5] += 0.1 - ground_clearance_m
-    mask = points_in_boxes(points, grown)
+    # each box's points: ``points_in_boxes``' pairs, sorted by box then point, cut at each box's start
+    # (the rows of its mask in ascending order, without the [M,P] mask and one pass over it per box)
+    mi, pi = box_point_pairs(points, grown)
+    starts = np.searchsorted(mi, np.arange(M + 1))
     used = np.zeros(M, dtype=bool)
     # first the hull of each box's points, then (with a scan step) one growth of all the boxes'
     # hull vertices at once (``expand_by_scan_gap`` works point by point: the same values as box
     # by box), then each box's hull of its vertices and their growth
     hulls: list[np.ndarray | None] = [None] * M
     for j in range(M):  # one hull per box (boxes, not points, are looped over)
-        p = points[mask[j], :3].astype(np.float64)
+        p = points[pi[starts[j]:starts[j + 1]], :3].astype(np.float64)
         if len(p) >= min_points:
             try:
                 hulls[j] = p[ConvexHull(p).vertices]

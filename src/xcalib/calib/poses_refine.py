@@ -104,9 +104,13 @@ class _Batch:
         return out
 
     def _project(self, R, t):
-        """Camera-frame corners Y = R C [H,P,S,3] (without t), u, v [H,P,S] (NaN behind), rects
-        [H,P,4] (clipped), valid [H,P]: the operations of ``boxproj.project_rects``."""
-        Y = self.C @ R.transpose(0, 2, 1)[:, None]  # [H,P,S,3]
+        """The operations of ``boxproj.project_rects`` on the pairs' outlines: rects [H,P,4]
+        (clipped), valid [H,P], and for :meth:`jacobian` the unclipped edges ext [H,P,4] (u min,
+        v min, u max, v max) and the camera-frame corner Y = R c (without t) that defines each of
+        them, Ys [H,P,4,3] (a box that cannot be projected: its first corner, 4 times)."""
+        H, P, S = self.C.shape[:3]
+        # one (P*S, 3) x (3, 3) product per pose instead of one per pair: the same BLAS products
+        Y = (self.C.reshape(H, P * S, 3) @ R.transpose(0, 2, 1)).reshape(H, P, S, 3)
         z = Y[..., 2] + t[:, None, None, 2]
         ahead = z > MIN_DEPTH_M
         inv = 1.0 / np.where(ahead, z, np.nan)
@@ -116,21 +120,26 @@ class _Batch:
             x, y = _distort_with_jacobian(x, y, self.dist)[:2]
         intr = self.intr
         u, v = x * intr.fx + intr.cx, y * intr.fy + intr.cy
-        rect = np.empty(u.shape[:-1] + (4,))
+        # each edge is the coordinate of its defining corner (the first extreme; min / max are
+        # exact, and a row with a NaN gives NaN either way: arg-min / -max point at its first NaN)
+        at = np.stack([u.argmin(-1), v.argmin(-1), u.argmax(-1), v.argmax(-1)], -1)
+        first = (np.arange(H * P) * S).reshape(H, P, 1)  # flat index of each row's first corner
+        at += first
+        ext = np.empty((H, P, 4))
+        ext[..., 0::2] = u.reshape(-1)[at[..., 0::2]]
+        ext[..., 1::2] = v.reshape(-1)[at[..., 1::2]]
         W, Hh = self.size
-        np.clip(u.min(-1), 0.0, W, out=rect[..., 0])
-        np.clip(v.min(-1), 0.0, Hh, out=rect[..., 1])
-        np.clip(u.max(-1), 0.0, W, out=rect[..., 2])
-        np.clip(v.max(-1), 0.0, Hh, out=rect[..., 3])
+        rect = np.clip(ext, 0.0, np.array([W, Hh, W, Hh], dtype=np.float64))
         with np.errstate(invalid="ignore"):
             valid = ahead.all(-1) & (rect[..., 2] - rect[..., 0] > 1.0) & (rect[..., 3] - rect[..., 1] > 1.0)
-        return Y, u, v, rect, valid
+        at[~valid] = first[~valid]  # (no Jacobian there: any finite corner, the first)
+        return Y.reshape(-1, 3)[at], ext, rect, valid
 
     def residuals(self, R, t):
         """Weighted, shaped edge residuals [H,P,4] (0 on padding), the unshaped weighted ones, and
         the projection (for :meth:`jacobian`)."""
         proj = self._project(R, t)
-        rect, valid = proj[3], proj[4]
+        rect, valid = proj[2], proj[3]
         raw = np.where(valid[..., None], rect - self.obs, self.fallback) * self.w[..., None]
         r = raw
         if self.occlusion is not None:
@@ -143,16 +152,7 @@ class _Batch:
         """d residuals / d (rotvec, dt) [H,P,4,6] at the projected poses (``BoxEdgeTerm.jacobian``
         at rotvec 0, batched): the derivative of each edge is that of the corner defining it, zero
         where the edge is clipped to the image or the box cannot be projected."""
-        Y, u, v, _, valid = proj
-        uu, vv = np.where(valid[..., None], u, 0.0), np.where(valid[..., None], v, 0.0)
-        H, P = valid.shape
-        hh, pp = np.arange(H)[:, None], np.arange(P)[None, :]
-        cols = (uu.argmin(-1), vv.argmin(-1), uu.argmax(-1), vv.argmax(-1))  # the defining corners
-        ext = np.empty((H, P, 4))
-        Ys = np.empty((H, P, 4, 3))  # [H,P,4,3] the defining corners, rotated
-        for k, (plane, c) in enumerate(zip((uu, vv, uu, vv), cols)):
-            ext[..., k] = plane[hh, pp, c]
-            Ys[:, :, k] = Y[hh, pp, c]
+        Ys, ext, _, valid = proj
         W, Hh = self.size
         inside = (ext > 0.0) & (ext < np.array([W, Hh, W, Hh], dtype=np.float64))
         izs = 1.0 / np.where(valid[..., None], Ys[..., 2] + t[:, None, None, 2], 1.0)
@@ -219,7 +219,8 @@ def _fit(batch: _Batch, R: np.ndarray, t: np.ndarray, fs: np.ndarray, active: np
         rn, rawn, projn = sub.residuals(Rn, tn)
         cn, wn = _robust(rn, fs[idx])
         better = cn <= cost[idx]
-        step = np.linalg.norm(dx[:, :3], axis=1) + np.linalg.norm(dx[:, 3:], axis=1) / 100.0
+        dx2 = dx * dx  # (np.linalg.norm's own sums of squares, without its wrapper)
+        step = np.sqrt(np.add.reduce(dx2[:, :3], axis=1)) + np.sqrt(np.add.reduce(dx2[:, 3:], axis=1)) / 100.0
         settled = better & ((step < STEP_TOL) | (cost[idx] - cn <= COST_TOL * np.maximum(cost[idx], 1e-12)))
         if better.any():
             b = idx[better]
@@ -295,6 +296,10 @@ def refine_poses(fr: CalibFrame, intr: CameraIntrinsics, R0, t0, options: Refine
     return PosesFit(R, t, pairs, np.array([float(iou[h][p[:, 0], p[:, 1]].sum()) for h, p in enumerate(pairs)]), iou)
 
 
+_SKEW_AT, _SKEW_OF = np.array([1, 2, 5, 3, 6, 7]), np.array([2, 1, 0, 2, 1, 0])
+_SKEW_SIGN = np.array([-1.0, 1.0, -1.0, 1.0, -1.0, 1.0])
+
+
 def _exp(w: np.ndarray) -> np.ndarray:
     """Rotation matrices [H,3,3] of rotation vectors w [H,3] (Rodrigues; series below 1e-6 rad)."""
     th2 = np.sum(w * w, axis=1)
@@ -302,9 +307,9 @@ def _exp(w: np.ndarray) -> np.ndarray:
     small = th2 < 1e-12
     a = np.where(small, 1.0 - th2 / 6.0, np.sin(th) / np.where(small, 1.0, th))
     b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(th)) / np.where(small, 1.0, th2))
-    K = np.zeros((len(w), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    K = np.zeros((len(w), 9))  # [w]x: (0,1) -w2, (0,2) w1, (1,2) -w0, (1,0) w2, (2,0) -w1, (2,1) w0
+    K[:, _SKEW_AT] = w[:, _SKEW_OF] * _SKEW_SIGN
+    K = K.reshape(-1, 3, 3)
     return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
 
 
