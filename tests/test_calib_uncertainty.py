@@ -403,3 +403,49 @@ def test_the_reported_sigma_is_rebuilt_from_the_stored_parts():
                 assert np.allclose(mod.rebuild(rec["sigma_parts"], z), rec["sigma_axes"], rtol=1e-9, atol=0), (label, rec["seed"])
                 checked += 1
     assert checked >= 20 or not runs.get("s9_sigma_outline_all")
+
+
+def test_the_jacobian_sigma_keeps_the_default_edge_noise_on_near_exact_boxes():
+    """Issue 25: boxes that agree with their 3D boxes to far below a pixel (2D labels projected from
+    the 3D labels) must not shrink the sigma with their residuals: the per-edge variance is floored at
+    the default error model (1 px 2D), so 0 px and 0.05 px boxes give the same sigma, about what
+    1 px boxes give, while boxes noisier than the floor still widen it."""
+    sd = {}
+    for noise in (0.0, 0.05, 1.0, 4.0):
+        frames, T = sim_frames(seed=3, n_frames=2, noise_px=noise, miss=0.0, false_pos=0.0, extra_3d=0)
+        cframes, pairs, intr, pose = _fit(frames, T)
+        r, t, _ = pose_covariance(cframes, pairs, intr, pose.R, pose.t)
+        sd[noise] = np.concatenate([r, t])
+    assert np.all(np.isfinite(sd[0.0])) and np.all(sd[0.0] > 0)
+    np.testing.assert_allclose(sd[0.05], sd[0.0], rtol=0.05)
+    assert np.all(sd[0.0] > 0.5 * sd[1.0])
+    assert np.all(sd[4.0] > 1.2 * sd[0.0])
+
+
+def test_the_edge_noise_floor_only_where_no_frame_level_part_exists():
+    """Issue 25: the default-model floor of the edge noise applies only where the residuals cannot
+    see an error shared by a frame's edges: matches in fewer than ``MIN_FRAMES`` frames (one frame
+    absorbs it whole; ``frames_checkable`` false). Over more frames the residual scale is the
+    measured noise, so near-exact boxes over many frames keep their narrow sigma."""
+    from xcalib.calib.uncertainty import MIN_FRAMES, frames_checkable
+
+    def pairs_of(counts):
+        return [np.zeros((c, 2), dtype=np.int64) for c in counts]
+
+    assert MIN_FRAMES == 4
+    assert not frames_checkable(pairs_of([40]))  # one frame
+    assert not frames_checkable(pairs_of([20, 20, 20, 0, 0]))  # 3 frames with matches
+    assert frames_checkable(pairs_of([1, 1, 1, 1]))  # 4 frames, however few matches each
+    assert frames_checkable(pairs_of([0, 3, 0, 3, 3, 3]))  # frames without matches do not count
+    sd = {}
+    for noise in (0.05, 1.0):
+        frames, T = sim_frames(seed=3, n_frames=6, noise_px=noise, miss=0.0, false_pos=0.0, extra_3d=0)
+        cframes, pairs, intr, pose = _fit(frames, T)
+        assert frames_checkable(pairs)
+        r, t, _ = pose_covariance(cframes, pairs, intr, pose.R, pose.t)
+        sd[noise] = np.concatenate([r, t])
+        one = [p if k == 0 else p[:0] for k, p in enumerate(pairs)]  # the first frame's matches alone
+        r1, t1, _ = pose_covariance(cframes, one, intr, pose.R, pose.t)
+        sd[noise, 1] = np.concatenate([r1, t1])
+    assert np.all(sd[0.05] < 0.25 * sd[1.0])  # many frames: the measured 0.05 px, not the floor
+    assert np.all(sd[0.05, 1] > 0.5 * sd[1.0, 1])  # one frame: floored at the default model

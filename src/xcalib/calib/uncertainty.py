@@ -29,19 +29,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from .context import FitContext
-from .cost import Occlusion
+from .cost import BoxEdgeTerm, Occlusion, edge_sigma
 from .diagnostics import NoiseModel, UncertaintyParts, bound95
 from .inputs import CalibFrame
 from .pose import Pose
-from .refine import F_SCALE, build_cost, lsq
+from .refine import DEFAULT_NOISE, F_SCALE, build_cost, lsq
 from .terms import CostSpec, occlusion_of, pose_block
 
 __all__ = ["pose_covariance", "object_sandwich", "cr2_covariance", "pose_spread", "pose_jackknife", "frame_jackknife", "object_groups", "pose_object_bootstrap",
-           "combine", "bound95", "bound_dof", "outline_shift", "shift_noise_sd", "excess", "SHIFT_NOISE_Z", "with_object_outline", "statistical_sd", "box_model_shift", "hidden_edge_shift", "with_hidden_edges", "centre_model_sd", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "Uncertainty", "estimate"]
+           "combine", "bound95", "bound_dof", "outline_shift", "shift_noise_sd", "excess", "SHIFT_NOISE_Z", "with_object_outline", "statistical_sd", "box_model_shift", "hidden_edge_shift", "with_hidden_edges", "centre_model_sd", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "frames_checkable", "Uncertainty", "estimate"]
 
 HALF_MIN_MATCHES = 6  # matches each half of the frames (or pairs) needs for the frame-halves check
 HALVES_MIN_MATCHES = 2 * HALF_MIN_MATCHES
 FRAME_JACK_GROUPS = 10  # the frame jackknife leaves out one of at most this many groups of frames
+# fewest frames with matches that anything is estimated per frame from (the frame halves split frames,
+# the frame jackknife leaves frames out); below it the edge noise is floored (``frames_checkable``)
+MIN_FRAMES = 4
 # object jackknife: fewest objects it is computed with; when the information of all other objects
 # is singular (condition number above MAX_REST_COND) one object alone fixes some direction of the
 # pose -> infinite sigma
@@ -70,6 +73,20 @@ BOX_MODEL_MAX_COST_RATIO = 2.0
 # above the median expected for their degrees of freedom .44 -> .47 (0.5 = right), 95 % coverage .925
 # unchanged; a real common bias (boxes 12 % tighter, tests) is kept
 SHIFT_NOISE_Z = 1.959964
+# The per-edge variance of the linearised fit never goes below the default error model's
+# (``refine.DEFAULT_NOISE``: 1 px of 2D box edge -- whole-pixel boxes, an outline's edge defined to
+# about a pixel -- 3 cm of 3D box centre, 1 % of size), the floor ``refine.estimate_noise`` keeps
+# for the noise model too. The residuals only measure how far the 2D and 3D boxes disagree: an error
+# both share (2D labels projected from the same 3D labels, one annotator drawing both) leaves them
+# near 0 whatever the pose's error, and a robust scale from a few dozen edges, most of them exact,
+# collapses with them (the Jacobian sigma and the 3-sigma inlier cut, which then drops the edges
+# that do disagree). See ``_edge_floor``. Only where the matches span fewer than ``MIN_FRAMES`` frames
+# (``frames_checkable``): an error shared by every edge of one frame (the frame's timing or rolling
+# shutter, labels drawn or projected in one snapshot) is absorbed by the fit of that frame and
+# invisible in its residuals; over several frames it varies from frame to frame, the fit absorbs only
+# its mean, and the residuals carry the rest -- there the residual scale is the measured noise and is
+# not overruled by the default model. The line is the package's own for any frame-level estimate
+# (frame halves, frame jackknife), not a new threshold.
 
 
 @dataclass
@@ -81,6 +98,7 @@ class _Scores:
     sigma2: float
     g_pair: np.ndarray
     M_pair: np.ndarray  # [n_pairs, 6, 6]: J^T J over each pair's inlier edges
+    cov: np.ndarray  # [6, 6] A J^T diag(max(sigma2, floor^2)) J A: the classic covariance, per-edge floored
 
 
 def _censor_only(occlusion) -> Occlusion:
@@ -99,10 +117,10 @@ def _scores(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel |
     model = build_cost(frames, pairs, intr, pose, noise, CostSpec.of(occlusion).with_occlusion(_censor_only(occlusion)))
     r0, J = model.jacobian(eps=eps)
     r0, J, info_rest = pose_block(r0, J, 4 * int(sum(len(p) for p in pairs)))  # other terms: profiled out
-    # edges clipped at the image border carry no information (zero derivative) -> drop them
-    informative = np.any(J != 0, axis=1)
-    sigma = 1.4826 * np.median(np.abs(r0[informative])) if np.any(informative) else np.nan
-    inl = informative & (np.abs(r0) <= 3 * max(sigma, 1e-9))
+    floor = None if frames_checkable(pairs) else _edge_floor(model, len(r0))
+    inl, sigma = _inliers(r0, J, floor)
+    if not np.isfinite(sigma):
+        return None
     dof = max(int(inl.sum()) - 6, 1)
     info = J[inl].T @ J[inl]
     if info_rest is not None:
@@ -113,41 +131,68 @@ def _scores(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: NoiseModel |
         return None
     g = ((J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 6)).sum(1)  # [n_pairs, 6]
     Jp = (J * inl[:, None]).reshape(-1, 4, 6)
-    return _Scores(A, float(np.sum(r0[inl] ** 2) / dof), g, np.einsum("nki,nkj->nij", Jp, Jp))
+    sigma2 = float(np.sum(r0[inl] ** 2) / dof)
+    if floor is None:
+        cov = A * sigma2
+    else:  # the per-edge variance never below the floor: A J^T diag(max(sigma2, floor^2)) J A
+        v = np.maximum(sigma2, floor[inl] ** 2)
+        cov = A @ ((J[inl] * v[:, None]).T @ J[inl] + (0.0 if info_rest is None else sigma2 * info_rest)) @ A
+    return _Scores(A, sigma2, g, np.einsum("nki,nkj->nij", Jp, Jp), cov)
 
 
-def _pair_influence(model, x: np.ndarray | None, n_pairs: int) -> np.ndarray | None:
+def _edge_floor(model, n_rows: int) -> np.ndarray:
+    """Per edge residual row [n_rows] the default error model's sigma (``DEFAULT_NOISE`` at the
+    model's reference pose) in the fit's whitened units (divided by the edge's own model sigma);
+    ones when the model has no box-edge term of that size."""
+    term = next((t for t in getattr(model, "terms", ()) if isinstance(t, BoxEdgeTerm) and 4 * len(t.obs) == n_rows),
+                None)
+    if term is None:
+        return np.ones(n_rows)
+    floor_px = edge_sigma(term.obs, term.outlines, model.intr, model.pose0, DEFAULT_NOISE)
+    return np.repeat(floor_px * np.asarray(term.w, dtype=np.float64).ravel(), 4)
+
+
+def frames_checkable(pairs: list[np.ndarray]) -> bool:
+    """Whether the matches ``pairs`` (one array per frame) span at least ``MIN_FRAMES`` frames, the
+    fewest any frame-level estimate is made from. Below it (one frame, 2-3 frames) an error shared by
+    a frame's edges is absorbed by the fit and seen by nothing, and the edge noise is floored at the
+    default error model (``_edge_floor``); from it on, frame-to-frame differences of such errors are
+    in the residuals, whose scale is then kept as measured."""
+    return sum(1 for p in pairs if len(p)) >= MIN_FRAMES
+
+
+def _inliers(r0: np.ndarray, J: np.ndarray, floor: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """Edges used by the linearised fit: informative ones (an edge clipped at the image border has
+    zero derivative) within 3 robust sigmas (1.4826 MAD), the sigma of each edge no smaller than its
+    ``floor`` (``_edge_floor``; None: no floor): an edge within 3 floors of the fit is no outlier.
+    (inliers, MAD sigma; nan when no edge is informative)."""
+    informative = np.any(J != 0, axis=1)
+    if not np.any(informative):
+        return informative, float("nan")
+    sigma = float(1.4826 * np.median(np.abs(r0[informative])))
+    scale = max(sigma, 1e-9) if floor is None else np.maximum(max(sigma, 1e-9), floor)
+    return informative & (np.abs(r0) <= 3 * scale), sigma
+
+
+def _pair_influence(model, x: np.ndarray | None, pairs: list[np.ndarray]) -> np.ndarray | None:
     """Each matched pair's influence on the pose a fit of ``model`` (a ``cost.CostModel``) reaches at
     ``x`` (None: 0): ``A g_p`` [n_pairs, 6] (rad / m), with ``A`` the inverse of the pose's marginal
     information (other parameters profiled out, ``terms.pose_block``) and ``g_p = J_p^T r_p`` over the
     pair's inlier edges -- the linearised move of the pose that the pair's residuals cause (as
-    ``_scores``). None when the information is singular."""
-    lin = _inlier_information(model, x, n_pairs)
-    if lin is None:
-        return None
-    r0, J, inl, A = lin
-    g = ((J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 6)).sum(1)
-    return g @ A.T
-
-
-def _inlier_information(model, x: np.ndarray | None, n_pairs: int):
-    """``model``'s pose-block residuals and Jacobian at ``x`` (other parameters profiled out,
-    ``terms.pose_block``), the inlier edges (a derivative, and within 3 robust sigmas) and ``A``, the
-    inverse of the pose's marginal information over them: (r0, J, inl, A), or None when no edge is
-    informative or the information is singular."""
+    ``_scores``, whose inlier rule and edge-noise floor it shares; ``pairs``: the matches of ``model``).
+    None when the information is singular."""
     r0, J = model.jacobian(x)
-    r0, J, info_rest = pose_block(r0, J, 4 * n_pairs)
-    informative = np.any(J != 0, axis=1)
-    if not np.any(informative):
+    r0, J, info_rest = pose_block(r0, J, 4 * int(sum(len(p) for p in pairs)))
+    inl, sigma = _inliers(r0, J, None if frames_checkable(pairs) else _edge_floor(model, len(r0)))
+    if not np.isfinite(sigma):
         return None
-    sigma = 1.4826 * np.median(np.abs(r0[informative]))
-    inl = informative & (np.abs(r0) <= 3 * max(sigma, 1e-9))
     info = J[inl].T @ J[inl] + (0.0 if info_rest is None else info_rest)
     try:
         A = np.linalg.inv(info)
     except np.linalg.LinAlgError:
         return None
-    return r0, J, inl, A
+    g = ((J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 6)).sum(1)
+    return g @ A.T
 
 
 def shift_noise_sd(infl_used: np.ndarray | None, infl_alt: np.ndarray | None,
@@ -195,18 +240,19 @@ def pose_covariance(frames, pairs, intr, R, t, *, eps: float = 1e-6, noise: Nois
                     occlusion=None):
     """1-sigma (rotation deg about camera x,y,z; translation m along camera x,y,z) from the
     Jacobian at the optimum: the larger (per parameter) of the classic (J^T J)^-1 * sigma^2
-    (sigma from the inlier residuals) and the cluster-robust sandwich with one cluster per
+    (sigma from the inlier residuals; where the matches span fewer than ``MIN_FRAMES`` frames,
+    ``frames_checkable``, per edge no smaller than the default error model's: ``_edge_floor``) and the cluster-robust sandwich with one cluster per
     matched pair (its 4 edges share the box-model error)."""
     nan3 = np.full(3, np.nan)
     sc = _scores(frames, pairs, intr, R, t, eps=eps, noise=noise, occlusion=occlusion)
     if sc is None:
         return nan3, nan3, np.full((6, 6), np.nan)
-    cov = sc.A * sc.sigma2
+    cov = sc.cov
     nc = int(np.sum(np.any(sc.g_pair != 0, axis=1)))
     cov_s = sc.A @ (sc.g_pair.T @ sc.g_pair * (nc / max(nc - 6, 1))) @ sc.A
     if np.trace(cov_s) > np.trace(cov):
         cov = cov_s
-    sd = np.sqrt(np.clip(np.maximum(np.diag(sc.A * sc.sigma2), np.diag(cov_s)), 0, None))
+    sd = np.sqrt(np.clip(np.maximum(np.diag(sc.cov), np.diag(cov_s)), 0, None))
     return np.degrees(sd[:3]), sd[3:], cov
 
 
@@ -391,7 +437,7 @@ def _pose_spread(ctx: FitContext, max_nfev: int = 40) -> tuple[np.ndarray | None
     occl = Occlusion() if occlusion is None else occlusion
     halves = None
     nz = [k for k, p in enumerate(pairs) if len(p)]
-    if len(nz) >= 4:
+    if len(nz) >= MIN_FRAMES:
         ev = [p if (i in nz[0::2]) else p[:0] for i, p in enumerate(pairs)]
         od = [p if (i in nz[1::2]) else p[:0] for i, p in enumerate(pairs)]
     else:
@@ -417,7 +463,7 @@ def leave_frames_out(pairs: list[np.ndarray], max_groups: int):
     matches left out, one list per group (the leave-frames-out jackknife's subsets); nothing with
     fewer than 4 such frames."""
     nz = [k for k, p in enumerate(pairs) if len(p)]
-    if len(nz) < 4:
+    if len(nz) < MIN_FRAMES:
         return
     G = min(len(nz), max_groups)
     for g in range(G):
@@ -714,9 +760,8 @@ def _influence_in_use(ctx: FitContext):
     """``_pair_influence`` of the fit in use at ``ctx`` (its occlusion model; None: the default one),
     computed once per context: the occlusion / outline and the hidden-edge shift noises share it."""
     occl = Occlusion() if ctx.occlusion is None else ctx.occlusion
-    n = int(sum(len(p) for p in ctx.pairs))
     return ctx.cached("influence_in_use", lambda: _pair_influence(
-        build_cost(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, occl), None, n))
+        build_cost(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, occl), None, ctx.pairs))
 
 
 def _shift_noises(ctx: FitContext, free: Pose, outline_fit, groups) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -731,8 +776,8 @@ def _shift_noises(ctx: FitContext, free: Pose, outline_fit, groups) -> tuple[np.
     try:
         used = _influence_in_use(ctx)
         no_occl = _pair_influence(build_cost(frames, pairs, intr, free, noise, CostSpec.of(occl).with_occlusion(None)),
-                                  None, n)
-        alt = None if outline_fit is None else _pair_influence(outline_fit[0], outline_fit[1].x, n)
+                                  None, pairs)
+        alt = None if outline_fit is None else _pair_influence(outline_fit[0], outline_fit[1].x, pairs)
     except (np.linalg.LinAlgError, ValueError):
         return None, None
     return shift_noise_sd(used, no_occl, groups), shift_noise_sd(used, alt, groups)
@@ -768,9 +813,9 @@ def hidden_edge_shift(ctx: FitContext, groups: np.ndarray | None, *,
     spec = CostSpec.of(ctx.occlusion).with_occlusion(hidden)
     try:
         moved = _refit(frames, pairs, intr, pose, noise, ctx.f_scale, max_nfev, spec)
-        used = _pair_influence(build_cost(frames, pairs, intr, pose, noise, ctx.occlusion), None, n) \
+        used = _pair_influence(build_cost(frames, pairs, intr, pose, noise, ctx.occlusion), None, pairs) \
             if ctx.occlusion is None else _influence_in_use(ctx)
-        alt = _pair_influence(build_cost(frames, pairs, intr, moved, noise, spec), None, n)
+        alt = _pair_influence(build_cost(frames, pairs, intr, moved, noise, spec), None, pairs)
     except (np.linalg.LinAlgError, ValueError):
         return None, None
     shift = moved.delta(pose)
@@ -903,13 +948,15 @@ def centre_model_sd(ctx: FitContext) -> np.ndarray | None:
         return None
     try:
         model = build_cost(frames, pairs, intr, pose, noise, ctx.occlusion)
-        lin = _inlier_information(model, None, n)
-    except ValueError:
+        r0, J = model.jacobian(None)
+        r0, J, info_rest = pose_block(r0, J, 4 * n)
+        inl, sigma = _inliers(r0, J, None)  # (no edge-noise floor: the covariance uses the noise model)
+        if not np.isfinite(sigma):
+            return None
+        Ji = J * inl[:, None]
+        A = np.linalg.inv(Ji.T @ Ji + (0.0 if info_rest is None else info_rest))
+    except (np.linalg.LinAlgError, ValueError):
         return None
-    if lin is None:
-        return None
-    _, J, inl, A = lin
-    Ji = J * inl[:, None]
     term = model.terms[0]
     w = np.broadcast_to(np.asarray(term.w, dtype=np.float64), (n, 4))
     st = model.state(np.zeros(model.n_params))
