@@ -38,3 +38,22 @@ def test_sparse_recording_keeps_one_or_two_objects_per_frame_with_outlines():
     shared = [len(set(np.asarray(f.meta["ids_2d"])[np.asarray(f.meta["ids_2d"]) >= 0])
                   & set(np.asarray(f.meta["ids_3d"]))) for f in frames]
     assert all(1 <= s <= 2 for s in shared if s) and sum(shared) >= 4
+
+
+def test_coverage_summary_counts_axes_within_two_sigma(capsys):
+    m = _script()
+    lo, hi = m.clopper_pearson(9, 10)
+    assert 0.55 < lo < 0.56 and 0.997 < hi < 0.998  # the exact binomial interval
+    assert m.clopper_pearson(0, 5)[0] == 0.0 and m.clopper_pearson(5, 5)[1] == 1.0
+    sd = [0.1, 0.1, 0.1, 0.05, 0.05, 0.05]
+    recs = [{"condition": "noisy", "frames": 8, "seed": s, "verdict": "ok", "n_pairs": 12, "sigma": sd,
+             "delta": [0.1, 0.0, 0.0, 0.0, 0.0, 0.3 if s == 0 else 0.01], "parts": {"jacobian": sd}}
+            for s in range(4)]
+    recs.append({**recs[0], "parts": {"jacobian": sd, "centre_model": [0.1, 0.1, 0.1, 0.05, 0.05, 0.2]}})
+    one = m._dedupe(recs)
+    assert len(one) == 4 and one[0]["parts"].get("centre_model") is not None  # the record with the part wins
+    m.coverage_summary(one)
+    out = capsys.readouterr().out
+    assert "2-sigma per-axis coverage 23/24 = 0.958" in out  # seed 0's tz: 0.3 m against 2 x 0.05 m
+    assert "0 wrong successes" in out and "max(sigma, centre_model)" not in out  # 0.3 m is within the line;
+    # the floor needs the part on every record
