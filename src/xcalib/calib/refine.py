@@ -104,14 +104,16 @@ def _assign_allowed(allowed: np.ndarray, iou: np.ndarray, dist: np.ndarray, rows
     distance (invalid columns at inf) and the rows / columns [int64] with an allowed pair: (pairs, IoUs)."""
     if len(rows) == len(iou) and len(cols) == iou.shape[1]:  # nothing to drop (small frames)
         sub, iou_s, dist_s = allowed, iou, dist
-    else:
-        ix = np.ix_(rows, cols)
+    else:  # (``np.ix_``'s block, indexed directly: the same entries without its per-call checks)
+        ix = (rows[:, None], cols)
         sub, iou_s, dist_s = allowed[ix], iou[ix], dist[ix]
     cost = np.where(sub, (1 - iou_s) + np.minimum(dist_s, 10.0), 1e6)
     r, c = linear_sum_assignment(cost)
     keep = sub[r, c]
-    pairs = np.stack((rows[r[keep]], cols[c[keep]]), axis=1)  # (rows, cols: int64, so the pairs are)
-    return pairs, iou_s[r[keep], c[keep]]
+    r, c = r[keep], c[keep]
+    pairs = np.empty((len(r), 2), dtype=np.int64)  # (rows, cols: int64, so the pairs are)
+    pairs[:, 0], pairs[:, 1] = rows[r], cols[c]
+    return pairs, iou_s[r, c]
 
 
 def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_dist: float,
@@ -158,8 +160,8 @@ def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_di
             p = simple[i]
         else:  # ``_assign``'s assignment on the frame's block of the mask computed for all frames
             a = allowed[i, :n2, :len(c)]
-            p = _assign_allowed(a, iou[i, :n2, :len(c)], dist[i, :n2, :len(c)], np.flatnonzero(a.any(axis=1)),
-                                np.flatnonzero(a.any(axis=0)))[0]
+            p = _assign_allowed(a, iou[i, :n2, :len(c)], dist[i, :n2, :len(c)], a.any(axis=1).nonzero()[0],
+                                a.any(axis=0).nonzero()[0])[0]
         p[:, 1] = c[p[:, 1]]
         out[k] = p
     return out
