@@ -77,11 +77,8 @@ def _score(cframes, intr, rr: RefineResult) -> float:
     return float(np.sum(pair_metrics(cframes, intr, rr.R, rr.t, rr.pairs)[1]))
 
 
-#: the quick refinement's schedule (``_refine_candidates``): three loose-to-tight matchings, short fits,
-#: each fit ended at the relative cost change the refinement's own stop test uses (``tol``, 1e-3): a
-#: quick result only ranks its candidate (summed IoU) and starts the full refinement, which fits
-#: again to the solver's default tolerance
-QUICK = RefineOptions(gates=((0.1, 1.0), (0.2, 0.5), (0.3, 0.0)), max_nfev=15, max_outer=3, ftol=1e-3)
+#: the quick refinement's schedule (``_refine_candidates``): three loose-to-tight matchings, short fits
+QUICK = RefineOptions(gates=((0.1, 1.0), (0.2, 0.5), (0.3, 0.0)), max_nfev=15, max_outer=3)
 #: two quick refinements that reach the same matches at the same iteration with poses this close
 #: (deg, m) go on as one (``_merged``): the rest of each would fit the same matches from the same
 #: point, to the same minimum

@@ -82,4 +82,3 @@ class RefineOptions:
     tol: float = 1e-3
     max_outer: int | None = None
     adapt_noise: bool = True
-    ftol: float = 1e-8  # each fit's relative cost tolerance (the solver's, scipy's default)

@@ -620,18 +620,17 @@ class CostModel:
     def x_scale(self) -> np.ndarray:
         return np.concatenate([POSE_X_SCALE, *[t.x_scale for t in self.terms if t.n_params]])
 
-    def fit(self, *, f_scale: float, max_nfev: int, loss: str = "soft_l1", ftol: float = 1e-8) -> CostFit:
+    def fit(self, *, f_scale: float, max_nfev: int, loss: str = "soft_l1") -> CostFit:
         """The robust fit from x = 0: scipy's trust-region least squares (``method="trf"``), run by
         ``solver.trf_fit`` (the same algorithm and iterates, without scipy's per-call machinery) where
-        the Jacobian is analytic, by scipy itself where it is numeric. ``ftol``: scipy's relative
-        cost tolerance (its default, 1e-8, unless a caller needs less)."""
+        the Jacobian is analytic, by scipy itself where it is numeric."""
         if self.has_analytic_jacobian() and loss in LOSSES:
             res = trf_fit(self.residuals, self.analytic_jacobian, np.zeros(self.n_params), self.x_scale(), loss=loss,
-                          f_scale=f_scale, max_nfev=max_nfev, ftol=ftol)
+                          f_scale=f_scale, max_nfev=max_nfev)
         else:
             jac = self.analytic_jacobian if self.has_analytic_jacobian() else "2-point"
             res = least_squares(self.residuals, np.zeros(self.n_params), jac=jac, loss=loss, f_scale=f_scale,
-                                method="trf", x_scale=self.x_scale(), max_nfev=max_nfev, ftol=ftol)
+                                method="trf", x_scale=self.x_scale(), max_nfev=max_nfev)
         st = self.state(res.x)
         return CostFit(pose=st.pose, params=dict(st.params), cost=float(res.cost), residuals=res.fun, x=res.x)
 

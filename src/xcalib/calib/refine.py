@@ -374,15 +374,14 @@ def build_cost(frames: list[CalibFrame], pairs: list[np.ndarray], intr: CameraIn
     return CostModel([base if edge is None else edge(base), *extra, *named], pose, intr)
 
 
-def lsq(ctx: FitContext, max_nfev: int, extra: tuple = (), ftol: float = 1e-8):
+def lsq(ctx: FitContext, max_nfev: int, extra: tuple = ()):
     """Robust (soft-L1) fit of the box-edge term (plus ``extra`` terms and those ``occlusion``, a
-    ``terms.CostSpec``, names) from (R, t), matches fixed (``ftol``: the solver's relative cost
-    tolerance). Returns (R, t, cost, residuals, CostFit)."""
+    ``terms.CostSpec``, names) from (R, t), matches fixed. Returns (R, t, cost, residuals, CostFit)."""
     frames, pairs, intr, R, t, f_scale, noise, occlusion = (ctx.frames, ctx.pairs, ctx.intr, ctx.pose.R, ctx.pose.t,
                                                             ctx.f_scale, ctx.noise, ctx.occlusion)
     pose = Pose(R, t)
     model = build_cost(frames, pairs, intr, pose, noise, occlusion, extra)
-    fit = model.fit(f_scale=f_scale, max_nfev=max_nfev, ftol=ftol)
+    fit = model.fit(f_scale=f_scale, max_nfev=max_nfev)
     return fit.pose.R, fit.pose.t, fit.cost, fit.residuals, fit
 
 
@@ -456,7 +455,7 @@ def refine_step(frames: list[CalibFrame], intr: CameraIntrinsics, run: RefineRun
     if options.adapt_noise and run.it >= 1:
         run.noise = estimate_noise(frames, run.pairs, intr, run.R, run.t)
     run.R, run.t, cost, run.resid, _ = lsq(FitContext(frames, run.pairs, intr, Pose(run.R, run.t), run.noise, f_scale,
-                                                      occlusion), options.max_nfev, ftol=options.ftol)
+                                                      occlusion), options.max_nfev)
     per = cost / max(n, 1)
     run.history.append(per)
     prev, tol = run.prev, options.tol

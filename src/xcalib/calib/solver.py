@@ -189,15 +189,14 @@ def trf(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], np.
 
 def trf_fit(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], np.ndarray], x0: np.ndarray,
             x_scale: np.ndarray, *, loss: str = "soft_l1", f_scale: float = 1.0,
-            max_nfev: int | None = None, ftol: float = 1e-8) -> TrfResult:
+            max_nfev: int | None = None) -> TrfResult:
     """:func:`trf` (default tolerances) without the Jacobian at the accepted point that ends the fit
     (a termination test passed or ``max_nfev`` reached): scipy evaluates it there only for one
     more gradient test, which cannot move the point. ``x``, ``cost``, ``fun`` and ``nfev`` are
     :func:`trf`'s, bit for bit; ``njev`` is one less where the fit ended on an accepted step, and
     ``status`` the test that stopped it (scipy may report 1, gtol, there instead). What a fit
-    (``CostModel.fit``) uses of the result is x, cost and fun. ``ftol``: scipy's (the default is
-    scipy's own); xtol and gtol stay at scipy's 1e-8."""
-    return _trf(fun, jac, x0, x_scale, (loss, f_scale, max_nfev, (ftol, 1e-8, 1e-8), False))
+    (``CostModel.fit``) uses of the result is x, cost and fun."""
+    return _trf(fun, jac, x0, x_scale, (loss, f_scale, max_nfev, (1e-8, 1e-8, 1e-8), False))
 
 
 def _trf(fun, jac, x0: np.ndarray, x_scale: np.ndarray, settings: tuple) -> TrfResult:
