@@ -1,13 +1,11 @@
 """Issue 29 (session 11): the candidates' quick refinements run in lockstep and a run that reaches
-another's matches and pose goes on as that one; the quick fits stop at a looser relative cost
-tolerance (``RefineOptions.ftol``); ``_centre_hits`` works in place.
+another's matches and pose goes on as that one; ``_centre_hits`` works in place.
 
 * ``refine_pose`` is ``refine_start``, ``refine_step`` until done, ``refine_finish``, and a run
   advanced in lockstep with others gives what it gives alone;
 * ``api._quick_refines`` leaves out exactly the runs ``_merged`` finds (a candidate that lands on
   another's matches at the same iteration within ``SAME_RUN``) and keeps every other run's result
   bit for bit (one and two workers: ``test_calib_parallel``'s whole calibration);
-* ``trf_fit(ftol=...)`` ends where scipy's ``least_squares(ftol=...)`` ends;
 * ``_centre_hits`` counts what the written-out test counts (boxes behind the camera, on a box edge).
 """
 
@@ -15,7 +13,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.optimize import least_squares
 
 from xcalib.calib import api
 from xcalib.calib.config import CalibConfig
@@ -23,7 +20,6 @@ from xcalib.calib.hypotheses import Hypotheses, _centre_hits
 from xcalib.calib.inputs import prepare_frames
 from xcalib.calib.pose import Pose
 from xcalib.calib.refine import RefineOptions, refine_finish, refine_pose, refine_start, refine_step
-from xcalib.calib.solver import trf_fit
 from xcalib.calib.terms import CostSpec
 from xcalib.data.synth import generate_frames, sample_site
 
@@ -72,35 +68,6 @@ def test_lockstep_merges_a_candidate_on_another_and_keeps_the_rest(site):
     deg, m = Pose(alone[1].R, alone[1].t).error(Pose(alone[0].R, alone[0].t))
     assert deg < api.SAME_RUN[0] and m < api.SAME_RUN[1]  # what it left out is what it kept
     assert got[0][0] == pytest.approx(api._score(cf, intr, alone[1]), rel=1e-6)
-
-
-def _curve(seed: int):
-    rng = np.random.default_rng(seed)
-    t = np.linspace(0, 6, 120)
-    p = np.array([2.0, 0.7, 0.5, 2.1, 0.3]) * (1 + 0.2 * rng.standard_normal(5))
-    y = p[0] * np.exp(-p[1] * t) + p[2] * np.sin(p[3] * t) + p[4] + 0.02 * rng.standard_normal(len(t))
-
-    def fun(q):
-        return (q[0] * np.exp(-q[1] * t) + q[2] * np.sin(q[3] * t) + q[4] - y) / 0.02
-
-    def jac(q):
-        e = np.exp(-q[1] * t)
-        return np.column_stack([e, -q[0] * t * e, np.sin(q[3] * t), q[2] * t * np.cos(q[3] * t), np.ones_like(t)]) / 0.02
-
-    return fun, jac, p * (1 + 0.15 * rng.standard_normal(5))
-
-
-@pytest.mark.parametrize("seed", range(3))
-@pytest.mark.parametrize("ftol", [1e-3, 1e-5])
-def test_trf_fit_ftol_is_scipys(seed, ftol):
-    fun, jac, x0 = _curve(seed)
-    xs = np.array([0.1, 0.05, 0.1, 0.05, 0.1])
-    ref = least_squares(fun, x0, jac=jac, method="trf", loss="soft_l1", f_scale=2.0, x_scale=xs, max_nfev=60,
-                        ftol=ftol)
-    got = trf_fit(fun, jac, x0, xs, loss="soft_l1", f_scale=2.0, max_nfev=60, ftol=ftol)
-    tight = trf_fit(fun, jac, x0, xs, loss="soft_l1", f_scale=2.0, max_nfev=60)
-    assert got.nfev == ref.nfev <= tight.nfev
-    np.testing.assert_array_equal(got.x, ref.x)
 
 
 def test_centre_hits_counts_what_the_test_says(site):
