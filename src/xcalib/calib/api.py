@@ -41,7 +41,8 @@ from .misfit import box_frame_check, flipped_frames, lens_checks, focal_box_mode
 from .motion import BoxMotion, box_motion, shift_frames
 from .parallel import Deferred, WorkerPool, Workers, parallel_map, resolve_workers, shared
 from .pose import Pose
-from .refine import FitContext, RefineOptions, RefineResult, match_all, pair_metrics, refine_pose
+from .refine import (FitContext, RefineOptions, RefineResult, RefineRun, match_all, pair_metrics, refine_finish, refine_pose,
+                     refine_start, refine_step)
 from .result import CalibrationResult
 from .selection import FrameSelection, scan_frames, select_frames
 from .selfcal import decide as decide_selfcal, wants_selfcal
@@ -76,12 +77,64 @@ def _score(cframes, intr, rr: RefineResult) -> float:
     return float(np.sum(pair_metrics(cframes, intr, rr.R, rr.t, rr.pairs)[1]))
 
 
-def _quick_refine(args) -> tuple[float, RefineResult]:
-    """One candidate's quick refinement and its score (a task of ``_refine_candidates``)."""
-    cframes, intr, R, t, occlusion = args
-    rr = refine_pose(cframes, intr, R, t, options=RefineOptions(gates=((0.1, 1.0), (0.2, 0.5), (0.3, 0.0)), max_nfev=15,
-                                                            max_outer=3), occlusion=occlusion)
-    return _score(cframes, intr, rr), rr
+#: the quick refinement's schedule (``_refine_candidates``): three loose-to-tight matchings, short fits
+QUICK = RefineOptions(gates=((0.1, 1.0), (0.2, 0.5), (0.3, 0.0)), max_nfev=15, max_outer=3)
+#: two quick refinements that reach the same matches at the same iteration with poses this close
+#: (deg, m) go on as one (``_merged``): the rest of each would fit the same matches from the same
+#: point, to the same minimum
+SAME_RUN = (0.01, 0.01)
+
+
+def _quick_step(args) -> tuple[RefineRun, tuple[float, RefineResult] | None]:
+    """One outer iteration of a candidate's quick refinement (a task of ``_refine_candidates``; the
+    run is started first when ``args`` holds a pose): (the run, (score, result) once it is done)."""
+    cframes, intr, run, occlusion = args
+    if not isinstance(run, RefineRun):
+        run = refine_start(cframes, intr, *run, QUICK)
+    if not run.done:
+        refine_step(cframes, intr, run, QUICK, occlusion)
+    if not run.done:
+        return run, None
+    rr = refine_finish(cframes, intr, run, QUICK)
+    return run, (_score(cframes, intr, rr), rr)
+
+
+def _merged(run: RefineRun, earlier: list[RefineRun]) -> bool:
+    """Whether ``run`` goes on as one of the ``earlier`` runs still going: the same iteration, the
+    same matches, poses within ``SAME_RUN``. Its next fits would then fit the same matches from
+    the same point (to within ``SAME_RUN``; the error model and robust scale each refits from it
+    differ as little), so they end at the same pose: its result would be that run's (same score,
+    not distinct from it), which takes its place in the ranking."""
+    for e in earlier:
+        if e.done or e.it != run.it or len(e.pairs) != len(run.pairs):
+            continue
+        if not all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(e.pairs, run.pairs)):
+            continue
+        deg, m = Pose(run.R, run.t).error(Pose(e.R, e.t))
+        if deg <= SAME_RUN[0] and m <= SAME_RUN[1]:
+            return True
+    return False
+
+
+def _quick_refines(qf, intr, cand: Hypotheses, occlusion: Occlusion, workers: Workers) -> list[tuple[float, RefineResult]]:
+    """The quick refinement of every candidate, in candidate order, as (score, result); run in
+    lockstep, one outer iteration of every candidate still going per round (each round on up to
+    ``workers`` processes). A run that reaches another one's matches and pose (``_merged``) ends
+    there: its result would be that run's, so it adds nothing to the ranking and is left out.
+    The same results whatever the number of workers."""
+    sq = shared(qf, workers)  # pickled once for all the tasks
+    runs: list = [(cand.R[k], cand.t[k]) for k in range(len(cand))]
+    results: list = [None] * len(cand)
+    live = list(range(len(cand)))
+    while live:
+        out = parallel_map(_quick_step, [(sq, intr, runs[k], occlusion) for k in live], workers)
+        going = []
+        for k, (run, res) in zip(live, out):
+            runs[k], results[k] = run, res
+            if res is None and not _merged(run, [runs[j] for j in going]):
+                going.append(k)
+        live = going
+    return [r for r in results if r is not None]
 
 
 def _full_refine(args) -> tuple[float, RefineResult]:
@@ -102,9 +155,7 @@ def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
     lean = lean_frames(cframes) if resolve_workers(workers) > 1 else cframes
     gated = None if max_candidates is None else gated_frames(lean, max_candidates)
     qf = lean if gated is None else gated
-    sq = shared(qf, workers)  # pickled once for all the tasks
-    quick = parallel_map(_quick_refine, [(sq, intr, cand.R[k], cand.t[k], occlusion) for k in range(len(cand))],
-                         workers)
+    quick = _quick_refines(qf, intr, cand, occlusion, workers)
     if progress:
         for k in range(len(cand)):
             progress("refine", k + 1, len(cand) + 1)

@@ -577,13 +577,25 @@ def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nd
         Xc = (fr.boxes3d[:, :3] @ R.transpose(2, 1, 0).reshape(3, 3 * H)).reshape(M, 3, H)
         Xc += t.T[None]
         x, y, z = Xc[:, 0], Xc[:, 1], Xc[:, 2]
-        ahead = z > 0.5
+        behind = z <= 0.5
+        # u = x / z * fx + cx (NaN behind the camera), the same operations in place on x and y
         with np.errstate(divide="ignore", invalid="ignore"):
-            u = np.where(ahead, x / z * intr.fx + intr.cx, np.nan)
-            v = np.where(ahead, y / z * intr.fy + intr.cy, np.nan)
+            u = np.divide(x, z, out=x)
+            v = np.divide(y, z, out=y)
+        u *= intr.fx
+        u += intr.cx
+        v *= intr.fy
+        v += intr.cy
+        np.copyto(u, np.nan, where=behind)
+        np.copyto(v, np.nan, where=behind)
         hits = np.zeros(H, dtype=np.int64)
+        inside, tmp = np.empty(u.shape, dtype=bool), np.empty(u.shape, dtype=bool)
         for x0, y0, x1, y1 in np.asarray(fr.boxes2d, dtype=np.float64).tolist():
-            hits += ((u >= x0) & (u <= x1) & (v >= y0) & (v <= y1)).any(0)
+            np.greater_equal(u, x0, out=inside)  # (u >= x0) & (u <= x1) & (v >= y0) & (v <= y1), in place
+            inside &= np.less_equal(u, x1, out=tmp)
+            inside &= np.greater_equal(v, y0, out=tmp)
+            inside &= np.less_equal(v, y1, out=tmp)
+            hits += inside.any(0)
         return hits.astype(np.float64)
     hits = np.zeros(len(R), dtype=np.int64)
     for x0, y0, x1, y1 in np.asarray(fr.boxes2d, dtype=np.float64).tolist():  # box by box: [H,M] masks stay in cache

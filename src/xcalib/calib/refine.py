@@ -27,7 +27,8 @@ from .pose import Pose
 from .terms import CostSpec, TermContext, occlusion_of
 
 __all__ = ["build_cost", "box_edges", "RefineResult", "match_frame", "match_all", "project_frames", "refine_pose", "pair_metrics", "estimate_noise", "lsq",
-           "edge_term", "pair_scores", "DEFAULT_NOISE", "F_SCALE", "FitContext", "RefineOptions"]
+           "edge_term", "pair_scores", "DEFAULT_NOISE", "F_SCALE", "FitContext", "RefineOptions", "RefineRun",
+           "refine_start", "refine_step", "refine_finish"]
 
 
 #: padded [frames, 2D, 3D] entries from which ``match_all`` works on the candidate pairs only
@@ -103,14 +104,16 @@ def _assign_allowed(allowed: np.ndarray, iou: np.ndarray, dist: np.ndarray, rows
     distance (invalid columns at inf) and the rows / columns [int64] with an allowed pair: (pairs, IoUs)."""
     if len(rows) == len(iou) and len(cols) == iou.shape[1]:  # nothing to drop (small frames)
         sub, iou_s, dist_s = allowed, iou, dist
-    else:
-        ix = np.ix_(rows, cols)
+    else:  # (``np.ix_``'s block, indexed directly: the same entries without its per-call checks)
+        ix = (rows[:, None], cols)
         sub, iou_s, dist_s = allowed[ix], iou[ix], dist[ix]
     cost = np.where(sub, (1 - iou_s) + np.minimum(dist_s, 10.0), 1e6)
     r, c = linear_sum_assignment(cost)
     keep = sub[r, c]
-    pairs = np.stack((rows[r[keep]], cols[c[keep]]), axis=1)  # (rows, cols: int64, so the pairs are)
-    return pairs, iou_s[r[keep], c[keep]]
+    r, c = r[keep], c[keep]
+    pairs = np.empty((len(r), 2), dtype=np.int64)  # (rows, cols: int64, so the pairs are)
+    pairs[:, 0], pairs[:, 1] = rows[r], cols[c]
+    return pairs, iou_s[r, c]
 
 
 def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_dist: float,
@@ -157,8 +160,8 @@ def _match_frames(frames: list[CalibFrame], proj: list, gate_iou: float, gate_di
             p = simple[i]
         else:  # ``_assign``'s assignment on the frame's block of the mask computed for all frames
             a = allowed[i, :n2, :len(c)]
-            p = _assign_allowed(a, iou[i, :n2, :len(c)], dist[i, :n2, :len(c)], np.flatnonzero(a.any(axis=1)),
-                                np.flatnonzero(a.any(axis=0)))[0]
+            p = _assign_allowed(a, iou[i, :n2, :len(c)], dist[i, :n2, :len(c)], a.any(axis=1).nonzero()[0],
+                                a.any(axis=0).nonzero()[0])[0]
         p[:, 1] = c[p[:, 1]]
         out[k] = p
     return out
@@ -391,36 +394,87 @@ def refine_pose(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, *, optio
     moving (about 2e-6 rad / 0.2 mm), at most ``max_outer`` iterations. With ``adapt_noise`` the
     per-edge error model is re-fitted to the residuals (``estimate_noise``) from the second
     iteration on, so noisy 3D boxes are weighted by their actual error. (``options``: these settings.)
+    It is :func:`refine_start`, :func:`refine_step` until the run is done, then :func:`refine_finish`.
     """
-    gates, min_pairs, max_nfev, tol, max_outer, adapt_noise = (options.gates, options.min_pairs, options.max_nfev,
-                                                               options.tol, options.max_outer, options.adapt_noise)
-    noise = DEFAULT_NOISE
-    R, t = np.asarray(R, float), np.asarray(t, float)
-    history: list[float] = []
-    prev = None
-    it = 0
-    resid = np.zeros(0)
-    for it in range(len(gates) + 4 if max_outer is None else max_outer):
-        gi, gd = gates[min(it, len(gates) - 1)]
-        pairs = match_all(frames, intr, R, t, gate_iou=gi, gate_dist=gd)
-        n = sum(len(p) for p in pairs)
-        if n < min_pairs:
-            break
-        # robust scale from the current (weighted) residual level
-        f_scale = F_SCALE if prev is None or not len(resid) else max(0.5, 1.5 * float(np.median(np.abs(resid))))
-        R_old, t_old = R, t
-        if adapt_noise and it >= 1:
-            noise = estimate_noise(frames, pairs, intr, R, t)
-        R, t, cost, resid, _ = lsq(FitContext(frames, pairs, intr, Pose(R, t), noise, f_scale, occlusion), max_nfev)
-        per = cost / max(n, 1)
-        history.append(per)
-        if it >= len(gates) - 1 and prev is not None and (abs(prev - per) <= tol * max(prev, 1e-9)
-                                                          or _moved(R, R_old, t, t_old) < 2e-6):
-            break  # (how far the pose moved is computed only where the test needs it: the same stop)
-        prev = per
-    pairs = match_all(frames, intr, R, t, gate_iou=gates[-1][0], gate_dist=gates[-1][1])
-    return RefineResult(R=R, t=t, pairs=pairs, cost=history[-1] if history else np.inf, n_iter=it + 1,
-                        residuals=resid, history=history, noise=noise)
+    run = refine_start(frames, intr, R, t, options)
+    while not run.done:
+        refine_step(frames, intr, run, options, occlusion)
+    return refine_finish(frames, intr, run, options)
+
+
+@dataclass
+class RefineRun:
+    """A :func:`refine_pose` in progress, between two outer iterations: the pose (R, t), the matches
+    ``pairs`` the next fit (iteration ``it``) uses, the last fit's per-match cost ``prev`` (None
+    before the second fit), residuals and error model, the cost history; ``done`` when no fit is
+    left (converged, too few matches or the iterations spent), ``n_iter`` then the iterations run."""
+
+    R: np.ndarray
+    t: np.ndarray
+    pairs: list[np.ndarray]
+    it: int = 0
+    prev: float | None = None
+    resid: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    noise: NoiseModel = DEFAULT_NOISE
+    history: list[float] = field(default_factory=list)
+    done: bool = False
+    n_iter: int = 0
+
+
+def _max_outer(options: RefineOptions) -> int:
+    return len(options.gates) + 4 if options.max_outer is None else options.max_outer
+
+
+def _match_next(frames: list[CalibFrame], intr: CameraIntrinsics, run: RefineRun, options: RefineOptions) -> RefineRun:
+    """The matches of iteration ``run.it`` at the run's pose; done when the iterations are spent or
+    the matches are fewer than ``options.min_pairs``."""
+    if run.it >= _max_outer(options):
+        run.done, run.n_iter = True, max(run.it, 1)
+        return run
+    gi, gd = options.gates[min(run.it, len(options.gates) - 1)]
+    run.pairs = match_all(frames, intr, run.R, run.t, gate_iou=gi, gate_dist=gd)
+    if sum(len(p) for p in run.pairs) < options.min_pairs:
+        run.done, run.n_iter = True, run.it + 1
+    return run
+
+
+def refine_start(frames: list[CalibFrame], intr: CameraIntrinsics, R, t, options: RefineOptions = RefineOptions()) -> RefineRun:
+    """A :func:`refine_pose` from (R, t), up to its first fit (the first iteration's matches)."""
+    run = RefineRun(np.asarray(R, float), np.asarray(t, float), [])
+    return _match_next(frames, intr, run, options)
+
+
+def refine_step(frames: list[CalibFrame], intr: CameraIntrinsics, run: RefineRun, options: RefineOptions = RefineOptions(),
+                occlusion: "Occlusion | CostSpec | None" = Occlusion()) -> RefineRun:
+    """One outer iteration of a run that is not done (in place): the fit on its matches, the stop
+    test, then the next iteration's matches."""
+    n = sum(len(p) for p in run.pairs)
+    # robust scale from the current (weighted) residual level
+    f_scale = F_SCALE if run.prev is None or not len(run.resid) else max(0.5, 1.5 * float(np.median(np.abs(run.resid))))
+    R_old, t_old = run.R, run.t
+    if options.adapt_noise and run.it >= 1:
+        run.noise = estimate_noise(frames, run.pairs, intr, run.R, run.t)
+    run.R, run.t, cost, run.resid, _ = lsq(FitContext(frames, run.pairs, intr, Pose(run.R, run.t), run.noise, f_scale,
+                                                      occlusion), options.max_nfev)
+    per = cost / max(n, 1)
+    run.history.append(per)
+    prev, tol = run.prev, options.tol
+    if run.it >= len(options.gates) - 1 and prev is not None and (abs(prev - per) <= tol * max(prev, 1e-9)
+                                                                  or _moved(run.R, R_old, run.t, t_old) < 2e-6):
+        run.done, run.n_iter = True, run.it + 1  # (how far the pose moved is computed only where the test needs it)
+        return run
+    run.prev = per
+    run.it += 1
+    return _match_next(frames, intr, run, options)
+
+
+def refine_finish(frames: list[CalibFrame], intr: CameraIntrinsics, run: RefineRun,
+                  options: RefineOptions = RefineOptions()) -> RefineResult:
+    """The :class:`RefineResult` of a run that is done: its pose matched at the last gate."""
+    gates = options.gates
+    pairs = match_all(frames, intr, run.R, run.t, gate_iou=gates[-1][0], gate_dist=gates[-1][1])
+    return RefineResult(R=run.R, t=run.t, pairs=pairs, cost=run.history[-1] if run.history else np.inf,
+                        n_iter=run.n_iter, residuals=run.resid, history=run.history, noise=run.noise)
 
 
 def _moved(R, R_old, t, t_old) -> float:
