@@ -78,6 +78,8 @@ def test_waymo_kitti_format_infos():
     assert f.extrinsics[2, 0] > 0.99
     pb = project_box7(f.bboxes_3d, f.intrinsics.K, f.extrinsics, f.image_size)
     assert iou_matrix(pb, f.bboxes_2d)[0, 0] > 0.9  # bottom-centre boxes lifted to the centre
+    # the Waymo infos' timestamp is the frame's timestamp_micros: read as Unix seconds (2019-02-13)
+    assert f.lidar_time_s == pytest.approx(1550083467.346370, abs=1e-6)
     val = mmdet3d_frames(shared_path("waymo", "mmdet3d_tests", "kitti_format", "waymo_infos_val.pkl"),
                          load_points=False)
     assert len(val) == 1

@@ -251,7 +251,7 @@ def test_a_third_party_cost_term_is_named_in_the_config_and_every_stage_uses_it(
     assert "cli rc 2" in run.stdout and "height_mm" in run.stderr  # the command line names the bad option
     stages = log.read_text()
     # (the outline refit is made once, in the uncertainty's ``_outline_fit``; ``fit_outline`` reads it)
-    for stage in ("refine_pose", "_focal_agrees", "_refit", "_scores", "_outline_fit", "_time_fit", "_pp_fit"):
+    for stage in ("refine_step", "_focal_agrees", "_refit", "_scores", "_outline_fit", "_time_fit", "_pp_fit"):
         assert stage in stages, stage  # refinement, self-calibration, uncertainty, misfit refits
 
 

@@ -33,13 +33,18 @@ from ._media import IMAGE_EXTS, image_size, load_cloud, load_rgb
 from ._pickle import load_pickle_restricted
 
 __all__ = ["InfoCamera", "InfoSample", "read_mmdet3d_infos", "Mmdet3dFrames", "mmdet3d_frames",
-           "BOX_Z_ORIGIN"]
+           "BOX_Z_ORIGIN", "TIMESTAMP_UNIT_S"]
 
 # mmdetection3d's class lists when the info's metainfo has none.
 _DEFAULT_CLASSES = {"waymo": ["Car", "Pedestrian", "Cyclist"]}
 
 #: Fraction of the box height between the stored z and the bottom face, per dataset.
 BOX_Z_ORIGIN = {"nuscenes": 0.5, "lyft": 0.5, "waymo": 0.0}
+
+#: Seconds per unit of an info's ``timestamp``, per dataset: mmdetection3d's Waymo converter stores
+#: the frame's ``timestamp_micros`` (microseconds); its nuScenes converter divides nuScenes'
+#: microseconds to seconds. Datasets not listed are taken as seconds (and bounded as every clock is).
+TIMESTAMP_UNIT_S = {"waymo": 1e-6}
 
 
 @dataclass
@@ -218,19 +223,20 @@ def _read_infos(d: dict, path: Path, data_root, state: dict) -> list[InfoSample]
                               {"source": str(path), "ego2global": info.get("ego2global"),
                                "lidar2ego": (lp.get("lidar2ego")),
                                "classes": [names.get(int(v), str(int(v))) for v in labels],
-                               **_timing(info, insts, path, where)}))
+                               **_timing(info, insts, path, where, TIMESTAMP_UNIT_S.get(dataset, 1.0))}))
     return out
 
 
-def _timing(info: dict, insts: list, path: Path, where: str) -> dict:
-    """Sample meta: ``lidar_time_s`` (the info's ``timestamp``), ``camera_times`` {camera: s}
+def _timing(info: dict, insts: list, path: Path, where: str, unit_s: float = 1.0) -> dict:
+    """Sample meta: ``lidar_time_s`` (the info's ``timestamp`` x ``unit_s``), ``camera_times`` {camera: s}
     and ``velocities`` [M,3] (instances' ``velocity`` vx, vy in the LiDAR frame, vz = 0; rows the
     file leaves NaN are 0 and False in ``velocity_known``) where the info has them."""
     out: dict = {}
     if info.get("timestamp") is not None:
-        out["lidar_time_s"] = as_float(info["timestamp"], path, where + ".timestamp")
+        out["lidar_time_s"] = as_float(info["timestamp"], path, where + ".timestamp") * unit_s
     cams = {n: c.get("timestamp") for n, c in (info.get("images", {}) or {}).items() if isinstance(c, dict)}
-    out["camera_times"] = {n: as_float(t, path, f"{where}.images.{n}.timestamp") for n, t in cams.items() if t is not None}
+    out["camera_times"] = {n: as_float(t, path, f"{where}.images.{n}.timestamp") * unit_s
+                           for n, t in cams.items() if t is not None}
     if insts and all("velocity" in i for i in insts):
         try:
             v = np.array([[float(x) for x in i["velocity"]][:2] for i in insts], dtype=np.float64).reshape(-1, 2)
