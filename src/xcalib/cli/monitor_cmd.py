@@ -26,8 +26,9 @@ on /tf, for Foxglove). --recalibrate runs calibrate on the frames after a change
 (OUT/recalibration/<camera>.json). Exit code 0 ok, 3 drift, 1 could not tell.
 
 Example: xcalib monitor ../shared/data/a9_sample --calibration runs/a9_calib/calibration.json --out runs/watch
-(after `xcalib calibrate ../shared/data/a9_sample --out runs/a9_calib`; its 16 frames are fewer than one
-window: the answer is unknown, exit 1; a recording of a few minutes decides)
+
+Run it after `xcalib calibrate ../shared/data/a9_sample --out runs/a9_calib`; its 16 frames are fewer than one
+window, so the answer is unknown (exit 1); a recording of a few minutes decides.
 
 Example: xcalib monitor frames/ --calibration site_calibration.json --json > decisions.jsonl""".split("\n\n"))
 
