@@ -49,22 +49,14 @@ def pose_class(err) -> str:
 
 
 def _calibrate(frames, intr, skip_guard: bool):
+    """The calibration's result, with the frame-halves guard skipped if ``skip_guard``."""
+    if skip_guard:
+        return _calibrate_flagged(frames, intr)[0]
     import xcalib.calib.api as api
-    from xcalib.calib import decision
 
-    def verdict(ev, config):
-        if skip_guard and ev.most_per_frame < 3 and not ev.halves_available:
-            return decision.verdict(dataclasses.replace(ev, halves_available=True), config)
-        return decision.verdict(ev, config)
-
-    saved = api.verdict
-    api.verdict = verdict
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            return api.calibrate(frames, intr)
-    finally:
-        api.verdict = saved
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return api.calibrate(frames, intr)
 
 
 def _calibrate_flagged(frames, intr):
