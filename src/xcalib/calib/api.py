@@ -382,11 +382,12 @@ def _misfit_searches(ctx: FitContext, config: CalibConfig, best_score: float | N
         lean, pairs, best_score = view.frames, view.pairs, None if best_score is None else view.score
     # the two searches and the lens refit run on threads here, their own searches, refinements and fits on the
     # pool's processes (as one task each, the second-pose search on A9 and the lens refit on 200 frames alone
-    # outlasted everything else); the other refits are tasks
+    # outlasted everything else); the other refits are tasks, queued behind the searches' own (``later``: they
+    # are independent and wanted last, the searches are chains of tasks one after another)
     return Deferred([(_second_pose, (lean, pairs, intr, pose, config, occlusion, best_score)),
                      (_lens_check, (dataclasses.replace(ctx, frames=lean, pairs=pairs), None)),
                      (_mirror_score, (lean, intr, config, occlusion, best_score, pose))] + refit_calls,
-                    config.workers, threads=(0, 1, 2))
+                    config.workers, threads=(0, 1, 2), later=(3, 4, 5))
 
 
 def _refit_calls(ctx: FitContext, config: CalibConfig, refits: tuple, lean: list) -> list:

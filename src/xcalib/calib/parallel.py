@@ -29,8 +29,8 @@ import os
 import pickle
 import sys
 import threading
-from collections import OrderedDict
-from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from collections import OrderedDict, deque
+from concurrent.futures import CancelledError, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from contextvars import ContextVar, copy_context
 from typing import Any, Callable, Iterable, Literal, TypeVar, Union
 
@@ -173,7 +173,13 @@ class WorkerPool:
     manager: ``with WorkerPool(config.workers):``). The processes start at the first parallel
     stage (none when ``workers`` stands for one process or nothing runs in parallel) and stop on
     exit, every task waited for; the stages find the open pool themselves (this thread's
-    context), so their results and their ``workers`` arguments are the same with or without it."""
+    context), so their results and their ``workers`` arguments are the same with or without it.
+
+    Every task goes through :meth:`submit`, which counts the tasks on the processes: a task
+    submitted ``later`` (independent work whose result is wanted only at the end, e.g. the misfit
+    checks' refits) waits here until a process has nothing else to do, so the tasks of a chain
+    that must run one after another (a search, its refinements) never queue behind it. Which
+    process runs a task, and when, changes no result."""
 
     def __init__(self, workers: Workers = 1):
         self.n = resolve_workers(workers)
@@ -183,6 +189,10 @@ class WorkerPool:
         self._lock = threading.Lock()
         self._closed = False
         self._threads: list[ThreadPoolExecutor] = []  # of the Deferreds on this pool: waited for on close
+        self._cond = threading.Condition()
+        self._busy = 0  # tasks on the processes (submitted, not done)
+        self._later: deque = deque()  # (future, fn, args) of tasks submitted ``later``, not on the processes yet
+        self._feeder: threading.Thread | None = None
 
     @property
     def started(self) -> bool:
@@ -196,12 +206,72 @@ class WorkerPool:
                 self._ex = _pool(self.n)
             return self._ex
 
+    def submit(self, fn: Callable, *args, later: bool = False) -> Future:
+        """``fn(*args)`` on the pool's processes (a future of its result). ``later``: queued behind
+        every task submitted without it, it starts once a process is idle (first in, first out
+        among such tasks)."""
+        ex = self.executor()
+        if later:
+            fut: Future = Future()
+            with self._cond:
+                self._later.append((fut, fn, args))
+                if self._feeder is None:
+                    self._feeder = threading.Thread(target=self._feed, name="xcalib-pool-feeder", daemon=True)
+                    self._feeder.start()
+                self._cond.notify_all()
+            return fut
+        with self._cond:
+            self._busy += 1
+        try:
+            task = ex.submit(fn, *args)
+        except BaseException:
+            self._task_done(None)
+            raise
+        task.add_done_callback(self._task_done)
+        return task
+
+    def _task_done(self, _task) -> None:
+        with self._cond:
+            self._busy -= 1
+            self._cond.notify_all()
+
+    def _feed(self) -> None:
+        """(the feeder thread) The ``later`` tasks onto the processes, one whenever one is idle."""
+        while True:
+            with self._cond:
+                while self._later and not self._closed and self._busy >= self.n:
+                    self._cond.wait()
+                if not self._later or self._closed:
+                    self._feeder = None
+                    return
+                fut, fn, args = self._later.popleft()
+                if not fut.set_running_or_notify_cancel():  # given up before it started
+                    continue
+                self._busy += 1
+            try:
+                task = self._ex.submit(fn, *args)
+            except BaseException as exc:  # a broken or closed pool: the task's future says so
+                fut.set_exception(exc)
+                self._task_done(None)
+                continue
+            task.add_done_callback(lambda _t, fut=fut, task=task: _relay(fut, task))
+            task.add_done_callback(self._task_done)
+
     def close(self) -> None:
         for t in self._threads:  # threads of a Deferred given up (``Deferred.cancel``) end first
             t.shutdown(wait=True)
         self._threads = []
         with self._lock:
             self._closed = True
+        with self._cond:  # ``later`` tasks not started never will
+            later, self._later = list(self._later), deque()
+            feeder = self._feeder
+            self._cond.notify_all()
+        for fut, _, _ in later:
+            if fut.set_running_or_notify_cancel():
+                fut.set_exception(CancelledError("the worker pool was closed"))
+        if feeder is not None and feeder is not threading.current_thread():
+            feeder.join()
         if self._ex is not None:
             self._ex.shutdown(wait=True, cancel_futures=True)
             self._ex = None
@@ -215,6 +285,29 @@ class WorkerPool:
             _ACTIVE.reset(self._token)
             self._token = None
         self.close()
+
+
+def _relay(fut: Future, task) -> None:
+    """``task``'s outcome into ``fut`` (a task submitted ``later``, see :meth:`WorkerPool.submit`)."""
+    if task.cancelled():
+        fut.set_exception(CancelledError("the task was cancelled"))
+        return
+    try:
+        fut.set_result(task.result())
+    except BaseException as exc:  # the task's own error, raised where its result is asked for
+        fut.set_exception(exc)
+
+
+def _pool_map(pool: WorkerPool, fn: Callable, items: list) -> list:
+    """``[fn(x) for x in items]`` as tasks of ``pool`` (results in the items' order; on an error
+    the tasks not started are cancelled and it is raised)."""
+    futs = [pool.submit(fn, x) for x in items]
+    try:
+        return [f.result() for f in futs]
+    except BaseException:
+        for f in futs:
+            f.cancel()
+        raise
 
 
 def _open_pool() -> WorkerPool | None:
@@ -235,12 +328,12 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], workers: Workers = 1)
     _check_stop()
     pool = _open_pool()
     if workers == "pool" and pool is not None and items:  # even one item: off this process's GIL
-        return list(pool.executor().map(fn, items))
+        return _pool_map(pool, fn, items)
     n = min(resolve_workers(workers), len(items))
     if n <= 1:
         return [fn(_local(x)) for x in items]
     if pool is not None:
-        return list(pool.executor().map(fn, items))
+        return _pool_map(pool, fn, items)
     with _pool(n) as ex:
         return list(ex.map(fn, items))
 
@@ -273,7 +366,7 @@ class Stream:
         self._n = resolve_workers(workers)
         pool = _open_pool() if self._n > 1 else None
         self._own: ProcessPoolExecutor | None = None
-        self._ex = None if pool is None else pool.executor()
+        self._ex = None if pool is None else pool  # (``submit``: the open pool's, or a pool's started for it)
         self._items: list = []  # futures once on processes, else the items
 
     @property
@@ -333,9 +426,14 @@ class Deferred:
     ``threads``: the indices of calls that run (with more than one worker) on a thread of this
     process instead of as one task of the pool: a call made of parallel stages of its own (a
     search, then refinements) whose pieces then run on the open pool's processes, several at a
-    time, where as one task it would run on one core. Their results are the same either way."""
+    time, where as one task it would run on one core. Their results are the same either way.
 
-    def __init__(self, calls: list[tuple[Callable, tuple] | None], workers: Workers = 1, threads: Iterable[int] = ()):
+    ``later``: the indices of calls (tasks, not ``threads``) that on an open pool start only once
+    one of its processes is idle (:meth:`WorkerPool.submit`): independent work whose result is
+    wanted last, kept from delaying the tasks of the ``threads``' chains. Same results."""
+
+    def __init__(self, calls: list[tuple[Callable, tuple] | None], workers: Workers = 1, threads: Iterable[int] = (),
+                 later: Iterable[int] = ()):
         self._calls = list(calls)
         self._done: dict[int, object] = {}
         n = min(resolve_workers(workers), sum(c is not None for c in self._calls))
@@ -349,9 +447,11 @@ class Deferred:
         self._fut: list[Future] | None = None
         self._stop = threading.Event()
         if n > 1:
+            later = set(later) if pool is not None else set()
             self._fut = [None if call is None else
                          self._threads.submit(copy_context().run, _run_stoppable, self._stop, call[0],
                                               *_local(tuple(call[1]))) if k in here
+                         else pool.submit(call[0], *call[1], later=k in later) if pool is not None
                          else ex.submit(call[0], *call[1]) for k, call in enumerate(self._calls)]
 
     def __len__(self) -> int:
