@@ -82,3 +82,29 @@ def test_deferred_later_calls_give_the_same_results():
     with Deferred(calls, 2, later=(1, 2)) as own:  # no open pool: its own, ``later`` does not apply
         assert [own.result(k) for k in range(3)] == serial
     assert mp.active_children() == []
+
+
+@needs_fork
+def test_calibration_queues_the_misfit_refits_later(monkeypatch):
+    """With two workers the misfit checks' refits (calls 3-5 of ``_misfit_searches``) are ``later``
+    tasks and the searches (0-2) threads; the result is that of one worker."""
+    import numpy as np
+    from test_calib_support import INTR, sim_frames
+
+    from xcalib.calib.api import calibrate
+    from xcalib.calib.config import CalibConfig
+
+    seen, init = [], Deferred.__init__
+
+    def recorded(self, calls, workers=1, threads=(), later=()):
+        seen.append((len(calls), tuple(threads), tuple(later)))
+        init(self, calls, workers, threads, later)
+
+    monkeypatch.setattr(Deferred, "__init__", recorded)
+    frames, _ = sim_frames(seed=1, n_frames=6)
+    one = calibrate(frames, INTR, CalibConfig(workers=1))
+    two = calibrate(frames, INTR, CalibConfig(workers=2))
+    assert (6, (0, 1, 2), (3, 4, 5)) in seen
+    assert one.success and np.array_equal(one.extrinsics, two.extrinsics)
+    assert [(m.name, m.detail) for m in one.diagnostics.misfit] == [(m.name, m.detail) for m in two.diagnostics.misfit]
+    assert mp.active_children() == []
