@@ -167,7 +167,7 @@ def read_detections(path, *, default_key: str = "", default_camera: str = "",
                                    field)
     image = read_image(image_path)
     pc = read_point_cloud(cloud_path, columns=columns, drop_nonfinite=drop_nonfinite)
-    meta = {"detections": str(path), "image_path": str(image_path), "point_cloud_path": str(cloud_path)}
+    meta = {"detections_path": str(path), "image_path": str(image_path), "point_cloud_path": str(cloud_path)}
     if pc.num_dropped:
         meta["points_dropped_nonfinite"] = pc.num_dropped
     return Frame(image=image, point_cloud=pc.points, bboxes_2d=b2, bboxes_3d=b3,

@@ -227,7 +227,7 @@ def camera_view(frame: Frame, name: str) -> Frame:
                  frame_key=frame.frame_key, match_matrix=mm, intrinsics=intr, extrinsics=extr,
                  point_fields=frame.point_fields, meta=meta, lidar_time_s=frame.lidar_time_s,
                  camera_time_s=frame.camera_time_s, track_ids_3d=frame.track_ids_3d,
-                 velocities_3d=frame.velocities_3d)
+                 velocities_3d=frame.velocities_3d, detections=frame.detections)
 
 
 class CameraView(Sequence):

@@ -28,7 +28,7 @@ from ..timing import MAX_SPEED_MPS, MAX_TIME_S
 from .._validate import check_rigid
 from ...geometry.camera import CameraIntrinsics
 from ...geometry.transforms import invert_transform
-from ...types import OWN_DETECTIONS, Frame
+from ...types import OWN_DETECTIONS, Frame, FrameDetections
 from . import _convert as cv
 from ._msgs import (CAMERA_INFO, COMPRESSED, DET2D, DET3D_TYPES, IMAGE, POINTCLOUD2, STRING, SUPPORTED_TYPES, TF_TYPES,
                     typestore)
@@ -864,8 +864,9 @@ class BagFrames(Sequence):
             extr = np.asarray(extr, dtype=np.float64)
         meta = {"source": "bag", "bag": str(self.path), "lidar_topic": tp["lidar"], "image_topic": tp["image"],
                 "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "detection_ids_2d": ids2}
+        made = None  # the boxes of a bag `xcalib detect` wrote say so
         if e.meta.get("detections_source") == OWN_DETECTIONS and e.det2d is not None:
-            meta["detections"] = {"source": OWN_DETECTIONS}  # the boxes of a bag `xcalib detect` wrote
+            made = FrameDetections(OWN_DETECTIONS)
         if n_bad:
             meta["points_dropped_nonfinite"] = n_bad
         if flattened:
@@ -888,7 +889,7 @@ class BagFrames(Sequence):
                      frame_key=str(rec.get("frame_key", e.meta.get("frame_key", e.lidar[0]))),
                      match_matrix=None if mm is None else _match(mm, len(b2), len(b3), self.path),
                      intrinsics=intr, extrinsics=extr,
-                     point_fields=fields, meta=meta)
+                     point_fields=fields, meta=meta, detections=made)
 
 
 def _nearest_within(stamps, items, tol: int) -> dict[int, tuple]:
