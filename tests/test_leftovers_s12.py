@@ -154,3 +154,14 @@ def test_validate_source_with_its_own_options_runs(tmp_path, capsys):
     root = str(_folder(tmp_path, 1))
     assert main(["validate", root, "--decode", "--camera", "front", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["images_decoded"] == 1
+
+
+def test_bag_stamps_and_rectification_are_read_through_the_bag_package():
+    """``meta`` keys the bag reader writes are read outside ``io.bags`` only through its accessors."""
+    from xcalib.io.bags import recorded_stamp_ns, rectified_from
+
+    f = _frame("0", meta={"lidar_stamp_ns": 1_700_000_000_000_000_000, "rectified_from": "equidistant"})
+    assert recorded_stamp_ns(f, "lidar") == 1_700_000_000_000_000_000 and recorded_stamp_ns(f, "camera") is None
+    assert rectified_from(f) == "equidistant" and rectified_from(_frame("1")) is None
+    with pytest.raises(ValueError, match="sensor"):
+        recorded_stamp_ns(f, "radar")

@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: the counts at the last lowering (functions with > 8 parameters except CLI callbacks, imports of a
 #: private name across packages, import cycles, ``meta`` keys read in another package than the one
 #: that writes them); issue 28 started from 42 / 73 / 5, the meta count (session 12) from 17
-LIMITS = {"wide": 0, "private": 0, "cycles": 0, "meta": 14}
+LIMITS = {"wide": 0, "private": 0, "cycles": 0, "meta": 11}
 
 
 def _structure():

@@ -36,7 +36,7 @@ from ._objects import MAX_TILT_DEG, boxes3d_any
 
 __all__ = ["BagReadOptions", "BAG_SUFFIXES", "MAX_BAG_BYTES", "OWN_DETECTIONS", "MAX_MESSAGE_BYTES", "check_bag_input", "is_bag", "BagTopic", "BagInfo",
            "bag_info", "BagCamera", "bag_cameras", "Dropped", "PairingReport",
-           "BagFrames", "pair_by_time", "META_TOPIC"]
+           "BagFrames", "pair_by_time", "META_TOPIC", "recorded_stamp_ns", "rectified_from"]
 
 log = logging.getLogger(__name__)
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
@@ -890,6 +890,23 @@ class BagFrames(Sequence):
                      match_matrix=None if mm is None else _match(mm, len(b2), len(b3), self.path),
                      intrinsics=intr, extrinsics=extr,
                      point_fields=fields, meta=meta, detections=made)
+
+
+def recorded_stamp_ns(frame, sensor: str) -> int | None:
+    """The recording's header stamp (ns) of a frame's ``sensor`` (``"lidar"`` or ``"camera"``) as a
+    bag reader keeps it (exact, where ``lidar_time_s`` as float seconds loses ~200 ns); None for a
+    frame without one. The one reader of that ``meta`` key outside the bag code."""
+    if sensor not in ("lidar", "camera"):
+        raise ValueError(f"sensor: expected 'lidar' or 'camera', got {sensor!r}")
+    meta = getattr(frame, "meta", None)
+    return meta.get(f"{sensor}_stamp_ns") if isinstance(meta, dict) else None
+
+
+def rectified_from(frame) -> str | None:
+    """``"equidistant"`` when the bag reader rectified the frame's fisheye image and 2D boxes to a
+    pinhole camera (``fisheye="rectify"``), else None."""
+    meta = getattr(frame, "meta", None)
+    return meta.get("rectified_from") if isinstance(meta, dict) else None
 
 
 def _nearest_within(stamps, items, tol: int) -> dict[int, tuple]:
