@@ -165,3 +165,18 @@ def test_bag_stamps_and_rectification_are_read_through_the_bag_package():
     assert rectified_from(f) == "equidistant" and rectified_from(_frame("1")) is None
     with pytest.raises(ValueError, match="sensor"):
         recorded_stamp_ns(f, "radar")
+
+
+def test_validate_checks_a_sensors_only_bag_instead_of_failing(tmp_path):
+    """``bag write --no-detections`` (docs/cli.md) makes a bag without detection topics: validate
+    checks it as sensors only and says what is missing, as for any source without boxes."""
+    from xcalib.cli.source_check import check_source
+    from xcalib.io.bags import write_bag
+
+    frames = [dataclasses.replace(_frame(f"{i:04d}", i), lidar_time_s=100.0 + i, camera_time_s=100.0 + i)
+              for i in range(2)]
+    r = check_source(write_bag(tmp_path / "raw.mcap", frames, detections=False))
+    assert r["sensors_only"] and r["readable"] and r["read"] == 2 and r["boxes_2d"]["max"] == 0
+    assert r["missing"][0].startswith("the bag has no detection topics")
+    assert any(m.startswith("no 2D boxes in any frame: calibrate --detect") for m in r["missing"])
+    assert not check_source(write_bag(tmp_path / "det.mcap", frames))["sensors_only"]

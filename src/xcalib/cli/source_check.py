@@ -47,7 +47,13 @@ def check_source(source: Path, *, camera: str | None = None, limit: int | None =
     from ..io.sources import find_source, image_size_of, open_source
 
     kind = find_source(source).name
-    seq = open_source(source, camera=camera)
+    sensors_only = False
+    try:
+        seq = open_source(source, camera=camera)
+    except FormatError as exc:  # a bag of sensors only (bag write --no-detections): checked as such
+        if kind != "bag" or exc.field not in ("--detections-2d", "--detections-3d"):
+            raise
+        seq, sensors_only = open_source(source, camera=camera, detections=False), True
     n = len(seq) if limit is None else max(0, min(int(limit), len(seq)))
     fast = seq if decode or kind not in _HEADER_ONLY else open_source(source, camera=camera, **_HEADER_ONLY[kind])
     whole = set(range(n)) if fast is seq else _sample(n)
@@ -83,7 +89,7 @@ def check_source(source: Path, *, camera: str | None = None, limit: int | None =
     read = n - n_bad
     report = {"_schema": REPORT_SCHEMA, "source": str(source), "kind": kind, "frames": len(seq), "checked": n,
               "read": read, "unreadable": n_bad, "errors": errors, "cameras": cams,
-              "images_decoded": len(whole), "image_sizes": sizes,
+              "images_decoded": len(whole), "image_sizes": sizes, "sensors_only": sensors_only,
               **{k: _spread(v) for k, v in counts.items()}, "with": has,
               "intrinsics": None if intr is None else {"fx": float(intr.fx), "fy": float(intr.fy),
                                                        "cx": float(intr.cx), "cy": float(intr.cy),
@@ -95,7 +101,8 @@ def check_source(source: Path, *, camera: str | None = None, limit: int | None =
 
 def _missing(r: dict) -> list[str]:
     """What a calibration of these frames lacks, each with what to do."""
-    read, out = r["read"], []
+    read = r["read"]
+    out = ["the bag has no detection topics (checked as a sensors-only recording)"] if r.get("sensors_only") else []
     if read == 0:
         if r["checked"]:
             return ["no frame could be read"]
