@@ -180,3 +180,16 @@ def test_validate_checks_a_sensors_only_bag_instead_of_failing(tmp_path):
     assert r["missing"][0].startswith("the bag has no detection topics")
     assert any(m.startswith("no 2D boxes in any frame: calibrate --detect") for m in r["missing"])
     assert not check_source(write_bag(tmp_path / "det.mcap", frames))["sensors_only"]
+
+
+def test_validate_hdf5_without_labels_says_no_frame_was_evaluated(tmp_path, capsys):
+    """A cache without a match matrix evaluates no frame: exit 1 with a line saying so (it printed scores
+    of 0 over 0 frames, exit 0, which read like a bad model)."""
+    from xcalib.cli import main
+    from xcalib.io.hdf5 import write_cache
+
+    path = write_cache(tmp_path / "c.h5", [_frame(f"{i:04d}", i) for i in range(2)])
+    assert main(["validate", "--hdf5", str(path), "--json"]) == 1
+    cap = capsys.readouterr()
+    assert json.loads(cap.out)["results"]["fastmatch"]["n_frames"] == 0
+    assert "no frame with labels (match_matrix) was evaluated" in " ".join(cap.err.split())

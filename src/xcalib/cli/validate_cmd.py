@@ -118,8 +118,15 @@ def register(app: typer.Typer) -> None:
             from ..io.files import atomic_write
 
             atomic_write(output, [json.dumps(report, indent=2).encode()])
+        # a cache without labels (match_matrix) evaluates no frame: said, and exit 1, not scores of 0 that look like a model's
+        unlabelled = bool(results) and all(r["n_frames"] == 0 for r in results.values())
+        note = (f"{hdf5}: no frame with labels (match_matrix) was evaluated, so the scores are of no frame; a cache "
+                f"without labels can be checked as a frame source: xcalib validate {hdf5}")
         if as_json:
             typer.echo(json.dumps(report))
+            if unlabelled:
+                typer.echo(note, err=True)
+                raise typer.Exit(1)
             return
         from rich.console import Console
         from rich.table import Table
@@ -131,3 +138,6 @@ def register(app: typer.Typer) -> None:
             t.add_row(name, f"{r['top1']:.4f}", f"{r['top3']:.4f}", f"{r['mrr']:.4f}", f"{r['frame_top1']:.4f}",
                       f"{r.get('latency_ms_p50', float('nan')):.1f}", str(r["n_frames"]))
         Console().print(t)
+        if unlabelled:
+            typer.echo(note, err=True)
+            raise typer.Exit(1)
