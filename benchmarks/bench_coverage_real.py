@@ -104,7 +104,7 @@ def _det(frame, path: Path):
     return with_detections(frame, path, SCORE_MIN)
 
 
-def _leave_one_out(n: int) -> list[tuple[str, list[int]]]:
+def leave_one_out(n: int) -> list[tuple[str, list[int]]]:
     return [(f"without {k}", [i for i in range(n) if i != k]) for k in range(n)]
 
 
@@ -121,14 +121,14 @@ def kitti(full: bool = True) -> list[dict]:
     out = [run("KITTI frames 1-5", frames, frames[0].intrinsics, truth, row="KITTI labels")]
     if not full:
         return out
-    for name, idx in _leave_one_out(len(frames)):
+    for name, idx in leave_one_out(len(frames)):
         out.append(run(f"KITTI labels, {name}", [frames[i] for i in idx], frames[0].intrinsics, truth,
                        row="KITTI labels"))
     dpath = DETS / "yolox_nano_1280" / "kitti"
     if dpath.exists():
         det = [_det(f, dpath / f"{f.frame_key}.json") for f in frames]
         out.append(run("KITTI detector 1280, frames 1-5", det, frames[0].intrinsics, truth, row="KITTI detector 1280"))
-        for name, idx in _leave_one_out(len(det)):
+        for name, idx in leave_one_out(len(det)):
             out.append(run(f"KITTI detector 1280, {name}", [det[i] for i in idx], frames[0].intrinsics, truth,
                            row="KITTI detector 1280"))
     _show(out)
@@ -190,7 +190,7 @@ def sustech() -> list[dict]:
         frames = [seq[i] for i in range(len(seq))]
         truth = [Pose.parse(np.asarray(seq.T_cam_lidar))]
         det = [dataclasses.replace(_det(f, dpath / f"{cam}_{f.frame_key}.json"), extrinsics=None) for f in frames]
-        for name, idx in [("all frames", list(range(len(det))))] + _leave_one_out(len(det)):
+        for name, idx in [("all frames", list(range(len(det))))] + leave_one_out(len(det)):
             out.append(run(f"SUSTech detector 1280 {cam}, {name}", [det[i] for i in idx], seq.intrinsics, truth,
                            row="SUSTech detector 1280", approx_truth=True))
     _show(out)

@@ -219,6 +219,7 @@ def real() -> list[dict]:
     if str(BENCH) not in sys.path:
         sys.path.insert(0, str(BENCH))
     import bench_coverage_real as B
+    from bench_calibration_detections import with_detections
 
     from xcalib.formats.kitti import kitti_frames
 
@@ -226,8 +227,9 @@ def real() -> list[dict]:
     seq = kitti_frames(root, ids=[1, 2, 3, 4, 5])
     frames = [seq[i] for i in range(len(seq))]
     T, K = np.asarray(frames[0].extrinsics), frames[0].intrinsics
-    det = [B._det(f, B.DETS / "yolox_nano_1280" / "kitti" / f"{f.frame_key}.json") for f in frames]
-    sets = [("frames 1-5", list(range(5)))] + B._leave_one_out(5)
+    det = [with_detections(f, B.DETS / "yolox_nano_1280" / "kitti" / f"{f.frame_key}.json", B.SCORE_MIN)
+           for f in frames]
+    sets = [("frames 1-5", list(range(5)))] + B.leave_one_out(5)
     return [audit(f"KITTI {kind} {n}", [src[i] for i in idx], K, T)
             for kind, src in (("labels", frames), ("detector 1280", det)) for n, idx in sets]
 

@@ -78,7 +78,7 @@ def instrument(events: list, tasks: list) -> None:
                 ev("exit", _n)
 
         setattr(api, name, wrapped)
-    pool_of = par._pool
+    pool_of = par.process_pool
 
     def pool(n):
         ev("pool", "start")
@@ -99,8 +99,8 @@ def instrument(events: list, tasks: list) -> None:
         ex.submit, ex.map = timed_submit, timed_map
         return ex
 
-    par._pool = pool
-    run_of = par._run_stoppable
+    par.process_pool = pool
+    run_of = par.run_stoppable
 
     def run_stoppable(stop, fn, *args):  # a Deferred call on a thread of this process: its whole CPU
         c0 = time.thread_time()
@@ -109,7 +109,7 @@ def instrument(events: list, tasks: list) -> None:
         finally:
             ev("thread", getattr(fn, "__name__", "?"), thread_total_cpu=time.thread_time() - c0)
 
-    par._run_stoppable = run_stoppable
+    par.run_stoppable = run_stoppable
     wait_of = par.wait
     par.wait = lambda fs, *a, **k: wait_of([getattr(f, "_f", f) for f in fs], *a, **k)
 

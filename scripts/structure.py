@@ -12,6 +12,15 @@
   in the graph of every import, at module level or inside a function, except those under
   ``if TYPE_CHECKING:`` (annotations only); an import of a package counts as an import of its
   ``__init__``, ``from pkg import mod`` as one of ``pkg.mod``).
+* ``meta``: reads of a ``meta`` key in a package other than the one(s) that write it (``Frame.meta``,
+  ``CalibrationResult.meta``: a key one package sets and another reads is an untyped interface; give
+  the record a typed field instead). A read is ``<x>meta["k"]``, ``<x>meta.get("k")``, ``"k" in
+  <x>meta`` (also through ``(<x>.meta or {})`` / ``getattr(<x>, "meta", ...) or {}``), where ``<x>meta``
+  is a name ending in ``meta`` or an attribute ``.meta``; a write is ``<x>meta["k"] = ...``,
+  ``<x>meta.setdefault("k", ...)``, or a dict literal key assigned to such a name or passed as
+  ``meta=``. A read counts when the key is written somewhere in ``src/xcalib`` but not in the
+  reading package (keys written nowhere, e.g. a file's own fields, are not counted). Each read
+  counts once per (module, key).
 
 Usage: ``python scripts/structure.py [--list]`` prints the counts (``--list``: every item).
 ``tests/test_structure.py`` holds them to a ratchet.
@@ -34,9 +43,11 @@ class Counts:
     wide: list[str] = field(default_factory=list)      # "module:function (n)"
     private: list[str] = field(default_factory=list)   # "importer -> target"
     cycles: list[list[str]] = field(default_factory=list)
+    meta: list[str] = field(default_factory=list)      # "reader module reads 'key' (written in: ...)"
 
     def summary(self) -> dict[str, int]:
-        return {"wide": len(self.wide), "private": len(self.private), "cycles": len(self.cycles)}
+        return {"wide": len(self.wide), "private": len(self.private), "cycles": len(self.cycles),
+                "meta": len(self.meta)}
 
 
 def _modules(src: Path) -> dict[str, Path]:
@@ -125,7 +136,56 @@ def count(src: Path = SRC) -> Counts:
                 if _package(base, packages) != _package(mod, packages) and (_is_private(base) or _is_private(name)):
                     out.private.append(f"{mod} -> {sub}")
     out.cycles = _cycles(graph)
+    out.meta = _cross_meta(mods, packages)
     return out
+
+
+def _is_meta(node: ast.expr) -> bool:
+    """``<x>meta`` / ``<x>.meta``, also as ``(<x>.meta or {})`` and ``getattr(<x>, "meta", ...)``."""
+    if isinstance(node, ast.BoolOp) and isinstance(node.op, ast.Or):
+        return _is_meta(node.values[0])
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "getattr":
+        return len(node.args) >= 2 and isinstance(node.args[1], ast.Constant) and node.args[1].value == "meta"
+    return (isinstance(node, ast.Name) and node.id.endswith("meta")) or \
+        (isinstance(node, ast.Attribute) and node.attr == "meta")
+
+
+def _key(node) -> str | None:
+    return node.value if isinstance(node, ast.Constant) and isinstance(node.value, str) else None
+
+
+def _meta_uses(tree: ast.AST) -> tuple[set[str], list[str]]:
+    """(keys written, keys read) of ``meta`` dicts in one module (see the module docstring)."""
+    writes, reads = set(), []
+    for n in ast.walk(tree):
+        if isinstance(n, ast.Subscript) and _is_meta(n.value) and _key(n.slice) is not None:
+            (writes.add if isinstance(n.ctx, ast.Store) else reads.append)(_key(n.slice))
+        elif isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and _is_meta(n.func.value) and n.args \
+                and _key(n.args[0]) is not None and n.func.attr in ("get", "setdefault", "pop"):
+            (writes.add if n.func.attr == "setdefault" else reads.append)(_key(n.args[0]))
+        elif isinstance(n, ast.Compare) and len(n.ops) == 1 and isinstance(n.ops[0], (ast.In, ast.NotIn)) \
+                and _is_meta(n.comparators[0]) and _key(n.left) is not None:
+            reads.append(_key(n.left))
+        elif isinstance(n, ast.keyword) and n.arg == "meta" and isinstance(n.value, ast.Dict):
+            writes.update(k for k in map(_key, n.value.keys) if k is not None)
+        elif isinstance(n, (ast.Assign, ast.AnnAssign)) and isinstance(n.value, ast.Dict) and \
+                any(_is_meta(t) for t in (n.targets if isinstance(n, ast.Assign) else [n.target])):
+            writes.update(k for k in map(_key, n.value.keys) if k is not None)
+    return writes, reads
+
+
+def _cross_meta(mods: dict[str, Path], packages: set[str]) -> list[str]:
+    written: dict[str, set[str]] = {}
+    read: dict[tuple[str, str], str] = {}
+    for mod, path in mods.items():
+        pkg = _package(mod, packages)
+        w, r = _meta_uses(ast.parse(path.read_text(), str(path)))
+        for k in w:
+            written.setdefault(k, set()).add(pkg)
+        for k in r:
+            read.setdefault((mod, k), pkg)
+    return sorted(f"{mod} reads {k!r} (written in: {', '.join(sorted(written[k]))})"
+                  for (mod, k), pkg in read.items() if k in written and pkg not in written[k])
 
 
 def _is_type_checking(test: ast.expr) -> bool:
@@ -182,7 +242,7 @@ def main() -> None:
     c = count()
     print(json.dumps(c.summary()))
     if args.list:
-        for title, items in (("wide", c.wide), ("private", c.private), ("cycles", c.cycles)):
+        for title, items in (("wide", c.wide), ("private", c.private), ("cycles", c.cycles), ("meta", c.meta)):
             print(f"\n{title}:")
             for item in items:
                 print(f"  {item}")

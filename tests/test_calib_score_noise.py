@@ -73,7 +73,7 @@ def test_scores_reach_the_calib_frames():
     assert all(cf.scores2d_input is None for cf in off)
     cframes, _, _ = prepare_frames(frames, frames[0].intrinsics, scores=True)
     for f, cf in zip(frames, cframes):
-        q = np.asarray(f.meta["detections"]["scores_2d"])
+        q = np.asarray(f.detections.scores_2d)  # the earlier meta["detections"] dict fills the typed field
         assert np.array_equal(box_scores(cf), q[cf.idx2d])
     # a score list of another length than the boxes is not used, and says so
     with pytest.warns(UserWarning, match="3 scores for 5 2D boxes"):
@@ -92,7 +92,7 @@ def test_low_score_boxes_noisier_weighted_and_covered():
         noise, e_w, sd_w, cframes, pairs = _fit(frames, T)
         assert noise.sigma_score > 0.05 and 0.9 <= noise.score_ref <= 0.95
         assert pair_scores(cframes, pairs) is not None
-        bare = [dataclasses.replace(f, meta={k: v for k, v in f.meta.items() if k != "detections"}) for f in frames]
+        bare = [dataclasses.replace(f, detections=None) for f in frames]
         noise_u, e_u, _, _, _ = _fit(bare, T)
         assert noise_u.sigma_score == 0.0
         err_w.append(e_w ** 2)

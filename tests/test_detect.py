@@ -268,7 +268,7 @@ def test_detected_frames_replace_the_boxes_once_and_keep_the_sensors():
     f = det[1]
     assert fake.calls == 2  # boxes kept, not detected again
     assert np.array_equal(f.bboxes_2d, [[1, 2, 30, 40]]) and f.match_matrix is None and f.bboxes_3d.shape[1] == 7
-    assert np.array_equal(f.point_cloud, frames[1].point_cloud) and f.meta["detections"]["classes_2d"] == ["car"]
+    assert np.array_equal(f.point_cloud, frames[1].point_cloud) and f.detections.classes_2d == ("car",)
     assert det.counts() == (2, sum(len(det[i].bboxes_3d) for i in range(2))) and det.counts()[1] > 0
 
 

@@ -96,7 +96,7 @@ def test_refusal_from_weak_lidar_detections_names_them():
     out = explain_refusal(res, frames, K)
     assert out.message.startswith("too few LiDAR objects detected: 33 % of the camera's 24 boxes")
     assert "the calibration's verdict: model misfit" in out.message and "own 3D detections" in out.message
-    assert out.meta["detection_coverage"]["covered_2d"] == 8
+    assert out.meta["detection_coverage"]["covered_2d"] == 8 and out.boxes_source == "xcalib detect"
     # enough LiDAR boxes: the calibration's own verdict stands
     frames, T, K = _frames(6)
     assert detection_coverage(frames, T, K).share == 1.0 > COVERAGE_MIN

@@ -276,14 +276,14 @@ def test_bag_written_from_own_detections_says_so(tmp_path):
     from xcalib.io.sources import open_source
 
     own = open_source(_bag_with_record(tmp_path, None, meta={"detections": {"source": "xcalib detect"}}))
-    assert own[0].meta["detections"] == {"source": "xcalib detect"} and _own_detections(own)
+    assert own[0].detections.source == "xcalib detect" and _own_detections(own)
     plain = open_source(_bag_with_record(tmp_path / "p", None))
     assert "detections" not in plain[0].meta and not _own_detections(plain)
 
 
 def test_focal_misfit_from_own_detections_advises_on_the_boxes():
     """misfit_focal_length says "the intrinsics are probably wrong"; with xcalib's own boxes
-    (``meta["detection_coverage"]``, set by calibrate for them) the boxes are named as the likely
+    (``boxes_source``, set by calibrate for them) the boxes are named as the likely
     cause and the user is told to keep the intrinsics."""
     from xcalib.viz.advice import plain_advice
 
@@ -292,7 +292,7 @@ def test_focal_misfit_from_own_detections_advises_on_the_boxes():
         refusal: str = "misfit_focal_length"
 
     labelled = type("R", (), {"success": False, "diagnostics": Diag(), "meta": {}})()
-    own = type("R", (), {"success": False, "diagnostics": Diag(), "meta": {"detection_coverage": {}}})()
+    own = type("R", (), {"success": False, "diagnostics": Diag(), "meta": {}, "boxes_source": "xcalib detect"})()
     lab, mine = " ".join(plain_advice(labelled)), " ".join(plain_advice(own))
     assert "the intrinsics are probably wrong" in lab
     assert "xcalib's own label-free detectors" in mine and "keep the intrinsics" in mine

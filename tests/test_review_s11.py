@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 from test_new_user_s11 import _folder
 
-from xcalib.types import OWN_DETECTIONS
+from xcalib.types import OWN_DETECTIONS, FrameDetections
 
 
 def test_validate_with_no_frame_checked_does_not_say_the_source_is_empty(tmp_path, capsys):
@@ -46,9 +46,9 @@ def test_detect_frame_marks_its_boxes_as_the_bag_reader_reads_them(tmp_path):
 
     frame = FrameFolder(_folder(tmp_path))[0]
     det = detect_frame(frame, _FakeDetector(), LidarDetectConfig())
-    assert det.meta["detections"]["source"] == OWN_DETECTIONS and _own_detections([det])
+    assert det.detections.source == OWN_DETECTIONS and _own_detections([det])
     back = open_source(write_bag(tmp_path / "det.mcap", [det]))
-    assert back[0].meta["detections"] == {"source": OWN_DETECTIONS} and _own_detections(back)
+    assert back[0].detections == FrameDetections(OWN_DETECTIONS) and _own_detections(back)
 
 
 def test_a_frame_without_3d_boxes_is_written_to_a_bag(tmp_path):

@@ -10,8 +10,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 #: the counts at the last lowering (functions with > 8 parameters except CLI callbacks, imports of a
-#: private name across packages, import cycles); issue 28 started from 42 / 73 / 5
-LIMITS = {"wide": 0, "private": 0, "cycles": 0}
+#: private name across packages, import cycles, ``meta`` keys read in another package than the one
+#: that writes them); issue 28 started from 42 / 73 / 5, the meta count (session 12) from 17
+LIMITS = {"wide": 0, "private": 0, "cycles": 0, "meta": 11}
 
 
 def _structure():
@@ -27,7 +28,7 @@ def test_structure_counts_do_not_grow():
     got = counts.summary()
     grown = {k: (got[k], LIMITS[k]) for k in LIMITS if got[k] > LIMITS[k]}
     assert not grown, (f"structure counts grew (now, limit): {grown}; new items among: wide {counts.wide}, "
-                       f"private {counts.private}, cycles {counts.cycles}")
+                       f"private {counts.private}, cycles {counts.cycles}, meta {counts.meta}")
 
 
 def test_the_counter_sees_what_it_counts(tmp_path):
@@ -41,5 +42,24 @@ def test_the_counter_sees_what_it_counts(tmp_path):
     (pkg / "a" / "two.py").write_text("def f():\n    from . import one\n")
     (pkg / "b" / "_hidden.py").write_text("x = 1\n")
     c = _structure().count(tmp_path / "src")
-    assert c.summary() == {"wide": 1, "private": 1, "cycles": 1}
+    assert c.summary() == {"wide": 1, "private": 1, "cycles": 1, "meta": 0}
     assert c.cycles == [["xcalib.a.one", "xcalib.a.two"]] and c.wide == ["xcalib.a.one:wide (9)"]
+
+
+def test_the_counter_sees_meta_keys_read_across_packages(tmp_path):
+    """A key package ``a`` writes into a frame's ``meta`` and package ``b`` reads (by subscript,
+    ``.get``, ``in``, through ``(x.meta or {})``) counts once per reading module and key; a key read
+    in the package that writes it, or written nowhere, does not."""
+    pkg = tmp_path / "src" / "xcalib"
+    for sub in ("a", "b"):
+        (pkg / sub).mkdir(parents=True)
+        (pkg / sub / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a" / "w.py").write_text("def make(f):\n    meta = {'made': 1}\n    f.meta['kind'] = 2\n"
+                                    "    return meta.get('kind'), meta.get('made')\n")
+    (pkg / "b" / "r.py").write_text("def use(f, meta):\n    x = (f.meta or {}).get('kind')\n"
+                                    "    y = meta['made'] + f.meta['kind']\n    z = 'made' in f.meta\n"
+                                    "    return x, y, z, meta.get('own_key')\n")
+    c = _structure().count(tmp_path / "src")
+    assert c.summary()["meta"] == 2
+    assert c.meta == ["xcalib.b.r reads 'kind' (written in: xcalib.a)", "xcalib.b.r reads 'made' (written in: xcalib.a)"]

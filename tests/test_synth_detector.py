@@ -24,7 +24,7 @@ def test_detector_conditions_are_registered_and_deterministic():
     a, b = make_realism_case("detector_all", SEED, 4), make_realism_case("detector_all", SEED, 4)
     for fa, fb in zip(a.frames, b.frames):
         assert np.array_equal(fa.bboxes_2d, fb.bboxes_2d)
-        assert fa.meta["detections"]["scores_2d"] == fb.meta["detections"]["scores_2d"]
+        assert fa.detections.scores_2d == fb.detections.scores_2d
     clean = make_realism_case("clean", SEED, 4)
     assert not all(np.array_equal(fa.bboxes_2d, fc.bboxes_2d) for fa, fc in zip(a.frames, clean.frames))
     with pytest.raises(ValueError):
@@ -74,7 +74,7 @@ def test_misses_depend_on_the_class_and_false_boxes_appear():
     ids = _cat(case, "ids_2d")
     cls = np.array(sum((list(f.meta["classes_2d"]) for f in case.frames), []))
     assert np.sum(ids < 0) > 0  # part boxes / duplicates / generic false boxes
-    assert all(len(f.meta["detections"]["classes_2d"]) == f.num_2d for f in case.frames)
+    assert all(len(f.detections.classes_2d) == f.num_2d for f in case.frames)
     assert set(cls) <= set(OUTLINE_SHRINK)
 
 
@@ -82,7 +82,7 @@ def test_scores_lower_noise_higher_for_small_boxes():
     case = make_realism_case("detector_scores", SEED, 20)
     b = np.concatenate([f.bboxes_2d for f in case.frames]).astype(float)
     cb, ids = _cat(case, "boxes_2d_corner"), _cat(case, "ids_2d")
-    s = np.concatenate([f.meta["detections"]["scores_2d"] for f in case.frames])
+    s = np.concatenate([f.detections.scores_2d for f in case.frames])
     assert np.all((s >= 0.3) & (s <= 1))
     ok = ids >= 0
     err = np.abs(b[ok] - cb[ok]).mean(1)

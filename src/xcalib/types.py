@@ -9,13 +9,42 @@ import numpy as np
 
 from .geometry.camera import CameraIntrinsics
 
-__all__ = ["Frame", "MatchResult", "MatchSource", "DatasetFrame", "as_frame", "OWN_DETECTIONS"]
+__all__ = ["Frame", "FrameDetections", "MatchResult", "MatchSource", "DatasetFrame", "as_frame", "OWN_DETECTIONS"]
 
 MatchSource = Literal["model", "fused", "geometry"]
 
-#: ``Frame.meta["detections"]["source"]`` of boxes made by xcalib's own detectors (``xcalib.detect``);
+#: ``Frame.detections.source`` of boxes made by xcalib's own detectors (``xcalib.detect``);
 #: a bag written from such frames says so in its frame records, and the frames read back carry it.
 OWN_DETECTIONS = "xcalib detect"
+
+
+@dataclass(frozen=True)
+class FrameDetections:
+    """Which detector made a frame's boxes (``Frame.detections``; None when the source's own boxes
+    or labels are used as they are).
+
+    source: who made them (:data:`OWN_DETECTIONS` for ``xcalib.detect``, ``"synth detector"`` for
+    the synthetic detector). scores_2d / classes_2d: the 2D detector's score and class of each 2D
+    box, in the frame's order (None when not known; the calibration weighs the boxes by the scores
+    with ``CalibConfig.detector_scores``). detector_2d: the 2D detector's file name; lidar_mode:
+    ``"static"`` / ``"moving"`` (how ``xcalib.detect`` found the LiDAR boxes); "" when not known.
+    """
+
+    source: str
+    scores_2d: tuple[float, ...] | None = None
+    classes_2d: tuple[str, ...] | None = None
+    detector_2d: str = ""
+    lidar_mode: str = ""
+
+    @classmethod
+    def from_dict(cls, d: dict) -> FrameDetections:
+        """From the dict of earlier versions (``Frame.meta["detections"] = {"source": ..., ...}``);
+        keys other than the fields are ignored."""
+        scores, classes = d.get("scores_2d"), d.get("classes_2d")
+        return cls(source=str(d.get("source", "")),
+                   scores_2d=None if scores is None else tuple(np.asarray(scores).reshape(-1).tolist()),
+                   classes_2d=None if classes is None else tuple(classes),
+                   detector_2d=str(d.get("detector_2d", "")), lidar_mode=str(d.get("lidar_mode", "")))
 
 
 @dataclass
@@ -34,6 +63,11 @@ class Frame:
     frame, seconds on one clock (``camera_time_s - lidar_time_s`` is the sensors' time offset).
     track_ids_3d: [M] int64 track id per 3D box (stable across frames; -1 = none).
     velocities_3d: [M,3] float64 velocity per 3D box, LiDAR frame, m/s.
+
+    detections: which detector made the boxes (:class:`FrameDetections`), None for a source's own
+    boxes. A frame built with the earlier ``meta={"detections": {...}}`` dict gets it from there
+    (the dict leaves ``meta``, and wins over the field: ``dataclasses.replace(frame, meta={...,
+    "detections": {...}})`` sets it as before).
     """
 
     image: np.ndarray
@@ -53,6 +87,13 @@ class Frame:
     camera_time_s: float | None = None
     track_ids_3d: np.ndarray | None = None
     velocities_3d: np.ndarray | None = None
+    detections: FrameDetections | None = None
+
+    def __post_init__(self) -> None:
+        det = self.meta.get("detections") if isinstance(self.meta, dict) else None
+        if isinstance(det, dict):  # the earlier convention: one place for it now, the typed field
+            self.meta = {k: v for k, v in self.meta.items() if k != "detections"}
+            self.detections = FrameDetections.from_dict(det)
 
     @property
     def num_2d(self) -> int:

@@ -110,14 +110,15 @@ def as_intrinsics(intrinsics) -> CameraIntrinsics:
 
 
 def _frame_fields(item, i: int):
-    """(image, points, b2, b3, camera, key, gt, intrinsics, meta) from a Frame or a tuple."""
+    """(image, points, b2, b3, camera, key, gt, intrinsics, meta, detections) from a Frame or a tuple."""
     if hasattr(item, "bboxes_2d") and hasattr(item, "bboxes_3d"):
         return (getattr(item, "image", None), getattr(item, "point_cloud", None), item.bboxes_2d,
                 item.bboxes_3d, getattr(item, "camera_name", "") or "", getattr(item, "frame_key", "") or f"{i:04d}",
-                getattr(item, "extrinsics", None), getattr(item, "intrinsics", None), dict(getattr(item, "meta", {}) or {}))
+                getattr(item, "extrinsics", None), getattr(item, "intrinsics", None), dict(getattr(item, "meta", {}) or {}),
+                getattr(item, "detections", None))
     if isinstance(item, (tuple, list)) and len(item) == 4:
         image, pts, b2, b3 = item
-        return image, pts, b2, b3, "", f"{i:04d}", None, None, {}
+        return image, pts, b2, b3, "", f"{i:04d}", None, None, {}, None
     raise TypeError(
         f"frames[{i}]: expected an xcalib.types.Frame or an (image, point_cloud, bboxes_2d, bboxes_3d) "
         f"tuple, got {type(item).__name__}"
@@ -198,7 +199,7 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
         raise ValueError(f"box_model: expected 'auto', 'corners' or 'points', got {box_model!r}")
     scan_step = None
     rows = []
-    for i, (image, pts, b2, b3, cam, key, gt, _fi, meta) in enumerate(raw):
+    for i, (image, pts, b2, b3, cam, key, gt, _fi, meta, made) in enumerate(raw):
         size = _image_size(image, intr, meta)
         _check_declared_size(intr, size, key if key is not None else i)
         intr.check_image_size(*size)
@@ -229,7 +230,7 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
             scan_step = scan_step_of(p, meta)
         rows.append((i, image, cam, key, gt, meta, b2[idx2].astype(np.float64), box7, idx2, idx3, p, size,
                      (bool(redo and has_pts), not had_yaw, bool(use_pts and has_pts)),
-                     input_scores(meta, len(b2), i) if scores else None))
+                     input_scores(meta, len(b2), i, made) if scores else None))
     # the per-frame outline work (yaw fits, point hulls) on up to ``workers`` processes (frames in order)
     shaped = parallel_map(_frame_outlines, [(r[7], r[10], r[12], scan_step) for r in rows],
                           workers if any(r[12][0] or r[12][2] for r in rows) else 1)
@@ -248,17 +249,15 @@ def prepare_frames(frames: Sequence, intrinsics, *, reestimate_yaw: str | bool =
     return out, intr, problem
 
 
-def input_scores(meta: dict | None, n: int, i: int = 0) -> np.ndarray | None:
+def input_scores(meta: dict | None, n: int, i: int = 0, detections=None) -> np.ndarray | None:
     """The 2D detector's score of each of a frame's ``n`` input 2D boxes, from ``meta["scores_2d"]``
-    or ``meta["detections"]["scores_2d"]`` (the convention of ``xcalib detect``), or None when the
-    frame has none. Scores of another length than the boxes, or not finite, are not used (a
-    warning names frame ``i`` and the problem): they cannot be told apart from another frame's."""
-    if not meta:
-        return None
-    q = meta.get("scores_2d")
-    det = meta.get("detections")
-    if q is None and isinstance(det, dict):
-        q = det.get("scores_2d")
+    or the frame's ``detections.scores_2d`` (:class:`xcalib.types.FrameDetections`, as ``xcalib
+    detect`` sets it), or None when the frame has none. Scores of another length than the boxes, or
+    not finite, are not used (a warning names frame ``i`` and the problem): they cannot be told apart
+    from another frame's."""
+    q = (meta or {}).get("scores_2d")
+    if q is None and detections is not None:
+        q = detections.scores_2d
     if q is None:
         return None
     try:

@@ -162,8 +162,8 @@ def _check_stop() -> None:
         raise Cancelled("the Deferred this work belongs to was given up")
 
 
-def _run_stoppable(stop: "threading.Event", fn, *args):
-    """``fn(*args)`` in a thread's own context with ``stop`` as its stop flag (see ``_STOP``)."""
+def run_stoppable(stop: "threading.Event", fn, *args):
+    """(Public for ``scripts/parallel_timeline.py``, which wraps it.) ``fn(*args)`` in a thread's own context with ``stop`` as its stop flag (see ``_STOP``)."""
     _STOP.set(stop)
     return fn(*args)
 
@@ -203,7 +203,7 @@ class WorkerPool:
             if self._closed:
                 raise RuntimeError("WorkerPool: closed")
             if self._ex is None:
-                self._ex = _pool(self.n)
+                self._ex = process_pool(self.n)
             return self._ex
 
     def submit(self, fn: Callable, *args, later: bool = False) -> Future:
@@ -334,7 +334,7 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], workers: Workers = 1)
         return [fn(_local(x)) for x in items]
     if pool is not None:
         return _pool_map(pool, fn, items)
-    with _pool(n) as ex:
+    with process_pool(n) as ex:
         return list(ex.map(fn, items))
 
 
@@ -377,7 +377,7 @@ class Stream:
         _check_stop()
         if self._ex is None and self._n > 1 and len(self._items) == 1:
             # no open pool: one started at the second item (as ``parallel_map``, none for a single item)
-            self._own = self._ex = _pool(self._n)
+            self._own = self._ex = process_pool(self._n)
             self._items = [self._ex.submit(self._fn, x) for x in self._items]
         self._items.append(self._ex.submit(self._fn, item) if self._ex is not None else item)
 
@@ -402,8 +402,8 @@ class Stream:
         self.close()
 
 
-def _pool(n: int) -> ProcessPoolExecutor:
-    """A fork pool of ``n`` processes. The parent's objects are frozen out of the garbage
+def process_pool(n: int) -> ProcessPoolExecutor:
+    """(Public for ``scripts/parallel_timeline.py``, which wraps it to time the pool's tasks.) A fork pool of ``n`` processes. The parent's objects are frozen out of the garbage
     collector's reach first (``gc.freeze``): a collection in a child would otherwise touch every
     inherited object and copy the parent's whole heap page by page."""
     gc.freeze()
@@ -439,7 +439,7 @@ class Deferred:
         n = min(resolve_workers(workers), sum(c is not None for c in self._calls))
         pool = _open_pool() if n > 1 else None
         here = {k for k in threads if 0 <= k < len(self._calls)} if pool is not None else set()
-        self._own = _pool(n) if n > 1 and pool is None else None
+        self._own = process_pool(n) if n > 1 and pool is None else None
         self._threads = ThreadPoolExecutor(len(here), thread_name_prefix="xcalib-deferred") if here else None
         if self._threads is not None:
             pool._threads.append(self._threads)
@@ -449,7 +449,7 @@ class Deferred:
         if n > 1:
             later = set(later) if pool is not None else set()
             self._fut = [None if call is None else
-                         self._threads.submit(copy_context().run, _run_stoppable, self._stop, call[0],
+                         self._threads.submit(copy_context().run, run_stoppable, self._stop, call[0],
                                               *_local(tuple(call[1]))) if k in here
                          else pool.submit(call[0], *call[1], later=k in later) if pool is not None
                          else ex.submit(call[0], *call[1]) for k, call in enumerate(self._calls)]

@@ -36,7 +36,10 @@ class CalibrationResult:
     ``config`` is the
     ``CalibConfig`` that produced the result and ``diagnostics`` what the calibration computed
     on the way (bring-up pose, uncertainty parts, misfit checks, per-frame residuals); both are
-    None for results read from other tools' files.
+    None for results read from other tools' files. ``boxes_source``: who made the boxes the pose
+    was fitted to, when a detector of xcalib's did (``xcalib.types.OWN_DETECTIONS``, set with the
+    detection coverage by ``xcalib.detect.explain_refusal``); "" otherwise and for results read
+    from files.
     """
 
     success: bool
@@ -62,6 +65,7 @@ class CalibrationResult:
     meta: dict[str, Any] = field(default_factory=dict)
     config: CalibConfig | None = None
     diagnostics: CalibDiagnostics | None = None
+    boxes_source: str = ""
 
     def __post_init__(self) -> None:
         if self.success and (self.rotation is None or self.translation is None):

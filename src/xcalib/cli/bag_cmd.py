@@ -135,9 +135,11 @@ def _undecodable(seq, progress: bool) -> tuple[list[tuple[int, str, str]], str |
 
 def _camera_seen(frame) -> str:
     """What camera model the frames come with (a fisheye's rectification said, with how to keep it)."""
+    from ..io.bags import rectified_from
+
     intr = frame.intrinsics
     name = "none" if intr is None else getattr(intr, "name", "pinhole_radtan")
-    if (frame.meta or {}).get("rectified_from") == "equidistant":
+    if rectified_from(frame) == "equidistant":
         return (f"{name}: the CameraInfo is equidistant (fisheye), its images and 2D boxes are rectified to "
                 "pinhole; calibrate --fisheye keep calibrates in the fisheye image itself (kannala_brandt)")
     return name

@@ -180,6 +180,9 @@ def register(app: typer.Typer) -> None:
                 def run(items, k, stage, prior=None):
                     res = calibrate(items, k, selfcal, prior=prior_res if prior is None else prior, box_model=box_model,
                                     seed=seed, progress=stage)
+                    note = None if detect else _mixed_detections_note(items)
+                    if note:  # frames disagree on who made their boxes: said, not decided silently
+                        console.print(note, markup=False)
                     if detect or _own_detections(items):  # a refusal names weak detections where they are the cause
                         from ..detect import explain_refusal
 
@@ -208,12 +211,35 @@ def register(app: typer.Typer) -> None:
                 raise typer.Exit(1)
 
 
-def _own_detections(frames) -> bool:
-    """The frames' boxes were made by xcalib's own detectors (a bag `xcalib detect` wrote)."""
+def _detection_origins(frames) -> tuple[int, int]:
+    """(frames whose boxes xcalib's own detectors made, frames with boxes from elsewhere), over every
+    frame (``Frame.detections``; a frame without boxes counts for neither)."""
     from ..types import OWN_DETECTIONS
 
-    made = (frames[0].meta or {}).get("detections") if len(frames) else None
-    return isinstance(made, dict) and made.get("source") == OWN_DETECTIONS
+    own = other = 0
+    for f in frames:
+        made = getattr(f, "detections", None)
+        if made is not None and made.source == OWN_DETECTIONS:
+            own += 1
+        elif len(f.bboxes_2d) or len(f.bboxes_3d):
+            other += 1
+    return own, other
+
+
+def _own_detections(frames) -> bool:
+    """Some of the frames' boxes were made by xcalib's own detectors (a bag `xcalib detect` wrote),
+    decided from every frame: a refusal then names the detections where they are the cause (the
+    verdict is the calibration's either way)."""
+    return _detection_origins(frames)[0] > 0
+
+
+def _mixed_detections_note(frames) -> str | None:
+    """A line when the frames disagree: some carry xcalib detect's boxes, others boxes from elsewhere."""
+    own, other = _detection_origins(frames)
+    if not (own and other):
+        return None
+    return (f"note: {own} frame(s) hold boxes made by `xcalib detect` and {other} frame(s) boxes from elsewhere "
+            "(a recording joined from two sources?); a refusal is explained as for xcalib's own detections")
 
 
 def _check_camera_names(cameras) -> None:

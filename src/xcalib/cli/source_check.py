@@ -3,6 +3,11 @@ see (frames, 2D / 3D boxes, points, intrinsics, recorded poses, labels, times) a
 
 A check of the input only: nothing is matched or calibrated. Unreadable frames are listed with the
 reader's error (the file and field it names); the report is JSON-able (``--json`` / ``--output``).
+
+Images: a frame folder's and an HDF5 cache's PNG / JPEG images are not decoded, their sizes are read
+from their headers, except in a sample of :data:`DECODED_SAMPLE` frames spread over the checked ones
+(first, middle, last), which are decoded whole; ``decode=True`` (``--decode``) decodes every image.
+Other sources' readers decode every image they read.
 """
 
 from __future__ import annotations
@@ -15,6 +20,9 @@ from ..errors import FormatError
 
 REPORT_SCHEMA = "xcalib.source_check/1"
 MAX_ERRORS = 20  # unreadable frames listed one by one; the rest counted
+DECODED_SAMPLE = 3  # frames whose images are decoded whole when the others' sizes come from headers
+#: the sources whose readers can give an image's size without decoding it, and the option that does
+_HEADER_ONLY = {"frame-folder": {"decode_images": False}, "hdf5-cache": {"decode_images": False}}
 
 
 def _spread(values: list[int]) -> dict:
@@ -25,14 +33,31 @@ def _spread(values: list[int]) -> dict:
             "frames_without": int((a == 0).sum())}
 
 
-def check_source(source: Path, *, camera: str | None = None, limit: int | None = None) -> dict:
+def _sample(n: int) -> set[int]:
+    """Up to ``DECODED_SAMPLE`` frame indices spread over ``range(n)`` (first, middle, last)."""
+    if n <= DECODED_SAMPLE:
+        return set(range(n))
+    return {round(k * (n - 1) / (DECODED_SAMPLE - 1)) for k in range(DECODED_SAMPLE)}
+
+
+def check_source(source: Path, *, camera: str | None = None, limit: int | None = None, decode: bool = False) -> dict:
     """The check's report of ``source`` (its first ``limit`` frames); the source's own open errors
-    (not a frame source, several cameras without ``camera``) propagate."""
-    from ..io.sources import find_source, open_source
+    (not a frame source, several cameras without ``camera``) propagate. ``decode``: decode every
+    image (else see the module docstring)."""
+    from ..io.sources import find_source, image_size_of, open_source
 
     kind = find_source(source).name
-    seq = open_source(source, camera=camera)
+    sensors_only = False
+    try:
+        seq = open_source(source, camera=camera)
+    except FormatError as exc:  # a bag of sensors only (bag write --no-detections): checked as such
+        if kind != "bag" or exc.field not in ("--detections-2d", "--detections-3d"):
+            raise
+        seq, sensors_only = open_source(source, camera=camera, detections=False), True
     n = len(seq) if limit is None else max(0, min(int(limit), len(seq)))
+    fast = seq if decode or kind not in _HEADER_ONLY else open_source(source, camera=camera, **_HEADER_ONLY[kind])
+    whole = set(range(n)) if fast is seq else _sample(n)
+    sizes: dict[str, int] = {}
     counts: dict[str, list[int]] = {"boxes_2d": [], "boxes_3d": [], "points": []}
     has = {"intrinsics": 0, "recorded_pose": 0, "labels": 0, "times": 0, "image": 0}
     cams: dict[str, int] = {}
@@ -41,7 +66,7 @@ def check_source(source: Path, *, camera: str | None = None, limit: int | None =
     intr = None
     for i in range(n):
         try:
-            f = seq[i]
+            f = (seq if i in whole else fast)[i]
         except (FormatError, OSError, ValueError) as exc:  # the reader's own error, naming file and field
             n_bad += 1
             if len(errors) < MAX_ERRORS:
@@ -54,13 +79,17 @@ def check_source(source: Path, *, camera: str | None = None, limit: int | None =
         has["recorded_pose"] += f.extrinsics is not None
         has["labels"] += f.match_matrix is not None
         has["times"] += f.lidar_time_s is not None and f.camera_time_s is not None
-        has["image"] += min(np.asarray(f.image).shape[:2], default=0) > 1
+        size = image_size_of(f)
+        has["image"] += size is not None
+        if size is not None:
+            sizes[f"{size[0]}x{size[1]}"] = sizes.get(f"{size[0]}x{size[1]}", 0) + 1
         cams[f.camera_name or "camera"] = cams.get(f.camera_name or "camera", 0) + 1
         if intr is None and f.intrinsics is not None:
             intr = f.intrinsics
     read = n - n_bad
     report = {"_schema": REPORT_SCHEMA, "source": str(source), "kind": kind, "frames": len(seq), "checked": n,
               "read": read, "unreadable": n_bad, "errors": errors, "cameras": cams,
+              "images_decoded": len(whole), "image_sizes": sizes, "sensors_only": sensors_only,
               **{k: _spread(v) for k, v in counts.items()}, "with": has,
               "intrinsics": None if intr is None else {"fx": float(intr.fx), "fy": float(intr.fy),
                                                        "cx": float(intr.cx), "cy": float(intr.cy),
@@ -72,7 +101,8 @@ def check_source(source: Path, *, camera: str | None = None, limit: int | None =
 
 def _missing(r: dict) -> list[str]:
     """What a calibration of these frames lacks, each with what to do."""
-    read, out = r["read"], []
+    read = r["read"]
+    out = ["the bag has no detection topics (checked as a sensors-only recording)"] if r.get("sensors_only") else []
     if read == 0:
         if r["checked"]:
             return ["no frame could be read"]
@@ -112,6 +142,11 @@ def print_check(r: dict) -> None:
                                                              if intr else "")
               + f"; recorded pose: {w['recorded_pose']}; labels (match matrix): {w['labels']}; "
               f"LiDAR and camera times: {w['times']}; images: {w['image']}", highlight=False)
+    if r["image_sizes"]:
+        decoded = ("every image decoded" if r["images_decoded"] >= r["checked"] else
+                   f"{r['images_decoded']} decoded, the others' sizes from their headers (--decode: decode all)")
+        con.print("image sizes: " + ", ".join(f"{s} ({k})" for s, k in r["image_sizes"].items()) + f"; {decoded}",
+                  highlight=False)
     for e in r["errors"]:
         con.print(f"[red]unreadable[/red] {e}", highlight=False, markup=True)
     if r["unreadable"] > len(r["errors"]):

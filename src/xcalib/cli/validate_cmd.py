@@ -16,9 +16,24 @@ _HELP = ("Evaluate matchers on a labelled HDF5 cache (--hdf5); or, given a frame
          "Example: xcalib validate ../shared/data/a9_sample")
 
 
+#: options of one mode only: given in the other mode, a usage error names them (never silently ignored)
+_HDF5_ONLY = ("model", "site", "weights", "config", "device", "runtime", "onnx_dir")
+_SOURCE_ONLY = ("camera", "decode")
+
+
+def _given(ctx: typer.Context, names) -> list[str]:
+    """The options among ``names`` given on the command line (or from the environment), as --flags."""
+    out = []
+    for name in names:  # by name: typer may carry its own copy of click's ParameterSource
+        if getattr(ctx.get_parameter_source(name), "name", "") in ("COMMANDLINE", "ENVIRONMENT"):
+            out.append("--" + name.replace("_", "-"))
+    return out
+
+
 def register(app: typer.Typer) -> None:
     @app.command("validate", help=_HELP)
     def validate(
+        ctx: typer.Context,
         source: Optional[Path] = typer.Argument(None, metavar="SOURCE",
                                                 help="A frame source to check (frame folder, HDF5 cache, "
                                                      "KITTI, bag, ...); leave out with --hdf5."),
@@ -26,6 +41,9 @@ def register(app: typer.Typer) -> None:
         hdf5: Optional[Path] = typer.Option(None, "--hdf5", help="Labelled HDF5 cache (with match_matrix): "
                                                                  "evaluate the matchers on it."),
         camera: Optional[str] = typer.Option(None, "--camera", help="SOURCE: the camera of a multi-camera source."),
+        decode: bool = typer.Option(False, "--decode", help="SOURCE: decode every image (by default a frame folder's "
+                                                            "or an HDF5 cache's image sizes come from the image "
+                                                            "headers, and 3 frames' images are decoded whole)."),
         output: Optional[Path] = typer.Option(None, "--output", help="Write the report JSON here."),
         site: str = typer.Option("synthetic", "--site", help="Site whose weights to use."),
         weights: Optional[Path] = typer.Option(None, "--weights", help="Weights file/dir (single model only)."),
@@ -45,12 +63,18 @@ def register(app: typer.Typer) -> None:
         if source is None and hdf5 is None:
             raise typer.BadParameter("give a frame SOURCE to check it (xcalib validate ../shared/data/a9_sample), "
                                      "or --hdf5 CACHE to evaluate matchers on a labelled cache", param_hint="SOURCE")
+        wrong = _given(ctx, _HDF5_ONLY) if source is not None else _given(ctx, _SOURCE_ONLY)
+        if wrong:
+            mode = ("only to --hdf5 CACHE (evaluating matchers), not to checking a frame SOURCE" if source is not None
+                    else "only to checking a frame SOURCE, not to --hdf5 CACHE")
+            raise typer.BadParameter(f"{', '.join(wrong)} appl{'y' if len(wrong) > 1 else 'ies'} {mode}",
+                                     param_hint=", ".join(wrong))
         if output is not None and output.exists() and not force:
             raise FileExistsError(f"{output} already exists; pass --force to replace it")
         if source is not None:
             from .source_check import check_source, print_check
 
-            report = check_source(source, camera=camera, limit=limit_frames)
+            report = check_source(source, camera=camera, limit=limit_frames, decode=decode)
             if output is not None:
                 from ..io.files import atomic_write
 
@@ -94,8 +118,15 @@ def register(app: typer.Typer) -> None:
             from ..io.files import atomic_write
 
             atomic_write(output, [json.dumps(report, indent=2).encode()])
+        # a cache without labels (match_matrix) evaluates no frame: said, and exit 1, not scores of 0 that look like a model's
+        unlabelled = bool(results) and all(r["n_frames"] == 0 for r in results.values())
+        note = (f"{hdf5}: no frame with labels (match_matrix) was evaluated, so the scores are of no frame; a cache "
+                f"without labels can be checked as a frame source: xcalib validate {hdf5}")
         if as_json:
             typer.echo(json.dumps(report))
+            if unlabelled:
+                typer.echo(note, err=True)
+                raise typer.Exit(1)
             return
         from rich.console import Console
         from rich.table import Table
@@ -107,3 +138,6 @@ def register(app: typer.Typer) -> None:
             t.add_row(name, f"{r['top1']:.4f}", f"{r['top3']:.4f}", f"{r['mrr']:.4f}", f"{r['frame_top1']:.4f}",
                       f"{r.get('latency_ms_p50', float('nan')):.1f}", str(r["n_frames"]))
         Console().print(t)
+        if unlabelled:
+            typer.echo(note, err=True)
+            raise typer.Exit(1)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.boxes import as_box7, box7_corners, iou_matrix
+from ..types import OWN_DETECTIONS
 
 __all__ = ["DetectionCoverage", "detection_coverage", "explain_refusal", "COVERAGE_MIN"]
 
@@ -138,8 +139,9 @@ def explain_refusal(result, frames: Sequence, intrinsics=None):
     xcalib's own detections, with what is missing named first when the LiDAR boxes cover too
     few of the camera's boxes at the refused pose (``diagnostics.refused_T``; the counts alone
     without one): ``"too few LiDAR objects detected: ... (the calibration's verdict: ...)"``.
-    The coverage is kept in ``meta["detection_coverage"]``; a success, or a refusal with enough
-    coverage, is returned with only that added."""
+    The coverage is kept in ``meta["detection_coverage"]`` (written to calibration.json) and
+    ``boxes_source`` is :data:`xcalib.types.OWN_DETECTIONS`; a success, or a refusal with enough
+    coverage, is returned with only these added."""
     import dataclasses
 
     T = getattr(getattr(result, "diagnostics", None), "refused_T", None) if not result.success else None
@@ -147,8 +149,9 @@ def explain_refusal(result, frames: Sequence, intrinsics=None):
         T = result.extrinsics
     cov = detection_coverage(frames, T, intrinsics)
     meta = {**(result.meta or {}), "detection_coverage": dataclasses.asdict(cov) | {"share": cov.share}}
+    own = {"meta": meta, "boxes_source": OWN_DETECTIONS}
     if not result.success and cov.found_too_few():  # the calibration's own hint ("--detect makes them") misleads here
-        return dataclasses.replace(result, meta=meta, message=cov.found_too_few_refusal())
+        return dataclasses.replace(result, message=cov.found_too_few_refusal(), **own)
     if result.success or not cov.too_few():
-        return dataclasses.replace(result, meta=meta)
-    return dataclasses.replace(result, meta=meta, message=f"{cov.refusal()} (the calibration's verdict: {result.message})")
+        return dataclasses.replace(result, **own)
+    return dataclasses.replace(result, message=f"{cov.refusal()} (the calibration's verdict: {result.message})", **own)

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..types import OWN_DETECTIONS, Frame
+from ..types import OWN_DETECTIONS, Frame, FrameDetections
 from .camera import Detector2D, Detector2DConfig, load_detector
 from .lidar import Background, GroundPlane, LidarDetectConfig, build_background, fit_ground, is_static_recording, \
     lidar_boxes
@@ -58,10 +58,11 @@ def detect_frame(frame: Frame, detector: Detector2D, config: LidarDetectConfig, 
         d = detector(frame.image)
         b2, per_det, scores, names = d.boxes, None, d.scores.tolist(), list(d.class_names)
     b3 = lidar_boxes(frame.point_cloud, config, ground=ground, background=background)
-    meta["detections"] = {"source": OWN_DETECTIONS, "scores_2d": scores, "classes_2d": names,
-                          "detector_2d": str(detector.path.name), "lidar_mode": "static" if background else "moving"}
+    made = FrameDetections(OWN_DETECTIONS, tuple(scores), tuple(names), str(detector.path.name),
+                           "static" if background else "moving")
     return dataclasses.replace(frame, bboxes_2d=b2.astype(np.float32), bboxes_3d=b3, match_matrix=None,
-                               camera_per_det=per_det, track_ids_3d=None, velocities_3d=None, meta=meta)
+                               camera_per_det=per_det, track_ids_3d=None, velocities_3d=None, meta=meta,
+                               detections=made)
 
 
 class DetectedFrames(Sequence):
@@ -105,7 +106,7 @@ class DetectedFrames(Sequence):
         src = self.source[i]
         self.replaced += bool(src.num_2d or src.num_3d)
         f = detect_frame(src, self.detector, self.config.lidar, ground=self.ground, background=self.background)
-        self._boxes[i] = (f.bboxes_2d, f.bboxes_3d, f.camera_per_det, f.meta["detections"])
+        self._boxes[i] = (f.bboxes_2d, f.bboxes_3d, f.camera_per_det, f.detections)
         return f
 
     def __getitem__(self, index):
@@ -117,7 +118,7 @@ class DetectedFrames(Sequence):
         b2, b3, per_det, det = self._boxes[i]
         f = self.source[i]
         return dataclasses.replace(f, bboxes_2d=b2, bboxes_3d=b3, match_matrix=None, camera_per_det=per_det,
-                                   track_ids_3d=None, velocities_3d=None, meta={**f.meta, "detections": det})
+                                   track_ids_3d=None, velocities_3d=None, meta=dict(f.meta), detections=det)
 
     def run(self, progress: Progress | None = None) -> DetectedFrames:
         """Detect in every frame now (``progress("detect", done, total)``); returns self."""

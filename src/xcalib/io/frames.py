@@ -31,7 +31,7 @@ from ..errors import FormatError, MissingFileError
 from ..geometry.camera import CameraIntrinsics
 from ..types import Frame
 from .files import atomic_dir, atomic_write, inside, load_json
-from .images import read_image, write_image
+from .images import MAX_IMAGE_PIXELS, image_header_size, read_image, write_image
 from ._validate import check_boxes_2d, check_boxes_3d, check_rigid
 from .pointcloud import read_point_cloud, write_pcd
 from .sources import open_source, register_source
@@ -117,10 +117,14 @@ def read_intrinsics_json(path) -> CameraIntrinsics:
 
 def read_detections(path, *, default_key: str = "", default_camera: str = "",
                     intrinsics: CameraIntrinsics | None = None,
-                    columns=None, drop_nonfinite: bool = False, allow_outside: bool = False) -> Frame:
+                    columns=None, drop_nonfinite: bool = False, allow_outside: bool = False,
+                    decode_images: bool = True) -> Frame:
     """Read one frame from its ``detections.json`` (image and point cloud relative to it; a path
     that leaves the folder, absolute or through ``..``, is a FormatError unless ``allow_outside``).
-    Boxes must be finite and not inverted, extrinsics rigid, the match matrix 0/1."""
+    Boxes must be finite and not inverted, extrinsics rigid, the match matrix 0/1.
+    ``decode_images=False``: a PNG / JPEG image is not decoded; its size is read from its header
+    (``meta["image_size"]``, :func:`xcalib.io.sources.image_size_of`) and ``image`` is an empty
+    [0,0,3] placeholder (other formats, or a header that does not parse, are decoded as usual)."""
     path = Path(path)
     det = _load_json(path)
     for key in _REQUIRED_KEYS:
@@ -165,9 +169,12 @@ def read_detections(path, *, default_key: str = "", default_camera: str = "",
             what = "is not a file" if file.exists() else "does not exist"
             raise MissingFileError(path, f"names the {field.replace('_', ' ')} {det[field]!r}, which {what} ({file})",
                                    field)
-    image = read_image(image_path)
+    size = None if decode_images else _header_size(image_path)
+    image = read_image(image_path) if size is None else np.zeros((0, 0, 3), dtype=np.uint8)
     pc = read_point_cloud(cloud_path, columns=columns, drop_nonfinite=drop_nonfinite)
-    meta = {"detections": str(path), "image_path": str(image_path), "point_cloud_path": str(cloud_path)}
+    meta = {"detections_path": str(path), "image_path": str(image_path), "point_cloud_path": str(cloud_path)}
+    if size is not None:
+        meta["image_size"] = size
     if pc.num_dropped:
         meta["points_dropped_nonfinite"] = pc.num_dropped
     return Frame(image=image, point_cloud=pc.points, bboxes_2d=b2, bboxes_3d=b3,
@@ -177,13 +184,23 @@ def read_detections(path, *, default_key: str = "", default_camera: str = "",
                  point_fields=pc.fields, meta=meta, **timing)
 
 
+def _header_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) from a PNG / JPEG file's header (its first 256 KiB), None when it does not parse."""
+    with open(path, "rb") as fh:
+        size = image_header_size(fh.read(1 << 18))
+    ok = size is not None and size[0] > 0 and size[1] > 0 and size[0] * size[1] <= MAX_IMAGE_PIXELS
+    return size if ok else None  # else decoded: read_image names what is wrong
+
+
 class FrameFolder(Sequence):
     """A frame folder as a lazy ``Sequence[Frame]``: ``len``, indexing (one frame read per
     access; slices give lists), iteration. ``camera`` / ``intrinsics`` / ``site`` / ``split``
     come from the manifest and ``intrinsics.json`` when present."""
 
-    def __init__(self, path, *, columns=None, drop_nonfinite: bool = False, allow_outside: bool = False):
+    def __init__(self, path, *, columns=None, drop_nonfinite: bool = False, allow_outside: bool = False,
+                 decode_images: bool = True):
         p = Path(path)
+        self._decode = bool(decode_images)
         self._allow_outside = bool(allow_outside)
         if not p.exists():
             raise FileNotFoundError(f"frame folder not found: {p}")
@@ -256,7 +273,8 @@ class FrameFolder(Sequence):
             return [self[i] for i in range(*index.indices(len(self)))]
         key, det = self._entries[index]
         frame = read_detections(det, default_key=key, default_camera=self.camera, intrinsics=self.intrinsics,
-                                columns=self._columns, drop_nonfinite=self._drop, allow_outside=self._allow_outside)
+                                columns=self._columns, drop_nonfinite=self._drop, allow_outside=self._allow_outside,
+                                decode_images=self._decode)
         # a 1-pixel image is a placeholder whose size comes from the intrinsics (the calibration's
         # convention, ``calib.inputs``), not an image size to check the principal point against
         if not self._size_checked and self.intrinsics is not None and min(frame.image.shape[:2], default=0) > 1:

@@ -31,7 +31,7 @@ from ..plugins import load as load_plugin
 from ..types import Frame
 
 __all__ = ["FrameSource", "register_source", "unregister_source", "frame_sources", "find_source", "open_source",
-           "parse_frame_range", "FrameSubset", "CameraView", "camera_view", "merge_cameras", "SOURCE_MODULES"]
+           "parse_frame_range", "FrameSubset", "CameraView", "camera_view", "image_size_of", "merge_cameras", "SOURCE_MODULES"]
 
 # Modules that register sources on import (imported by the registry on first use).
 #: xcalib's own source modules (declared as ``xcalib.sources`` entry points; kept for reference).
@@ -210,6 +210,25 @@ class FrameSubset(Sequence):
         return [keys[i] for i in self.indices] if keys is not None else [str(i) for i in self.indices]
 
 
+def image_size_of(frame: Frame) -> tuple[int, int] | None:
+    """(width, height) of a frame's image: its array's, or, for a frame read without decoding its
+    image (``decode_images=False`` of a frame folder or an HDF5 cache), the size its reader took from
+    the image's header; None when the frame has no image."""
+    from .images import image_header_size
+
+    img = np.asarray(frame.image)
+    if img.ndim >= 2 and min(img.shape[:2]) > 1:
+        return int(img.shape[1]), int(img.shape[0])
+    meta = frame.meta or {}
+    if meta.get("image_size") is not None:
+        w, h = meta["image_size"]
+        return int(w), int(h)
+    blob = (meta.get("image_bytes") or {}).get(frame.camera_name)
+    if blob is None and meta.get("image_bytes"):
+        blob = next(iter(meta["image_bytes"].values()))
+    return None if blob is None else image_header_size(bytes(blob[:1 << 18]))
+
+
 def camera_view(frame: Frame, name: str) -> Frame:
     """One camera of a multi-camera frame (``Frame.images`` / ``camera_per_det``) as a plain
     single-camera frame: that camera's image, 2D boxes, match-matrix rows, and its intrinsics and
@@ -227,7 +246,7 @@ def camera_view(frame: Frame, name: str) -> Frame:
                  frame_key=frame.frame_key, match_matrix=mm, intrinsics=intr, extrinsics=extr,
                  point_fields=frame.point_fields, meta=meta, lidar_time_s=frame.lidar_time_s,
                  camera_time_s=frame.camera_time_s, track_ids_3d=frame.track_ids_3d,
-                 velocities_3d=frame.velocities_3d)
+                 velocities_3d=frame.velocities_3d, detections=frame.detections)
 
 
 class CameraView(Sequence):

@@ -8,6 +8,8 @@ means, what to do. The reason names themselves are kept as they are (scripts rea
 
 from __future__ import annotations
 
+from ..types import OWN_DETECTIONS
+
 __all__ = ["plain_advice", "ADVICE", "OWN_DETECTIONS_ADVICE"]
 
 _MORE = ("record (or pass) more frames in which objects stand at other places in the image and at other "
@@ -89,7 +91,7 @@ ADVICE: dict[str, tuple[str, str]] = {
 
 
 #: a focal length / image centre misfit when the boxes are xcalib's own (``calibrate --detect``, or a
-#: bag ``xcalib detect`` wrote; the result's ``meta["detection_coverage"]`` says so): the boxes, not
+#: bag ``xcalib detect`` wrote; the result's ``boxes_source`` says so): the boxes, not
 #: the intrinsics, are the likely cause, and changing the intrinsics would fit the pose to them
 OWN_DETECTIONS_ADVICE: dict[str, tuple[str, str]] = {
     code: (f"the boxes fit a different {what} than the one given; these boxes come from xcalib's own label-free "
@@ -116,7 +118,7 @@ def plain_advice(result) -> list[str]:
     code = ""
     if result.diagnostics is not None:
         code = getattr(result.diagnostics, "refusal", "") or ""
-    own = "detection_coverage" in (getattr(result, "meta", None) or {})  # boxes from xcalib's own detectors
+    own = getattr(result, "boxes_source", "") == OWN_DETECTIONS  # boxes from xcalib's own detectors
     means, todo = (OWN_DETECTIONS_ADVICE if own and code in OWN_DETECTIONS_ADVICE else ADVICE).get(
         code, ("the frames do not determine the pose reliably, so none is reported", _MORE))
     return [f"In short: no pose was delivered ({code or 'refused'}): {means}.", f"What to do: {todo}."]

@@ -214,10 +214,12 @@ def review_indices(n: int, k: int) -> list[int]:
 def _stamps(frames: Sequence, pick: Sequence[int], period_s: float) -> tuple[list[int], bool]:
     """Per picked frame the LiDAR stamp (ns) of the recording: a bag's header stamp, else the frame's
     ``lidar_time_s``; (synthetic 1 s + period x index, False) when any is missing or they do not increase."""
+    from ..io.bags import recorded_stamp_ns
+
     out = []
     for i in pick:
         f = frames[i]
-        ns = (f.meta or {}).get("lidar_stamp_ns") if isinstance(getattr(f, "meta", None), dict) else None
+        ns = recorded_stamp_ns(f, "lidar")
         if ns is None and f.lidar_time_s is not None and np.isfinite(f.lidar_time_s) and f.lidar_time_s > 0:
             ns = int(round(float(f.lidar_time_s) * 1e9))
         out.append(None if ns is None else int(ns))
@@ -227,7 +229,9 @@ def _stamps(frames: Sequence, pick: Sequence[int], period_s: float) -> tuple[lis
 
 
 def _camera_stamp(frame, lidar_ns: int, recorded: bool) -> int:
-    ns = (frame.meta or {}).get("camera_stamp_ns") if isinstance(getattr(frame, "meta", None), dict) else None
+    from ..io.bags import recorded_stamp_ns
+
+    ns = recorded_stamp_ns(frame, "camera")
     return int(ns) if recorded and ns is not None and int(ns) > 0 else lidar_ns
 
 

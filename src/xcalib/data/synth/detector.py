@@ -26,8 +26,8 @@ Habits (each can be switched off):
   x (1 - score)``; boxes below ``score_threshold`` are dropped.
 
 The output frame keeps ``meta["ids_2d"]`` (track id per output box, -1 for false boxes) and
-``meta["classes_2d"]``, and adds ``meta["detections"] = {"source": "synth detector",
-"scores_2d": [...], "classes_2d": [...]}`` (the convention of ``xcalib detect``) and
+``meta["classes_2d"]``, sets ``Frame.detections`` (a :class:`xcalib.types.FrameDetections` with
+source ``"synth detector"``, the scores and the classes, as ``xcalib detect`` does) and adds
 ``meta["boxes_2d_corner"]`` (the noise-free corner box each output box came from; NaN rows for
 false boxes, the union for merged ones).
 """
@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...types import Frame
+from ...types import Frame, FrameDetections
 
 __all__ = ["DetectorStyle", "detector_frame", "OUTLINE_SHRINK", "MISS_RATE"]
 
@@ -224,6 +224,5 @@ def detector_frame(frame: Frame, style: DetectorStyle, size: tuple[int, int], si
     m["ids_2d"] = ids_o[sel]
     m["classes_2d"] = [out_cls[i] for i in sel]
     m["boxes_2d_corner"] = np.asarray(corner, dtype=np.float64).reshape(n, 4)[sel]
-    m["detections"] = {"source": "synth detector", "scores_2d": [float(s) for s in score[sel]],
-                       "classes_2d": [out_cls[i] for i in sel]}
-    return dataclasses.replace(frame, bboxes_2d=B[sel].astype(np.float32), match_matrix=None, meta=m)
+    made = FrameDetections("synth detector", tuple(float(s) for s in score[sel]), tuple(out_cls[i] for i in sel))
+    return dataclasses.replace(frame, bboxes_2d=B[sel].astype(np.float32), match_matrix=None, meta=m, detections=made)

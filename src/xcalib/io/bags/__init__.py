@@ -21,11 +21,14 @@ from .reader import (  # noqa: F401
     bag_info,
     is_bag,
     pair_by_time,
+    recorded_stamp_ns,
+    rectified_from,
 )
 from .writer import topic_name, write_bag  # noqa: F401
 
 __all__ = ["BAG_SUFFIXES", "META_TOPIC", "BagCamera", "BagFrames", "BagInfo", "BagTopic", "Dropped", "PairingReport",
-           "bag_cameras", "bag_info", "is_bag", "pair_by_time", "topic_name", "write_bag"]
+           "bag_cameras", "bag_info", "is_bag", "pair_by_time", "recorded_stamp_ns", "rectified_from", "topic_name",
+           "write_bag"]
 
 
 def _register() -> None:

@@ -28,7 +28,7 @@ from ..timing import MAX_SPEED_MPS, MAX_TIME_S
 from .._validate import check_rigid
 from ...geometry.camera import CameraIntrinsics
 from ...geometry.transforms import invert_transform
-from ...types import OWN_DETECTIONS, Frame
+from ...types import OWN_DETECTIONS, Frame, FrameDetections
 from . import _convert as cv
 from ._msgs import (CAMERA_INFO, COMPRESSED, DET2D, DET3D_TYPES, IMAGE, POINTCLOUD2, STRING, SUPPORTED_TYPES, TF_TYPES,
                     typestore)
@@ -36,7 +36,7 @@ from ._objects import MAX_TILT_DEG, boxes3d_any
 
 __all__ = ["BagReadOptions", "BAG_SUFFIXES", "MAX_BAG_BYTES", "OWN_DETECTIONS", "MAX_MESSAGE_BYTES", "check_bag_input", "is_bag", "BagTopic", "BagInfo",
            "bag_info", "BagCamera", "bag_cameras", "Dropped", "PairingReport",
-           "BagFrames", "pair_by_time", "META_TOPIC"]
+           "BagFrames", "pair_by_time", "META_TOPIC", "recorded_stamp_ns", "rectified_from"]
 
 log = logging.getLogger(__name__)
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
@@ -864,8 +864,9 @@ class BagFrames(Sequence):
             extr = np.asarray(extr, dtype=np.float64)
         meta = {"source": "bag", "bag": str(self.path), "lidar_topic": tp["lidar"], "image_topic": tp["image"],
                 "lidar_stamp_ns": e.lidar[0], "camera_stamp_ns": e.image[0], "detection_ids_2d": ids2}
+        made = None  # the boxes of a bag `xcalib detect` wrote say so
         if e.meta.get("detections_source") == OWN_DETECTIONS and e.det2d is not None:
-            meta["detections"] = {"source": OWN_DETECTIONS}  # the boxes of a bag `xcalib detect` wrote
+            made = FrameDetections(OWN_DETECTIONS)
         if n_bad:
             meta["points_dropped_nonfinite"] = n_bad
         if flattened:
@@ -888,7 +889,24 @@ class BagFrames(Sequence):
                      frame_key=str(rec.get("frame_key", e.meta.get("frame_key", e.lidar[0]))),
                      match_matrix=None if mm is None else _match(mm, len(b2), len(b3), self.path),
                      intrinsics=intr, extrinsics=extr,
-                     point_fields=fields, meta=meta)
+                     point_fields=fields, meta=meta, detections=made)
+
+
+def recorded_stamp_ns(frame, sensor: str) -> int | None:
+    """The recording's header stamp (ns) of a frame's ``sensor`` (``"lidar"`` or ``"camera"``) as a
+    bag reader keeps it (exact, where ``lidar_time_s`` as float seconds loses ~200 ns); None for a
+    frame without one. The one reader of that ``meta`` key outside the bag code."""
+    if sensor not in ("lidar", "camera"):
+        raise ValueError(f"sensor: expected 'lidar' or 'camera', got {sensor!r}")
+    meta = getattr(frame, "meta", None)
+    return meta.get(f"{sensor}_stamp_ns") if isinstance(meta, dict) else None
+
+
+def rectified_from(frame) -> str | None:
+    """``"equidistant"`` when the bag reader rectified the frame's fisheye image and 2D boxes to a
+    pinhole camera (``fisheye="rectify"``), else None."""
+    meta = getattr(frame, "meta", None)
+    return meta.get("rectified_from") if isinstance(meta, dict) else None
 
 
 def _nearest_within(stamps, items, tol: int) -> dict[int, tuple]:

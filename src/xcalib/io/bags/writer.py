@@ -200,8 +200,8 @@ def _write_frames(sink: _Sink, store, frames, image_format, clock, lidar_frame, 
                   "lidar_time_s": frame.lidar_time_s, "track_ids_3d": tracks,
                   "velocities_3d": None if frame.velocities_3d is None else
                   np.asarray(frame.velocities_3d, dtype=np.float64).tolist()}
-        made = (frame.meta.get("detections") or {}) if isinstance(frame.meta.get("detections"), dict) else {}
-        if made.get("source") == OWN_DETECTIONS:  # read back, a refusal can name xcalib's own boxes as the cause
+        made = getattr(frame, "detections", None)
+        if made is not None and made.source == OWN_DETECTIONS:  # read back, a refusal can name xcalib's own boxes as the cause
             record["detections_source"] = OWN_DETECTIONS
         for c, cam in enumerate(_cameras(frame)):
             seg = topic_name(cam)
