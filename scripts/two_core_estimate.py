@@ -70,7 +70,7 @@ def parallel_map(fn, items, workers=1):
     rec('wait', ids)
     return out
 class Deferred(par.Deferred):
-    def __init__(self, calls, workers=1, threads=()):
+    def __init__(self, calls, workers=1, threads=(), later=()):  # ``later``: run as plain tasks here (not modelled)
         n = min(par.resolve_workers(workers), len(calls))
         self._par = n > 1
         self._ids = [next(_n) for _ in calls]

@@ -177,9 +177,11 @@ class WorkerPool:
 
     Every task goes through :meth:`submit`, which counts the tasks on the processes: a task
     submitted ``later`` (independent work whose result is wanted only at the end, e.g. the misfit
-    checks' refits) waits here until a process has nothing else to do, so the tasks of a chain
-    that must run one after another (a search, its refinements) never queue behind it. Which
-    process runs a task, and when, changes no result."""
+    checks' refits) waits here until fewer tasks than processes are on them, so the tasks of a
+    chain that must run one after another (a search, its refinements) never queue behind one that
+    has not started (one started while a chain was between two of its stages can still hold a
+    process when the chain's next tasks come). Which process runs a task, and when, changes no
+    result."""
 
     def __init__(self, workers: Workers = 1):
         self.n = resolve_workers(workers)
@@ -214,6 +216,8 @@ class WorkerPool:
         if later:
             fut: Future = Future()
             with self._cond:
+                if self._closed:  # closed since ``executor()``: ``close`` has already given the queue up
+                    raise RuntimeError("WorkerPool: closed")
                 self._later.append((fut, fn, args))
                 if self._feeder is None:
                     self._feeder = threading.Thread(target=self._feed, name="xcalib-pool-feeder", daemon=True)

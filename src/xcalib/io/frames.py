@@ -30,8 +30,8 @@ import numpy as np
 from ..errors import FormatError, MissingFileError
 from ..geometry.camera import CameraIntrinsics
 from ..types import Frame
-from .files import atomic_dir, atomic_write, inside, load_json
-from .images import MAX_IMAGE_PIXELS, image_header_size, read_image, write_image
+from .files import atomic_dir, atomic_write, inside, load_json, open_regular
+from .images import MAX_IMAGE_FILE_BYTES, MAX_IMAGE_PIXELS, image_header_size, read_image, write_image
 from ._validate import check_boxes_2d, check_boxes_3d, check_rigid
 from .pointcloud import read_point_cloud, write_pcd
 from .sources import open_source, register_source
@@ -186,7 +186,7 @@ def read_detections(path, *, default_key: str = "", default_camera: str = "",
 
 def _header_size(path: Path) -> tuple[int, int] | None:
     """(width, height) from a PNG / JPEG file's header (its first 256 KiB), None when it does not parse."""
-    with open(path, "rb") as fh:
+    with open_regular(path, max_bytes=MAX_IMAGE_FILE_BYTES, what="image file") as fh:  # read_image's checks
         size = image_header_size(fh.read(1 << 18))
     ok = size is not None and size[0] > 0 and size[1] > 0 and size[0] * size[1] <= MAX_IMAGE_PIXELS
     return size if ok else None  # else decoded: read_image names what is wrong

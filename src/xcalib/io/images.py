@@ -15,11 +15,13 @@ from ..errors import FormatError
 from .files import atomic_write, read_bytes
 
 __all__ = ["read_image", "decode_image", "encode_image", "encode_jpeg", "write_image", "image_header_size",
-           "MAX_IMAGE_PIXELS"]
+           "MAX_IMAGE_PIXELS", "MAX_IMAGE_FILE_BYTES"]
 
 #: Largest image (width x height) any reader decodes: 100 Mpx (a 20000x20000 PNG is refused
 #: from its header, before OpenCV allocates 1.2 GB).
 MAX_IMAGE_PIXELS = 100_000_000
+#: largest image file read (bytes)
+MAX_IMAGE_FILE_BYTES = 512 << 20
 _SOF = (0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF)
 
 
@@ -94,7 +96,7 @@ def read_image(path) -> np.ndarray:
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"image file not found: {p}")
-    return decode_image(read_bytes(p, max_bytes=512 << 20, what="image file"), source=p)
+    return decode_image(read_bytes(p, max_bytes=MAX_IMAGE_FILE_BYTES, what="image file"), source=p)
 
 
 def _check_rgb(rgb, name: str = "image") -> np.ndarray:

@@ -17,6 +17,7 @@ of indices) to any source.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -246,7 +247,19 @@ def camera_view(frame: Frame, name: str) -> Frame:
                  frame_key=frame.frame_key, match_matrix=mm, intrinsics=intr, extrinsics=extr,
                  point_fields=frame.point_fields, meta=meta, lidar_time_s=frame.lidar_time_s,
                  camera_time_s=frame.camera_time_s, track_ids_3d=frame.track_ids_3d,
-                 velocities_3d=frame.velocities_3d, detections=frame.detections)
+                 velocities_3d=frame.velocities_3d, detections=_kept_detections(frame.detections, keep))
+
+
+def _kept_detections(made, keep: np.ndarray):
+    """A frame's :class:`~xcalib.types.FrameDetections` for its 2D boxes ``keep`` (one camera's, see
+    :func:`camera_view`): the per-box scores and classes of those boxes only (the whole frame's do
+    not line up with one camera's boxes, and scores of another length are not used)."""
+    if made is None:
+        return None
+    pick = np.flatnonzero(keep)
+    cut = {k: tuple(v[i] for i in pick) for k in ("scores_2d", "classes_2d")
+           if (v := getattr(made, k)) is not None and len(v) == len(keep)}
+    return dataclasses.replace(made, **cut) if cut else made
 
 
 class CameraView(Sequence):
