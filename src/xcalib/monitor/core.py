@@ -481,6 +481,7 @@ class CameraMonitor:
         # frames keep their unshaped residual rows (``iterate``) where the change test iterates (or a
         # benchmark records them)
         self.keep_edges = int(self.config.iterate_steps) > 0
+        self._it_cache: tuple[int, dict] = (-1, {})  # this decision's iterated window fits (``_iterated``)
         self.reset()
         self.events: list[DriftEvent] = []
         self.statuses_seen = {"ok": 0, "drift": 0, "unknown": 0}
@@ -855,7 +856,7 @@ class CameraMonitor:
             return self._status("unknown", None, "the matched boxes do not determine the pose (degenerate geometry)",
                                 "degenerate", n_frames=longest)
         best_stat, best_len, det, det_t = 0.0, longest, None, None
-        tests: list[tuple[float, int, _Fit, _Fit | None, np.ndarray, tuple | None]] = []
+        tests: list[tuple[float, int, _Fit, _Fit | None, np.ndarray, Any]] = []
         pending: list[tuple[int, np.ndarray, np.ndarray]] = []  # samples of axis_factors
         # weak axes are judged on the longest window tested within target_frames of a change
         L_t = max([L for L in lengths if L + cfg.stride <= cfg.target_frames] or [lengths[0]])
@@ -976,12 +977,21 @@ class CameraMonitor:
             self._scale_at = saved[2]
         return out, fr
 
-    def _iterated(self, recs: list[_Rec], a: int, n: int) -> tuple[_Fit, tuple] | None:
+    def _iterated(self, recs: list[_Rec], a: int, n: int) -> tuple[_Fit, Any] | None:
         """The fit of frames [a, n) iterated ``iterate_steps`` Gauss-Newton steps on their unshaped
         residual rows (``iterate.iterated_fit``: the occlusion shaping and the soft-L1 weights at the
         window's own estimate, not at the calibration's residuals), its covariance from the normal
-        equations there (times the residual variance factor, at least 1), and each object's share of
-        them (for the leave-objects-out guard). None where a frame lacks its rows or the fit is singular."""
+        equations there (times the residual variance factor, at least 1), and a function giving each
+        object's share of them (for the leave-objects-out guard, which needs them only at an alarm).
+        None where a frame lacks its rows or the fit is singular. One fit per window and decision."""
+        key = (recs[-1].index, a, n)
+        if self._it_cache[0] != key[0]:
+            self._it_cache = (key[0], {})
+        if key not in self._it_cache[1]:
+            self._it_cache[1][key] = self._iterated_fit(recs, a, n)
+        return self._it_cache[1][key]
+
+    def _iterated_fit(self, recs: list[_Rec], a: int, n: int) -> tuple[_Fit, Any] | None:
         if any(q.edges is None for q in recs[a:n] if q.n_pairs):
             return None
         rows = stack_rows([q.edges for q in recs[a:n]])
@@ -1002,10 +1012,10 @@ class CameraMonitor:
         x = -Hinv @ g
         s2 = max(float(c + x @ g) / max(m - 6, 1), 1.0)
         n_pairs = int(sum(q.n_pairs for q in recs[a:n]))
-        return _Fit(x, Hinv * s2, n_pairs, n - a, s2), object_shares(rows, xl, tau, slope)
+        return _Fit(x, Hinv * s2, n_pairs, n - a, s2), lambda: object_shares(rows, xl, tau, slope)
 
     def _without_objects(self, recs: list[_Rec], a: int, fa: _Fit, fb: _Fit | None,
-                         scale: np.ndarray | None = None, obj_a: tuple | None = None) -> tuple[float, list[int]]:
+                         scale: np.ndarray | None = None, obj_a: Any = None) -> tuple[float, list[int]]:
         """The test of the recent frames [a, n) (``fa``) against the frames before them (``fb``; None:
         against the calibration) with the ``leave_out_objects`` most influential objects left out
         of both, one at a time (each the one whose removal lowers the statistic most); returns the
@@ -1013,7 +1023,7 @@ class CameraMonitor:
         ``scale``: 1-sigma factors per axis on the two-segment covariance (the test's calibration)."""
         n = len(recs)
         k_out = int(self.config.leave_out_objects)
-        ids_a, Ha, ga = _object_sums(recs, a, n) if obj_a is None else obj_a  # (obj_a: an iterated window's)
+        ids_a, Ha, ga = _object_sums(recs, a, n) if obj_a is None else obj_a()  # (obj_a: an iterated window's)
         Ta, ta = _total(Ha, ga)
         if fb is not None:
             ids_b, Hb, gb = _object_sums(recs, 0, a)
