@@ -582,7 +582,7 @@ def main() -> None:
     ap.add_argument("--null-noise", choices=("both", "default", "noisy"), default="both",
                     help="--part null: which detection noise (two processes can share the work)")
     ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak", "information", "reference", "bound",
-                                       "relin", "relin_a9", "verdict", "persist", "guard"),
+                                       "relin", "relin_a9", "verdict", "persist", "guard", "iterate"),
                     default="all",
                     help="run one part; its keys are merged into an existing results file")
     ap.add_argument("--reference-frames", type=int, default=2400,
@@ -601,6 +601,8 @@ def main() -> None:
     ap.add_argument("--real-frames", type=int, default=320, help="real sequences: step streams (change at the middle)")
     ap.add_argument("--recordings", type=Path, default=None,
                     help="--part guard: folder of the recorded streams (.npz; made when absent; default a temporary one)")
+    ap.add_argument("--cells", default=",".join(ITERATE_CELLS),
+                    help="--part iterate: the step cells (e.g. tz_0.1,rz_0.25: axis and size in deg / m)")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (null sites, step cells)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a MonitorConfig setting other than its default (repeatable; the results say so)")
@@ -666,6 +668,17 @@ def main() -> None:
         log(f"== the guarded test's variants: null {n_null} frames x sites {nseeds} (both noises), every step cell "
             f"at {sseeds} ({args.runs} runs per site); recordings in {folder}")
         result["guard_s11"] = _guard(nseeds, args.null_base, n_null, sseeds, args.runs, folder, log)
+    elif args.part == "iterate":  # the change test on the window's iterated estimate, replayed on every cell
+        import tempfile
+
+        nseeds = ([int(v) for v in args.null_seeds.split(",") if v.strip()] if args.null_seeds
+                  else [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites])
+        sseeds = [int(v) for v in args.step_seeds.split(",") if v.strip()]
+        cells = tuple(c for c in args.cells.split(",") if c)
+        folder = args.recordings or Path(tempfile.mkdtemp(prefix="xcalib_iterate_"))
+        log(f"== the iterated change test: null {n_null} frames x sites {nseeds} (both noises), cells {cells} "
+            f"at {sseeds} ({args.runs} runs per site); recordings in {folder}")
+        result["iterate_s12"] = _iterate(nseeds, args.null_base, n_null, (sseeds, args.runs, cells), folder, log)
     elif args.part == "verdict":  # each z step cell against what the boxes allow at its site (no monitor run)
         import json
 
@@ -1100,6 +1113,89 @@ def _guard(null_seeds: list[int], n_base: int, n_null: int, step_seeds: list[int
                 out["steps"][f"{cell}/{v}"] = row
                 log(f"{cell:24s} {v:16s} {100 * row['detected_within']:5.1f} % of {row['runs']} (early {row['early']}; "
                     f"missed at sites {row['missed_sites']})", flush=True)
+    return out
+
+
+#: ``--part iterate``'s default cells: the ones the one-step test misses (z, roll) and an x control each
+ITERATE_CELLS = ("tz_0.1", "rz_0.25", "tz_0.2", "rz_0.5", "tx_0.1", "rx_0.25")
+#: its variants (``monitor_persistence.replay``'s ``iterate``: Gauss-Newton steps; -1 the one-step default)
+ITERATE_VARIANTS = {"one-step (default)": -1, "iterated 1": 1, "iterated 3": 3}
+ITERATE_FACTORS = (1.0, 1.5, 2.0, 2.5, 3.0)  # on the threshold and the guard's leave-out threshold
+
+
+def _cell_record(job) -> str:
+    """One site's step runs of the given cells (``_guard_record``'s segments and file names), recorded
+    with the frames' unshaped residual rows."""
+    import monitor_persistence as mp
+    from xcalib.monitor.inject import inject_change
+
+    folder, s, runs, cells = job
+    todo = [(c, r) for c in cells for r in range(runs)
+            if not (folder / f"step_{c.split('_')[0]}_{float(c.split('_')[1]):g}_{s}_{r}.npz").exists()]
+    if todo:
+        site, frames = _synth_stream(s, PRE + POST + 137 * max(runs - 1, 0) + 1)
+        cal = _synth_calibration(site)
+        for c, r in todo:
+            name, size = c.split("_")
+            r_, t_ = _change("rotation" if name[0] == "r" else "translation", float(size), AXES.index(name[1]))
+            k0 = PRE + r * 137
+            seg = [inject_change(f, cal, r_, t_) if i >= PRE else f for i, f in enumerate(frames[k0 - PRE:k0 + POST])]
+            mp.save_recording(folder / f"step_{name}_{float(size):g}_{s}_{r}.npz", mp.collect(cal, seg))
+    return f"{folder} site {s}"
+
+
+def _iterate(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, folder: Path, log) -> dict:
+    """The change test on each window's estimate iterated by Gauss-Newton steps on the frames' unshaped
+    residual rows (``MonitorConfig.iterate_steps``; ``monitor_persistence.replay(iterate=)``, the guard
+    included) against the one-step default, on recordings of the long null streams (both noises, as
+    ``--part guard``) and of the step cells ``steps`` = (sites, runs per site, cells): per variant and
+    factor on the threshold, false alarms (90 % Poisson interval) and runs detected within the cell's
+    target frames. The recordings are ``folder``'s ``.npz`` files (made when absent; they need the
+    unshaped rows, which recordings before session 12 lack)."""
+    import monitor_persistence as mp
+    from xcalib.monitor import MonitorConfig
+    from xcalib.monitor import stats as mstats
+
+    step_seeds, runs, cells = steps
+    folder.mkdir(parents=True, exist_ok=True)
+    jobs = [(folder, "null", name, s, n_base, n_null) for name, _ in GUARD_NOISES for s in null_seeds]
+    for done in [*_pmap(_guard_record, jobs), *_pmap(_cell_record, [(folder, s, runs, cells) for s in step_seeds])]:
+        log(f"  recorded {done}", flush=True)
+    cfg = MonitorConfig()
+    h, h_out = cfg.threshold, mstats.threshold(cfg.leave_out_level, 1, 1)
+    within = {"r": {0.25: 50, 0.5: 20}, "t": {0.1: 50, 0.2: 20}}
+    out: dict = {"variants": dict(ITERATE_VARIANTS), "factors": list(ITERATE_FACTORS), "rows": {},
+                 "null_seeds": null_seeds, "step_seeds": step_seeds, "runs_per_site": runs, "cells": list(cells),
+                 "note": "replayed from recordings (the replay raises the monitor's alarms, guard included); the factor "
+                         "multiplies the threshold and the guard's leave-out threshold; false alarms: the history "
+                         "forgotten after each"}
+    nulls = {(name, s): mp.load_recording(folder / f"null_{name}_{s}.npz") for name, _ in GUARD_NOISES for s in null_seeds}
+    recs = {c: [(s, mp.load_recording(folder / f"step_{c.split('_')[0]}_{float(c.split('_')[1]):g}_{s}_{r}.npz"))
+                for s in step_seeds for r in range(runs)] for c in cells}
+    for v, it in ITERATE_VARIANTS.items():
+        for fac in ITERATE_FACTORS:
+            row = {}
+            for name, _ in GUARD_NOISES:
+                where = {f"site_{s}": mp.replay(nulls[(name, s)], iterate=it, threshold=h * fac, h_out=h_out * fac)
+                         for s in null_seeds}
+                k = sum(len(a) for a in where.values())
+                frames = sum(len(nulls[(name, s)]["rows"]) for s in null_seeds)
+                row[name] = {"frames": frames, "false_alarms": k, "per_10k_and_90ci": _poisson90(k, frames),
+                             "alarm_frames": {s: a for s, a in where.items() if a}}
+            for c in cells:
+                lim = within[c[0]][float(c.split("_")[1])]
+                firsts = [(mp.replay(rec, iterate=it, threshold=h * fac, h_out=h_out * fac, first_only=True)
+                           or [None])[0] for _, rec in recs[c]]
+                delays = [None if f is None else f - PRE for f in firsts]
+                hits = [d is not None and 0 <= d <= lim for d in delays]
+                row[c] = {"runs": len(hits), "detected_within": int(sum(hits)), "within_frames": lim,
+                          "early": sum(d is not None and d < 0 for d in delays), "delays": delays,
+                          "missed_sites": sorted({s for (s, _), hit in zip(recs[c], hits) if not hit})}
+            out["rows"][f"{v}/x{fac:g}"] = row
+            log(f"{v:20s} x{fac:<4g} false alarms {row['default']['false_alarms']} / {row['noisy']['false_alarms']}  "
+                + "  ".join(f"{c} {row[c]['detected_within']}/{row[c]['runs']}" + (f" (early {row[c]['early']})"
+                                                                                  if row[c]['early'] else "")
+                            for c in cells), flush=True)
     return out
 
 

@@ -64,7 +64,8 @@ def collect(cal, frames, config=None, lin_from: tuple[int, np.ndarray] | None = 
     # no alarm may reset the history (the statistics below do not depend on the threshold)
     mon = Monitor(cal, config or MonitorConfig(latch=True, false_alarm_rate=1e-12))
     cm = next(iter(mon.cameras.values()))
-    H, g, c, nres, objs, infl, rows = [], [], [], [], [], [], []
+    cm.keep_edges = True  # the unshaped residual rows too (``replay(iterate=)``)
+    H, g, c, nres, objs, infl, rows, edges = [], [], [], [], [], [], [], []
     t0 = time.process_time()
     n = 0
     for f in frames:
@@ -78,12 +79,14 @@ def collect(cal, frames, config=None, lin_from: tuple[int, np.ndarray] | None = 
         c.append(float(q.c))
         nres.append(int(q.n_res))
         rows.append(q.row.copy())
+        edges.append(q.edges)
         objs.append((None if q.obj is None else np.array(q.obj), None if q.obj_H is None else np.array(q.obj_H),
                      None if q.obj_g is None else np.array(q.obj_g)))
         if sts:
             infl.append(float(cm.inflation))
     return {"H": np.array(H), "g": np.array(g), "c": np.array(c), "n_res": np.array(nres), "objects": objs,
-            "inflation": infl, "alarms": len(cm.events), "rows": np.array(rows).reshape(-1, 46),
+            "inflation": infl, "alarms": len(cm.events), "rows": np.array(rows).reshape(-1, 46), "edges": edges,
+            "occlusion": (cm.occlusion.tau, cm.occlusion.slope) if cm.occlusion is not None else (np.inf, 1.0),
             "threshold": float((config or MonitorConfig()).threshold),
             "cov_cal": np.array(cm.cov_cal), "cpu_ms": 1e3 * (time.process_time() - t0) / max(n, 1)}
 
@@ -329,11 +332,11 @@ def _chi2(d: np.ndarray, C: np.ndarray) -> float:
 
 
 def _guarded(rec: dict, s: int, a: int, e: int, fa, fb, phi: float, cov_cal: np.ndarray, k_out: int,
-             h_out: float) -> float:
+             h_out: float, obj_a=None) -> float:
     """The statistic of the test of frames [a, e) against [s, a) (``fb`` None: against the
     calibration) with the ``k_out`` most influential objects of the recent frames left out of both,
     one at a time, stopping once it is at most ``h_out`` (``core.CameraMonitor._without_objects``)."""
-    ids_a, Ha, ga = _obj_sums(rec, a, e)
+    ids_a, Ha, ga = _obj_sums(rec, a, e) if obj_a is None else obj_a  # (obj_a: the iterated window's shares)
     Ta, ta = Ha.sum(0) if len(Ha) else np.zeros((6, 6)), ga.sum(0) if len(ga) else np.zeros(6)
     fac_a = float(np.trace(fa[1] @ Ta)) / 6.0
     if fb is not None:
@@ -382,13 +385,62 @@ def _few_objects(rec: dict, C: dict, a: int, b: int, cfg) -> bool:
     return 0 < len(ids) and len(np.unique(ids)) < cfg.min_objects
 
 
+def edge_rows(rec: dict, a: int, b: int):
+    """The unshaped residual rows of frames [a, b) of a recording (``iterate.stack_rows``' layout)."""
+    i0, i1 = int(rec["edge_start"][a]), int(rec["edge_start"][b])
+    cnt = np.diff(rec["edge_start"][a:b + 1])
+    return (rec["edge_e0"][i0:i1], rec["edge_J"][i0:i1], rec["edge_sgn"][i0:i1], rec["edge_obj"][i0:i1],
+            np.repeat(rec["edge_fs"][a:b], cnt))
+
+
+def iterated_window(rec: dict, a: int, b: int, steps: int, cov_at: str = "iterate", part: str = ""):
+    """(x, covariance, per-object shares) of frames [a, b) iterated ``steps`` Gauss-Newton steps on
+    the unshaped rows (``xcalib.monitor.iterate.iterated_fit``), the covariance from the normal
+    equations at the last linearisation (``cov_at="iterate"``) or at the calibration
+    (``"calibration"``: the one-step test's), with the residual variance factor (at least 1)."""
+    from xcalib.monitor.iterate import iterated_fit, object_shares
+
+    cache = rec.setdefault("iterated_cache", {})  # the fits do not depend on the threshold: one per window
+    key = (a, b, steps, cov_at, part)
+    if key not in cache:
+        cache[key] = _iterated_window(rec, a, b, steps, cov_at, part, iterated_fit, object_shares)
+    return cache[key]
+
+
+def _iterated_window(rec, a, b, steps, cov_at, part, iterated_fit, object_shares):
+    rows = edge_rows(rec, a, b)
+    if len(rows[0]) < 7:
+        return None
+    tau, slope = rec["occlusion"]
+    got = iterated_fit(rows, steps, tau, slope, part=part)
+    if got is None:
+        return None
+    xl, H, g, c = got
+    f = _fit(H, g, c, len(rows[0]), 1e14)
+    if f is None:
+        return None
+    x, cov = f
+    if cov_at == "calibration":
+        from xcalib.monitor.iterate import normal_equations
+
+        f0 = _fit(*normal_equations(rows, np.zeros(6), tau, slope), len(rows[0]), 1e14)
+        if f0 is None:
+            return None
+        cov = f0[1]
+    return (x, cov), object_shares(rows, xl, tau, slope)
+
+
 def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | None = None,
-           h_out: float | None = None, config=None, first_only: bool = False, threshold: float | None = None) -> list[int]:
+           h_out: float | None = None, config=None, first_only: bool = False, threshold: float | None = None,
+           iterate: int = -1, cov_at: str = "iterate", trace: list | None = None) -> list[int]:
     """The frames (0-based) at which the monitor raises an alarm on the recording ``rec``
     (``load_recording``), with the adjacent-window inflation floored at ``floor`` and multiplied
     by ``factor``, ``leave_out`` objects left out by the guard (default: the config's) and the
     leave-out threshold ``h_out`` (default: the config's); after each alarm the history is
-    forgotten (the benchmark's ``latch=False``); ``first_only``: stop at the first."""
+    forgotten (the benchmark's ``latch=False``); ``first_only``: stop at the first. ``iterate`` >= 0:
+    the recent windows' estimates (and the offset test's) iterated that many Gauss-Newton steps on the
+    recorded unshaped rows (``iterated_window``; -1, the default: the recorded one-step normal
+    equations); ``trace``: a list to append (frame, largest statistic) of every decision to."""
     from xcalib.monitor import MonitorConfig
     from xcalib.monitor import stats as mstats
 
@@ -415,17 +467,30 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
         alarm = False
         if fr is not None:
             tests = []
+            its = {}
+            if iterate >= 0:
+                for L in set(lengths):
+                    its[L] = iterated_window(rec, e - L, e, iterate, cov_at)
+                fr_i = its.get(longest)
             for L in lengths:
                 if C["p"][e - L] - C["p"][s] < minp or C["p"][e] - C["p"][e - L] < minp:
                     continue
                 fa, fb = _seg_fit(C, e - L, e), _seg_fit(C, s, e - L)
+                oa = None
+                if iterate >= 0:
+                    fa, oa = its[L] if its[L] is not None else (None, None)
                 if fa is not None and fb is not None:
-                    tests.append((_chi2(fa[0] - fb[0], (fa[1] + fb[1]) * phi), e - L, fa, fb))
-            tests.append((_chi2(fr[0], fr[1] * phi + cov_cal), e - longest, fr, None))
-            for st, a, fa, fb in sorted(tests, key=lambda q: -q[0]):
+                    tests.append((_chi2(fa[0] - fb[0], (fa[1] + fb[1]) * phi), e - L, fa, fb, oa))
+            if iterate >= 0 and fr_i is not None:
+                tests.append((_chi2(fr_i[0][0], fr_i[0][1] * phi + cov_cal), e - longest, fr_i[0], None, fr_i[1]))
+            elif iterate < 0:
+                tests.append((_chi2(fr[0], fr[1] * phi + cov_cal), e - longest, fr, None, None))
+            if trace is not None:
+                trace.append((e - 1, max([q[0] for q in tests] or [0.0])))
+            for st, a, fa, fb, oa in sorted(tests, key=lambda q: -q[0]):
                 if st <= h:
                     break
-                if _guarded(rec, s, a, e, fa, fb, phi, cov_cal, k_out, h_out) > h_out:
+                if _guarded(rec, s, a, e, fa, fb, phi, cov_cal, k_out, h_out, oa) > h_out:
                     alarm = True
                     break
         if alarm:
@@ -466,17 +531,32 @@ def save_recording(path, d: dict) -> None:
         oH.append(np.asarray(H).reshape(-1, 36))
         og.append(np.asarray(g).reshape(-1, 6))
     cat = lambda v, shape: np.concatenate(v) if v else np.zeros(shape)  # noqa: E731
+    extra = {}
+    if d.get("edges") is not None:  # the unshaped residual rows (``xcalib.monitor.iterate``)
+        ed = d["edges"]
+        extra = {"edge_count": np.array([0 if q is None else len(q.e0) for q in ed], dtype=np.int64),
+                 "edge_e0": cat([q.e0 for q in ed if q is not None], (0,)),
+                 "edge_J": cat([q.J for q in ed if q is not None], (0, 6)),
+                 "edge_sgn": cat([q.sgn for q in ed if q is not None], (0,)).astype(np.int8),
+                 "edge_obj": cat([q.obj for q in ed if q is not None], (0,)).astype(np.int64),
+                 "edge_fs": np.array([np.nan if q is None else q.fs for q in ed]),
+                 "occlusion": np.asarray(d["occlusion"], dtype=np.float64)}
     np.savez_compressed(path, rows=d["rows"], cov_cal=d["cov_cal"], threshold=d["threshold"],
                         obj_frame=cat(fr, (0,)).astype(np.int64), obj_id=cat(ids, (0,)).astype(np.int64),
-                        obj_H=cat(oH, (0, 36)), obj_g=cat(og, (0, 6)))
+                        obj_H=cat(oH, (0, 36)), obj_g=cat(og, (0, 6)), **extra)
 
 
 def load_recording(path) -> dict:
     """``save_recording``'s file back: rows, cov_cal, threshold and the per-object shares."""
     z = np.load(path, allow_pickle=False)
-    return {"rows": z["rows"], "cov_cal": z["cov_cal"], "threshold": float(z["threshold"]),
-            "obj_frame": z["obj_frame"], "obj_id": z["obj_id"], "obj_H": z["obj_H"].reshape(-1, 6, 6),
-            "obj_g": z["obj_g"]}
+    out = {"rows": z["rows"], "cov_cal": z["cov_cal"], "threshold": float(z["threshold"]),
+           "obj_frame": z["obj_frame"], "obj_id": z["obj_id"], "obj_H": z["obj_H"].reshape(-1, 6, 6),
+           "obj_g": z["obj_g"]}
+    if "edge_count" in z.files:  # recorded with the unshaped residual rows
+        out.update({"edge_start": np.concatenate([[0], np.cumsum(z["edge_count"])]), "edge_e0": z["edge_e0"],
+                    "edge_J": z["edge_J"].reshape(-1, 6), "edge_sgn": z["edge_sgn"].astype(np.float64),
+                    "edge_obj": z["edge_obj"], "edge_fs": z["edge_fs"], "occlusion": tuple(z["occlusion"])})
+    return out
 
 
 def analyse(d: dict) -> dict:
