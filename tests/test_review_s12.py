@@ -60,3 +60,21 @@ def test_one_camera_of_a_frame_keeps_the_scores_of_its_own_boxes():
                             detections=FrameDetections("x", (0.5,))), "front")
     assert odd.detections == FrameDetections("x", (0.5,))
     assert camera_view(Frame(frame.image, frame.point_cloud, b2, frame.bboxes_3d), "").detections is None
+
+
+def test_boxes_source_survives_calibration_json(tmp_path):
+    """``CalibrationResult.boxes_source`` replaced the plain advice's read of
+    ``meta["detection_coverage"]`` but was not written to calibration.json: a refused result read
+    back gave the advice to change the intrinsics, which the own-detections advice warns against."""
+    from xcalib.calib.diagnostics import CalibDiagnostics
+    from xcalib.calib.result import CalibrationResult
+    from xcalib.viz.advice import plain_advice
+
+    res = CalibrationResult(success=False, message="misfit", diagnostics=CalibDiagnostics(refusal="misfit_focal_length"),
+                            meta={"detection_coverage": {"share": 0.9}}, boxes_source=OWN_DETECTIONS)
+    back = CalibrationResult.load(res.save(tmp_path / "calibration.json"))
+    assert back.boxes_source == OWN_DETECTIONS and plain_advice(back) == plain_advice(res)
+    assert "label-free" in plain_advice(back)[0]
+    plain = CalibrationResult(success=False, message="misfit")
+    assert "boxes_source" not in plain.to_dict()  # other results' files unchanged
+    assert CalibrationResult.from_dict(plain.to_dict()).boxes_source == ""

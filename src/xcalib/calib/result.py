@@ -38,8 +38,8 @@ class CalibrationResult:
     on the way (bring-up pose, uncertainty parts, misfit checks, per-frame residuals); both are
     None for results read from other tools' files. ``boxes_source``: who made the boxes the pose
     was fitted to, when a detector of xcalib's did (``xcalib.types.OWN_DETECTIONS``, set with the
-    detection coverage by ``xcalib.detect.explain_refusal``); "" otherwise and for results read
-    from files.
+    detection coverage by ``xcalib.detect.explain_refusal``; written to and read from xcalib's
+    calibration.json); "" otherwise and for results read from other tools' files.
     """
 
     success: bool
@@ -231,6 +231,8 @@ class CalibrationResult:
             "meta": self.meta,
             "config": None if self.config is None else self.config.to_dict(),
             "diagnostics": None if self.diagnostics is None else self.diagnostics.to_dict(),
+            # who made the boxes (only when a detector of xcalib's did: other results' files unchanged)
+            **({"boxes_source": self.boxes_source} if self.boxes_source else {}),
         }
 
     @classmethod
@@ -260,6 +262,7 @@ class CalibrationResult:
             meta=dict(d.get("meta", {})),
             config=None if d.get("config") is None else CalibConfig.from_dict(d["config"]),
             diagnostics=None if d.get("diagnostics") is None else CalibDiagnostics.from_dict(d["diagnostics"]),
+            boxes_source=str(d.get("boxes_source") or ""),
         )
 
     def save(self, path: str | Path, *, overwrite: bool = True) -> Path:
