@@ -78,3 +78,35 @@ def test_boxes_source_survives_calibration_json(tmp_path):
     plain = CalibrationResult(success=False, message="misfit")
     assert "boxes_source" not in plain.to_dict()  # other results' files unchanged
     assert CalibrationResult.from_dict(plain.to_dict()).boxes_source == ""
+
+
+#: released by the test (inherited by the forked workers: made before the pool)
+_GATE = mp.get_context("fork").Event() if "fork" in mp.get_all_start_methods() else None
+
+
+def _blocked(x):
+    assert _GATE.wait(120), "the gate was never opened"
+    return x
+
+
+@needs_fork
+def test_closing_a_deferred_does_not_wait_for_its_cancelled_later_calls():
+    """``Deferred.close`` waited for its cancelled calls too; a cancelled ``later`` call counts as
+    done (``concurrent.futures.wait``) only once the pool's feeder reaches it, i.e. once a process
+    is idle: the close waited for unrelated tasks to end."""
+    import threading
+
+    from xcalib.calib.parallel import Deferred
+
+    _GATE.clear()
+    with WorkerPool(2) as pool:
+        busy = [pool.submit(_blocked, k) for k in range(2)]  # both processes held until the gate opens
+        d = Deferred([(_square, (2,)), (_square, (3,))], 2, later=(0, 1))
+        closing = threading.Thread(target=d.close)
+        closing.start()
+        closing.join(60)
+        done_while_busy = not closing.is_alive()
+        _GATE.set()
+        closing.join(120)
+        assert done_while_busy, "Deferred.close waited for the pool's other tasks"
+        assert [f.result(timeout=120) for f in busy] == [0, 1]

@@ -480,7 +480,9 @@ class Deferred:
             live = [f for f in self._fut if f is not None]
             for f in live:
                 f.cancel()
-            wait(live)
+            # a cancelled call never runs: not waited for (a ``later`` one is only marked cancelled
+            # once the pool's feeder reaches it, i.e. once a process is idle)
+            wait([f for f in live if not f.cancelled()])
         if self._threads is not None:
             self._threads.shutdown(wait=True)
             self._threads = None
