@@ -79,31 +79,61 @@ def kabsch_triangles(A: np.ndarray, B: np.ndarray):
     sign, and turns in the plane by the 2D Procrustes angle; of the two signs the one with the
     larger fit wins (the SVD's determinant correction). The same R, t as :func:`kabsch` up to
     rounding (1e-12) wherever the triangles are not degenerate. Returns R [T,3,3], t [T,3]."""
-    ca, cb = A.mean(1), B.mean(1)
+    ca, EA = _plane_frames(A)
+    cb, EB = _plane_frames(B)
     a, b = A - ca[:, None], B - cb[:, None]
-
-    def frame(p):  # orthonormal [e1, e2, n] (rows) of each triangle's plane
-        e1 = p[:, 1] - p[:, 0]
-        n = np.cross(e1, p[:, 2] - p[:, 0])
-        e1 = e1 / np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
-        n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        return np.stack([e1, np.cross(n, e1), n], 1)
-
-    EA, EB = frame(A), frame(B)
     pa = a @ EA.transpose(0, 2, 1)  # [T,3 points, (x, y, ~0)]
     pb = b @ EB.transpose(0, 2, 1)
     xa, ya, xb, yb = pa[..., 0], pa[..., 1], pb[..., 0], pb[..., 1]
-    c1, s1 = np.sum(xa * xb + ya * yb, 1), np.sum(xa * yb - ya * xb, 1)  # normal onto normal
-    c2, s2 = np.sum(xa * xb - ya * yb, 1), np.sum(-xa * yb - ya * xb, 1)  # onto minus normal (y flipped)
+    xx, yy, xy, yx = xa * xb, ya * yb, xa * yb, ya * xb  # each product once ((-x) y = -(x y) exactly)
+
+    def sum3(q):  # np.sum(q, 1) of [T,3], in its order
+        return q[:, 0] + q[:, 1] + q[:, 2]
+
+    c1, s1 = sum3(xx + yy), sum3(xy - yx)  # normal onto normal
+    c2, s2 = sum3(xx - yy), sum3(np.negative(xy) - yx)  # onto minus normal (y flipped)
     flip = np.hypot(c2, s2) > np.hypot(c1, s1)
     c, s = np.where(flip, c2, c1), np.where(flip, s2, s1)
     h = np.maximum(np.hypot(c, s), 1e-300)
     c, s = c / h, s / h
-    EB = np.where(flip[:, None, None], EB * np.array([1.0, -1.0, -1.0])[None, :, None], EB)
+    EB[flip, 1:] *= -1.0  # the flipped frames' second and third rows negated
     Rz = np.zeros((len(A), 3, 3))
     Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0
     R = EB.transpose(0, 2, 1) @ Rz @ EA
     return R, cb - (R @ ca[..., None])[..., 0]
+
+
+def _cross_cols(a0, a1, a2, b0, b1, b2):
+    """``np.cross`` of [T] columns of 3-vectors: its products and differences, in its order."""
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+def _unit_cols(x0, x1, x2):
+    """x / max(``np.linalg.norm(x, axis=1)``, 1e-300) for [T] columns: the norm's sum of squares in
+    its order ((x0^2 + x1^2) + x2^2)."""
+    n = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    np.maximum(n, 1e-300, out=n)
+    return x0 / n, x1 / n, x2 / n
+
+
+def _plane_frames(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids [T,3] and orthonormal frames [T,3,3] (rows e1, n x e1, n) of triangles P [T,3,3],
+    e1 along the first edge, n the plane normal; computed on [T] columns with the operations of
+    ``P.mean(1)``, ``np.cross`` and ``np.linalg.norm`` in their order (the same values to the bit,
+    without the reductions over short axes and the stacking)."""
+    p0, p1, p2 = P[:, 0], P[:, 1], P[:, 2]
+    c = p0 + p1
+    c += p2
+    c /= 3.0
+    e, f = p1 - p0, p2 - p0
+    e0, e1, e2 = e[:, 0], e[:, 1], e[:, 2]
+    n0, n1, n2 = _unit_cols(*_cross_cols(e0, e1, e2, f[:, 0], f[:, 1], f[:, 2]))
+    e0, e1, e2 = _unit_cols(e0, e1, e2)
+    E = np.empty((len(P), 3, 3))
+    E[:, 0, 0], E[:, 0, 1], E[:, 0, 2] = e0, e1, e2
+    E[:, 1, 0], E[:, 1, 1], E[:, 1, 2] = _cross_cols(n0, n1, n2, e0, e1, e2)
+    E[:, 2, 0], E[:, 2, 1], E[:, 2, 2] = n0, n1, n2
+    return c, E
 
 
 def bearings(intr: CameraIntrinsics, uv: np.ndarray) -> np.ndarray:
