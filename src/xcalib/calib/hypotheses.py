@@ -17,7 +17,8 @@ from ..geometry.boxes import box2d_centers, box2d_sizes
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import pixels_per_metre as camera_pixels_per_metre
 from ..geometry.projection import undistort_pixels
-from .boxproj import project_rects
+from ..geometry.camera_models.outline import finish_rects
+from .boxproj import MIN_DEPTH_M, project_rects
 from .inputs import CalibFrame
 from .match_sparse import explained_iou
 
@@ -656,9 +657,14 @@ def score_poses(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nda
     if fr.n2 == 0 or fr.n3 == 0:
         return out
     chunk = int(max(1, min(chunk, max_elems // (fr.n2 * fr.n3))))
+    shape = np.asarray(fr.corners if fr.box_corners is None else fr.box_corners, dtype=np.float64)
+    plain = type(intr) is CameraIntrinsics and intr.distortion is None
+    by_corner = np.ascontiguousarray(shape.transpose(1, 0, 2)).reshape(-1, 3) if plain else None
     for s in range(0, len(R), chunk):
-        shape = fr.corners if fr.box_corners is None else fr.box_corners
-        rects, _ = project_rects(shape, R[s:s + chunk], t[s:s + chunk], intr, fr.size)
+        if plain:
+            rects = _pinhole_rects(by_corner, len(shape), R[s:s + chunk], t[s:s + chunk], intr, fr.size)
+        else:
+            rects, _ = project_rects(shape, R[s:s + chunk], t[s:s + chunk], intr, fr.size)
         # the maxima of the [h,K,M] IoU over its 3D and its 2D boxes, computed on the overlapping
         # pairs only (the others are 0): the same values as from ``iou_batched``'s full array
         best, col = explained_iou(rects, fr.boxes2d)
@@ -666,3 +672,37 @@ def score_poses(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nda
         # approximate one-to-one by also taking the column max.
         out[s:s + chunk] = np.minimum(best.sum(1), col.sum(1))
     return out
+
+
+def _pinhole_rects(by_corner: np.ndarray, M: int, R: np.ndarray, t: np.ndarray, intr: CameraIntrinsics,
+                   size: tuple[int, int]) -> np.ndarray:
+    """``project_rects(shape, R, t, intr, size)[0]`` for a pinhole without distortion, from the
+    outline corners ``by_corner`` [S*M,3] ordered corner by corner (``shape.transpose(1, 0, 2)``
+    of ``shape`` [M,S,3]): every corner's pixels with ``boxproj``'s operations (one batched matrix
+    product per pose, then element-wise), laid out [H,S,M] so that each edge is a running
+    minimum / maximum over S contiguous [H,M] planes instead of over the strided corners of each
+    box. The rects are the same values: a corner's pixels do not depend on the other corners of
+    the product (``boxproj._corner_pixels``' own premise), and min / max are exact whatever their
+    order (a pixel is never -0.0: ``x fx + cx``; a NaN corner makes its edge NaN either way).
+    Returns rects [H,M,4], a view of [4,H,M] edge planes (invalid rects NaN)."""
+    H, S = len(R), len(by_corner) // max(M, 1)
+    X = np.matmul(R, by_corner.T)  # [H,3,S*M]
+    X += t[:, :, None]
+    z = X[:, 2].reshape(H, S, M)
+    ahead = z > MIN_DEPTH_M
+    inv = np.full(z.shape, np.nan)
+    np.divide(1.0, z, out=inv, where=ahead)
+    u = np.multiply(X[:, 0].reshape(H, S, M), inv, out=X[:, 0].reshape(H, S, M))
+    v = np.multiply(X[:, 1].reshape(H, S, M), inv, out=X[:, 1].reshape(H, S, M))
+    u *= intr.fx
+    u += intr.cx
+    v *= intr.fy
+    v += intr.cy
+    E = np.empty((4, H, M))
+    for k, (a, red) in enumerate(((u, np.minimum), (v, np.minimum), (u, np.maximum), (v, np.maximum))):
+        np.copyto(E[k], a[:, 0])
+        for j in range(1, S):
+            red(E[k], a[:, j], out=E[k])
+    rects = E.transpose(1, 2, 0)
+    finish_rects(rects, ahead.all(1), size, True)
+    return rects
