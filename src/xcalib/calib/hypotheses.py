@@ -588,10 +588,14 @@ def _triple_solve(c: _Candidates, tri: np.ndarray, closed_form: bool = False):
     X, ray, lam = c.X, c.ray, c.lam
     B = ray[tri]  # [T,3,3]
     A = X[tri]
-    a_idx, b_idx = np.array([0, 0, 1]), np.array([1, 2, 2])
-    cosang = np.einsum("tki,tki->tk", B[:, a_idx], B[:, b_idx])
-    d2 = np.sum((A[:, a_idx] - A[:, b_idx]) ** 2, axis=2)
-    lam_t, rel = _p3p_newton(lam[tri].copy(), cosang, d2)
+    # per side (01, 02, 12): the cosine of the rays' angle and the squared LiDAR distance, on the
+    # [T,3] views of each member (the sums of einsum / np.sum over the last axis of 3, without the
+    # gathered [T,3,3] copies of ``B[:, [0, 0, 1]]``)
+    cosang, d2 = np.empty((len(tri), 3)), np.empty((len(tri), 3))
+    for k, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
+        cosang[:, k] = np.einsum("ti,ti->t", B[:, a], B[:, b])
+        d2[:, k] = np.sum((A[:, a] - A[:, b]) ** 2, axis=1)
+    lam_t, rel = _p3p_newton(lam[tri], cosang, d2)
     good = (rel < 0.05) & np.all(lam_t > 1.0, axis=1)
     if not np.any(good):
         return None
