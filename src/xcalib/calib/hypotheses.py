@@ -164,45 +164,62 @@ def _p3p_newton(lam: np.ndarray, cosang: np.ndarray, d2: np.ndarray, iters: int 
 
     Each product that the residuals and the Jacobian share (l_a^2, 2 l_a) is formed once, and a
     negated factor is a subtraction (-(x) * y = -(x * y) and a + (-b) = a - b hold exactly in IEEE
-    arithmetic): the same values to the bit as every term written out."""
-    l0, l1, l2 = (np.array(lam[:, k], dtype=np.float64) for k in range(3))
-    c0, c1, c2 = cosang[:, 0], cosang[:, 1], cosang[:, 2]
-    d0, d1, d2_ = d2[:, 0], d2[:, 1], d2[:, 2]
-    for _ in range(iters):
-        q0, q1, q2 = l0 * l0, l1 * l1, l2 * l2
-        w0, w1, w2 = 2 * l0, 2 * l1, 2 * l2
-        f0 = q0 + q1
-        f0 -= w0 * l1 * c0
-        f0 -= d0
-        f1 = q0 + q2
-        f1 -= w0 * l2 * c1
-        f1 -= d1
-        f2 = q1 + q2
-        f2 -= w1 * l2 * c2
-        f2 -= d2_
-        P0, Q0 = w0 - w1 * c0, w1 - w0 * c0
-        P1, Q1 = w0 - w2 * c1, w2 - w0 * c1
-        P2, Q2 = w1 - w2 * c2, w2 - w1 * c2
-        A00, A22 = P0 + 1e-6, Q2 + 1e-6
-        k00 = 1e-6 * A22 - Q1 * P2
-        P1A22 = P1 * A22  # k01 = -(P1 A22)
-        k02 = P1 * P2
-        det = A00 * k00 - Q0 * P1A22
+    arithmetic), every operation writes into a buffer of the loop: the same values to the bit as
+    every term written out."""
+    L = np.array(np.asarray(lam).T, dtype=np.float64)  # [3,T]: the depths l0, l1, l2 as rows
+    l0, l1, l2 = L
+    c0, c1, c2 = np.ascontiguousarray(np.asarray(cosang, dtype=np.float64).T)  # contiguous columns
+    d0, d1, d2_ = np.ascontiguousarray(np.asarray(d2, dtype=np.float64).T)
+    n = L.shape[1]
+    Q, W, F, S = (np.empty((3, n)) for _ in range(4))  # l^2, 2 l, residuals, steps (rows per depth / side)
+    (q0, q1, q2), (w0, w1, w2), (f0, f1, f2), (s0, s1, s2) = Q, W, F, S
+    P0, Q0, P1, Q1, P2, Q2, A00, A22, k00, P1A22, k02, det, t1, t2, big, scale = np.empty((16, n))
+    for _ in range(iters):  # every operation in place, each a term of the written-out formulas, in their order
+        np.multiply(L, L, out=Q)
+        np.multiply(2, L, out=W)
+        for f, qa, qb, wa, lb, c, d in ((f0, q0, q1, w0, l1, c0, d0), (f1, q0, q2, w0, l2, c1, d1),
+                                        (f2, q1, q2, w1, l2, c2, d2_)):
+            np.add(qa, qb, out=f)  # f = la^2 + lb^2 - 2 la lb c - d
+            np.multiply(wa, lb, out=t1)
+            t1 *= c
+            f -= t1
+            f -= d
+        for out, wa, wb, c in ((P0, w0, w1, c0), (Q0, w1, w0, c0), (P1, w0, w2, c1), (Q1, w2, w0, c1),
+                               (P2, w1, w2, c2), (Q2, w2, w1, c2)):
+            np.multiply(wb, c, out=out)  # 2 la - 2 lb c
+            np.subtract(wa, out, out=out)
+        np.add(P0, 1e-6, out=A00)
+        np.add(Q2, 1e-6, out=A22)
+        np.multiply(1e-6, A22, out=k00)  # k00 = 1e-6 A22 - Q1 P2
+        k00 -= np.multiply(Q1, P2, out=t1)
+        np.multiply(P1, A22, out=P1A22)  # the adjugate's k01 = -(P1 A22)
+        np.multiply(P1, P2, out=k02)
+        np.multiply(A00, k00, out=det)  # det = A00 k00 + Q0 k01
+        det -= np.multiply(Q0, P1A22, out=t1)
         if not np.all(np.isfinite(det)) or np.any(det == 0):  # a singular system (np.linalg.solve would raise)
             break
-        s0 = k00 * f0 - (Q0 * A22) * f1 + (Q0 * Q1) * f2
-        s0 /= det
-        s1 = (A00 * A22) * f1 - P1A22 * f0 - (A00 * Q1) * f2
-        s1 /= det
-        s2 = k02 * f0 - (A00 * P2) * f1 + (A00 * 1e-6 - Q0 * P1) * f2
-        s2 /= det
+        np.multiply(k00, f0, out=s0)  # s0 = k00 f0 - (Q0 A22) f1 + (Q0 Q1) f2
+        s0 -= np.multiply(np.multiply(Q0, A22, out=t1), f1, out=t1)
+        s0 += np.multiply(np.multiply(Q0, Q1, out=t1), f2, out=t1)
+        np.multiply(np.multiply(A00, A22, out=s1), f1, out=s1)  # s1 = (A00 A22) f1 - P1A22 f0 - (A00 Q1) f2
+        s1 -= np.multiply(P1A22, f0, out=t1)
+        s1 -= np.multiply(np.multiply(A00, Q1, out=t1), f2, out=t1)
+        np.multiply(k02, f0, out=s2)  # s2 = k02 f0 - (A00 P2) f1 + (A00 1e-6 - Q0 P1) f2
+        s2 -= np.multiply(np.multiply(A00, P2, out=t1), f1, out=t1)
+        np.multiply(A00, 1e-6, out=t1)
+        t1 -= np.multiply(Q0, P1, out=t2)
+        s2 += np.multiply(t1, f2, out=t1)
+        S /= det
         # damp: never move a depth by more than half its value per step
-        big = np.maximum(np.maximum(np.abs(s0), np.abs(s1)), np.abs(s2))
-        scale = np.minimum(1.0, 0.5 * np.minimum(np.minimum(l0, l1), l2) / np.maximum(big, 1e-12))
-        l0 = np.maximum(l0 - s0 * scale, 0.05)
-        l1 = np.maximum(l1 - s1 * scale, 0.05)
-        l2 = np.maximum(l2 - s2 * scale, 0.05)
-    lam = np.column_stack([l0, l1, l2])
+        np.maximum(np.maximum(np.abs(s0, out=big), np.abs(s1, out=t1), out=big), np.abs(s2, out=t1), out=big)
+        np.minimum(np.minimum(l0, l1, out=scale), l2, out=scale)
+        scale *= 0.5
+        scale /= np.maximum(big, 1e-12, out=big)
+        np.minimum(1.0, scale, out=scale)
+        S *= scale
+        L -= S
+        np.maximum(L, 0.05, out=L)
+    lam = np.ascontiguousarray(L.T)
     la, lb = lam[:, [0, 0, 1]], lam[:, [1, 2, 2]]
     f = la * la + lb * lb - 2 * la * lb * cosang - d2
     rel = np.abs(f) / np.maximum(d2, 1e-6)
