@@ -109,10 +109,14 @@ def _cross_cols(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
+def _norm_cols(x0, x1, x2):
+    """``np.linalg.norm(x, axis=1)`` for [T] columns: its sum of squares in its order ((x0^2 + x1^2) + x2^2)."""
+    return np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+
+
 def _unit_cols(x0, x1, x2):
-    """x / max(``np.linalg.norm(x, axis=1)``, 1e-300) for [T] columns: the norm's sum of squares in
-    its order ((x0^2 + x1^2) + x2^2)."""
-    n = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    """x / max(``np.linalg.norm(x, axis=1)``, 1e-300) for [T] columns."""
+    n = _norm_cols(x0, x1, x2)
     np.maximum(n, 1e-300, out=n)
     return x0 / n, x1 / n, x2 / n
 
@@ -591,10 +595,12 @@ def _triples(c: _Candidates, rng: np.random.Generator, max_triples: int, min_alt
     if len(tri) == 0:
         return None, stats
     # reject thin 3D triangles (collinear boxes leave the roll about their line free)
-    P3 = X[tri]
-    e1, e2, e3 = P3[:, 1] - P3[:, 0], P3[:, 2] - P3[:, 0], P3[:, 2] - P3[:, 1]
-    area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
-    longest = np.maximum(np.maximum(np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)), np.linalg.norm(e3, axis=1))
+    # (on [T] columns: ``np.cross`` and ``np.linalg.norm``'s operations in their order, the same values)
+    Xc = [np.ascontiguousarray(X[:, j]) for j in range(3)]
+    P0, P1, P2 = ([x[tri[:, k]] for x in Xc] for k in range(3))
+    e1, e2, e3 = ([b - a for a, b in zip(Pa, Pb)] for Pa, Pb in ((P0, P1), (P0, P2), (P1, P2)))
+    area2 = _norm_cols(*_cross_cols(*e1, *e2))
+    longest = np.maximum(np.maximum(_norm_cols(*e1), _norm_cols(*e2)), _norm_cols(*e3))
     tri = tri[area2 / np.maximum(longest, 1e-9) >= min_altitude_m]
     return (tri if len(tri) else None), stats
 
