@@ -997,7 +997,8 @@ class CentreNoise:
     ``sigma_px``: per-edge 2D noise; ``sigma_3d_m``: the per-coordinate 3D centre error of a box (a rigid shift
     of all its edges); ``sigma_size``: the relative size error (opposite edges apart); ``se_3d_var``: the standard
     error of the centre variance's estimate (m^2); ``n_used``: the shift / spread components fitted;
-    ``measured``: whether the centre variance lies ``CENTRE_NOISE_Z`` standard errors above 0."""
+    ``measured``: whether the centre variance lies ``CENTRE_NOISE_Z`` standard errors above 0; ``var_cov``: the
+    3x3 covariance of the three variances' estimates (px^2, m^2, 1; empty: not known)."""
 
     sigma_px: float
     sigma_3d_m: float
@@ -1005,10 +1006,12 @@ class CentreNoise:
     se_3d_var: float
     n_used: int
     measured: bool
+    var_cov: tuple = ()
 
     def as_dict(self) -> dict:
         return {"sigma_px": self.sigma_px, "sigma_3d_m": self.sigma_3d_m, "sigma_size": self.sigma_size,
-                "se_3d_var": self.se_3d_var, "n_used": self.n_used, "measured": self.measured}
+                "se_3d_var": self.se_3d_var, "n_used": self.n_used, "measured": self.measured,
+                "var_cov": [list(r) for r in self.var_cov]}
 
 
 @dataclass
@@ -1049,7 +1052,7 @@ def _centre_fit(ctx: FitContext) -> _CentreFit | None:
     raw = term.edges(model.state(np.zeros(model.n_params))) * w
     slope = term.shape_slope(raw) if (term.occlusion is not None or term.censored is not None) else np.ones((n, 4))
     informative = np.any(J != 0, axis=1).reshape(n, 4)
-    usable = inl.reshape(n, 4) & (slope == 1.0) & np.isfinite(raw)
+    usable = inl.reshape(n, 4) & (slope > 0.0) & np.isfinite(raw)
     Jr = J.reshape(n, 4, 6)
     G = Jr[:, :, 3:6]  # a camera-frame shift of the box moves its edges as the translation does
     hw = 0.5 * (term.obs[:, 2] - term.obs[:, 0])
@@ -1127,12 +1130,13 @@ def centre_noise(ctx: FitContext) -> CentreNoise | None:
     E = np.maximum(X[use] @ theta, 1e-9)
     info = (X[use] / E[:, None]).T @ (X[use] / E[:, None]) / 2.0
     try:
-        se = float(np.sqrt(max(np.linalg.inv(info)[1, 1], 0.0)))
+        cov = np.linalg.inv(info)
     except np.linalg.LinAlgError:
-        se = float("inf")
+        cov = np.full((3, 3), np.inf)
+    se = float(np.sqrt(max(cov[1, 1], 0.0)))
     measured = bool(theta[1] > CENTRE_NOISE_Z * se)
     return CentreNoise(float(np.sqrt(theta[0])), float(np.sqrt(theta[1])), float(np.sqrt(theta[2])), se,
-                       int(use.sum()), measured)
+                       int(use.sum()), measured, tuple(tuple(float(v) for v in row) for row in cov))
 
 
 def centre_shift_sd(ctx: FitContext, est: CentreNoise | None = None) -> np.ndarray | None:
@@ -1147,9 +1151,25 @@ def centre_shift_sd(ctx: FitContext, est: CentreNoise | None = None) -> np.ndarr
     cf = ctx.cached("centre_fit", lambda: _centre_fit(ctx))
     if cf is None:
         return None
-    theta = (est.sigma_px ** 2, est.sigma_3d_m ** 2, est.sigma_size ** 2)
-    V = sum(th * np.einsum("nei,nef,nfj->ij", cf.Ji, S, cf.Ji) for th, S in zip(theta, cf.basis))
-    return _sd6(cf.A @ V @ cf.A)
+    theta = np.array([est.sigma_px ** 2, est.sigma_3d_m ** 2, est.sigma_size ** 2])
+    per = np.array([np.diag(cf.A @ np.einsum("nei,nef,nfj->ij", cf.Ji, S, cf.Ji) @ cf.A) for S in cf.basis])  # [3,6]
+    var = theta @ per
+    return _sd6(np.diag(var)) * _dof_stretch(var, per, est.var_cov)
+
+
+def _dof_stretch(var: np.ndarray, per: np.ndarray, var_cov) -> np.ndarray:
+    """Per axis ``t_{0.975, dof} / z_{0.975}``: the pose variances ``var`` [6] = ``theta @ per`` rest on the
+    three error variances ``theta`` estimated from the boxes' components (covariance ``var_cov``), so the
+    2-sigma is a 95 % bound only when stretched by Student's t at their Satterthwaite degrees of freedom
+    ``2 var^2 / (per^T C per)`` -- as the object-clustered sigma is (``clusters_dof``). Ones when not known."""
+    from scipy.stats import t as student
+
+    C = np.asarray(var_cov, dtype=np.float64)
+    if C.shape != (3, 3) or not np.all(np.isfinite(C)):
+        return np.ones(len(var))
+    q = np.einsum("ja,jk,ka->a", per, C, per)
+    dof = np.where(q > 0, 2.0 * var ** 2 / np.maximum(q, 1e-300), np.inf)
+    return np.where(np.isfinite(dof), student.ppf(0.975, np.maximum(dof, 1.0)) / 1.959964, 1.0)
 
 
 def with_centre_shift(rot_sd: np.ndarray, tr_sd: np.ndarray, centre_sd) -> tuple[np.ndarray, np.ndarray]:
