@@ -111,7 +111,9 @@ class UncertaintyParts:
     part of the reported sigma); centre_noise: the 3D centre, 2D edge and size errors the boxes' residuals
     show, split by how they move a box's edges (``uncertainty.centre_noise``: sigma_px, sigma_3d_m, sigma_size,
     se_3d_var, n_used, measured); centre_shift: the pose's 1-sigma under that error model where a centre
-    error was measured (``uncertainty.centre_shift_sd``), a floor of the reported sigma (None: none measured)."""
+    error was measured (``uncertainty.centre_shift_sd``; stored, not part of the sigma); centre_floor: the
+    fitted noise model's sigma with that measured centre error as a rigid shift of each box, the reported
+    sigma's floor per axis (``uncertainty.centre_floor_sd``; None where no centre error was measured)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -136,6 +138,7 @@ class UncertaintyParts:
     centre_model: list[float] | None = None
     centre_noise: dict | None = None
     centre_shift: list[float] | None = None
+    centre_floor: list[float] | None = None
 
 
 @dataclass
