@@ -85,3 +85,20 @@ def test_the_part_is_a_floor_of_the_sigma_and_few_matches_give_none():
     one = [p[:1] if i == 0 else p[:0] for i, p in enumerate(pairs)]
     ctx = FitContext(cframes, one, intr, truth, NOISE, 2.0, None)
     assert centre_noise(ctx) is None and centre_shift_sd(ctx) is None
+
+
+def test_the_floor_part_counts_only_a_measured_centre_error_above_the_default():
+    from xcalib.calib.uncertainty import centre_floor_sd, centre_model_sd
+
+    cframes, pairs, intr, truth = _scene()
+    rng = np.random.default_rng(13)
+    ctx = _fitted(cframes, pairs, intr, truth, rng, centre_m=0.15, size_rel=0.02, px=1.0)
+    est = centre_noise(ctx)
+    part = centre_floor_sd(ctx, est)
+    assert part is not None and np.all(part > 0)
+    # D's part at the fit's own noise model (centre term 3 cm) is narrower: the measured 0.15 m is the difference
+    assert np.all(part >= centre_model_sd(ctx) * 0.999) and np.max(part / centre_model_sd(ctx)) > 1.5
+    exact = _fitted(cframes, pairs, intr, truth, rng, centre_m=0.0, size_rel=0.0, px=1.0)
+    assert centre_floor_sd(exact) is None  # nothing measured (or below 3 cm): the sigma is left as it is
+    assert centre_floor_sd(ctx, dataclasses.replace(est, sigma_3d_m=0.02)) is None  # below the default model's 3 cm
+    assert centre_floor_sd(ctx, dataclasses.replace(est, measured=False)) is None
