@@ -1091,7 +1091,8 @@ def _expected_squares(cf: _CentreFit, idx: np.ndarray, coef: np.ndarray) -> np.n
     for j, S in enumerate(cf.basis):
         Sc = np.einsum("kef,kf->ke", S[idx], coef)  # S_p c [K,4]
         JSJ = np.einsum("nei,nef,nfj->ij", cf.Ji, S, cf.Ji)
-        out[:, j] = (np.einsum("ke,ke->k", coef, Sc) - 2.0 * np.einsum("ki,ki->k", m, np.einsum("kei,ke->ki", cf.Ji[idx], Sc))
+        JtSc = np.einsum("kei,ke->ki", cf.Ji[idx], Sc)  # J_p^T S_p c
+        out[:, j] = (np.einsum("ke,ke->k", coef, Sc) - 2.0 * np.einsum("ki,ki->k", m, JtSc)
                      + np.einsum("ki,ij,kj->k", m, JSJ, m))
     return np.clip(out, 0.0, None)
 
@@ -1175,8 +1176,8 @@ def _dof_stretch(var: np.ndarray, per: np.ndarray, var_cov) -> np.ndarray:
 
 
 def with_centre_shift(rot_sd: np.ndarray, tr_sd: np.ndarray, centre_sd) -> tuple[np.ndarray, np.ndarray]:
-    """The per-axis 1-sigma with a centre part (:func:`centre_floor_sd`) (None: unchanged) as its floor: per axis the larger of
-    the two. Not added in quadrature: the object-clustered sandwich sees the same centre errors in the realised
+    """The per-axis 1-sigma with a centre part (:func:`centre_floor_sd`; None: unchanged) as its floor: per axis
+    the larger of the two. Not added in quadrature: the object-clustered sandwich sees the same centre errors in the realised
     residuals (on many objects it carries them), and the model sigma counts them once more from their measured
     variance; the larger is the one that holds where the other is short (few objects, or a pose that absorbed
     the boxes' shifts)."""
