@@ -42,3 +42,68 @@ def test_a_two_sigma_switch_widens_the_sigma_a_clear_focal_error_does_not():
     np.testing.assert_allclose(far, infl, rtol=1e-6)  # a clear focal error (8 sigma): the estimate stands alone
     unknown = _with_focal_choice(np.asarray(infl), _fit(1.01, moved, infl), given, None, SelfCalDiagnostics())
     np.testing.assert_allclose(unknown, infl)
+
+
+def test_the_box_models_weight_widens_a_switch_its_sigma_calls_clear():
+    """Session 12 (issue 25): where the given focal length with the 2D outline offsets free explains the
+    boxes as well as the fitted one (``w_box``), the switch's shift counts by that weight even when the
+    focal length's own sigma calls the difference clear."""
+    given = Pose(np.eye(3), np.zeros(3))
+    moved = Pose(Rotation.from_rotvec(np.radians([0.14, 0.0, 0.0])).as_matrix(), np.array([0.0, 0.0, 0.14]))
+    infl = [0.01, 0.01, 0.01, 0.01, 0.01, 0.01]
+    fit = _fit(np.exp(8 * 0.004), moved, infl)  # 8 sigma by the focal length's own sigma
+    diag = SelfCalDiagnostics()
+    wide = _with_focal_choice(np.asarray(infl), fit, given, 0.004, diag, 0.5)
+    assert wide[5] == pytest.approx(np.hypot(0.01, np.sqrt(0.5) * 0.14), rel=1e-6)
+    assert any("outline offsets fitted" in n for n in diag.notes)
+    # a box model that fits clearly worse adds nothing to what the sigma alone gives
+    np.testing.assert_allclose(_with_focal_choice(np.asarray(infl), fit, given, 0.004, SelfCalDiagnostics(), 1e-9), infl,
+                               rtol=1e-6)
+
+
+def _site(condition: str, seed: int, n_frames: int = 8):
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.data.synth.realism import REALISM_CONDITIONS, make_realism_case
+
+    case = make_realism_case(REALISM_CONDITIONS[condition], seed, n_frames)
+    frames, intr, _ = prepare_frames(list(case.frames), case.intrinsics_given)
+    return frames, intr, Pose.parse(case.T_cam_lidar)
+
+
+def _fitted_at(frames, intr, truth: Pose, scale: float) -> SelfCalFit:
+    """A joint fit's record with the focal length ``scale`` x ``intr`` and the pose refitted to it."""
+    from dataclasses import replace
+
+    from xcalib.calib.cost import Occlusion
+    from xcalib.calib.refine import build_cost, match_all
+
+    f_intr = replace(intr, fx=intr.fx * scale, fy=intr.fy * scale)
+    pairs = match_all(frames, f_intr, truth.R, truth.t, gate_iou=0.3)
+    pose = build_cost(frames, pairs, f_intr, truth, None, Occlusion()).fit(f_scale=2.0, max_nfev=40).pose
+    return SelfCalFit(pose=pose, intr=f_intr, dt_s=0.0, focal_scale=scale, focal_log_sd=0.004, principal_shift_px=None,
+                      principal_sd_px=None, dt_sd_s=None, pose_inflation=np.zeros(6), n_moving_pairs=0,
+                      n_pairs=int(sum(len(p) for p in pairs)))
+
+
+def test_focal_outline_weight_tells_a_focal_error_from_a_detectors_outline():
+    """A real focal error moves the boxes' positions, which no outline offset takes up: the given
+    (wrong) focal length keeps no weight. A detector's tight outline on an exact focal length, refitted
+    a few per cent long: the given focal length with the outline free explains the boxes as well."""
+    from xcalib.calib.cost import Occlusion
+    from xcalib.calib.selfcal import focal_outline_weight
+
+    frames, intr, truth = _site("clean", 0)
+    wrong_given = dataclasses_replace(intr, 1.05)
+    w_error = focal_outline_weight(frames, _fitted_at(frames, wrong_given, truth, 1 / 1.05), wrong_given, Occlusion())
+    frames, intr, truth = _site("detector_outline", 0)
+    w_outline = focal_outline_weight(frames, _fitted_at(frames, intr, truth, 1.03), intr, Occlusion())
+    assert w_error is not None and w_outline is not None
+    assert w_error < 0.01
+    assert w_outline > 0.1
+    assert 0.0 <= w_outline <= 0.5
+
+
+def dataclasses_replace(intr, scale: float):
+    from dataclasses import replace
+
+    return replace(intr, fx=intr.fx * scale, fy=intr.fy * scale)
