@@ -44,21 +44,35 @@ def test_a_two_sigma_switch_widens_the_sigma_a_clear_focal_error_does_not():
     np.testing.assert_allclose(unknown, infl)
 
 
-def test_the_box_models_weight_widens_a_switch_its_sigma_calls_clear():
+def test_the_box_models_weight_widens_the_reported_sigma_only():
     """Session 12 (issue 25): where the given focal length with the 2D outline offsets free explains the
     boxes as well as the fitted one (``w_box``), the switch's shift counts by that weight even when the
-    focal length's own sigma calls the difference clear."""
+    focal length's own sigma calls the difference clear -- in the reported sigma, not the verdict's."""
+    from xcalib.calib.diagnostics import UncertaintyParts
+    from xcalib.calib.selfcal import focal_box_model_sd
+    from xcalib.calib.uncertainty import Uncertainty, with_focal_box_model
+
     given = Pose(np.eye(3), np.zeros(3))
     moved = Pose(Rotation.from_rotvec(np.radians([0.14, 0.0, 0.0])).as_matrix(), np.array([0.0, 0.0, 0.14]))
-    infl = [0.01, 0.01, 0.01, 0.01, 0.01, 0.01]
-    fit = _fit(np.exp(8 * 0.004), moved, infl)  # 8 sigma by the focal length's own sigma
+    fit = _fit(np.exp(8 * 0.004), moved, np.zeros(6))  # 8 sigma by the focal length's own sigma: w ~ 1e-14
     diag = SelfCalDiagnostics()
-    wide = _with_focal_choice(np.asarray(infl), fit, given, 0.004, diag, 0.5)
-    assert wide[5] == pytest.approx(np.hypot(0.01, np.sqrt(0.5) * 0.14), rel=1e-6)
+    extra = focal_box_model_sd(fit, given, 0.004, 0.5, diag)
+    assert extra[5] == pytest.approx(np.sqrt(0.5) * 0.14, rel=1e-6) and extra[0] == pytest.approx(np.sqrt(0.5) * 0.14, rel=1e-6)
+    assert extra[1] == pytest.approx(0.0, abs=1e-12)
     assert any("outline offsets fitted" in n for n in diag.notes)
-    # a box model that fits clearly worse adds nothing to what the sigma alone gives
-    np.testing.assert_allclose(_with_focal_choice(np.asarray(infl), fit, given, 0.004, SelfCalDiagnostics(), 1e-9), infl,
-                               rtol=1e-6)
+    # what the focal length's own weight counts already is not counted twice
+    near = _fit(np.exp(2.0 * 0.004), moved, np.zeros(6))
+    w = focal_choice_weight(2.0)
+    assert focal_box_model_sd(near, given, 0.004, 0.5, SelfCalDiagnostics())[5] == pytest.approx(np.sqrt(0.5 - w) * 0.14, rel=1e-6)
+    # a box model that fits clearly worse adds nothing; nor does an unknown sigma
+    assert focal_box_model_sd(near, given, 0.004, 1e-9, SelfCalDiagnostics()) is None
+    assert focal_box_model_sd(fit, given, None, 0.5, SelfCalDiagnostics()) is None
+    unc = Uncertainty(np.full(3, 0.1), np.full(3, 0.05), UncertaintyParts(), True, np.full(3, 0.2), np.full(3, 0.1))
+    wide = with_focal_box_model(unc, extra)
+    assert wide.tr_sd[2] == pytest.approx(np.hypot(0.05, np.sqrt(0.5) * 0.14), rel=1e-9)
+    np.testing.assert_array_equal(wide.tr_sd_data, unc.tr_sd_data)  # the verdict's data sigma is kept
+    assert wide.parts.focal_box_model == pytest.approx(list(extra))
+    assert with_focal_box_model(unc, None) is unc
 
 
 def _site(condition: str, seed: int, n_frames: int = 8):

@@ -108,7 +108,9 @@ class UncertaintyParts:
     sampling noise: a systematic part added in quadrature beyond that noise (None: not computed, or
     the fit censors them already); centre_model: the pose's 1-sigma under the fitted noise model with
     its 3D centre error as a rigid shift of each box (``uncertainty.centre_model_sd``; measured, not
-    part of the reported sigma)."""
+    part of the reported sigma); focal_box_model: what refine_intrinsics="auto"'s choice of a fitted
+    focal length adds where the given focal length with the 2D outline offsets free explains the
+    boxes as well (``selfcal.focal_box_model_sd``): in the reported sigma only (None: none)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -131,6 +133,7 @@ class UncertaintyParts:
     hidden: list[float] | None = None
     hidden_noise: list[float] | None = None
     centre_model: list[float] | None = None
+    focal_box_model: list[float] | None = None
 
 
 @dataclass
