@@ -323,10 +323,11 @@ def focal_box_model_sd(fit: SelfCalFit, pose: Pose, sd: float | None, w_box: flo
     verdict's data sigma judges whether the frames determine the pose; whether a box outline or a
     focal length explains the boxes' sizes is a question of the box model, which the 95 % bound
     answers. Realism ``detector_outline`` (session 12): of the 5 sites where "auto" replaced the exact
-    focal length (x1.01-1.03) the given one with the outline offsets free fit as well at 4 (weight
-    1/2), the pose moves by 0.04-0.69 deg / 0.40-0.68 m with the switch; site 11 was delivered 0.33 deg
+    focal length (x1.01-1.03) the given one with the outline offsets free fit as well at all 5 (weight
+    1/2), the pose moves by 0.04-0.69 deg / 0.16-0.68 m with the switch; site 11 was delivered 0.33 deg
     / 0.34 m off with a 95 % bound of 0.31 deg / 0.28 m (errors up to 5.0 sigma), site 19 refused 0.57
-    deg / 0.78 m off with a bound of 1.34 deg / 0.74 m (3.8 sigma)."""
+    deg / 0.78 m off with a bound of 1.34 deg / 0.74 m (3.8 sigma); with this part 2.1 and 1.6 sigma, no
+    verdict moved (``calibration_realism.json`` run ``s12_B_focal_switch_sites``)."""
     if w_box is None or not np.isfinite(w_box) or sd is None or not np.isfinite(sd) or sd <= 0:
         return None
     w = focal_choice_weight(abs(float(np.log(fit.focal_scale))) / sd)
