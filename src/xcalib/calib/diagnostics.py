@@ -113,7 +113,9 @@ class UncertaintyParts:
     se_3d_var, n_used, measured); centre_shift: the pose's 1-sigma under that error model where a centre
     error was measured (``uncertainty.centre_shift_sd``; stored, not part of the sigma); centre_floor: the
     fitted noise model's sigma with that measured centre error as a rigid shift of each box, the reported
-    sigma's floor per axis (``uncertainty.centre_floor_sd``; None where no centre error was measured)."""
+    sigma's floor per axis (``uncertainty.centre_floor_sd``; None where no centre error was measured); focal_box_model: what refine_intrinsics="auto"'s choice of a fitted
+    focal length adds where the given focal length with the 2D outline offsets free explains the
+    boxes as well (``selfcal.focal_box_model_sd``): in the reported sigma only (None: none)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -139,6 +141,7 @@ class UncertaintyParts:
     centre_noise: dict | None = None
     centre_shift: list[float] | None = None
     centre_floor: list[float] | None = None
+    focal_box_model: list[float] | None = None
 
 
 @dataclass

@@ -37,7 +37,7 @@ from .refine import DEFAULT_NOISE, F_SCALE, build_cost, lsq
 from .terms import CostSpec, occlusion_of, pose_block
 
 __all__ = ["pose_covariance", "object_sandwich", "cr2_covariance", "pose_spread", "pose_jackknife", "frame_jackknife", "object_groups", "pose_object_bootstrap",
-           "combine", "bound95", "bound_dof", "outline_shift", "shift_noise_sd", "excess", "SHIFT_NOISE_Z", "with_object_outline", "statistical_sd", "box_model_shift", "hidden_edge_shift", "with_hidden_edges", "centre_model_sd", "centre_noise", "centre_shift_sd", "centre_floor_sd", "with_centre_shift", "CentreNoise", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "frames_checkable", "Uncertainty", "estimate"]
+           "combine", "bound95", "bound_dof", "outline_shift", "shift_noise_sd", "excess", "SHIFT_NOISE_Z", "with_object_outline", "with_focal_box_model", "statistical_sd", "box_model_shift", "hidden_edge_shift", "with_hidden_edges", "centre_model_sd", "centre_noise", "centre_shift_sd", "centre_floor_sd", "with_centre_shift", "CentreNoise", "HALF_MIN_MATCHES", "HALVES_MIN_MATCHES", "frames_checkable", "Uncertainty", "estimate"]
 
 HALF_MIN_MATCHES = 6  # matches each half of the frames (or pairs) needs for the frame-halves check
 HALVES_MIN_MATCHES = 2 * HALF_MIN_MATCHES
@@ -931,6 +931,21 @@ def with_object_outline(unc: Uncertainty, sd6) -> Uncertainty:
     sd6 = np.asarray(sd6, dtype=np.float64)
     total = np.fmax(np.concatenate([unc.rot_sd, unc.tr_sd]), sd6)
     parts = dataclasses.replace(unc.parts, object_outline=_lst(sd6))
+    return Uncertainty(total[:3], total[3:], parts, unc.halves_available, unc.rot_sd_data, unc.tr_sd_data)
+
+
+def with_focal_box_model(unc: Uncertainty, sd6) -> Uncertainty:
+    """``unc`` with the focal choice's box-model part (``selfcal.focal_box_model_sd``; 6-vector, deg / m;
+    None: ``unc`` unchanged) added in quadrature to the reported sigma and stored as
+    ``parts.focal_box_model``; the verdict's data sigma is kept (a systematic question of the box model,
+    as the hidden-edge shift)."""
+    import dataclasses
+
+    if sd6 is None:
+        return unc
+    sd6 = np.asarray(sd6, dtype=np.float64)
+    total = np.sqrt(np.concatenate([unc.rot_sd, unc.tr_sd]) ** 2 + sd6 ** 2)
+    parts = dataclasses.replace(unc.parts, focal_box_model=_lst(sd6))
     return Uncertainty(total[:3], total[3:], parts, unc.halves_available, unc.rot_sd_data, unc.tr_sd_data)
 
 
