@@ -54,7 +54,9 @@ def rebuild(parts: dict, z: float) -> np.ndarray:
     r, t = combine(_a(parts["jacobian"]), _a(parts["halves"]), excess(parts["occlusion"], _a(parts.get("occlusion_noise")), z),
                    _a(parts["jackknife"]), _a(parts["objects"]), floor, _a(parts["clusters"]), outl)
     sd = np.concatenate([r, t])
-    return sd if parts.get("object_outline") is None else np.fmax(sd, _a(parts["object_outline"]))
+    sd = sd if parts.get("object_outline") is None else np.fmax(sd, _a(parts["object_outline"]))
+    # the focal choice's box-model part (session 12): in quadrature, after the objects' outlines
+    return sd if parts.get("focal_box_model") is None else np.sqrt(sd ** 2 + _a(parts["focal_box_model"]) ** 2)
 
 
 def expected_median(rec: dict, sd: np.ndarray) -> np.ndarray:

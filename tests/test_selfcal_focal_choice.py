@@ -42,3 +42,82 @@ def test_a_two_sigma_switch_widens_the_sigma_a_clear_focal_error_does_not():
     np.testing.assert_allclose(far, infl, rtol=1e-6)  # a clear focal error (8 sigma): the estimate stands alone
     unknown = _with_focal_choice(np.asarray(infl), _fit(1.01, moved, infl), given, None, SelfCalDiagnostics())
     np.testing.assert_allclose(unknown, infl)
+
+
+def test_the_box_models_weight_widens_the_reported_sigma_only():
+    """Session 12 (issue 25): where the given focal length with the 2D outline offsets free explains the
+    boxes as well as the fitted one (``w_box``), the switch's shift counts by that weight even when the
+    focal length's own sigma calls the difference clear -- in the reported sigma, not the verdict's."""
+    from xcalib.calib.diagnostics import UncertaintyParts
+    from xcalib.calib.selfcal import focal_box_model_sd
+    from xcalib.calib.uncertainty import Uncertainty, with_focal_box_model
+
+    given = Pose(np.eye(3), np.zeros(3))
+    moved = Pose(Rotation.from_rotvec(np.radians([0.14, 0.0, 0.0])).as_matrix(), np.array([0.0, 0.0, 0.14]))
+    fit = _fit(np.exp(8 * 0.004), moved, np.zeros(6))  # 8 sigma by the focal length's own sigma: w ~ 1e-14
+    diag = SelfCalDiagnostics()
+    extra = focal_box_model_sd(fit, given, 0.004, 0.5, diag)
+    assert extra[5] == pytest.approx(np.sqrt(0.5) * 0.14, rel=1e-6) and extra[0] == pytest.approx(np.sqrt(0.5) * 0.14, rel=1e-6)
+    assert extra[1] == pytest.approx(0.0, abs=1e-12)
+    assert any("outline offsets fitted" in n for n in diag.notes)
+    # what the focal length's own weight counts already is not counted twice
+    near = _fit(np.exp(2.0 * 0.004), moved, np.zeros(6))
+    w = focal_choice_weight(2.0)
+    assert focal_box_model_sd(near, given, 0.004, 0.5, SelfCalDiagnostics())[5] == pytest.approx(np.sqrt(0.5 - w) * 0.14, rel=1e-6)
+    # a box model that fits clearly worse adds nothing; nor does an unknown sigma
+    assert focal_box_model_sd(near, given, 0.004, 1e-9, SelfCalDiagnostics()) is None
+    assert focal_box_model_sd(fit, given, None, 0.5, SelfCalDiagnostics()) is None
+    unc = Uncertainty(np.full(3, 0.1), np.full(3, 0.05), UncertaintyParts(), True, np.full(3, 0.2), np.full(3, 0.1))
+    wide = with_focal_box_model(unc, extra)
+    assert wide.tr_sd[2] == pytest.approx(np.hypot(0.05, np.sqrt(0.5) * 0.14), rel=1e-9)
+    np.testing.assert_array_equal(wide.tr_sd_data, unc.tr_sd_data)  # the verdict's data sigma is kept
+    assert wide.parts.focal_box_model == pytest.approx(list(extra))
+    assert with_focal_box_model(unc, None) is unc
+
+
+def _site(condition: str, seed: int, n_frames: int = 8):
+    from xcalib.calib.inputs import prepare_frames
+    from xcalib.data.synth.realism import REALISM_CONDITIONS, make_realism_case
+
+    case = make_realism_case(REALISM_CONDITIONS[condition], seed, n_frames)
+    frames, intr, _ = prepare_frames(list(case.frames), case.intrinsics_given)
+    return frames, intr, Pose.parse(case.T_cam_lidar)
+
+
+def _fitted_at(frames, intr, truth: Pose, scale: float) -> SelfCalFit:
+    """A joint fit's record with the focal length ``scale`` x ``intr`` and the pose refitted to it."""
+    from dataclasses import replace
+
+    from xcalib.calib.cost import Occlusion
+    from xcalib.calib.refine import build_cost, match_all
+
+    f_intr = replace(intr, fx=intr.fx * scale, fy=intr.fy * scale)
+    pairs = match_all(frames, f_intr, truth.R, truth.t, gate_iou=0.3)
+    pose = build_cost(frames, pairs, f_intr, truth, None, Occlusion()).fit(f_scale=2.0, max_nfev=40).pose
+    return SelfCalFit(pose=pose, intr=f_intr, dt_s=0.0, focal_scale=scale, focal_log_sd=0.004, principal_shift_px=None,
+                      principal_sd_px=None, dt_sd_s=None, pose_inflation=np.zeros(6), n_moving_pairs=0,
+                      n_pairs=int(sum(len(p) for p in pairs)))
+
+
+def test_focal_outline_weight_tells_a_focal_error_from_a_detectors_outline():
+    """A real focal error moves the boxes' positions, which no outline offset takes up: the given
+    (wrong) focal length keeps no weight. A detector's tight outline on an exact focal length, refitted
+    a few per cent long: the given focal length with the outline free explains the boxes as well."""
+    from xcalib.calib.cost import Occlusion
+    from xcalib.calib.selfcal import focal_outline_weight
+
+    frames, intr, truth = _site("clean", 0)
+    wrong_given = dataclasses_replace(intr, 1.05)
+    w_error = focal_outline_weight(frames, _fitted_at(frames, wrong_given, truth, 1 / 1.05), wrong_given, Occlusion())
+    frames, intr, truth = _site("detector_outline", 0)
+    w_outline = focal_outline_weight(frames, _fitted_at(frames, intr, truth, 1.03), intr, Occlusion())
+    assert w_error is not None and w_outline is not None
+    assert w_error < 0.01
+    assert w_outline > 0.1
+    assert 0.0 <= w_outline <= 0.5
+
+
+def dataclasses_replace(intr, scale: float):
+    from dataclasses import replace
+
+    return replace(intr, fx=intr.fx * scale, fy=intr.fy * scale)

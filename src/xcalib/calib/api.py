@@ -47,7 +47,7 @@ from .result import CalibrationResult
 from .selection import FrameSelection, scan_frames, select_frames
 from .selfcal import decide as decide_selfcal, wants_selfcal
 from .uncertainty import estimate as estimate_uncertainty
-from .uncertainty import object_groups, outline_fit, statistical_sd, with_object_outline
+from .uncertainty import object_groups, outline_fit, statistical_sd, with_focal_box_model, with_object_outline
 
 __all__ = ["calibrate", "calibrate_single", "METHOD"]
 
@@ -627,7 +627,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     early = _early_searches(frames_in, (cframes, intr, ref), occlusion, config, diag) \
         if config.misfit_check and resolve_workers(config.workers) > 1 else None
     cframes, ref = _choose_box_model(cframes, intr, cand, ref, occlusion, config, diag, progress)
-    inflation = None
+    inflation, focal_box = None, None
     if wants_selfcal(config):
         choice = decide_selfcal(cframes, intr, Pose(ref.best.R, ref.best.t), config, motion, occlusion, diag.selfcal)
         diag.selfcal = choice.diag
@@ -636,7 +636,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
             return _refused(Refusal("selfcal", choice.refusal), intr, cframes, config, diag)
         if choice.intr is not intr or choice.frames is not cframes:
             # every candidate again with the estimated intrinsics / moved 3D boxes (a fair runner-up)
-            cframes, intr, inflation = choice.frames, choice.intr, choice.inflation
+            cframes, intr, inflation, focal_box = choice.frames, choice.intr, choice.inflation, choice.box_model
             joint = Hypotheses(choice.pose.R[None], choice.pose.t[None], np.zeros(1), np.zeros(1, dtype=np.int64))
             ref = _refine_candidates(cframes, intr, Hypotheses.concat([joint, cand]), occlusion, progress,
                                      config.workers, config.max_candidates)
@@ -674,6 +674,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         if searches is not None:  # searched from the plain pose: again from the moved one (those given up)
             searches.cancel()
             searches = _misfit_searches(fit, config, ref.best_score, refits)
+    unc = with_focal_box_model(unc, focal_box)  # the focal choice's box-model part: the reported sigma only
     px, ious = pair_metrics(cframes, intr, pose.R, pose.t, pairs)
     diag.uncertainty = unc.parts  # its selfcal part: the pose spread the estimated intrinsics / offset add
     # a runner-up within 2 sigma of the best is the same solution (the decision then bounds the

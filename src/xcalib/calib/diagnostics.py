@@ -108,7 +108,14 @@ class UncertaintyParts:
     sampling noise: a systematic part added in quadrature beyond that noise (None: not computed, or
     the fit censors them already); centre_model: the pose's 1-sigma under the fitted noise model with
     its 3D centre error as a rigid shift of each box (``uncertainty.centre_model_sd``; measured, not
-    part of the reported sigma)."""
+    part of the reported sigma); centre_noise: the 3D centre, 2D edge and size errors the boxes' residuals
+    show, split by how they move a box's edges (``uncertainty.centre_noise``: sigma_px, sigma_3d_m, sigma_size,
+    se_3d_var, n_used, measured); centre_shift: the pose's 1-sigma under that error model where a centre
+    error was measured (``uncertainty.centre_shift_sd``; stored, not part of the sigma); centre_floor: the
+    fitted noise model's sigma with that measured centre error as a rigid shift of each box, the reported
+    sigma's floor per axis (``uncertainty.centre_floor_sd``; None where no centre error was measured); focal_box_model: what refine_intrinsics="auto"'s choice of a fitted
+    focal length adds where the given focal length with the 2D outline offsets free explains the
+    boxes as well (``selfcal.focal_box_model_sd``): in the reported sigma only (None: none)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -131,6 +138,10 @@ class UncertaintyParts:
     hidden: list[float] | None = None
     hidden_noise: list[float] | None = None
     centre_model: list[float] | None = None
+    centre_noise: dict | None = None
+    centre_shift: list[float] | None = None
+    centre_floor: list[float] | None = None
+    focal_box_model: list[float] | None = None
 
 
 @dataclass

@@ -17,7 +17,8 @@ from ..geometry.boxes import box2d_centers, box2d_sizes
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import pixels_per_metre as camera_pixels_per_metre
 from ..geometry.projection import undistort_pixels
-from .boxproj import project_rects
+from ..geometry.camera_models.outline import finish_rects
+from .boxproj import MIN_DEPTH_M, project_rects
 from .inputs import CalibFrame
 from .match_sparse import explained_iou
 
@@ -79,31 +80,65 @@ def kabsch_triangles(A: np.ndarray, B: np.ndarray):
     sign, and turns in the plane by the 2D Procrustes angle; of the two signs the one with the
     larger fit wins (the SVD's determinant correction). The same R, t as :func:`kabsch` up to
     rounding (1e-12) wherever the triangles are not degenerate. Returns R [T,3,3], t [T,3]."""
-    ca, cb = A.mean(1), B.mean(1)
+    ca, EA = _plane_frames(A)
+    cb, EB = _plane_frames(B)
     a, b = A - ca[:, None], B - cb[:, None]
-
-    def frame(p):  # orthonormal [e1, e2, n] (rows) of each triangle's plane
-        e1 = p[:, 1] - p[:, 0]
-        n = np.cross(e1, p[:, 2] - p[:, 0])
-        e1 = e1 / np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
-        n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        return np.stack([e1, np.cross(n, e1), n], 1)
-
-    EA, EB = frame(A), frame(B)
     pa = a @ EA.transpose(0, 2, 1)  # [T,3 points, (x, y, ~0)]
     pb = b @ EB.transpose(0, 2, 1)
     xa, ya, xb, yb = pa[..., 0], pa[..., 1], pb[..., 0], pb[..., 1]
-    c1, s1 = np.sum(xa * xb + ya * yb, 1), np.sum(xa * yb - ya * xb, 1)  # normal onto normal
-    c2, s2 = np.sum(xa * xb - ya * yb, 1), np.sum(-xa * yb - ya * xb, 1)  # onto minus normal (y flipped)
+    xx, yy, xy, yx = xa * xb, ya * yb, xa * yb, ya * xb  # each product once ((-x) y = -(x y) exactly)
+
+    def sum3(q):  # np.sum(q, 1) of [T,3], in its order
+        return q[:, 0] + q[:, 1] + q[:, 2]
+
+    c1, s1 = sum3(xx + yy), sum3(xy - yx)  # normal onto normal
+    c2, s2 = sum3(xx - yy), sum3(np.negative(xy) - yx)  # onto minus normal (y flipped)
     flip = np.hypot(c2, s2) > np.hypot(c1, s1)
     c, s = np.where(flip, c2, c1), np.where(flip, s2, s1)
     h = np.maximum(np.hypot(c, s), 1e-300)
     c, s = c / h, s / h
-    EB = np.where(flip[:, None, None], EB * np.array([1.0, -1.0, -1.0])[None, :, None], EB)
+    EB[flip, 1:] *= -1.0  # the flipped frames' second and third rows negated
     Rz = np.zeros((len(A), 3, 3))
     Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0
     R = EB.transpose(0, 2, 1) @ Rz @ EA
     return R, cb - (R @ ca[..., None])[..., 0]
+
+
+def _cross_cols(a0, a1, a2, b0, b1, b2):
+    """``np.cross`` of [T] columns of 3-vectors: its products and differences, in its order."""
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+def _norm_cols(x0, x1, x2):
+    """``np.linalg.norm(x, axis=1)`` for [T] columns: its sum of squares in its order ((x0^2 + x1^2) + x2^2)."""
+    return np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+
+
+def _unit_cols(x0, x1, x2):
+    """x / max(``np.linalg.norm(x, axis=1)``, 1e-300) for [T] columns."""
+    n = _norm_cols(x0, x1, x2)
+    np.maximum(n, 1e-300, out=n)
+    return x0 / n, x1 / n, x2 / n
+
+
+def _plane_frames(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids [T,3] and orthonormal frames [T,3,3] (rows e1, n x e1, n) of triangles P [T,3,3],
+    e1 along the first edge, n the plane normal; computed on [T] columns with the operations of
+    ``P.mean(1)``, ``np.cross`` and ``np.linalg.norm`` in their order (the same values to the bit,
+    without the reductions over short axes and the stacking)."""
+    p0, p1, p2 = P[:, 0], P[:, 1], P[:, 2]
+    c = p0 + p1
+    c += p2
+    c /= 3.0
+    e, f = p1 - p0, p2 - p0
+    e0, e1, e2 = e[:, 0], e[:, 1], e[:, 2]
+    n0, n1, n2 = _unit_cols(*_cross_cols(e0, e1, e2, f[:, 0], f[:, 1], f[:, 2]))
+    e0, e1, e2 = _unit_cols(e0, e1, e2)
+    E = np.empty((len(P), 3, 3))
+    E[:, 0, 0], E[:, 0, 1], E[:, 0, 2] = e0, e1, e2
+    E[:, 1, 0], E[:, 1, 1], E[:, 1, 2] = _cross_cols(n0, n1, n2, e0, e1, e2)
+    E[:, 2, 0], E[:, 2, 1], E[:, 2, 2] = n0, n1, n2
+    return c, E
 
 
 def bearings(intr: CameraIntrinsics, uv: np.ndarray) -> np.ndarray:
@@ -129,34 +164,66 @@ def _p3p_newton(lam: np.ndarray, cosang: np.ndarray, d2: np.ndarray, iters: int 
     one zero per row ([[P0, Q0, 0], [P1, 0, Q1], [0, P2, Q2]] plus 1e-6 on the diagonal): it is
     solved by the adjugate written out for that pattern, one [T] column at a time: the terms of the
     general 3x3 adjugate that have a zero factor are dropped, which changes no bit of the result,
-    and the [T,3,3] arrays and their fancy indexing are gone (4x less time on A9's triples)."""
-    l0, l1, l2 = (np.array(lam[:, k], dtype=np.float64) for k in range(3))
-    c0, c1, c2 = cosang[:, 0], cosang[:, 1], cosang[:, 2]
-    d0, d1, d2_ = d2[:, 0], d2[:, 1], d2[:, 2]
-    for _ in range(iters):
-        f0 = l0 * l0 + l1 * l1 - 2 * l0 * l1 * c0 - d0
-        f1 = l0 * l0 + l2 * l2 - 2 * l0 * l2 * c1 - d1
-        f2 = l1 * l1 + l2 * l2 - 2 * l1 * l2 * c2 - d2_
-        P0, Q0 = 2 * l0 - 2 * l1 * c0, 2 * l1 - 2 * l0 * c0
-        P1, Q1 = 2 * l0 - 2 * l2 * c1, 2 * l2 - 2 * l0 * c1
-        P2, Q2 = 2 * l1 - 2 * l2 * c2, 2 * l2 - 2 * l1 * c2
-        A00, A22 = P0 + 1e-6, Q2 + 1e-6
-        k00 = 1e-6 * A22 - Q1 * P2
-        k01 = -(P1 * A22)
-        k02 = P1 * P2
-        det = A00 * k00 + Q0 * k01
+    and the [T,3,3] arrays and their fancy indexing are gone (4x less time on A9's triples).
+
+    Each product that the residuals and the Jacobian share (l_a^2, 2 l_a) is formed once, and a
+    negated factor is a subtraction (-(x) * y = -(x * y) and a + (-b) = a - b hold exactly in IEEE
+    arithmetic), every operation writes into a buffer of the loop: the same values to the bit as
+    every term written out."""
+    L = np.array(np.asarray(lam).T, dtype=np.float64)  # [3,T]: the depths l0, l1, l2 as rows
+    l0, l1, l2 = L
+    c0, c1, c2 = np.ascontiguousarray(np.asarray(cosang, dtype=np.float64).T)  # contiguous columns
+    d0, d1, d2_ = np.ascontiguousarray(np.asarray(d2, dtype=np.float64).T)
+    n = L.shape[1]
+    Q, W, F, S = (np.empty((3, n)) for _ in range(4))  # l^2, 2 l, residuals, steps (rows per depth / side)
+    (q0, q1, q2), (w0, w1, w2), (f0, f1, f2), (s0, s1, s2) = Q, W, F, S
+    P0, Q0, P1, Q1, P2, Q2, A00, A22, k00, P1A22, k02, det, t1, t2, big, scale = np.empty((16, n))
+    for _ in range(iters):  # every operation in place, each a term of the written-out formulas, in their order
+        np.multiply(L, L, out=Q)
+        np.multiply(2, L, out=W)
+        for f, qa, qb, wa, lb, c, d in ((f0, q0, q1, w0, l1, c0, d0), (f1, q0, q2, w0, l2, c1, d1),
+                                        (f2, q1, q2, w1, l2, c2, d2_)):
+            np.add(qa, qb, out=f)  # f = la^2 + lb^2 - 2 la lb c - d
+            np.multiply(wa, lb, out=t1)
+            t1 *= c
+            f -= t1
+            f -= d
+        for out, wa, wb, c in ((P0, w0, w1, c0), (Q0, w1, w0, c0), (P1, w0, w2, c1), (Q1, w2, w0, c1),
+                               (P2, w1, w2, c2), (Q2, w2, w1, c2)):
+            np.multiply(wb, c, out=out)  # 2 la - 2 lb c
+            np.subtract(wa, out, out=out)
+        np.add(P0, 1e-6, out=A00)
+        np.add(Q2, 1e-6, out=A22)
+        np.multiply(1e-6, A22, out=k00)  # k00 = 1e-6 A22 - Q1 P2
+        k00 -= np.multiply(Q1, P2, out=t1)
+        np.multiply(P1, A22, out=P1A22)  # the adjugate's k01 = -(P1 A22)
+        np.multiply(P1, P2, out=k02)
+        np.multiply(A00, k00, out=det)  # det = A00 k00 + Q0 k01
+        det -= np.multiply(Q0, P1A22, out=t1)
         if not np.all(np.isfinite(det)) or np.any(det == 0):  # a singular system (np.linalg.solve would raise)
             break
-        s0 = (k00 * f0 + -(Q0 * A22) * f1 + (Q0 * Q1) * f2) / det
-        s1 = (k01 * f0 + (A00 * A22) * f1 + -(A00 * Q1) * f2) / det
-        s2 = (k02 * f0 + -(A00 * P2) * f1 + (A00 * 1e-6 - Q0 * P1) * f2) / det
+        np.multiply(k00, f0, out=s0)  # s0 = k00 f0 - (Q0 A22) f1 + (Q0 Q1) f2
+        s0 -= np.multiply(np.multiply(Q0, A22, out=t1), f1, out=t1)
+        s0 += np.multiply(np.multiply(Q0, Q1, out=t1), f2, out=t1)
+        np.multiply(np.multiply(A00, A22, out=s1), f1, out=s1)  # s1 = (A00 A22) f1 - P1A22 f0 - (A00 Q1) f2
+        s1 -= np.multiply(P1A22, f0, out=t1)
+        s1 -= np.multiply(np.multiply(A00, Q1, out=t1), f2, out=t1)
+        np.multiply(k02, f0, out=s2)  # s2 = k02 f0 - (A00 P2) f1 + (A00 1e-6 - Q0 P1) f2
+        s2 -= np.multiply(np.multiply(A00, P2, out=t1), f1, out=t1)
+        np.multiply(A00, 1e-6, out=t1)
+        t1 -= np.multiply(Q0, P1, out=t2)
+        s2 += np.multiply(t1, f2, out=t1)
+        S /= det
         # damp: never move a depth by more than half its value per step
-        big = np.maximum(np.maximum(np.abs(s0), np.abs(s1)), np.abs(s2))
-        scale = np.minimum(1.0, 0.5 * np.minimum(np.minimum(l0, l1), l2) / np.maximum(big, 1e-12))
-        l0 = np.maximum(l0 - s0 * scale, 0.05)
-        l1 = np.maximum(l1 - s1 * scale, 0.05)
-        l2 = np.maximum(l2 - s2 * scale, 0.05)
-    lam = np.column_stack([l0, l1, l2])
+        np.maximum(np.maximum(np.abs(s0, out=big), np.abs(s1, out=t1), out=big), np.abs(s2, out=t1), out=big)
+        np.minimum(np.minimum(l0, l1, out=scale), l2, out=scale)
+        scale *= 0.5
+        scale /= np.maximum(big, 1e-12, out=big)
+        np.minimum(1.0, scale, out=scale)
+        S *= scale
+        L -= S
+        np.maximum(L, 0.05, out=L)
+    lam = np.ascontiguousarray(L.T)
     la, lb = lam[:, [0, 0, 1]], lam[:, [1, 2, 2]]
     f = la * la + lb * lb - 2 * la * lb * cosang - d2
     rel = np.abs(f) / np.maximum(d2, 1e-6)
@@ -528,10 +595,12 @@ def _triples(c: _Candidates, rng: np.random.Generator, max_triples: int, min_alt
     if len(tri) == 0:
         return None, stats
     # reject thin 3D triangles (collinear boxes leave the roll about their line free)
-    P3 = X[tri]
-    e1, e2, e3 = P3[:, 1] - P3[:, 0], P3[:, 2] - P3[:, 0], P3[:, 2] - P3[:, 1]
-    area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
-    longest = np.maximum(np.maximum(np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)), np.linalg.norm(e3, axis=1))
+    # (on [T] columns: ``np.cross`` and ``np.linalg.norm``'s operations in their order, the same values)
+    Xc = [np.ascontiguousarray(X[:, j]) for j in range(3)]
+    P0, P1, P2 = ([x[tri[:, k]] for x in Xc] for k in range(3))
+    e1, e2, e3 = ([b - a for a, b in zip(Pa, Pb)] for Pa, Pb in ((P0, P1), (P0, P2), (P1, P2)))
+    area2 = _norm_cols(*_cross_cols(*e1, *e2))
+    longest = np.maximum(np.maximum(_norm_cols(*e1), _norm_cols(*e2)), _norm_cols(*e3))
     tri = tri[area2 / np.maximum(longest, 1e-9) >= min_altitude_m]
     return (tri if len(tri) else None), stats
 
@@ -542,10 +611,14 @@ def _triple_solve(c: _Candidates, tri: np.ndarray, closed_form: bool = False):
     X, ray, lam = c.X, c.ray, c.lam
     B = ray[tri]  # [T,3,3]
     A = X[tri]
-    a_idx, b_idx = np.array([0, 0, 1]), np.array([1, 2, 2])
-    cosang = np.einsum("tki,tki->tk", B[:, a_idx], B[:, b_idx])
-    d2 = np.sum((A[:, a_idx] - A[:, b_idx]) ** 2, axis=2)
-    lam_t, rel = _p3p_newton(lam[tri].copy(), cosang, d2)
+    # per side (01, 02, 12): the cosine of the rays' angle and the squared LiDAR distance, on the
+    # [T,3] views of each member (the sums of einsum / np.sum over the last axis of 3, without the
+    # gathered [T,3,3] copies of ``B[:, [0, 0, 1]]``)
+    cosang, d2 = np.empty((len(tri), 3)), np.empty((len(tri), 3))
+    for k, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
+        cosang[:, k] = np.einsum("ti,ti->t", B[:, a], B[:, b])
+        d2[:, k] = np.sum((A[:, a] - A[:, b]) ** 2, axis=1)
+    lam_t, rel = _p3p_newton(lam[tri], cosang, d2)
     good = (rel < 0.05) & np.all(lam_t > 1.0, axis=1)
     if not np.any(good):
         return None
@@ -611,9 +684,14 @@ def score_poses(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nda
     if fr.n2 == 0 or fr.n3 == 0:
         return out
     chunk = int(max(1, min(chunk, max_elems // (fr.n2 * fr.n3))))
+    shape = np.asarray(fr.corners if fr.box_corners is None else fr.box_corners, dtype=np.float64)
+    plain = type(intr) is CameraIntrinsics and intr.distortion is None
+    by_corner = np.ascontiguousarray(shape.transpose(1, 0, 2)).reshape(-1, 3) if plain else None
     for s in range(0, len(R), chunk):
-        shape = fr.corners if fr.box_corners is None else fr.box_corners
-        rects, _ = project_rects(shape, R[s:s + chunk], t[s:s + chunk], intr, fr.size)
+        if plain:
+            rects = _pinhole_rects(by_corner, len(shape), R[s:s + chunk], t[s:s + chunk], intr, fr.size)
+        else:
+            rects, _ = project_rects(shape, R[s:s + chunk], t[s:s + chunk], intr, fr.size)
         # the maxima of the [h,K,M] IoU over its 3D and its 2D boxes, computed on the overlapping
         # pairs only (the others are 0): the same values as from ``iou_batched``'s full array
         best, col = explained_iou(rects, fr.boxes2d)
@@ -621,3 +699,37 @@ def score_poses(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nda
         # approximate one-to-one by also taking the column max.
         out[s:s + chunk] = np.minimum(best.sum(1), col.sum(1))
     return out
+
+
+def _pinhole_rects(by_corner: np.ndarray, M: int, R: np.ndarray, t: np.ndarray, intr: CameraIntrinsics,
+                   size: tuple[int, int]) -> np.ndarray:
+    """``project_rects(shape, R, t, intr, size)[0]`` for a pinhole without distortion, from the
+    outline corners ``by_corner`` [S*M,3] ordered corner by corner (``shape.transpose(1, 0, 2)``
+    of ``shape`` [M,S,3]): every corner's pixels with ``boxproj``'s operations (one batched matrix
+    product per pose, then element-wise), laid out [H,S,M] so that each edge is a running
+    minimum / maximum over S contiguous [H,M] planes instead of over the strided corners of each
+    box. The rects are the same values: a corner's pixels do not depend on the other corners of
+    the product (``boxproj._corner_pixels``' own premise), and min / max are exact whatever their
+    order (a pixel is never -0.0: ``x fx + cx``; a NaN corner makes its edge NaN either way).
+    Returns rects [H,M,4], a view of [4,H,M] edge planes (invalid rects NaN)."""
+    H, S = len(R), len(by_corner) // max(M, 1)
+    X = np.matmul(R, by_corner.T)  # [H,3,S*M]
+    X += t[:, :, None]
+    z = X[:, 2].reshape(H, S, M)
+    ahead = z > MIN_DEPTH_M
+    inv = np.full(z.shape, np.nan)
+    np.divide(1.0, z, out=inv, where=ahead)
+    u = np.multiply(X[:, 0].reshape(H, S, M), inv, out=X[:, 0].reshape(H, S, M))
+    v = np.multiply(X[:, 1].reshape(H, S, M), inv, out=X[:, 1].reshape(H, S, M))
+    u *= intr.fx
+    u += intr.cx
+    v *= intr.fy
+    v += intr.cy
+    E = np.empty((4, H, M))
+    for k, (a, red) in enumerate(((u, np.minimum), (v, np.minimum), (u, np.maximum), (v, np.maximum))):
+        np.copyto(E[k], a[:, 0])
+        for j in range(1, S):
+            red(E[k], a[:, j], out=E[k])
+    rects = E.transpose(1, 2, 0)
+    finish_rects(rects, ahead.all(1), size, True)
+    return rects

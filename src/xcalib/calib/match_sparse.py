@@ -118,13 +118,18 @@ def explained_iou(rects: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.
     K = len(b)
     edges = [np.ascontiguousarray(rects[..., j]) for j in range(4)]  # [H,M] each
     cols = [np.ascontiguousarray(b[:, j]) for j in range(4)]  # [K] each
-    rx0, ry0, rx1, ry1 = (e.reshape(H, 1, M) for e in edges)
-    bx0, by0, bx1, by1 = (c.reshape(1, K, 1) for c in cols)
-    cand = rx0 < bx1
-    cand &= rx1 > bx0
-    cand &= ry0 < by1
-    cand &= ry1 > by0
-    flat = np.flatnonzero(cand)  # (h, k, m) row-major
+    # overlap tests box by box on whole [H,M] planes ([K,H,M]: no broadcast inner loop over the few
+    # M of each (h, k)), then read in (h, k, m) order: the same mask as the [H,K,M] broadcast
+    cand = np.empty((K, H, M), dtype=bool)
+    tmp = np.empty((H, M), dtype=bool)
+    rx0, ry0, rx1, ry1 = edges
+    for k in range(K):
+        ck = cand[k]
+        np.less(rx0, cols[2][k], out=ck)
+        ck &= np.greater(rx1, cols[0][k], out=tmp)
+        ck &= np.less(ry0, cols[3][k], out=tmp)
+        ck &= np.greater(ry1, cols[1][k], out=tmp)
+    flat = np.flatnonzero(cand.transpose(1, 0, 2))  # (h, k, m) row-major
     if not len(flat):
         return np.zeros((H, K)), np.zeros((H, M))
     hk, mm = np.divmod(flat, M)
