@@ -135,3 +135,34 @@ def test_dense_memo_is_keyed_by_the_outlines_numbers():
     kept = memo.slot
     edges0, same = memo.get(c, 0)
     assert same is c and c.flags.writeable and memo.slot is kept
+
+
+@pytest.mark.parametrize("distortion", [None, np.array([-0.2, 0.05, 0.001, -0.002, 0.0])])
+def test_frames_projected_without_padding_are_the_padded_projection(distortion):
+    """``refine._project_outlines`` (the matching's projection of every frame's outlines) gives
+    ``project_rects`` of the padded outlines to the bit: frames with outlines of different lengths
+    (8 corners, point hulls already padded within their frame), boxes behind the camera, boxes
+    clipped by the image, a frame without boxes."""
+    from xcalib.calib import refine
+    from xcalib.calib.boxproj import project_rects
+    from xcalib.geometry.camera import CameraIntrinsics
+
+    intr = CameraIntrinsics(fx=900.0, fy=880.0, cx=640.0, cy=400.0, distortion=distortion)
+    rng = np.random.default_rng(5)
+    corners = []
+    for m, S in ((7, 8), (0, 8), (5, 23), (9, 64), (1, 80)):
+        ctr = np.column_stack([rng.uniform(-12, 12, m), rng.uniform(-2, 2, m), rng.uniform(-4, 40, m)])
+        c = ctr[:, None, :] + rng.normal(0, 1.5, (m, S, 3))
+        if S > 8 and m:  # a hull padded to its frame's longest one: copies of its first vertex
+            cut = rng.integers(4, S, m)
+            for i in range(m):
+                c[i, cut[i]:] = c[i, 0]
+        corners.append(c)
+    a = 0.3  # a second pose: turned about the camera's y axis and moved
+    turned = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    for R, t in ((np.eye(3), np.zeros(3)), (turned, np.array([0.4, -0.2, 1.0]))):
+        got = refine._project_outlines(corners, R, t, intr, (1280, 800))
+        want = project_rects(refine._padded(corners), R, t, intr, (1280, 800))
+        assert got[0].shape == want[0].shape == (22, 4)
+        assert np.array_equal(_bits(got[0]), _bits(want[0])) and np.array_equal(got[1], want[1])
+        assert want[1].any() and not want[1].all()  # some boxes seen, some not

@@ -233,8 +233,11 @@ class _Outline:
         best = w.max(axis=3)
         where = None
         if points:
-            with np.errstate(invalid="ignore"):
-                idx = np.argmax(np.nan_to_num(w, nan=-np.inf), axis=3)
+            if self.nan_as_zero:  # uv went through nan_to_num: w holds no NaN or inf, nan_to_num(w) is w
+                idx = np.argmax(w, axis=3)
+            else:
+                with np.errstate(invalid="ignore"):
+                    idx = np.argmax(np.nan_to_num(w, nan=-np.inf), axis=3)
             where = pts[np.arange(M)[None, :, None], idx]  # [H,M,4,3]
         if refine:
             self._refine(c, (ii, jj, n), (R, t), w, best, where, front & np.isfinite(best).all(axis=2))
@@ -255,13 +258,18 @@ class _Outline:
         G[:, 1:-1] = 8 + np.arange(ne)[:, None] * n + np.arange(n)[None, :]
         seq = w[ok][:, :, G]  # [V,4,ne,L] the valid outlines only
         p = seq.argmax(axis=3)
-        y1 = np.take_along_axis(seq, p[..., None], axis=3)[..., 0]
+        # the samples around the peak: gathers from the flat rows of seq (as take_along_axis along
+        # axis 3 gathers them, without its broadcast index arrays over the other three axes)
+        flat = seq.reshape(-1)
+        row = np.arange(0, flat.size, L).reshape(p.shape)  # where each row of L samples starts
+        y1 = flat.take(row + p)
         est = y1
         if L >= 3:  # the parabola through three samples around the peak
             pm = np.clip(p, 1, L - 2)[..., None]
-            y0 = np.take_along_axis(seq, pm - 1, axis=3)[..., 0]
-            yc = np.take_along_axis(seq, pm, axis=3)[..., 0]
-            y2 = np.take_along_axis(seq, pm + 1, axis=3)[..., 0]
+            at = row + pm[..., 0]
+            y0 = flat.take(at - 1)
+            yc = flat.take(at)
+            y2 = flat.take(at + 1)
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
                 curv = 2.0 * yc - y0 - y2
                 xv = (y2 - y0) / (2.0 * curv)  # vertex, in samples from pm
