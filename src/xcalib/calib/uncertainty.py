@@ -952,6 +952,27 @@ def with_focal_box_model(unc: Uncertainty, sd6) -> Uncertainty:
 # ---- the fitted noise model's own covariance, its 3D centre error a rigid shift of the box (issue 26,
 # session 11). Measured, not part of the reported sigma (``UncertaintyParts.centre_model``).
 
+def _linearised(ctx: FitContext, edge_floor: bool):
+    """(model, r0, J, inl, Ji, A) of the fit in use at ``ctx`` linearised: its cost model, the box edges'
+    residuals r0 and pose Jacobian J (the pose block, the rest's information folded into A), the inlier
+    edges (``_inliers``; with ``edge_floor`` its edge-noise floor, as ``_scores``), Ji = J on the inliers
+    (0 elsewhere) and A the inverse of the pose's marginal information over them. None where the scale is
+    not finite or the information singular."""
+    n = int(sum(len(p) for p in ctx.pairs))
+    try:
+        model = build_cost(ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise, ctx.occlusion)
+        r0, J = model.jacobian(None)
+        r0, J, info_rest = pose_block(r0, J, 4 * n)
+        inl, sigma = _inliers(r0, J, _edge_floor(model, len(r0)) if edge_floor else None)
+        if not np.isfinite(sigma):
+            return None
+        Ji = J * inl[:, None]
+        A = np.linalg.inv(Ji.T @ Ji + (0.0 if info_rest is None else info_rest))
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    return model, r0, J, inl, Ji, A
+
+
 def centre_model_sd(ctx: FitContext) -> np.ndarray | None:
     """1-sigma (6-vector, deg / m) of the pose under the fit's own noise model ``ctx.noise`` with its 3D
     centre term taken as what it is, a rigid shift of the whole box -- common to the box's 4 edges,
@@ -965,21 +986,14 @@ def centre_model_sd(ctx: FitContext) -> np.ndarray | None:
     model (the edge term's own Jacobian). None with fewer than 2 matches or a singular information."""
     from .cost import _pair_features
 
-    frames, pairs, intr, pose, noise = ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise
+    pairs, intr, pose, noise = ctx.pairs, ctx.intr, ctx.pose, ctx.noise
     n = int(sum(len(p) for p in pairs))
     if n < 2 or noise is None:
         return None
-    try:
-        model = build_cost(frames, pairs, intr, pose, noise, ctx.occlusion)
-        r0, J = model.jacobian(None)
-        r0, J, info_rest = pose_block(r0, J, 4 * n)
-        inl, sigma = _inliers(r0, J, None)  # (no edge-noise floor: the covariance uses the noise model)
-        if not np.isfinite(sigma):
-            return None
-        Ji = J * inl[:, None]
-        A = np.linalg.inv(Ji.T @ Ji + (0.0 if info_rest is None else info_rest))
-    except (np.linalg.LinAlgError, ValueError):
+    lin = _linearised(ctx, edge_floor=False)  # (no edge-noise floor: the covariance uses the noise model)
+    if lin is None:
         return None
+    model, _, _, _, Ji, A = lin
     term = model.terms[0]
     w = np.broadcast_to(np.asarray(term.w, dtype=np.float64), (n, 4))
     st = model.state(np.zeros(model.n_params))
@@ -1049,21 +1063,14 @@ def _centre_fit(ctx: FitContext) -> _CentreFit | None:
     (independent per edge), a rigid 3D shift of the box (per coordinate; each edge moves with the pose's
     translation derivative, in any camera model), a relative size error (the box grows about its centre, left /
     right edges apart by its half width, top / bottom by its half height). None with fewer than 2 matches."""
-    frames, pairs, intr, pose, noise = ctx.frames, ctx.pairs, ctx.intr, ctx.pose, ctx.noise
+    pairs = ctx.pairs
     n = int(sum(len(p) for p in pairs))
     if n < 2:
         return None
-    try:
-        model = build_cost(frames, pairs, intr, pose, noise, ctx.occlusion)
-        r0, J = model.jacobian(None)
-        r0, J, info_rest = pose_block(r0, J, 4 * n)
-        inl, sigma = _inliers(r0, J, None if frames_checkable(pairs) else _edge_floor(model, len(r0)))
-        if not np.isfinite(sigma):
-            return None
-        Ji = J * inl[:, None]
-        A = np.linalg.inv(Ji.T @ Ji + (0.0 if info_rest is None else info_rest))
-    except (np.linalg.LinAlgError, ValueError):
+    lin = _linearised(ctx, edge_floor=not frames_checkable(pairs))
+    if lin is None:
         return None
+    model, _, J, inl, Ji, A = lin
     term = model.terms[0]
     w = np.broadcast_to(np.asarray(term.w, dtype=np.float64), (n, 4))
     raw = term.edges(model.state(np.zeros(model.n_params))) * w

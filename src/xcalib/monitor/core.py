@@ -363,13 +363,10 @@ class _Sums:
         n_res, n_pairs = self.n[b] - self.n[a], self.pairs(a, b)
         if n_pairs < 2 or n_res < 7:
             return None
-        try:
-            Hinv = np.linalg.inv(H)
-        except np.linalg.LinAlgError:
+        solved = _solve(H, g)
+        if solved is None:
             return None
-        if not np.all(np.isfinite(Hinv)) or np.linalg.cond(H) > 1e14:
-            return None
-        x = -Hinv @ g
+        Hinv, x = solved
         rss = float(self.c[b] - self.c[a] + x @ g)  # = sum w (r + J x)^2 at the optimum
         s2 = max(rss / max(n_res - 6, 1), 1.0)  # never less noise than the calibration's model
         return _Fit(x, Hinv * s2 * inflation, n_pairs, b - a, s2)
@@ -396,6 +393,17 @@ def _scan(sums: _Sums, n: int, min_pairs: int, lo: int = 1, hi: int | None = Non
 
 
 _EPS = 1e-6
+
+
+def _solve(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(H^-1, the estimate -H^-1 g) of normal equations; None where H is singular or ill-conditioned."""
+    try:
+        Hinv = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(Hinv)) or np.linalg.cond(H) > 1e14:
+        return None
+    return Hinv, -Hinv @ g
 
 
 def _object_sums(recs: list[_Rec], a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1003,13 +1011,10 @@ class CameraMonitor:
         if got is None:
             return None
         xl, H, g, c = got
-        try:
-            Hinv = np.linalg.inv(H)
-        except np.linalg.LinAlgError:
+        solved = _solve(H, g)
+        if solved is None:
             return None
-        if not np.all(np.isfinite(Hinv)) or np.linalg.cond(H) > 1e14:
-            return None
-        x = -Hinv @ g
+        Hinv, x = solved
         s2 = max(float(c + x @ g) / max(m - 6, 1), 1.0)
         n_pairs = int(sum(q.n_pairs for q in recs[a:n]))
         return _Fit(x, Hinv * s2, n_pairs, n - a, s2), lambda: object_shares(rows, xl, tau, slope)
