@@ -52,6 +52,7 @@ def _fails(_):
 @needs_fork
 def test_later_task_error_and_pool_closed_before_it_starts():
     import threading
+    import time
 
     with WorkerPool(2) as pool:
         err = pool.submit(_fails, 0, later=True)
@@ -61,6 +62,10 @@ def test_later_task_error_and_pool_closed_before_it_starts():
     pool = WorkerPool(2)  # (not entered: closed on another thread below)
     b = [pool.submit(_blocked, k) for k in range(2)]
     late = pool.submit(_square, 3, later=True)
+    for _ in range(12000):  # both handed to the processes (running): else the close's shutdown cancels one
+        if all(f.running() for f in b):
+            break
+        time.sleep(0.01)
     closing = threading.Thread(target=pool.close)
     closing.start()  # the close gives the queued task up first, then waits for the running ones
     with pytest.raises(CancelledError):
