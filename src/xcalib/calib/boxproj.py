@@ -20,6 +20,10 @@ from ..geometry.projection import distort_normalized
 __all__ = ["project_rects", "iou_batched", "MIN_DEPTH_M", "RaggedOutlines", "ragged_outlines", "project_ragged"]
 
 MIN_DEPTH_M = 0.3
+# _corner_extremes: below this many rectangles, or with more corners than _MANY_CORNERS each, one
+# reduction per edge beats 4 S element-wise calls (speed only: both give the same values)
+_FEW_RECTS = 128
+_MANY_CORNERS = 16
 
 
 def project_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, intr: CameraIntrinsics,
@@ -137,13 +141,16 @@ def _corner_pixels(c: np.ndarray, R: np.ndarray, t: np.ndarray, intr: CameraIntr
 
 
 def _corner_extremes(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """[H,M,4] (u.min, v.min, u.max, v.max over the last axis) of u, v [H,M,S]. Few rectangles: each
-    a reduction over the corners as the outer axis (written into the result, no stacking); many:
-    corner by corner with np.minimum / np.maximum (a reduction over a short last axis is slow).
-    min and max are exact and propagate NaN either way, so the values are the same."""
+    """[H,M,4] (u.min, v.min, u.max, v.max over the last axis) of u, v [H,M,S]. Very few rectangles,
+    or few with many corners each (a point outline): each a reduction over the corners as the outer
+    axis (written into the result, no stacking); otherwise corner by corner with np.minimum /
+    np.maximum, 4 S calls on the H*M rectangles at once (the reduction runs one short row per pose
+    and corner: 200 poses x 18 boxes x 8 corners took 6x as long as the 32 calls). Both take
+    the corners in the same order, with the same element-wise np.minimum / np.maximum (exact, NaN
+    propagates), so the values are the same to the bit whichever runs."""
     H, M, S = u.shape
     rect = np.empty((H, M, 4))
-    if H * M < 4096:
+    if H * M < _FEW_RECTS or (S > _MANY_CORNERS and H * M < 4096):
         ut, vt = u.transpose(0, 2, 1), v.transpose(0, 2, 1)
         np.minimum.reduce(ut, axis=1, out=rect[..., 0])
         np.minimum.reduce(vt, axis=1, out=rect[..., 1])

@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from ..geometry.boxes import box2d_centers
 from ..geometry.camera import CameraIntrinsics
-from .boxproj import iou_batched, iou_planes, project_rects
+from .boxproj import iou_batched, iou_planes, project_ragged, project_rects
 from .censor import censor_evidence, occluded_edges
 from .context import F_SCALE, FitContext, RefineOptions
 from .cost import INWARD, BoxEdgeTerm, CostModel, Occlusion, _pair_features, edge_sigma
@@ -199,11 +199,28 @@ def project_frames(frames: list[CalibFrame], intr: CameraIntrinsics, R, t) -> li
         by_size.setdefault(tuple(fr.size), []).append(k)
     for size, ks in by_size.items():
         corners = [frames[k].corners for k in ks]
-        rects, valid = project_rects(_padded(corners), R, t, intr, size)
+        rects, valid = _project_outlines(corners, R, t, intr, size)
         offs = np.cumsum([0] + [len(c) for c in corners])
         for i, k in enumerate(ks):
             out[k] = (rects[offs[i]:offs[i + 1]], valid[offs[i]:offs[i + 1]])
     return out
+
+
+def _project_outlines(corners: list[np.ndarray], R, t, intr: CameraIntrinsics, size: tuple[int, int]):
+    """``project_rects(_padded(corners), R, t, intr, size)`` (rects [M,4], valid [M]): for one pose
+    and a ``CameraIntrinsics``, ``boxproj.project_ragged`` of the outlines' own vertices, without
+    the padding (A9's point outlines were padded from ~19 to 80 vertices, 4x the pixels computed at
+    every matching). Each vertex's pixels are computed vertex by vertex either way, a rectangle's
+    extremes are the exact min / max of the same values and the padding repeats a vertex of its
+    outline: the same rects and valid."""
+    lengths = [np.full(len(c), np.shape(c)[1]) for c in corners]
+    n = sum(len(c) for c in corners)
+    if not isinstance(intr, CameraIntrinsics) or np.ndim(R) != 2 or n == 0 or min(np.shape(c)[1] for c in corners) == 0:
+        return project_rects(_padded(corners), R, t, intr, size)
+    lengths = np.concatenate(lengths)
+    flat = np.concatenate([np.asarray(c, dtype=np.float64).reshape(-1, 3) for c in corners])
+    rect, valid = project_ragged(flat, np.cumsum(lengths) - lengths, R, t, intr, size)[:2]
+    return rect, valid
 
 
 def _padded(corners: list[np.ndarray]) -> np.ndarray:
