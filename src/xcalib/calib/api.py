@@ -555,6 +555,11 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
         # the given pinhole is refused either way: name the lens when it explains the boxes better
         diag.misfit = [lens_alt[0] if c is chk_lens else c for c in diag.misfit]
         named = Refusal("misfit_lens", lens_alt[1])
+    if named is None and pp_unverifiable and lens_alt[1]:
+        # a principal-point shift the boxes cannot check, and a widened lens explains them better: a
+        # fisheye given as pinhole is the cause to name (as for a flagged shift above)
+        diag.misfit = [lens_alt[0] if c is chk_lens else c for c in diag.misfit]
+        named = Refusal("misfit_lens", lens_alt[1])
     if named is None and refusal is None and width is not None and width[1]:
         return Refusal("focal_unverifiable", width[1])  # only a pose nothing else refused
     if named is None and refusal is None and pp_unverifiable:
