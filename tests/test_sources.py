@@ -120,6 +120,40 @@ def test_merge_cameras_unions_3d_boxes_and_keeps_matches(rng):
         merge_cameras({"a": [a], "b": []})
 
 
+def test_merge_cameras_keeps_each_cameras_detector_scores_in_box_order(rng):
+    """merge_cameras carries Frame.detections: the scores and classes of every camera's 2D boxes in the
+    merged frame's box order; cameras from different detectors give a warning and no record."""
+    from xcalib.io.sources import camera_view, merge_cameras
+    from xcalib.types import FrameDetections
+
+    intr = CameraIntrinsics(100.0, 100.0, 16.0, 12.0, width=32, height=24)
+    b3 = np.array([[0, 0, 0, 1, 1, 1]], np.float32)
+
+    def view(name, b2, det):
+        return Frame(image=np.zeros((24, 32, 3), np.uint8), point_cloud=np.zeros((4, 3), np.float32),
+                     bboxes_2d=np.asarray(b2, np.float32), bboxes_3d=b3, camera_name=name, intrinsics=intr,
+                     extrinsics=np.eye(4), detections=det)
+
+    da = FrameDetections("yolo", scores_2d=(0.9, 0.4), classes_2d=("car", "person"))
+    db = FrameDetections("yolo", scores_2d=(0.7,), classes_2d=("truck",))
+    a = view("a", [[1, 1, 4, 4], [5, 5, 9, 9]], da)
+    b = view("b", [[2, 2, 6, 6]], db)
+    (m,) = merge_cameras({"a": [a], "b": [b]})
+    assert m.detections.source == "yolo"
+    assert m.detections.scores_2d == (0.9, 0.4, 0.7) and m.detections.classes_2d == ("car", "person", "truck")
+    assert camera_view(m, "b").detections.scores_2d == (0.7,)
+    (m,) = merge_cameras({"a": [a], "b": [view("b", [[2, 2, 6, 6]], FrameDetections("yolo"))]})
+    assert m.detections.source == "yolo" and m.detections.scores_2d is None  # b's boxes have no scores
+    with pytest.warns(UserWarning, match="a: yolo, b: none"):  # b's boxes are the source's own
+        (m,) = merge_cameras({"a": [a], "b": [view("b", [[2, 2, 6, 6]], None)]})
+    assert m.detections is None
+    with pytest.warns(UserWarning, match="different detectors"):
+        (m,) = merge_cameras({"a": [a], "b": [view("b", [[2, 2, 6, 6]], FrameDetections("other"))]})
+    assert m.detections is None
+    (m,) = merge_cameras({"a": [view("a", [[1, 1, 4, 4]], None)], "b": [view("b", [[2, 2, 6, 6]], None)]})
+    assert m.detections is None
+
+
 def test_layering_of_bags_and_site():
     code = ("import sys, xcalib.io.bags, xcalib.io.sources; a = sorted(m for m in ('xcalib.formats', 'xcalib.calib', "
             "'xcalib.site', 'torch') if m in sys.modules); import xcalib.site; "

@@ -29,7 +29,7 @@ from ..errors import FormatError
 from ..plugins import BUILTIN
 from ..plugins import entries as plugin_entries
 from ..plugins import load as load_plugin
-from ..types import Frame
+from ..types import Frame, FrameDetections
 
 __all__ = ["FrameSource", "register_source", "unregister_source", "frame_sources", "find_source", "open_source",
            "parse_frame_range", "FrameSubset", "CameraView", "camera_view", "image_size_of", "merge_cameras", "SOURCE_MODULES"]
@@ -350,6 +350,7 @@ def merge_cameras(views: dict[str, Sequence[Frame]]) -> list[Frame]:
                     mm[r0:r0 + k][:, cols] = np.asarray(m, dtype=bool)
                 r0 += k
         first = frames[names[0]]
+        dets = _merged_detections(frames, i)
         out.append(Frame(image=first.image, point_cloud=first.point_cloud, bboxes_2d=np.vstack(b2), bboxes_3d=union,
                          camera_name=names[0], frame_key=first.frame_key, match_matrix=mm,
                          intrinsics=first.intrinsics, extrinsics=first.extrinsics,
@@ -361,5 +362,36 @@ def merge_cameras(views: dict[str, Sequence[Frame]]) -> list[Frame]:
                                "frame_key_by_camera": {n: f.frame_key for n, f in frames.items()}},
                          lidar_time_s=first.lidar_time_s,
                          track_ids_3d=None if any(t is None for t in tracks) else np.asarray(tracks, np.int64),
-                         velocities_3d=None if any(v is None for v in vels) else np.asarray(vels).reshape(-1, 3)))
+                         velocities_3d=None if any(v is None for v in vels) else np.asarray(vels).reshape(-1, 3),
+                         detections=dets))
     return out
+
+
+def _merged_detections(frames: dict[str, Frame], index: int) -> FrameDetections | None:
+    """The cameras' ``Frame.detections`` of one sweep as one record for the merged frame: the 2D scores
+    and classes in the merged frame's box order (camera by camera), None where any camera lacks them.
+    Cameras whose boxes came from different detectors cannot share one record: a warning names them
+    and the merged frame carries none (its boxes are then used as they are, unweighted)."""
+    recs = {n: f.detections for n, f in frames.items()}
+    if all(r is None for r in recs.values()):
+        return None
+    kinds = {(r.source, r.detector_2d, r.lidar_mode) if r is not None else None for r in recs.values()}
+    if len(kinds) != 1:
+        import warnings
+
+        said = ", ".join(f"{n}: {r.source if r is not None else 'none'}" for n, r in recs.items())
+        warnings.warn(f"merge_cameras: frame {index}: the cameras' boxes come from different detectors ({said}); "
+                      "the merged frame keeps no detector record (scores not used)", stacklevel=3)
+        return None
+
+    def joined(field: str):
+        parts = []
+        for n, f in frames.items():
+            v = getattr(recs[n], field)
+            if v is None or len(v) != f.num_2d:
+                return None
+            parts.extend(v)
+        return tuple(parts)
+
+    r0 = next(iter(recs.values()))
+    return dataclasses.replace(r0, scores_2d=joined("scores_2d"), classes_2d=joined("classes_2d"))
