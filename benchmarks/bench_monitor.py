@@ -70,7 +70,7 @@ guard's size (``leave_out_objects``), ``monitor_persistence.GUARD_VARIANTS``, re
 
     ... --part guard --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,7,11,13,17 --runs 2
 
-``--part scan``: the change-point scan (``MonitorConfig.scan_step``) against the fixed windows, replayed
+``--part scan``: the change-point scan (``MonitorConfig.change_point_step``) against the fixed windows, replayed
 on the recordings of ``--part iterate`` (``--recordings``; made when absent) (``monitor.json`` ``scan_s13``).
 
     ... --part scan --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,7,11,13,17 --runs 2
@@ -1216,7 +1216,7 @@ def _iterate(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, fold
 
 
 def _scan_rows(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, folder: Path, log) -> dict:
-    """The change-point scan (``MonitorConfig.scan_step`` = 5: every recent segment of 10, 15, ..., 80
+    """The change-point scan (``MonitorConfig.change_point_step`` = 5: every recent segment of 10, 15, ..., 80
     frames against the frames before it, the threshold from the scan's simulated null) against the
     fixed 20 / 40 / 80-frame windows, replayed (``monitor_persistence.replay``, the guard included)
     on the recordings of ``--part iterate`` (made when absent): false alarms on the long null streams
@@ -1235,7 +1235,7 @@ def _scan_rows(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, fo
     nulls = {(name, s): mp.load_recording(folder / f"null_{name}_{s}.npz") for name, _ in GUARD_NOISES for s in null_seeds}
     recs = {c: [(s, mp.load_recording(folder / f"step_{c.split('_')[0]}_{float(c.split('_')[1]):g}_{s}_{r}.npz"))
                 for s in step_seeds for r in range(runs)] for c in cells}
-    fixed, scan = MonitorConfig(latch=False), MonitorConfig(latch=False, scan_step=5)
+    fixed, scan = MonitorConfig(latch=False), MonitorConfig(latch=False, change_point_step=5)
     variants = [("fixed windows (default)", fixed, fixed.threshold), ("scan 5", scan, scan.threshold)]
     variants += [(f"scan 5 at {h:g}", scan, h) for h in SCAN_THRESHOLDS]
     out: dict = {"rows": {}, "null_seeds": null_seeds, "step_seeds": step_seeds, "runs_per_site": runs,

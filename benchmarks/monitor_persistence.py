@@ -443,7 +443,7 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
     recorded unshaped rows (``iterated_window``; -1, the default: the recorded one-step normal
     equations); ``trace``: a list to append (frame, largest statistic) of every decision to.
     ``windows``: the recent segments' lengths the change-point tests use (default the config's
-    ``test_windows``: 20 / 40 / 80, or with ``MonitorConfig.scan_step`` the change-point scan's);
+    ``test_windows``: 20 / 40 / 80, or with ``MonitorConfig.change_point_step`` the change-point scan's);
     the offset test and the evidence check stay on the config's longest window."""
     from xcalib.monitor import MonitorConfig
     from xcalib.monitor import stats as mstats

@@ -40,7 +40,7 @@ def recorded(tmp_path_factory):
 
 @pytest.mark.parametrize("settings", [{}, {"min_inflation": 0.5, "leave_out_objects": 4},
                                       {"min_inflation": 0.25, "leave_out_objects": 0}, {"iterate_steps": 3},
-                                      {"scan_step": 5}])
+                                      {"change_point_step": 5}])
 def test_replay_raises_the_monitors_alarms(recorded, settings):
     import monitor_persistence as mp
 

@@ -1,4 +1,4 @@
-"""The change-point scan of the drift monitor (``MonitorConfig.scan_step``): its threshold from the
+"""The change-point scan of the drift monitor (``MonitorConfig.change_point_step``): its threshold from the
 scan's simulated null distribution, and its settings."""
 
 from __future__ import annotations
@@ -22,12 +22,12 @@ def test_scan_threshold_matches_the_union_bound_for_the_fixed_windows_and_rises_
 
 
 def test_scan_settings():
-    cfg = MonitorConfig(scan_step=5)
+    cfg = MonitorConfig(change_point_step=5)
     assert cfg.test_windows == tuple(range(10, 85, 5))
     assert MonitorConfig().test_windows == MonitorConfig().windows == (20, 40, 80)
     assert cfg.threshold > MonitorConfig().threshold
     for bad in (-1, 41):
-        with pytest.raises(ValueError, match="scan_step"):
-            MonitorConfig(scan_step=bad)
+        with pytest.raises(ValueError, match="change_point_step"):
+            MonitorConfig(change_point_step=bad)
     with pytest.raises(ValueError, match="history"):
         stats.scan_threshold(1e-4, 5, 4, (20, 40, 80), 80)

@@ -104,13 +104,14 @@ class MonitorConfig:
     matched. Measured in docs/monitor.md ("The change test on an iterated estimate"): it recovers
     the steps the one-step estimate shrinks but widens the drift-free statistics as much (about 2x),
     so at an equal false-alarm rate it detects no more.
-    scan_step: the change-point tests as a scan (a window-limited GLR over the change point): the
-    recent segments of every multiple of ``scan_step`` frames from ``2 scan_step`` up to the longest
-    window (5: 10, 15, ..., 80 frames) against the frames before them, in place of ``windows``; the
-    threshold is the quantile of the scan's largest statistic under no change
+    change_point_step: the change-point tests as a scan (a window-limited GLR over the change
+    point): the recent segments of every multiple of ``change_point_step`` frames from twice it up
+    to the longest window (5: 10, 15, ..., 80 frames) against the frames before them, in place of
+    ``windows``; the threshold is the quantile of the scan's largest statistic under no change
     (``stats.scan_threshold``, simulated once per setting), so the false-alarm rate stays the
     setting. 0 (the default): off, the fixed windows. Measured in docs/monitor.md ("A change-point
-    scan"): at an equal false-alarm rate it detects no more than the fixed windows.
+    scan"): at an equal false-alarm rate it detects as many steps within the target frames as the
+    fixed windows (54 of 72 runs), sooner in about half of the runs.
     """
 
     window: int = 20
@@ -142,7 +143,7 @@ class MonitorConfig:
     relinearise_windows: int = 1
     min_inflation: float = 1.0
     iterate_steps: int = 0
-    scan_step: int = 0
+    change_point_step: int = 0
 
     def __post_init__(self) -> None:
         if int(self.leave_out_objects) < 0:
@@ -159,9 +160,10 @@ class MonitorConfig:
             raise ValueError(f"MonitorConfig.relinearise_windows must be >= 1, got {self.relinearise_windows}")
         if not 0 <= int(self.iterate_steps) <= 10:
             raise ValueError(f"MonitorConfig.iterate_steps must be in [0, 10], got {self.iterate_steps}")
-        if int(self.scan_step) < 0 or (int(self.scan_step) and 2 * int(self.scan_step) > max(self.windows)):
-            raise ValueError(f"MonitorConfig.scan_step must be 0 (off) or at most half the longest window "
-                             f"({max(self.windows)} frames), got {self.scan_step}")
+        k = int(self.change_point_step)
+        if k < 0 or (k and 2 * k > max(self.windows)):
+            raise ValueError(f"MonitorConfig.change_point_step must be 0 (off) or at most half the longest window "
+                             f"({max(self.windows)} frames), got {self.change_point_step}")
         if not 0.25 <= self.min_inflation <= 1.0:
             raise ValueError(f"MonitorConfig.min_inflation must be in [0.25, 1], got {self.min_inflation}")
         if not 0.0 <= self.leave_out_level < 1.0:
@@ -183,8 +185,8 @@ class MonitorConfig:
     @property
     def test_windows(self) -> tuple[int, ...]:
         """The recent segments' lengths the change-point tests use (frames): ``windows``, or with
-        ``scan_step`` every multiple of it from 2 scan_step up to the longest window."""
-        k = int(self.scan_step)
+        ``change_point_step`` every multiple of it from 2 change_point_step up to the longest window."""
+        k = int(self.change_point_step)
         return tuple(range(2 * k, max(self.windows) + 1, k)) if k else self.windows
 
     @property
@@ -193,9 +195,9 @@ class MonitorConfig:
 
     @property
     def threshold(self) -> float:
-        """Chi-square (6 dof) threshold of one test (with ``scan_step``: of the scan's largest
+        """Chi-square (6 dof) threshold of one test (with ``change_point_step``: of the scan's largest
         statistic, ``stats.scan_threshold``)."""
-        if int(self.scan_step):
+        if int(self.change_point_step):
             return stats.scan_threshold(self.false_alarm_rate, self.stride, self.n_tests, self.test_windows,
                                         self.history)
         return stats.threshold(self.false_alarm_rate, self.stride, self.n_tests)
