@@ -1269,7 +1269,7 @@ def _scan_rows(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, fo
 
 
 #: ``--part scan``: thresholds of the scan read off the null streams (its false alarms there equal the
-#: fixed windows' 1 / 0 at 29.0 and 0 / 0 at 30.5; session 13's sweep, /work/helpers/notes13/M2_report.md)
+#: fixed windows' 1 / 0 at 29.0 and 0 / 0 at 30.5: session 13's sweep, docs/monitor.md "A change-point scan")
 SCAN_THRESHOLDS = (29.0, 30.5)
 
 
