@@ -31,3 +31,11 @@ def test_scan_settings():
             MonitorConfig(change_point_step=bad)
     with pytest.raises(ValueError, match="history"):
         stats.scan_threshold(1e-4, 5, 4, (20, 40, 80), 80)
+
+
+def test_a_scan_without_history_beyond_the_longest_window_is_refused_at_construction():
+    # session 13 review: accepted by the config, the scan's threshold raised only at the first decision
+    with pytest.raises(ValueError, match="MonitorConfig.history"):
+        MonitorConfig(history=80, window=20, scales=3, change_point_step=5)
+    assert MonitorConfig(history=80, window=20, scales=3).threshold > 0  # the fixed windows need no more
+    assert MonitorConfig(history=81, window=20, scales=3, change_point_step=5).threshold > 0

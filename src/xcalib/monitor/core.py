@@ -109,7 +109,7 @@ class MonitorConfig:
     to the longest window (5: 10, 15, ..., 80 frames) against the frames before them, in place of
     ``windows``; the threshold is the quantile of the scan's largest statistic under no change
     (``stats.scan_threshold``, simulated once per setting), so the false-alarm rate stays the
-    setting. 0 (the default): off, the fixed windows. Measured in docs/monitor.md ("A change-point
+    setting; ``history`` must exceed the longest window. 0 (the default): off, the fixed windows. Measured in docs/monitor.md ("A change-point
     scan"): at an equal false-alarm rate it detects as many steps within the target frames as the
     fixed windows (54 of 72 runs), sooner in about half of the runs.
     """
@@ -173,6 +173,9 @@ class MonitorConfig:
                 raise ValueError(f"MonitorConfig.{name} must be >= 1, got {getattr(self, name)}")
         if self.history < 2 * self.window:
             raise ValueError(f"MonitorConfig.history ({self.history}) must be at least 2 * window ({self.window})")
+        if int(self.change_point_step) and self.history <= max(self.windows):  # the scan tests against earlier frames
+            raise ValueError(f"MonitorConfig.history ({self.history}) must exceed the longest window "
+                             f"({max(self.windows)} frames) with change_point_step")
         stats.threshold(self.false_alarm_rate, self.stride, 1)  # validates the rate
         if not self.fps > 0:
             raise ValueError(f"MonitorConfig.fps must be > 0, got {self.fps}")
