@@ -54,8 +54,10 @@ def test_list_file_paths_stay_in_their_folder(recordings, tmp_path):
     assert [p.name for p in expand_recordings(str(recordings))] == ["broken", "site0", "site1"]
     bad = recordings / "bad.txt"
     bad.write_text("../elsewhere\n")
-    with pytest.raises(FormatError, match="outside"):
+    with pytest.raises(FormatError, match="outside") as err:
         expand_recordings(bad)
+    # the command line has no allow_outside: the message says what a CLI user can do (session 13 review)
+    assert "allow_outside" not in str(err.value) and "glob" in str(err.value)
     with pytest.raises(FileNotFoundError):
         expand_recordings(str(recordings / "nothing*"))
 

@@ -37,7 +37,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .calib.config import CalibConfig
-from .errors import FormatError
+from .errors import FormatError, MissingFileError
 from .io.files import atomic_write, inside, read_text, safe_name
 from .options import Options, document, resolve
 
@@ -111,7 +111,14 @@ def _read_list(path: Path) -> list[Path]:
         s = line.strip()
         if not s or s.startswith("#"):
             continue
-        out.append(inside(path.parent, s, source=path, field=f"line {k}"))
+        try:
+            out.append(inside(path.parent, s, source=path, field=f"line {k}"))
+        except MissingFileError:
+            raise
+        except FormatError as exc:  # (inside's own hint names a Python argument the command line lacks)
+            raise FormatError(path, f"{s!r} points outside the list's folder (absolute or '..'): a list names "
+                              "recordings inside its own folder; give the others as arguments or glob patterns, or "
+                              "write the list next to them", exc.field) from exc
     if not out:
         raise FormatError(path, "the list names no recording (one path per line)")
     return out

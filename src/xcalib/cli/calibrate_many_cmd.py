@@ -13,7 +13,7 @@ _HELP = "\n\n".join(" ".join(p.split("\n")) for p in """Calibrate many recording
 
 LIST_OR_GLOB are frame sources (any `xcalib calibrate` SOURCE), glob patterns ("runs/*/frames"),
 folders whose sub-folders are recordings, or list files (.txt/.lst/.list: one path per line,
-relative to the list's folder). Each is calibrated on its own (defaults; --camera / --intrinsics
+relative to the list's folder and inside it). Each is calibrated on its own (defaults; --camera / --intrinsics
 apply to all) on a local process pool (--executor process, --jobs N) or a Ray cluster
 (--executor ray \\[--ray-address ADDR]; pip install 'xcalib\\[ray]'). Writes OUT/<name>/calibration.json
 per recording and OUT/results.csv, OUT/results.json and OUT/index.html (a recording that cannot
