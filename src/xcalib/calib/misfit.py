@@ -1137,9 +1137,8 @@ def lens_checks(frames: list[CalibFrame], pairs: list[np.ndarray], intr, pose: P
     if msg is not None:  # the box model first, as for the focal length (focal_box_model)
         boxed = lens_box_model(frames, intr, pose, noise, f_scale, occlusion, fit, places)
         chk, msg = _lens_verdict(boxed, LENS_MIN_GAIN, False)
-        if msg is None:
-            chk = replace(chk, detail=chk.detail + f"; with the 2D outline offsets free in both fits (box model); without "
-                          f"them {fit.gain_per_object:.1f} per object: the box model explains it")
+        chk = replace(chk, detail=chk.detail + f"; with the 2D outline offsets free in both fits (box model); without "
+                      f"them {fit.gain_per_object:.1f} per object" + ("" if msg else ": the box model explains it"))
     return (chk, msg), alt
 
 
