@@ -33,7 +33,7 @@ from scipy.optimize import least_squares
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import CameraModel, Unified
 from ..geometry.camera_models import pixels_per_metre as camera_pixels_per_metre
-from ..geometry.camera_models.outline import outline_extremes
+from ..geometry.camera_models.outline import outline_extremes, project_outline_rects
 from ..geometry.rotations import so3_left_jacobian
 from .boxproj import MIN_DEPTH_M, project_ragged, project_rects, ragged_outlines
 from .diagnostics import NoiseModel
@@ -216,14 +216,7 @@ class BoxEdgeTerm(CostTerm):
         projection depends on."""
         intr = state.intr
         if not isinstance(intr, CameraIntrinsics) or not len(self.obs):  # rects only (see _model_jacobian)
-            key = (state.pose.R.tobytes(), state.pose.t.tobytes(), intr,
-                   None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
-            if self._last is not None and self._last[0] == key:
-                return self._last[1]
-            outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
-            rect, valid = project_rects(outlines, state.pose.R, state.pose.t, intr, self.size)
-            self._last = (key, (rect, valid, None, None))
-            return self._last[1]
+            return self._model_projection(state)[:2] + (None, None)
         key = (state.pose.R.tobytes(), state.pose.t.tobytes(), intr.fx, intr.fy, intr.cx, intr.cy,
                None if intr.distortion is None else np.asarray(intr.distortion, dtype=np.float64).tobytes(),
                None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
@@ -231,6 +224,26 @@ class BoxEdgeTerm(CostTerm):
             return self._last[1]
         out = project_ragged(self._points(state.shift_m), self.ragged.starts, state.pose.R, state.pose.t, intr,
                              self.size)
+        self._last = (key, out)
+        return out
+
+    def _model_projection(self, state: PoseState):
+        """(rects, valid, points) at ``state`` for a camera model (or no boxes): ``project_rects``' rects
+        and valid and, for a ``CameraModel``, the outline points [n,4,3] defining each edge, found in
+        the same projection (``project_outline_rects(points=True)``; None where that call does not
+        give them): :meth:`_model_jacobian` differentiates at them instead of projecting the outlines
+        again at the pose of the residuals. Kept, keyed by everything the projection depends on."""
+        intr = state.intr
+        key = (state.pose.R.tobytes(), state.pose.t.tobytes(), intr,
+               None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
+        if isinstance(intr, CameraModel) and len(self.obs):
+            out = project_outline_rects(outlines, state.pose.R, state.pose.t, intr, self.size,
+                                        min_distance=MIN_DEPTH_M, points=True)
+        else:
+            out = project_rects(outlines, state.pose.R, state.pose.t, intr, self.size) + (None,)
         self._last = (key, out)
         return out
 
@@ -351,9 +364,10 @@ class BoxEdgeTerm(CostTerm):
         ``CameraIntrinsics``."""
         n, P = len(self.obs), 6 + len(extra)
         R, t, cam = state.pose.R, state.pose.t, state.intr
-        rects, valid = self._projection(state)[:2]
-        outlines = self.outlines if state.shift_m is None else self.outlines + np.asarray(state.shift_m)[:, None, :]
-        sel = outline_extremes(outlines, R, t, cam)  # [n,4,3] the points defining u_min, v_min, u_max, v_max
+        rects, valid, sel = self._model_projection(state)
+        if sel is None:  # [n,4,3] the points defining u_min, v_min, u_max, v_max
+            outlines = self.outlines if state.shift_m is None else self.outlines + np.asarray(state.shift_m)[:, None, :]
+            sel = outline_extremes(outlines, R, t, cam)
         Ys = _rows_matmul(sel, R.T)
         uv, Juv, _ = cam.project_jacobian((Ys + t).reshape(-1, 3))
         comp = np.array([0, 1, 0, 1])  # u, v, u, v

@@ -99,7 +99,7 @@ _LAST_DENSE = _DenseMemo()
 
 def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, camera: CameraModel,
                           size: tuple[int, int], *, clip: bool = True, min_distance: float = 0.3,
-                          samples: int | None = None):
+                          samples: int | None = None, points: bool = False):
     """The 2D box of each 3D outline under ``camera`` for H poses.
 
     Args:
@@ -116,14 +116,21 @@ def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, cam
             box of the projected box (to < 0.001 px), not the samples' (a fraction of a pixel inside,
             tens of pixels for an edge passing near the camera). Not refined when many poses are
             scored at once (more than 4096 poses x boxes: the hypothesis search's IoU).
+        points: also return the outline points [H,M,4,3] (frame of ``corners``) at which each
+            unclipped edge is taken (u min, v min, u max, v max), found in the same refinement as the
+            rectangle (what :func:`outline_extremes` finds at a valid rectangle's pose, without
+            projecting the outlines again), or None where that is not this call's path (point
+            outlines, a pinhole model, ``samples`` given, many poses: call :func:`outline_extremes`).
     Returns:
         rects [H,M,4] (NaN where invalid), valid [H,M]: every point projectable and a non-empty
-        clipped rectangle (as :func:`xcalib.calib.boxproj.project_rects`).
+        clipped rectangle (as :func:`xcalib.calib.boxproj.project_rects`)[, points].
     """
     single, R, t, c = pose_batch(R, t, corners)
     H, M = len(R), len(c)
+    where = None
     if M == 0:
-        return no_rects(H, single)
+        out = no_rects(H, single)
+        return out + (None,) if points else out
     geo = _Outline(camera, min_distance, H * M <= _COARSE_ABOVE)
     if camera.is_pinhole or c.shape[1] != 8:
         rect, front, _ = geo.extremes(c, R, t, None)
@@ -134,11 +141,15 @@ def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, cam
         if geo.refine:  # exact whatever the samples: one group (fewer, larger array operations)
             k = np.full_like(k, k.max())
         rect, front = np.empty((H, M, 4)), np.empty((H, M), dtype=bool)
+        keep = points and geo.refine  # one group: its extremes' points are the outlines'
         for n in np.unique(k):
             sel = np.flatnonzero(k == n)
-            rect[:, sel], front[:, sel], _ = geo.extremes(c[sel], R, t, int(n))
+            rect[:, sel], front[:, sel], where = geo.extremes(c[sel], R, t, int(n), points=keep)
     valid = finish_rects(rect, front, size, clip)
-    return (rect[0], valid[0]) if single else (rect, valid)
+    out = (rect[0], valid[0]) if single else (rect, valid)
+    if points:
+        return out + (where[0] if single and where is not None else where,)
+    return out
 
 
 def outline_extremes(corners: np.ndarray, R: np.ndarray, t: np.ndarray, camera: CameraModel) -> np.ndarray:

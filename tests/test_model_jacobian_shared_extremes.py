@@ -1,0 +1,115 @@
+"""The box-edge Jacobian of a camera model (``BoxEdgeTerm._model_jacobian``) takes the outline points
+that define each rectangle edge from the projection of the residuals at the same pose
+(``project_outline_rects(points=True)``), instead of projecting and refining the outlines a second
+time (``outline_extremes``; issue 29: half the lens check's projections). Checked against the
+previous form, written out here: the same Jacobian and residuals (as numbers) for every wide-angle
+model, with and without extra terms, at poses that leave some outlines behind the camera, and the
+same fit to the bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_calib_support import vehicle_boxes7
+
+from xcalib.calib.boxproj import MIN_DEPTH_M, project_rects
+from xcalib.calib.cost import BoxEdgeTerm, CostModel, FocalScaleTerm, PrincipalPointTerm, TimeOffsetTerm, WideLensTerm
+from xcalib.calib.pose import Pose
+from xcalib.data.synth.site import WIDE_ANGLE_PARAMS
+from xcalib.geometry.boxes import box7_corners
+from xcalib.geometry.camera import CameraIntrinsics
+from xcalib.geometry.camera_models import get_model
+from xcalib.geometry.camera_models.outline import outline_extremes, project_outline_rects
+
+SIZE = (1280, 800)
+
+
+def _previous_lookup(self, state):
+    """The previous form: ``project_rects`` at the state, and the outline points defining the edges
+    projected and refined once more at the pose (``outline_extremes``); nothing kept."""
+    outlines = self.outlines if state.shift_m is None else self.outlines + np.asarray(state.shift_m)[:, None, :]
+    rects, valid = project_rects(outlines, state.pose.R, state.pose.t, state.intr, self.size)
+    return rects, valid, outline_extremes(outlines, state.pose.R, state.pose.t, state.intr)
+
+
+def _scene(seed: int, model: str, behind: int = 0):
+    r = np.random.default_rng(seed)
+    n = 24
+    box7 = vehicle_boxes7(r, n, 1.5, (4, 25))
+    if behind:  # some boxes behind the camera (LiDAR -x): invalid rectangles, zero Jacobian rows
+        box7[:behind, 0] *= -1.0
+    outl = box7_corners(box7)
+    R0 = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+    pose = Pose(R0, np.array([0.1, 0.2, 0.3]))
+    cam = get_model(model)(fx=380, fy=381, cx=640, cy=400, width=SIZE[0], height=SIZE[1], **WIDE_ANGLE_PARAMS[model])
+    rects, valid = project_outline_rects(outl, pose.R, pose.t, cam, SIZE)
+    obs = np.nan_to_num(rects) + r.normal(0, 6, (n, 4))
+    obs[:, 2:] = np.maximum(obs[:, 2:], obs[:, :2] + 5)
+    return outl, obs, pose, cam, r, valid
+
+
+def _both(monkeypatch, make):
+    """``make()`` (a fresh cost model) evaluated by ``use`` with this code and with the previous lookup."""
+    def use(fn):
+        out = fn(make())
+        with monkeypatch.context() as m:
+            m.setattr(BoxEdgeTerm, "_model_projection", _previous_lookup)
+            return out, fn(make())
+    return use
+
+
+@pytest.mark.parametrize("model", sorted(WIDE_ANGLE_PARAMS))
+@pytest.mark.parametrize("behind", [0, 5])
+def test_model_jacobian_is_the_previous_one(model, behind, monkeypatch):
+    outl, obs, pose, cam, r, valid = _scene(4, model, behind)
+    assert valid.sum() >= 12 and (behind == 0 or not valid.all())  # some rectangles invalid
+    v = r.normal(0, 5, (len(obs), 3))
+    for extras in ([], [FocalScaleTerm(0.1), PrincipalPointTerm(5.0), TimeOffsetTerm(v)]):
+        use = _both(monkeypatch, lambda: CostModel([BoxEdgeTerm(outl, obs, SIZE, np.full(len(obs), 3.0)), *extras],
+                                                   pose, cam))
+        for s in range(3):
+            x = np.random.default_rng(s).normal(0, 2e-3, 6 + sum(e.n_params for e in extras))
+            x2 = x.copy()
+            x2[6:] *= 1.5  # the same pose, other intrinsics / shifts (nothing kept from x may be reused)
+            (rn, Jn, rn2, Jn2), (ro, Jo, ro2, Jo2) = use(lambda m: (m.residuals(x), m.analytic_jacobian(x),
+                                                                    m.residuals(x2), m.analytic_jacobian(x2)))
+            np.testing.assert_array_equal(rn, ro)
+            np.testing.assert_array_equal(Jn, Jo)  # equal as numbers (0.0 == -0.0 in the zero rows)
+            np.testing.assert_array_equal(rn2, ro2)
+            np.testing.assert_array_equal(Jn2, Jo2)
+            assert np.count_nonzero(np.any(Jn != 0, axis=1)) > len(Jn) // 3
+
+
+def test_points_are_outline_extremes_at_valid_rectangles():
+    outl, _, pose, cam, _, _ = _scene(5, "kannala_brandt", behind=4)
+    rects, valid, pts = project_outline_rects(outl, pose.R, pose.t, cam, SIZE, min_distance=MIN_DEPTH_M, points=True)
+    ref_rects, ref_valid = project_outline_rects(outl, pose.R, pose.t, cam, SIZE, min_distance=MIN_DEPTH_M)
+    np.testing.assert_array_equal(rects, ref_rects)
+    np.testing.assert_array_equal(valid, ref_valid)
+    ref = outline_extremes(outl, pose.R, pose.t, cam)
+    assert pts.shape == ref.shape and 0 < valid.sum() < len(valid)
+    np.testing.assert_array_equal(pts[valid], ref[valid])
+    assert np.isfinite(pts).all()
+    # one pose in a batch of one: [1,M,4,3]
+    _, _, pts1 = project_outline_rects(outl, pose.R[None], pose.t[None], cam, SIZE, min_distance=MIN_DEPTH_M, points=True)
+    np.testing.assert_array_equal(pts1[0], pts)
+
+
+def test_points_none_off_the_refined_path():
+    outl, _, pose, cam, _, _ = _scene(6, "unified")
+    hull = np.concatenate([outl, outl[:, :2]], axis=1)  # 10 points per outline: not the 8 corners
+    assert project_outline_rects(hull, pose.R, pose.t, cam, SIZE, points=True)[2] is None
+    assert project_outline_rects(outl, pose.R, pose.t, cam, SIZE, samples=3, points=True)[2] is None
+    empty = project_outline_rects(outl[:0], pose.R, pose.t, cam, SIZE, points=True)
+    assert len(empty) == 3 and empty[2] is None and empty[0].shape == (0, 4)
+
+
+def test_lens_fit_is_the_previous_one_to_the_bit(monkeypatch):
+    outl, obs, pose, _, _, _ = _scene(7, "unified")
+    pin = CameraIntrinsics(fx=380, fy=381, cx=640, cy=400, width=SIZE[0], height=SIZE[1])
+    use = _both(monkeypatch, lambda: CostModel([BoxEdgeTerm(outl, obs, SIZE, np.full(len(obs), 3.0)),
+                                                WideLensTerm(pin, None, 0.5), FocalScaleTerm()], pose, pin))
+    a, b = use(lambda m: m.fit(f_scale=2.0, max_nfev=40))
+    assert a.x.tobytes() == b.x.tobytes() and a.cost == b.cost
+    assert a.residuals.tobytes() == b.residuals.tobytes()
+    assert abs(a.params[WideLensTerm.name][0] - 0.5) > 1e-6  # the lens parameter moved: the fit ran
