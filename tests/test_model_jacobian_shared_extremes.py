@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_calib_support import vehicle_boxes7
+from test_calib_support import central_jacobian, vehicle_boxes7
 
 from xcalib.calib.boxproj import MIN_DEPTH_M, project_rects
 from xcalib.calib.cost import BoxEdgeTerm, CostModel, FocalScaleTerm, PrincipalPointTerm, TimeOffsetTerm, WideLensTerm
@@ -113,3 +113,45 @@ def test_lens_fit_is_the_previous_one_to_the_bit(monkeypatch):
     assert a.x.tobytes() == b.x.tobytes() and a.cost == b.cost
     assert a.residuals.tobytes() == b.residuals.tobytes()
     assert abs(a.params[WideLensTerm.name][0] - 0.5) > 1e-6  # the lens parameter moved: the fit ran
+
+
+# --- WideLensTerm's xi column: analytic (Tangent.xi), not a forward difference (issue 29) ---
+
+def _lens_model(start, fixed=None, dist=None, seed=7):
+    outl, obs, pose, _, _, _ = _scene(seed, "unified")
+    pin = CameraIntrinsics(fx=380, fy=381, cx=640, cy=400, width=SIZE[0], height=SIZE[1], distortion=dist)
+    return CostModel([BoxEdgeTerm(outl, obs, SIZE, np.full(len(obs), 3.0)), WideLensTerm(pin, fixed, start),
+                      FocalScaleTerm(), PrincipalPointTerm()], pose, pin)
+
+
+@pytest.mark.parametrize("start", [0.0, 0.5, 1.3])
+@pytest.mark.parametrize("dist", [None, (-0.1, 0.02, 0.001, -0.001)])
+def test_xi_column_is_the_derivative(start, dist):
+    m = _lens_model(start, dist=dist)
+    x = np.random.default_rng(1).normal(0, 1e-3, m.n_params)
+    x[6] = abs(x[6]) + 1e-3  # inside the clip
+    Ja = m.analytic_jacobian(x)
+    Jn = central_jacobian(m.residuals, x)
+    scale = np.abs(Jn[:, 6]).max()
+    assert scale > 10.0  # the lens moves the edges
+    np.testing.assert_allclose(Ja[:, 6], Jn[:, 6], atol=2e-6 * scale)
+    # closer to the central difference than the forward difference it replaces
+    fwd = m._forward_columns(x, [6])[:, 0]
+    assert np.abs(Ja[:, 6] - Jn[:, 6]).max() < np.abs(fwd - Jn[:, 6]).max()
+
+
+def test_xi_column_zero_where_held():
+    held = _lens_model(0.0, fixed=0.0)
+    x = np.random.default_rng(2).normal(0, 1e-3, held.n_params)
+    J = held.analytic_jacobian(x)
+    assert np.all(J[:, 6] == 0.0) and np.any(J[:, 7] != 0.0)
+    clipped = _lens_model(0.0)
+    x[6] = -0.01  # xi clipped at 0: no derivative
+    assert np.all(clipped.analytic_jacobian(x)[:, 6] == 0.0)
+    x[6] = 0.0  # at the bound, the forward side (as the forward difference took it)
+    assert np.any(clipped.analytic_jacobian(x)[:, 6] != 0.0)
+    top = _lens_model(WideLensTerm.MAX_XI)
+    x[6] = 0.0
+    assert np.all(top.analytic_jacobian(x)[:, 6] == 0.0)
+    x[6] = -0.01
+    assert np.any(top.analytic_jacobian(x)[:, 6] != 0.0)

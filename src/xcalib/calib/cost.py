@@ -101,14 +101,16 @@ class CostTerm:
 
 @dataclass(frozen=True)
 class Tangent:
-    """The derivative of the state with respect to one parameter: of fx, fy, cx, cy (px) and of
-    the outline shift (LiDAR frame, m, [n,3] or None)."""
+    """The derivative of the state with respect to one parameter: of fx, fy, cx, cy (px), of
+    the outline shift (LiDAR frame, m, [n,3] or None) and of a ``WideLensTerm``'s unified-model
+    ``xi`` (whose focal length f (1 + xi) moves with it)."""
 
     fx: float = 0.0
     fy: float = 0.0
     cx: float = 0.0
     cy: float = 0.0
     shift: np.ndarray | None = None
+    xi: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -390,9 +392,25 @@ class BoxEdgeTerm(CostTerm):
             col = np.where(is_u, tg.fx, tg.fy) * dn + np.where(is_u, tg.cx, tg.cy)
             if tg.shift is not None:
                 col = col + np.einsum("nek,nk->ne", a, tg.shift @ R.T)
+            if tg.xi:
+                col = col + tg.xi * _xi_slope(cam, Ys + t, ext - np.where(is_u, cam.cx, cam.cy), a)
             D[..., 6 + k] = col
         D *= ((inside & good) * self.w)[..., None]
         return D
+
+
+def _xi_slope(cam: Unified, X: np.ndarray, centred: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """d edge / d xi [n,4] of a unified camera whose focal length is f (1 + xi) (``WideLensTerm``), at
+    the camera-frame points ``X`` [n,4,3] defining the edges (the extreme's own move along its edge
+    is of second order): u - cx = f (1 + xi) D(m), m = (X, Y) / (Z + xi |P|), so
+    d u / d xi = (u - cx) / (1 + xi) + f (1 + xi) dD/dm . dm/dxi, and dm/dxi = -m |P| / (Z + xi |P|) is
+    what moving the point along the optical axis by |P|^2 / (|P| + xi Z) does to m: the second term
+    is the point's own derivative ``a`` [n,4,3] (d edge / d X_cam) along z times that. ``centred``:
+    the edges minus the principal point. Rows that are not finite give 0 (invalid rows are masked)."""
+    d = np.sqrt(np.einsum("nek,nek->ne", X, X))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = centred / (1.0 + cam.xi) + a[..., 2] * (d * d / (d + cam.xi * X[..., 2]))
+    return np.where(np.isfinite(out), out, 0.0)
 
 
 def _rows_matmul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -507,9 +525,10 @@ class WideLensTerm(CostTerm):
     (``xi = 0``: the given pinhole; ~1.75: close to an equidistant fisheye over 180 degrees).
     ``fixed``: hold ``xi`` at this value (the pinhole alternative, projected the same way). Put a
     ``FocalScaleTerm`` after it to free the focal length too. ``start``: the fit's first ``xi``
-    (its parameter is the step from there). Its Jacobian column is a forward difference (the
-    model's ``NUMERIC_TERMS``); the pose and focal columns stay analytic (the unified model's own
-    ``project_jacobian``)."""
+    (its parameter is the step from there). Its Jacobian column is analytic (``Tangent.xi``, the
+    unified model's derivative at the points defining the edges, ``_xi_slope``; a forward difference
+    beside a term with its own ``pose_jacobian``), as are the pose and focal columns (the unified
+    model's own ``project_jacobian``)."""
 
     name = "wide_lens_xi"
     n_params = 1
@@ -540,6 +559,15 @@ class WideLensTerm(CostTerm):
         state.params[self.name] = np.array([xi])
         state.intr = self.camera(xi)
         return state
+
+    def tangents(self, state: PoseState, x: np.ndarray, base: CameraIntrinsics) -> list[Tangent]:
+        """d xi / d x: 1 inside [0, ``MAX_XI``], 0 where the clip holds it or ``fixed`` (at a bound, the
+        side a forward step towards x's sign takes, as the finite difference it replaces)."""
+        if self.fixed is not None:
+            return [Tangent()]
+        v, up = self.start + float(x[0]), float(x[0]) >= 0.0
+        free = 0.0 < v < self.MAX_XI or (v == 0.0 and up) or (v == self.MAX_XI and not up)
+        return [Tangent(xi=1.0 if free else 0.0)]
 
     def residuals(self, state: PoseState) -> np.ndarray:
         return np.zeros(0)
@@ -649,7 +677,8 @@ class CostModel:
         return CostFit(pose=st.pose, params=dict(st.params), cost=float(res.cost), residuals=res.fun, x=res.x)
 
     _TANGENT_TERMS = (FocalScaleTerm, PrincipalPointTerm, TimeOffsetTerm)
-    #: terms whose parameters get a forward-difference column (the rest of the Jacobian analytic)
+    #: terms whose parameters may get a forward-difference column (the rest of the Jacobian analytic):
+    #: ``WideLensTerm``'s xi where a ``has_pose_jacobian`` term is in the model (elsewhere its tangent)
     NUMERIC_TERMS = (WideLensTerm,)
 
     def has_analytic_jacobian(self) -> bool:
@@ -675,7 +704,9 @@ class CostModel:
         for term in self.terms:
             if term.n_params:
                 tg = term.tangents(st, x[k:k + term.n_params], self.intr)
-                if tg is None:  # a NUMERIC_TERMS term: its columns below, by forward differences
+                if tg is None or (any(g.xi for g in tg) and any(t.has_pose_jacobian for t in self.terms)):
+                    # a term with no tangent, or a lens xi beside a term that differentiates the pose
+                    # itself (it knows fx, cx, shift, not xi): its columns below, by forward differences
                     tg = [Tangent()] * term.n_params
                     numeric += list(range(k, k + term.n_params))
                 tangents += tg
