@@ -84,8 +84,7 @@ def test_points_are_outline_extremes_at_valid_rectangles():
     outl, _, pose, cam, _, _ = _scene(5, "kannala_brandt", behind=4)
     rects, valid, pts = project_outline_rects(outl, pose.R, pose.t, cam, SIZE, min_distance=MIN_DEPTH_M, points=True)
     ref_rects, ref_valid = project_outline_rects(outl, pose.R, pose.t, cam, SIZE, min_distance=MIN_DEPTH_M)
-    np.testing.assert_array_equal(rects, ref_rects)
-    np.testing.assert_array_equal(valid, ref_valid)
+    assert rects.tobytes() == ref_rects.tobytes() and np.array_equal(valid, ref_valid)  # the rects to the bit
     ref = outline_extremes(outl, pose.R, pose.t, cam)
     assert pts.shape == ref.shape and 0 < valid.sum() < len(valid)
     np.testing.assert_array_equal(pts[valid], ref[valid])
@@ -95,10 +94,16 @@ def test_points_are_outline_extremes_at_valid_rectangles():
     np.testing.assert_array_equal(pts1[0], pts)
 
 
-def test_points_none_off_the_refined_path():
-    outl, _, pose, cam, _, _ = _scene(6, "unified")
-    hull = np.concatenate([outl, outl[:, :2]], axis=1)  # 10 points per outline: not the 8 corners
-    assert project_outline_rects(hull, pose.R, pose.t, cam, SIZE, points=True)[2] is None
+def test_points_of_point_outlines_and_none_off_the_path():
+    outl, _, pose, cam, _, _ = _scene(6, "unified", behind=4)
+    r = np.random.default_rng(6)
+    hull = np.concatenate([outl, outl[:, :2] + r.normal(0, 0.3, (len(outl), 2, 3))], axis=1)  # 10 points: a hull
+    rects, valid, pts = project_outline_rects(hull, pose.R, pose.t, cam, SIZE, min_distance=MIN_DEPTH_M, points=True)
+    ref_rects, ref_valid = project_outline_rects(hull, pose.R, pose.t, cam, SIZE, min_distance=MIN_DEPTH_M)
+    assert rects.tobytes() == ref_rects.tobytes() and np.array_equal(valid, ref_valid)  # the rects to the bit
+    ref = outline_extremes(hull, pose.R, pose.t, cam)
+    assert 0 < valid.sum() < len(valid)
+    np.testing.assert_array_equal(pts[valid], ref[valid])
     assert project_outline_rects(outl, pose.R, pose.t, cam, SIZE, samples=3, points=True)[2] is None
     empty = project_outline_rects(outl[:0], pose.R, pose.t, cam, SIZE, points=True)
     assert len(empty) == 3 and empty[2] is None and empty[0].shape == (0, 4)
@@ -155,3 +160,15 @@ def test_xi_column_zero_where_held():
     assert np.all(top.analytic_jacobian(x)[:, 6] == 0.0)
     x[6] = -0.01
     assert np.any(top.analytic_jacobian(x)[:, 6] != 0.0)
+
+
+def test_model_jacobian_of_point_outlines_is_the_previous_one(monkeypatch):
+    outl, obs, pose, cam, r, _ = _scene(8, "kannala_brandt", behind=3)
+    hull = np.concatenate([outl, outl[:, :3] + r.normal(0, 0.3, (len(outl), 3, 3))], axis=1)  # 11-point hulls
+    use = _both(monkeypatch, lambda: CostModel([BoxEdgeTerm(hull, obs, SIZE, np.full(len(obs), 3.0)), FocalScaleTerm(0.1)],
+                                               pose, cam))
+    x = np.random.default_rng(8).normal(0, 2e-3, 7)
+    (rn, Jn), (ro, Jo) = use(lambda m: (m.residuals(x), m.analytic_jacobian(x)))
+    np.testing.assert_array_equal(rn, ro)
+    np.testing.assert_array_equal(Jn, Jo)
+    assert np.count_nonzero(np.any(Jn != 0, axis=1)) > len(Jn) // 3

@@ -119,8 +119,8 @@ def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, cam
         points: also return the outline points [H,M,4,3] (frame of ``corners``) at which each
             unclipped edge is taken (u min, v min, u max, v max), found in the same refinement as the
             rectangle (what :func:`outline_extremes` finds at a valid rectangle's pose, without
-            projecting the outlines again), or None where that is not this call's path (point
-            outlines, a pinhole model, ``samples`` given, many poses: call :func:`outline_extremes`).
+            projecting the outlines again), or None where that is not this call's path (``samples``
+            given, or more than 4096 poses x outlines: call :func:`outline_extremes`).
     Returns:
         rects [H,M,4] (NaN where invalid), valid [H,M]: every point projectable and a non-empty
         clipped rectangle (as :func:`xcalib.calib.boxproj.project_rects`)[, points].
@@ -133,7 +133,7 @@ def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, cam
         return out + (None,) if points else out
     geo = _Outline(camera, min_distance, H * M <= _COARSE_ABOVE)
     if camera.is_pinhole or c.shape[1] != 8:
-        rect, front, _ = geo.extremes(c, R, t, None)
+        rect, front, where = geo.extremes(c, R, t, None, points=points)
     elif samples is not None:
         rect, front, _ = geo.extremes(c, R, t, int(samples))
     else:
@@ -252,7 +252,9 @@ class _Outline:
             where = pts[np.arange(M)[None, :, None], idx]  # [H,M,4,3]
         if refine:
             self._refine(c, (ii, jj, n), (R, t), w, best, where, front & np.isfinite(best).all(axis=2))
-        return -_SIGN * best, front, where
+            return -_SIGN * best, front, where
+        # not refined: the rect as without ``points`` (min / max), the points beside it
+        return np.stack([u.min(2), v.min(2), u.max(2), v.max(2)], axis=-1), front, where
 
     def _refine(self, c, edges, pose, w, best, where, ok) -> None:
         """Golden section along the segments that may hold each extreme, in place on ``best``
