@@ -33,7 +33,7 @@ from scipy.optimize import least_squares
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import CameraModel, Unified
 from ..geometry.camera_models import pixels_per_metre as camera_pixels_per_metre
-from ..geometry.camera_models.outline import outline_extremes, project_outline_rects
+from ..geometry.camera_models.outline import outline_extremes, outline_rects_and_extremes
 from ..geometry.rotations import so3_left_jacobian
 from .boxproj import MIN_DEPTH_M, project_ragged, project_rects, ragged_outlines
 from .diagnostics import NoiseModel
@@ -232,7 +232,7 @@ class BoxEdgeTerm(CostTerm):
     def _model_projection(self, state: PoseState):
         """(rects, valid, points) at ``state`` for a camera model (or no boxes): ``project_rects``' rects
         and valid and, for a ``CameraModel``, the outline points [n,4,3] defining each edge, found in
-        the same projection (``project_outline_rects(points=True)``; None where that call does not
+        the same projection (``outline_rects_and_extremes``; None where that call does not
         give them): :meth:`_model_jacobian` differentiates at them instead of projecting the outlines
         again at the pose of the residuals. Kept, keyed by everything the projection depends on."""
         intr = state.intr
@@ -242,8 +242,8 @@ class BoxEdgeTerm(CostTerm):
             return self._last[1]
         outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
         if isinstance(intr, CameraModel) and len(self.obs):
-            out = project_outline_rects(outlines, state.pose.R, state.pose.t, intr, self.size,
-                                        min_distance=MIN_DEPTH_M, points=True)
+            out = outline_rects_and_extremes(outlines, state.pose.R, state.pose.t, intr, self.size,
+                                             min_distance=MIN_DEPTH_M)
         else:
             out = project_rects(outlines, state.pose.R, state.pose.t, intr, self.size) + (None,)
         self._last = (key, out)

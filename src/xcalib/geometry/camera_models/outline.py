@@ -21,7 +21,7 @@ import numpy as np
 
 from .base import CameraModel
 
-__all__ = ["densify_box_edges", "project_outline_rects", "outline_extremes", "pixels_per_metre", "EDGE_SAMPLES",
+__all__ = ["densify_box_edges", "project_outline_rects", "outline_extremes", "outline_rects_and_extremes", "pixels_per_metre", "EDGE_SAMPLES",
            "STEP_DEG"]
 
 #: points per segment between corners (besides the corners themselves)
@@ -99,7 +99,7 @@ _LAST_DENSE = _DenseMemo()
 
 def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, camera: CameraModel,
                           size: tuple[int, int], *, clip: bool = True, min_distance: float = 0.3,
-                          samples: int | None = None, points: bool = False):
+                          samples: int | None = None):
     """The 2D box of each 3D outline under ``camera`` for H poses.
 
     Args:
@@ -116,21 +116,33 @@ def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, cam
             box of the projected box (to < 0.001 px), not the samples' (a fraction of a pixel inside,
             tens of pixels for an edge passing near the camera). Not refined when many poses are
             scored at once (more than 4096 poses x boxes: the hypothesis search's IoU).
-        points: also return the outline points [H,M,4,3] (frame of ``corners``) at which each
-            unclipped edge is taken (u min, v min, u max, v max), found in the same refinement as the
-            rectangle (what :func:`outline_extremes` finds at a valid rectangle's pose, without
-            projecting the outlines again), or None where that is not this call's path (``samples``
-            given, or more than 4096 poses x outlines: call :func:`outline_extremes`).
     Returns:
         rects [H,M,4] (NaN where invalid), valid [H,M]: every point projectable and a non-empty
-        clipped rectangle (as :func:`xcalib.calib.boxproj.project_rects`)[, points].
+        clipped rectangle (as :func:`xcalib.calib.boxproj.project_rects`).
     """
+    return _outline_rects(corners, R, t, camera, (size, clip, min_distance, samples), False)[:2]
+
+
+def outline_rects_and_extremes(corners: np.ndarray, R: np.ndarray, t: np.ndarray, camera: CameraModel,
+                               size: tuple[int, int], *, min_distance: float = 0.3):
+    """:func:`project_outline_rects` (clipped, samples by angle) and the outline points [H,M,4,3]
+    (frame of ``corners``; [M,4,3] for one pose) at which each unclipped edge is taken (u min, v min,
+    u max, v max), found in the same projection and refinement as the rectangle: at a valid
+    rectangle what :func:`outline_extremes` finds, without projecting the outlines again (a fit's
+    residuals and Jacobian at one pose). The points are None above 4096 poses x outlines (not
+    refined there: call :func:`outline_extremes`). Returns (rects, valid, points)."""
+    return _outline_rects(corners, R, t, camera, (size, True, min_distance, None), True)
+
+
+def _outline_rects(corners, R, t, camera: CameraModel, how: tuple, points: bool):
+    """:func:`project_outline_rects` with ``how`` = (size, clip, min_distance, samples) and, with
+    ``points``, the points of :func:`outline_rects_and_extremes` (else None): (rects, valid, points)."""
+    size, clip, min_distance, samples = how
     single, R, t, c = pose_batch(R, t, corners)
     H, M = len(R), len(c)
     where = None
     if M == 0:
-        out = no_rects(H, single)
-        return out + (None,) if points else out
+        return no_rects(H, single) + (None,)
     geo = _Outline(camera, min_distance, H * M <= _COARSE_ABOVE)
     if camera.is_pinhole or c.shape[1] != 8:
         rect, front, where = geo.extremes(c, R, t, None, points=points)
@@ -146,10 +158,9 @@ def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, cam
             sel = np.flatnonzero(k == n)
             rect[:, sel], front[:, sel], where = geo.extremes(c[sel], R, t, int(n), points=keep)
     valid = finish_rects(rect, front, size, clip)
-    out = (rect[0], valid[0]) if single else (rect, valid)
-    if points:
-        return out + (where[0] if single and where is not None else where,)
-    return out
+    if single:
+        return rect[0], valid[0], None if where is None else where[0]
+    return rect, valid, where
 
 
 def outline_extremes(corners: np.ndarray, R: np.ndarray, t: np.ndarray, camera: CameraModel) -> np.ndarray:
