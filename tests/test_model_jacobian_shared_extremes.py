@@ -170,8 +170,8 @@ def test_xi_column_zero_where_held():
 def test_model_jacobian_of_point_outlines_is_the_previous_one(monkeypatch):
     outl, obs, pose, cam, r, _ = _scene(8, "kannala_brandt", behind=3)
     hull = np.concatenate([outl, outl[:, :3] + r.normal(0, 0.3, (len(outl), 3, 3))], axis=1)  # 11-point hulls
-    use = _both(monkeypatch, lambda: CostModel([BoxEdgeTerm(hull, obs, SIZE, np.full(len(obs), 3.0)), FocalScaleTerm(0.1)],
-                                               pose, cam))
+    use = _both(monkeypatch, lambda: CostModel([BoxEdgeTerm(hull, obs, SIZE, np.full(len(obs), 3.0)),
+                                                FocalScaleTerm(0.1)], pose, cam))
     x = np.random.default_rng(8).normal(0, 2e-3, 7)
     (rn, Jn), (ro, Jo) = use(lambda m: (m.residuals(x), m.analytic_jacobian(x)))
     np.testing.assert_array_equal(rn, ro)

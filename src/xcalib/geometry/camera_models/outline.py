@@ -21,8 +21,8 @@ import numpy as np
 
 from .base import CameraModel
 
-__all__ = ["densify_box_edges", "project_outline_rects", "outline_extremes", "outline_rects_and_extremes", "pixels_per_metre", "EDGE_SAMPLES",
-           "STEP_DEG"]
+__all__ = ["densify_box_edges", "project_outline_rects", "outline_extremes", "outline_rects_and_extremes",
+           "pixels_per_metre", "EDGE_SAMPLES", "STEP_DEG"]
 
 #: points per segment between corners (besides the corners themselves)
 EDGE_SAMPLES = 7
@@ -129,8 +129,8 @@ def outline_rects_and_extremes(corners: np.ndarray, R: np.ndarray, t: np.ndarray
     (frame of ``corners``; [M,4,3] for one pose) at which each unclipped edge is taken (u min, v min,
     u max, v max), found in the same projection and refinement as the rectangle: at a valid
     rectangle what :func:`outline_extremes` finds, without projecting the outlines again (a fit's
-    residuals and Jacobian at one pose). The points are None above 4096 poses x outlines (not
-    refined there: call :func:`outline_extremes`). Returns (rects, valid, points)."""
+    residuals and Jacobian at one pose). The points of box corners are None above 4096 poses x
+    outlines (not refined there: call :func:`outline_extremes`). Returns (rects, valid, points)."""
     return _outline_rects(corners, R, t, camera, (size, True, min_distance, None), True)
 
 
