@@ -247,6 +247,7 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
         refusals.append("self-calibration asked for but too few matched pairs (< 6) to estimate it")
     kept_sd = None  # the focal choice's part when the given focal length is kept by the box model
     w_box: float | None | bool = False  # the given focal length's weight with the outline free (False: not computed)
+    checked: dict = {}  # "ok": whether the focal-length check accepts the given focal length (where it was asked)
     for _ in range(3):  # drop what the data does not constrain (or what agrees with the given), refit
         if fit is None:
             break
@@ -255,7 +256,7 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
             frames_fit = shift_frames(cframes, motion.velocity, fit.dt_s) if est_dt else cframes
             w_box = focal_outline_weight(frames_fit, fit, intr, occlusion)
             kept_sd = given_focal_kept(fit, pose, w_box, fit.focal_log_sd * repeat, diag,
-                                       lambda: given_focal_accepted(cframes, intr, pose, occlusion))
+                                       lambda: checked.setdefault("ok", given_focal_accepted(cframes, intr, pose, occlusion)))
             if kept_sd is not None:
                 cfg, changed = cfg.replace(refine_intrinsics="none"), True
         if est_dt and not (fit.n_moving_pairs >= MIN_MOVING_PAIRS and fit.dt_sd_s is not None
@@ -281,6 +282,8 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
             frames_fit = shift_frames(cframes, motion.velocity, fit.dt_s) if est_dt else cframes
             if w_box is False:  # (computed above where the fit stands as judged)
                 w_box = focal_outline_weight(frames_fit, fit, intr, occlusion)
+            if checked.get("ok") is False:  # the focal-length check refuses the given one: the box model does
+                w_box = 0.0                 # not explain the switch (given_focal_kept), nothing of it in the sigma
             box_sd = focal_box_model_sd(fit, pose, fit.focal_log_sd * repeat, w_box, diag)
     if fit.principal_shift_px is not None:
         diag.principal_shift_px = [float(v) for v in fit.principal_shift_px]
@@ -369,7 +372,10 @@ def given_focal_accepted(cframes: list[CalibFrame], intr: CameraIntrinsics, pose
     with it: ``misfit.focal_scale_check`` on ``misfit.focal_fit`` (a scale beyond ``FOCAL_TOL`` and 2
     jackknife sigmas is a misfit), with the box model first (``misfit.focal_box_model``: a flag the
     2D outline offsets explain is none), as the calibration checks a focal length it does not
-    estimate. False with fewer than 12 matched pairs."""
+    estimate. False with fewer than 12 matched pairs. Where it refuses the given focal length, the
+    outline offsets do not explain the switch, so their weight is not counted in the reported sigma
+    either (:func:`focal_box_model_sd`; session 13: the A9 sample with fx x1.05 was refused as too
+    uncertain by sqrt(1/2) x the 1.9 m move to the right focal length)."""
     pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=0.3)
     n = int(sum(len(p) for p in pairs))
     if n < 12:
