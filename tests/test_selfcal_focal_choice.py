@@ -174,13 +174,16 @@ def test_auto_fits_a_wrong_focal_and_keeps_one_the_box_model_explains(monkeypatc
     assert not any("explains the boxes as well" in n for n in choice.diag.notes)
     # the outline offsets explaining the boxes as well (w_box 1/2, as on the A9 sample with fx x1.05) is
     # not enough: the focal-length check, with the outline free, refuses the wrong given one at its pose
+    keep = CalibConfig(focal_keep_box_model=True)  # (off by default, session 13)
     monkeypatch.setattr(selfcal, "focal_outline_weight", lambda *a, **k: 0.5)
-    checked = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
+    checked = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
     assert checked.diag.focal_estimated and checked.intr.fx == pytest.approx(intr.fx, rel=0.01)
     assert any("focal-length check refuses it" in n for n in checked.diag.notes)
     assert checked.box_model is None  # nor does the outline weight count in the sigma
     monkeypatch.setattr(selfcal, "given_focal_accepted", lambda *a, **k: True)
-    kept = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
+    off = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
+    assert off.diag.focal_estimated and off.intr.fx == pytest.approx(intr.fx, rel=0.01)  # the default: fitted
+    kept = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
     assert kept.refusal == "" and not kept.diag.focal_estimated
     assert kept.intr is wrong_given and kept.frames is frames and kept.pose is truth
     assert kept.diag.focal_scale == pytest.approx(choice.diag.focal_scale)  # measured, not used

@@ -255,8 +255,12 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
         if not changed and config.refine_intrinsics == "auto" and cfg.refine_intrinsics != "none" and w_box is False:
             frames_fit = shift_frames(cframes, motion.velocity, fit.dt_s) if est_dt else cframes
             w_box = focal_outline_weight(frames_fit, fit, intr, occlusion)
-            kept_sd = given_focal_kept(fit, pose, w_box, fit.focal_log_sd * repeat, diag,
-                                       lambda: checked.setdefault("ok", given_focal_accepted(cframes, intr, pose, occlusion)))
+            if config.focal_keep_box_model:
+                kept_sd = given_focal_kept(fit, pose, w_box, fit.focal_log_sd * repeat, diag,
+                                           lambda: checked.setdefault("ok", given_focal_accepted(cframes, intr, pose,
+                                                                                                 occlusion)))
+            elif w_box is not None and np.isfinite(w_box) and w_box >= KEEP_GIVEN_WEIGHT - 1e-12:
+                checked["ok"] = given_focal_accepted(cframes, intr, pose, occlusion)  # (for the sigma below)
             if kept_sd is not None:
                 cfg, changed = cfg.replace(refine_intrinsics="none"), True
         if est_dt and not (fit.n_moving_pairs >= MIN_MOVING_PAIRS and fit.dt_sd_s is not None
