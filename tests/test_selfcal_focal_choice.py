@@ -121,3 +121,74 @@ def dataclasses_replace(intr, scale: float):
     from dataclasses import replace
 
     return replace(intr, fx=intr.fx * scale, fy=intr.fy * scale)
+
+
+def test_the_given_focal_length_is_kept_where_the_box_model_explains_the_switch():
+    """Session 13 (issue 25): "auto" keeps the given focal length where, with the 2D outline offsets
+    free, it explains the boxes at least as well (its weight at the cap of 1/2, ``KEEP_GIVEN_WEIGHT``);
+    the choice then counts sqrt(1 - w_box) x the pose's move in the reported sigma. Below it (the
+    fitted focal length more plausible, e.g. w_box 0.40 at a principal point 3 % off) the fitted
+    focal length is used (None)."""
+    from xcalib.calib.selfcal import KEEP_GIVEN_WEIGHT, given_focal_kept
+
+    assert KEEP_GIVEN_WEIGHT == 0.5
+    given = Pose(np.eye(3), np.zeros(3))
+    moved = Pose(Rotation.from_rotvec(np.radians([0.14, 0.0, 0.0])).as_matrix(), np.array([0.0, 0.0, 0.14]))
+    fit = _fit(np.exp(3 * 0.004), moved, np.zeros(6))
+    diag = SelfCalDiagnostics()
+    part = given_focal_kept(fit, given, 0.5, 0.004, diag)
+    assert part is not None
+    assert part[5] == pytest.approx(np.sqrt(0.5) * 0.14, rel=1e-6) and part[0] == pytest.approx(np.sqrt(0.5) * 0.14, rel=1e-6)
+    assert part[1] == pytest.approx(0.0, abs=1e-12)
+    assert any("the given one is kept" in n for n in diag.notes)
+    assert diag.focal_scale == pytest.approx(np.exp(3 * 0.004)) and not diag.focal_estimated
+    at = given_focal_kept(fit, given, KEEP_GIVEN_WEIGHT, 0.004, SelfCalDiagnostics())
+    assert at is not None and at[5] == pytest.approx(np.sqrt(1 - KEEP_GIVEN_WEIGHT) * 0.14, rel=1e-6)
+    # a box model that does not explain the boxes as well (a real focal error: w ~ 1e-20), or none: switch
+    assert given_focal_kept(fit, given, 0.9 * KEEP_GIVEN_WEIGHT, 0.004, SelfCalDiagnostics()) is None
+    assert given_focal_kept(fit, given, 0.40, 0.004, SelfCalDiagnostics()) is None
+    assert given_focal_kept(fit, given, 1e-20, 0.004, SelfCalDiagnostics()) is None
+    assert given_focal_kept(fit, given, None, 0.004, SelfCalDiagnostics()) is None
+    # nor where the calibration's focal-length check refuses the given one at its pose
+    diag = SelfCalDiagnostics()
+    assert given_focal_kept(fit, given, 0.5, 0.004, diag, lambda: False) is None
+    assert any("focal-length check refuses it" in n for n in diag.notes)
+    assert given_focal_kept(fit, given, 0.5, 0.004, SelfCalDiagnostics(), lambda: True) is not None
+
+
+def test_auto_fits_a_wrong_focal_and_keeps_one_the_box_model_explains(monkeypatch):
+    """The choice in ``selfcal.decide`` (from the true pose, realism clean site 0, 8 frames, the given
+    focal length 5 % off): the outline offsets do not explain a real focal error (w_box ~ 1e-20), so
+    the fitted (true) focal length is used. Where the box model explains the switch (w_box 1/2, as a
+    detector's outline on an exact focal length gives), the given one and its pose are kept, and the
+    choice's part is in the reported sigma."""
+    import xcalib.calib.selfcal as selfcal
+    from xcalib.calib.config import CalibConfig
+    from xcalib.calib.cost import Occlusion
+
+    frames, intr, truth = _site("clean", 0)
+    wrong_given = dataclasses_replace(intr, 1.05)
+    choice = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
+    assert choice.refusal == "" and choice.diag.focal_estimated
+    assert choice.intr.fx == pytest.approx(intr.fx, rel=0.01)  # the wrong given one is replaced
+    assert not any("explains the boxes as well" in n for n in choice.diag.notes)
+    # the outline offsets explaining the boxes as well (w_box 1/2, as on the A9 sample with fx x1.05) is
+    # not enough: the focal-length check, with the outline free, refuses the wrong given one at its pose
+    keep = CalibConfig(focal_keep_box_model=True)  # (off by default, session 13)
+    monkeypatch.setattr(selfcal, "focal_outline_weight", lambda *a, **k: 0.5)
+    checked = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
+    assert checked.diag.focal_estimated and checked.intr.fx == pytest.approx(intr.fx, rel=0.01)
+    assert any("focal-length check refuses it" in n for n in checked.diag.notes)
+    assert checked.box_model is None  # nor does the outline weight count in the sigma
+    monkeypatch.setattr(selfcal, "given_focal_accepted", lambda *a, **k: True)
+    off = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
+    assert off.diag.focal_estimated and off.intr.fx == pytest.approx(intr.fx, rel=0.01)  # the default: fitted
+    kept = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
+    assert kept.refusal == "" and not kept.diag.focal_estimated
+    assert kept.intr is wrong_given and kept.frames is frames and kept.pose is truth
+    assert kept.diag.focal_scale == pytest.approx(choice.diag.focal_scale)  # measured, not used
+    assert kept.box_model is not None and float(np.max(kept.box_model)) > 0  # the choice stays in the sigma
+    assert any("explains the boxes as well" in n for n in kept.diag.notes)
+    assert kept.diag.fx_used == wrong_given.fx
+
+
