@@ -141,7 +141,10 @@ def test_the_given_focal_length_is_kept_where_the_box_model_explains_the_switch(
     assert part[5] == pytest.approx(np.sqrt(0.5) * 0.14, rel=1e-6) and part[0] == pytest.approx(np.sqrt(0.5) * 0.14, rel=1e-6)
     assert part[1] == pytest.approx(0.0, abs=1e-12)
     assert any("the given one is kept" in n for n in diag.notes)
-    assert diag.focal_scale == pytest.approx(np.exp(3 * 0.004)) and not diag.focal_estimated
+    # focal_scale is the used / given one (1: kept; session 13 review: it held the fitted one while the given one
+    # was used, so CalibrationResult.focal_scale disagreed with its intrinsics); the fitted one is in the note
+    assert diag.focal_scale == 1.0 and diag.focal_scale_std == 0.004 and not diag.focal_estimated
+    assert any(f"x{np.exp(3 * 0.004):.4f}" in n for n in diag.notes)
     at = given_focal_kept(fit, given, KEEP_GIVEN_WEIGHT, 0.004, SelfCalDiagnostics())
     assert at is not None and at[5] == pytest.approx(np.sqrt(1 - KEEP_GIVEN_WEIGHT) * 0.14, rel=1e-6)
     # a box model that does not explain the boxes as well (a real focal error: w ~ 1e-20), or none: switch
@@ -186,7 +189,7 @@ def test_auto_fits_a_wrong_focal_and_keeps_one_the_box_model_explains(monkeypatc
     kept = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
     assert kept.refusal == "" and not kept.diag.focal_estimated
     assert kept.intr is wrong_given and kept.frames is frames and kept.pose is truth
-    assert kept.diag.focal_scale == pytest.approx(choice.diag.focal_scale)  # measured, not used
+    assert kept.diag.focal_scale == 1.0 and kept.diag.focal_scale_std is not None  # used / given; measured sigma
     assert kept.box_model is not None and float(np.max(kept.box_model)) > 0  # the choice stays in the sigma
     assert any("explains the boxes as well" in n for n in kept.diag.notes)
     assert kept.diag.fx_used == wrong_given.fx

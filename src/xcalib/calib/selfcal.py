@@ -436,7 +436,7 @@ def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float
                     f"boxes about as well as the fitted x{fit.focal_scale:.4f} (posterior weight {w_box:.3f}), but the "
                     "focal-length check refuses it at its pose: the fitted one is used", warn=False)
         return None
-    diag.focal_scale, diag.focal_scale_std = fit.focal_scale, sd
+    diag.focal_scale_std = sd  # (measured; focal_scale stays the used / given one, 1: the fitted one is in the note)
     z = abs(float(np.log(fit.focal_scale))) / sd if sd is not None and np.isfinite(sd) and sd > 0 else float("nan")
     _note(diag, f"refine_intrinsics='auto': the detections fit the focal length x{fit.focal_scale:.4f} ({z:.1f} "
                 f"sigma from the given one), but the given one with the 2D outline offsets fitted (a detector's "
