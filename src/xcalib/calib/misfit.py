@@ -1134,11 +1134,12 @@ def lens_checks(frames: list[CalibFrame], pairs: list[np.ndarray], intr, pose: P
     fit = lens_fit(frames, pairs, intr, pose, noise, f_scale, occlusion, places)
     alt = _lens_verdict(fit, LENS_ALT_GAIN, True)
     chk, msg = _lens_verdict(fit, LENS_MIN_GAIN, False)
-    if msg is not None:  # the box model first, as for the focal length (focal_box_model)
-        boxed = lens_box_model(frames, intr, pose, noise, f_scale, occlusion, fit, places)
-        chk, msg = _lens_verdict(boxed, LENS_MIN_GAIN, False)
-        chk = replace(chk, detail=chk.detail + f"; with the 2D outline offsets free in both fits (box model); without "
-                      f"them {fit.gain_per_object:.1f} per object" + ("" if msg else ": the box model explains it"))
+    if msg is not None:  # the box model first, as for the focal length (focal_box_model); where it does not
+        boxed = lens_box_model(frames, intr, pose, noise, f_scale, occlusion, fit, places)  # explain it: as before
+        chk_box, msg_box = _lens_verdict(boxed, LENS_MIN_GAIN, False)
+        if msg_box is None:
+            chk, msg = replace(chk_box, detail=chk_box.detail + f"; with the 2D outline offsets free in both fits (box "
+                               f"model); without them {fit.gain_per_object:.1f} per object: the box model explains it"), None
     return (chk, msg), alt
 
 
