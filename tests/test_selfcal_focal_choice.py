@@ -121,3 +121,51 @@ def dataclasses_replace(intr, scale: float):
     from dataclasses import replace
 
     return replace(intr, fx=intr.fx * scale, fy=intr.fy * scale)
+
+
+def test_the_given_focal_length_is_kept_where_the_box_model_explains_the_switch():
+    """Session 13 (issue 25): "auto" keeps the given focal length where, with the 2D outline offsets
+    free, it is not rejected at the 2-sigma level "auto" switches at (weight >= ``KEEP_GIVEN_WEIGHT``);
+    the choice then counts sqrt(1 - w_box) x the pose's move in the reported sigma. Below it the
+    fitted focal length is used (None)."""
+    from xcalib.calib.selfcal import KEEP_GIVEN_WEIGHT, given_focal_kept
+
+    assert KEEP_GIVEN_WEIGHT == pytest.approx(focal_choice_weight(2.0))
+    given = Pose(np.eye(3), np.zeros(3))
+    moved = Pose(Rotation.from_rotvec(np.radians([0.14, 0.0, 0.0])).as_matrix(), np.array([0.0, 0.0, 0.14]))
+    fit = _fit(np.exp(3 * 0.004), moved, np.zeros(6))
+    diag = SelfCalDiagnostics()
+    part = given_focal_kept(fit, given, 0.5, 0.004, diag)
+    assert part is not None
+    assert part[5] == pytest.approx(np.sqrt(0.5) * 0.14, rel=1e-6) and part[0] == pytest.approx(np.sqrt(0.5) * 0.14, rel=1e-6)
+    assert part[1] == pytest.approx(0.0, abs=1e-12)
+    assert any("the given one is kept" in n for n in diag.notes)
+    assert diag.focal_scale == pytest.approx(np.exp(3 * 0.004)) and not diag.focal_estimated
+    at = given_focal_kept(fit, given, KEEP_GIVEN_WEIGHT, 0.004, SelfCalDiagnostics())
+    assert at is not None and at[5] == pytest.approx(np.sqrt(1 - KEEP_GIVEN_WEIGHT) * 0.14, rel=1e-6)
+    # a box model that does not explain the boxes as well (a real focal error: w ~ 1e-20), or none: switch
+    assert given_focal_kept(fit, given, 0.9 * KEEP_GIVEN_WEIGHT, 0.004, SelfCalDiagnostics()) is None
+    assert given_focal_kept(fit, given, 1e-20, 0.004, SelfCalDiagnostics()) is None
+    assert given_focal_kept(fit, given, None, 0.004, SelfCalDiagnostics()) is None
+
+
+def test_auto_keeps_an_exact_focal_under_a_detectors_outline_and_fits_a_wrong_one():
+    """The choice end to end (``selfcal.decide`` from the true pose, realism sites, 8 frames): clean
+    boxes with the given focal length 5 % off still get the fitted (true) one; a detector's tight
+    outline with the exact focal length given keeps it, with the choice's part in the sigma."""
+    from xcalib.calib.config import CalibConfig
+    from xcalib.calib.cost import Occlusion
+    from xcalib.calib.selfcal import decide
+
+    frames, intr, truth = _site("clean", 0)
+    wrong_given = dataclasses_replace(intr, 1.05)
+    choice = decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
+    assert choice.refusal == "" and choice.diag.focal_estimated
+    assert choice.intr.fx == pytest.approx(intr.fx, rel=0.01)  # the wrong given one is replaced
+    assert choice.box_model is None or float(np.max(choice.box_model)) < 0.01
+    frames, intr, truth = _site("detector_outline", 0)
+    choice = decide(frames, intr, truth, CalibConfig(), None, Occlusion())
+    assert choice.refusal == "" and not choice.diag.focal_estimated
+    assert choice.intr.fx == intr.fx and choice.frames is frames
+    if any("the given one is kept" in n for n in choice.diag.notes):  # "auto" would have switched
+        assert choice.box_model is not None and float(np.max(choice.box_model)) > 0

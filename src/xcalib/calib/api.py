@@ -647,9 +647,10 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
         if choice.refusal:
             _kept(early, None, ())
             return _refused(Refusal("selfcal", choice.refusal), intr, cframes, config, diag)
+        focal_box = choice.box_model  # (also where "auto" kept the given focal length by the box model)
         if choice.intr is not intr or choice.frames is not cframes:
             # every candidate again with the estimated intrinsics / moved 3D boxes (a fair runner-up)
-            cframes, intr, inflation, focal_box = choice.frames, choice.intr, choice.inflation, choice.box_model
+            cframes, intr, inflation = choice.frames, choice.intr, choice.inflation
             joint = Hypotheses(choice.pose.R[None], choice.pose.t[None], np.zeros(1), np.zeros(1, dtype=np.int64))
             ref = _refine_candidates(cframes, intr, Hypotheses.concat([joint, cand]), occlusion, progress,
                                      config.workers, config.max_candidates)

@@ -33,7 +33,8 @@ from .refine import F_SCALE, build_cost, estimate_noise, match_all
 from .uncertainty import box_model_odds
 
 __all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "MIN_MOVING_PAIRS",
-           "focal_choice_weight", "focal_outline_weight", "focal_box_model_sd"]
+           "focal_choice_weight", "focal_outline_weight", "focal_box_model_sd", "given_focal_kept",
+           "KEEP_GIVEN_WEIGHT"]
 
 MIN_MOVING_PAIRS = 3
 GATES = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0))
@@ -241,10 +242,17 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
     fit = joint_refine(cframes, intr, pose, cfg, motion if est_dt else None, occlusion)
     if fit is None and (cfg.refine_intrinsics in ("focal", "focal+center") or config.time_offset == "estimate"):
         refusals.append("self-calibration asked for but too few matched pairs (< 6) to estimate it")
+    kept_sd = None  # the focal choice's part when the given focal length is kept by the box model
     for _ in range(3):  # drop what the data does not constrain (or what agrees with the given), refit
         if fit is None:
             break
         cfg, changed = _judge_intrinsics(fit, cfg, config, diag, refusals, cframes[0].size[0], repeat)
+        if not changed and config.refine_intrinsics == "auto" and cfg.refine_intrinsics != "none" and kept_sd is None:
+            frames_fit = shift_frames(cframes, motion.velocity, fit.dt_s) if est_dt else cframes
+            kept_sd = given_focal_kept(fit, pose, focal_outline_weight(frames_fit, fit, intr, occlusion),
+                                       fit.focal_log_sd * repeat, diag)
+            if kept_sd is not None:
+                cfg, changed = cfg.replace(refine_intrinsics="none"), True
         if est_dt and not (fit.n_moving_pairs >= MIN_MOVING_PAIRS and fit.dt_sd_s is not None
                            and fit.dt_sd_s <= config.time_offset_max_std_s):
             diag.time_offset_std_s = fit.dt_sd_s
@@ -258,8 +266,8 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
             if (cfg.refine_intrinsics != "none" or est_dt) else None
     if fit is None:
         _fill_used(diag, intr)
-        return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag)
-    inflation, box_sd = fit.pose_inflation, None
+        return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag, kept_sd)
+    inflation, box_sd = fit.pose_inflation, kept_sd
     if cfg.refine_intrinsics != "none":
         diag.focal_scale, diag.focal_scale_std, diag.focal_estimated = fit.focal_scale, fit.focal_log_sd * repeat, True
         if config.refine_intrinsics == "auto":
@@ -342,6 +350,50 @@ def focal_box_model_sd(fit: SelfCalFit, pose: Pose, sd: float | None, w_box: flo
                     f"keeps a posterior weight of {w_box:.3f} against the fitted one ({w:.3f} from the focal length's "
                     "sigma alone): the box model's share of the move counts in the reported sigma", warn=False)
     return extra
+
+
+#: the given focal length's weight below which "auto" replaces it: the weight its own sigma gives it at
+#: the 2-sigma switch of ``_judge_intrinsics`` (:func:`focal_choice_weight` (2) = 0.119)
+KEEP_GIVEN_WEIGHT = focal_choice_weight(2.0)
+
+
+def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float | None,
+                     diag: SelfCalDiagnostics) -> np.ndarray | None:
+    """Whether refine_intrinsics="auto" keeps the given focal length (and the pose fitted with it)
+    although the plain joint fit replaces it: the pose sigma part of that choice (6-vector, deg / m), or
+    None (the fitted focal length is used).
+
+    "auto" replaces the given focal length only when the boxes reject it at 2 sigma (its posterior
+    weight from the focal length's own sigma below :data:`KEEP_GIVEN_WEIGHT`). The same test is made
+    here with the box model as a nuisance: ``w_box`` (:func:`focal_outline_weight`) is the given focal
+    length's weight with the 2D outline offsets free against the fitted one without them. A detector's
+    tight outline shrinks every box, which a longer focal length mimics; only a focal error also moves
+    the boxes' positions about the principal point, which no outline offset takes up. So where the
+    given focal length with the outline offsets explains the boxes about as well (``w_box`` at least
+    :data:`KEEP_GIVEN_WEIGHT`), the boxes do not reject it and it is kept; a real focal error of a few
+    per cent gives w_box ~ 1e-20 and is still fitted. The choice stays in the sigma: choosing the given
+    focal length where the fitted one keeps the weight 1 - w_box has the expected squared error
+    (1 - w_box) x shift^2 (``shift``: the pose's move to the fitted focal length), returned as
+    sqrt(1 - w_box) x shift, a systematic part of the reported sigma only (as :func:`focal_box_model_sd`).
+
+    Realism (session 12): at ``detector_outline`` 19 and ``detector_truncation`` 19 "auto" replaced the
+    exact focal length (x1.030 / x1.016, weight 0.003 / 0.033 from its sigma, w_box 1/2) and the pose
+    ended 0.57 deg / 0.78 m and 0.80 deg / 0.50 m off; refitted with the given focal length it is
+    0.33 deg / 0.20 m and 0.44 deg / 0.23 m."""
+    if w_box is None or not np.isfinite(w_box) or w_box < KEEP_GIVEN_WEIGHT:
+        return None
+    shift = np.abs(pose.delta(fit.pose))
+    if not np.all(np.isfinite(shift)):
+        return None
+    diag.focal_scale, diag.focal_scale_std = fit.focal_scale, sd
+    z = abs(float(np.log(fit.focal_scale))) / sd if sd is not None and np.isfinite(sd) and sd > 0 else float("nan")
+    _note(diag, f"refine_intrinsics='auto': the detections fit the focal length x{fit.focal_scale:.4f} ({z:.1f} "
+                f"sigma from the given one), but the given one with the 2D outline offsets fitted (a detector's "
+                f"box outline) explains the boxes as well (posterior weight {w_box:.3f}); the given one is kept, "
+                f"and the pose's move to the fitted one ({float(np.linalg.norm(shift[:3])):.3f} deg / "
+                f"{float(np.linalg.norm(shift[3:])):.3f} m) counts in the reported sigma by sqrt(1 - {w_box:.3f})",
+          warn=False)
+    return np.sqrt(max(1.0 - float(w_box), 0.0)) * shift
 
 
 def focal_outline_weight(frames: list[CalibFrame], fit: SelfCalFit, intr: CameraIntrinsics,
