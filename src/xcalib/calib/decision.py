@@ -5,7 +5,8 @@ on one line). :func:`verdict` judges the refined pose: the best pose must match 
 some frame (or, with 1-2 per frame, match boxes at 4+ places over the recording, 2+ of them
 off one line, and 12+ matches so that each half of the frames is checked on its own), explain
 enough of the 2D boxes, be clearly better than any admissible runner-up beyond 2 sigma and be
-well constrained (norm of the 1-sigma vector within the config's limits) and rest on
+well constrained (norm of the 1-sigma vector within the config's limits; for a pose whose reported
+95 % bound is within the fine line, with the occlusion shift counted beyond its noise) and rest on
 ``MIN_OBJECTS``+ distinct objects. Each refusal returns
 a ``Refusal`` with a short code and a message that says why and what to do.
 """
