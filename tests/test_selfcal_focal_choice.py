@@ -147,25 +147,43 @@ def test_the_given_focal_length_is_kept_where_the_box_model_explains_the_switch(
     assert given_focal_kept(fit, given, 0.9 * KEEP_GIVEN_WEIGHT, 0.004, SelfCalDiagnostics()) is None
     assert given_focal_kept(fit, given, 1e-20, 0.004, SelfCalDiagnostics()) is None
     assert given_focal_kept(fit, given, None, 0.004, SelfCalDiagnostics()) is None
+    # nor where the calibration's focal-length check refuses the given one at its pose
+    diag = SelfCalDiagnostics()
+    assert given_focal_kept(fit, given, 0.5, 0.004, diag, lambda: False) is None
+    assert any("focal-length check refuses it" in n for n in diag.notes)
+    assert given_focal_kept(fit, given, 0.5, 0.004, SelfCalDiagnostics(), lambda: True) is not None
 
 
-def test_auto_keeps_an_exact_focal_under_a_detectors_outline_and_fits_a_wrong_one():
-    """The choice end to end (``selfcal.decide`` from the true pose, realism sites, 8 frames): clean
-    boxes with the given focal length 5 % off still get the fitted (true) one; a detector's tight
-    outline with the exact focal length given keeps it, with the choice's part in the sigma."""
+def test_auto_fits_a_wrong_focal_and_keeps_one_the_box_model_explains(monkeypatch):
+    """The choice in ``selfcal.decide`` (from the true pose, realism clean site 0, 8 frames, the given
+    focal length 5 % off): the outline offsets do not explain a real focal error (w_box ~ 1e-20), so
+    the fitted (true) focal length is used. Where the box model explains the switch (w_box 1/2, as a
+    detector's outline on an exact focal length gives), the given one and its pose are kept, and the
+    choice's part is in the reported sigma."""
+    import xcalib.calib.selfcal as selfcal
     from xcalib.calib.config import CalibConfig
     from xcalib.calib.cost import Occlusion
-    from xcalib.calib.selfcal import decide
 
     frames, intr, truth = _site("clean", 0)
     wrong_given = dataclasses_replace(intr, 1.05)
-    choice = decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
+    choice = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
     assert choice.refusal == "" and choice.diag.focal_estimated
     assert choice.intr.fx == pytest.approx(intr.fx, rel=0.01)  # the wrong given one is replaced
-    assert choice.box_model is None or float(np.max(choice.box_model)) < 0.01
-    frames, intr, truth = _site("detector_outline", 0)
-    choice = decide(frames, intr, truth, CalibConfig(), None, Occlusion())
-    assert choice.refusal == "" and not choice.diag.focal_estimated
-    assert choice.intr.fx == intr.fx and choice.frames is frames
-    if any("the given one is kept" in n for n in choice.diag.notes):  # "auto" would have switched
-        assert choice.box_model is not None and float(np.max(choice.box_model)) > 0
+    assert not any("explains the boxes as well" in n for n in choice.diag.notes)
+    # the outline offsets explaining the boxes as well (w_box 1/2, as on the A9 sample with fx x1.05) is
+    # not enough: the focal-length check, with the outline free, refuses the wrong given one at its pose
+    monkeypatch.setattr(selfcal, "focal_outline_weight", lambda *a, **k: 0.5)
+    checked = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
+    assert checked.diag.focal_estimated and checked.intr.fx == pytest.approx(intr.fx, rel=0.01)
+    assert any("focal-length check refuses it" in n for n in checked.diag.notes)
+    assert checked.box_model is None  # nor does the outline weight count in the sigma
+    monkeypatch.setattr(selfcal, "given_focal_accepted", lambda *a, **k: True)
+    kept = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
+    assert kept.refusal == "" and not kept.diag.focal_estimated
+    assert kept.intr is wrong_given and kept.frames is frames and kept.pose is truth
+    assert kept.diag.focal_scale == pytest.approx(choice.diag.focal_scale)  # measured, not used
+    assert kept.box_model is not None and float(np.max(kept.box_model)) > 0  # the choice stays in the sigma
+    assert any("explains the boxes as well" in n for n in kept.diag.notes)
+    assert kept.diag.fx_used == wrong_given.fx
+
+

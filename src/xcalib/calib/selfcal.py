@@ -16,6 +16,7 @@ not; the time offset is used when moving objects constrain it (``time_offset_max
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -24,9 +25,11 @@ from ..geometry.camera import CameraIntrinsics
 from .boxmodel import outline_edge_term
 from .config import CalibConfig
 from .decision import matched_places
+from .context import FitContext
 from .cost import CostModel, FocalScaleTerm, Occlusion, PrincipalPointTerm, TimeOffsetTerm, shift_principal_point
 from .diagnostics import SelfCalDiagnostics
 from .inputs import CalibFrame
+from .misfit import focal_box_model, focal_fit, focal_scale_check
 from .motion import MOVING_MPS, BoxMotion, shift_frames
 from .pose import Pose
 from .refine import F_SCALE, build_cost, estimate_noise, match_all
@@ -34,7 +37,7 @@ from .uncertainty import box_model_odds
 
 __all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "MIN_MOVING_PAIRS",
            "focal_choice_weight", "focal_outline_weight", "focal_box_model_sd", "given_focal_kept",
-           "KEEP_GIVEN_WEIGHT"]
+           "given_focal_accepted", "KEEP_GIVEN_WEIGHT"]
 
 MIN_MOVING_PAIRS = 3
 GATES = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0))
@@ -243,14 +246,17 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
     if fit is None and (cfg.refine_intrinsics in ("focal", "focal+center") or config.time_offset == "estimate"):
         refusals.append("self-calibration asked for but too few matched pairs (< 6) to estimate it")
     kept_sd = None  # the focal choice's part when the given focal length is kept by the box model
+    w_box: float | None | bool = False  # the given focal length's weight with the outline free (False: not computed)
+    checked: dict = {}  # "ok": whether the focal-length check accepts the given focal length (where it was asked)
     for _ in range(3):  # drop what the data does not constrain (or what agrees with the given), refit
         if fit is None:
             break
         cfg, changed = _judge_intrinsics(fit, cfg, config, diag, refusals, cframes[0].size[0], repeat)
-        if not changed and config.refine_intrinsics == "auto" and cfg.refine_intrinsics != "none" and kept_sd is None:
+        if not changed and config.refine_intrinsics == "auto" and cfg.refine_intrinsics != "none" and w_box is False:
             frames_fit = shift_frames(cframes, motion.velocity, fit.dt_s) if est_dt else cframes
-            kept_sd = given_focal_kept(fit, pose, focal_outline_weight(frames_fit, fit, intr, occlusion),
-                                       fit.focal_log_sd * repeat, diag)
+            w_box = focal_outline_weight(frames_fit, fit, intr, occlusion)
+            kept_sd = given_focal_kept(fit, pose, w_box, fit.focal_log_sd * repeat, diag,
+                                       lambda: checked.setdefault("ok", given_focal_accepted(cframes, intr, pose, occlusion)))
             if kept_sd is not None:
                 cfg, changed = cfg.replace(refine_intrinsics="none"), True
         if est_dt and not (fit.n_moving_pairs >= MIN_MOVING_PAIRS and fit.dt_sd_s is not None
@@ -264,6 +270,7 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
             break
         fit = joint_refine(cframes, intr, pose, cfg, motion if est_dt else None, occlusion) \
             if (cfg.refine_intrinsics != "none" or est_dt) else None
+        w_box = False  # (a new fit: its weight is computed again where it is needed)
     if fit is None:
         _fill_used(diag, intr)
         return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag, kept_sd)
@@ -273,8 +280,11 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
         if config.refine_intrinsics == "auto":
             inflation = _with_focal_choice(inflation, fit, pose, fit.focal_log_sd * repeat, diag)
             frames_fit = shift_frames(cframes, motion.velocity, fit.dt_s) if est_dt else cframes
-            box_sd = focal_box_model_sd(fit, pose, fit.focal_log_sd * repeat,
-                                        focal_outline_weight(frames_fit, fit, intr, occlusion), diag)
+            if w_box is False:  # (computed above where the fit stands as judged)
+                w_box = focal_outline_weight(frames_fit, fit, intr, occlusion)
+            if checked.get("ok") is False:  # the focal-length check refuses the given one: the box model does
+                w_box = 0.0                 # not explain the switch (given_focal_kept), nothing of it in the sigma
+            box_sd = focal_box_model_sd(fit, pose, fit.focal_log_sd * repeat, w_box, diag)
     if fit.principal_shift_px is not None:
         diag.principal_shift_px = [float(v) for v in fit.principal_shift_px]
         diag.principal_std_px = [float(v) for v in fit.principal_sd_px]
@@ -357,8 +367,31 @@ def focal_box_model_sd(fit: SelfCalFit, pose: Pose, sd: float | None, w_box: flo
 KEEP_GIVEN_WEIGHT = focal_choice_weight(2.0)
 
 
+def given_focal_accepted(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, occlusion: Occlusion) -> bool:
+    """Whether the verdict's focal-length check accepts the given focal length at the pose fitted
+    with it: ``misfit.focal_scale_check`` on ``misfit.focal_fit`` (a scale beyond ``FOCAL_TOL`` and 2
+    jackknife sigmas is a misfit), with the box model first (``misfit.focal_box_model``: a flag the
+    2D outline offsets explain is none), as the calibration checks a focal length it does not
+    estimate. False with fewer than 12 matched pairs. Where it refuses the given focal length, the
+    outline offsets do not explain the switch, so their weight is not counted in the reported sigma
+    either (:func:`focal_box_model_sd`; session 13: the A9 sample with fx x1.05 was refused as too
+    uncertain by sqrt(1/2) x the 1.9 m move to the right focal length)."""
+    pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=0.3)
+    n = int(sum(len(p) for p in pairs))
+    if n < 12:
+        return False
+    noise = estimate_noise(cframes, pairs, intr, pose.R, pose.t)
+    places = len(matched_places(cframes, pairs)[0])
+    ffit = focal_fit(cframes, pairs, intr, pose, noise, F_SCALE, occlusion)
+    _, msg = focal_scale_check(ffit, intr, n_matches=n, places=places)
+    if msg is None:
+        return ffit is not None
+    alt, _ = focal_box_model(FitContext(cframes, pairs, intr, pose, noise, F_SCALE, occlusion), places)
+    return alt is not None
+
+
 def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float | None,
-                     diag: SelfCalDiagnostics) -> np.ndarray | None:
+                     diag: SelfCalDiagnostics, accepted: Callable[[], bool] | None = None) -> np.ndarray | None:
     """Whether refine_intrinsics="auto" keeps the given focal length (and the pose fitted with it)
     although the plain joint fit replaces it: the pose sigma part of that choice (6-vector, deg / m), or
     None (the fitted focal length is used).
@@ -370,8 +403,13 @@ def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float
     tight outline shrinks every box, which a longer focal length mimics; only a focal error also moves
     the boxes' positions about the principal point, which no outline offset takes up. So where the
     given focal length with the outline offsets explains the boxes about as well (``w_box`` at least
-    :data:`KEEP_GIVEN_WEIGHT`), the boxes do not reject it and it is kept; a real focal error of a few
-    per cent gives w_box ~ 1e-20 and is still fitted. The choice stays in the sigma: choosing the given
+    :data:`KEEP_GIVEN_WEIGHT`) and the calibration's own focal-length check accepts it at its pose
+    (``accepted``, :func:`given_focal_accepted`; the box model considered first there too), the boxes
+    do not reject it and it is kept. A real focal error of a few per cent on clean synthetic boxes gives
+    w_box ~ 1e-20 and is still fitted. The check is needed as well: on the A9 sample (real labelled
+    boxes, 16 frames) the given focal length x1.05 / x1.10 gets w_box 1/2 (three outline offsets and a
+    pose 1.5 m back take up the boxes' sizes), while the focal-length check, whose box-model test also
+    asks the focal scale fitted with the outline free to agree, refuses it (session 13). The choice stays in the sigma: choosing the given
     focal length where the fitted one keeps the weight 1 - w_box has the expected squared error
     (1 - w_box) x shift^2 (``shift``: the pose's move to the fitted focal length), returned as
     sqrt(1 - w_box) x shift, a systematic part of the reported sigma only (as :func:`focal_box_model_sd`).
@@ -384,6 +422,11 @@ def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float
         return None
     shift = np.abs(pose.delta(fit.pose))
     if not np.all(np.isfinite(shift)):
+        return None
+    if accepted is not None and not accepted():
+        _note(diag, f"refine_intrinsics='auto': the given focal length with the 2D outline offsets fitted explains the "
+                    f"boxes about as well as the fitted x{fit.focal_scale:.4f} (posterior weight {w_box:.3f}), but the "
+                    "focal-length check refuses it at its pose: the fitted one is used", warn=False)
         return None
     diag.focal_scale, diag.focal_scale_std = fit.focal_scale, sd
     z = abs(float(np.log(fit.focal_scale))) / sd if sd is not None and np.isfinite(sd) and sd > 0 else float("nan")
