@@ -125,12 +125,13 @@ def dataclasses_replace(intr, scale: float):
 
 def test_the_given_focal_length_is_kept_where_the_box_model_explains_the_switch():
     """Session 13 (issue 25): "auto" keeps the given focal length where, with the 2D outline offsets
-    free, it is not rejected at the 2-sigma level "auto" switches at (weight >= ``KEEP_GIVEN_WEIGHT``);
-    the choice then counts sqrt(1 - w_box) x the pose's move in the reported sigma. Below it the
-    fitted focal length is used (None)."""
+    free, it explains the boxes at least as well (its weight at the cap of 1/2, ``KEEP_GIVEN_WEIGHT``);
+    the choice then counts sqrt(1 - w_box) x the pose's move in the reported sigma. Below it (the
+    fitted focal length more plausible, e.g. w_box 0.40 at a principal point 3 % off) the fitted
+    focal length is used (None)."""
     from xcalib.calib.selfcal import KEEP_GIVEN_WEIGHT, given_focal_kept
 
-    assert KEEP_GIVEN_WEIGHT == pytest.approx(focal_choice_weight(2.0))
+    assert KEEP_GIVEN_WEIGHT == 0.5
     given = Pose(np.eye(3), np.zeros(3))
     moved = Pose(Rotation.from_rotvec(np.radians([0.14, 0.0, 0.0])).as_matrix(), np.array([0.0, 0.0, 0.14]))
     fit = _fit(np.exp(3 * 0.004), moved, np.zeros(6))
@@ -145,6 +146,7 @@ def test_the_given_focal_length_is_kept_where_the_box_model_explains_the_switch(
     assert at is not None and at[5] == pytest.approx(np.sqrt(1 - KEEP_GIVEN_WEIGHT) * 0.14, rel=1e-6)
     # a box model that does not explain the boxes as well (a real focal error: w ~ 1e-20), or none: switch
     assert given_focal_kept(fit, given, 0.9 * KEEP_GIVEN_WEIGHT, 0.004, SelfCalDiagnostics()) is None
+    assert given_focal_kept(fit, given, 0.40, 0.004, SelfCalDiagnostics()) is None
     assert given_focal_kept(fit, given, 1e-20, 0.004, SelfCalDiagnostics()) is None
     assert given_focal_kept(fit, given, None, 0.004, SelfCalDiagnostics()) is None
     # nor where the calibration's focal-length check refuses the given one at its pose
@@ -172,13 +174,16 @@ def test_auto_fits_a_wrong_focal_and_keeps_one_the_box_model_explains(monkeypatc
     assert not any("explains the boxes as well" in n for n in choice.diag.notes)
     # the outline offsets explaining the boxes as well (w_box 1/2, as on the A9 sample with fx x1.05) is
     # not enough: the focal-length check, with the outline free, refuses the wrong given one at its pose
+    keep = CalibConfig(focal_keep_box_model=True)  # (off by default, session 13)
     monkeypatch.setattr(selfcal, "focal_outline_weight", lambda *a, **k: 0.5)
-    checked = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
+    checked = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
     assert checked.diag.focal_estimated and checked.intr.fx == pytest.approx(intr.fx, rel=0.01)
     assert any("focal-length check refuses it" in n for n in checked.diag.notes)
     assert checked.box_model is None  # nor does the outline weight count in the sigma
     monkeypatch.setattr(selfcal, "given_focal_accepted", lambda *a, **k: True)
-    kept = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
+    off = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
+    assert off.diag.focal_estimated and off.intr.fx == pytest.approx(intr.fx, rel=0.01)  # the default: fitted
+    kept = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
     assert kept.refusal == "" and not kept.diag.focal_estimated
     assert kept.intr is wrong_given and kept.frames is frames and kept.pose is truth
     assert kept.diag.focal_scale == pytest.approx(choice.diag.focal_scale)  # measured, not used

@@ -193,6 +193,11 @@ class CalibConfig:
             the data constrains it (1-sigma of the scale below ``focal_max_std``) and otherwise
             keeps the given one (the misfit check then applies).
         focal_max_std: largest 1-sigma (relative) of an estimated focal scale that is used.
+        focal_keep_box_model: with "auto", keep the given focal length (and its pose) where the joint
+            fit would replace it but the given one with the 2D outline offsets free explains the boxes
+            at least as well and the focal-length check accepts it (``selfcal.given_focal_kept``).
+            Off by default (session 13): it fixes the detector conditions' focal switch, but at
+            realism principal_point+3%W site 18 it let a pose 0.9 deg off through.
         time_offset: camera time minus LiDAR time (s). None: no offset; a number: that fixed
             offset; "auto": estimated from moving objects when observable, else none (with a
             warning); "estimate": estimated, refused when not observable. 3D boxes are moved by
@@ -249,6 +254,7 @@ class CalibConfig:
     max_candidates: int = 1500
     refine_intrinsics: IntrinsicsMode = "auto"
     focal_max_std: float = 0.01
+    focal_keep_box_model: bool = False
     time_offset: TimeOffsetMode | float | None = None
     time_offset_max_std_s: float = 0.02
     occlusion_tau: float = 1.5
@@ -270,6 +276,8 @@ class CalibConfig:
                               ("refine_intrinsics", IntrinsicsMode)):
             if getattr(self, name) not in get_args(allowed):
                 raise ValueError(f"CalibConfig.{name}: expected one of {get_args(allowed)}, got {getattr(self, name)!r}")
+        if not isinstance(self.focal_keep_box_model, bool):
+            raise ValueError(f"CalibConfig.focal_keep_box_model: expected True or False, got {self.focal_keep_box_model!r}")
         if self.censor_occluded_edges not in (True, False, "auto"):
             raise ValueError(f"CalibConfig.censor_occluded_edges: expected True, False or 'auto', "
                              f"got {self.censor_occluded_edges!r}")

@@ -255,8 +255,12 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
         if not changed and config.refine_intrinsics == "auto" and cfg.refine_intrinsics != "none" and w_box is False:
             frames_fit = shift_frames(cframes, motion.velocity, fit.dt_s) if est_dt else cframes
             w_box = focal_outline_weight(frames_fit, fit, intr, occlusion)
-            kept_sd = given_focal_kept(fit, pose, w_box, fit.focal_log_sd * repeat, diag,
-                                       lambda: checked.setdefault("ok", given_focal_accepted(cframes, intr, pose, occlusion)))
+            if config.focal_keep_box_model:
+                kept_sd = given_focal_kept(fit, pose, w_box, fit.focal_log_sd * repeat, diag,
+                                           lambda: checked.setdefault("ok", given_focal_accepted(cframes, intr, pose,
+                                                                                                 occlusion)))
+            elif w_box is not None and np.isfinite(w_box) and w_box >= KEEP_GIVEN_WEIGHT - 1e-12:
+                checked["ok"] = given_focal_accepted(cframes, intr, pose, occlusion)  # (for the sigma below)
             if kept_sd is not None:
                 cfg, changed = cfg.replace(refine_intrinsics="none"), True
         if est_dt and not (fit.n_moving_pairs >= MIN_MOVING_PAIRS and fit.dt_sd_s is not None
@@ -362,9 +366,13 @@ def focal_box_model_sd(fit: SelfCalFit, pose: Pose, sd: float | None, w_box: flo
     return extra
 
 
-#: the given focal length's weight below which "auto" replaces it: the weight its own sigma gives it at
-#: the 2-sigma switch of ``_judge_intrinsics`` (:func:`focal_choice_weight` (2) = 0.119)
-KEEP_GIVEN_WEIGHT = focal_choice_weight(2.0)
+#: the given focal length's weight with the outline offsets free (:func:`focal_outline_weight`, at most 1/2:
+#: equal prior odds) at which "auto" keeps it: the cap, i.e. the given focal length with the outline offsets
+#: explains the boxes at least as well as the fitted one without them (ties go to the given one). Not the
+#: weight at auto's own 2-sigma switch (0.119): at realism principal_point+3%W_4px site 18 (cx 3 % off) the
+#: fitted focal length keeps odds of 1.5 : 1 (w_box 0.40), and keeping the given one there let a false
+#: time-offset flag deliver a pose 0.91 deg / 0.49 m off outside its 95 % bound (session 13)
+KEEP_GIVEN_WEIGHT = 0.5
 
 
 def given_focal_accepted(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, occlusion: Occlusion) -> bool:
@@ -396,14 +404,14 @@ def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float
     although the plain joint fit replaces it: the pose sigma part of that choice (6-vector, deg / m), or
     None (the fitted focal length is used).
 
-    "auto" replaces the given focal length only when the boxes reject it at 2 sigma (its posterior
-    weight from the focal length's own sigma below :data:`KEEP_GIVEN_WEIGHT`). The same test is made
-    here with the box model as a nuisance: ``w_box`` (:func:`focal_outline_weight`) is the given focal
-    length's weight with the 2D outline offsets free against the fitted one without them. A detector's
+    "auto" replaces the given focal length when the boxes reject it at 2 sigma. The choice is made
+    again here with the box model as a nuisance: ``w_box`` (:func:`focal_outline_weight`) is the given
+    focal length's weight with the 2D outline offsets free against the fitted one without them (at
+    most 1/2, equal prior odds). A detector's
     tight outline shrinks every box, which a longer focal length mimics; only a focal error also moves
     the boxes' positions about the principal point, which no outline offset takes up. So where the
-    given focal length with the outline offsets explains the boxes about as well (``w_box`` at least
-    :data:`KEEP_GIVEN_WEIGHT`) and the calibration's own focal-length check accepts it at its pose
+    given focal length with the outline offsets explains the boxes at least as well (``w_box`` at the
+    cap, :data:`KEEP_GIVEN_WEIGHT`) and the calibration's own focal-length check accepts it at its pose
     (``accepted``, :func:`given_focal_accepted`; the box model considered first there too), the boxes
     do not reject it and it is kept. A real focal error of a few per cent on clean synthetic boxes gives
     w_box ~ 1e-20 and is still fitted. The check is needed as well: on the A9 sample (real labelled
@@ -418,7 +426,7 @@ def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float
     exact focal length (x1.030 / x1.016, weight 0.003 / 0.033 from its sigma, w_box 1/2) and the pose
     ended 0.57 deg / 0.78 m and 0.80 deg / 0.50 m off; refitted with the given focal length it is
     0.33 deg / 0.20 m and 0.44 deg / 0.23 m."""
-    if w_box is None or not np.isfinite(w_box) or w_box < KEEP_GIVEN_WEIGHT:
+    if w_box is None or not np.isfinite(w_box) or w_box < KEEP_GIVEN_WEIGHT - 1e-12:
         return None
     shift = np.abs(pose.delta(fit.pose))
     if not np.all(np.isfinite(shift)):
