@@ -70,6 +70,11 @@ guard's size (``leave_out_objects``), ``monitor_persistence.GUARD_VARIANTS``, re
 
     ... --part guard --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,7,11,13,17 --runs 2
 
+``--part scan``: the change-point scan (``MonitorConfig.change_point_step``) against the fixed windows, replayed
+on the recordings of ``--part iterate`` (``--recordings``; made when absent) (``monitor.json`` ``scan_s13``).
+
+    ... --part scan --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,7,11,13,17 --runs 2
+
 ``--part reference``: the change test calibrated per axis and window length
 (``CameraMonitor.axis_factors``) from a drift-free reference stretch of each site
 (``Monitor.learn``), against the test without it and with only the stream's own ~250 frames, on
@@ -582,7 +587,7 @@ def main() -> None:
     ap.add_argument("--null-noise", choices=("both", "default", "noisy"), default="both",
                     help="--part null: which detection noise (two processes can share the work)")
     ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak", "information", "reference", "bound",
-                                       "relin", "relin_a9", "verdict", "persist", "guard", "iterate"),
+                                       "relin", "relin_a9", "verdict", "persist", "guard", "iterate", "scan"),
                     default="all",
                     help="run one part; its keys are merged into an existing results file")
     ap.add_argument("--reference-frames", type=int, default=2400,
@@ -600,9 +605,9 @@ def main() -> None:
     ap.add_argument("--real-null", type=int, default=1600, help="real sequences: drift-free frames (looped)")
     ap.add_argument("--real-frames", type=int, default=320, help="real sequences: step streams (change at the middle)")
     ap.add_argument("--recordings", type=Path, default=None,
-                    help="--part guard: folder of the recorded streams (.npz; made when absent; default a temporary one)")
+                    help="--part guard / iterate / scan: folder of the recorded streams (.npz; made when absent; default a temporary one)")
     ap.add_argument("--cells", default=",".join(ITERATE_CELLS),
-                    help="--part iterate: the step cells (e.g. tz_0.1,rz_0.25: axis and size in deg / m)")
+                    help="--part iterate / scan: the step cells (e.g. tz_0.1,rz_0.25: axis and size in deg / m)")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (null sites, step cells)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a MonitorConfig setting other than its default (repeatable; the results say so)")
@@ -679,6 +684,17 @@ def main() -> None:
         log(f"== the iterated change test: null {n_null} frames x sites {nseeds} (both noises), cells {cells} "
             f"at {sseeds} ({args.runs} runs per site); recordings in {folder}")
         result["iterate_s12"] = _iterate(nseeds, args.null_base, n_null, (sseeds, args.runs, cells), folder, log)
+    elif args.part == "scan":  # the change-point scan against the fixed windows, replayed on every cell
+        import tempfile
+
+        nseeds = ([int(v) for v in args.null_seeds.split(",") if v.strip()] if args.null_seeds
+                  else [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites])
+        sseeds = [int(v) for v in args.step_seeds.split(",") if v.strip()]
+        cells = tuple(c for c in args.cells.split(",") if c)
+        folder = args.recordings or Path(tempfile.mkdtemp(prefix="xcalib_scan_"))
+        log(f"== the change-point scan: null {n_null} frames x sites {nseeds} (both noises), cells {cells} "
+            f"at {sseeds} ({args.runs} runs per site); recordings in {folder}")
+        result["scan_s13"] = _scan_rows(nseeds, args.null_base, n_null, (sseeds, args.runs, cells), folder, log)
     elif args.part == "verdict":  # each z step cell against what the boxes allow at its site (no monitor run)
         import json
 
@@ -1197,6 +1213,64 @@ def _iterate(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, fold
                                                                                   if row[c]['early'] else "")
                             for c in cells), flush=True)
     return out
+
+
+def _scan_rows(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, folder: Path, log) -> dict:
+    """The change-point scan (``MonitorConfig.change_point_step`` = 5: every recent segment of 10, 15, ..., 80
+    frames against the frames before it, the threshold from the scan's simulated null) against the
+    fixed 20 / 40 / 80-frame windows, replayed (``monitor_persistence.replay``, the guard included)
+    on the recordings of ``--part iterate`` (made when absent): false alarms on the long null streams
+    (both noises) and runs detected within the cell's target per cell, each at its own threshold and
+    the scan also at the thresholds where its false alarms equal the fixed windows' (``SCAN_THRESHOLDS``:
+    an oracle read off the nulls)."""
+    import monitor_persistence as mp
+    from xcalib.monitor import MonitorConfig
+
+    step_seeds, runs, cells = steps
+    folder.mkdir(parents=True, exist_ok=True)
+    jobs = [(folder, "null", name, s, n_base, n_null) for name, _ in GUARD_NOISES for s in null_seeds]
+    for done in [*_pmap(_guard_record, jobs), *_pmap(_cell_record, [(folder, s, runs, cells) for s in step_seeds])]:
+        log(f"  recorded {done}", flush=True)
+    within = {"r": {0.25: 50, 0.5: 20}, "t": {0.1: 50, 0.2: 20}}
+    nulls = {(name, s): mp.load_recording(folder / f"null_{name}_{s}.npz") for name, _ in GUARD_NOISES for s in null_seeds}
+    recs = {c: [(s, mp.load_recording(folder / f"step_{c.split('_')[0]}_{float(c.split('_')[1]):g}_{s}_{r}.npz"))
+                for s in step_seeds for r in range(runs)] for c in cells}
+    fixed, scan = MonitorConfig(latch=False), MonitorConfig(latch=False, change_point_step=5)
+    variants = [("fixed windows (default)", fixed, fixed.threshold), ("scan 5", scan, scan.threshold)]
+    variants += [(f"scan 5 at {h:g}", scan, h) for h in SCAN_THRESHOLDS]
+    out: dict = {"rows": {}, "null_seeds": null_seeds, "step_seeds": step_seeds, "runs_per_site": runs,
+                 "cells": list(cells), "scan_windows": list(scan.test_windows),
+                 "thresholds": {"fixed": fixed.threshold, "scan": scan.threshold},
+                 "note": "replayed from recordings (the replay raises the monitor's alarms, guard included); false "
+                         "alarms: the history forgotten after each; 'scan 5 at h': the scan at a threshold read off "
+                         "the null streams (an oracle)"}
+    for v, cfg, h in variants:
+        row: dict = {"threshold": h}
+        for name, _ in GUARD_NOISES:
+            where = {f"site_{s}": mp.replay(nulls[(name, s)], config=cfg, threshold=h) for s in null_seeds}
+            k = sum(len(a) for a in where.values())
+            frames = sum(len(nulls[(name, s)]["rows"]) for s in null_seeds)
+            row[name] = {"frames": frames, "false_alarms": k, "per_10k_and_90ci": _poisson90(k, frames),
+                         "alarm_frames": {s: a for s, a in where.items() if a}}
+        for c in cells:
+            lim = within[c[0]][float(c.split("_")[1])]
+            firsts = [(mp.replay(rec, config=cfg, threshold=h, first_only=True) or [None])[0] for _, rec in recs[c]]
+            delays = [None if f is None else f - PRE for f in firsts]
+            hits = [d is not None and 0 <= d <= lim for d in delays]
+            row[c] = {"runs": len(hits), "detected_within": int(sum(hits)), "within_frames": lim,
+                      "early": sum(d is not None and d < 0 for d in delays), "delays": delays,
+                      "missed_sites": sorted({s for (s, _), hit in zip(recs[c], hits) if not hit})}
+        out["rows"][v] = row
+        log(f"{v:24s} h {h:5.2f} false alarms {row['default']['false_alarms']} / {row['noisy']['false_alarms']}  "
+            + "  ".join(f"{c} {row[c]['detected_within']}/{row[c]['runs']}" + (f" (early {row[c]['early']})"
+                                                                              if row[c]['early'] else "")
+                        for c in cells), flush=True)
+    return out
+
+
+#: ``--part scan``: thresholds of the scan read off the null streams (its false alarms there equal the
+#: fixed windows' 1 / 0 at 29.0 and 0 / 0 at 30.5: session 13's sweep, docs/monitor.md "A change-point scan")
+SCAN_THRESHOLDS = (29.0, 30.5)
 
 
 def _verdicts(prev: dict, log) -> dict:

@@ -432,7 +432,8 @@ def _iterated_window(rec, a, b, steps, cov_at, part, iterated_fit, object_shares
 
 def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | None = None,
            h_out: float | None = None, config=None, first_only: bool = False, threshold: float | None = None,
-           iterate: int = -1, cov_at: str = "iterate", trace: list | None = None) -> list[int]:
+           iterate: int = -1, cov_at: str = "iterate", trace: list | None = None,
+           windows: tuple[int, ...] | None = None) -> list[int]:
     """The frames (0-based) at which the monitor raises an alarm on the recording ``rec``
     (``load_recording``), with the adjacent-window inflation floored at ``floor`` and multiplied
     by ``factor``, ``leave_out`` objects left out by the guard (default: the config's) and the
@@ -440,7 +441,10 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
     forgotten (the benchmark's ``latch=False``); ``first_only``: stop at the first. ``iterate`` >= 0:
     the recent windows' estimates (and the offset test's) iterated that many Gauss-Newton steps on the
     recorded unshaped rows (``iterated_window``; -1, the default: the recorded one-step normal
-    equations); ``trace``: a list to append (frame, largest statistic) of every decision to."""
+    equations); ``trace``: a list to append (frame, largest statistic) of every decision to.
+    ``windows``: the recent segments' lengths the change-point tests use (default the config's
+    ``test_windows``: 20 / 40 / 80, or with ``MonitorConfig.change_point_step`` the change-point scan's);
+    the offset test and the evidence check stay on the config's longest window."""
     from xcalib.monitor import MonitorConfig
     from xcalib.monitor import stats as mstats
 
@@ -461,15 +465,16 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
         s = max(start, e - hist)
         diffs, last, end = _adjacent_diffs(C, e, W, minp, diffs, last, end)  # (``_update_inflation``)
         phi = _inflation(diffs, floor) * factor
-        lengths = [L for L in cfg.windows if L <= e - s] or [W]
-        longest = lengths[-1]
+        longest = max([L for L in cfg.windows if L <= e - s] or [W])
+        tested = cfg.test_windows if windows is None else windows  # the change-point tests' recent segments
+        lengths = [L for L in tested if L <= e - s] or [min(tested)]
         fr = None if _few_objects(rec, C, e - longest, e, cfg) else _seg_fit(C, e - longest, e)
         alarm = False
         if fr is not None:
             tests = []
             its = {}
             if iterate >= 0:
-                for L in set(lengths):
+                for L in set(lengths) | {longest}:
                     its[L] = iterated_window(rec, e - L, e, iterate, cov_at)
                 fr_i = its.get(longest)
             for L in lengths:

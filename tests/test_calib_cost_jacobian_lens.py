@@ -1,6 +1,6 @@
 """Issue 29: the wide-lens refit of the lens-misfit check (``cost.WideLensTerm``, a pinhole widened
-into Mei's unified model) has an analytic Jacobian but for its ``xi`` column (a forward difference):
-it matches central differences, and a fit with it lands where scipy's finite-difference fit lands."""
+into Mei's unified model) has an analytic Jacobian, its ``xi`` column included (``Tangent.xi``, since
+session 13; a forward difference before): it matches central differences, and a fit with it lands where scipy's finite-difference fit lands."""
 
 from __future__ import annotations
 

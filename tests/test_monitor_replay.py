@@ -39,7 +39,8 @@ def recorded(tmp_path_factory):
 
 
 @pytest.mark.parametrize("settings", [{}, {"min_inflation": 0.5, "leave_out_objects": 4},
-                                      {"min_inflation": 0.25, "leave_out_objects": 0}, {"iterate_steps": 3}])
+                                      {"min_inflation": 0.25, "leave_out_objects": 0}, {"iterate_steps": 3},
+                                      {"change_point_step": 5}])
 def test_replay_raises_the_monitors_alarms(recorded, settings):
     import monitor_persistence as mp
 
@@ -50,7 +51,7 @@ def test_replay_raises_the_monitors_alarms(recorded, settings):
     alarms = [int(e.detected_frame) for e in next(iter(mon.cameras.values())).events]
     assert alarms and alarms[0] >= 90  # the turn is found, after it happened
     got = mp.replay(rec, floor=settings.get("min_inflation", 1.0), leave_out=settings.get("leave_out_objects"),
-                    iterate=settings.get("iterate_steps", -1))
+                    iterate=settings.get("iterate_steps", -1), config=MonitorConfig(latch=False, **settings))
     assert got == alarms
     if not settings:
         assert mp.replay(rec, first_only=True) == alarms[:1]

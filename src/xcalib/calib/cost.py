@@ -33,7 +33,7 @@ from scipy.optimize import least_squares
 from ..geometry.camera import CameraIntrinsics
 from ..geometry.camera_models import CameraModel, Unified
 from ..geometry.camera_models import pixels_per_metre as camera_pixels_per_metre
-from ..geometry.camera_models.outline import outline_extremes
+from ..geometry.camera_models.outline import outline_extremes, outline_rects_and_extremes
 from ..geometry.rotations import so3_left_jacobian
 from .boxproj import MIN_DEPTH_M, project_ragged, project_rects, ragged_outlines
 from .diagnostics import NoiseModel
@@ -101,14 +101,16 @@ class CostTerm:
 
 @dataclass(frozen=True)
 class Tangent:
-    """The derivative of the state with respect to one parameter: of fx, fy, cx, cy (px) and of
-    the outline shift (LiDAR frame, m, [n,3] or None)."""
+    """The derivative of the state with respect to one parameter: of fx, fy, cx, cy (px), of
+    the outline shift (LiDAR frame, m, [n,3] or None) and of a ``WideLensTerm``'s unified-model
+    ``xi`` (whose focal length f (1 + xi) moves with it)."""
 
     fx: float = 0.0
     fy: float = 0.0
     cx: float = 0.0
     cy: float = 0.0
     shift: np.ndarray | None = None
+    xi: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -216,14 +218,7 @@ class BoxEdgeTerm(CostTerm):
         projection depends on."""
         intr = state.intr
         if not isinstance(intr, CameraIntrinsics) or not len(self.obs):  # rects only (see _model_jacobian)
-            key = (state.pose.R.tobytes(), state.pose.t.tobytes(), intr,
-                   None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
-            if self._last is not None and self._last[0] == key:
-                return self._last[1]
-            outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
-            rect, valid = project_rects(outlines, state.pose.R, state.pose.t, intr, self.size)
-            self._last = (key, (rect, valid, None, None))
-            return self._last[1]
+            return self._model_projection(state)[:2] + (None, None)
         key = (state.pose.R.tobytes(), state.pose.t.tobytes(), intr.fx, intr.fy, intr.cx, intr.cy,
                None if intr.distortion is None else np.asarray(intr.distortion, dtype=np.float64).tobytes(),
                None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
@@ -231,6 +226,26 @@ class BoxEdgeTerm(CostTerm):
             return self._last[1]
         out = project_ragged(self._points(state.shift_m), self.ragged.starts, state.pose.R, state.pose.t, intr,
                              self.size)
+        self._last = (key, out)
+        return out
+
+    def _model_projection(self, state: PoseState):
+        """(rects, valid, points) at ``state`` for a camera model (or no boxes): ``project_rects``' rects
+        and valid and, for a ``CameraModel``, the outline points [n,4,3] defining each edge, found in
+        the same projection (``outline_rects_and_extremes``; None where that call does not
+        give them): :meth:`_model_jacobian` differentiates at them instead of projecting the outlines
+        again at the pose of the residuals. Kept, keyed by everything the projection depends on."""
+        intr = state.intr
+        key = (state.pose.R.tobytes(), state.pose.t.tobytes(), intr,
+               None if state.shift_m is None else np.asarray(state.shift_m).tobytes())
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        outlines = self.outlines if state.shift_m is None else self.outlines + state.shift_m[:, None, :]
+        if isinstance(intr, CameraModel) and len(self.obs):
+            out = outline_rects_and_extremes(outlines, state.pose.R, state.pose.t, intr, self.size,
+                                             min_distance=MIN_DEPTH_M)
+        else:
+            out = project_rects(outlines, state.pose.R, state.pose.t, intr, self.size) + (None,)
         self._last = (key, out)
         return out
 
@@ -351,9 +366,10 @@ class BoxEdgeTerm(CostTerm):
         ``CameraIntrinsics``."""
         n, P = len(self.obs), 6 + len(extra)
         R, t, cam = state.pose.R, state.pose.t, state.intr
-        rects, valid = self._projection(state)[:2]
-        outlines = self.outlines if state.shift_m is None else self.outlines + np.asarray(state.shift_m)[:, None, :]
-        sel = outline_extremes(outlines, R, t, cam)  # [n,4,3] the points defining u_min, v_min, u_max, v_max
+        rects, valid, sel = self._model_projection(state)
+        if sel is None:  # [n,4,3] the points defining u_min, v_min, u_max, v_max
+            outlines = self.outlines if state.shift_m is None else self.outlines + np.asarray(state.shift_m)[:, None, :]
+            sel = outline_extremes(outlines, R, t, cam)
         Ys = _rows_matmul(sel, R.T)
         uv, Juv, _ = cam.project_jacobian((Ys + t).reshape(-1, 3))
         comp = np.array([0, 1, 0, 1])  # u, v, u, v
@@ -376,9 +392,25 @@ class BoxEdgeTerm(CostTerm):
             col = np.where(is_u, tg.fx, tg.fy) * dn + np.where(is_u, tg.cx, tg.cy)
             if tg.shift is not None:
                 col = col + np.einsum("nek,nk->ne", a, tg.shift @ R.T)
+            if tg.xi:
+                col = col + tg.xi * _xi_slope(cam, Ys + t, ext - np.where(is_u, cam.cx, cam.cy), a)
             D[..., 6 + k] = col
         D *= ((inside & good) * self.w)[..., None]
         return D
+
+
+def _xi_slope(cam: Unified, X: np.ndarray, centred: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """d edge / d xi [n,4] of a unified camera whose focal length is f (1 + xi) (``WideLensTerm``), at
+    the camera-frame points ``X`` [n,4,3] defining the edges (the extreme's own move along its edge
+    is of second order): u - cx = f (1 + xi) D(m), m = (X, Y) / (Z + xi |P|), so
+    d u / d xi = (u - cx) / (1 + xi) + f (1 + xi) dD/dm . dm/dxi, and dm/dxi = -m |P| / (Z + xi |P|) is
+    what moving the point along the optical axis by |P|^2 / (|P| + xi Z) does to m: the second term
+    is the point's own derivative ``a`` [n,4,3] (d edge / d X_cam) along z times that. ``centred``:
+    the edges minus the principal point. Rows that are not finite give 0 (invalid rows are masked)."""
+    d = np.sqrt(np.einsum("nek,nek->ne", X, X))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = centred / (1.0 + cam.xi) + a[..., 2] * (d * d / (d + cam.xi * X[..., 2]))
+    return np.where(np.isfinite(out), out, 0.0)
 
 
 def _rows_matmul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -493,9 +525,10 @@ class WideLensTerm(CostTerm):
     (``xi = 0``: the given pinhole; ~1.75: close to an equidistant fisheye over 180 degrees).
     ``fixed``: hold ``xi`` at this value (the pinhole alternative, projected the same way). Put a
     ``FocalScaleTerm`` after it to free the focal length too. ``start``: the fit's first ``xi``
-    (its parameter is the step from there). Its Jacobian column is a forward difference (the
-    model's ``NUMERIC_TERMS``); the pose and focal columns stay analytic (the unified model's own
-    ``project_jacobian``)."""
+    (its parameter is the step from there). Its Jacobian column is analytic (``Tangent.xi``, the
+    unified model's derivative at the points defining the edges, ``_xi_slope``; a forward difference
+    beside a term with its own ``pose_jacobian``), as are the pose and focal columns (the unified
+    model's own ``project_jacobian``)."""
 
     name = "wide_lens_xi"
     n_params = 1
@@ -526,6 +559,15 @@ class WideLensTerm(CostTerm):
         state.params[self.name] = np.array([xi])
         state.intr = self.camera(xi)
         return state
+
+    def tangents(self, state: PoseState, x: np.ndarray, base: CameraIntrinsics) -> list[Tangent]:
+        """d xi / d x: 1 inside [0, ``MAX_XI``], 0 where the clip holds it or ``fixed`` (at a bound, the
+        side a forward step towards x's sign takes, as the finite difference it replaces)."""
+        if self.fixed is not None:
+            return [Tangent()]
+        v, up = self.start + float(x[0]), float(x[0]) >= 0.0
+        free = 0.0 < v < self.MAX_XI or (v == 0.0 and up) or (v == self.MAX_XI and not up)
+        return [Tangent(xi=1.0 if free else 0.0)]
 
     def residuals(self, state: PoseState) -> np.ndarray:
         return np.zeros(0)
@@ -635,7 +677,8 @@ class CostModel:
         return CostFit(pose=st.pose, params=dict(st.params), cost=float(res.cost), residuals=res.fun, x=res.x)
 
     _TANGENT_TERMS = (FocalScaleTerm, PrincipalPointTerm, TimeOffsetTerm)
-    #: terms whose parameters get a forward-difference column (the rest of the Jacobian analytic)
+    #: terms whose parameters may get a forward-difference column (the rest of the Jacobian analytic):
+    #: ``WideLensTerm``'s xi where a ``has_pose_jacobian`` term is in the model (elsewhere its tangent)
     NUMERIC_TERMS = (WideLensTerm,)
 
     def has_analytic_jacobian(self) -> bool:
@@ -661,7 +704,9 @@ class CostModel:
         for term in self.terms:
             if term.n_params:
                 tg = term.tangents(st, x[k:k + term.n_params], self.intr)
-                if tg is None:  # a NUMERIC_TERMS term: its columns below, by forward differences
+                if tg is None or (any(g.xi for g in tg) and any(t.has_pose_jacobian for t in self.terms)):
+                    # a term with no tangent, or a lens xi beside a term that differentiates the pose
+                    # itself (it knows fx, cx, shift, not xi): its columns below, by forward differences
                     tg = [Tangent()] * term.n_params
                     numeric += list(range(k, k + term.n_params))
                 tangents += tg

@@ -104,6 +104,14 @@ class MonitorConfig:
     matched. Measured in docs/monitor.md ("The change test on an iterated estimate"): it recovers
     the steps the one-step estimate shrinks but widens the drift-free statistics as much (about 2x),
     so at an equal false-alarm rate it detects no more.
+    change_point_step: the change-point tests as a scan (a window-limited GLR over the change
+    point): the recent segments of every multiple of ``change_point_step`` frames from twice it up
+    to the longest window (5: 10, 15, ..., 80 frames) against the frames before them, in place of
+    ``windows``; the threshold is the quantile of the scan's largest statistic under no change
+    (``stats.scan_threshold``, simulated once per setting), so the false-alarm rate stays the
+    setting. 0 (the default): off, the fixed windows. Measured in docs/monitor.md ("A change-point
+    scan"): at an equal false-alarm rate it detects as many steps within the target frames as the
+    fixed windows (54 of 72 runs), sooner in about half of the runs.
     """
 
     window: int = 20
@@ -135,6 +143,7 @@ class MonitorConfig:
     relinearise_windows: int = 1
     min_inflation: float = 1.0
     iterate_steps: int = 0
+    change_point_step: int = 0
 
     def __post_init__(self) -> None:
         if int(self.leave_out_objects) < 0:
@@ -151,6 +160,10 @@ class MonitorConfig:
             raise ValueError(f"MonitorConfig.relinearise_windows must be >= 1, got {self.relinearise_windows}")
         if not 0 <= int(self.iterate_steps) <= 10:
             raise ValueError(f"MonitorConfig.iterate_steps must be in [0, 10], got {self.iterate_steps}")
+        k = int(self.change_point_step)
+        if k < 0 or (k and 2 * k > max(self.windows)):
+            raise ValueError(f"MonitorConfig.change_point_step must be 0 (off) or at most half the longest window "
+                             f"({max(self.windows)} frames), got {self.change_point_step}")
         if not 0.25 <= self.min_inflation <= 1.0:
             raise ValueError(f"MonitorConfig.min_inflation must be in [0.25, 1], got {self.min_inflation}")
         if not 0.0 <= self.leave_out_level < 1.0:
@@ -170,12 +183,23 @@ class MonitorConfig:
         return tuple(int(self.window) * 2 ** k for k in range(int(self.scales)))
 
     @property
+    def test_windows(self) -> tuple[int, ...]:
+        """The recent segments' lengths the change-point tests use (frames): ``windows``, or with
+        ``change_point_step`` every multiple of it from 2 change_point_step up to the longest window."""
+        k = int(self.change_point_step)
+        return tuple(range(2 * k, max(self.windows) + 1, k)) if k else self.windows
+
+    @property
     def n_tests(self) -> int:
         return len(self.windows) + 1
 
     @property
     def threshold(self) -> float:
-        """Chi-square (6 dof) threshold of one test."""
+        """Chi-square (6 dof) threshold of one test (with ``change_point_step``: of the scan's largest
+        statistic, ``stats.scan_threshold``)."""
+        if int(self.change_point_step):
+            return stats.scan_threshold(self.false_alarm_rate, self.stride, self.n_tests, self.test_windows,
+                                        self.history)
         return stats.threshold(self.false_alarm_rate, self.stride, self.n_tests)
 
 
@@ -854,8 +878,8 @@ class CameraMonitor:
             return self._decide_latched(recs, sums)
         phi = self.inflation
         W = cfg.window
-        lengths = [L for L in cfg.windows if L <= n] or [W]
-        longest = lengths[-1]
+        lengths = [L for L in cfg.test_windows if L <= n] or [min(cfg.test_windows)]
+        longest = max([L for L in cfg.windows if L <= n] or [W])
         why = self._evidence(recs[-longest:])
         if why is not None:
             return self._status("unknown", None, why[1], why[0], n_frames=longest)

@@ -21,8 +21,8 @@ import numpy as np
 
 from .base import CameraModel
 
-__all__ = ["densify_box_edges", "project_outline_rects", "outline_extremes", "pixels_per_metre", "EDGE_SAMPLES",
-           "STEP_DEG"]
+__all__ = ["densify_box_edges", "project_outline_rects", "outline_extremes", "outline_rects_and_extremes",
+           "pixels_per_metre", "EDGE_SAMPLES", "STEP_DEG"]
 
 #: points per segment between corners (besides the corners themselves)
 EDGE_SAMPLES = 7
@@ -120,13 +120,32 @@ def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, cam
         rects [H,M,4] (NaN where invalid), valid [H,M]: every point projectable and a non-empty
         clipped rectangle (as :func:`xcalib.calib.boxproj.project_rects`).
     """
+    return _outline_rects(corners, R, t, camera, (size, clip, min_distance, samples), False)[:2]
+
+
+def outline_rects_and_extremes(corners: np.ndarray, R: np.ndarray, t: np.ndarray, camera: CameraModel,
+                               size: tuple[int, int], *, min_distance: float = 0.3):
+    """:func:`project_outline_rects` (clipped, samples by angle) and the outline points [H,M,4,3]
+    (frame of ``corners``; [M,4,3] for one pose) at which each unclipped edge is taken (u min, v min,
+    u max, v max), found in the same projection and refinement as the rectangle: at a valid
+    rectangle what :func:`outline_extremes` finds, without projecting the outlines again (a fit's
+    residuals and Jacobian at one pose). The points of box corners are None above 4096 poses x
+    outlines (not refined there: call :func:`outline_extremes`). Returns (rects, valid, points)."""
+    return _outline_rects(corners, R, t, camera, (size, True, min_distance, None), True)
+
+
+def _outline_rects(corners, R, t, camera: CameraModel, how: tuple, points: bool):
+    """:func:`project_outline_rects` with ``how`` = (size, clip, min_distance, samples) and, with
+    ``points``, the points of :func:`outline_rects_and_extremes` (else None): (rects, valid, points)."""
+    size, clip, min_distance, samples = how
     single, R, t, c = pose_batch(R, t, corners)
     H, M = len(R), len(c)
+    where = None
     if M == 0:
-        return no_rects(H, single)
+        return no_rects(H, single) + (None,)
     geo = _Outline(camera, min_distance, H * M <= _COARSE_ABOVE)
     if camera.is_pinhole or c.shape[1] != 8:
-        rect, front, _ = geo.extremes(c, R, t, None)
+        rect, front, where = geo.extremes(c, R, t, None, points=points)
     elif samples is not None:
         rect, front, _ = geo.extremes(c, R, t, int(samples))
     else:
@@ -134,11 +153,14 @@ def project_outline_rects(corners: np.ndarray, R: np.ndarray, t: np.ndarray, cam
         if geo.refine:  # exact whatever the samples: one group (fewer, larger array operations)
             k = np.full_like(k, k.max())
         rect, front = np.empty((H, M, 4)), np.empty((H, M), dtype=bool)
+        keep = points and geo.refine  # one group: its extremes' points are the outlines'
         for n in np.unique(k):
             sel = np.flatnonzero(k == n)
-            rect[:, sel], front[:, sel], _ = geo.extremes(c[sel], R, t, int(n))
+            rect[:, sel], front[:, sel], where = geo.extremes(c[sel], R, t, int(n), points=keep)
     valid = finish_rects(rect, front, size, clip)
-    return (rect[0], valid[0]) if single else (rect, valid)
+    if single:
+        return rect[0], valid[0], None if where is None else where[0]
+    return rect, valid, where
 
 
 def outline_extremes(corners: np.ndarray, R: np.ndarray, t: np.ndarray, camera: CameraModel) -> np.ndarray:
@@ -241,7 +263,9 @@ class _Outline:
             where = pts[np.arange(M)[None, :, None], idx]  # [H,M,4,3]
         if refine:
             self._refine(c, (ii, jj, n), (R, t), w, best, where, front & np.isfinite(best).all(axis=2))
-        return -_SIGN * best, front, where
+            return -_SIGN * best, front, where
+        # not refined: the rect as without ``points`` (min / max), the points beside it
+        return np.stack([u.min(2), v.min(2), u.max(2), v.max(2)], axis=-1), front, where
 
     def _refine(self, c, edges, pose, w, best, where, ok) -> None:
         """Golden section along the segments that may hold each extreme, in place on ``best``
