@@ -33,7 +33,8 @@ from .bringup import distinct_best, gated_frames, gated_matches, matcher_similar
 from .config import CalibConfig
 from .cost import Occlusion
 from .terms import CostSpec
-from .decision import POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, matched_places, precheck, verdict
+from .decision import (POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, data_sd_beyond_noise, matched_places, precheck,
+                       verdict)
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSelectionSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, lean_frames, prepare_frames, with_corner_outlines, with_point_outlines
@@ -280,6 +281,13 @@ def _objects_sd(parts, config: CalibConfig) -> dict:
     """``Evidence``'s object-level statistical sigma (``uncertainty.statistical_sd``), when objects are counted."""
     sd = statistical_sd(parts) if config.uncertainty != "frames" else None
     return {} if sd is None else {"rot_sd_objects": sd[:3], "tr_sd_objects": sd[3:]}
+
+
+def _beyond_noise_sd(parts, config: CalibConfig) -> dict:
+    """``Evidence``'s data sigma with the occlusion shift beyond its noise (``decision.data_sd_beyond_noise``),
+    when objects are counted (the reported sigma it is weighed with then counts each object once)."""
+    sd = data_sd_beyond_noise(parts) if config.uncertainty != "frames" else None
+    return {} if sd is None else {"rot_sd_beyond_noise": sd[:3], "tr_sd_beyond_noise": sd[3:]}
 
 
 def _search(cframes, frames_in, intr, config: CalibConfig, matcher, prior: Pose | None, diag: CalibDiagnostics,
@@ -708,7 +716,7 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
                                runner_up_score=runner, rot_sd=unc.rot_sd_data, tr_sd=unc.tr_sd_data,
                                rot_sd_total=unc.rot_sd, tr_sd_total=unc.tr_sd,
                                n_objects=unc.parts.n_objects if config.uncertainty != "frames" else None,
-                               **_objects_sd(unc.parts, config)), config)
+                               **_objects_sd(unc.parts, config), **_beyond_noise_sd(unc.parts, config)), config)
     if refusal is None and prior is None:
         refusal = crowded_check(cframes, config, n_pairs / max(diag.n_2d, 1))
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):

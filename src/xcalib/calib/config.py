@@ -145,7 +145,9 @@ class CalibConfig:
         ambiguity_ratio: fail when a distinct runner-up pose scores at least this fraction of the best.
         max_rot_std_deg / max_trans_std_m: fail when the norm of the 1-sigma vector that the frames
             verify (Jacobian, frame halves, occlusion; the 0.4 sigma) exceeds these (2 sigma within
-            1 deg / 0.5 m by default): the pose is not determined by the data.
+            1 deg / 0.5 m by default): the pose is not determined by the data. A pose whose reported
+            95 % bound is within ``fine_rot_bound_deg`` / ``fine_trans_bound_m`` is judged with the
+            occlusion shift counted only beyond its own noise (``decision.data_sd_beyond_noise``).
         max_rot_bound_deg / max_trans_bound_m: fail when the 95 % bound of the reported per-axis
             1-sigma (``uncertainty.bound95``; it also counts each object once and the 3D box model,
             see ``uncertainty``) exceeds these: the pose is determined but too uncertain to be of

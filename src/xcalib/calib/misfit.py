@@ -1151,7 +1151,8 @@ def lens_box_model(frames: list[CalibFrame], intr: CameraIntrinsics, pose: Pose,
     box a few per cent smaller than the rectangle around its 3D box, and unevenly (its sides, top
     and bottom), which a unified lens with a small ``xi`` partly takes up: realism
     ``detector_outline`` 0, a pinhole with its exact focal length, fit xi 0.29 with a gain of 11.1
-    per object (limit 10) at its right pose (0.10 deg / 0.09 m) and was refused as a lens misfit;
+    per object (limit 10) at its right pose (0.10 deg / 0.09 m; its exact focal length kept by
+    ``CalibConfig.focal_keep_box_model``) and was refused as a lens misfit;
     ``detector_truncation`` 13 alike. The offsets change the boxes' sizes only, as shares of each box,
     whatever its place in the image; a wider lens moves the boxes toward the centre the more the
     farther out they lie, which no offset takes up, so a fisheye given as pinhole keeps its gain.
