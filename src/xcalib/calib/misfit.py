@@ -839,8 +839,8 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
     ``detector_truncation`` (objects cut by the border, their visible outline): shifts of 70-170 px
     in x that the boxes inside the image do not ask for."""
     chk, msg = principal_point_check_all(ctx, draws=draws, seed=seed, places=places)
-    if msg is None:  # nothing flagged: nothing to clear
-        return chk, msg
+    if msg is None:  # nothing flagged: nothing to clear; but can these boxes check the principal point at all?
+        return principal_point_resolution(ctx, chk)
     inner = inner_pairs(ctx.frames, ctx.pairs)
     n_in, n = sum(len(p) for p in inner), sum(len(p) for p in ctx.pairs)
     if n_in == n:
@@ -858,6 +858,52 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
         return chk, msg
     note = f"without the {n - n_in} matched 2D boxes at the image border (of {n}): "
     return replace(chk2, detail=note + chk2.detail + f"; with them: {chk.detail}"), msg2
+
+
+#: the principal point is verifiable by the boxes only when, with the camera's rotation free, its
+#: 1-sigma (``_pp_jacobian_sd``, each axis) is within the shift that turns the camera by
+#: ``PP_CHECK_DEG`` times this: beyond it a given cx, cy that is off by a typical (1-sigma) error
+#: already turns the pose past the wrong-pose line, and the check (a flag needs ``PP_SIGMAS``
+#: sigmas) lets through errors that turn it several times as far
+PP_RESOLUTION_SIGMAS = 1.0
+
+
+def principal_point_resolution(ctx: FitContext, chk: MisfitCheck) -> tuple[MisfitCheck, str | None]:
+    """The unflagged principal-point check ``chk`` judged for what it can see: (``chk`` with the
+    pose-free sigma noted, None) when the boxes fix the principal point to within the shift that
+    turns the camera by ``PP_CHECK_DEG`` (at ``PP_RESOLUTION_SIGMAS``), else (flagged, a "not
+    verifiable" message): the pose is refused as ``principal_point_unverifiable`` when nothing
+    else refused it (``api._misfit_checks``). Never clears a flag; poses are not touched.
+
+    A camera turn and a shift of cx, cy move the boxes alike where the lens maps angles nearly
+    linearly to pixels (a wide-angle lens: along the horizon line of an equidistant image a turn
+    moves every point by the same pixels); the calibration's pose then absorbs a wrong principal
+    point, and the check, refitting from that pose, finds a small shift: what it can detect is
+    bounded by how well the boxes fix the principal point with the rotation free, which the
+    frame bootstrap of the fitted shift does not measure (it resamples one draw). Double sphere
+    150 deg, site 4 of ``bench_camera_models.py``, cx given 38 px (3 % of the width) off: pose
+    delivered 4.4 deg off with the shift refitted as (-7, +15) px; the Jacobian sigma there is
+    (12.8, 5.4) px against a 1-degree shift of 7.0 px."""
+    if chk.flagged or chk.detail == "too few matches or frames":
+        return chk, None
+    sd = _pp_jacobian_sd(ctx)
+    if sd is None:
+        return chk, None
+    need = _pp_need(ctx.intr)
+    ratio = float(np.max(sd)) / need
+    note = (f"; with the camera's rotation free the boxes fix it to 1-sigma ({sd[0]:.1f}, {sd[1]:.1f}) px, "
+            f"{ratio:.2f} x the {need:.1f} px shift that turns the camera {PP_CHECK_DEG:g} deg")
+    if ratio <= PP_RESOLUTION_SIGMAS:
+        return replace(chk, detail=chk.detail + note), None
+    axis = "cx" if sd[0] >= sd[1] else "cy"
+    turn = float(np.degrees(np.arctan(float(np.max(sd)) / min(ctx.intr.fx, ctx.intr.fy))))
+    msg = (f"not verifiable: these detections cannot check the principal point: with the camera's rotation free they "
+           f"fix {axis} only to 1-sigma {float(np.max(sd)):.0f} px, a camera turn of {turn:.1f} deg (the check needs it "
+           f"within {need:.0f} px, {PP_CHECK_DEG:g} deg), because a turn of the camera moves the boxes almost as a "
+           f"shift of cx, cy does (common with wide-angle lenses); a given cx, cy that is off would be absorbed by the "
+           f"pose unseen. Give cx, cy from a calibration you trust and add frames in which objects pass at other "
+           f"places in the image, nearer its left and right edges and at other heights and depths")
+    return replace(chk, flagged=True, detail=chk.detail + note + f": not verifiable, {_PP_ASKED}"), msg
 
 
 def principal_point_check_all(ctx: FitContext, *, draws: int = 5, seed: int = 0,
