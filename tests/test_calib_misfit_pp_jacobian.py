@@ -62,3 +62,32 @@ def test_a_flag_the_jacobian_does_not_support_is_not_verifiable_never_delivered(
     monkeypatch.setattr(misfit, "_pp_jacobian_sd", lambda c: np.array([0.01, 0.01]))
     chk, msg = misfit.principal_point_check(ctx)
     assert chk.flagged and msg.startswith("model misfit") and "Jacobian" not in chk.detail, chk.detail
+
+
+def test_a_principal_point_the_boxes_cannot_fix_is_not_verifiable_even_unflagged(monkeypatch):
+    """Session 13 (issue 26's wrong success): an unflagged check is judged by what the boxes can
+    see. With the rotation free they fix the principal point here to well within the shift that
+    turns the camera by ``PP_CHECK_DEG`` (passed, the sigma noted); where they fix it only beyond
+    that shift (a wide-angle lens: double sphere 150 deg site 4, cx 3 % off, delivered 4.4 deg off
+    with a refitted shift of (-7, +15) px) the same unflagged check refuses as not verifiable."""
+    import xcalib.calib.misfit as misfit
+
+    ctx = _shifted(0.0)  # right intrinsics, a pinhole 12-frame scene: passes, the pose-free sigma noted
+    chk, msg = misfit.principal_point_check(ctx)
+    need = misfit._pp_need(ctx.intr)
+    assert msg is None and not chk.flagged and "with the camera's rotation free" in chk.detail, chk.detail
+    sd = misfit._pp_jacobian_sd(ctx)
+    assert float(sd[0]) < misfit.PP_RESOLUTION_SIGMAS * need, (sd, need)
+    # the same boxes where the pose-free sigma of cx is beyond the 1-degree shift: not verifiable
+    monkeypatch.setattr(misfit, "_pp_jacobian_sd", lambda c: np.array([1.5 * need, 0.2 * need]))
+    chk, msg = misfit.principal_point_check(ctx)
+    assert chk.flagged and msg.startswith("not verifiable") and "fix cx only" in msg, msg
+    assert misfit._PP_ASKED in chk.detail and "1.50 x" in chk.detail, chk.detail
+    # just within it (and no Jacobian at all): passed
+    monkeypatch.setattr(misfit, "_pp_jacobian_sd", lambda c: np.array([0.2 * need, 0.99 * need]))
+    assert misfit.principal_point_check(ctx)[1] is None
+    # cy's sigma alone is not judged (box-shape biases widen it on any lens; the wide-angle degeneracy is cx's)
+    monkeypatch.setattr(misfit, "_pp_jacobian_sd", lambda c: np.array([0.5 * need, 3.0 * need]))
+    assert misfit.principal_point_check(ctx)[1] is None
+    monkeypatch.setattr(misfit, "_pp_jacobian_sd", lambda c: None)
+    assert misfit.principal_point_check(ctx)[1] is None
