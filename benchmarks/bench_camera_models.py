@@ -17,6 +17,13 @@ pinhole ``CameraIntrinsics`` of the same fx, fy, cx, cy (a user who hands a fish
 pinhole-only path): it must be refused, never a wrong success, with the cause named (column
 ``lens``: runs refused as ``misfit_lens``, the lens-misfit check of ``xcalib.calib.misfit``).
 
+**Wrong principal point** (``--pp-shift cx+0.03,cx-0.03,cy+0.03``, in place of the right-intrinsics
+cells): each site calibrated with its camera's cx (cy) given that share of the width off, frames and
+truth unchanged (rows ``<model> <fov> deg cx+3%W``). On a wide-angle lens a shift of cx and a turn of
+the camera move the boxes almost alike, and the pose absorbs a wrong cx: it must be refused (a misfit,
+or not verifiable), never a wrong success (column wrong). Each record keeps the principal-point
+check's detail (``pp_check``: the fitted shift, and the pose-free sigma against the 1-degree shift).
+
 **Formats** (``--round-trips``): every model through every camera format, the largest pixel
 difference of the camera read back. **Bags** (``--bag MODEL:FOV:SEED``): a site written to an MCAP
 bag with its CameraInfo (``equidistant`` for Kannala-Brandt), read back with ``fisheye="keep"`` and
@@ -45,7 +52,7 @@ stored runs made at the current uncertainty (``POOL_SINCE``), one record per row
         [--sites 1] [--first-seed 0] [--models kannala_brandt,double_sphere] [--fovs 120,150,185]
         [--frames 20] [--jobs 1] [--seed-major] [--no-calibration] [--pinhole-check-only]
         [--no-pinhole-rows] [--no-pinhole-check] [--round-trips] [--bag kannala_brandt:185:0] [--matching]
-        [--resample K [--hidden] [--sources yaw,centre] [--seeds 5,9]] [--label run] [--summary]
+        [--pp-shift cx+0.03,cx-0.03,cy+0.03] [--resample K [--hidden] [--sources yaw,centre] [--seeds 5,9]] [--label run] [--summary]
 
 The whole Done-when grid (20 sites per cell; ~15-20 s of CPU per wide-angle calibration with
 ``--jobs 1``, so ~2 CPU-hours in all), one process per model:
