@@ -107,17 +107,21 @@ def test_the_border_look_clears_a_not_verifiable_principal_point_only_below_the_
     W = ctx.frames[0].size[0]
     all_boxes = (MisfitCheck("principal_point", 19.0, misfit.PP_TOL_FRAC * W, True, "objects scatter"),
                  "not verifiable: the 138 matches come from 12 distinct objects")
-    inner = {"stat": 1.1 * need}
+    inner = {"stat": 1.1 * need, "detail": "inner"}
 
     def fake_all(c, **kw):
         if sum(len(p) for p in c.pairs) == sum(len(p) for p in ctx.pairs):
             return all_boxes
-        return MisfitCheck("principal_point", inner["stat"], misfit.PP_TOL_FRAC * W, False, "inner"), None
+        return MisfitCheck("principal_point", inner["stat"], misfit.PP_TOL_FRAC * W, False, inner["detail"]), None
 
     monkeypatch.setattr(misfit, "principal_point_check_all", fake_all)
     monkeypatch.setattr(misfit, "inner_pairs", lambda frames, pairs: [p[1:] for p in pairs])  # some border boxes
     chk, msg = misfit.principal_point_check(ctx)
     assert chk.flagged and msg == all_boxes[1], (chk.detail, msg)
+    inner["detail"] = "inner; " + misfit._PP_BOX_EXPLAINS  # a shift the outline offsets explain: cleared as before
+    chk, msg = misfit.principal_point_check(ctx)
+    assert msg is None and not chk.flagged, chk.detail
+    inner["detail"] = "inner"
     inner["stat"] = 0.5 * need  # the inner boxes ask for less than the 1-degree shift: cleared
     chk, msg = misfit.principal_point_check(ctx)
     assert msg is None and not chk.flagged and chk.detail.startswith("without the"), chk.detail

@@ -804,6 +804,8 @@ def _pp_flagged(d: np.ndarray, sd_xy: np.ndarray, W: int) -> bool:
 
 #: the principal-point detail's words for an unflagged shift that turns the camera beyond ``PP_CHECK_DEG``
 _PP_ASKED = "neither confirmed nor ruled out"
+#: the principal-point detail's words for a shift that the box model (outline offsets) explains
+_PP_BOX_EXPLAINS = "the box model explains it"
 #: a 2D box edge within this many pixels of the image border is the border's, not the object's
 PP_BORDER_PX = 1.0
 
@@ -849,7 +851,9 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
     if chk2.detail == "too few matches or frames" or (msg2 or "").startswith("model misfit") \
             or (msg2 is not None and not msg.startswith("model misfit")):
         return chk, msg
-    if msg.startswith("not verifiable") and chk2.statistic > _pp_need(ctx.intr):
+    explained = _PP_BOX_EXPLAINS in chk2.detail  # the outline offsets, not the principal point, ask for it
+    if chk2.statistic > _pp_need(ctx.intr) and (_PP_ASKED in chk.detail
+                                               or (msg.startswith("not verifiable") and not explained)):
         # all boxes could not verify the principal point (an unflagged shift that turns the camera
         # beyond PP_CHECK_DEG, or one the objects' scatter does not rule out) and the inner boxes
         # still ask for a shift that turns it beyond PP_CHECK_DEG: the border boxes did not make it,
@@ -858,7 +862,9 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
         # (-41, -56) px at 2.7 sigmas cleared it, and the pose was delivered 1.55 deg / 0.49 m off;
         # unified 150 deg bench site 2, cx 3 % of the width off: the objects' scatter left all boxes'
         # (-19, +5) px not verifiable, the inner boxes' (-18, +2) px (16 px turn the camera 1 deg)
-        # below the tolerance cleared it, and the pose was delivered 5.2 deg / 0.55 m off)
+        # below the tolerance cleared it, and the pose was delivered 5.2 deg / 0.55 m off). A shift
+        # the inner boxes' box-model test explains (the outline offsets ask for it) still clears the
+        # objects' verdict, as before
         return chk, msg
     note = f"without the {n - n_in} matched 2D boxes at the image border (of {n}): "
     cleared = replace(chk2, detail=note + chk2.detail + f"; with them: {chk.detail}")
@@ -969,7 +975,7 @@ def principal_point_check_all(ctx: FitContext, *, draws: int = 5, seed: int = 0,
             note = (f"; with the 2D outline offsets fitted (box model) it is ({d2[0]:+.1f}, {d2[1]:+.1f}) px, "
                     f"x sigma {sd2[0]:.1f} px, and lowers the cost by {gain:.1f} per object (limit "
                     f"{PP_MIN_GAIN:g}); cost with the outline offsets alone {c_box:.1f}, with the principal "
-                    f"point alone {pp_only.cost:.1f}: the box model explains it")
+                    f"point alone {pp_only.cost:.1f}: {_PP_BOX_EXPLAINS}")
         box_memo.append(note)
         return note
 
