@@ -836,8 +836,9 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
     unflagged shift that turns the camera beyond ``PP_CHECK_DEG`` (not verifiable,
     ``PP_X_UNVERIFIED_SIGMAS``) is cleared only when the boxes inside the image do not ask for such
     a shift either (the border boxes made it); otherwise it stays not verifiable: fewer boxes
-    cannot verify what all of them could not. (A shift not verifiable because the objects scatter,
-    ``_pp_object_sd``, is judged again as a flag: truncated objects scatter most.) Realism
+    cannot verify what all of them could not. A shift not verifiable because the objects scatter
+    (``_pp_object_sd``) is kept alike unless the inner boxes' box-model test explains their shift
+    (session 13: it had been judged again as a flag, and a wide-angle camera's wrong cx cleared). Realism
     ``detector_truncation`` (objects cut by the border, their visible outline): shifts of 70-170 px
     in x that the boxes inside the image do not ask for."""
     chk, msg = principal_point_check_all(ctx, draws=draws, seed=seed, places=places)
