@@ -17,6 +17,13 @@ pinhole ``CameraIntrinsics`` of the same fx, fy, cx, cy (a user who hands a fish
 pinhole-only path): it must be refused, never a wrong success, with the cause named (column
 ``lens``: runs refused as ``misfit_lens``, the lens-misfit check of ``xcalib.calib.misfit``).
 
+**Wrong principal point** (``--pp-shift cx+0.03,cx-0.03,cy+0.03``, in place of the right-intrinsics
+cells): each site calibrated with its camera's cx (cy) given that share of the width off, frames and
+truth unchanged (rows ``<model> <fov> deg cx+3%W``). On a wide-angle lens a shift of cx and a turn of
+the camera move the boxes almost alike, and the pose absorbs a wrong cx: it must be refused (a misfit,
+or not verifiable), never a wrong success (column wrong). Each record keeps the principal-point
+check's detail (``pp_check``: the fitted shift, and the pose-free sigma against the 1-degree shift).
+
 **Formats** (``--round-trips``): every model through every camera format, the largest pixel
 difference of the camera read back. **Bags** (``--bag MODEL:FOV:SEED``): a site written to an MCAP
 bag with its CameraInfo (``equidistant`` for Kannala-Brandt), read back with ``fisheye="keep"`` and
@@ -45,7 +52,7 @@ stored runs made at the current uncertainty (``POOL_SINCE``), one record per row
         [--sites 1] [--first-seed 0] [--models kannala_brandt,double_sphere] [--fovs 120,150,185]
         [--frames 20] [--jobs 1] [--seed-major] [--no-calibration] [--pinhole-check-only]
         [--no-pinhole-rows] [--no-pinhole-check] [--round-trips] [--bag kannala_brandt:185:0] [--matching]
-        [--resample K [--hidden] [--sources yaw,centre] [--seeds 5,9]] [--label run] [--summary]
+        [--pp-shift cx+0.03,cx-0.03,cy+0.03] [--resample K [--hidden] [--sources yaw,centre] [--seeds 5,9]] [--label run] [--summary]
 
 The whole Done-when grid (20 sites per cell; ~15-20 s of CPU per wide-angle calibration with
 ``--jobs 1``, so ~2 CPU-hours in all), one process per model:
@@ -216,8 +223,27 @@ def bag_case(model: str, fov: float, seed: int, n_frames: int, workers: int | st
     return rec
 
 
+def parse_pp_shifts(spec: str) -> list[tuple[str, float]]:
+    """``--pp-shift`` items ``cx+0.03``, ``cx-0.03``, ``cy+0.03`` (or a bare ``0.03``: cx): the axis
+    and the shift as a share of the image width."""
+    out = []
+    for item in (v.strip() for v in spec.split(",") if v.strip()):
+        axis, frac = (item[:2], item[2:]) if item[:2] in ("cx", "cy") else ("cx", item)
+        try:
+            out.append((axis, float(frac)))
+        except ValueError:
+            raise ValueError(f"--pp-shift: {item!r} is not cx+F, cx-F, cy+F or cy-F (F a share of the width)") from None
+    return out
+
+
+def _pp_row(pp_shift: tuple[str, float] | None) -> str:
+    return "" if pp_shift is None else f" {pp_shift[0]}{100 * pp_shift[1]:+g}%W"
+
+
 def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole: bool = False,
-                   workers: int | str = "auto") -> dict:
+                   workers: int | str = "auto", pp_shift: tuple[str, float] | None = None) -> dict:
+    """One site calibrated; ``pp_shift`` (axis, share of the width): the camera given with its cx
+    or cy moved by that much (the truth, frames and pose unchanged), a wrong principal point."""
     import xcalib
     from xcalib.calib.config import CalibConfig
     from xcalib.data.synth import generate_frames, sample_site
@@ -228,7 +254,12 @@ def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole:
     cam = site.intrinsics
     if as_pinhole:
         cam = CameraIntrinsics(cam.fx, cam.fy, cam.cx, cam.cy, None, cam.width, cam.height)
-    row = f"{model} {fov:g} deg" + (" as pinhole" if as_pinhole else "")
+    if pp_shift is not None:
+        from xcalib.calib.cost import shift_principal_point
+
+        px = pp_shift[1] * site.intrinsics.width
+        cam = shift_principal_point(cam, px if pp_shift[0] == "cx" else 0.0, px if pp_shift[0] == "cy" else 0.0)
+    row = f"{model} {fov:g} deg" + (" as pinhole" if as_pinhole else "") + _pp_row(pp_shift)
     t0 = time.perf_counter()
     try:
         with warnings.catch_warnings():
@@ -242,6 +273,10 @@ def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole:
            "message": res.message[:300], "refusal": res.diagnostics.refusal,
            "lens_check": lens[0].detail if lens else None, "time_s": time.perf_counter() - t0, "n_pairs": res.n_pairs,
            "n_2d_boxes": int(sum(len(f.bboxes_2d) for f in frames))}
+    if pp_shift is not None:
+        rec["pp_shift"] = [pp_shift[0], float(pp_shift[1])]
+    pp = [c for c in res.diagnostics.misfit if c.name == "principal_point"]
+    rec["pp_check"] = pp[-1].detail[:800] if pp else None
     from xcalib.calib.pose import Pose
     from xcalib.calib.uncertainty import bound95
 
@@ -607,6 +642,10 @@ def main(argv=None) -> int:
                          f"(comma-separated of {','.join(SOURCES)}): which source made each site's error")
     ap.add_argument("--seeds", default="",
                     help="with --resample: these site seeds (comma-separated) instead of --first-seed / --sites")
+    ap.add_argument("--pp-shift", default="", metavar="cx+0.03,cx-0.03,cy+0.03",
+                    help="instead of the right-intrinsics cells: each site calibrated with its cx (cy) given this "
+                         "share of the width off (truth unchanged), rows '<model> <fov> deg cx+3%%W'; a wrong "
+                         "principal point must be refused, never a wrong success (column wrong)")
     ap.add_argument("--label", default="run")
     ap.add_argument("--summary", action="store_true",
                     help="only print the table pooled over the stored runs (see POOL_SINCE) and store it as 'pooled'")
@@ -693,6 +732,10 @@ def main(argv=None) -> int:
                   f"|z|<=2 {np.round(r['within_2'], 2)}, sites' mean z rms {np.round(r['bias_z_rms'], 2)}")
             for name, v in r.get("sources_z_rms", {}).items():
                 print(f"{'':24s} {name} noise's part of the error, rms in linear sigmas {np.round(v, 2)}")
+    try:
+        pp_shifts = parse_pp_shifts(a.pp_shift)
+    except ValueError as exc:
+        ap.error(str(exc))
     if not a.no_calibration and a.resample <= 0:
         seeds = range(a.first_seed, a.first_seed + a.sites)
         workers = a.jobs if a.jobs == "auto" else int(a.jobs)
@@ -708,8 +751,12 @@ def main(argv=None) -> int:
         for fov in ([] if a.pinhole_check_only or a.seed_major else sorted(fovs, reverse=True)):  # the widest first
             for m in models:
                 cases += [(m, fov, s, False) for s in seeds]
-        for i, (m, fov, s, asp) in enumerate(cases):
-            rec = calibrate_case(m, fov, s, a.frames, asp, workers)
+        cases = [(*c, None) for c in cases]
+        if pp_shifts:  # the shifted rows in place of the right-intrinsics cells (the pinhole check rows kept)
+            cases = [c for c in cases if c[3]] + [(m, fov, s, False, sh) for sh in pp_shifts
+                                                  for m, fov, s, asp, _ in cases if not asp]
+        for i, (m, fov, s, asp, sh) in enumerate(cases):
+            rec = calibrate_case(m, fov, s, a.frames, asp, workers, sh)
             recs.append(rec)
             _save(a, tp, summarise(recs), recs, extra)  # after every case: a cut-short run keeps its rows
             print(f"[{i + 1}/{len(cases)}] {rec['row']} seed {s}: success={rec['success']} "

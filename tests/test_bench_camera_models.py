@@ -59,3 +59,13 @@ def test_pooled_table_keeps_current_runs_and_the_newest_record_per_site(bench, m
     assert kb["rot_vs_pinhole"] == pytest.approx(0.15 / 0.15)
     assert kb["same_sites"] == 1 and kb["rot_vs_pinhole_same_sites"] == pytest.approx(0.15 / 0.10)
     assert kb["coverage_axis_rot"] == pytest.approx(2 / 3) and kb["coverage_axis_trans"] == 1.0
+
+
+def test_pp_shift_items_are_parsed_and_named_and_bad_ones_refused(bench):
+    assert bench.parse_pp_shifts("cx+0.03, cx-0.03,cy+0.03,0.02") == [("cx", 0.03), ("cx", -0.03), ("cy", 0.03),
+                                                                      ("cx", 0.02)]
+    assert bench.parse_pp_shifts("") == []
+    assert bench._pp_row(("cx", 0.03)) == " cx+3%W" and bench._pp_row(("cy", -0.03)) == " cy-3%W"
+    assert bench._pp_row(None) == ""
+    with pytest.raises(ValueError, match="cz0.03"):
+        bench.parse_pp_shifts("cx+0.03,cz0.03")

@@ -58,12 +58,17 @@ def test_the_border_box_second_look_clears_a_shift_only_the_border_boxes_ask_for
     ctx, _ = _parked(2, 4)
     ctx = _with_border_box(ctx)
     need = misfit._pp_need(ctx.intr)
+    # a cleared check is judged by the pose-free sigma too (session 13); not this test's subject
+    monkeypatch.setattr(misfit, "_pp_jacobian_sd", lambda c: None)
     asked = "not verifiable: the boxes fit best with the principal point moved by (-35, -44) px ..."
+    objects = "not verifiable: the 40 matches come from 5 distinct objects ..."
     for first, detail, inner_shift, kept in [
             (asked, f"fitted ...; not verifiable: ..., not flagged: {misfit._PP_ASKED}", 1.9 * need, True),
             (asked, f"fitted ...; not verifiable: ..., not flagged: {misfit._PP_ASKED}", 0.5 * need, False),
-            ("not verifiable: the 40 matches come from 5 distinct objects ...", "leaving objects out ...", 1.9 * need,
-             False),
+            # session 13: the objects' verdict too stands when the inner boxes ask for a shift beyond the
+            # 1-degree line (unified 150 deg bench site 2, cx 3 % W off: delivered 5.2 deg off before)
+            (objects, "leaving objects out ...", 1.9 * need, True),
+            (objects, "leaving objects out ...", 0.5 * need, False),
             ("model misfit: the boxes fit best with the principal point moved ...", "all boxes", 1.9 * need, False)]:
         check = _looks(first, detail, inner_shift)
         check.n_all = sum(len(p) for p in ctx.pairs)
