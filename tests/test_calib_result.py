@@ -75,3 +75,17 @@ def test_a_success_whose_95_bound_exceeds_the_fine_line_is_reported_coarse():
     assert one.bound95[1] == pytest.approx(0.392, abs=1e-3)
     with pytest.raises(ValueError, match="fine_trans_bound_m"):
         CalibConfig(fine_trans_bound_m=0.0)
+
+
+def test_the_coarse_line_names_the_part_beyond_the_fine_line():
+    """Session 13 review: A9's "95 % bound 0.84 deg / 0.55 m exceeds 1 deg / 0.5 m" read as if both did."""
+    import dataclasses
+
+    fine = _result()
+    trans_only = dataclasses.replace(fine, rotation_std_deg=[0.3, 0.3, 0.25], translation_std_m=[0.2, 0.2, 0.13])
+    r, t = trans_only.bound95
+    assert r < 1.0 < t / 0.5 and trans_only.coarse
+    line = trans_only.precision_line()
+    assert "translation beyond 0.5 m" in line and "rotation beyond" not in line
+    both = dataclasses.replace(fine, rotation_std_deg=[0.43, 0.43, 0.42], translation_std_m=[0.28, 0.28, 0.27])
+    assert "rotation beyond 1 deg and the translation beyond 0.5 m" in both.precision_line()

@@ -149,7 +149,10 @@ class CalibrationResult:
         head = f"95 % bound {r:.2f} deg / {t:.2f} m"
         if not self.coarse:
             return f"fine: {head} (within {cfg.fine_rot_bound_deg:g} deg / {cfg.fine_trans_bound_m:g} m)"
-        return (f"COARSE: {head} exceeds {cfg.fine_rot_bound_deg:g} deg / {cfg.fine_trans_bound_m:g} m -- a starting "
+        beyond = [w for w, out in ((f"the rotation beyond {cfg.fine_rot_bound_deg:g} deg", not r <= cfg.fine_rot_bound_deg),
+                                   (f"the translation beyond {cfg.fine_trans_bound_m:g} m",
+                                    not t <= cfg.fine_trans_bound_m)) if out]
+        return (f"COARSE: {head}, {' and '.join(beyond)} -- a starting "
                 "point, not a pose for fusing the sensors; add frames with other objects at other places and depths")
 
     @property
