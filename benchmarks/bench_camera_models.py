@@ -283,10 +283,7 @@ def calibrate_case(model: str, fov: float, seed: int, n_frames: int, as_pinhole:
     u, sc = res.diagnostics.uncertainty, res.diagnostics.selfcal
     # what the sigma was made of (the coverage analysis of issue 26: which part is short, where)
     rec.update(n_objects=getattr(u, "n_objects", None), focal_estimated=bool(sc.focal_estimated),
-               sigma_parts={k: getattr(u, k, None) for k in ("jacobian", "clusters", "frames", "occlusion", "floor",
-                                                              "selfcal", "outline", "object_outline", "hidden",
-                                                              "hidden_noise", "centre_model")}
-               if u is not None else None)
+               sigma_parts={k: v for k, v in u.__dict__.items() if k != "box_model"} if u is not None else None)
     # matches that pair a 2D box with another object's 3D box (the frames' true match matrices)
     rec["wrong_matches"] = int(sum(int(np.sum(np.asarray(f.match_matrix)[p[:, 0], p[:, 1]] <= 0))
                                    for f, p in zip(frames, res.pairs or []) if len(p) and f.match_matrix is not None))

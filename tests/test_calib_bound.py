@@ -102,7 +102,7 @@ def test_sigma_parts_bounds_on_the_stored_s10_run():
         for rec in (r for r in cond["per_site"] if r["success"]):
             assert rec["sigma_parts"]["clusters_dof_cross"] is not None
             err = np.asarray(rec["z_axes"]) * np.asarray(rec["sigma_axes"])
-            old = mod.bounds(rec, SHIFT_NOISE_Z, "old")
+            old = mod.bounds(rec, SHIFT_NOISE_Z, "old", cr2="full")  # the run's own combination (session 10)
             new = mod.bounds(rec, SHIFT_NOISE_Z, "new")
             inside = bool(np.linalg.norm(err[:3]) <= old[0] and np.linalg.norm(err[3:]) <= old[1])
             assert inside == rec["within_95"], (cond["condition"], rec["seed"])
