@@ -72,8 +72,11 @@ def test_a_principal_point_the_boxes_cannot_fix_is_not_verifiable_even_unflagged
     with a refitted shift of (-7, +15) px) the same unflagged check refuses as not verifiable."""
     import xcalib.calib.misfit as misfit
 
-    ctx = _shifted(0.0)  # right intrinsics, a pinhole 12-frame scene: passes, the pose-free sigma noted
-    chk, msg = misfit.principal_point_check(ctx)
+    ctx = _shifted(0.0)  # right intrinsics, a pinhole 12-frame scene: passes
+    assert not misfit.pp_resolution_applies(ctx.intr)  # a pinhole is not judged by it (session 13 review)
+    assert misfit.principal_point_resolution(ctx, misfit.principal_point_check_all(ctx)[0])[1] is None
+    monkeypatch.setattr(misfit, "pp_resolution_applies", lambda intr: True)  # the rule as on a wide-angle model
+    chk, msg = misfit.principal_point_check(ctx)  # passes, the pose-free sigma noted
     need = misfit._pp_need(ctx.intr)
     assert msg is None and not chk.flagged and "with the camera's rotation free" in chk.detail, chk.detail
     sd = misfit._pp_jacobian_sd(ctx)
@@ -103,6 +106,7 @@ def test_the_border_look_clears_a_not_verifiable_principal_point_only_below_the_
     from xcalib.calib.diagnostics import MisfitCheck
 
     ctx = _shifted(0.0)
+    monkeypatch.setattr(misfit, "pp_resolution_applies", lambda intr: True)  # judged as on a wide-angle model
     need = misfit._pp_need(ctx.intr)
     W = ctx.frames[0].size[0]
     all_boxes = (MisfitCheck("principal_point", 19.0, misfit.PP_TOL_FRAC * W, True, "objects scatter"),

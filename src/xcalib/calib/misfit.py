@@ -59,7 +59,7 @@ from .parallel import parallel_map, shared
 from .refine import build_cost, lsq, match_all
 from .uncertainty import jackknife_sd, leave_frames_out, object_groups
 
-__all__ = ["MisfitVerdict", "lens_check", "lens_checks", "lens_box_model", "LENS_ALT_GAIN", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "focal_box_model", "FOCAL_MIN_GAIN", "FOCAL_BOX_ALT_GAIN", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "second_pose_screen", "second_pose_support", "mirror_screen", "match_bound", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "principal_point_check_all", "inner_pairs", "time_offset_check", "TIME_BOX_ALT_GAIN", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
+__all__ = ["MisfitVerdict", "lens_check", "lens_checks", "lens_box_model", "pp_resolution_applies", "LENS_ALT_GAIN", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "focal_box_model", "FOCAL_MIN_GAIN", "FOCAL_BOX_ALT_GAIN", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "second_pose_screen", "second_pose_support", "mirror_screen", "match_bound", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "principal_point_check_all", "inner_pairs", "time_offset_check", "TIME_BOX_ALT_GAIN", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
            "FOCAL_MAX_UNCHECKED"]
 
 FOCAL_TOL = 0.03          # |fitted focal scale - 1| beyond this (and 2 sigma) is a misfit
@@ -885,6 +885,16 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0,
 PP_RESOLUTION_SIGMAS = 1.0
 
 
+def pp_resolution_applies(intr) -> bool:
+    """Whether :func:`principal_point_resolution` judges this camera: a wide-angle camera model, where
+    the lens maps angles nearly linearly to pixels and a turn moves the boxes as a shift of cx does
+    (every wrong success it stops: double sphere / unified 150 deg). Not a pinhole (``CameraIntrinsics``):
+    there a turn stretches the image towards its edges while a shift does not, the flagged check finds
+    a wrong cx (realism principal_point+3%W), and the rule refused right poses of few-frame recordings
+    (session 13 review: the docs' 8-frame synthetic site, cx 1-sigma 18 px against 16 px)."""
+    return not isinstance(intr, CameraIntrinsics)
+
+
 def principal_point_resolution(ctx: FitContext, chk: MisfitCheck) -> tuple[MisfitCheck, str | None]:
     """The unflagged principal-point check ``chk`` judged for what it can see: (``chk`` with the
     pose-free sigma noted, None) when the boxes fix the principal point to within the shift that
@@ -901,7 +911,7 @@ def principal_point_resolution(ctx: FitContext, chk: MisfitCheck) -> tuple[Misfi
     150 deg, site 4 of ``bench_camera_models.py``, cx given 38 px (3 % of the width) off: pose
     delivered 4.4 deg off with the shift refitted as (-7, +15) px; the Jacobian sigma there is
     (12.8, 5.4) px against a 1-degree shift of 7.0 px."""
-    if chk.flagged or chk.detail == "too few matches or frames":
+    if chk.flagged or chk.detail == "too few matches or frames" or not pp_resolution_applies(ctx.intr):
         return chk, None
     sd = _pp_jacobian_sd(ctx)
     if sd is None:
