@@ -74,6 +74,9 @@ def test_a_principal_point_the_boxes_cannot_fix_is_not_verifiable_even_unflagged
 
     ctx = _shifted(0.0)  # right intrinsics, a pinhole 12-frame scene: passes
     assert not misfit.pp_resolution_applies(ctx.intr)  # a pinhole is not judged by it (session 13 review)
+    from xcalib.geometry.camera_models import DoubleSphere, Pinhole
+    assert misfit.pp_resolution_applies(DoubleSphere(500.0, 500.0, 320.0, 240.0, 640, 480, xi=-0.2, alpha=0.6))
+    assert not misfit.pp_resolution_applies(Pinhole(500.0, 500.0, 320.0, 240.0, 640, 480))
     assert misfit.principal_point_resolution(ctx, misfit.principal_point_check_all(ctx)[0])[1] is None
     monkeypatch.setattr(misfit, "pp_resolution_applies", lambda intr: True)  # the rule as on a wide-angle model
     chk, msg = misfit.principal_point_check(ctx)  # passes, the pose-free sigma noted

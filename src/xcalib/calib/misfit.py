@@ -892,7 +892,7 @@ def pp_resolution_applies(intr) -> bool:
     there a turn stretches the image towards its edges while a shift does not, the flagged check finds
     a wrong cx (realism principal_point+3%W), and the rule refused right poses of few-frame recordings
     (session 13 review: the docs' 8-frame synthetic site, cx 1-sigma 18 px against 16 px)."""
-    return not isinstance(intr, CameraIntrinsics)
+    return not (isinstance(intr, CameraIntrinsics) or bool(getattr(intr, "is_pinhole", False)))
 
 
 def principal_point_resolution(ctx: FitContext, chk: MisfitCheck) -> tuple[MisfitCheck, str | None]:
