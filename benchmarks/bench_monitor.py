@@ -575,6 +575,18 @@ def _value(v: str):
     return {"true": True, "false": False}.get(v.lower(), v)
 
 
+def _replay_setup(args, prefix: str) -> tuple[list, list, tuple, Path]:
+    """The replayed parts' null sites, step sites, cells and recordings folder (a fresh temporary
+    one unless ``--recordings`` names one)."""
+    import tempfile
+
+    nseeds = ([int(v) for v in args.null_seeds.split(",") if v.strip()] if args.null_seeds
+              else [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites])
+    sseeds = [int(v) for v in args.step_seeds.split(",") if v.strip()]
+    cells = tuple(c for c in args.cells.split(",") if c)
+    return nseeds, sseeds, cells, args.recordings or Path(tempfile.mkdtemp(prefix=prefix))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="30-min null streams (18,000 frames per site)")
@@ -674,24 +686,12 @@ def main() -> None:
             f"at {sseeds} ({args.runs} runs per site); recordings in {folder}")
         result["guard_s11"] = _guard(nseeds, args.null_base, n_null, sseeds, args.runs, folder, log)
     elif args.part == "iterate":  # the change test on the window's iterated estimate, replayed on every cell
-        import tempfile
-
-        nseeds = ([int(v) for v in args.null_seeds.split(",") if v.strip()] if args.null_seeds
-                  else [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites])
-        sseeds = [int(v) for v in args.step_seeds.split(",") if v.strip()]
-        cells = tuple(c for c in args.cells.split(",") if c)
-        folder = args.recordings or Path(tempfile.mkdtemp(prefix="xcalib_iterate_"))
+        nseeds, sseeds, cells, folder = _replay_setup(args, "xcalib_iterate_")
         log(f"== the iterated change test: null {n_null} frames x sites {nseeds} (both noises), cells {cells} "
             f"at {sseeds} ({args.runs} runs per site); recordings in {folder}")
         result["iterate_s12"] = _iterate(nseeds, args.null_base, n_null, (sseeds, args.runs, cells), folder, log)
     elif args.part == "scan":  # the change-point scan against the fixed windows, replayed on every cell
-        import tempfile
-
-        nseeds = ([int(v) for v in args.null_seeds.split(",") if v.strip()] if args.null_seeds
-                  else [3, 5, 7, 11, 13, 17, 19, 23][:args.null_sites])
-        sseeds = [int(v) for v in args.step_seeds.split(",") if v.strip()]
-        cells = tuple(c for c in args.cells.split(",") if c)
-        folder = args.recordings or Path(tempfile.mkdtemp(prefix="xcalib_scan_"))
+        nseeds, sseeds, cells, folder = _replay_setup(args, "xcalib_scan_")
         log(f"== the change-point scan: null {n_null} frames x sites {nseeds} (both noises), cells {cells} "
             f"at {sseeds} ({args.runs} runs per site); recordings in {folder}")
         result["scan_s13"] = _scan_rows(nseeds, args.null_base, n_null, (sseeds, args.runs, cells), folder, log)
