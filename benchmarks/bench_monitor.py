@@ -575,6 +575,16 @@ def _value(v: str):
     return {"true": True, "false": False}.get(v.lower(), v)
 
 
+def _false_alarms(nulls: dict, null_seeds: list, name: str, replay) -> dict:
+    """One noise's false alarms over the drift-free recordings: ``replay(recording)`` gives a
+    recording's alarm frames."""
+    where = {f"site_{s}": replay(nulls[(name, s)]) for s in null_seeds}
+    k = sum(len(a) for a in where.values())
+    frames = sum(len(nulls[(name, s)]["rows"]) for s in null_seeds)
+    return {"frames": frames, "false_alarms": k, "per_10k_and_90ci": _poisson90(k, frames),
+            "alarm_frames": {s: a for s, a in where.items() if a}}
+
+
 def _replay_setup(args, prefix: str) -> tuple[list, list, tuple, Path]:
     """The replayed parts' null sites, step sites, cells and recordings folder (a fresh temporary
     one unless ``--recordings`` names one)."""
@@ -1190,14 +1200,9 @@ def _iterate(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, fold
                 for s in step_seeds for r in range(runs)] for c in cells}
     for v, it in ITERATE_VARIANTS.items():
         for fac in ITERATE_FACTORS:
-            row = {}
-            for name, _ in GUARD_NOISES:
-                where = {f"site_{s}": mp.replay(nulls[(name, s)], iterate=it, threshold=h * fac, h_out=h_out * fac)
-                         for s in null_seeds}
-                k = sum(len(a) for a in where.values())
-                frames = sum(len(nulls[(name, s)]["rows"]) for s in null_seeds)
-                row[name] = {"frames": frames, "false_alarms": k, "per_10k_and_90ci": _poisson90(k, frames),
-                             "alarm_frames": {s: a for s, a in where.items() if a}}
+            row = {name: _false_alarms(nulls, null_seeds, name,
+                                       lambda rec: mp.replay(rec, iterate=it, threshold=h * fac, h_out=h_out * fac))
+                   for name, _ in GUARD_NOISES}
             for c in cells:
                 lim = within[c[0]][float(c.split("_")[1])]
                 firsts = [(mp.replay(rec, iterate=it, threshold=h * fac, h_out=h_out * fac, first_only=True)
@@ -1247,11 +1252,7 @@ def _scan_rows(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, fo
     for v, cfg, h in variants:
         row: dict = {"threshold": h}
         for name, _ in GUARD_NOISES:
-            where = {f"site_{s}": mp.replay(nulls[(name, s)], config=cfg, threshold=h) for s in null_seeds}
-            k = sum(len(a) for a in where.values())
-            frames = sum(len(nulls[(name, s)]["rows"]) for s in null_seeds)
-            row[name] = {"frames": frames, "false_alarms": k, "per_10k_and_90ci": _poisson90(k, frames),
-                         "alarm_frames": {s: a for s, a in where.items() if a}}
+            row[name] = _false_alarms(nulls, null_seeds, name, lambda rec: mp.replay(rec, config=cfg, threshold=h))
         for c in cells:
             lim = within[c[0]][float(c.split("_")[1])]
             firsts = [(mp.replay(rec, config=cfg, threshold=h, first_only=True) or [None])[0] for _, rec in recs[c]]
