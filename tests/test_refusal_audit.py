@@ -7,6 +7,7 @@ import importlib.util
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -170,7 +171,7 @@ def test_committed_realism_records_stops_and_dominance():
     m = _mod()
     runs = json.loads(m.RESULTS.read_text())["runs"]
     if "s13_final" not in runs:
-        return
+        pytest.skip("the committed realism file no longer holds run s13_final")
     recs = m.distinct_records(runs, ["s13_final"])
     assert len(recs) >= 90
     st = m.stops(recs, (0.5, 0.25, 2.0, 1.2))
