@@ -95,6 +95,7 @@ def _records(cal, frames, pair_noise: bool, noise: NoiseModel | None = None) -> 
     cm = next(iter(mon.cameras.values()))
     if noise is not None:
         cm.noise = noise
+    cm.keep_edges = True  # the unshaped rows too (as the benchmark's recordings keep them)
     out = []
     for f in frames:
         mon.update(f)

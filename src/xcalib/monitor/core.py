@@ -645,12 +645,12 @@ class CameraMonitor:
         # each matched object's share (rows are 4 edges per pair, pair-major)
         obj = self._pair_objects(cf, pairs, ids3d)
         uo, inv = np.unique(obj, return_inverse=True)
+        row_obj = inv[np.repeat(np.arange(len(pairs)), 4)[info]]
         if whiten:
             H, g, c, oH, og = self._whitened(cf, pairs, term, pose, (raw, cu[0], cv[0]), (info, rr, J, w), inv)
         else:
             JW = J * w[:, None]
             H, g, c = J.T @ JW, JW.T @ rr, float(np.sum(w * rr * rr))
-            row_obj = inv[np.repeat(np.arange(len(pairs)), 4)[info]]
             P = np.zeros((len(uo), len(r)))
             P[row_obj, np.arange(len(r))] = 1.0
             oH = (P @ (JW[:, :, None] * J[:, None, :]).reshape(len(r), 36)).reshape(-1, 6, 6)
