@@ -112,6 +112,14 @@ class MonitorConfig:
     setting; ``history`` must exceed the longest window. 0 (the default): off, the fixed windows. Measured in docs/monitor.md ("A change-point
     scan"): at an equal false-alarm rate it detects as many steps within the target frames as the
     fixed windows (54 of 72 runs), sooner in about half of the runs.
+    pair_noise: the noise model's 3D-box part weighted per matched pair (``pairnoise``): a box's
+    centre and size errors move its four edges together, so each pair's four residuals are whitened
+    by their covariance (the per-edge variances kept, the correlation the box's geometry gives added)
+    before they enter the normal equations; pinhole intrinsics only (other camera models keep the
+    independent model). False (the default): the four edges weighed as independent. Measured in
+    docs/monitor.md ("The 3D-box noise weighted per pair"): it states less information about the
+    pose (a pose change moves one box's edges nearly as an error of its centre does) and detects
+    fewer steps, later.
     """
 
     window: int = 20
