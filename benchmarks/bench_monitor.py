@@ -75,6 +75,12 @@ on the recordings of ``--part iterate`` (``--recordings``; made when absent) (``
 
     ... --part scan --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,7,11,13,17 --runs 2
 
+``--part pairnoise``: the noise model's 3D-box part weighted per pair (``MonitorConfig.pair_noise``) against the
+independent per-edge model, both recorded (``--recordings`` / ``--pair-recordings``; made when absent) and replayed
+with the default change test (``monitor.json`` ``pairnoise_<--label>``, ``pairnoise_s14M3``).
+
+    ... --part pairnoise --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,7,11,13,17 --runs 2 --recordings DIR --pair-recordings DIR2
+
 ``--part reference``: the change test calibrated per axis and window length
 (``CameraMonitor.axis_factors``) from a drift-free reference stretch of each site
 (``Monitor.learn``), against the test without it and with only the stream's own ~250 frames, on
