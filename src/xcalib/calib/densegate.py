@@ -1,27 +1,29 @@
-"""The search's gate on dense frames (a 360-degree LiDAR at a busy junction: 80-300 boxes a side).
+"""The unambiguous boxes of dense frames (a 360-degree LiDAR at a busy junction: 80-300 boxes a side).
 
-A crowded frame is searched for box triples through a view of a few of its boxes
-(``bringup``: frames with more than twice ``CalibConfig.max_candidates`` box pairs). The search
-finds the pose only if a triple of true pairs is among the triples it draws, so the view must keep
-boxes whose 2D box is the object's whole outline and whose 3D box the camera sees unoccluded:
+On all boxes of a crowded frame (``bringup``: more than twice ``CalibConfig.max_candidates`` box
+pairs) the matching aliases: a pose a few degrees / metres off still finds a box near most
+projections, and a refinement can stop in that local minimum (junction, 200 boxes a side: 3.8 deg /
+3.0 m off with 1,518 matches, against 2,498 at the true pose). The finalists' full refinement is
+therefore also started from a fit on the boxes whose matches are unambiguous
+(``bringup.unoccluded_frames``, ``api._full_refine``), chosen here:
 
 * :func:`front_rows` (2D): at a busy junction most objects are partly hidden behind nearer ones
-  (their 2D box is the visible part, smaller than the projected 3D box, so their size gives a wrong
-  depth and their pair a wrong triple). Whether two overlapping 2D boxes occlude each other cannot
-  be read from their overlap (it is the same for both); which one is in front can: objects stand on
-  the ground below the camera, so the nearer one's box reaches lower in the image (a larger bottom
-  edge). A box that no overlapping box reaches below is not hidden by any detected object.
-* :func:`lidar_unoccluded` (3D): with a co-located rig (``max_baseline_m``: the camera within a few
-  metres of the LiDAR, objects tens of metres away) what the LiDAR sees unoccluded the camera sees
-  unoccluded too. A 3D box whose angular extent seen from the LiDAR origin is covered by more than a
-  quarter by a nearer box's is likely hidden in the image as well; the others are kept. Every box
-  stays for scoring and refinement: the gate only chooses what the triples are drawn from.
+  (their 2D box is the visible part, smaller than the projected 3D box). Whether two overlapping 2D
+  boxes occlude each other cannot be read from their overlap (it is the same for both); which one is
+  in front can: objects stand on the ground below the camera, so the nearer one's box reaches lower
+  in the image (a larger bottom edge). A box that no overlapping box reaches below is not hidden by
+  any detected object.
+* :func:`lidar_unoccluded` (3D): with the camera near the LiDAR (objects tens of metres away) what
+  the LiDAR sees unoccluded the camera sees unoccluded too. A 3D box whose angular extent seen from
+  the LiDAR origin is covered by more than a quarter by a nearer box's is likely hidden in the image
+  as well; the others are kept. Where the camera is far from the LiDAR the view is merely less useful:
+  the refinement on every box from the finalist itself is always run too, and the better-scoring one kept.
 
-Synthetic junction (``bench_calibration_memory.junction_frames``, 200 2D boxes a frame, 6 frames):
-52 % of the 2D boxes match their projected 3D box at IoU >= 0.5 at the true pose; of the gate's
-former choice (the largest boxes covered by no other for more than a quarter: 24 a frame) 30 %;
-of the front boxes 79 % (86 % of those at least 20 px). Of the 3D boxes in the camera's view 46 %
-match; of those the LiDAR sees unoccluded (a quarter) 85 %.
+Synthetic junction (``bench_calibration_memory.junction_frames``, 200 2D boxes a frame, 6 frames, at
+the true pose): 52 % of the 2D boxes match their projected 3D box at IoU >= 0.5; of the search's gate
+(``hypotheses.informative_view``: the largest boxes covered by no other for more than a quarter, 24 a
+frame) 30 %; of the front boxes 79 % (86 % of those at least 20 px). Of the 3D boxes in the camera's
+view 46 % match; of those the LiDAR sees unoccluded (a quarter) 85 %.
 """
 
 from __future__ import annotations
@@ -40,7 +42,8 @@ FRONT_COVER = 0.02
 #: a 3D box counts as hidden from the LiDAR when a nearer box's angular extent covers more than this
 #: share of its own (the quarter the 2D gate has always used for a box that is its whole outline)
 LIDAR_COVER = 0.25
-#: the fewest 2D boxes a crowded frame's view keeps (front ones first, then the largest others)
+#: the fewest 2D boxes a crowded frame's view keeps (front ones first, then the largest others): enough
+#: for a pose (3) on every frame with a margin for the few front boxes that are false detections
 FRONT_MIN = 8
 #: rows per block of the pairwise overlaps (memory linear in the boxes)
 BLOCK = 256
@@ -106,14 +109,11 @@ def lidar_view(fr: CalibFrame) -> CalibFrame:
 
 
 def front_view(fr: CalibFrame, max_2d: int) -> tuple[CalibFrame, np.ndarray]:
-    """The search's gate on a crowded frame's 2D boxes: a view of ``fr`` with its front boxes
-    (:func:`front_rows`), at most ``max_2d``, largest first (near objects, whose size tells their
-    depth best), topped up to ``FRONT_MIN`` with the others, largest first; and the rows kept
-    (ascending). A frame within ``max_2d`` boxes is returned as it is.
-
-    Why only the front boxes: a hidden object's box gives its pairs a wrong depth, and the search's
-    triples are drawn from pairs of pairs, so each such box dilutes the draws quadratically (junction,
-    24 boxes a frame, about 10 of them front: no triple of true pairs in 2,700 drawn per frame)."""
+    """A view of ``fr`` with its front 2D boxes (:func:`front_rows`), at most ``max_2d``, largest
+    first (near objects, whose size tells their depth best), topped up to ``FRONT_MIN`` with the
+    others, largest first; and the rows kept (ascending). A frame within ``max_2d`` boxes is returned
+    as it is. Only the front boxes (not a fixed count): a hidden object's box, smaller than its
+    projected 3D box, pulls a fit towards a wrong depth."""
     if fr.n2 <= max_2d:
         return fr, np.arange(fr.n2)
     b = fr.boxes2d
