@@ -29,7 +29,8 @@ from ..geometry.boxes import box2d_centers
 from ..geometry.projection import project_points
 from ..geometry.transforms import make_transform
 from .boxmodel import fit_object_outline, fit_outline
-from .bringup import distinct_best, gated_frames, gated_matches, matcher_similarities, pose_hypotheses, unoccluded_frames
+from .bringup import (distinct_best, gated_frames, gated_matches, matcher_similarities, pose_hypotheses,
+                      unoccluded_frames)
 from .config import CalibConfig
 from .cost import Occlusion
 from .terms import CostSpec

@@ -16,8 +16,9 @@ therefore also started from a fit on the boxes whose matches are unambiguous
 * :func:`lidar_unoccluded` (3D): with the camera near the LiDAR (objects tens of metres away) what
   the LiDAR sees unoccluded the camera sees unoccluded too. A 3D box whose angular extent seen from
   the LiDAR origin is covered by more than a quarter by a nearer box's is likely hidden in the image
-  as well; the others are kept. Where the camera is far from the LiDAR the view is merely less useful:
-  the refinement on every box from the finalist itself is always run too, and the better-scoring one kept.
+  as well; the others are kept. Where the camera is far from the LiDAR the view is merely less
+  useful: the refinement on every box from the finalist itself is always run too, and the
+  better-scoring one kept.
 
 Synthetic junction (``bench_calibration_memory.junction_frames``, 200 2D boxes a frame, 6 frames, at
 the true pose): 52 % of the 2D boxes match their projected 3D box at IoU >= 0.5; of the search's gate
@@ -34,7 +35,8 @@ import numpy as np
 
 from .inputs import CalibFrame
 
-__all__ = ["front_rows", "front_view", "lidar_unoccluded", "lidar_view", "FRONT_COVER", "LIDAR_COVER", "FRONT_MIN", "BLOCK"]
+__all__ = ["front_rows", "front_view", "lidar_unoccluded", "lidar_view", "FRONT_COVER", "LIDAR_COVER", "FRONT_MIN",
+           "BLOCK"]
 
 #: a 2D box counts as hidden when a box reaching lower in the image covers more than this share of it
 #: (2 % : a shared pixel row of two boxes that merely touch does not hide either)
