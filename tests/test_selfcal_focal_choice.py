@@ -154,9 +154,9 @@ def test_the_given_focal_length_is_kept_where_the_box_model_explains_the_switch(
     assert given_focal_kept(fit, given, None, 0.004, SelfCalDiagnostics()) is None
     # nor where the calibration's focal-length check refuses the given one at its pose
     diag = SelfCalDiagnostics()
-    assert given_focal_kept(fit, given, 0.5, 0.004, diag, lambda: False) is None
+    assert given_focal_kept(fit, given, 0.5, 0.004, diag, lambda: "the focal-length check refuses it") is None
     assert any("focal-length check refuses it" in n for n in diag.notes)
-    assert given_focal_kept(fit, given, 0.5, 0.004, SelfCalDiagnostics(), lambda: True) is not None
+    assert given_focal_kept(fit, given, 0.5, 0.004, SelfCalDiagnostics(), lambda: None) is not None
 
 
 def test_auto_fits_a_wrong_focal_and_keeps_one_the_box_model_explains(monkeypatch):
@@ -184,6 +184,13 @@ def test_auto_fits_a_wrong_focal_and_keeps_one_the_box_model_explains(monkeypatc
     assert any("focal-length check refuses it" in n for n in checked.diag.notes)
     assert checked.box_model is None  # nor does the outline weight count in the sigma
     monkeypatch.setattr(selfcal, "given_focal_accepted", lambda *a, **k: True)
+    # nor where the principal-point check at the given intrinsics and pose does not accept the given
+    # principal point (the box model's premise; session 14: realism principal_point+3%W site 18)
+    monkeypatch.setattr(selfcal, "given_principal_point_unverified", lambda *a, **k: "not verifiable: a test")
+    unverified = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
+    assert unverified.diag.focal_estimated and unverified.intr.fx == pytest.approx(intr.fx, rel=0.01)
+    assert any("principal-point check does not accept" in n for n in unverified.diag.notes)
+    monkeypatch.setattr(selfcal, "given_principal_point_unverified", lambda *a, **k: None)
     off = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
     assert off.diag.focal_estimated and off.intr.fx == pytest.approx(intr.fx, rel=0.01)  # the default: fitted
     kept = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
