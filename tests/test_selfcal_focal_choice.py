@@ -177,7 +177,8 @@ def test_auto_fits_a_wrong_focal_and_keeps_one_the_box_model_explains(monkeypatc
     assert not any("explains the boxes as well" in n for n in choice.diag.notes)
     # the outline offsets explaining the boxes as well (w_box 1/2, as on the A9 sample with fx x1.05) is
     # not enough: the focal-length check, with the outline free, refuses the wrong given one at its pose
-    keep = CalibConfig(focal_keep_box_model=True)  # (off by default, session 13)
+    keep = CalibConfig(focal_keep_box_model=True)  # (on by default since session 14)
+    assert CalibConfig().focal_keep_box_model
     monkeypatch.setattr(selfcal, "focal_outline_weight", lambda *a, **k: 0.5)
     checked = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
     assert checked.diag.focal_estimated and checked.intr.fx == pytest.approx(intr.fx, rel=0.01)
@@ -191,8 +192,8 @@ def test_auto_fits_a_wrong_focal_and_keeps_one_the_box_model_explains(monkeypatc
     assert unverified.diag.focal_estimated and unverified.intr.fx == pytest.approx(intr.fx, rel=0.01)
     assert any("principal-point check does not accept" in n for n in unverified.diag.notes)
     monkeypatch.setattr(selfcal, "given_principal_point_unverified", lambda *a, **k: None)
-    off = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
-    assert off.diag.focal_estimated and off.intr.fx == pytest.approx(intr.fx, rel=0.01)  # the default: fitted
+    off = selfcal.decide(frames, wrong_given, truth, CalibConfig(focal_keep_box_model=False), None, Occlusion())
+    assert off.diag.focal_estimated and off.intr.fx == pytest.approx(intr.fx, rel=0.01)  # the option off: fitted
     kept = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
     assert kept.refusal == "" and not kept.diag.focal_estimated
     assert kept.intr is wrong_given and kept.frames is frames and kept.pose is truth
