@@ -452,8 +452,8 @@ def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float
     (:func:`given_focal_accepted`; the box model considered first there too), the boxes do not reject it
     and it is kept; ``refused`` (called only at the cap) returns why not (a note), None to keep
     (:func:`_keep_refused`: the focal-length check, then the principal-point check at the given
-    intrinsics and pose, :func:`given_principal_point_unverified`). A real focal error of a few per cent on clean synthetic boxes gives
-    w_box ~ 1e-20 and is still fitted. The check is needed as well: on the A9 sample (real labelled
+    intrinsics and pose, :func:`given_principal_point_unverified`). A real focal error of a few per
+    cent on clean synthetic boxes gives w_box ~ 1e-20 and is still fitted. The check is needed as well: on the A9 sample (real labelled
     boxes, 16 frames) the given focal length x1.05 / x1.10 gets w_box 1/2 (three outline offsets and a
     pose 1.5 m back take up the boxes' sizes), while the focal-length check, whose box-model test also
     asks the focal scale fitted with the outline free to agree, refuses it (session 13). The choice stays in the sigma: choosing the given
