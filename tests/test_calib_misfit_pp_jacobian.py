@@ -136,3 +136,37 @@ def test_the_border_look_clears_a_not_verifiable_principal_point_only_below_the_
     monkeypatch.setattr(misfit, "_pp_jacobian_sd", lambda c: np.array([2.0 * need, 0.1]))
     chk, msg = misfit.principal_point_check(ctx)
     assert chk.flagged and msg.startswith("not verifiable: these detections cannot check"), msg
+
+
+def test_an_estimated_focal_length_is_refitted_with_the_principal_point_before_the_check():
+    """Session 14 (issue 26's last wrong success): unified 150 deg bench site 3, cx given 3 % of the
+    width off: "auto" estimated the focal length with the wrong cx (905.7 px, true 921.6), which took
+    up part of the error with the pose (4.8 deg off); the check, holding that focal length, fitted
+    (-16.6, +5.7) px, below the tolerance, and the pose was delivered. When the focal length was
+    estimated (``focal_free``) the check is judged at the focal length fitted jointly with the
+    principal point (``pp_focal_centred``): there (-41, +1) px, a misfit. Here a pinhole scene, its
+    focal length fitted with the pose at the given cx (the way "auto" estimates it)."""
+    from dataclasses import replace
+
+    import xcalib.calib.misfit as misfit
+    from xcalib.calib.cost import FocalScaleTerm
+
+    def absorbed(frac):  # the focal length (and pose) fitted at the given cx, as self-calibration does
+        ctx = _shifted(frac)
+        *_, fit = lsq(ctx, 100, extra=(FocalScaleTerm(),))
+        s = float(np.exp(fit.params[FocalScaleTerm.name][0]))
+        return ctx.intr.fx, replace(ctx, intr=replace(ctx.intr, fx=ctx.intr.fx * s, fy=ctx.intr.fy * s), pose=fit.pose)
+
+    fx_true, ctx = absorbed(0.03)  # cx 3 % off: the focal length took up part of it
+    assert abs(ctx.intr.fx / fx_true - 1) > 0.003, ctx.intr.fx
+    centred, note = misfit.pp_focal_centred(ctx)
+    assert abs(centred.intr.fx / fx_true - 1) < 0.001 and "judged at the focal length fitted" in note, (centred.intr, note)
+    chk, msg = misfit.principal_point_check(ctx, focal_free=True)
+    assert chk.flagged and msg.startswith("model misfit") and note in chk.detail, chk.detail
+    held, _ = misfit.principal_point_check(ctx)  # the focal length held: judged as before, no note
+    assert "judged at the focal length fitted" not in held.detail, held.detail
+    fx_true, ctx = absorbed(0.0)  # right intrinsics: the focal length hardly moves, the check passes
+    centred, _ = misfit.pp_focal_centred(ctx)
+    assert abs(centred.intr.fx / fx_true - 1) < 0.003, centred.intr
+    chk, msg = misfit.principal_point_check(ctx, focal_free=True)
+    assert msg is None and not chk.flagged and "judged at the focal length fitted" in chk.detail, chk.detail
