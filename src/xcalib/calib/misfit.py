@@ -866,15 +866,21 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0, pla
     pose and the robust cost is not convex; realism principal point +3 % W, site 19 (pinhole, fx
     estimated x1.010): at the estimated focal length the boxes fit (-54, -17) px, a misfit; at the
     jointly fitted one (x0.992 of it) the refit from that pose stops at (0, 0) px (cost 79 against 43),
-    and the pose would have been delivered 1.8 deg / 0.61 m off."""
+    and the pose would have been delivered 1.8 deg / 0.61 m off. The second look adds only a "model
+    misfit" (see the code)."""
     chk, msg = principal_point_check_looks(ctx, draws=draws, seed=seed, places=places)
     if not focal_free or msg is not None:
         return chk, msg
     centred, note = pp_focal_centred(ctx)
     chk2, msg2 = principal_point_check_looks(centred, draws=draws, seed=seed, places=places)
-    if msg2 is not None:
+    if (msg2 or "").startswith("model misfit"):
         return replace(chk2, detail=chk2.detail + note + f"; at the estimated focal length: {chk.detail}"), msg2
-    return replace(chk, detail=chk.detail + note + ": not flagged either"), None
+    # a second look at another value of a nuisance parameter: only its decisive verdict (a shift beyond the
+    # tolerance, the objects' scatter, the pose-free sigma and the box model) adds a refusal; its gray
+    # ones ("not verifiable") would refuse right poses the first look passed (realism detector_outline
+    # sites 0, 3, 11, pinhole, fx estimated x0.98-1.00: the objects' scatter, 0.15-0.33 deg off)
+    said = "not flagged either" if msg2 is None else f"not verifiable there ({chk2.detail[:160]}), not a misfit"
+    return replace(chk, detail=chk.detail + note + f": {said}"), None
 
 
 def principal_point_check_looks(ctx: FitContext, *, draws: int = 5, seed: int = 0,
