@@ -176,6 +176,13 @@ def test_an_estimated_focal_length_is_refitted_with_the_principal_point_before_t
     assert misfit.principal_point_check(ctx)[1] is None  # without focal_free: judged as before
     chk, msg = misfit.principal_point_check(ctx, focal_free=True)  # the centred focal's flag stands
     assert chk.flagged and msg.startswith("model misfit") and note in chk.detail and "held:" in chk.detail, chk.detail
+    # only the second look's decisive verdict adds a refusal: a "not verifiable" there does not (realism
+    # detector_outline 0, 3, 11: right pinhole poses, the objects' scatter at the refitted focal length)
+    monkeypatch.setattr(misfit, "principal_point_check_looks", lambda c, **kw: (
+        passes_at_the_absorbed_focal(c, **kw) if c.intr.fx == ctx.intr.fx else
+        (replace(real(c, **kw)[0], flagged=True, detail="scatter"), "not verifiable: the 9 matches come from 3 objects")))
+    chk, msg = misfit.principal_point_check(ctx, focal_free=True)
+    assert msg is None and not chk.flagged and "not verifiable there (scatter)" in chk.detail, chk.detail
     monkeypatch.undo()
     fx_true, ctx = absorbed(0.0)  # right intrinsics: the focal length hardly moves, the check passes
     centred, _ = misfit.pp_focal_centred(ctx)
