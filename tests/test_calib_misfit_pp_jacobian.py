@@ -191,6 +191,9 @@ def test_an_estimated_focal_length_is_refitted_with_the_principal_point_before_t
     monkeypatch.setattr(misfit, "principal_point_check_looks", lambda c, **kw: (
         passes_at_the_absorbed_focal(c, **kw) if c.intr.fx == ctx.intr.fx else
         (replace(real(c, **kw)[0], flagged=True, detail="traded"), traded)))
+    chk, msg = misfit.principal_point_check(ctx, focal_free=True)  # a pinhole: not counted (a shift along y)
+    assert msg is None and not chk.flagged, chk.detail
+    monkeypatch.setattr(misfit, "pp_resolution_applies", lambda intr: True)  # a wide-angle model's trade-off
     chk, msg = misfit.principal_point_check(ctx, focal_free=True)
     assert msg == traded and chk.flagged and "traded" in chk.detail and "held:" in chk.detail, chk.detail
     monkeypatch.undo()

@@ -876,7 +876,8 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0, pla
         return chk, msg
     centred, note = pp_focal_centred(ctx)
     chk2, msg2 = principal_point_check_looks(centred, draws=draws, seed=seed, places=places)
-    if (msg2 or "").startswith("model misfit") or _PP_TRADES in (msg2 or ""):
+    traded = _PP_TRADES in (msg2 or "") and pp_resolution_applies(ctx.intr)
+    if (msg2 or "").startswith("model misfit") or traded:
         return replace(chk2, detail=chk2.detail + note + f"; at the estimated focal length: {chk.detail}"), msg2
     # a second look at another value of a nuisance parameter: only its decisive verdicts add a refusal: a
     # misfit (a shift beyond the tolerance, the objects' scatter, the pose-free sigma and the box model),
@@ -884,7 +885,9 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0, pla
     # against it, leaves unconfirmed (unified 150 deg bench site 2, cx given 3 % of the width low, fx
     # estimated 956.8 for 921.6: the first look fitted (+15, -1) px within its tolerance, the second
     # (+38.8, +0.7) px, the true shift, at 7 x-sigmas of the frames and past the objects' 5.3 px, and
-    # the pose was delivered 4.7 deg / 0.60 m off); its other gray verdict, the objects' scatter, would
+    # the pose was delivered 4.7 deg / 0.60 m off), on a wide-angle model (``pp_resolution_applies``:
+    # on a pinhole the trade-off verdict came from a shift along y, realism focal +-5/10 % site 0,
+    # (-11, -47) px, and refused a right pose 0.007 deg off); its other gray verdict, the objects' scatter, would
     # refuse right poses the first look passed (realism detector_outline sites 0, 3, 11, pinhole, fx
     # estimated x0.98-1.00: 0.15-0.33 deg off)
     said = "not flagged either" if msg2 is None else f"not verifiable there ({chk2.detail[:160]}), not a misfit"
