@@ -75,6 +75,12 @@ on the recordings of ``--part iterate`` (``--recordings``; made when absent) (``
 
     ... --part scan --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,7,11,13,17 --runs 2
 
+``--part pairnoise``: the noise model's 3D-box part weighted per pair (``MonitorConfig.pair_noise``) against the
+independent per-edge model, both recorded (``--recordings`` / ``--pair-recordings``; made when absent) and replayed
+with the default change test (``monitor.json`` ``pairnoise_<--label>``, ``pairnoise_s14M3``).
+
+    ... --part pairnoise --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,7,11,13,17 --runs 2 --recordings DIR --pair-recordings DIR2
+
 ``--part reference``: the change test calibrated per axis and window length
 (``CameraMonitor.axis_factors``) from a drift-free reference stretch of each site
 (``Monitor.learn``), against the test without it and with only the stream's own ~250 frames, on
@@ -609,7 +615,8 @@ def main() -> None:
     ap.add_argument("--null-noise", choices=("both", "default", "noisy"), default="both",
                     help="--part null: which detection noise (two processes can share the work)")
     ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak", "information", "reference", "bound",
-                                       "relin", "relin_a9", "verdict", "persist", "guard", "iterate", "scan"),
+                                       "relin", "relin_a9", "verdict", "persist", "guard", "iterate", "scan",
+                                       "pairnoise"),
                     default="all",
                     help="run one part; its keys are merged into an existing results file")
     ap.add_argument("--reference-frames", type=int, default=2400,
@@ -628,6 +635,9 @@ def main() -> None:
     ap.add_argument("--real-frames", type=int, default=320, help="real sequences: step streams (change at the middle)")
     ap.add_argument("--recordings", type=Path, default=None,
                     help="--part guard / iterate / scan: folder of the recorded streams (.npz; made when absent; default a temporary one)")
+    ap.add_argument("--pair-recordings", type=Path, default=None,
+                    help="--part pairnoise: folder of the streams recorded with pair_noise (made when absent)")
+    ap.add_argument("--label", default="s14M3", help="--part pairnoise: the results key's suffix")
     ap.add_argument("--cells", default=",".join(ITERATE_CELLS),
                     help="--part iterate / scan: the step cells (e.g. tz_0.1,rz_0.25: axis and size in deg / m)")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (null sites, step cells)")
@@ -705,6 +715,15 @@ def main() -> None:
         log(f"== the change-point scan: null {n_null} frames x sites {nseeds} (both noises), cells {cells} "
             f"at {sseeds} ({args.runs} runs per site); recordings in {folder}")
         result["scan_s13"] = _scan_rows(nseeds, args.null_base, n_null, (sseeds, args.runs, cells), folder, log)
+    elif args.part == "pairnoise":  # the 3D-box noise weighted per pair against the independent model
+        import tempfile
+
+        nseeds, sseeds, cells, folder = _replay_setup(args, "xcalib_pairnoise_")
+        pair = args.pair_recordings or Path(tempfile.mkdtemp(prefix="xcalib_pairnoise_pair_"))
+        log(f"== the per-pair 3D-box noise: null {n_null} frames x sites {nseeds} (both noises), cells {cells} "
+            f"at {sseeds} ({args.runs} runs per site); recordings in {folder} and {pair}")
+        result[f"pairnoise_{args.label}"] = _pairnoise(nseeds, args.null_base, n_null, (sseeds, args.runs, cells),
+                                                       (folder, pair), log)
     elif args.part == "verdict":  # each z step cell against what the boxes allow at its site (no monitor run)
         import json
 
@@ -1063,11 +1082,12 @@ def _guard_record(job) -> str:
 
     folder, kind = job[0], job[1]
     if kind == "null":
-        _, _, noise_name, s, n_base, n = job
+        _, _, noise_name, s, n_base, n = job[:6]
         path = folder / f"null_{noise_name}_{s}.npz"
         if not path.exists():
             site, base = _synth_stream(s, n_base, **dict(GUARD_NOISES)[noise_name])
-            mp.save_recording(path, mp.collect(_synth_calibration(site), _replay(base, n, s, 0.5, 0.05)))
+            mp.save_recording(path, mp.collect(_synth_calibration(site), _replay(base, n, s, 0.5, 0.05),
+                                               config=_recording_config(job[6] if len(job) > 6 else None)))
         return str(path)
     _, _, s, runs = job
     todo = [(k, size, axis, r) for k, size, _ in STEPS for axis in range(3) for r in range(runs)
@@ -1155,7 +1175,8 @@ def _cell_record(job) -> str:
     import monitor_persistence as mp
     from xcalib.monitor.inject import inject_change
 
-    folder, s, runs, cells = job
+    folder, s, runs, cells = job[:4]
+    cfg = _recording_config(job[4] if len(job) > 4 else None)
     todo = [(c, r) for c in cells for r in range(runs)
             if not (folder / f"step_{c.split('_')[0]}_{float(c.split('_')[1]):g}_{s}_{r}.npz").exists()]
     if todo:
@@ -1166,8 +1187,17 @@ def _cell_record(job) -> str:
             r_, t_ = _change("rotation" if name[0] == "r" else "translation", float(size), AXES.index(name[1]))
             k0 = PRE + r * 137
             seg = [inject_change(f, cal, r_, t_) if i >= PRE else f for i, f in enumerate(frames[k0 - PRE:k0 + POST])]
-            mp.save_recording(folder / f"step_{name}_{float(size):g}_{s}_{r}.npz", mp.collect(cal, seg))
+            mp.save_recording(folder / f"step_{name}_{float(size):g}_{s}_{r}.npz", mp.collect(cal, seg, config=cfg))
     return f"{folder} site {s}"
+
+
+def _recording_config(settings: dict | None):
+    """The recording monitor's config: ``monitor_persistence.collect``'s default (None), or that one
+    (no alarm: a rate of 1e-12) with ``settings`` (MonitorConfig fields that change the frames' rows,
+    e.g. ``pair_noise``)."""
+    from xcalib.monitor import MonitorConfig
+
+    return None if not settings else MonitorConfig(latch=True, false_alarm_rate=1e-12, **settings)
 
 
 def _iterate(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, folder: Path, log) -> dict:
@@ -1266,6 +1296,62 @@ def _scan_rows(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, fo
             + "  ".join(f"{c} {row[c]['detected_within']}/{row[c]['runs']}" + (f" (early {row[c]['early']})"
                                                                               if row[c]['early'] else "")
                         for c in cells), flush=True)
+    return out
+
+
+def _pairnoise(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, folders: tuple, log) -> dict:
+    """The noise model's 3D-box part weighted per matched pair (``MonitorConfig.pair_noise``) against the
+    independent per-edge model (the default): the same streams and step segments recorded with each
+    (``folders`` = (the default's recordings, as ``--part iterate``; the per-pair model's), made when
+    absent: the per-pair model changes every frame's rows), replayed with the default change test
+    (``monitor_persistence.replay``, the guard included, the same threshold): false alarms on the long
+    null streams (both noises) with the drift-free decisions' largest statistic (median, 99th
+    percentile: the null's spread against the threshold), runs detected within the cell's target per
+    cell with their delays."""
+    import monitor_persistence as mp
+    from xcalib.monitor import MonitorConfig
+
+    step_seeds, runs, cells = steps
+    within = {"r": {0.25: 50, 0.5: 20}, "t": {0.1: 50, 0.2: 20}}
+    cfg = MonitorConfig(latch=False)
+    out: dict = {"rows": {}, "null_seeds": null_seeds, "step_seeds": step_seeds, "runs_per_site": runs,
+                 "cells": list(cells), "threshold": cfg.threshold,
+                 "note": "replayed from recordings (the replay raises the monitor's alarms, guard included); the "
+                         "per-pair rows recorded with MonitorConfig(pair_noise=True); the synthetic calibration carries "
+                         "no fitted noise model (the default NoiseModel)"}
+    for (v, settings), folder in zip((("independent (default)", None), ("per pair (pair_noise)", {"pair_noise": True})),
+                                     folders):
+        folder.mkdir(parents=True, exist_ok=True)
+        jobs = [(folder, "null", name, s, n_base, n_null, settings) for name, _ in GUARD_NOISES for s in null_seeds]
+        for done in [*_pmap(_guard_record, jobs), *_pmap(_cell_record, [(folder, s, runs, cells, settings)
+                                                                        for s in step_seeds])]:
+            log(f"  recorded {done}", flush=True)
+        nulls = {(name, s): mp.load_recording(folder / f"null_{name}_{s}.npz") for name, _ in GUARD_NOISES
+                 for s in null_seeds}
+        row: dict = {}
+        for name, _ in GUARD_NOISES:
+            row[name] = _false_alarms(nulls, null_seeds, name, lambda rec: mp.replay(rec, config=cfg))
+            stat = []
+            for s in null_seeds:
+                tr: list = []
+                mp.replay(nulls[(name, s)], config=cfg, trace=tr)
+                stat += [t[1] for t in tr]
+            row[name]["decision_statistic_median_p99"] = [float(np.median(stat)), float(np.percentile(stat, 99))]
+        for c in cells:
+            lim = within[c[0]][float(c.split("_")[1])]
+            recs = [(s, mp.load_recording(folder / f"step_{c.split('_')[0]}_{float(c.split('_')[1]):g}_{s}_{r}.npz"))
+                    for s in step_seeds for r in range(runs)]
+            firsts = [(mp.replay(rec, config=cfg, first_only=True) or [None])[0] for _, rec in recs]
+            delays = [None if f is None else f - PRE for f in firsts]
+            hits = [d is not None and 0 <= d <= lim for d in delays]
+            row[c] = {"runs": len(hits), "detected_within": int(sum(hits)), "within_frames": lim,
+                      "early": sum(d is not None and d < 0 for d in delays), "delays": delays,
+                      "missed_sites": sorted({s for (s, _), hit in zip(recs, hits) if not hit})}
+        out["rows"][v] = row
+        log(f"{v:24s} false alarms {row['default']['false_alarms']} / {row['noisy']['false_alarms']}  null statistic "
+            f"median / p99 {row['default']['decision_statistic_median_p99'][0]:.1f} / "
+            f"{row['default']['decision_statistic_median_p99'][1]:.1f}  "
+            + "  ".join(f"{c} {row[c]['detected_within']}/{row[c]['runs']}" for c in cells), flush=True)
     return out
 
 
