@@ -35,7 +35,7 @@ from .pose import Pose
 from .refine import F_SCALE, build_cost, estimate_noise, match_all
 from .uncertainty import box_model_odds
 
-__all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "MIN_MOVING_PAIRS",
+__all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "unconstrained_focal_kept", "MIN_MOVING_PAIRS",
            "focal_choice_weight", "focal_outline_weight", "focal_box_model_sd", "given_focal_kept",
            "given_focal_accepted", "given_principal_point_unverified", "KEEP_GIVEN_WEIGHT"]
 
@@ -251,6 +251,9 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
     for _ in range(3):  # drop what the data does not constrain (or what agrees with the given), refit
         if fit is None:
             break
+        if config.refine_intrinsics == "auto" and cfg.refine_intrinsics != "none" and kept_sd is None:
+            kept_sd = unconstrained_focal_kept(fit, pose, None if fit.focal_log_sd is None else fit.focal_log_sd * repeat,
+                                               config.focal_max_std, diag)
         cfg, changed = _judge_intrinsics(fit, cfg, config, diag, refusals, cframes[0].size[0], repeat)
         if not changed and config.refine_intrinsics == "auto" and cfg.refine_intrinsics != "none" and w_box is False:
             frames_fit = shift_frames(cframes, motion.velocity, fit.dt_s) if est_dt else cframes
@@ -330,6 +333,37 @@ def _with_focal_choice(inflation: np.ndarray, fit: SelfCalFit, pose: Pose, sd: f
                 " counts in the sigma by sqrt of it", warn=False)
     base = np.zeros(6) if inflation is None else np.where(np.isfinite(inflation), inflation, np.inf)
     return np.sqrt(base ** 2 + extra ** 2)
+
+
+def unconstrained_focal_kept(fit: SelfCalFit, pose: Pose, sd: float | None, max_std: float,
+                             diag: SelfCalDiagnostics) -> np.ndarray | None:
+    """The pose sigma part (6-vector, deg / m) of refine_intrinsics="auto" keeping the given focal length
+    because the joint fit does not measure it (1-sigma ``sd`` of its log scale beyond ``max_std``,
+    ``CalibConfig.focal_max_std``), or None where the fit measures it (or ``sd`` is not finite: no fitted
+    focal length to weigh).
+
+    Keeping the given focal length is a choice between two models, as the switch to the fitted one is
+    (:func:`_with_focal_choice`) and as the box model's keep is (:func:`given_focal_kept`): the fitted
+    focal length keeps the posterior weight 1 - w (w = :func:`focal_choice_weight` of its distance from
+    the given one in its own sigma), and choosing the given one has the expected squared error
+    (1 - w) x shift^2 (``shift``: the pose's move to the fitted focal length), returned as
+    sqrt(1 - w) x shift, a part of the reported sigma only (as the box model's). A focal length the data
+    barely cannot measure can still be rejected by them at 2-3 sigmas, and the depth then moves with it
+    unseen: session 14 review, fx given x1.03 with detector-outline boxes, site 1: the joint fit's
+    1-sigma 1.08 % (limit 1 %), the pose's depth 1.41 m off with a 95 % bound of 0.60 m."""
+    if sd is None or not np.isfinite(sd) or sd <= 0 or sd <= max_std:
+        return None
+    shift = np.abs(pose.delta(fit.pose))
+    w = focal_choice_weight(abs(float(np.log(fit.focal_scale))) / sd)
+    extra = np.sqrt(max(1.0 - w, 0.0)) * shift
+    if not np.all(np.isfinite(extra)) or float(np.max(extra)) <= 0:
+        return None
+    _note(diag, f"refine_intrinsics='auto': the focal length is kept as given (not measured: 1-sigma {_fmt_pct(sd)}, "
+                f"limit {_fmt_pct(max_std)}), but the detections fit x{fit.focal_scale:.4f}, a posterior weight of "
+                f"{1.0 - w:.3f} against the given one; the pose's move to it ({float(np.linalg.norm(shift[:3])):.3f} deg "
+                f"/ {float(np.linalg.norm(shift[3:])):.3f} m) counts in the reported sigma by sqrt of that weight",
+          warn=False)
+    return extra
 
 
 def focal_box_model_sd(fit: SelfCalFit, pose: Pose, sd: float | None, w_box: float | None,
