@@ -154,9 +154,9 @@ def test_the_given_focal_length_is_kept_where_the_box_model_explains_the_switch(
     assert given_focal_kept(fit, given, None, 0.004, SelfCalDiagnostics()) is None
     # nor where the calibration's focal-length check refuses the given one at its pose
     diag = SelfCalDiagnostics()
-    assert given_focal_kept(fit, given, 0.5, 0.004, diag, lambda: False) is None
+    assert given_focal_kept(fit, given, 0.5, 0.004, diag, lambda: "the focal-length check refuses it") is None
     assert any("focal-length check refuses it" in n for n in diag.notes)
-    assert given_focal_kept(fit, given, 0.5, 0.004, SelfCalDiagnostics(), lambda: True) is not None
+    assert given_focal_kept(fit, given, 0.5, 0.004, SelfCalDiagnostics(), lambda: None) is not None
 
 
 def test_auto_fits_a_wrong_focal_and_keeps_one_the_box_model_explains(monkeypatch):
@@ -177,15 +177,23 @@ def test_auto_fits_a_wrong_focal_and_keeps_one_the_box_model_explains(monkeypatc
     assert not any("explains the boxes as well" in n for n in choice.diag.notes)
     # the outline offsets explaining the boxes as well (w_box 1/2, as on the A9 sample with fx x1.05) is
     # not enough: the focal-length check, with the outline free, refuses the wrong given one at its pose
-    keep = CalibConfig(focal_keep_box_model=True)  # (off by default, session 13)
+    keep = CalibConfig(focal_keep_box_model=True)  # (on by default since session 14)
+    assert CalibConfig().focal_keep_box_model
     monkeypatch.setattr(selfcal, "focal_outline_weight", lambda *a, **k: 0.5)
     checked = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
     assert checked.diag.focal_estimated and checked.intr.fx == pytest.approx(intr.fx, rel=0.01)
     assert any("focal-length check refuses it" in n for n in checked.diag.notes)
     assert checked.box_model is None  # nor does the outline weight count in the sigma
     monkeypatch.setattr(selfcal, "given_focal_accepted", lambda *a, **k: True)
-    off = selfcal.decide(frames, wrong_given, truth, CalibConfig(), None, Occlusion())
-    assert off.diag.focal_estimated and off.intr.fx == pytest.approx(intr.fx, rel=0.01)  # the default: fitted
+    # nor where the principal-point check at the given intrinsics and pose does not accept the given
+    # principal point (the box model's premise; session 14: realism principal_point+3%W site 18)
+    monkeypatch.setattr(selfcal, "given_principal_point_unverified", lambda *a, **k: "not verifiable: a test")
+    unverified = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
+    assert unverified.diag.focal_estimated and unverified.intr.fx == pytest.approx(intr.fx, rel=0.01)
+    assert any("principal-point check does not accept" in n for n in unverified.diag.notes)
+    monkeypatch.setattr(selfcal, "given_principal_point_unverified", lambda *a, **k: None)
+    off = selfcal.decide(frames, wrong_given, truth, CalibConfig(focal_keep_box_model=False), None, Occlusion())
+    assert off.diag.focal_estimated and off.intr.fx == pytest.approx(intr.fx, rel=0.01)  # the option off: fitted
     kept = selfcal.decide(frames, wrong_given, truth, keep, None, Occlusion())
     assert kept.refusal == "" and not kept.diag.focal_estimated
     assert kept.intr is wrong_given and kept.frames is frames and kept.pose is truth
@@ -195,3 +203,25 @@ def test_auto_fits_a_wrong_focal_and_keeps_one_the_box_model_explains(monkeypatc
     assert kept.diag.fx_used == wrong_given.fx
 
 
+
+
+def test_the_keep_is_not_made_where_the_principal_point_is_unchecked():
+    """Session 14 (issue 25): realism principal_point+3%W site 18 (cx 3 % of the width off). "auto"
+    switches the focal length there and the given one with the 2D outline offsets explains the boxes as
+    well (weight 1/2, the focal check accepting), but the principal-point check at the given intrinsics
+    and pose cannot verify the given principal point, the box model's premise: the fitted focal length is
+    used and the pose is refused as principal_point_unverifiable, as with the keep off. Without that part
+    the kept focal length let a false time offset take up the shift, and the pose was delivered
+    0.90 deg / 0.46 m off, outside its 95 % bound (session 13)."""
+    import warnings
+
+    import xcalib
+    from xcalib.data.synth.realism import make_realism_case
+
+    case = make_realism_case("principal_point+3%W", 18, 20)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = xcalib.calibrate(list(case.frames), case.intrinsics_given)
+    assert not res.success and res.diagnostics.refusal == "principal_point_unverifiable", res.message
+    assert any("principal-point check does not accept" in n for n in res.diagnostics.selfcal.notes)
+    assert Pose.parse(np.asarray(res.diagnostics.refused_T)).error(Pose.parse(case.T_cam_lidar))[0] > 1.0

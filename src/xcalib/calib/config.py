@@ -195,9 +195,10 @@ class CalibConfig:
         focal_max_std: largest 1-sigma (relative) of an estimated focal scale that is used.
         focal_keep_box_model: with "auto", keep the given focal length (and its pose) where the joint
             fit would replace it but the given one with the 2D outline offsets free explains the boxes
-            at least as well and the focal-length check accepts it (``selfcal.given_focal_kept``).
-            Off by default (session 13): it fixes the detector conditions' focal switch, but at
-            realism principal_point+3%W site 18 it let a pose 0.9 deg off through.
+            at least as well, and the focal-length and principal-point checks accept the given
+            intrinsics at that pose (``selfcal.given_focal_kept``). On by default since session 14
+            (off in session 13: without the principal-point part, realism principal_point+3%W
+            site 18 let a pose 0.9 deg off through).
         time_offset: camera time minus LiDAR time (s). None: no offset; a number: that fixed
             offset; "auto": estimated from moving objects when observable, else none (with a
             warning); "estimate": estimated, refused when not observable. 3D boxes are moved by
@@ -254,7 +255,7 @@ class CalibConfig:
     max_candidates: int = 1500
     refine_intrinsics: IntrinsicsMode = "auto"
     focal_max_std: float = 0.01
-    focal_keep_box_model: bool = False
+    focal_keep_box_model: bool = True
     time_offset: TimeOffsetMode | float | None = None
     time_offset_max_std_s: float = 0.02
     occlusion_tau: float = 1.5

@@ -29,7 +29,7 @@ from .context import FitContext
 from .cost import CostModel, FocalScaleTerm, Occlusion, PrincipalPointTerm, TimeOffsetTerm, shift_principal_point
 from .diagnostics import SelfCalDiagnostics
 from .inputs import CalibFrame
-from .misfit import focal_box_model, focal_fit, focal_scale_check
+from .misfit import focal_box_model, focal_fit, focal_scale_check, principal_point_check
 from .motion import MOVING_MPS, BoxMotion, shift_frames
 from .pose import Pose
 from .refine import F_SCALE, build_cost, estimate_noise, match_all
@@ -37,7 +37,7 @@ from .uncertainty import box_model_odds
 
 __all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "MIN_MOVING_PAIRS",
            "focal_choice_weight", "focal_outline_weight", "focal_box_model_sd", "given_focal_kept",
-           "given_focal_accepted", "KEEP_GIVEN_WEIGHT"]
+           "given_focal_accepted", "given_principal_point_unverified", "KEEP_GIVEN_WEIGHT"]
 
 MIN_MOVING_PAIRS = 3
 GATES = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0))
@@ -260,8 +260,7 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
             w_box = focal_outline_weight(frames_fit, fit, intr, occlusion)
             if config.focal_keep_box_model:
                 kept_sd = given_focal_kept(fit, pose, w_box, fit.focal_log_sd * repeat, diag,
-                                           lambda: checked.setdefault("ok", given_focal_accepted(cframes, intr, pose,
-                                                                                                 occlusion)))
+                                           lambda: _keep_refused(cframes, intr, pose, occlusion, config.seed, checked))
             elif w_box is not None and np.isfinite(w_box) and w_box >= KEEP_GIVEN_WEIGHT - 1e-12:
                 checked["ok"] = given_focal_accepted(cframes, intr, pose, occlusion)  # (for the sigma below)
             if kept_sd is not None:
@@ -437,8 +436,46 @@ def given_focal_accepted(cframes: list[CalibFrame], intr: CameraIntrinsics, pose
     return alt is not None
 
 
+def given_principal_point_unverified(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose,
+                                     occlusion: Occlusion, seed: int = 0) -> str | None:
+    """Why the keep of :func:`given_focal_kept` cannot rest on the given principal point: the
+    verdict's principal-point check (``misfit.principal_point_check``) at the given intrinsics and the
+    pose fitted with them flags a shift or cannot verify it (its message), or None where it accepts
+    the given principal point. The box model tells a detector's outline from a focal error only by
+    the boxes' positions about the principal point (an outline offset shrinks a box in place, a focal
+    error also moves it away from the principal point), so the keep assumes the given principal point
+    is right. A principal point off moves the boxes' positions too, and "auto" then also switches the
+    focal length; with the given principal point unchecked the box model cannot say which of the two
+    the switch is (session 13: realism principal_point+3%W site 18, cx 3 % off, w_box 1/2 and the focal
+    check accepting: the kept focal length let a false time offset take up the unchecked shift, and the
+    pose was delivered 0.90 deg / 0.46 m off, outside its 95 % bound). Fewer than 12 matched pairs:
+    unverified."""
+    pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=0.3)
+    if int(sum(len(p) for p in pairs)) < 12:
+        return "too few matched pairs to check the principal point"
+    noise = estimate_noise(cframes, pairs, intr, pose.R, pose.t)
+    places = len(matched_places(cframes, pairs)[0])
+    ctx = FitContext(cframes, pairs, intr, pose, noise, F_SCALE, occlusion)
+    _, msg = principal_point_check(ctx, seed=seed, places=places)
+    return msg
+
+
+def _keep_refused(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, occlusion: Occlusion, seed: int,
+                  checked: dict) -> str | None:
+    """Why "auto" does not keep the given focal length where the box model explains its switch (a
+    note for :func:`given_focal_kept`), or None to keep it: the focal-length check refuses it at its
+    pose (:func:`given_focal_accepted`, recorded in ``checked["ok"]`` for the sigma), or the
+    principal-point check does not accept the given principal point there
+    (:func:`given_principal_point_unverified`)."""
+    if not checked.setdefault("ok", given_focal_accepted(cframes, intr, pose, occlusion)):
+        return "the focal-length check refuses it at its pose"
+    msg = given_principal_point_unverified(cframes, intr, pose, occlusion, seed)
+    return None if msg is None else f"the principal-point check does not accept the given principal point there " \
+                                    f"(the box model's premise; {msg[:160]})"
+
+
 def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float | None,
-                     diag: SelfCalDiagnostics, accepted: Callable[[], bool] | None = None) -> np.ndarray | None:
+                     diag: SelfCalDiagnostics, refused: Callable[[], str | None] | None = None) -> np.ndarray | None:
     """Whether refine_intrinsics="auto" keeps the given focal length (and the pose fitted with it)
     although the plain joint fit replaces it: the pose sigma part of that choice (6-vector, deg / m), or
     None (the fitted focal length is used).
@@ -451,9 +488,11 @@ def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float
     the boxes' positions about the principal point, which no outline offset takes up. So where the
     given focal length with the outline offsets explains the boxes at least as well (``w_box`` at the
     cap, :data:`KEEP_GIVEN_WEIGHT`) and the calibration's own focal-length check accepts it at its pose
-    (``accepted``, :func:`given_focal_accepted`; the box model considered first there too), the boxes
-    do not reject it and it is kept. A real focal error of a few per cent on clean synthetic boxes gives
-    w_box ~ 1e-20 and is still fitted. The check is needed as well: on the A9 sample (real labelled
+    (:func:`given_focal_accepted`; the box model considered first there too), the boxes do not reject it
+    and it is kept; ``refused`` (called only at the cap) returns why not (a note), None to keep
+    (:func:`_keep_refused`: the focal-length check, then the principal-point check at the given
+    intrinsics and pose, :func:`given_principal_point_unverified`). A real focal error of a few per
+    cent on clean synthetic boxes gives w_box ~ 1e-20 and is still fitted. The check is needed as well: on the A9 sample (real labelled
     boxes, 16 frames) the given focal length x1.05 / x1.10 gets w_box 1/2 (three outline offsets and a
     pose 1.5 m back take up the boxes' sizes), while the focal-length check, whose box-model test also
     asks the focal scale fitted with the outline free to agree, refuses it (session 13). The choice stays in the sigma: choosing the given
@@ -470,10 +509,11 @@ def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float
     shift = np.abs(pose.delta(fit.pose))
     if not np.all(np.isfinite(shift)):
         return None
-    if accepted is not None and not accepted():
+    why = None if refused is None else refused()
+    if why:
         _note(diag, f"refine_intrinsics='auto': the given focal length with the 2D outline offsets fitted explains the "
-                    f"boxes about as well as the fitted x{fit.focal_scale:.4f} (posterior weight {w_box:.3f}), but the "
-                    "focal-length check refuses it at its pose: the fitted one is used", warn=False)
+                    f"boxes about as well as the fitted x{fit.focal_scale:.4f} (posterior weight {w_box:.3f}), but "
+                    f"{why}: the fitted one is used", warn=False)
         return None
     diag.focal_scale_std = sd  # (measured; focal_scale stays the used / given one, 1: the fitted one is in the note)
     z = abs(float(np.log(fit.focal_scale))) / sd if sd is not None and np.isfinite(sd) and sd > 0 else float("nan")
