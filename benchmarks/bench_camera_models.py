@@ -638,7 +638,8 @@ def main(argv=None) -> int:
                     help="with --resample: also fit each draw with these noise sources off, one at a time "
                          f"(comma-separated of {','.join(SOURCES)}): which source made each site's error")
     ap.add_argument("--seeds", default="",
-                    help="with --resample: these site seeds (comma-separated) instead of --first-seed / --sites")
+                    help="these site seeds (comma-separated) instead of --first-seed / --sites (the resample and "
+                         "the calibration cells; e.g. only the sites whose focal length a run estimated)")
     ap.add_argument("--pp-shift", default="", metavar="cx+0.03,cx-0.03,cy+0.03",
                     help="instead of the right-intrinsics cells: each site calibrated with its cx (cy) given this "
                          "share of the width off (truth unchanged), rows '<model> <fov> deg cx+3%%W'; a wrong "
@@ -734,7 +735,7 @@ def main(argv=None) -> int:
     except ValueError as exc:
         ap.error(str(exc))
     if not a.no_calibration and a.resample <= 0:
-        seeds = range(a.first_seed, a.first_seed + a.sites)
+        seeds = [int(v) for v in a.seeds.split(",") if v] or list(range(a.first_seed, a.first_seed + a.sites))
         workers = a.jobs if a.jobs == "auto" else int(a.jobs)
         models = [m for m in a.models.split(",") if m]
         fovs = [float(f) for f in a.fovs.split(",") if f]

@@ -328,8 +328,9 @@ def test_camera_models_json():
     fresh = b.calibrate_case(rec["model"], rec["hfov_deg"], rec["seed"], run["args"]["frames"],
                              " as pinhole" in rec["row"], pp_shift=tuple(rec["pp_shift"]) if rec.get("pp_shift") else None)
     a = run["args"]
-    cmd = (f"{RUN} benchmarks/bench_camera_models.py --points {a['points']} --sites {a['sites']} --first-seed "
-           f"{a['first_seed']} --models {a['models']} --fovs {a['fovs']} --frames {a['frames']} --label {label}"
+    sites = f"--seeds {a['seeds']}" if a.get("seeds") else f"--sites {a['sites']} --first-seed {a['first_seed']}"
+    cmd = (f"{RUN} benchmarks/bench_camera_models.py --points {a['points']} {sites} "
+           f"--models {a['models']} --fovs {a['fovs']} --frames {a['frames']} --label {label}"
            + (f" --pp-shift {a['pp_shift']}" if a.get("pp_shift") else ""))
     assert_fresh("camera_models.json", f"{label}: {rec['row']} seed {rec['seed']}", rec, fresh,
                  exact=("success", "n_pairs", "n_2d_boxes", "wrong", "within_2sigma"), verdicts=("message",),

@@ -422,7 +422,7 @@ def _refit_calls(ctx: FitContext, config: CalibConfig, refits: tuple, lean: list
     focal = None if focal_estimated else (focal_fit, (full.frames, full.pairs, full.intr, full.pose, full.noise,
                                                       full.f_scale, full.occlusion))
     time_chk = (_time_check, (full, times, unit, config.seed, None)) if config.time_offset is None else None
-    pp = (_pp_check, (full, config.seed, None)) if config.refine_intrinsics != "focal+center" else None
+    pp = (_pp_check, (full, config.seed, None, focal_estimated)) if config.refine_intrinsics != "focal+center" else None
     return [focal, time_chk, pp]
 
 
@@ -433,11 +433,12 @@ def _time_check(ctx: FitContext, times: np.ndarray, unit: str, seed: int, places
     return time_offset_check(ctx, times, unit, seed=seed, places=places)
 
 
-def _pp_check(ctx: FitContext, seed: int, places: int | None):
+def _pp_check(ctx: FitContext, seed: int, places: int | None, focal_free: bool = False):
     """``misfit.principal_point_check`` (a task of ``_misfit_searches``; ``places``: the matched
-    places, None: counted here, in the task, rather than before the tasks start)."""
+    places, None: counted here, in the task, rather than before the tasks start; ``focal_free``:
+    the focal length was estimated, judged with it refitted)."""
     places = len(matched_places(ctx.frames, ctx.pairs)[0]) if places is None else places
-    return principal_point_check(ctx, seed=seed, places=places)
+    return principal_point_check(ctx, seed=seed, places=places, focal_free=focal_free)
 
 
 def _early_searches(frames_in, state: tuple, occlusion: Occlusion, config: CalibConfig,
@@ -553,14 +554,14 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
         times, unit = _frame_times(frames_in)
         time_chk = _started(searches, 4, _time_check, ctx, times, unit, config.seed, places)
     if config.refine_intrinsics != "focal+center":
-        chk, msg = _started(searches, 5, _pp_check, ctx, config.seed, places)
+        chk, msg = _started(searches, 5, _pp_check, ctx, config.seed, places, diag.selfcal.focal_estimated)
         if msg and time_chk is not None and time_chk[1]:
             # both fit: a shift that the fitted time offset, applied, leaves unflagged is the time
             # offset's doing (PandaSet's projected cuboids carry a real -0.05 s: 81 px otherwise). Only
             # ever clears the principal point -- the time-offset refusal stands
             shifted = time_shifted_frames(ctx, times, unit)
-            if shifted is not None and principal_point_check(ctx.with_frames(shifted), seed=config.seed,
-                                                             places=places)[1] is None:
+            if shifted is not None and principal_point_check(ctx.with_frames(shifted), seed=config.seed, places=places,
+                                                             focal_free=diag.selfcal.focal_estimated)[1] is None:
                 chk, msg = dataclasses.replace(chk, flagged=False, detail=chk.detail + "; explained by the fitted "
                                                "time offset (not flagged with it applied)"), None
         if (msg or "").startswith("not verifiable"):  # like an unverifiable focal: refuses only what nothing else did
