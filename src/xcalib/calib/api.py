@@ -29,7 +29,8 @@ from ..geometry.boxes import box2d_centers
 from ..geometry.projection import project_points
 from ..geometry.transforms import make_transform
 from .boxmodel import fit_object_outline, fit_outline
-from .bringup import distinct_best, gated_frames, gated_matches, matcher_similarities, pose_hypotheses
+from .bringup import (distinct_best, gated_frames, gated_matches, matcher_similarities, pose_hypotheses,
+                      unoccluded_frames)
 from .config import CalibConfig
 from .cost import Occlusion
 from .terms import CostSpec
@@ -139,11 +140,22 @@ def _quick_refines(qf, intr, cand: Hypotheses, occlusion: Occlusion, workers: Wo
 
 
 def _full_refine(args) -> tuple[float, RefineResult]:
-    """One finalist's full refinement and its score (a task of ``_refine_candidates``)."""
-    cframes, intr, R, t, occlusion = args
-    rr = refine_pose(cframes, intr, R, t, options=RefineOptions(gates=((0.2, 0.5), (0.3, 0.0), (0.3, 0.0))),
-                     occlusion=occlusion)
-    return _score(cframes, intr, rr), rr
+    """One finalist's full refinement and its score (a task of ``_refine_candidates``). On a crowded
+    site (``view``: ``bringup.unoccluded_frames``) it is also refined from its fit on the unambiguous
+    boxes, and the better-scoring of the two results is kept: both are optima of the same score on
+    every box, so the choice can only raise it (junction, 200 boxes a side: 1.96 deg / 0.96 m off,
+    score 1248, from the finalist directly; 0.008 deg / 0.013 m, score 1941, through the view)."""
+    cframes, intr, R, t, occlusion, view = args
+    opts = RefineOptions(gates=((0.2, 0.5), (0.3, 0.0), (0.3, 0.0)))
+    rr = refine_pose(cframes, intr, R, t, options=opts, occlusion=occlusion)
+    best = (_score(cframes, intr, rr), rr)
+    if view is not None:
+        r0 = refine_pose(view, intr, R, t, options=opts, occlusion=occlusion)
+        rr = refine_pose(cframes, intr, r0.R, r0.t, options=opts, occlusion=occlusion)
+        s = _score(cframes, intr, rr)
+        if s > best[0]:
+            best = (s, rr)
+    return best
 
 
 def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
@@ -165,7 +177,9 @@ def _refine_candidates(cframes, intr, cand: Hypotheses, occlusion: Occlusion,
     finals = [quick[0]] + [next((x for x in quick[1:] if Pose(x[1].R, x[1].t).distinct(best0, 1.0, 0.3)), None)]
     finals = [f for f in finals if f is not None]
     sl = shared(lean, workers)
-    refined = parallel_map(_full_refine, [(sl, intr, r0.R, r0.t, occlusion) for _, r0 in finals], workers)
+    view = None if max_candidates is None else unoccluded_frames(lean, max_candidates)
+    sv = None if view is None else shared(view, workers)
+    refined = parallel_map(_full_refine, [(sl, intr, r0.R, r0.t, occlusion, sv) for _, r0 in finals], workers)
     if progress:
         for k in range(len(finals)):
             progress("refine", len(cand) + k + 1, len(cand) + len(finals))

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..geometry.camera import CameraIntrinsics
 from .config import CalibConfig
+from .densegate import front_view, lidar_view
 from .hypotheses import (Hypotheses, TripleSearch, draw_triples, frame_hypotheses, informative_view, score_poses,
                          solve_triples, triple_miss_bound)
 from .inputs import CalibFrame, lean_frames
@@ -26,7 +27,7 @@ from .parallel import Stream, Workers, chunks, parallel_map, resolve_workers
 from .pose import Pose
 
 __all__ = ["BringUp", "pose_hypotheses", "distinct_best", "pooled_groups", "matcher_similarities", "gated_frames",
-           "gated_matches"]
+           "gated_matches", "unoccluded_frames"]
 
 log = logging.getLogger("xcalib.calib")
 
@@ -149,6 +150,19 @@ def gated_frames(cframes: Sequence[CalibFrame], max_candidates: int) -> list[Cal
     if not any(fr.n2 * fr.n3 > 2 * max_candidates for fr in cframes):
         return None
     return _gated(cframes, [None] * len(cframes), max_candidates)[0]
+
+
+def unoccluded_frames(cframes: Sequence[CalibFrame], max_candidates: int) -> list[CalibFrame] | None:
+    """The frames with each crowded one (n2 x n3 above twice ``max_candidates``) cut to the boxes
+    whose matches are unambiguous at a busy junction: its front 2D boxes (``densegate.front_view``,
+    at most ``GATE_2D``) and the 3D boxes the LiDAR sees unoccluded (``densegate.lidar_view``); None
+    when no frame is crowded. The finalists' full refinement also starts from a fit on it
+    (``api._full_refine``): on all boxes of a dense frame the matching aliases (a pose 1-4 deg / 1-3 m
+    off still finds a box near most projections) and the fit can stop in that local minimum, which
+    the few unambiguous boxes do not share."""
+    if not any(fr.n2 * fr.n3 > 2 * max_candidates for fr in cframes):
+        return None
+    return [lidar_view(front_view(fr, GATE_2D)[0]) if fr.n2 * fr.n3 > 2 * max_candidates else fr for fr in cframes]
 
 
 def gated_matches(cframes: Sequence[CalibFrame], pairs: list[np.ndarray],

@@ -35,7 +35,7 @@ from .pose import Pose
 from .refine import F_SCALE, build_cost, estimate_noise, match_all
 from .uncertainty import box_model_odds
 
-__all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "unconstrained_focal_kept", "MIN_MOVING_PAIRS",
+__all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "MIN_MOVING_PAIRS",
            "focal_choice_weight", "focal_outline_weight", "focal_box_model_sd", "given_focal_kept",
            "given_focal_accepted", "given_principal_point_unverified", "KEEP_GIVEN_WEIGHT"]
 
@@ -246,15 +246,15 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
     if fit is None and (cfg.refine_intrinsics in ("focal", "focal+center") or config.time_offset == "estimate"):
         refusals.append("self-calibration asked for but too few matched pairs (< 6) to estimate it")
     kept_sd = None  # the focal choice's part when the given focal length is kept by the box model
+    unconstrained = None  # the joint fit whose focal length "auto" found unconstrained (its choice's part, below)
     w_box: float | None | bool = False  # the given focal length's weight with the outline free (False: not computed)
     checked: dict = {}  # "ok": whether the focal-length check accepts the given focal length (where it was asked)
     for _ in range(3):  # drop what the data does not constrain (or what agrees with the given), refit
         if fit is None:
             break
-        if config.refine_intrinsics == "auto" and cfg.refine_intrinsics != "none" and kept_sd is None:
-            kept_sd = unconstrained_focal_kept(fit, pose, None if fit.focal_log_sd is None else fit.focal_log_sd * repeat,
-                                               config.focal_max_std, diag)
         cfg, changed = _judge_intrinsics(fit, cfg, config, diag, refusals, cframes[0].size[0], repeat)
+        if changed and config.refine_intrinsics == "auto" and not _focal_constrained(fit, config, repeat):
+            unconstrained = fit
         if not changed and config.refine_intrinsics == "auto" and cfg.refine_intrinsics != "none" and w_box is False:
             frames_fit = shift_frames(cframes, motion.velocity, fit.dt_s) if est_dt else cframes
             w_box = focal_outline_weight(frames_fit, fit, intr, occlusion)
@@ -277,6 +277,8 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
         fit = joint_refine(cframes, intr, pose, cfg, motion if est_dt else None, occlusion) \
             if (cfg.refine_intrinsics != "none" or est_dt) else None
         w_box = False  # (a new fit: its weight is computed again where it is needed)
+    if unconstrained is not None:  # the given focal length kept as unconstrained: that choice in the sigma
+        kept_sd = _unconstrained_choice_sd(kept_sd, unconstrained, pose if fit is None else fit.pose, repeat, diag)
     if fit is None:
         _fill_used(diag, intr)
         return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag, kept_sd)
@@ -335,35 +337,38 @@ def _with_focal_choice(inflation: np.ndarray, fit: SelfCalFit, pose: Pose, sd: f
     return np.sqrt(base ** 2 + extra ** 2)
 
 
-def unconstrained_focal_kept(fit: SelfCalFit, pose: Pose, sd: float | None, max_std: float,
-                             diag: SelfCalDiagnostics) -> np.ndarray | None:
-    """The pose sigma part (6-vector, deg / m) of refine_intrinsics="auto" keeping the given focal length
-    because the joint fit does not measure it (1-sigma ``sd`` of its log scale beyond ``max_std``,
-    ``CalibConfig.focal_max_std``), or None where the fit measures it (or ``sd`` is not finite: no fitted
-    focal length to weigh).
+def _focal_constrained(fit: SelfCalFit, config: CalibConfig, repeat: float) -> bool:
+    """Whether the joint fit's focal length is constrained enough to be used (``_judge_intrinsics``)."""
+    sd = None if fit.focal_log_sd is None else fit.focal_log_sd * repeat
+    return sd is not None and sd <= config.focal_max_std
 
-    Keeping the given focal length is a choice between two models, as the switch to the fitted one is
-    (:func:`_with_focal_choice`) and as the box model's keep is (:func:`given_focal_kept`): the fitted
-    focal length keeps the posterior weight 1 - w (w = :func:`focal_choice_weight` of its distance from
-    the given one in its own sigma), and choosing the given one has the expected squared error
-    (1 - w) x shift^2 (``shift``: the pose's move to the fitted focal length), returned as
-    sqrt(1 - w) x shift, a part of the reported sigma only (as the box model's). A focal length the data
-    barely cannot measure can still be rejected by them at 2-3 sigmas, and the depth then moves with it
-    unseen: session 14 review, fx given x1.03 with detector-outline boxes, site 1: the joint fit's
-    1-sigma 1.08 % (limit 1 %), the pose's depth 1.41 m off with a 95 % bound of 0.60 m."""
-    if sd is None or not np.isfinite(sd) or sd <= 0 or sd <= max_std:
-        return None
-    shift = np.abs(pose.delta(fit.pose))
+
+def _unconstrained_choice_sd(sd6: np.ndarray | None, fit: SelfCalFit, pose: Pose, repeat: float,
+                             diag: SelfCalDiagnostics) -> np.ndarray | None:
+    """``sd6`` (a 6-vector of the reported sigma's focal-choice part, deg / m, or None) with the part of
+    the choice refine_intrinsics="auto" makes where it keeps the given focal length because the joint
+    fit's estimate is not constrained (1-sigma above ``focal_max_std``): the mirror of
+    :func:`_with_focal_choice`. Kept, the given focal length is unchecked at the level the pose needs,
+    and the expected squared error of keeping one of two models is the other's posterior weight x the
+    pose's move between them: sqrt(1 - w) x the move to the fitted focal length, w the given one's
+    weight (:func:`focal_choice_weight`). A fitted focal length near the given one moves the pose little
+    and adds little; one at 2-3 of its sigmas adds most of its move. Session 14 review: realism-style
+    site 1 with detector-outline boxes and fx given x1.03: the joint fit said x0.970 (1-sigma 1.08 %,
+    limit 1 %), the given focal length was kept, and the pose was delivered 1.41 m off in depth with a
+    95 % bound of 0.60 m; its move to the fitted focal length was 1.57 m. ``pose``: the pose used."""
+    sd = None if fit.focal_log_sd is None else fit.focal_log_sd * repeat
+    if sd is None or not np.isfinite(sd) or sd <= 0:
+        return sd6
     w = focal_choice_weight(abs(float(np.log(fit.focal_scale))) / sd)
+    shift = np.abs(pose.delta(fit.pose))
     extra = np.sqrt(max(1.0 - w, 0.0)) * shift
     if not np.all(np.isfinite(extra)) or float(np.max(extra)) <= 0:
-        return None
-    _note(diag, f"refine_intrinsics='auto': the focal length is kept as given (not measured: 1-sigma {_fmt_pct(sd)}, "
-                f"limit {_fmt_pct(max_std)}), but the detections fit x{fit.focal_scale:.4f}, a posterior weight of "
-                f"{1.0 - w:.3f} against the given one; the pose's move to it ({float(np.linalg.norm(shift[:3])):.3f} deg "
-                f"/ {float(np.linalg.norm(shift[3:])):.3f} m) counts in the reported sigma by sqrt of that weight",
-          warn=False)
-    return extra
+        return sd6
+    _note(diag, f"refine_intrinsics='auto': the given focal length is kept (the fitted x{fit.focal_scale:.4f} is not "
+                f"constrained enough to use) with a posterior weight of {w:.3f}; the pose's move to the fitted one "
+                f"({float(np.linalg.norm(shift[:3])):.3f} deg / {float(np.linalg.norm(shift[3:])):.3f} m) counts in "
+                f"the sigma by sqrt of {1.0 - w:.3f}", warn=False)
+    return extra if sd6 is None else np.sqrt(np.asarray(sd6, dtype=np.float64) ** 2 + extra ** 2)
 
 
 def focal_box_model_sd(fit: SelfCalFit, pose: Pose, sd: float | None, w_box: float | None,
