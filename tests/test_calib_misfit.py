@@ -148,3 +148,21 @@ def test_mirror_is_named_only_when_the_flipped_boxes_are_explained():
     assert not chk.flagged and msg is None and "not explained" in chk.detail
     chk, msg = mirror_check(20.0, 90.0, upside_down, explained=(140, 60))  # a mirrored image: explained
     assert chk.flagged and "mirrored" in msg
+
+
+def test_an_unflagged_x_shift_beyond_the_one_degree_line_its_sigma_cannot_resolve_is_not_verifiable():
+    """Session 14 (issue 25): an unflagged shift whose x part is beyond the 1-degree shift and the
+    tolerance, while twice its x sigma exceeds the 1-degree shift, is not verifiable (review: cx 3 % W
+    off, detector outline, site 0: (-57, +24) px at x sigma 25.5 px against a 41 px 1-degree shift)."""
+    import numpy as np
+
+    from xcalib.calib.misfit import PP_CHECK_SIGMAS, PP_TOL_FRAC, _pp_x_unresolved
+
+    W, need = 1920, 41.0
+    assert _pp_x_unresolved(np.array([-57.0, 24.0]), np.array([25.5, 30.0]), W, need)
+    # its sigma resolves the 1-degree shift: the other rules judge it (flag / gray zone)
+    assert not _pp_x_unresolved(np.array([-57.0, 24.0]), np.array([0.99 * need / PP_CHECK_SIGMAS, 30.0]), W, need)
+    # the x part within the 1-degree shift, or within the tolerance where that is wider: nothing to see
+    assert not _pp_x_unresolved(np.array([-40.0, 200.0]), np.array([25.5, 30.0]), W, need)
+    assert not _pp_x_unresolved(np.array([20.0, 0.0]), np.array([25.5, 30.0]), W, 10.0)
+    assert _pp_x_unresolved(np.array([1.01 * PP_TOL_FRAC * W, 0.0]), np.array([25.5, 30.0]), W, 10.0)

@@ -119,3 +119,12 @@ def test_whitened_equals_independent_without_a_3d_part_and_differs_with_one():
     for q in b:  # the per-object shares still add up to the frame's normal equations
         assert np.allclose(q.obj_H.sum(0), q.H) and np.allclose(q.obj_g.sum(0), q.g)
     assert MonitorConfig().pair_noise is False
+
+
+def test_pair_noise_must_be_a_bool():
+    """Review (session 14): a truthy non-bool (a "false" string from a config file, 0.0) is refused
+    when the config is built, not silently read as on or off."""
+    for bad in ("false", "no", 1, 0.0, None):
+        with pytest.raises(ValueError, match="pair_noise"):
+            MonitorConfig(pair_noise=bad)
+    assert MonitorConfig(pair_noise=True).pair_noise is True

@@ -4,6 +4,8 @@ pose's move to it, w the given focal length's posterior weight."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -225,3 +227,32 @@ def test_the_keep_is_not_made_where_the_principal_point_is_unchecked():
     assert not res.success and res.diagnostics.refusal == "principal_point_unverifiable", res.message
     assert any("principal-point check does not accept" in n for n in res.diagnostics.selfcal.notes)
     assert Pose.parse(np.asarray(res.diagnostics.refused_T)).error(Pose.parse(case.T_cam_lidar))[0] > 1.0
+
+
+
+def test_a_focal_length_kept_as_unconstrained_counts_the_move_to_the_fitted_one():
+    """Session 14 review (issue 25/26): "auto" keeps the given focal length where the joint fit's 1-sigma is
+    beyond ``focal_max_std``; that keep is a model choice too, and the fitted focal length's weight 1 - w
+    counts sqrt(1 - w) x the pose's move in the reported sigma (fx x1.03 given, detector outline, 1-sigma
+    1.08 %: the depth 1.41 m off with a 95 % bound of 0.60 m)."""
+    from xcalib.calib.selfcal import _unconstrained_choice_sd
+
+    given = Pose(np.eye(3), np.zeros(3))
+    moved = Pose(Rotation.from_rotvec(np.radians([0.14, 0.0, 0.0])).as_matrix(), np.array([0.0, 0.0, 1.2]))
+    sd = 0.0108
+    fit = dataclasses.replace(_fit(np.exp(-2.5 * sd), moved, np.zeros(6)), focal_log_sd=sd)
+    diag = SelfCalDiagnostics()
+    part = _unconstrained_choice_sd(None, fit, given, 1.0, diag)
+    w = focal_choice_weight(2.5)
+    assert part is not None
+    assert part[5] == pytest.approx(np.sqrt(1 - w) * 1.2, rel=1e-6)
+    assert part[0] == pytest.approx(np.sqrt(1 - w) * 0.14, rel=1e-6)
+    assert part[1] == pytest.approx(0.0, abs=1e-12)
+    assert any("posterior weight" in n for n in diag.notes)
+    # added in quadrature to a part already there (the box model's)
+    both = _unconstrained_choice_sd(np.full(6, 0.1), fit, given, 1.0, SelfCalDiagnostics())
+    assert both[5] == pytest.approx(np.hypot(0.1, np.sqrt(1 - w) * 1.2), rel=1e-6)
+    # a fitted focal length at the given one: no move, nothing added; an unknown sigma: nothing
+    assert _unconstrained_choice_sd(None, _fit(1.0, given, np.zeros(6)), given, 1.0, SelfCalDiagnostics()) is None
+    assert _unconstrained_choice_sd(None, dataclasses.replace(fit, focal_log_sd=None), given, 1.0,
+                                    SelfCalDiagnostics()) is None

@@ -802,6 +802,19 @@ def _pp_flagged(d: np.ndarray, sd_xy: np.ndarray, W: int) -> bool:
                 or (abs(d[0]) > PP_TOL_FRAC * W and abs(d[0]) > PP_X_SIGMAS * sd_xy[0]))
 
 
+def _pp_x_unresolved(d: np.ndarray, sd_xy: np.ndarray, W: int, need: float) -> bool:
+    """Whether an unflagged shift ``d`` [2] px has an x part that turns the camera beyond ``PP_CHECK_DEG``
+    (``need`` px) and the tolerance (``PP_TOL_FRAC`` of the width ``W``) while its x sigma cannot rule out
+    a shift of ``need`` at ``PP_CHECK_SIGMAS`` (the objects' rule, ``_pp_unverifiable``, applied where the
+    frames flagged nothing): the boxes' best fit says the pose is off beyond the wrong-pose line, and the
+    check's resolution is too coarse to say that the given cx is right instead (a flag needs
+    ``PP_X_SIGMAS`` sigmas, the gray zone ``PP_X_UNVERIFIED_SIGMAS``; both lie beyond twice the shift it
+    would have to see). Session 14 review, cx given 3 % of the width off with detector-outline boxes,
+    site 0: the check fitted (-57, +24) px, the true shift, at 2.2 x-sigmas (25.5 px) against a 1-degree
+    shift of 41 px, and the pose was delivered 1.15 deg / 0.81 m off."""
+    return bool(abs(d[0]) > max(need, PP_TOL_FRAC * W) and PP_CHECK_SIGMAS * float(sd_xy[0]) > need)
+
+
 #: the principal-point message's words where the frames and the objects flag a shift that the cost's
 #: Jacobian, with the camera's rotation free, does not resolve (``principal_point_check_all``)
 _PP_TRADES = "trades off against the camera's rotation"
@@ -1111,14 +1124,17 @@ def principal_point_check_all(ctx: FitContext, *, draws: int = 5, seed: int = 0,
         return _pp_unverifiable(ctx, MisfitCheck("principal_point", shift, PP_TOL_FRAC * W, True, detail), d,
                                 sd_obj, n_obj)
     x_gray = bool(abs(d[0]) > PP_TOL_FRAC * W and abs(d[0]) > PP_X_UNVERIFIED_SIGMAS * sd_xy[0])
-    if not flagged and shift > need and x_gray and not (box_note or box_model_clears()):
+    if not flagged and shift > need and (x_gray or _pp_x_unresolved(d, sd_xy, W, need)) \
+            and not (box_note or box_model_clears()):
         # not flagged, yet the boxes ask for a shift that turns the camera beyond PP_CHECK_DEG, with a
         # horizontal part beyond the tolerance and PP_X_UNVERIFIED_SIGMAS of its sigma (box-shape biases
         # shift along y, a cropped image along x), and the box model does not explain it: the pose with
         # the given cx, cy and the one with the fitted shift differ beyond the wrong-pose line, and the
         # data cannot choose between them
         detail += (f"; not verifiable: the shift turns the camera by {np.degrees(np.arctan(shift / min(intr.fx, intr.fy))):.2f}"
-                   f" deg (limit {PP_CHECK_DEG:g} deg, {need:.0f} px), not flagged: {_PP_ASKED}")
+                   f" deg (limit {PP_CHECK_DEG:g} deg, {need:.0f} px), not flagged"
+                   + ("" if x_gray else f", and {PP_CHECK_SIGMAS:g} x its x sigma ({sd_xy[0]:.1f} px) exceeds that shift")
+                   + f": {_PP_ASKED}")
         msg = (f"not verifiable: the boxes fit best with the principal point moved by ({d[0]:+.0f}, {d[1]:+.0f}) px "
                f"(cx ~{intr.cx + d[0]:.0f} instead of {intr.cx:.0f}, cy ~{intr.cy + d[1]:.0f} instead of {intr.cy:.0f}), "
                f"which would turn the camera by {np.degrees(np.arctan(shift / min(intr.fx, intr.fy))):.1f} deg; these "

@@ -246,12 +246,15 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
     if fit is None and (cfg.refine_intrinsics in ("focal", "focal+center") or config.time_offset == "estimate"):
         refusals.append("self-calibration asked for but too few matched pairs (< 6) to estimate it")
     kept_sd = None  # the focal choice's part when the given focal length is kept by the box model
+    unconstrained = None  # the joint fit whose focal length "auto" found unconstrained (its choice's part, below)
     w_box: float | None | bool = False  # the given focal length's weight with the outline free (False: not computed)
     checked: dict = {}  # "ok": whether the focal-length check accepts the given focal length (where it was asked)
     for _ in range(3):  # drop what the data does not constrain (or what agrees with the given), refit
         if fit is None:
             break
         cfg, changed = _judge_intrinsics(fit, cfg, config, diag, refusals, cframes[0].size[0], repeat)
+        if changed and config.refine_intrinsics == "auto" and not _focal_constrained(fit, config, repeat):
+            unconstrained = fit
         if not changed and config.refine_intrinsics == "auto" and cfg.refine_intrinsics != "none" and w_box is False:
             frames_fit = shift_frames(cframes, motion.velocity, fit.dt_s) if est_dt else cframes
             w_box = focal_outline_weight(frames_fit, fit, intr, occlusion)
@@ -274,6 +277,8 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
         fit = joint_refine(cframes, intr, pose, cfg, motion if est_dt else None, occlusion) \
             if (cfg.refine_intrinsics != "none" or est_dt) else None
         w_box = False  # (a new fit: its weight is computed again where it is needed)
+    if unconstrained is not None:  # the given focal length kept as unconstrained: that choice in the sigma
+        kept_sd = _unconstrained_choice_sd(kept_sd, unconstrained, pose if fit is None else fit.pose, repeat, diag)
     if fit is None:
         _fill_used(diag, intr)
         return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag, kept_sd)
@@ -330,6 +335,40 @@ def _with_focal_choice(inflation: np.ndarray, fit: SelfCalFit, pose: Pose, sd: f
                 " counts in the sigma by sqrt of it", warn=False)
     base = np.zeros(6) if inflation is None else np.where(np.isfinite(inflation), inflation, np.inf)
     return np.sqrt(base ** 2 + extra ** 2)
+
+
+def _focal_constrained(fit: SelfCalFit, config: CalibConfig, repeat: float) -> bool:
+    """Whether the joint fit's focal length is constrained enough to be used (``_judge_intrinsics``)."""
+    sd = None if fit.focal_log_sd is None else fit.focal_log_sd * repeat
+    return sd is not None and sd <= config.focal_max_std
+
+
+def _unconstrained_choice_sd(sd6: np.ndarray | None, fit: SelfCalFit, pose: Pose, repeat: float,
+                             diag: SelfCalDiagnostics) -> np.ndarray | None:
+    """``sd6`` (a 6-vector of the reported sigma's focal-choice part, deg / m, or None) with the part of
+    the choice refine_intrinsics="auto" makes where it keeps the given focal length because the joint
+    fit's estimate is not constrained (1-sigma above ``focal_max_std``): the mirror of
+    :func:`_with_focal_choice`. Kept, the given focal length is unchecked at the level the pose needs,
+    and the expected squared error of keeping one of two models is the other's posterior weight x the
+    pose's move between them: sqrt(1 - w) x the move to the fitted focal length, w the given one's
+    weight (:func:`focal_choice_weight`). A fitted focal length near the given one moves the pose little
+    and adds little; one at 2-3 of its sigmas adds most of its move. Session 14 review: realism-style
+    site 1 with detector-outline boxes and fx given x1.03: the joint fit said x0.970 (1-sigma 1.08 %,
+    limit 1 %), the given focal length was kept, and the pose was delivered 1.41 m off in depth with a
+    95 % bound of 0.60 m; its move to the fitted focal length was 1.57 m. ``pose``: the pose used."""
+    sd = None if fit.focal_log_sd is None else fit.focal_log_sd * repeat
+    if sd is None or not np.isfinite(sd) or sd <= 0:
+        return sd6
+    w = focal_choice_weight(abs(float(np.log(fit.focal_scale))) / sd)
+    shift = np.abs(pose.delta(fit.pose))
+    extra = np.sqrt(max(1.0 - w, 0.0)) * shift
+    if not np.all(np.isfinite(extra)) or float(np.max(extra)) <= 0:
+        return sd6
+    _note(diag, f"refine_intrinsics='auto': the given focal length is kept (the fitted x{fit.focal_scale:.4f} is not "
+                f"constrained enough to use) with a posterior weight of {w:.3f}; the pose's move to the fitted one "
+                f"({float(np.linalg.norm(shift[:3])):.3f} deg / {float(np.linalg.norm(shift[3:])):.3f} m) counts in "
+                f"the sigma by sqrt of {1.0 - w:.3f}", warn=False)
+    return extra if sd6 is None else np.sqrt(np.asarray(sd6, dtype=np.float64) ** 2 + extra ** 2)
 
 
 def focal_box_model_sd(fit: SelfCalFit, pose: Pose, sd: float | None, w_box: float | None,

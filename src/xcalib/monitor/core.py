@@ -188,6 +188,8 @@ class MonitorConfig:
         stats.threshold(self.false_alarm_rate, self.stride, 1)  # validates the rate
         if not self.fps > 0:
             raise ValueError(f"MonitorConfig.fps must be > 0, got {self.fps}")
+        if not isinstance(self.pair_noise, bool):
+            raise ValueError(f"MonitorConfig.pair_noise must be True or False, got {self.pair_noise!r}")
 
     @property
     def windows(self) -> tuple[int, ...]:
