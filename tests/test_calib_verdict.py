@@ -123,10 +123,9 @@ def test_focal_length_the_detections_cannot_check_is_refused():
         warnings.simplefilter("ignore")
         res = calibrate(list(case.frames), case.intrinsics_given)
     assert not res.success and res.rotation is None
-    # session 14 review: "auto" keeps the given focal length as unconstrained (1-sigma 5.1 %) and that choice
-    # now counts in the reported sigma (``selfcal._unconstrained_choice_sd``: the pose's move to the fitted
-    # x1.085 is 2.6 m), so the 95 % bound (4.5 m) refuses it first as too uncertain; the focal check's
-    # verdict is the same
+    # since the session 14 review the focal length "auto" kept as unconstrained also counts in the sigma
+    # (selfcal._unconstrained_choice_sd): the pose is then already too uncertain (95 % bound 4.5 m), and the
+    # unverifiable focal length, which refuses only what nothing else did, is recorded in the checks
     assert res.diagnostics.refusal in ("focal_unverifiable", "uncertain"), res.message
     if res.diagnostics.refusal == "focal_unverifiable":
         assert "cannot check the given focal length" in res.message and "m along the view" in res.message
