@@ -9,25 +9,12 @@ from xcalib.calib import CalibConfig
 from xcalib.calib.bringup import GATE_2D, _gated
 from xcalib.calib.decision import CROWDED_EXPLAINED, crowded_check
 from xcalib.calib.hypotheses import informative_view
-from xcalib.calib.inputs import prepare_frames
-from xcalib.data.synth import generate_frames, sample_site
-from xcalib.types import Frame
 
 
 def _frames(n2: int, n3: int, n_frames: int = 2):
-    site = sample_site(1)
-    frames = generate_frames(site, n_frames, seed=2, render_images=False, lidar=False)
-    rng = np.random.default_rng(0)
-    out = []
-    for f in frames:
-        x, y = rng.uniform(0, 1700, n2), rng.uniform(0, 1000, n2)
-        w, h = rng.uniform(10, 200, n2), rng.uniform(10, 150, n2)
-        b2 = np.column_stack([x, y, x + w, y + h])
-        b3 = np.column_stack([rng.uniform(-60, 60, (n3, 2)), np.zeros(n3), np.tile([4.5, 1.9, 1.6], (n3, 1)),
-                              rng.uniform(-3, 3, n3)])
-        out.append(Frame(**{**f.__dict__, "bboxes_2d": b2, "bboxes_3d": b3}))
-    cf, intr, _ = prepare_frames(out, site.intrinsics)
-    return cf
+    from _dense_frames import random_box_frames
+
+    return random_box_frames(n2, n3, n_frames)
 
 
 def test_informative_view_keeps_the_largest_well_separated_2d_boxes_and_every_3d_box():

@@ -84,21 +84,9 @@ def test_lidar_view_keeps_the_unoccluded_boxes_with_their_per_box_fields():
 
 def _site_frames(n2: int, n3: int, n_frames: int = 1):
     """CalibFrames of a synthetic site with ``n2`` random 2D and ``n3`` random 3D boxes each."""
-    from xcalib.calib.inputs import prepare_frames
-    from xcalib.data.synth import generate_frames, sample_site
-    from xcalib.types import Frame
+    from _dense_frames import random_box_frames
 
-    site = sample_site(1)
-    frames = generate_frames(site, n_frames, seed=2, render_images=False, lidar=False)
-    rng = np.random.default_rng(0)
-    out = []
-    for f in frames:
-        x, y = rng.uniform(0, 1700, n2), rng.uniform(0, 1000, n2)
-        w, h = rng.uniform(10, 200, n2), rng.uniform(10, 150, n2)
-        b3 = np.column_stack([rng.uniform(-60, 60, (n3, 2)), np.zeros(n3), np.tile([4.5, 1.9, 1.6], (n3, 1)),
-                              rng.uniform(-3, 3, n3)])
-        out.append(Frame(**{**f.__dict__, "bboxes_2d": np.column_stack([x, y, x + w, y + h]), "bboxes_3d": b3}))
-    return prepare_frames(out, site.intrinsics)[0]
+    return random_box_frames(n2, n3, n_frames)
 
 
 def test_unoccluded_frames_cut_only_crowded_frames_and_are_none_when_none_is():
