@@ -323,18 +323,33 @@ def _with_focal_choice(inflation: np.ndarray, fit: SelfCalFit, pose: Pose, sd: f
     focal error (z of 5 and more) adds nothing, a 2-sigma switch about a third of the shift. Issue 26:
     a fresh 150-degree Kannala-Brandt site switched to x0.9921 (2.02 sigma) with the exact focal given,
     pose 3.1 / 3.4 sigma off (0.74 / 1.13 with refine_intrinsics="none")."""
-    if sd is None or not np.isfinite(sd) or sd <= 0:
+    part = _choice_part(fit, pose, sd, keep_given=False)
+    if part is None:
         return inflation
-    w = focal_choice_weight(abs(float(np.log(fit.focal_scale))) / sd)
-    shift = np.abs(pose.delta(fit.pose))
-    extra = np.sqrt(w) * shift
-    if not np.all(np.isfinite(extra)) or float(np.max(extra)) <= 0:
-        return inflation
+    w, shift, extra = part
     _note(diag, f"refine_intrinsics='auto': the given focal length keeps a posterior weight of {w:.3f}; the pose's "
                 f"move to the fitted one ({float(np.linalg.norm(shift[:3])):.3f} deg / {float(np.linalg.norm(shift[3:])):.3f} m)"
                 " counts in the sigma by sqrt of it", warn=False)
     base = np.zeros(6) if inflation is None else np.where(np.isfinite(inflation), inflation, np.inf)
     return np.sqrt(base ** 2 + extra ** 2)
+
+
+def _choice_part(fit: SelfCalFit, pose: Pose, sd: float | None,
+                 keep_given: bool) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """The model choice between the given and the fitted focal length as a pose sigma part: (w, shift,
+    extra), w the given focal length's posterior weight (:func:`focal_choice_weight` of the fitted one's
+    distance in its 1-sigma ``sd`` of the log scale), shift the pose's move to the fitted focal length
+    (6-vector, deg / m) and extra = sqrt(weight of the model not chosen) x shift: sqrt(w) where the fitted
+    one is used, sqrt(1 - w) where the given one is kept (``keep_given``). None where ``sd`` is not a
+    positive number or the part is zero or not finite."""
+    if sd is None or not np.isfinite(sd) or sd <= 0:
+        return None
+    w = focal_choice_weight(abs(float(np.log(fit.focal_scale))) / sd)
+    shift = np.abs(pose.delta(fit.pose))
+    extra = np.sqrt(max(1.0 - w, 0.0) if keep_given else w) * shift
+    if not np.all(np.isfinite(extra)) or float(np.max(extra)) <= 0:
+        return None
+    return w, shift, extra
 
 
 def _focal_constrained(fit: SelfCalFit, config: CalibConfig, repeat: float) -> bool:
@@ -356,14 +371,10 @@ def _unconstrained_choice_sd(sd6: np.ndarray | None, fit: SelfCalFit, pose: Pose
     site 1 with detector-outline boxes and fx given x1.03: the joint fit said x0.970 (1-sigma 1.08 %,
     limit 1 %), the given focal length was kept, and the pose was delivered 1.41 m off in depth with a
     95 % bound of 0.60 m; its move to the fitted focal length was 1.57 m. ``pose``: the pose used."""
-    sd = None if fit.focal_log_sd is None else fit.focal_log_sd * repeat
-    if sd is None or not np.isfinite(sd) or sd <= 0:
+    part = _choice_part(fit, pose, None if fit.focal_log_sd is None else fit.focal_log_sd * repeat, keep_given=True)
+    if part is None:
         return sd6
-    w = focal_choice_weight(abs(float(np.log(fit.focal_scale))) / sd)
-    shift = np.abs(pose.delta(fit.pose))
-    extra = np.sqrt(max(1.0 - w, 0.0)) * shift
-    if not np.all(np.isfinite(extra)) or float(np.max(extra)) <= 0:
-        return sd6
+    w, shift, extra = part
     _note(diag, f"refine_intrinsics='auto': the given focal length is kept (the fitted x{fit.focal_scale:.4f} is not "
                 f"constrained enough to use) with a posterior weight of {w:.3f}; the pose's move to the fitted one "
                 f"({float(np.linalg.norm(shift[:3])):.3f} deg / {float(np.linalg.norm(shift[3:])):.3f} m) counts in "
