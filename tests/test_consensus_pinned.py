@@ -10,9 +10,9 @@ import pytest
 from xcalib.calib.consensus import consensus_matches
 from xcalib.data.synth import generate_frames, sample_site
 
-#: (site seed, preset, sample_site keywords) -> per frame of ``generate_frames(site, 2, seed=100, render_images=False)``:
-#: (pairs, ambiguous) in the caller's numbering (no image rendered: the boxes and points do not
-#: depend on it)
+#: (site seed, preset, sample_site keywords) -> per frame of
+#: ``generate_frames(site, 2, seed=100, render_images=False)``: (pairs, ambiguous) in the caller's
+#: numbering (no image rendered: the boxes and points do not depend on it)
 SYNTHETIC = {
     (2, "roadside", ()): [
         ([[0, 7], [1, 4], [3, 12], [4, 5], [6, 10], [8, 3], [9, 0]], []),
