@@ -18,6 +18,11 @@ chosen by the residuals at the truth, so ``free`` leans outward), side (left / t
 Usage::
 
     PYTHONPATH=src python scripts/edge_attribution.py realism detector_all 8 9 [--json]
+    PYTHONPATH=src python scripts/edge_attribution.py a9 0.5 0.3 [--json]
+
+``a9 SCORE...``: the A9 sample (``../shared/data/a9_sample``) with the shared detector's boxes (1280, traffic
+classes, score >= SCORE; ``benchmarks/bench_calibration_detections.py``), against the pose its labelled
+boxes give (the reference there; not a truth).
 """
 
 from __future__ import annotations
@@ -157,14 +162,49 @@ def _print(name: str, rec: dict) -> None:
             print(f"  {k:24s} edges {v['n']:5d}  share {v['share']:+.2f}  z {v['z']:.2f}")
 
 
+def _a9(scores: list, as_json: bool) -> int:
+    from pathlib import Path
+
+    from xcalib.calib.api import calibrate
+    from xcalib.calib.pose import Pose
+    from xcalib.io.frames import read_frames
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_calibration_detections import DETS, SHARED, a9_folders, with_detections
+
+    root = SHARED / "a9_sample"
+    if not root.exists() or not DETS.exists():
+        print(f"data not found: {root} / {DETS}")
+        return 1
+    seq = read_frames(root)
+    frames = [seq[i] for i in range(len(seq))]
+    ref = calibrate(frames, seq.intrinsics)
+    if ref.rotation is None:
+        print("the labelled boxes give no pose")
+        return 1
+    folder = a9_folders(root)
+    for smin in scores:
+        det = [with_detections(f, DETS / "yolox_nano_1280" / "a9" / f"{folder[f.frame_key]}.json", float(smin))
+               for f in frames]
+        rec = attribute(det, seq.intrinsics, Pose.parse(ref))
+        if as_json:
+            print(json.dumps({"case": f"a9 1280 >= {smin}", **rec}))
+        else:
+            _print(f"A9 detector 1280 score >= {smin} (against the labelled-box pose)", rec)
+    return 0
+
+
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     as_json = "--json" in argv
     argv = [a for a in argv if a != "--json"]
-    if len(argv) < 3 or argv[0] != "realism":
+    if len(argv) < 2 or argv[0] not in ("realism", "a9") or (argv[0] == "realism" and len(argv) < 3):
         print(__doc__)
         return 2
     from xcalib.calib.pose import Pose
+
+    if argv[0] == "a9":
+        return _a9(argv[1:], as_json)
     from xcalib.data.synth.realism import make_realism_case
 
     for seed in argv[2:]:
