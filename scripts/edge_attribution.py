@@ -19,10 +19,13 @@ Usage::
 
     PYTHONPATH=src python scripts/edge_attribution.py realism detector_all 8 9 [--json]
     PYTHONPATH=src python scripts/edge_attribution.py a9 0.5 0.3 [--json]
+    PYTHONPATH=src python scripts/edge_attribution.py pandaset [--json]
 
 ``a9 SCORE...``: the A9 sample (``../shared/data/a9_sample``) with the shared detector's boxes (1280, traffic
 classes, score >= SCORE; ``benchmarks/bench_calibration_detections.py``), against the pose its labelled
-boxes give (the reference there; not a truth).
+boxes give (the reference there; not a truth). ``pandaset``: PandaSet 002 frames 00-29 with the shared detector's
+boxes (1280, score >= 0.3), against the first frame's ground-truth pose (the per-frame truths agree to
+``truth_spread`` deg / m, printed).
 """
 
 from __future__ import annotations
@@ -194,10 +197,33 @@ def _a9(scores: list, as_json: bool) -> int:
     return 0
 
 
+def _pandaset(as_json: bool) -> int:
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_calibration_detections import DETS, SHARED, pandaset_frames
+
+    root = SHARED / "pandaset_002"
+    if not root.exists() or not DETS.exists():
+        print(f"data not found: {root} / {DETS}")
+        return 1
+    seq, truths, det, _ = pandaset_frames(root)
+    rec = attribute(det, seq.intrinsics, truths[0])
+    rec["truth_spread"] = [round(float(v), 3) for v in np.max([t.error(truths[0]) for t in truths], axis=0)]
+    if as_json:
+        print(json.dumps({"case": "pandaset 002 detector 1280 >= 0.3", **rec}))
+    else:
+        _print("PandaSet 002 detector 1280 score >= 0.3 (against frame 00's truth)", rec)
+        print(f"  the per-frame truths lie within {rec['truth_spread']} (deg, m) of frame 00's")
+    return 0
+
+
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     as_json = "--json" in argv
     argv = [a for a in argv if a != "--json"]
+    if argv[:1] == ["pandaset"]:
+        return _pandaset(as_json)
     if len(argv) < 2 or argv[0] not in ("realism", "a9") or (argv[0] == "realism" and len(argv) < 3):
         print(__doc__)
         return 2
