@@ -8,7 +8,9 @@ truth), is what the residuals there pull the pose by. Over a partition of the re
 the groups' pulls ``dx_g = -H^-1 J_g^T W_g r_g``, and each group's share of the error is
 ``dx_g^T H dx / dx^T H dx`` (the Fisher metric, so the shares of a partition sum to 1; a negative share
 pulls back towards the truth). It is a linearisation: ``fit`` (the robust refit from the truth, matches
-held) says how far the step is from the full fit.
+held) says how far the step is from the full fit. Not replayed: a time offset estimated with the pose (the 3D
+boxes moved along their motion) and the objects' own outline fit (``boxmodel.fit_object_outline``) where
+``calibrate`` moved the pose to it; there ``fit`` and ``error`` differ.
 
 Groups: edge kind (``border``: the 2D edge on the image border; ``censored``: hidden behind a nearer box;
 ``shaped``: inward beyond the occlusion shaping's tau at the truth; ``free``: the rest -- a partition
