@@ -56,8 +56,8 @@ def _no_boxes_hint(n2: int, n3: int) -> str:
     if n2 and n3:
         return ""
     kind = "2D or 3D" if not (n2 or n3) else ("2D" if not n2 else "3D")
-    return (f"; the frames carry no {kind} boxes: `xcalib calibrate --detect` (or `xcalib detect`) makes them "
-            "from the images and point clouds")
+    return (f"; the frames carry no {kind} boxes: `xcalib calibrate --detect` (a batch: `xcalib calibrate-many "
+            "--detect`; or `xcalib detect`) makes them from the images and point clouds")
 
 
 def precheck(cframes: Sequence[CalibFrame]) -> Refusal | None:
