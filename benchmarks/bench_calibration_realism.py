@@ -29,7 +29,11 @@ With ``--selfcal`` every condition gains a row "<condition> +selfcal" calibrated
 base): the misfit checks lose power as the boxes get noisier, as a real detector's are.
 
 Each run is stored under ``--label`` in ``benchmarks/results/calibration_realism.json`` (other
-labels in the file are kept, so a BEFORE and an AFTER table live side by side).
+labels in the file are kept, so a BEFORE and an AFTER table live side by side). Each per-site
+record's ``sigma_parts`` (the pieces of its sigma, 60 % of the records' bytes, read only by
+``scripts/sigma_parts.py``) are kept beside it in ``calibration_realism_detail.json.gz`` (run label
+-> condition -> seed; :func:`write_runs`, both files written atomically); :func:`load_runs` joins
+them back.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_calibration_realism.py \
         [--sites 20] [--conditions clean,mirrored] [--jobs 1] [--label before] [--selfcal] [--box-noise-px 4]
@@ -55,6 +59,61 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_calibration import machine_info  # noqa: E402
 
 WRONG_ROT_DEG, WRONG_TRANS_M = 1.0, 0.5
+#: per-site fields stored in the compressed side file, not in the main JSON (no table or freshness test reads them)
+DETAIL_FIELDS = ("sigma_parts",)
+
+
+def detail_path(out: Path) -> Path:
+    """The side file of ``out``: ``<stem>_detail.json.gz`` beside it."""
+    return out.with_name(f"{out.stem}_detail.json.gz")
+
+
+def load_runs(out: Path = OUT, detail: bool = True) -> dict:
+    """The runs of ``out`` (label -> run), each per-site record with its ``DETAIL_FIELDS`` joined back
+    from the side file (``detail``; a record whose detail is not there is left without them)."""
+    import gzip
+
+    runs = json.loads(out.read_text())["runs"] if out.exists() else {}
+    side = detail_path(out)
+    if not (detail and side.exists()):
+        return runs
+    extra = json.loads(gzip.decompress(side.read_bytes()))["runs"]
+    for label, run in runs.items():
+        for cond in run.get("conditions", []):
+            per = extra.get(label, {}).get(cond.get("condition"), {})
+            for rec in cond.get("per_site") or []:
+                rec.update(per.get(str(rec.get("seed")), {}))
+    return runs
+
+
+def write_runs(out: Path, runs: dict) -> None:
+    """``runs`` written to ``out`` with the per-site ``DETAIL_FIELDS`` moved to the gzip side file
+    (:func:`detail_path`, deterministic bytes); each file written to a temporary file and renamed, the
+    side file first (a reader of the main file alone never misses a field it reads)."""
+    import gzip
+
+    main_runs, extra = {}, {}
+    for label, run in runs.items():
+        conds = []
+        for cond in run.get("conditions", []):
+            if cond.get("per_site"):
+                per = extra.setdefault(label, {}).setdefault(cond["condition"], {})
+                slim = []
+                for rec in cond["per_site"]:
+                    moved = {k: rec[k] for k in DETAIL_FIELDS if k in rec}
+                    if moved:
+                        per[str(rec.get("seed"))] = moved
+                    slim.append({k: v for k, v in rec.items() if k not in DETAIL_FIELDS})
+                cond = {**cond, "per_site": slim}
+            conds.append(cond)
+        main_runs[label] = {**run, "conditions": conds}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    side = detail_path(out)
+    for path, data in ((side, gzip.compress(json.dumps({"runs": extra}, default=float).encode(), 9, mtime=0)),
+                       (out, json.dumps({"runs": main_runs}, indent=1, default=float).encode())):
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
 
 
 SELFCAL_SUFFIX = " +selfcal"
@@ -237,14 +296,10 @@ def main(argv=None) -> int:
            "frames": args.frames, "box_noise_px": args.box_noise_px, "site_seeds": seeds, "wall_s": time.perf_counter() - t0,
            "command": "benchmarks/bench_calibration_realism.py " + " ".join(argv if argv is not None else sys.argv[1:]),
            "conditions": rows}
-    old = json.loads(args.out.read_text()) if args.out.exists() else {}
-    runs = old.get("runs", {}) if isinstance(old, dict) else {}
+    runs = load_runs(args.out)
     runs[args.label] = run
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_name(f".{args.out.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps({"runs": runs}, indent=1, default=float))
-    os.replace(tmp, args.out)
-    print(f"\nwrote {args.out} (run {args.label!r})")
+    write_runs(args.out, runs)
+    print(f"\nwrote {args.out} and {detail_path(args.out).name} (run {args.label!r})")
     return 0
 
 

@@ -40,7 +40,6 @@ have to shrink for a 95 % coverage).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections import defaultdict
 from pathlib import Path
@@ -48,6 +47,19 @@ from pathlib import Path
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results" / "calibration_realism.json"
+
+
+def load_runs(path: Path = RESULTS) -> dict:
+    """The runs of a realism results file, each per-site record's ``sigma_parts`` joined back from its
+    side file (``<stem>_detail.json.gz``; ``bench_calibration_realism.load_runs``)."""
+    bench_dir = str(Path(__file__).resolve().parents[1] / "benchmarks")
+    if bench_dir not in sys.path:
+        sys.path.insert(0, bench_dir)
+    import bench_calibration_realism
+
+    return bench_calibration_realism.load_runs(Path(path))
+
+
 STRICT = (0.3, 0.2)
 LINE = (1.0, 0.5)
 #: conditions whose given camera model is wrong (a success there is off by the error it was given)
@@ -296,7 +308,7 @@ def main(argv=None) -> int:
                     "run that stored refusal codes and refused poses)")
     ap.add_argument("--sites", action="store_true", help="table: list each refused site (seed, deg, m)")
     args = ap.parse_args(argv)
-    runs = json.loads(args.results.read_text())["runs"]
+    runs = load_runs(args.results)
     if args.what in ("stops", "dominance", "selection"):
         _print_new(args.what, runs, [s for s in args.labels.split(",") if s] or None)
         return 0

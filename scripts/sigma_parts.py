@@ -227,11 +227,22 @@ def largest_parts(run: dict) -> None:
         print(f"{cond['condition']:22s} " + ", ".join(f"{k} {v}" for k, v in sorted(count.items(), key=lambda kv: -kv[1])))
 
 
+def load_results() -> dict:
+    """``{"runs": ...}`` of ``RESULTS`` with each per-site record's ``sigma_parts`` joined back from its side
+    file ``calibration_realism_detail.json.gz`` (``bench_calibration_realism.load_runs``)."""
+    bench_dir = str(RESULTS.parents[1])
+    if bench_dir not in sys.path:
+        sys.path.insert(0, bench_dir)
+    import bench_calibration_realism
+
+    return {"runs": bench_calibration_realism.load_runs(RESULTS)}
+
+
 def load_run(label: str) -> dict:
     """A run of ``calibration_realism.json`` by label, or records one per line in a ``.jsonl`` file
     (``bench_calibration_realism.run_case``'s records, e.g. written one by one by a wrapper)."""
     if not label.endswith(".jsonl"):
-        return json.loads(RESULTS.read_text())["runs"][label]
+        return load_results()["runs"][label]
     by: dict[str, list] = {}
     for line in Path(label).read_text().splitlines():
         if line.strip():

@@ -85,7 +85,6 @@ def test_sigma_parts_bounds_on_the_stored_s10_run():
     cross-axis dofs): the old bound is the one the run reported (``within_95``), the new one is
     finite wherever the old one is, and the CR2 part unstretched is never above the stretched one."""
     import importlib.util
-    import json
     from pathlib import Path
 
     from xcalib.calib.uncertainty import SHIFT_NOISE_Z
@@ -94,7 +93,7 @@ def test_sigma_parts_bounds_on_the_stored_s10_run():
     spec = importlib.util.spec_from_file_location("sigma_parts", root / "scripts" / "sigma_parts.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    run = json.loads(mod.RESULTS.read_text())["runs"].get("s10_bound")
+    run = mod.load_results()["runs"].get("s10_bound")
     if run is None:
         pytest.skip("no s10_bound run in calibration_realism.json")
     checked = 0

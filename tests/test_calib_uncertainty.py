@@ -384,7 +384,6 @@ def test_the_reported_sigma_is_rebuilt_from_the_stored_parts():
     runs: its rebuild gives the reported sigma of the run made at this code (s9_sigma_outline_all,
     shifts beyond ``SHIFT_NOISE_Z``) and, with ``z = 1``, of the run made before (s8_cr2_20sites)."""
     import importlib.util
-    import json
     from pathlib import Path
 
     from xcalib.calib.uncertainty import SHIFT_NOISE_Z
@@ -393,7 +392,7 @@ def test_the_reported_sigma_is_rebuilt_from_the_stored_parts():
     spec = importlib.util.spec_from_file_location("sigma_parts", root / "scripts" / "sigma_parts.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    runs = json.loads(mod.RESULTS.read_text())["runs"]
+    runs = mod.load_results()["runs"]
     checked = 0
     # runs made before session 13 combine the CR2 part with its whole stretch; s13W_clean at this code
     for label, z, cr2 in (("s9_sigma_outline_all", SHIFT_NOISE_Z, "full"), ("s8_cr2_20sites", 1.0, "full"),

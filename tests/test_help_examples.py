@@ -108,3 +108,15 @@ def test_version_flag_prints_what_the_version_command_prints(capsys):
     flag = capsys.readouterr().out
     assert main(["version"]) == 0
     assert flag == capsys.readouterr().out and flag.startswith("xcalib ")
+
+
+def test_monitor_example_runs_as_written_and_says_ok(tmp_path, monkeypatch, capsys):
+    """``xcalib monitor --help`` shows a stream the package makes, its calibration and the monitor on it,
+    in that order; copied as written they exit 0 and the monitor says ok (session 15: the example had been
+    A9's 16 frames, fewer than one window: exit 1, "could not tell")."""
+    monkeypatch.chdir(tmp_path)
+    chain = [argv for where, argv in EXAMPLES if where == "monitor" and "stream" in " ".join(argv)]
+    assert [a[0] for a in chain] == ["synth", "calibrate", "monitor"], chain
+    for argv in chain:
+        assert main(argv) == 0, f"xcalib {' '.join(argv)} failed"
+    assert "state: ok (exit code 0)" in capsys.readouterr().out

@@ -64,9 +64,7 @@ def test_committed_realism_refusals_are_audited():
     """The committed realism file holds refusal records with codes and refused poses (skips nothing:
     the file is in the repository)."""
     m = _mod()
-    import json
-
-    latest = m.latest_records(json.loads(m.RESULTS.read_text())["runs"], since=m.SINCE)
+    latest = m.latest_records(m.load_runs(), since=m.SINCE)
     per = {c: m.audit(r) for c, (_, r) in latest.items()}
     tot = m.totals(per)
     assert tot and sum(v["strict"] + v["wrong"] for v in tot.values()) > 0
@@ -166,10 +164,8 @@ def test_selection_coverage_per_group():
 def test_committed_realism_records_stops_and_dominance():
     """On the committed realism file: the session-13 final run holds records with parts, none of its
     successes is wrong, and every right refusal of it gets a dominance row."""
-    import json
-
     m = _mod()
-    runs = json.loads(m.RESULTS.read_text())["runs"]
+    runs = m.load_runs()
     if "s13_final" not in runs:
         pytest.skip("the committed realism file no longer holds run s13_final")
     recs = m.distinct_records(runs, ["s13_final"])

@@ -37,6 +37,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .calib.config import CalibConfig
+from .detect.pipeline import DetectConfig
 from .errors import FormatError, MissingFileError
 from .io.files import atomic_write, inside, read_text, safe_name
 from .options import Options, document, resolve
@@ -193,6 +194,19 @@ class _Task:
     config: dict
     camera: str | None = None
     intrinsics: str | None = None
+    detect: DetectConfig | None = None
+
+
+def _open(task: _Task):
+    """The recording's frames: as the source holds them, or with xcalib's own detections
+    (``task.detect``: a bag read without its detection topics, every frame detected now)."""
+    from .io.sources import open_source
+
+    if task.detect is None:
+        return open_source(task.source, camera=task.camera) if task.camera else open_source(task.source)
+    from .detect import DetectedFrames, open_sensors
+
+    return DetectedFrames(open_sensors(task.source, task.camera), task.detect).run()
 
 
 def _run_one(task: _Task) -> BatchRecord:
@@ -204,9 +218,8 @@ def _run_one(task: _Task) -> BatchRecord:
     try:
         from .calib.api import calibrate
         from .formats.cameras import read_intrinsics
-        from .io.sources import open_source
 
-        seq = open_source(task.source, camera=task.camera) if task.camera else open_source(task.source)
+        seq = _open(task)
         frames = [seq[i] for i in range(len(seq))]
         intr = read_intrinsics(task.intrinsics) if task.intrinsics else getattr(seq, "intrinsics", None)
         rec.frames = len(frames)
@@ -215,6 +228,10 @@ def _run_one(task: _Task) -> BatchRecord:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # fallbacks are in the result's diagnostics
             res = calibrate(frames, intr, CalibConfig.from_dict(task.config).replace(workers=1))
+        if task.detect is not None:  # a refusal names weak detections where they are the cause
+            from .detect import explain_refusal
+
+            res = explain_refusal(res, frames, intr)
         rec.success, rec.message, rec.n_pairs = bool(res.success), res.message, int(res.n_pairs)
         rec.refusal = res.diagnostics.refusal if res.diagnostics is not None else ""
         if res.rotation_std_deg is not None and np.all(np.isfinite(res.rotation_std_deg)):
@@ -339,7 +356,9 @@ def _html(records: list[BatchRecord], meta: dict) -> str:
 @dataclass(frozen=True)
 class BatchOptions(Options):
     """How :func:`calibrate_many` runs (the defaults in one place; it documents each): executor
-    ("process" | "ray" | "serial"), jobs, camera, intrinsics, ray_address, progress."""
+    ("process" | "ray" | "serial"), jobs, camera, intrinsics, ray_address, progress, detect (a
+    :class:`~xcalib.detect.DetectConfig`: every recording's detections made by xcalib's detectors,
+    as ``xcalib calibrate --detect``; None: the recordings' own)."""
 
     executor: Executor = "process"
     jobs: int | None = None
@@ -347,6 +366,7 @@ class BatchOptions(Options):
     intrinsics: str | os.PathLike | None = None
     ray_address: str | None = None
     progress: Callable[[int, int, BatchRecord], None] | None = None
+    detect: DetectConfig | None = None
 
 
 @document(BatchOptions)
@@ -358,6 +378,9 @@ def calibrate_many(recordings, out_dir, *, config: CalibConfig | None = None, op
     ``jobs``: worker processes of the local pool or CPUs of a local Ray instance (default: the
     CPUs). ``camera`` / ``intrinsics``: the camera to calibrate and an intrinsics JSON for every
     recording (default: each source's own). ``progress(done, total, record)`` after each one.
+    ``detect``: make every recording's detections with xcalib's detectors (a ``DetectConfig``; the
+    detector is loaded once here first, so a missing ``onnx`` extra or a bad model file is said
+    before any recording runs).
     These settings: a :class:`BatchOptions` (``options=``) and/or its fields as keyword arguments.
     """
     o = resolve(BatchOptions, options, overrides, where="calibrate_many")
@@ -371,12 +394,16 @@ def calibrate_many(recordings, out_dir, *, config: CalibConfig | None = None, op
         from .formats.cameras import read_intrinsics
 
         read_intrinsics(intrinsics)
+    if o.detect is not None:
+        from .detect import load_detector
+
+        load_detector(o.detect.detector_2d, o.detect.camera, o.detect.classes_2d)
     paths = expand_recordings(recordings)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cfg = (config or CalibConfig()).replace(workers=1)
-    tasks = [_Task(name, str(p), str(out), cfg.to_dict(), camera, None if intrinsics is None else str(intrinsics))
-             for name, p in zip(_names(paths), paths)]
+    tasks = [_Task(name, str(p), str(out), cfg.to_dict(), camera, None if intrinsics is None else str(intrinsics),
+                   o.detect) for name, p in zip(_names(paths), paths)]
     n_done = [0]
 
     def on_done(rec: BatchRecord) -> None:
@@ -393,6 +420,12 @@ def calibrate_many(recordings, out_dir, *, config: CalibConfig | None = None, op
     else:
         records = _run_ray(tasks, on_done, ray_address, jobs)
     meta = {"executor": executor, "jobs": jobs_n if executor != "ray" else jobs, "wall_s": time.perf_counter() - t0,
-            "config": cfg.to_dict()}
+            "config": cfg.to_dict(), "detect": None if o.detect is None else _detect_meta(o.detect)}
     p_csv, p_json, p_html = write_tables(out, records, meta)
     return BatchSummary(records, out, p_csv, p_json, p_html, executor, meta["wall_s"], meta)
+
+
+def _detect_meta(config: DetectConfig) -> dict:
+    """How the detections were made (results.json): the detector file and the settings."""
+    d = asdict(config)
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}

@@ -731,7 +731,8 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
                                runner_up_score=runner, rot_sd=unc.rot_sd_data, tr_sd=unc.tr_sd_data,
                                rot_sd_total=unc.rot_sd, tr_sd_total=unc.tr_sd,
                                n_objects=unc.parts.n_objects if config.uncertainty != "frames" else None,
-                               **_objects_sd(unc.parts, config), **_beyond_noise_sd(unc.parts, config)), config)
+                               **_objects_sd(unc.parts, config), **_beyond_noise_sd(unc.parts, config),
+                               parts=unc.parts), config)
     if refusal is None and prior is None:
         refusal = crowded_check(cframes, config, n_pairs / max(diag.n_2d, 1))
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):

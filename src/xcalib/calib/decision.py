@@ -56,8 +56,8 @@ def _no_boxes_hint(n2: int, n3: int) -> str:
     if n2 and n3:
         return ""
     kind = "2D or 3D" if not (n2 or n3) else ("2D" if not n2 else "3D")
-    return (f"; the frames carry no {kind} boxes: `xcalib calibrate --detect` (or `xcalib detect`) makes them "
-            "from the images and point clouds")
+    return (f"; the frames carry no {kind} boxes: `xcalib calibrate --detect` (a batch: `xcalib calibrate-many "
+            "--detect`; or `xcalib detect`) makes them from the images and point clouds")
 
 
 def precheck(cframes: Sequence[CalibFrame]) -> Refusal | None:
@@ -131,6 +131,9 @@ class Evidence:
     # noise (``data_sd_beyond_noise``); None: not available (objects not counted), the data sigma alone judges
     rot_sd_beyond_noise: np.ndarray | None = None
     tr_sd_beyond_noise: np.ndarray | None = None
+    # the pieces of the reported sigma (``diagnostics.UncertaintyParts``): the ``uncertain`` refusal names
+    # the one(s) that make most of its bound (``bound_parts``); None: not named
+    parts: object | None = None
 
 
 def data_sd_beyond_noise(parts) -> np.ndarray | None:
@@ -277,11 +280,78 @@ def _bound_check(ev: Evidence, config: CalibConfig) -> Refusal | None:
     few_objects = _too_few_objects(ev, config, bound)
     if few_objects is not None:
         return few_objects
+    named = bound_parts(ev, config)
     few = "" if ev.n_objects is None else f"too few distinct objects ({ev.n_objects}) to bound the pose tighter; "
+    advice = f"{few}add recordings with other objects at other places"
+    if named and named[0][0] != "objects":
+        advice = "; ".join(f"{_PART_WORDS[k][1]}" for k, _ in named)
+    most = "" if not named else "; most of it: " + ", ".join(
+        f"{_PART_WORDS[k][0]} ({v} at 95 % alone)" for k, v in named)
     return Refusal("uncertain", f"too uncertain: the frames agree on the pose, but counting each object once (the same "
                    f"vehicles repeat over the frames) and the 3D box model, its 95 % bound is {bound} (limit "
-                   f"{config.max_rot_bound_deg:g} deg / {config.max_trans_bound_m:g} m); {few}add recordings with other "
-                   "objects at other places")
+                   f"{config.max_rot_bound_deg:g} deg / {config.max_trans_bound_m:g} m){most}; {advice}")
+
+
+#: the parts of the reported sigma an ``uncertain`` refusal can name: (what it is, what to do about it)
+_PART_WORDS = {
+    "focal_choice": ("the focal length's choice (refine_intrinsics='auto': the given focal length and the one the "
+                     "detections fit differ by more than they can settle, and the pose depends on which is right)",
+                     "give the camera's focal length measured with a target (--intrinsics, with "
+                     "--refine-intrinsics none), or add frames with objects near the image's edges and at several "
+                     "depths so that the detections settle it"),
+    "selfcal": ("the intrinsics / time offset estimated with the pose",
+                "give exact intrinsics (--intrinsics) and time offset, or add frames with objects spread over the "
+                "image and at several depths"),
+    "objects": ("the scatter between the distinct objects",
+                "add recordings with other objects at other places"),
+    "occlusion": ("the occlusion model (partly hidden boxes move the pose)",
+                  "add frames in which the objects are seen whole (less traffic, other places)"),
+    "outline": ("the 2D outline model (the 2D boxes do not follow the 3D boxes' outline)",
+                "use 2D boxes that follow the objects' outline, or add objects at other places and depths"),
+    "box_model": ("the 3D box model (the boxes' centre, size or hidden edges)",
+                  "use more accurate 3D boxes, or add objects at other places and depths"),
+}
+
+
+def _part_sds(parts) -> dict[str, np.ndarray]:
+    """The named pieces of the reported sigma in ``parts`` (6-vectors, deg / m), each as the reported
+    sigma counts it (a model shift only beyond its own sampling noise)."""
+    from .uncertainty import statistical_sd
+
+    arr = (lambda v: None if v is None else np.abs(np.asarray(v, dtype=np.float64)))
+    out = {"focal_choice": arr(getattr(parts, "focal_box_model", None)), "selfcal": arr(parts.selfcal),
+           "objects": statistical_sd(parts),
+           "occlusion": None if parts.occlusion is None else excess(parts.occlusion, arr(parts.occlusion_noise),
+                                                                    SHIFT_NOISE_Z),
+           "outline": None if parts.outline is None else excess(parts.outline, arr(parts.outline_noise),
+                                                                SHIFT_NOISE_Z)}
+    model = [v for v in (arr(parts.floor), arr(getattr(parts, "centre_floor", None)),
+                         None if parts.hidden is None else excess(parts.hidden, arr(parts.hidden_noise), SHIFT_NOISE_Z))
+             if v is not None]
+    out["box_model"] = np.sqrt(np.sum([v ** 2 for v in model], axis=0)) if model else None
+    return {k: v for k, v in out.items() if v is not None and v.shape == (6,) and np.all(np.isfinite(v))}
+
+
+def bound_parts(ev: Evidence, config: CalibConfig) -> list[tuple[str, str]]:
+    """The parts of the reported sigma that make most of a 95 % bound beyond its limit, largest first, as
+    (key of ``_PART_WORDS``, "its own bound" text): on each of rotation and translation whose bound exceeds
+    the limit, every part whose own 95 % bound (``bound95`` of it alone) is at least half the whole bound
+    (at most two; the largest at least). Nothing is computed anew: only the stored parts are compared."""
+    if ev.parts is None or ev.rot_sd_total is None:
+        return []
+    sds = _part_sds(ev.parts)
+    whole = (bound95(ev.rot_sd_total), bound95(ev.tr_sd_total))
+    limits = (config.max_rot_bound_deg, config.max_trans_bound_m)
+    score: dict[str, float] = {}
+    for axis, (b, lim) in enumerate(zip(whole, limits)):
+        if not (np.isfinite(b) and b > lim):
+            continue
+        own = {k: bound95(v[3 * axis:3 * axis + 3]) for k, v in sds.items()}
+        ranked = sorted(own, key=own.get, reverse=True)
+        for k in [k for k in ranked if own[k] >= 0.5 * b][:2] or ranked[:1]:
+            score[k] = max(score.get(k, 0.0), own[k] / b)
+    keep = sorted(score, key=score.get, reverse=True)[:2]
+    return [(k, f"{bound95(sds[k][:3]):.2f} deg / {bound95(sds[k][3:]):.2f} m") for k in keep]
 
 
 def _too_few_objects(ev: Evidence, config: CalibConfig, bound: str) -> Refusal | None:

@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from ..errors import FormatError
+from .detect_cmd import detect_flag, detect_request, detector_2d_flag, lidar_mode_flag
 
 _HELP = """Estimate T_cam_lidar from the frames' 2D and 3D detections (no target, no labels, no guess).
 
@@ -84,11 +85,9 @@ def register(app: typer.Typer) -> None:
                                                                 "cloud's and the image's frames (skips bring-up)."),
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
         force: bool = typer.Option(False, "--force", help="Replace an existing report folder."),
-        detect: bool = typer.Option(False, "--detect", help="Make the detections with xcalib's detectors (shipped "
-                                                            "YOLOX-Nano + label-free LiDAR boxes), replacing any "
-                                                            "the source has; see `xcalib detect`."),
-        detector_2d: Path = typer.Option(None, "--detector-2d", help="With --detect: your ONNX 2D detector."),
-        lidar_mode: str = typer.Option("auto", "--lidar-mode", help="With --detect: auto | static | moving."),
+        detect: bool = detect_flag(),
+        detector_2d: Path = detector_2d_flag(),
+        lidar_mode: str = lidar_mode_flag(),
         cost_term: list[str] = typer.Option(None, "--cost-term",
                                             help="An extra cost term for every fit: NAME or NAME:KEY=VALUE,... "
                                                  "(repeat), registered in the xcalib.cost_terms entry-point group "
@@ -127,6 +126,7 @@ def register(app: typer.Typer) -> None:
             stream_cfg = StreamConfig(max_memory_mb=parse_memory(max_memory), margin_m=0.25 + 40.0 * abs(offset))
         except ValueError as exc:
             raise typer.BadParameter(str(exc), param_hint="--max-memory") from None
+        dcfg = detect_request(detect, detector_2d, lidar_mode)  # a bad detector option: said before any frame
         if lidar_frame is not None and not is_frame_id(lidar_frame):
             raise typer.BadParameter(f"{lidar_frame!r} is not a tf frame name (letters, digits, _ . / -)",
                                      param_hint="--lidar-frame")
@@ -164,10 +164,9 @@ def register(app: typer.Typer) -> None:
                         tasks[stage] = bar.add_task(stage, total=total)
                     bar.update(tasks[stage], completed=done, total=total)
 
-                if detect:
-                    from .detect_cmd import detect_options, open_detected
+                if dcfg is not None:
+                    from .detect_cmd import open_detected
 
-                    dcfg = detect_options(detector_2d, None, 0.3, 1280, lidar_mode)
                     views = {k: open_detected(v, dcfg, progress) for k, v in views.items()}
                     for k, v in views.items():
                         if v.replaced:

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import typer
 
+from .detect_cmd import detect_flag, detect_request, detector_2d_flag, lidar_mode_flag
+
 # paragraphs reflowed (a single newline would show as a ragged line break); "\\[" keeps rich from
 # reading "[ray]" as a markup tag (it printed "pip install 'xcalib'")
 _HELP = "\n\n".join(" ".join(p.split("\n")) for p in """Calibrate many recordings (sites, cameras, days) and collect the results in one table.
@@ -19,9 +21,14 @@ apply to all) on a local process pool (--executor process, --jobs N) or a Ray cl
 per recording and OUT/results.csv, OUT/results.json and OUT/index.html (a recording that cannot
 be opened is a row with its error). Exit code 1 when any recording was refused or failed.
 
+Recordings without detections (only images, CameraInfo and clouds): --detect makes them in each worker with xcalib's
+own detectors, as `xcalib calibrate --detect` does (needs the onnx extra).
+
 Example: xcalib calibrate-many "recordings/*" --out runs/batch --jobs 2
 
-Example: xcalib calibrate-many recordings.txt --out runs/batch --executor ray""".split("\n\n"))
+Example: xcalib calibrate-many recordings.txt --out runs/batch --executor ray
+
+Example: xcalib calibrate-many "raw/*.mcap" --detect --out runs/raw_batch""".split("\n\n"))
 
 
 def register(app: typer.Typer) -> None:
@@ -39,6 +46,9 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0, "--seed", help="Random seed of the hypothesis sampling."),
         as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
         force: bool = typer.Option(False, "--force", help="Write into an existing, non-empty folder."),
+        detect: bool = detect_flag(),
+        detector_2d: Path = detector_2d_flag(),
+        lidar_mode: str = lidar_mode_flag(),
     ) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -50,6 +60,7 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter("expected process, ray or serial", param_hint="--executor")
         if jobs < 0:
             raise typer.BadParameter("expected >= 0", param_hint="--jobs")
+        dcfg = detect_request(detect, detector_2d, lidar_mode)  # calibrate's flags, checked the same way
         if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
             raise FileExistsError(f"{out} already exists; pass --force to write into it")
         recordings = [str(p) for p in expand_recordings(recordings)]  # a pattern naming nothing: said before the bar
@@ -63,7 +74,7 @@ def register(app: typer.Typer) -> None:
 
             summary = calibrate_many(recordings, out, config=CalibConfig(seed=seed), executor=executor,
                                      jobs=jobs or None, camera=camera, intrinsics=intrinsics, ray_address=ray_address,
-                                     progress=progress)
+                                     progress=progress, detect=dcfg)
         if as_json:
             typer.echo(json.dumps(json.loads(summary.json.read_text()), indent=1))
         else:

@@ -40,6 +40,36 @@ def detect_options(detector_2d, classes_file, score_min, input_size, lidar_mode)
                         classes_2d=classes)
 
 
+def detect_flag():
+    """``--detect`` of ``calibrate`` and ``calibrate-many`` (one help text, one meaning)."""
+    return typer.Option(False, "--detect", help="Make the detections with xcalib's detectors (shipped YOLOX-Nano + "
+                                                "label-free LiDAR boxes), replacing any the source has; see "
+                                                "`xcalib detect`.")
+
+
+def detector_2d_flag():
+    return typer.Option(None, "--detector-2d", help="With --detect: your ONNX 2D detector.")
+
+
+def lidar_mode_flag():
+    return typer.Option("auto", "--lidar-mode", help="With --detect: auto | static | moving.")
+
+
+def detect_request(detect: bool, detector_2d, lidar_mode: str):
+    """The DetectConfig of ``--detect`` / ``--detector-2d`` / ``--lidar-mode`` (``calibrate`` and
+    ``calibrate-many``), None without ``--detect``; checked before any frame is read: a bad
+    ``--lidar-mode``, a ``--detector-2d`` that is not a file, or either without ``--detect`` is a
+    usage error."""
+    if not detect:
+        if detector_2d is not None or lidar_mode != "auto":
+            raise typer.BadParameter("--detector-2d and --lidar-mode apply only with --detect",
+                                     param_hint="--detector-2d / --lidar-mode")
+        return None
+    if detector_2d is not None and not Path(detector_2d).is_file():
+        raise typer.BadParameter(f"{detector_2d}: no such file", param_hint="--detector-2d")
+    return detect_options(detector_2d, None, 0.3, 1280, lidar_mode)
+
+
 def open_detected(seq, config, progress=None):
     """``seq`` with xcalib's detections (DetectedFrames), every frame detected now."""
     from ..detect import DetectedFrames
@@ -109,15 +139,13 @@ def register(app: typer.Typer) -> None:
 def open_sensors(source: Path, camera, frame_range, intr, tolerance: float):
     """A source's frames for detection: a bag is read without its detection topics (``intr``:
     its intrinsics when it has no CameraInfo)."""
-    from ..io.sources import find_source, open_source
+    from ..detect import open_sensors as open_for_detection
 
-    options: dict = {}
-    if find_source(source).name == "bag":
-        options.update(tolerance_s=tolerance, detections=False)
-        if intr is not None:
-            options["intrinsics"] = intr
+    options: dict = {"tolerance_s": tolerance}
+    if intr is not None:
+        options["intrinsics"] = intr
     try:
-        seq = open_source(source, camera=camera, frames=frame_range, **options)
+        seq = open_for_detection(source, camera, frame_range, **options)
     except ValueError as exc:
         if isinstance(exc, FormatError):
             raise

@@ -23,12 +23,20 @@ not observable from that traffic (weak_axes: typically the view axis z).
 Writes OUT/monitor.jsonl, OUT/summary.json, OUT/report.html (the change over
 time) and OUT/monitor.mcap (diagnostic_msgs/DiagnosticArray on /diagnostics, the estimated pose
 on /tf, for Foxglove). --recalibrate runs calibrate on the frames after a change point
-(OUT/recalibration/<camera>.json). Exit code 0 ok, 3 drift, 1 could not tell.
+(OUT/recalibration/<camera>.json). Exit code: 0 ok (no change the test can see), 3 drift (the camera
+moved), 1 could not tell (unknown: a stream shorter than one window, --window frames, or objects too few or
+too weak to rule a change out; the summary line says which), 2 a usage error.
 
-Example: xcalib monitor ../shared/data/a9_sample --calibration runs/a9_calib/calibration.json --out runs/watch
+A stream to try it on, made by the package (60 synthetic frames, boxes only), calibrated, then watched (exit 0, ok):
 
-Run it after `xcalib calibrate ../shared/data/a9_sample --out runs/a9_calib`; its 16 frames are fewer than one
-window, so the answer is unknown (exit 1); a recording of a few minutes decides.
+Example: xcalib synth --out stream --frames 60 --train 0 --val 0 --test 60 --seed 3 --set 'n_objects=[15,30]' --no-images --no-lidar
+
+Example: xcalib calibrate stream/test.h5 --out runs/stream_calib
+
+Example: xcalib monitor stream/test.h5 --calibration runs/stream_calib/calibration.json --out runs/watch
+
+A9's 16-frame sample (../shared/data/a9_sample) is shorter than one window: there the answer is unknown (exit 1,
+"no decision yet"); a recording of a few minutes decides.
 
 Example: xcalib monitor frames/ --calibration site_calibration.json --json > decisions.jsonl""".split("\n\n"))
 

@@ -17,9 +17,9 @@ from __future__ import annotations
 from .camera import Detections2D, Detector2D, Detector2DConfig, load_detector, shipped_detector_path  # noqa: F401
 from .coverage import DetectionCoverage, detection_coverage, explain_refusal  # noqa: F401
 from .lidar import Background, GroundPlane, LidarDetectConfig, build_background, fit_ground, lidar_boxes  # noqa: F401
-from .pipeline import DetectConfig, DetectedFrames, detect_frame  # noqa: F401
+from .pipeline import DetectConfig, DetectedFrames, detect_frame, open_sensors  # noqa: F401
 
 __all__ = ["Detections2D", "Detector2D", "Detector2DConfig", "load_detector", "shipped_detector_path",
            "Background", "GroundPlane", "LidarDetectConfig", "build_background", "fit_ground", "lidar_boxes",
-           "DetectConfig", "DetectedFrames", "detect_frame", "DetectionCoverage", "detection_coverage",
+           "DetectConfig", "DetectedFrames", "detect_frame", "open_sensors", "DetectionCoverage", "detection_coverage",
            "explain_refusal"]

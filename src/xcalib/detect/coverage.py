@@ -122,10 +122,13 @@ def detection_coverage(frames: Sequence, T_cam_lidar=None, intrinsics=None) -> D
             continue
         if k.width and k.height:
             w, h = int(k.width), int(k.height)
-        elif f.image is not None:
-            h, w = np.asarray(f.image).shape[:2]
-        else:
-            continue
+        else:  # the image's size (a streamed frame keeps only its size: ``image_size_of``)
+            from ..io.sources import image_size_of
+
+            size = image_size_of(f)
+            if size is None:
+                continue
+            w, h = size
         rects, _ = _project(as_box7(b3), T, np.asarray(k.K, dtype=np.float64), w, h)
         view += len(rects)
         if len(b2) and len(rects):

@@ -15,7 +15,7 @@ from .camera import Detector2D, Detector2DConfig, load_detector
 from .lidar import Background, GroundPlane, LidarDetectConfig, build_background, fit_ground, is_static_recording, \
     lidar_boxes
 
-__all__ = ["DetectConfig", "DetectedFrames", "detect_frame", "STATIC_MIN_FRAMES"]
+__all__ = ["DetectConfig", "DetectedFrames", "detect_frame", "open_sensors", "STATIC_MIN_FRAMES"]
 
 log = logging.getLogger(__name__)
 Progress = Callable[[str, int, int], None]
@@ -133,3 +133,18 @@ class DetectedFrames(Sequence):
     def counts(self) -> tuple[int, int]:
         """(2D boxes, 3D boxes) found so far."""
         return (sum(len(v[0]) for v in self._boxes.values()), sum(len(v[1]) for v in self._boxes.values()))
+
+
+def open_sensors(source, camera: str | None = None, frames=None, **options) -> Sequence[Frame]:
+    """``source`` (any frame source) opened for detection: a bag is read without its detection
+    topics (its images, CameraInfo and clouds only; ``options`` go to the bag reader, e.g.
+    ``tolerance_s``, ``intrinsics``); any other source as it is (its own boxes are replaced by
+    :class:`DetectedFrames`). Shared by ``xcalib detect``, ``calibrate --detect`` and
+    ``calibrate-many --detect``."""
+    from ..io.sources import find_source, open_source
+
+    if find_source(source).name == "bag":
+        options = {**options, "detections": False}
+    else:
+        options = {}
+    return open_source(source, camera=camera, frames=frames, **options)
