@@ -776,7 +776,7 @@ def _pp_need(intr: CameraIntrinsics) -> float:
     7.7 px turn that camera 1 deg; delivered 1.35 deg off. Never larger than fx tan of it (a model whose
     centre is stretched, double sphere at xi < 0, keeps the stricter fx tan)."""
     need = float(min(intr.fx, intr.fy) * np.tan(np.radians(PP_CHECK_DEG)))
-    if not pp_resolution_applies(intr):
+    if isinstance(intr, CameraIntrinsics) or not pp_resolution_applies(intr):  # (a pinhole: fx tan of it)
         return need
     t = float(np.tan(np.radians(PP_CHECK_DEG)))
     uv, ok = intr.project(np.array([[t, 0.0, 1.0], [0.0, t, 1.0]]))
