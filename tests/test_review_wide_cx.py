@@ -18,6 +18,7 @@ import warnings
 import numpy as np
 import pytest
 
+from xcalib.calib import misfit
 from xcalib.calib.misfit import _pp_need
 from xcalib.geometry import CameraIntrinsics
 
@@ -57,6 +58,8 @@ def _delivered(model: str, seed: int, frac: float):
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(not hasattr(misfit, "_PP_X_BEYOND"), strict=True,
+                   reason="needs route b for an unflagged shift beyond the 1-degree shift (session 15, P)")
 def test_a_unified_camera_given_cx_off_by_1_percent_is_delivered_only_within_its_bound():
     """With the model's 1-degree shift the check's -11.3 px go to route b's part of the bound (session 15, P):
     delivered 1.35 deg off with a 95 % bound of about 2 deg (inside it) instead of a 0.3 deg bound."""
