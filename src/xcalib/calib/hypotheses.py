@@ -664,7 +664,7 @@ def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nd
         Xc += t.T[None]
         x, y, z = Xc[:, 0], Xc[:, 1], Xc[:, 2]
         behind = z <= 0.5
-        # u = x / z * fx + cx (NaN behind the camera), the same operations in place on x and y
+        # u = x / z * fx + cx (u NaN behind the camera), the same operations in place on x and y
         with np.errstate(divide="ignore", invalid="ignore"):
             u = np.divide(x, z, out=x)
             v = np.divide(y, z, out=y)
@@ -672,8 +672,9 @@ def _centre_hits(fr: CalibFrame, intr: CameraIntrinsics, R: np.ndarray, t: np.nd
         u += intr.cx
         v *= intr.fy
         v += intr.cy
+        # behind the camera u is NaN, which fails both of its comparisons below: a box can then
+        # not hold the centre whatever v is, so v keeps its value there (the same hits, one pass less)
         np.copyto(u, np.nan, where=behind)
-        np.copyto(v, np.nan, where=behind)
         hits = np.zeros(H, dtype=np.int64)
         inside, tmp = np.empty(u.shape, dtype=bool), np.empty(u.shape, dtype=bool)
         for x0, y0, x1, y1 in np.asarray(fr.boxes2d, dtype=np.float64).tolist():
