@@ -430,6 +430,19 @@ def _iterated_window(rec, a, b, steps, cov_at, part, iterated_fit, object_shares
     return (x, cov), object_shares(rows, xl, tau, slope)
 
 
+def _difference_scale(rec: dict, s: int, a: int, e: int, fa, fb, q: float, pools: dict) -> float:
+    """``CameraMonitor._difference_scale`` on a recording: the test of [a, e) against [s, a)."""
+    from xcalib.monitor.core import DIFF_MIN_SAMPLES, DIFF_SAMPLES
+    from xcalib.monitor.spread import difference_ratio
+
+    r = difference_ratio(_obj_sums(rec, a, e), _obj_sums(rec, s, a), fa[0], fb[0], fa[1] + fb[1])
+    pool = pools.setdefault(e - a, [])
+    if np.isfinite(r):
+        pool.append(r)
+        del pool[:-DIFF_SAMPLES]
+    return 1.0 if len(pool) < DIFF_MIN_SAMPLES else min(1.0, float(np.quantile(pool, q)))
+
+
 def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | None = None,
            h_out: float | None = None, config=None, first_only: bool = False, threshold: float | None = None,
            iterate: int = -1, cov_at: str = "iterate", trace: list | None = None,
@@ -459,6 +472,7 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
     C = _cums(rows)
     alarms: list[int] = []
     diffs: list[float] = []
+    pools: dict = {}  # per window length: the objects' spread ratios (``difference_quantile``; kept after alarms)
     start, last, end = 0, None, -10 ** 9
     e = W
     while e <= len(rows):
@@ -485,6 +499,9 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
                 if iterate >= 0:
                     fa, oa = its[L] if its[L] is not None else (None, None)
                 if fa is not None and fb is not None:
+                    if cfg.difference_quantile > 0 and oa is None:  # (``CameraMonitor._difference_scale``)
+                        k_d = _difference_scale(rec, s, e - L, e, fa, fb, cfg.difference_quantile, pools)
+                        fa, fb = (fa[0], fa[1] * k_d), (fb[0], fb[1] * k_d)
                     tests.append((_chi2(fa[0] - fb[0], (fa[1] + fb[1]) * phi), e - L, fa, fb, oa))
             if iterate >= 0 and fr_i is not None:
                 tests.append((_chi2(fr_i[0][0], fr_i[0][1] * phi + cov_cal), e - longest, fr_i[0], None, fr_i[1]))
