@@ -472,25 +472,47 @@ def _object_sums(recs: list[_Rec], a: int, b: int) -> tuple[np.ndarray, np.ndarr
 
 
 class _ShareTable:
-    """The per-object shares of a history's frames as one table (built once per decision): the sums
-    per object over any run of frames (``_object_sums``) without concatenating the frames again."""
+    """The per-object shares of a history's frames summed per object and per run of frames between
+    the boundaries a decision's tests use (built once per decision, one sort): the sums per object
+    before and after any of those boundaries (``split``), objects aligned on both sides (an object
+    absent from a side has zero share there)."""
 
-    def __init__(self, recs: list[_Rec]):
+    def __init__(self, recs: list[_Rec], bounds: list[int]):
+        self.bounds = sorted(set(int(b) for b in bounds))
         parts = [(j, q) for j, q in enumerate(recs) if q.obj is not None and len(q.obj)]
-        if parts:
-            self.pos = np.concatenate([np.full(len(q.obj), j) for j, q in parts])
-            self.ids = np.concatenate([q.obj for _, q in parts])
-            self.HG = np.concatenate([np.concatenate([q.obj_H.reshape(-1, 36), q.obj_g], 1) for _, q in parts])
-        else:
-            self.pos, self.ids, self.HG = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 42))
+        nb = len(self.bounds) + 1
+        if not parts:
+            self.T = np.zeros((0, nb, 42))
+            return
+        pos = np.concatenate([np.full(len(q.obj), j) for j, q in parts])
+        ids = np.concatenate([q.obj for _, q in parts])
+        HG = np.concatenate([_share_rows(q) for _, q in parts])
+        u, inv = np.unique(ids, return_inverse=True)
+        key = inv * nb + np.searchsorted(self.bounds, pos, side="right")
+        order = np.argsort(key, kind="stable")
+        k_sorted = key[order]
+        starts = np.flatnonzero(np.r_[True, k_sorted[1:] != k_sorted[:-1]])
+        T = np.zeros((len(u) * nb, 42))
+        T[k_sorted[starts]] = np.add.reduceat(HG[order], starts, axis=0)
+        self.T = T.reshape(len(u), nb, 42)
 
-    def sums(self, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per object over frames [a, b): sorted ids [K], H [K,6,6], g [K,6]."""
-        i0, i1 = np.searchsorted(self.pos, [a, b])
-        u, inv = np.unique(self.ids[i0:i1], return_inverse=True)
-        out = np.zeros((len(u), 42))
-        np.add.at(out, inv, self.HG[i0:i1])
-        return u, out[:, :36].reshape(-1, 6, 6), out[:, 36:]
+    def split(self, a: int) -> tuple[tuple, tuple]:
+        """(after, before): per object (ids [K], H [K,6,6], g [K,6]) over frames [a, n) and [0, a);
+        ``a`` one of the boundaries."""
+        j = self.bounds.index(int(a)) + 1
+        K = len(self.T)
+        ids = np.arange(K)
+        aft, bef = self.T[:, j:].sum(1), self.T[:, :j].sum(1)
+        return ((ids, aft[:, :36].reshape(K, 6, 6), aft[:, 36:]), (ids, bef[:, :36].reshape(K, 6, 6), bef[:, 36:]))
+
+
+def _share_rows(q: _Rec) -> np.ndarray:
+    """A frame's per-object shares as rows [m, 42] (H flattened, g), computed once per frame."""
+    hg = getattr(q, "_hg", None)
+    if hg is None:
+        hg = np.concatenate([np.asarray(q.obj_H).reshape(-1, 36), np.asarray(q.obj_g).reshape(-1, 6)], 1)
+        q._hg = hg
+    return hg
 
 
 def _total(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -982,7 +1004,7 @@ class CameraMonitor:
         pending: list[tuple[int, np.ndarray, np.ndarray]] = []  # samples of axis_factors
         # weak axes are judged on the longest window tested within target_frames of a change
         L_t = max([L for L in lengths if L + cfg.stride <= cfg.target_frames] or [lengths[0]])
-        table = _ShareTable(recs) if cfg.difference_quantile > 0 else None
+        table = _ShareTable(recs, [n - L for L in lengths]) if cfg.difference_quantile > 0 else None
         for L in lengths:  # the change-point tests: each recent segment against the frames before it
             if sums.pairs(0, n - L) < cfg.min_pairs or sums.pairs(n - L, n) < cfg.min_pairs:
                 continue
@@ -1049,7 +1071,8 @@ class CameraMonitor:
         DIFF_SAMPLES of its window length; their ``difference_quantile`` quantile, at most 1 (1 until
         DIFF_MIN_SAMPLES are in)."""
         n = len(recs)
-        r = spread.difference_ratio(table.sums(a, n), table.sums(0, a), fa.x, fb.x, fa.cov + fb.cov)
+        after, before = table.split(a)
+        r = spread.difference_ratio(after, before, fa.x, fb.x, fa.cov + fb.cov)
         pool = self._dratios.setdefault(n - a, deque(maxlen=DIFF_SAMPLES))
         if np.isfinite(r):
             pool.append(r)
