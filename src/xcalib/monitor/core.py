@@ -471,39 +471,14 @@ def _object_sums(recs: list[_Rec], a: int, b: int) -> tuple[np.ndarray, np.ndarr
     return u, out[:, :36].reshape(-1, 6, 6), out[:, 36:]
 
 
-class _ShareTable:
-    """The per-object shares of a history's frames summed per object and per run of frames between
-    the boundaries a decision's tests use (built once per decision, one sort): the sums per object
-    before and after any of those boundaries (``split``), objects aligned on both sides (an object
-    absent from a side has zero share there)."""
-
-    def __init__(self, recs: list[_Rec], bounds: list[int]):
-        self.bounds = sorted(set(int(b) for b in bounds))
-        parts = [(j, q) for j, q in enumerate(recs) if q.obj is not None and len(q.obj)]
-        nb = len(self.bounds) + 1
-        if not parts:
-            self.T = np.zeros((0, nb, 42))
-            return
-        pos = np.concatenate([np.full(len(q.obj), j) for j, q in parts])
-        ids = np.concatenate([q.obj for _, q in parts])
-        HG = np.concatenate([_share_rows(q) for _, q in parts])
-        u, inv = np.unique(ids, return_inverse=True)
-        key = inv * nb + np.searchsorted(self.bounds, pos, side="right")
-        order = np.argsort(key, kind="stable")
-        k_sorted = key[order]
-        starts = np.flatnonzero(np.r_[True, k_sorted[1:] != k_sorted[:-1]])
-        T = np.zeros((len(u) * nb, 42))
-        T[k_sorted[starts]] = np.add.reduceat(HG[order], starts, axis=0)
-        self.T = T.reshape(len(u), nb, 42)
-
-    def split(self, a: int) -> tuple[tuple, tuple]:
-        """(after, before): per object (ids [K], H [K,6,6], g [K,6]) over frames [a, n) and [0, a);
-        ``a`` one of the boundaries."""
-        j = self.bounds.index(int(a)) + 1
-        K = len(self.T)
-        ids = np.arange(K)
-        aft, bef = self.T[:, j:].sum(1), self.T[:, :j].sum(1)
-        return ((ids, aft[:, :36].reshape(K, 6, 6), aft[:, 36:]), (ids, bef[:, :36].reshape(K, 6, 6), bef[:, 36:]))
+def _share_table(recs: list[_Rec], bounds: list[int]) -> spread.SegmentTable:
+    """The history's per-object shares as a ``spread.SegmentTable`` split at ``bounds`` (once per decision)."""
+    parts = [(j, q) for j, q in enumerate(recs) if q.obj is not None and len(q.obj)]
+    if not parts:
+        return spread.SegmentTable(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 42)), bounds)
+    return spread.SegmentTable(np.repeat([j for j, _ in parts], [len(q.obj) for _, q in parts]),
+                               np.concatenate([q.obj for _, q in parts]),
+                               np.concatenate([_share_rows(q) for _, q in parts]), bounds)
 
 
 def _share_rows(q: _Rec) -> np.ndarray:
@@ -1004,7 +979,7 @@ class CameraMonitor:
         pending: list[tuple[int, np.ndarray, np.ndarray]] = []  # samples of axis_factors
         # weak axes are judged on the longest window tested within target_frames of a change
         L_t = max([L for L in lengths if L + cfg.stride <= cfg.target_frames] or [lengths[0]])
-        table = _ShareTable(recs, [n - L for L in lengths]) if cfg.difference_quantile > 0 else None
+        table = _share_table(recs, [n - L for L in lengths]) if cfg.difference_quantile > 0 else None
         for L in lengths:  # the change-point tests: each recent segment against the frames before it
             if sums.pairs(0, n - L) < cfg.min_pairs or sums.pairs(n - L, n) < cfg.min_pairs:
                 continue
@@ -1065,7 +1040,7 @@ class CameraMonitor:
         return self._status("ok", fit_r, f"no change (statistic {best_stat:.1f} < threshold {self.h:.1f}){held}",
                             "one_object" if held else "", best_stat, det, longest, weak_det)
 
-    def _difference_scale(self, recs: list[_Rec], a: int, fa: _Fit, fb: _Fit, table: "_ShareTable") -> float:
+    def _difference_scale(self, recs: list[_Rec], a: int, fa: _Fit, fb: _Fit, table: spread.SegmentTable) -> float:
         """The factor on both segments' covariances of the test of frames [a, n) against [0, a)
         (``MonitorConfig.difference_quantile``): this test's ``spread.difference_ratio`` joins the last
         DIFF_SAMPLES of its window length; their ``difference_quantile`` quantile, at most 1 (1 until

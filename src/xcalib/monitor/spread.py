@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["difference_ratio", "object_scores"]
+__all__ = ["SegmentTable", "difference_ratio", "object_scores"]
 
 
 def object_scores(ids: np.ndarray, H_k: np.ndarray, g_k: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -60,3 +60,38 @@ def difference_ratio(recent: tuple, before: tuple, xa: np.ndarray, xb: np.ndarra
     except np.linalg.LinAlgError:
         return float("nan")
     return r if np.isfinite(r) else float("nan")
+
+
+class SegmentTable:
+    """Per-object shares (rows [N, 42]: H flattened, g; ``pos`` the frame of each row, ``ids`` its object)
+    summed per object and per run of frames between ``bounds`` (one sort): the sums per object before
+    and after any of the boundaries (``split``), objects aligned on both sides (an object absent from
+    a side has zero share there)."""
+
+    def __init__(self, pos: np.ndarray, ids: np.ndarray, HG: np.ndarray, bounds) -> None:
+        self.bounds = sorted(set(int(b) for b in bounds))
+        nb = len(self.bounds) + 1
+        if not len(ids):
+            self.T = np.zeros((0, nb, 42))
+            return
+        ids = np.asarray(ids, dtype=np.int64)
+        key = (ids - ids.min()) * nb + np.searchsorted(self.bounds, pos, side="right")  # one sort: object, run
+        order = np.argsort(key, kind="stable")
+        k_sorted = key[order]
+        starts = np.flatnonzero(np.r_[True, k_sorted[1:] != k_sorted[:-1]])
+        obj = k_sorted[starts] // nb
+        first = np.r_[True, obj[1:] != obj[:-1]]
+        row = np.cumsum(first) - 1  # the object's row in T
+        u = np.flatnonzero(first)
+        T = np.zeros((len(u) * nb, 42))
+        T[row * nb + k_sorted[starts] % nb] = np.add.reduceat(np.asarray(HG, dtype=np.float64)[order], starts, axis=0)
+        self.T = T.reshape(len(u), nb, 42)
+
+    def split(self, a: int) -> tuple[tuple, tuple]:
+        """(after, before): per object (ids [K], H [K,6,6], g [K,6]) over the frames from boundary ``a``
+        on and before it."""
+        j = self.bounds.index(int(a)) + 1
+        K = len(self.T)
+        ids = np.arange(K)
+        aft, bef = self.T[:, j:].sum(1), self.T[:, :j].sum(1)
+        return ((ids, aft[:, :36].reshape(K, 6, 6), aft[:, 36:]), (ids, bef[:, :36].reshape(K, 6, 6), bef[:, 36:]))
