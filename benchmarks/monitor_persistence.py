@@ -431,16 +431,27 @@ def _iterated_window(rec, a, b, steps, cov_at, part, iterated_fit, object_shares
 
 
 def _difference_scale(rec: dict, s: int, a: int, e: int, fa, fb, q: float, pools: dict) -> float:
-    """``CameraMonitor._difference_scale`` on a recording: the test of [a, e) against [s, a)."""
+    """``CameraMonitor._difference_scale`` on a recording: the test of [a, e) against [s, a) (the
+    per-object sums from one ``SegmentTable`` per decision, split at the config's windows)."""
     from xcalib.monitor.core import DIFF_MIN_SAMPLES, DIFF_SAMPLES
-    from xcalib.monitor.spread import difference_ratio
+    from xcalib.monitor.spread import SegmentTable, difference_ratio
 
-    r = difference_ratio(_obj_sums(rec, a, e), _obj_sums(rec, s, a), fa[0], fb[0], fa[1] + fb[1])
+    at, table = pools.get("table", (None, None))
+    if at != (s, e, pools["windows"]):
+        i0, i1 = np.searchsorted(rec["obj_frame"], [s, e])
+        HG = np.concatenate([rec["obj_H"][i0:i1].reshape(-1, 36), rec["obj_g"][i0:i1]], 1)
+        table = SegmentTable(rec["obj_frame"][i0:i1], rec["obj_id"][i0:i1], HG,
+                             [e - L for L in pools["windows"]])
+        pools["table"] = ((s, e, pools["windows"]), table)
+    after, before = table.split(a)
+    r = difference_ratio(after, before, fa[0], fb[0], fa[1] + fb[1])
     pool = pools.setdefault(e - a, [])
     if np.isfinite(r):
         pool.append(r)
         del pool[:-DIFF_SAMPLES]
-    return 1.0 if len(pool) < DIFF_MIN_SAMPLES else min(1.0, float(np.quantile(pool, q)))
+    if len(pool) < DIFF_MIN_SAMPLES or not np.isfinite(r):
+        return 1.0
+    return min(1.0, max(float(np.quantile(pool, q)), r))
 
 
 def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | None = None,
@@ -482,6 +493,7 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
         longest = max([L for L in cfg.windows if L <= e - s] or [W])
         tested = cfg.test_windows if windows is None else windows  # the change-point tests' recent segments
         lengths = [L for L in tested if L <= e - s] or [min(tested)]
+        pools["windows"] = tuple(lengths)
         fr = None if _few_objects(rec, C, e - longest, e, cfg) else _seg_fit(C, e - longest, e)
         alarm = False
         if fr is not None:

@@ -1043,17 +1043,19 @@ class CameraMonitor:
     def _difference_scale(self, recs: list[_Rec], a: int, fa: _Fit, fb: _Fit, table: spread.SegmentTable) -> float:
         """The factor on both segments' covariances of the test of frames [a, n) against [0, a)
         (``MonitorConfig.difference_quantile``): this test's ``spread.difference_ratio`` joins the last
-        DIFF_SAMPLES of its window length; their ``difference_quantile`` quantile, at most 1 (1 until
-        DIFF_MIN_SAMPLES are in)."""
+        DIFF_SAMPLES of its window length; their ``difference_quantile`` quantile or this test's own
+        ratio, the larger, at most 1 (1 until DIFF_MIN_SAMPLES are in, or where the ratio cannot be formed)."""
         n = len(recs)
         after, before = table.split(a)
         r = spread.difference_ratio(after, before, fa.x, fb.x, fa.cov + fb.cov)
         pool = self._dratios.setdefault(n - a, deque(maxlen=DIFF_SAMPLES))
         if np.isfinite(r):
             pool.append(r)
-        if len(pool) < DIFF_MIN_SAMPLES:
+        if len(pool) < DIFF_MIN_SAMPLES or not np.isfinite(r):
             return 1.0
-        return min(1.0, float(np.quantile(np.asarray(pool), self.config.difference_quantile)))
+        # the stream's own (pooled) scale, but never below this test's own spread: a window whose objects
+        # disagree (3D boxes wrong unlike each other: not a move of the camera) keeps its wider covariance
+        return min(1.0, max(float(np.quantile(np.asarray(pool), self.config.difference_quantile)), r))
 
     def _relinearised_tests(self, recs: list[_Rec], sums: _Sums, tests: list, longest: int,
                             det: np.ndarray) -> MonitorStatus | None:
