@@ -434,15 +434,19 @@ def _difference_scale(rec: dict, s: int, a: int, e: int, fa, fb, q: float, pools
     """``CameraMonitor._difference_scale`` on a recording: the test of [a, e) against [s, a) (the
     per-object sums from one ``SegmentTable`` per decision, split at the config's windows)."""
     from xcalib.monitor.core import DIFF_MIN_SAMPLES, DIFF_SAMPLES
-    from xcalib.monitor.spread import SegmentTable, difference_ratio
+    from xcalib.monitor.spread import SegmentTable, difference_ratio, tracked
 
     at, table = pools.get("table", (None, None))
     if at != (s, e, pools["windows"]):
         i0, i1 = np.searchsorted(rec["obj_frame"], [s, e])
-        HG = np.concatenate([rec["obj_H"][i0:i1].reshape(-1, 36), rec["obj_g"][i0:i1]], 1)
-        table = SegmentTable(rec["obj_frame"][i0:i1], rec["obj_id"][i0:i1], HG,
-                             [e - L for L in pools["windows"]])
+        table = None
+        if tracked(rec["obj_id"][i0:i1]):
+            HG = np.concatenate([rec["obj_H"][i0:i1].reshape(-1, 36), rec["obj_g"][i0:i1]], 1)
+            table = SegmentTable(rec["obj_frame"][i0:i1], rec["obj_id"][i0:i1], HG,
+                                 [e - L for L in pools["windows"]])
         pools["table"] = ((s, e, pools["windows"]), table)
+    if table is None:
+        return 1.0
     after, before = table.split(a)
     r = difference_ratio(after, before, fa[0], fb[0], fa[1] + fb[1])
     pool = pools.setdefault(e - a, [])

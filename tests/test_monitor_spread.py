@@ -118,3 +118,25 @@ def _as_loaded(mp, rec, cfg):
         path = Path(d) / "rec.npz"
         mp.save_recording(path, rec)
         return mp.load_recording(path)
+
+
+def test_untracked_pairs_keep_the_stated_covariance():
+    """Pairs without track ids (< 0: each its own cluster, the persistence of a box's error unseen) are not
+    clustered: above UNTRACKED_MAX of them the test keeps the stated covariance (no table)."""
+    from xcalib.monitor import core
+    from xcalib.monitor.spread import UNTRACKED_MAX, tracked
+
+    assert tracked(np.array([1, 2, 3, -1] + [4] * 20)) and not tracked(np.array([-1, -2, -3, 4]))
+    assert not tracked(np.zeros(0, dtype=np.int64)) and UNTRACKED_MAX < 0.5
+
+    class _R:  # a frame's matched pairs as the monitor keeps them
+        def __init__(self, ids):
+            self.obj = np.asarray(ids)
+            self.obj_H = np.tile(np.eye(6), (len(ids), 1, 1))
+            self.obj_g = np.zeros((len(ids), 6))
+
+    assert core._share_table([_R([-1, -2]), _R([-3, -4])], [1]) is None
+    t = core._share_table([_R([1, 2]), _R([2, 3])], [1])
+    after, before = t.split(1)
+    assert list(after[0]) == [0, 1, 2] and np.allclose(after[1][:, 0, 0], [0, 1, 1])
+    assert np.allclose(before[1][:, 0, 0], [1, 1, 0])

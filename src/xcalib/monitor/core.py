@@ -471,13 +471,14 @@ def _object_sums(recs: list[_Rec], a: int, b: int) -> tuple[np.ndarray, np.ndarr
     return u, out[:, :36].reshape(-1, 6, 6), out[:, 36:]
 
 
-def _share_table(recs: list[_Rec], bounds: list[int]) -> spread.SegmentTable:
-    """The history's per-object shares as a ``spread.SegmentTable`` split at ``bounds`` (once per decision)."""
+def _share_table(recs: list[_Rec], bounds: list[int]) -> spread.SegmentTable | None:
+    """The history's per-object shares as a ``spread.SegmentTable`` split at ``bounds`` (once per
+    decision); None where the pairs are not tracked enough to cluster by object (``spread.tracked``)."""
     parts = [(j, q) for j, q in enumerate(recs) if q.obj is not None and len(q.obj)]
-    if not parts:
-        return spread.SegmentTable(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 42)), bounds)
-    return spread.SegmentTable(np.repeat([j for j, _ in parts], [len(q.obj) for _, q in parts]),
-                               np.concatenate([q.obj for _, q in parts]),
+    ids = np.concatenate([q.obj for _, q in parts]) if parts else np.zeros(0, dtype=np.int64)
+    if not spread.tracked(ids):
+        return None
+    return spread.SegmentTable(np.repeat([j for j, _ in parts], [len(q.obj) for _, q in parts]), ids,
                                np.concatenate([_share_rows(q) for _, q in parts]), bounds)
 
 
@@ -989,7 +990,7 @@ class CameraMonitor:
                 fa, oa = self._iterated(recs, n - L, n) or (fa, None)
             if fa is None or fb is None:
                 continue
-            if cfg.difference_quantile > 0 and oa is None:  # the objects' own spread of the difference
+            if table is not None and oa is None:  # the objects' own spread of the difference
                 k_d = self._difference_scale(recs, n - L, fa, fb, table)
                 fa, fb = replace(fa, cov=fa.cov * k_d), replace(fb, cov=fb.cov * k_d)
             S, _ = self._cov_scale(L, phi)

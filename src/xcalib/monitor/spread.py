@@ -23,7 +23,19 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SegmentTable", "difference_ratio", "object_scores"]
+__all__ = ["UNTRACKED_MAX", "SegmentTable", "difference_ratio", "object_scores", "tracked"]
+
+#: the largest share of matched pairs without a track id for which the objects' spread is formed: an
+#: untracked pair is its own cluster, so the persistence of its box's error over frames is not seen and
+#: the clustered spread understates the difference's (per-pair clusters, measured: 6 / 2 false alarms in
+#: 2 x 20,400 frames against 1 / 0); above it the test keeps the stated covariance
+UNTRACKED_MAX = 0.1
+
+
+def tracked(ids: np.ndarray) -> bool:
+    """Whether the pairs' object ids (untracked: < 0) are tracked enough to cluster by object."""
+    ids = np.asarray(ids)
+    return bool(len(ids)) and float(np.mean(ids < 0)) <= UNTRACKED_MAX
 
 
 def object_scores(ids: np.ndarray, H_k: np.ndarray, g_k: np.ndarray, x: np.ndarray) -> np.ndarray:
