@@ -81,6 +81,12 @@ with the default change test (``monitor.json`` ``pairnoise_<--label>``, ``pairno
 
     ... --part pairnoise --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,7,11,13,17 --runs 2 --recordings DIR --pair-recordings DIR2
 
+``--part spread``: the change test's covariance at the objects' own spread of the two segments' difference
+(``MonitorConfig.difference_quantile``, each of ``--quantiles``) against the default, replayed on the recordings of
+``--part iterate`` (``--recordings``; made when absent) (``monitor.json`` ``spread_<--label>``).
+
+    ... --part spread --null-frames 3400 --null-base 1200 --null-seeds 3,5,7,11,13,17 --step-seeds 3,5,7,11,13,17 --runs 2 --recordings DIR --label s15M4
+
 ``--part reference``: the change test calibrated per axis and window length
 (``CameraMonitor.axis_factors``) from a drift-free reference stretch of each site
 (``Monitor.learn``), against the test without it and with only the stream's own ~250 frames, on
@@ -616,7 +622,7 @@ def main() -> None:
                     help="--part null: which detection noise (two processes can share the work)")
     ap.add_argument("--part", choices=("all", "synth", "a9", "null", "real", "weak", "information", "reference", "bound",
                                        "relin", "relin_a9", "verdict", "persist", "guard", "iterate", "scan",
-                                       "pairnoise"),
+                                       "pairnoise", "spread"),
                     default="all",
                     help="run one part; its keys are merged into an existing results file")
     ap.add_argument("--reference-frames", type=int, default=2400,
@@ -634,10 +640,12 @@ def main() -> None:
     ap.add_argument("--real-null", type=int, default=1600, help="real sequences: drift-free frames (looped)")
     ap.add_argument("--real-frames", type=int, default=320, help="real sequences: step streams (change at the middle)")
     ap.add_argument("--recordings", type=Path, default=None,
-                    help="--part guard / iterate / scan: folder of the recorded streams (.npz; made when absent; default a temporary one)")
+                    help="--part guard / iterate / scan / spread: folder of the recorded streams (.npz; made when absent; default a temporary one)")
     ap.add_argument("--pair-recordings", type=Path, default=None,
                     help="--part pairnoise: folder of the streams recorded with pair_noise (made when absent)")
-    ap.add_argument("--label", default="s14M3", help="--part pairnoise: the results key's suffix")
+    ap.add_argument("--label", default="s14M3", help="--part pairnoise / spread: the results key's suffix")
+    ap.add_argument("--quantiles", default="0.75,0.9",
+                    help="--part spread: the values of MonitorConfig.difference_quantile replayed beside the default")
     ap.add_argument("--cells", default=",".join(ITERATE_CELLS),
                     help="--part iterate / scan: the step cells (e.g. tz_0.1,rz_0.25: axis and size in deg / m)")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (null sites, step cells)")
@@ -724,6 +732,13 @@ def main() -> None:
             f"at {sseeds} ({args.runs} runs per site); recordings in {folder} and {pair}")
         result[f"pairnoise_{args.label}"] = _pairnoise(nseeds, args.null_base, n_null, (sseeds, args.runs, cells),
                                                        (folder, pair), log)
+    elif args.part == "spread":  # the change test's covariance at the objects' own spread of the difference
+        nseeds, sseeds, cells, folder = _replay_setup(args, "xcalib_spread_")
+        qs = tuple(float(v) for v in args.quantiles.split(",") if v.strip())
+        log(f"== the objects' spread of the difference: quantiles {qs}; null {n_null} frames x sites {nseeds} (both "
+            f"noises), cells {cells} at {sseeds} ({args.runs} runs per site); recordings in {folder}")
+        result[f"spread_{args.label}"] = _spread(nseeds, args.null_base, n_null, (sseeds, args.runs, cells), folder,
+                                                 qs, log)
     elif args.part == "verdict":  # each z step cell against what the boxes allow at its site (no monitor run)
         import json
 
@@ -1352,6 +1367,63 @@ def _pairnoise(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, fo
             f"median / p99 {row['default']['decision_statistic_median_p99'][0]:.1f} / "
             f"{row['default']['decision_statistic_median_p99'][1]:.1f}  "
             + "  ".join(f"{c} {row[c]['detected_within']}/{row[c]['runs']}" for c in cells), flush=True)
+    return out
+
+
+def _spread(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, folder: Path, quantiles: tuple,
+            log) -> dict:
+    """The change test's covariance at the objects' own spread of the difference
+    (``MonitorConfig.difference_quantile``, each of ``quantiles``) against the default (the stated
+    covariances), replayed (``monitor_persistence.replay``, the guard included, the same threshold) on the
+    recordings of ``--part iterate`` (made when absent; the setting does not change the frames' rows):
+    false alarms on the long null streams (both noises) with the drift-free decisions' largest statistic
+    (median, 99th percentile), runs detected within the cell's target per cell with their delays."""
+    import monitor_persistence as mp
+    from xcalib.monitor import MonitorConfig
+
+    step_seeds, runs, cells = steps
+    folder.mkdir(parents=True, exist_ok=True)
+    jobs = [(folder, "null", name, s, n_base, n_null) for name, _ in GUARD_NOISES for s in null_seeds]
+    for done in [*_pmap(_guard_record, jobs), *_pmap(_cell_record, [(folder, s, runs, cells) for s in step_seeds])]:
+        log(f"  recorded {done}", flush=True)
+    within = {"r": {0.25: 50, 0.5: 20}, "t": {0.1: 50, 0.2: 20}}
+    nulls = {(name, s): mp.load_recording(folder / f"null_{name}_{s}.npz") for name, _ in GUARD_NOISES for s in null_seeds}
+    recs = {c: [(s, mp.load_recording(folder / f"step_{c.split('_')[0]}_{float(c.split('_')[1]):g}_{s}_{r}.npz"))
+                for s in step_seeds for r in range(runs)] for c in cells}
+    variants = [("stated (default)", MonitorConfig(latch=False))]
+    variants += [(f"difference_quantile={q:g}", MonitorConfig(latch=False, difference_quantile=q)) for q in quantiles]
+    out: dict = {"rows": {}, "null_seeds": null_seeds, "step_seeds": step_seeds, "runs_per_site": runs,
+                 "cells": list(cells), "threshold": variants[0][1].threshold,
+                 "note": "replayed from recordings (the replay raises the monitor's alarms, guard included); the "
+                         "null streams are --null-base frames looped with jitter, so an episode can recur"}
+    for v, cfg in variants:
+        row: dict = {}
+        for name, _ in GUARD_NOISES:
+            stat: list = []
+
+            def alarms(rec, stat=stat, cfg=cfg):
+                tr: list = []
+                got = mp.replay(rec, config=cfg, trace=tr)
+                stat += [t[1] for t in tr]
+                return got
+
+            row[name] = _false_alarms(nulls, null_seeds, name, alarms)
+            row[name]["decision_statistic_median_p99"] = [float(np.median(stat)), float(np.percentile(stat, 99))]
+        for c in cells:
+            lim = within[c[0]][float(c.split("_")[1])]
+            firsts = [(mp.replay(rec, config=cfg, first_only=True) or [None])[0] for _, rec in recs[c]]
+            delays = [None if f is None else f - PRE for f in firsts]
+            hits = [d is not None and 0 <= d <= lim for d in delays]
+            row[c] = {"runs": len(hits), "detected_within": int(sum(hits)), "within_frames": lim,
+                      "early": sum(d is not None and d < 0 for d in delays), "delays": delays,
+                      "missed_sites": sorted({s for (s, _), hit in zip(recs[c], hits) if not hit})}
+        row["within_total"] = int(sum(row[c]["detected_within"] for c in cells))
+        out["rows"][v] = row
+        log(f"{v:26s} false alarms {row['default']['false_alarms']} / {row['noisy']['false_alarms']}  null statistic "
+            f"median / p99 {row['default']['decision_statistic_median_p99'][0]:.1f} / "
+            f"{row['default']['decision_statistic_median_p99'][1]:.1f}  "
+            + "  ".join(f"{c} {row[c]['detected_within']}/{row[c]['runs']}" for c in cells)
+            + f"  within {row['within_total']}", flush=True)
     return out
 
 

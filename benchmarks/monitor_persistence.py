@@ -430,6 +430,34 @@ def _iterated_window(rec, a, b, steps, cov_at, part, iterated_fit, object_shares
     return (x, cov), object_shares(rows, xl, tau, slope)
 
 
+def _difference_scale(rec: dict, s: int, a: int, e: int, fa, fb, q: float, pools: dict) -> float:
+    """``CameraMonitor._difference_scale`` on a recording: the test of [a, e) against [s, a) (the
+    per-object sums from one ``SegmentTable`` per decision, split at the config's windows)."""
+    from xcalib.monitor.core import DIFF_MIN_SAMPLES, DIFF_SAMPLES
+    from xcalib.monitor.spread import SegmentTable, difference_ratio, tracked
+
+    at, table = pools.get("table", (None, None))
+    if at != (s, e, pools["windows"]):
+        i0, i1 = np.searchsorted(rec["obj_frame"], [s, e])
+        table = None
+        if tracked(rec["obj_id"][i0:i1]):
+            HG = np.concatenate([rec["obj_H"][i0:i1].reshape(-1, 36), rec["obj_g"][i0:i1]], 1)
+            table = SegmentTable(rec["obj_frame"][i0:i1], rec["obj_id"][i0:i1], HG,
+                                 [e - L for L in pools["windows"]])
+        pools["table"] = ((s, e, pools["windows"]), table)
+    if table is None:
+        return 1.0
+    after, before = table.split(a)
+    r = difference_ratio(after, before, fa[0], fb[0], fa[1] + fb[1])
+    pool = pools.setdefault(e - a, [])
+    if np.isfinite(r):
+        pool.append(r)
+        del pool[:-DIFF_SAMPLES]
+    if len(pool) < DIFF_MIN_SAMPLES or not np.isfinite(r):
+        return 1.0
+    return min(1.0, max(float(np.quantile(pool, q)), r))
+
+
 def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | None = None,
            h_out: float | None = None, config=None, first_only: bool = False, threshold: float | None = None,
            iterate: int = -1, cov_at: str = "iterate", trace: list | None = None,
@@ -459,6 +487,7 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
     C = _cums(rows)
     alarms: list[int] = []
     diffs: list[float] = []
+    pools: dict = {}  # per window length: the objects' spread ratios (``difference_quantile``; kept after alarms)
     start, last, end = 0, None, -10 ** 9
     e = W
     while e <= len(rows):
@@ -468,6 +497,7 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
         longest = max([L for L in cfg.windows if L <= e - s] or [W])
         tested = cfg.test_windows if windows is None else windows  # the change-point tests' recent segments
         lengths = [L for L in tested if L <= e - s] or [min(tested)]
+        pools["windows"] = tuple(lengths)
         fr = None if _few_objects(rec, C, e - longest, e, cfg) else _seg_fit(C, e - longest, e)
         alarm = False
         if fr is not None:
@@ -485,6 +515,9 @@ def replay(rec: dict, floor: float = 1.0, factor: float = 1.0, leave_out: int | 
                 if iterate >= 0:
                     fa, oa = its[L] if its[L] is not None else (None, None)
                 if fa is not None and fb is not None:
+                    if cfg.difference_quantile > 0 and oa is None:  # (``CameraMonitor._difference_scale``)
+                        k_d = _difference_scale(rec, s, e - L, e, fa, fb, cfg.difference_quantile, pools)
+                        fa, fb = (fa[0], fa[1] * k_d), (fb[0], fb[1] * k_d)
                     tests.append((_chi2(fa[0] - fb[0], (fa[1] + fb[1]) * phi), e - L, fa, fb, oa))
             if iterate >= 0 and fr_i is not None:
                 tests.append((_chi2(fr_i[0][0], fr_i[0][1] * phi + cov_cal), e - longest, fr_i[0], None, fr_i[1]))

@@ -175,9 +175,10 @@ def _third_members_060(Cs, pq, rng, pair_w, block=1024):  # xcalib 0.6.0, verbat
 
 @pytest.mark.parametrize("seed", range(16))
 def test_third_members_same_triples_as_060(seed):
-    """``hypotheses._third_members`` (two arg-max passes, issue 29) draws the same third members in
-    the same order as the partition-and-sort of 0.6.0, with and without prior weights, on sparse
-    and dense compatibility (rows with 0, 1 and 2+ compatible members) and blocks of rows."""
+    """``hypotheses._third_members`` (two arg-max passes, issue 29; without priors the incompatible
+    members' keys shifted below the compatible ones in place, session 15) draws the same third
+    members in the same order as the partition-and-sort of 0.6.0, with and without prior weights,
+    on sparse and dense compatibility (rows with 0, 1 and 2+ compatible members) and blocks of rows."""
     from xcalib.calib.hypotheses import _third_members
 
     r = np.random.default_rng(seed)

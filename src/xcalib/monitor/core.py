@@ -39,7 +39,7 @@ from ..calib.refine import DEFAULT_NOISE, F_SCALE, edge_term, match_frame
 from ..calib.result import CalibrationResult
 from ..geometry.boxes import as_box7, check_boxes3d
 from ..geometry.camera import CameraIntrinsics
-from . import pairnoise, stats
+from . import pairnoise, spread, stats
 from .fastyaw import fit_yaw_batch, maybe_in_view
 from .iterate import EdgeRows, iterated_fit, object_shares, stack_rows
 
@@ -120,6 +120,17 @@ class MonitorConfig:
     docs/monitor.md ("The 3D-box noise weighted per pair"): it states less information about the
     pose (a pose change moves one box's edges nearly as an error of its centre does) and detects
     fewer steps, later.
+    difference_quantile: the change test's covariance taken at the spread of the two segments'
+    difference that the objects themselves show (``spread.difference_ratio``: a sandwich clustered
+    by object, at each segment's estimate; an object tracked across the boundary whose 3D box
+    stays wrong alike pushes both estimates alike, so its error cancels in the difference, and the
+    outlying edges' share is bounded where the soft-L1 loss bends), relative to the stated one: the
+    ``difference_quantile`` quantile of the ratios of the last DIFF_SAMPLES tests of each window
+    length (the stream's own, pooled: one test's ratio from tens of objects is too noisy), never
+    above 1 (never wider than stated); 1 until DIFF_MIN_SAMPLES are in. The one-step change tests
+    only (not with ``iterate_steps``); the offset test against the calibration keeps its
+    covariance. 0 (the default): off. Measured in docs/monitor.md ("The change test's spread from
+    the objects").
     """
 
     window: int = 20
@@ -153,6 +164,7 @@ class MonitorConfig:
     iterate_steps: int = 0
     change_point_step: int = 0
     pair_noise: bool = False
+    difference_quantile: float = 0.0
 
     def __post_init__(self) -> None:
         if int(self.leave_out_objects) < 0:
@@ -188,6 +200,8 @@ class MonitorConfig:
         stats.threshold(self.false_alarm_rate, self.stride, 1)  # validates the rate
         if not self.fps > 0:
             raise ValueError(f"MonitorConfig.fps must be > 0, got {self.fps}")
+        if not 0.0 <= self.difference_quantile < 1.0:
+            raise ValueError(f"MonitorConfig.difference_quantile must be in [0, 1) (0: off), got {self.difference_quantile}")
         if not isinstance(self.pair_noise, bool):
             raise ValueError(f"MonitorConfig.pair_noise must be True or False, got {self.pair_noise!r}")
 
@@ -457,6 +471,26 @@ def _object_sums(recs: list[_Rec], a: int, b: int) -> tuple[np.ndarray, np.ndarr
     return u, out[:, :36].reshape(-1, 6, 6), out[:, 36:]
 
 
+def _share_table(recs: list[_Rec], bounds: list[int]) -> spread.SegmentTable | None:
+    """The history's per-object shares as a ``spread.SegmentTable`` split at ``bounds`` (once per
+    decision); None where the pairs are not tracked enough to cluster by object (``spread.tracked``)."""
+    parts = [(j, q) for j, q in enumerate(recs) if q.obj is not None and len(q.obj)]
+    ids = np.concatenate([q.obj for _, q in parts]) if parts else np.zeros(0, dtype=np.int64)
+    if not spread.tracked(ids):
+        return None
+    return spread.SegmentTable(np.repeat([j for j, _ in parts], [len(q.obj) for _, q in parts]), ids,
+                               np.concatenate([_share_rows(q) for _, q in parts]), bounds)
+
+
+def _share_rows(q: _Rec) -> np.ndarray:
+    """A frame's per-object shares as rows [m, 42] (H flattened, g), computed once per frame."""
+    hg = getattr(q, "_hg", None)
+    if hg is None:
+        hg = np.concatenate([np.asarray(q.obj_H).reshape(-1, 36), np.asarray(q.obj_g).reshape(-1, 6)], 1)
+        q._hg = hg
+    return hg
+
+
 def _total(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return H.sum(0) if len(H) else np.zeros((6, 6)), g.sum(0) if len(g) else np.zeros(6)
 
@@ -516,6 +550,7 @@ class CameraMonitor:
         lvl = float(self.config.leave_out_level)
         self.h_out = stats.threshold(lvl, 1, 1) if lvl > 0 else self.h  # without the left-out objects
         self._diffs: deque[float] = deque(maxlen=200)  # successive windows' disagreement (chi2 / 6)
+        self._dratios: dict[int, deque[float]] = {}  # per window length: the objects' spread of the difference / stated
         # per tested window length: drift-free decisions' squared standardised change per axis [6]
         self._zs: dict[int, deque[np.ndarray]] = {}
         self._z_at: dict[int, int] = {}  # ... and the frame count at the last one (non-overlapping windows)
@@ -945,6 +980,7 @@ class CameraMonitor:
         pending: list[tuple[int, np.ndarray, np.ndarray]] = []  # samples of axis_factors
         # weak axes are judged on the longest window tested within target_frames of a change
         L_t = max([L for L in lengths if L + cfg.stride <= cfg.target_frames] or [lengths[0]])
+        table = _share_table(recs, [n - L for L in lengths]) if cfg.difference_quantile > 0 else None
         for L in lengths:  # the change-point tests: each recent segment against the frames before it
             if sums.pairs(0, n - L) < cfg.min_pairs or sums.pairs(n - L, n) < cfg.min_pairs:
                 continue
@@ -954,6 +990,9 @@ class CameraMonitor:
                 fa, oa = self._iterated(recs, n - L, n) or (fa, None)
             if fa is None or fb is None:
                 continue
+            if table is not None and oa is None:  # the objects' own spread of the difference
+                k_d = self._difference_scale(recs, n - L, fa, fb, table)
+                fa, fb = replace(fa, cov=fa.cov * k_d), replace(fb, cov=fb.cov * k_d)
             S, _ = self._cov_scale(L, phi)
             pending.append((L, fa.x - fb.x, fa.cov + fb.cov))
             C = (fa.cov + fb.cov) * np.outer(S, S)
@@ -1001,6 +1040,23 @@ class CameraMonitor:
                                 f"{cfg.max_detectable_m:g} m)", "weak_geometry", best_stat, det, longest, weak_det)
         return self._status("ok", fit_r, f"no change (statistic {best_stat:.1f} < threshold {self.h:.1f}){held}",
                             "one_object" if held else "", best_stat, det, longest, weak_det)
+
+    def _difference_scale(self, recs: list[_Rec], a: int, fa: _Fit, fb: _Fit, table: spread.SegmentTable) -> float:
+        """The factor on both segments' covariances of the test of frames [a, n) against [0, a)
+        (``MonitorConfig.difference_quantile``): this test's ``spread.difference_ratio`` joins the last
+        DIFF_SAMPLES of its window length; their ``difference_quantile`` quantile or this test's own
+        ratio, the larger, at most 1 (1 until DIFF_MIN_SAMPLES are in, or where the ratio cannot be formed)."""
+        n = len(recs)
+        after, before = table.split(a)
+        r = spread.difference_ratio(after, before, fa.x, fb.x, fa.cov + fb.cov)
+        pool = self._dratios.setdefault(n - a, deque(maxlen=DIFF_SAMPLES))
+        if np.isfinite(r):
+            pool.append(r)
+        if len(pool) < DIFF_MIN_SAMPLES or not np.isfinite(r):
+            return 1.0
+        # the stream's own (pooled) scale, but never below this test's own spread: a window whose objects
+        # disagree (3D boxes wrong unlike each other: not a move of the camera) keeps its wider covariance
+        return min(1.0, max(float(np.quantile(np.asarray(pool), self.config.difference_quantile)), r))
 
     def _relinearised_tests(self, recs: list[_Rec], sums: _Sums, tests: list, longest: int,
                             det: np.ndarray) -> MonitorStatus | None:
@@ -1289,6 +1345,8 @@ RELIN_TOL = 0.5  # a frame linearised farther than this (sigma, any axis) from t
 AXIS_SAMPLES = 400  # samples kept per window length (axis_factors)
 REFERENCE_SAMPLES = 12  # MonitorConfig.reference_samples where it is switched on (CLI --reference)
 MIN_AXIS_FACTOR = 0.25  # a test's variance is never taken below a quarter of the stated one on any axis
+DIFF_SAMPLES = 120  # per window length: the tests whose spread ratio the difference's scale is the quantile of
+DIFF_MIN_SAMPLES = 20  # ... before it replaces 1 (MonitorConfig.difference_quantile)
 MIN_DIFFS = 5  # adjacent window pairs before the measured inflation replaces the prior
 INFLATION_PRIOR = 2.0
 CHI2_6_Q75_OVER_6 = 1.3068  # 75th percentile of chi-square(6) / 6
