@@ -874,7 +874,8 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0, pla
     chk2, msg2 = principal_point_check_looks(centred, draws=draws, seed=seed, places=places)
     traded = _PP_TRADES in (msg2 or "") and pp_resolution_applies(ctx.intr)
     if (msg2 or "").startswith("model misfit") or traded:
-        return replace(chk2, detail=chk2.detail + note + f"; at the estimated focal length: {chk.detail}"), msg2
+        first = chk.detail.replace(f" ({PP_UNRESOLVED})", "")  # (the misfit decides: not the rule's verdict)
+        return replace(chk2, detail=chk2.detail + note + f"; at the estimated focal length: {first}"), msg2
     # a second look at another value of a nuisance parameter: only its decisive verdicts add a refusal: a
     # misfit (a shift beyond the tolerance, the objects' scatter, the pose-free sigma and the box model),
     # or a shift that the frames and the objects both flag and only the camera's rotation, traded off

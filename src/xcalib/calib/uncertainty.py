@@ -985,10 +985,9 @@ def principal_point_information(ctx: FitContext) -> tuple[np.ndarray, np.ndarray
     information x the inlier residuals' variance and the sandwich clustered per matched pair (its 4
     edges share one 3D box error), with the pose's six parameters profiled out
     (``misfit._pp_jacobian_sd``, the principal-point check's resolution). The move is the pose's
-    regression on each shift with the other shift free: ``A[:6, k] / A[k, k]`` of the inverse
-    information ``A`` over the 8 parameters, i.e. where the pose goes when cx (cy) is moved by 1 px and
-    the boxes are refitted (the part of the pose's covariance that the shift's variance carries is
-    that move times the shift's sigma). None when the information is singular or nothing is finite."""
+    linearised refit when cx (cy) alone is moved by 1 px, the other held (``-M_pp^-1 M_pc`` of the
+    information ``M = J^T J`` over the inlier edges): a given cx off by e px leaves the pose off by e x
+    that move. None when the information is singular or nothing is finite."""
     frames, pairs = ctx.frames, ctx.pairs
     n = 4 * int(sum(len(p) for p in pairs))
     model = build_cost(frames, pairs, ctx.intr, ctx.pose, ctx.noise, ctx.occlusion, (PrincipalPointTerm(),))
@@ -1009,8 +1008,11 @@ def principal_point_information(ctx: FitContext) -> tuple[np.ndarray, np.ndarray
     if nc > 8:
         var = np.maximum(var, np.diag(A @ (g.T @ g * (nc / (nc - 8))) @ A))
     sd = np.sqrt(np.clip(var[6:8], 0.0, None))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        move = A[:6, 6:8] / np.diag(A)[6:8]
+    M = J[inl].T @ J[inl]
+    try:
+        move = -np.linalg.solve(M[:6, :6], M[:6, 6:8])
+    except np.linalg.LinAlgError:
+        return None
     if not (np.all(np.isfinite(sd)) and np.all(np.isfinite(move))):
         return None
     return sd, move
