@@ -160,6 +160,10 @@ def test_the_bound_with_the_part_delivers_within_the_limit_and_refuses_uncertain
     diag.uncertainty = dataclasses.replace(unc.parts, principal_point=[0.02, 1.4, 0.05, 0.1, 0.0, 0.02])
     wide, refusal = api._with_pp_part(unc, ev, config, diag)  # 1.4 deg: bound ~2.8 deg > 2 deg
     assert refusal is not None and refusal.code == "uncertain", refusal
-    assert "principal point" in refusal.message and "1.40 deg" in refusal.message, refusal.message
+    assert "principal point" in refusal.message and "1.40 deg" in refusal.message and "cx" in refusal.message, refusal.message
+    assert "limit 2 deg" in refusal.message, refusal.message
+    # a user's wider limit: the same pose delivered, with that sigma
+    wide, refusal = api._with_pp_part(unc, ev, config.replace(max_rot_bound_deg=4.0), diag)
+    assert refusal is None and wide.rot_sd[1] == pytest.approx(np.hypot(0.06, 1.4))
     assert wide.rot_sd[1] == pytest.approx(np.hypot(0.06, 1.4))
 

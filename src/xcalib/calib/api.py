@@ -49,7 +49,7 @@ from .result import CalibrationResult
 from .selection import FrameSelection, scan_frames, select_frames
 from .selfcal import decide as decide_selfcal, wants_selfcal
 from .uncertainty import estimate as estimate_uncertainty
-from .uncertainty import MIN_OBJECTS, object_groups, outline_fit, principal_point_part, statistical_sd, with_focal_box_model, with_object_outline, with_principal_point
+from .uncertainty import MIN_OBJECTS, bound95, object_groups, outline_fit, principal_point_part, statistical_sd, with_focal_box_model, with_object_outline, with_principal_point
 
 __all__ = ["calibrate", "calibrate_single", "METHOD"]
 
@@ -612,12 +612,19 @@ def _with_pp_part(unc, ev: Evidence, config: CalibConfig, diag: CalibDiagnostics
     unc = with_principal_point(unc, part)
     diag.uncertainty = unc.parts
     refusal = verdict(dataclasses.replace(ev, rot_sd_total=unc.rot_sd, tr_sd_total=unc.tr_sd), config)
-    if refusal is not None:
-        refusal = Refusal(refusal.code, refusal.message + (
-            f" (the bound includes {float(np.linalg.norm(part[:3])):.2f} deg / {float(np.linalg.norm(part[3:])):.2f} m "
-            "at 1-sigma for a given principal point that these detections do not check: with the camera's rotation "
-            "free they fix cx only beyond the shift that turns the camera 1 deg, common with wide-angle lenses; give "
-            "cx, cy from a calibration you trust and add frames with objects nearer the image's left and right edges)"))
+    why = (f"a given cx that these detections cannot check moves the pose by {float(np.linalg.norm(part[:3])):.2f} deg / "
+           f"{float(np.linalg.norm(part[3:])):.2f} m per 1-sigma of its error (with the camera's rotation free they fix cx "
+           "only beyond the shift that turns the camera 1 deg: a turn moves the boxes almost as a shift of cx does, common "
+           "with wide-angle lenses)")
+    advice = ("give cx, cy from a calibration you trust and add frames in which objects pass nearer the image's left "
+              "and right edges and at other depths")
+    if refusal is not None and refusal.code == "uncertain":
+        refusal = Refusal("uncertain", f"too uncertain: the frames agree on the pose at the given principal point, but "
+                          f"{why}; with that in its sigma the pose's 95 % bound is {bound95(unc.rot_sd):.2f} deg / "
+                          f"{bound95(unc.tr_sd):.2f} m (limit {config.max_rot_bound_deg:g} deg / "
+                          f"{config.max_trans_bound_m:g} m); {advice}")
+    elif refusal is not None:
+        refusal = Refusal(refusal.code, refusal.message + f" (the sigma includes the principal point's part: {why})")
     return unc, refusal
 
 
