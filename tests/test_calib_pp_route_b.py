@@ -39,7 +39,7 @@ def test_the_part_is_the_pose_move_of_a_one_sigma_shift_of_cx(ctx):
     from xcalib.calib.cost import shift_principal_point
     from xcalib.calib.misfit import _pp_jacobian_sd
 
-    sd, move = principal_point_information(ctx)
+    sd, move, shift = principal_point_information(ctx)
     assert np.allclose(sd, _pp_jacobian_sd(ctx))  # the resolution rule's sigma, the same numbers
     dx = 5.0
     moved = dataclasses.replace(ctx, intr=shift_principal_point(ctx.intr, dx, 0.0))
@@ -50,9 +50,25 @@ def test_the_part_is_the_pose_move_of_a_one_sigma_shift_of_cx(ctx):
     assert np.allclose(np.abs(refit), np.abs(lin), rtol=0.25, atol=0.02 * np.max(np.abs(lin))), (refit, lin)
     part = principal_point_part(ctx)
     assert part.shape == (6,) and np.all(np.isfinite(part)) and np.all(part >= 0)
-    assert part[1] == pytest.approx(np.degrees(abs(move[1, 0])) * sd[0])
+    # the move for the root mean square of the cx error the boxes allow: the shift they ask for and its sigma
+    assert abs(shift[0]) < 2 * sd[0], (shift, sd)  # right intrinsics: the boxes ask for no shift beyond the noise
+    assert part[1] == pytest.approx(np.degrees(abs(move[1, 0])) * np.hypot(sd[0], shift[0]))
     assert part[1] == max(part[:3])  # about the camera's y axis
-    assert principal_point_part(ctx, (sd * 2, move))[1] == pytest.approx(2 * part[1])
+    assert principal_point_part(ctx, (sd, move, np.array([3 * sd[0], 0.0])))[1] == \
+        pytest.approx(np.degrees(abs(move[1, 0])) * np.sqrt(10) * sd[0])
+
+
+def test_the_shift_the_part_counts_is_the_one_the_boxes_ask_for():
+    """A wrong cx (3 % of the width) that the pose absorbed: the linearised shift from the calibration's pose is
+    the principal-point check's fitted shift (pose free), so the part counts the error the boxes half see."""
+    from xcalib.calib.misfit import _pp_fit
+
+    wrong = _shifted(0.03)
+    sd, move, shift = principal_point_information(wrong)
+    d = _pp_fit(wrong.frames, wrong.pairs, wrong.intr, wrong.pose, wrong.noise, wrong.f_scale, wrong.occlusion)
+    assert abs(shift[0] - d[0]) < 0.2 * abs(d[0]) and abs(d[0]) > 20.0, (shift, d)
+    part = principal_point_part(wrong)
+    assert part[1] > np.degrees(abs(move[1, 0])) * abs(d[0]) * 0.8
 
 
 def test_the_part_widens_the_reported_sigma_in_quadrature_not_the_data_sigma():
