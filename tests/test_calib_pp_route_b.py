@@ -183,3 +183,24 @@ def test_the_bound_with_the_part_delivers_within_the_limit_and_refuses_uncertain
     assert refusal is None and wide.rot_sd[1] == pytest.approx(np.hypot(0.06, 1.4))
     assert wide.rot_sd[1] == pytest.approx(np.hypot(0.06, 1.4))
 
+
+
+def test_an_unflagged_shift_that_turns_the_camera_beyond_one_degree_goes_to_the_bound(ctx, monkeypatch):
+    """Kannala-Brandt 150 deg, bench site 9, cx given 1.5 % of the width off: the check fitted (-13.1, -0.9) px,
+    below its 19.2 px tolerance but beyond the 8.2 px that turn the camera 1 deg, with a pose-free sigma of 6 px
+    (resolved): unflagged, and the pose was delivered 2.21 deg off with a 0.30 deg bound. On a wide-angle model
+    such a shift now goes to the bound as the resolution rule's verdict does. Here a pinhole scene judged as
+    a wide-angle one, cx 1.4 % of the width off (fx tan 1 deg = 22.7 px, the tolerance 28.8 px)."""
+    import xcalib.calib.misfit as misfit
+
+    monkeypatch.setattr(misfit, "pp_resolution_applies", lambda intr: True)
+    near = _shifted(0.014)
+    need = misfit._pp_need(near.intr)
+    chk, msg = misfit.principal_point_check(near)
+    assert misfit._PP_X_BEYOND in chk.detail and misfit.pp_unresolved(chk), chk.detail
+    assert msg.startswith("not verifiable") and f"{need:.0f} px" in msg, msg
+    assert float(misfit._pp_jacobian_sd(near)[0]) < need  # resolved: the rule's ratio alone would pass it
+    chk0, msg0 = misfit.principal_point_check(ctx)  # right intrinsics: no such shift, passed
+    assert msg0 is None and misfit._PP_X_BEYOND not in chk0.detail, chk0.detail
+    monkeypatch.setattr(misfit, "pp_resolution_applies", lambda intr: False)  # a pinhole: not judged (as before)
+    assert misfit.principal_point_check(near)[1] is None

@@ -613,9 +613,9 @@ def _with_pp_part(unc, ev: Evidence, config: CalibConfig, diag: CalibDiagnostics
     diag.uncertainty = unc.parts
     refusal = verdict(dataclasses.replace(ev, rot_sd_total=unc.rot_sd, tr_sd_total=unc.tr_sd), config)
     why = (f"a given cx that these detections cannot check moves the pose by {float(np.linalg.norm(part[:3])):.2f} deg / "
-           f"{float(np.linalg.norm(part[3:])):.2f} m per 1-sigma of its error (with the camera's rotation free they fix cx "
-           "only beyond the shift that turns the camera 1 deg: a turn moves the boxes almost as a shift of cx does, common "
-           "with wide-angle lenses)")
+           f"{float(np.linalg.norm(part[3:])):.2f} m at 1-sigma (with the camera's rotation free they fix cx, or ask for a "
+           "shift of it, only beyond the shift that turns the camera 1 deg: a turn moves the boxes almost as a shift of cx "
+           "does, common with wide-angle lenses)")
     advice = ("give cx, cy from a calibration you trust and add frames in which objects pass nearer the image's left "
               "and right edges and at other depths")
     if refusal is not None and refusal.code == "uncertain":
