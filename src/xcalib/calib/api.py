@@ -39,7 +39,7 @@ from .decision import (POOLED_OFF_LINE_M, Evidence, Refusal, crowded_check, data
 from .diagnostics import CalibDiagnostics, CandidateSummary, FrameSelectionSummary, FrameSummary
 from .hypotheses import Hypotheses
 from .inputs import CalibFrame, lean_frames, prepare_frames, with_corner_outlines, with_point_outlines
-from .misfit import box_frame_check, flipped_frames, lens_checks, focal_box_model, focal_fit, focal_scale_check, focal_width_check, leftover_frames, match_bound, second_pose_check, second_pose_screen, second_pose_support, mirror_check, mirror_screen, principal_point_check, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
+from .misfit import box_frame_check, flipped_frames, lens_checks, focal_box_model, focal_fit, focal_scale_check, focal_width_check, leftover_frames, match_bound, second_pose_check, second_pose_screen, second_pose_support, mirror_check, mirror_screen, principal_point_check, pp_unresolved, TIME_SIGMAS, time_offset_check, time_shifted_frames, unexplained_frames_check
 from .motion import BoxMotion, box_motion, shift_frames
 from .parallel import Deferred, WorkerPool, Workers, parallel_map, resolve_workers, shared
 from .pose import Pose
@@ -49,7 +49,7 @@ from .result import CalibrationResult
 from .selection import FrameSelection, scan_frames, select_frames
 from .selfcal import decide as decide_selfcal, wants_selfcal
 from .uncertainty import estimate as estimate_uncertainty
-from .uncertainty import object_groups, outline_fit, statistical_sd, with_focal_box_model, with_object_outline
+from .uncertainty import MIN_OBJECTS, bound95, object_groups, outline_fit, principal_point_part, statistical_sd, with_focal_box_model, with_object_outline, with_principal_point
 
 __all__ = ["calibrate", "calibrate_single", "METHOD"]
 
@@ -549,7 +549,7 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
                 chk, msg, fit = dataclasses.replace(chk, flagged=False, detail=chk.detail + note), None, alt
         found.append((chk, msg, "misfit_focal_length"))
         width = focal_width_check(fit, cframes, pairs, pose)
-    time_chk, pp_unverifiable = None, None
+    time_chk, pp_unverifiable, pp_chk = None, None, None
     if config.time_offset is None:  # a fixed or estimated offset is already in the model
         times, unit = _frame_times(frames_in)
         time_chk = _started(searches, 4, _time_check, ctx, times, unit, config.seed, places)
@@ -565,7 +565,7 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
                 chk, msg = dataclasses.replace(chk, flagged=False, detail=chk.detail + "; explained by the fitted "
                                                "time offset (not flagged with it applied)"), None
         if (msg or "").startswith("not verifiable"):  # like an unverifiable focal: refuses only what nothing else did
-            pp_unverifiable, msg = msg, None
+            pp_unverifiable, msg, pp_chk = msg, None, chk
         found.append((chk, msg, "misfit_principal_point"))
     if time_chk is not None:
         found.append((*time_chk, "misfit_time_offset"))
@@ -586,8 +586,47 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
     if named is None and refusal is None and width is not None and width[1]:
         return Refusal("focal_unverifiable", width[1])  # only a pose nothing else refused
     if named is None and refusal is None and pp_unverifiable:
+        part = _pp_unresolved_part(ctx, pp_chk, diag)
+        if part is not None:  # route b: the bound decides (``_with_pp_part``)
+            diag.uncertainty = dataclasses.replace(diag.uncertainty, principal_point=[float(v) for v in part])
+            return None
         return Refusal("principal_point_unverifiable", pp_unverifiable)
     return named
+
+
+def _pp_unresolved_part(ctx: FitContext, chk, diag: CalibDiagnostics):
+    """The reported sigma's part for a given cx that the boxes do not resolve (``uncertainty.principal_point_part``)
+    where the principal-point check is "not verifiable" only by its resolution rule (``misfit.pp_unresolved``)
+    and the objects are counted (``MIN_OBJECTS``+: with fewer, the part's Jacobian rests on one or two objects
+    and means nothing; the refusal stands); None otherwise."""
+    if not pp_unresolved(chk) or diag.uncertainty.n_objects < MIN_OBJECTS:
+        return None
+    return principal_point_part(ctx)
+
+
+def _with_pp_part(unc, ev: Evidence, config: CalibConfig, diag: CalibDiagnostics):
+    """(``unc`` with the unresolved principal point's part, the verdict on it) where ``_misfit_checks`` put that
+    part in ``diag.uncertainty`` (issue 26, route b): the pose is judged again with the part in its reported
+    sigma (the 95 % bound decides: ``uncertain`` beyond the limits), the message naming the part."""
+    part = diag.uncertainty.principal_point
+    unc = with_principal_point(unc, part)
+    diag.uncertainty = unc.parts
+    refusal = verdict(dataclasses.replace(ev, rot_sd_total=unc.rot_sd, tr_sd_total=unc.tr_sd,
+                                         parts=unc.parts), config)
+    why = (f"a given cx that these detections cannot check moves the pose by {float(np.linalg.norm(part[:3])):.2f} deg / "
+           f"{float(np.linalg.norm(part[3:])):.2f} m at 1-sigma (with the camera's rotation free they fix cx, or ask for a "
+           "shift of it, only beyond the shift that turns the camera 1 deg: a turn moves the boxes almost as a shift of cx "
+           "does, common with wide-angle lenses)")
+    advice = ("give cx, cy from a calibration you trust and add frames in which objects pass nearer the image's left "
+              "and right edges and at other depths")
+    if refusal is not None and refusal.code == "uncertain":
+        refusal = Refusal("uncertain", f"too uncertain: the frames agree on the pose at the given principal point, but "
+                          f"{why}; with that in its sigma the pose's 95 % bound is {bound95(unc.rot_sd):.2f} deg / "
+                          f"{bound95(unc.tr_sd):.2f} m (limit {config.max_rot_bound_deg:g} deg / "
+                          f"{config.max_trans_bound_m:g} m); {advice}")
+    elif refusal is not None:
+        refusal = Refusal(refusal.code, refusal.message + f" (the sigma includes the principal point's part: {why})")
+    return unc, refusal
 
 
 def _motion(frames_in, cframes, config: CalibConfig, diag: CalibDiagnostics) -> tuple[list, BoxMotion | None, str]:
@@ -725,19 +764,22 @@ def _calibrate(frames_in: list, intr_in, config: CalibConfig, matcher, prior: Po
     centre_off = _centre_offsets(cframes, intr, pose.R, pose.t, pairs)
     diag.centre_offset_px_median = float(np.median(centre_off)) if len(centre_off) else None
     diag.frames = _frame_summaries(cframes, intr, pose.R, pose.t, pairs)
-    refusal = verdict(Evidence(n_pairs=n_pairs, n_2d=diag.n_2d, most_per_frame=diag.max_pairs_per_frame,
+    ev = Evidence(n_pairs=n_pairs, n_2d=diag.n_2d, most_per_frame=diag.max_pairs_per_frame,
                                places=len(places), places_off_line=int(np.sum(off > POOLED_OFF_LINE_M)),
                                halves_available=unc.halves_available, best_score=ref.best_score,
                                runner_up_score=runner, rot_sd=unc.rot_sd_data, tr_sd=unc.tr_sd_data,
                                rot_sd_total=unc.rot_sd, tr_sd_total=unc.tr_sd,
                                n_objects=unc.parts.n_objects if config.uncertainty != "frames" else None,
                                **_objects_sd(unc.parts, config), **_beyond_noise_sd(unc.parts, config),
-                               parts=unc.parts), config)
+                               parts=unc.parts)
+    refusal = verdict(ev, config)
     if refusal is None and prior is None:
         refusal = crowded_check(cframes, config, n_pairs / max(diag.n_2d, 1))
     if config.misfit_check and (refusal is None or refusal.code in _MISFIT_CAN_EXPLAIN):
         # a refusal that a model misfit explains is replaced by the misfit's message (it names the cause)
         refusal = _misfit(fit, ref.best_score, config, diag, frames_in, refusal, searches) or refusal
+        if refusal is None and diag.uncertainty.principal_point is not None:
+            unc, refusal = _with_pp_part(unc, ev, config, diag)
     if searches is not None:
         searches.cancel()  # (what was not asked for is given up: not started, or ended at its next parallel stage)
     if refusal is not None and inflation is not None:
@@ -852,7 +894,9 @@ def _calibrate_retry(frames_in: list, intrinsics, config: CalibConfig, matcher, 
     if not res.success and config.max_baseline_m is not None and prior_pose is None \
             and res.diagnostics.refusal not in ("mixed_cameras", "too_few_detections", "collinear_3d", "collinear_2d") \
             and not res.diagnostics.refusal.startswith("misfit") and res.diagnostics.refusal not in ("crowded", "few_objects", "focal_unverifiable",
-                                                                             "principal_point_unverifiable"):
+                                                                             "principal_point_unverifiable") \
+            and res.diagnostics.uncertainty.principal_point is None:
+        # (a bound that fails by the unresolved principal point's part is no co-location question either)
         # the co-located-rig assumption may be wrong (e.g. boxes in a global frame): search again
         retry = _calibrate(frames_in, intrinsics, config.replace(max_baseline_m=None), matcher, None, progress)
         if retry.success or res.diagnostics.refusal == "no_hypothesis":

@@ -115,7 +115,10 @@ class UncertaintyParts:
     fitted noise model's sigma with that measured centre error as a rigid shift of each box, the reported
     sigma's floor per axis (``uncertainty.centre_floor_sd``; None where no centre error was measured); focal_box_model: what refine_intrinsics="auto"'s choice of a fitted
     focal length adds where the given focal length with the 2D outline offsets free explains the
-    boxes as well (``selfcal.focal_box_model_sd``): in the reported sigma only (None: none)."""
+    boxes as well (``selfcal.focal_box_model_sd``): in the reported sigma only (None: none); principal_point:
+    what a given cx that the boxes do not resolve with the rotation free carries (the pose's move for a shift of
+    cx by its 1-sigma, ``uncertainty.principal_point_part``; wide-angle models, where the principal point's
+    resolution rule would otherwise refuse): in the reported sigma only (None: not added)."""
 
     jacobian: list[float] | None = None
     halves: list[float] | None = None
@@ -142,6 +145,7 @@ class UncertaintyParts:
     centre_shift: list[float] | None = None
     centre_floor: list[float] | None = None
     focal_box_model: list[float] | None = None
+    principal_point: list[float] | None = None
 
 
 @dataclass

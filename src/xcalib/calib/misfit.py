@@ -57,9 +57,9 @@ from .boxmodel import kind_outline_edge_term, outline_edge_term
 from .context import FitContext
 from .parallel import parallel_map, shared
 from .refine import build_cost, lsq, match_all
-from .uncertainty import jackknife_sd, leave_frames_out, object_groups
+from .uncertainty import jackknife_sd, leave_frames_out, object_groups, principal_point_information
 
-__all__ = ["MisfitVerdict", "lens_check", "lens_checks", "lens_box_model", "pp_resolution_applies", "LENS_ALT_GAIN", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "focal_box_model", "FOCAL_MIN_GAIN", "FOCAL_BOX_ALT_GAIN", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "second_pose_screen", "second_pose_support", "mirror_screen", "match_bound", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "principal_point_check_all", "inner_pairs", "time_offset_check", "TIME_BOX_ALT_GAIN", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
+__all__ = ["MisfitVerdict", "lens_check", "lens_checks", "lens_box_model", "pp_resolution_applies", "LENS_ALT_GAIN", "LensFit", "lens_fit", "LENS_MIN_XI", "LENS_MIN_GAIN", "FocalFit", "focal_fit", "focal_width_check", "focal_box_model", "FOCAL_MIN_GAIN", "FOCAL_BOX_ALT_GAIN", "box_frame_check", "BOX_FRAME_MAX_TILT_DEG", "focal_scale_check", "second_pose_check", "second_pose_screen", "second_pose_support", "mirror_screen", "match_bound", "leftover_frames", "SECOND_POSE_SHARE", "principal_point_check", "principal_point_check_all", "pp_unresolved", "PP_UNRESOLVED", "inner_pairs", "time_offset_check", "TIME_BOX_ALT_GAIN", "time_shifted_frames", "pair_velocities", "unexplained_frames_check", "flipped_frames", "FOCAL_TOL",
            "FOCAL_MAX_UNCHECKED"]
 
 FOCAL_TOL = 0.03          # |fitted focal scale - 1| beyond this (and 2 sigma) is a misfit
@@ -744,27 +744,8 @@ def _pp_jacobian_sd(ctx: FitContext) -> np.ndarray | None:
     site fit +3 to +18 px in x and freeing cx, cy turned the pose by 4 deg for a robust-cost gain of
     2.4; this Jacobian gives (13, 6) px there, and (3-5, 1) px on the same lens's sites where a
     wrong cx (3 % of the width) is fitted back."""
-    frames, pairs = ctx.frames, ctx.pairs
-    n = 4 * int(sum(len(p) for p in pairs))
-    model = build_cost(frames, pairs, ctx.intr, ctx.pose, ctx.noise, ctx.occlusion, (PrincipalPointTerm(),))
-    r0, J = model.jacobian()
-    r0, J = r0[:n], J[:n, :8]  # the box edges; the pose (6) and the principal point (2)
-    informative = np.any(J != 0, axis=1)
-    if not np.any(informative):
-        return None
-    sigma = max(float(1.4826 * np.median(np.abs(r0[informative]))), 1e-9)
-    inl = informative & (np.abs(r0) <= 3 * sigma)
-    try:
-        A = np.linalg.inv(J[inl].T @ J[inl])
-    except np.linalg.LinAlgError:
-        return None
-    var = np.diag(A) * float(np.sum(r0[inl] ** 2) / max(int(inl.sum()) - 8, 1))
-    g = (J * np.where(inl, r0, 0.0)[:, None]).reshape(-1, 4, 8).sum(1)
-    nc = int(np.sum(np.any(g != 0, axis=1)))
-    if nc > 8:
-        var = np.maximum(var, np.diag(A @ (g.T @ g * (nc / (nc - 8))) @ A))
-    sd = np.sqrt(np.clip(var[6:8], 0.0, None))
-    return sd if np.all(np.isfinite(sd)) else None
+    info = principal_point_information(ctx)  # (the pose's move per px is the route-b part's, uncertainty)
+    return None if info is None else info[0]
 
 
 def _pp_need(intr: CameraIntrinsics) -> float:
@@ -834,6 +815,9 @@ def _pp_x_unresolved(d: np.ndarray, sd_xy: np.ndarray, W: int, need: float) -> b
 _PP_TRADES = "trades off against the camera's rotation"
 #: the principal-point detail's words for an unflagged shift that turns the camera beyond ``PP_CHECK_DEG``
 _PP_ASKED = "neither confirmed nor ruled out"
+#: the principal-point detail's words for an unflagged shift whose x part alone turns the camera beyond
+#: ``PP_CHECK_DEG`` (``principal_point_resolution`` puts it in the bound on wide-angle models)
+_PP_X_BEYOND = "beyond the 1-degree shift, unflagged"
 #: the principal-point detail's words for a shift that the box model (outline offsets) explains
 _PP_BOX_EXPLAINS = "the box model explains it"
 #: a 2D box edge within this many pixels of the image border is the border's, not the object's
@@ -899,13 +883,16 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0, pla
     and the pose would have been delivered 1.8 deg / 0.61 m off. The second look adds only a "model
     misfit" (see the code)."""
     chk, msg = principal_point_check_looks(ctx, draws=draws, seed=seed, places=places)
-    if not focal_free or msg is not None:
+    if not focal_free or (msg is not None and not pp_unresolved(chk)):
         return chk, msg
+    # (a check "not verifiable" only by the resolution rule may be delivered with its sigma part: it is
+    # judged at the jointly fitted focal length too, as a pass)
     centred, note = pp_focal_centred(ctx)
     chk2, msg2 = principal_point_check_looks(centred, draws=draws, seed=seed, places=places)
     traded = _PP_TRADES in (msg2 or "") and pp_resolution_applies(ctx.intr)
     if (msg2 or "").startswith("model misfit") or traded:
-        return replace(chk2, detail=chk2.detail + note + f"; at the estimated focal length: {chk.detail}"), msg2
+        first = chk.detail.replace(f" ({PP_UNRESOLVED})", "")  # (the misfit decides: not the rule's verdict)
+        return replace(chk2, detail=chk2.detail + note + f"; at the estimated focal length: {first}"), msg2
     # a second look at another value of a nuisance parameter: only its decisive verdicts add a refusal: a
     # misfit (a shift beyond the tolerance, the objects' scatter, the pose-free sigma and the box model),
     # or a shift that the frames and the objects both flag and only the camera's rotation, traded off
@@ -918,6 +905,8 @@ def principal_point_check(ctx: FitContext, *, draws: int = 5, seed: int = 0, pla
     # refuse right poses the first look passed (realism detector_outline sites 0, 3, 11, pinhole, fx
     # estimated x0.98-1.00: 0.15-0.33 deg off)
     said = "not flagged either" if msg2 is None else f"not verifiable there ({chk2.detail[:160]}), not a misfit"
+    if msg is not None:  # the resolution rule's verdict stands (its words end the detail)
+        return replace(chk, detail=note[2:] + f": {said}; " + chk.detail), msg
     return replace(chk, detail=chk.detail + note + f": {said}"), None
 
 
@@ -1014,8 +1003,21 @@ def principal_point_resolution(ctx: FitContext, chk: MisfitCheck) -> tuple[Misfi
     ratio = float(sd[0]) / need
     note = (f"; with the camera's rotation free the boxes fix it to 1-sigma ({sd[0]:.1f}, {sd[1]:.1f}) px, cx at "
             f"{ratio:.2f} x the {need:.1f} px shift that turns the camera {PP_CHECK_DEG:g} deg")
-    if ratio <= PP_RESOLUTION_SIGMAS:
+    if ratio <= PP_RESOLUTION_SIGMAS and _PP_X_BEYOND not in chk.detail:
         return replace(chk, detail=chk.detail + note), None
+    if ratio <= PP_RESOLUTION_SIGMAS:
+        # resolved, but the boxes' best fit turns the camera beyond the wrong-pose line while the check, whose
+        # tolerance is in pixels (PP_TOL_FRAC of the width: 1.2-2.7 deg of turn on a 150-degree lens), cannot flag
+        # it: a given cx off by that much is what the pose absorbed, and the bound must cover it (route b with the
+        # rms of that shift and its sigma). Kannala-Brandt 150 deg, bench site 9, cx given 1.5 % of the width off:
+        # the check fitted (-13.1, -0.9) px (8.2 px turn the camera 1 deg; x sigma 6.0 px with the rotation free)
+        # and the pose was delivered 2.21 deg off with a 0.30 deg bound; with the part: 2.53 deg, refused
+        msg = (f"not verifiable: the boxes fit best with cx moved by more than the {need:.0f} px that turn the camera "
+               f"{PP_CHECK_DEG:g} deg, below the check's tolerance ({PP_TOL_FRAC * 100:g} % of the width, which on a "
+               "wide-angle lens is a larger turn); a given cx that is off by that much would be absorbed by the pose. "
+               "Give cx, cy from a calibration you trust and add frames in which objects pass nearer the image's left "
+               "and right edges and at other depths")
+        return replace(chk, flagged=True, detail=chk.detail + note + f": not verifiable, {_PP_ASKED} ({PP_UNRESOLVED})"), msg
     turn = float(np.degrees(np.arctan(float(sd[0]) / min(ctx.intr.fx, ctx.intr.fy))))
     msg = (f"not verifiable: these detections cannot check the principal point: with the camera's rotation free they "
            f"fix cx only to 1-sigma {float(sd[0]):.0f} px, a camera turn of {turn:.1f} deg (the check needs it within "
@@ -1023,7 +1025,22 @@ def principal_point_resolution(ctx: FitContext, chk: MisfitCheck) -> tuple[Misfi
            f"does (common with wide-angle lenses); a given cx that is off would be absorbed by the pose unseen. Give "
            f"cx, cy from a calibration you trust and add frames in which objects pass at other places in the image, "
            f"nearer its left and right edges and at other depths")
-    return replace(chk, flagged=True, detail=chk.detail + note + f": not verifiable, {_PP_ASKED}"), msg
+    return replace(chk, flagged=True, detail=chk.detail + note + f": not verifiable, {_PP_ASKED} ({PP_UNRESOLVED})"), msg
+
+
+#: the principal-point detail's words where :func:`principal_point_resolution` alone makes the check "not
+#: verifiable" (the boxes fix cx, with the rotation free, only beyond the 1-degree shift; nothing flagged)
+PP_UNRESOLVED = "cx not resolved with the rotation free"
+
+
+def pp_unresolved(chk: MisfitCheck | None) -> bool:
+    """Whether the principal-point check ``chk`` is "not verifiable" only by :func:`principal_point_resolution`
+    (an unflagged shift on a wide-angle camera whose cx the boxes do not resolve with the rotation free):
+    the calibration then puts the pose's move for that resolution into the reported sigma
+    (``uncertainty.principal_point_part``) and lets the 95 % bound decide, instead of refusing (issue 26,
+    route b). Any other "not verifiable" verdict (the objects' scatter, the Jacobian trade-off of a flagged
+    shift, an unflagged shift that turns the camera beyond ``PP_CHECK_DEG``) keeps its refusal."""
+    return chk is not None and chk.flagged and chk.detail.endswith(f"({PP_UNRESOLVED})")
 
 
 def principal_point_check_all(ctx: FitContext, *, draws: int = 5, seed: int = 0,
@@ -1170,6 +1187,9 @@ def principal_point_check_all(ctx: FitContext, *, draws: int = 5, seed: int = 0,
             msg += (f" -- but the {n} matches lie at only {places} distinct places (queued or parked objects "
                     "repeated over the frames), where the principal point and the pose are hard to separate: add "
                     "frames with other objects before changing the intrinsics")
+    if not flagged and abs(float(d[0])) > need:  # (judged by ``principal_point_resolution`` on wide-angle models)
+        detail += (f"; its x part turns the camera by {np.degrees(np.arctan(abs(float(d[0])) / min(intr.fx, intr.fy))):.2f}"
+                   f" deg ({_PP_X_BEYOND})")
     return MisfitCheck("principal_point", shift, PP_TOL_FRAC * W, flagged, detail), msg
 
 
