@@ -77,3 +77,13 @@ def test_a_unified_camera_given_cx_off_by_1_percent_is_delivered_only_within_its
 def test_a_unified_camera_given_cx_off_by_1_percent_is_not_delivered_beyond_the_wrong_pose_line():
     res, err = _delivered("unified", 9, 0.01)
     assert err is None or (err[0] <= 1.0 and err[1] <= 0.5), f"delivered {err[0]:.2f} deg / {err[1]:.2f} m off"
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="open (session 15 review): Kannala-Brandt 150 deg, site 9, cx +1 % W (12.8 px): the "
+                   "boxes ask for -6.8 px only, within the 8.2 px 1-degree shift, at a pose-free 1-sigma of 5.7 px "
+                   "(ratio 0.70: 'resolved'): the check passes and the pose is delivered 1.50 deg off with a 1-sigma "
+                   "of 0.14 deg (a 1-sigma of 0.7 x the 1-degree shift sees that shift at 1.4 sigmas only)")
+def test_a_kannala_brandt_camera_given_cx_off_by_1_percent_is_not_delivered_wrong():
+    res, err = _delivered("kannala_brandt", 9, 0.01)
+    assert err is None or (err[0] <= 1.0 and err[1] <= 0.5), f"delivered {err[0]:.2f} deg / {err[1]:.2f} m off"
