@@ -42,3 +42,16 @@ def test_a_bound_the_objects_scatter_makes_keeps_the_objects_advice():
     # without stored parts: the message as before (nothing named)
     bare = verdict(_ev(None, np.array([0.8] * 3 + [0.3] * 3)), CalibConfig())
     assert bare.code == "uncertain" and "most of it" not in bare.message
+
+
+def test_a_part_far_below_the_bound_is_not_named_as_most_of_it():
+    """Session 15 review (R): with ``uncertainty="frames"`` (no objects' part) the bound is the frames' own sigma;
+    the largest stored part (an outline shift of 0.00 deg / 0.05 m against a bound of 0.61 deg) was named as "most
+    of it" and its advice replaced the general one. A part is named only where it makes at least half the bound."""
+    tiny = [0.01] * 3 + [0.01] * 3
+    parts = UncertaintyParts(jacobian=tiny, focal_box_model=[0.02] * 3 + [0.01] * 3)
+    total = np.array([0.9] * 3 + [0.3] * 3)
+    assert bound_parts(_ev(parts, total), CalibConfig()) == []
+    ref = verdict(_ev(parts, total), CalibConfig())
+    assert ref.code == "uncertain" and "most of it" not in ref.message and "focal length" not in ref.message
+    assert "other objects" in ref.message  # the general advice stays

@@ -336,7 +336,9 @@ def bound_parts(ev: Evidence, config: CalibConfig) -> list[tuple[str, str]]:
     """The parts of the reported sigma that make most of a 95 % bound beyond its limit, largest first, as
     (key of ``_PART_WORDS``, "its own bound" text): on each of rotation and translation whose bound exceeds
     the limit, every part whose own 95 % bound (``bound95`` of it alone) is at least half the whole bound
-    (at most two; the largest at least). Nothing is computed anew: only the stored parts are compared."""
+    (at most two; none where no part makes half the bound: with ``uncertainty="frames"`` the frames' own sigma
+    can make all of it, and naming the largest of small parts misled). Nothing is computed anew: only the stored
+    parts are compared."""
     if ev.parts is None or ev.rot_sd_total is None:
         return []
     sds = _part_sds(ev.parts)
@@ -348,7 +350,7 @@ def bound_parts(ev: Evidence, config: CalibConfig) -> list[tuple[str, str]]:
             continue
         own = {k: bound95(v[3 * axis:3 * axis + 3]) for k, v in sds.items()}
         ranked = sorted(own, key=own.get, reverse=True)
-        for k in [k for k in ranked if own[k] >= 0.5 * b][:2] or ranked[:1]:
+        for k in [k for k in ranked if own[k] >= 0.5 * b][:2]:  # (none: the data's own sigma makes it, nothing named)
             score[k] = max(score.get(k, 0.0), own[k] / b)
     keep = sorted(score, key=score.get, reverse=True)[:2]
     return [(k, f"{bound95(sds[k][:3]):.2f} deg / {bound95(sds[k][3:]):.2f} m") for k in keep]
