@@ -579,10 +579,10 @@ def _misfit_checks(ctx: FitContext, best_score: float, config: CalibConfig, diag
         diag.misfit = [lens_alt[0] if c is chk_lens else c for c in diag.misfit]
         named = Refusal("misfit_lens", lens_alt[1])
     if named is None and pp_unverifiable and lens_alt[1]:
-        # a principal-point shift the boxes cannot check, and a widened lens explains them better: a
-        # fisheye given as pinhole is the cause to name (as for a flagged shift above)
+        # a principal-point shift the boxes cannot check, and a widened lens explains them better: a fisheye
+        # given as pinhole or a pinhole's principal point off -- the boxes do not say which, so both are named
         diag.misfit = [lens_alt[0] if c is chk_lens else c for c in diag.misfit]
-        named = Refusal("misfit_lens", lens_alt[1])
+        named = Refusal("misfit_lens", _lens_or_principal_point(lens_alt[1], pp_unverifiable))
     if named is None and refusal is None and width is not None and width[1]:
         return Refusal("focal_unverifiable", width[1])  # only a pose nothing else refused
     if named is None and refusal is None and pp_unverifiable:
@@ -627,6 +627,18 @@ def _with_pp_part(unc, ev: Evidence, config: CalibConfig, diag: CalibDiagnostics
     elif refusal is not None:
         refusal = Refusal(refusal.code, refusal.message + f" (the sigma includes the principal point's part: {why})")
     return unc, refusal
+
+
+def _lens_or_principal_point(lens_msg: str, pp_msg: str) -> str:
+    """The refusal message where the lens alternative fired beside a principal-point check that could
+    only say "not verifiable" (no flagged shift): two causes the boxes do not tell apart. A pinhole
+    whose principal point is off but unresolved also lets a widened lens fit better (session 14, G: the
+    review's cx +3 % W detector-outline site, a pinhole, was refused with only the lens message, "a
+    fisheye or wide-angle camera given as pinhole?"), so the message names the principal point first
+    and the lens as the other cause; the refusal code stays ``misfit_lens``."""
+    return (f"model misfit: the given principal point cannot be checked, and a wider-angle lens explains the boxes "
+            f"better than the given pinhole -- either the principal point (cx, cy) is off or the camera is a "
+            f"fisheye / wide-angle lens given as pinhole. Principal point: {pp_msg.rstrip('.')}. Lens: {lens_msg}")
 
 
 def _motion(frames_in, cframes, config: CalibConfig, diag: CalibDiagnostics) -> tuple[list, BoxMotion | None, str]:

@@ -37,7 +37,7 @@ from .uncertainty import box_model_odds
 
 __all__ = ["SelfCalFit", "SelfCalChoice", "wants_selfcal", "joint_refine", "decide", "MIN_MOVING_PAIRS",
            "focal_choice_weight", "focal_outline_weight", "focal_box_model_sd", "given_focal_kept",
-           "given_focal_accepted", "given_principal_point_unverified", "KEEP_GIVEN_WEIGHT"]
+           "given_focal_accepted", "given_principal_point_unverified", "KEEP_GIVEN_WEIGHT", "focal_own_move"]
 
 MIN_MOVING_PAIRS = 3
 GATES = ((0.1, 1.0), (0.2, 0.5), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0), (0.3, 0.0))
@@ -237,30 +237,38 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
     cfg = config
     repeat = repeat_factor(cframes, match_all(cframes, intr, pose.R, pose.t, gate_iou=0.3)) \
         if config.refine_intrinsics == "auto" else 1.0
-    if config.refine_intrinsics == "auto" and _focal_agrees(cframes, intr, pose, config, diag, occlusion, repeat):
+    kept_sd = None  # the focal choice's part where the given focal length is kept (box model, consistent, ...)
+    agreed: dict = {}  # the linearised fit's scale and 1-sigma where it agrees with the given focal length
+    if config.refine_intrinsics == "auto" and _focal_agrees(cframes, intr, pose, config, diag, occlusion, repeat,
+                                                            agreed):
         cfg = cfg.replace(refine_intrinsics="none")  # the given focal length fits: no joint fit needed for it
+        kept_sd = _linearised_keep_sd(cframes, intr, pose, occlusion, agreed, diag)
         if not est_dt:
             _fill_used(diag, intr)
-            return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag)
+            return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag, kept_sd)
     fit = joint_refine(cframes, intr, pose, cfg, motion if est_dt else None, occlusion)
     if fit is None and (cfg.refine_intrinsics in ("focal", "focal+center") or config.time_offset == "estimate"):
         refusals.append("self-calibration asked for but too few matched pairs (< 6) to estimate it")
-    kept_sd = None  # the focal choice's part when the given focal length is kept by the box model
-    unconstrained = None  # the joint fit whose focal length "auto" found unconstrained (its choice's part, below)
+    unconstrained = None  # the joint fit whose focal length "auto" kept (unconstrained or consistent)
+    moves: dict = {}  # the focal length's own pose move per joint fit (focal_own_move), computed once
     w_box: float | None | bool = False  # the given focal length's weight with the outline free (False: not computed)
     checked: dict = {}  # "ok": whether the focal-length check accepts the given focal length (where it was asked)
     for _ in range(3):  # drop what the data does not constrain (or what agrees with the given), refit
         if fit is None:
             break
+        focal_before = cfg.refine_intrinsics != "none"
         cfg, changed = _judge_intrinsics(fit, cfg, config, diag, refusals, cframes[0].size[0], repeat)
-        if changed and config.refine_intrinsics == "auto" and not _focal_constrained(fit, config, repeat):
-            unconstrained = fit
+        if changed and config.refine_intrinsics == "auto" and focal_before and cfg.refine_intrinsics == "none":
+            unconstrained = fit  # kept: unconstrained, or consistent with the given one (within 2 sigma)
+            _own_move(moves, fit, cframes, intr, motion if est_dt else None, occlusion)
         if not changed and config.refine_intrinsics == "auto" and cfg.refine_intrinsics != "none" and w_box is False:
             frames_fit = shift_frames(cframes, motion.velocity, fit.dt_s) if est_dt else cframes
             w_box = focal_outline_weight(frames_fit, fit, intr, occlusion)
             if config.focal_keep_box_model:
                 kept_sd = given_focal_kept(fit, pose, w_box, fit.focal_log_sd * repeat, diag,
-                                           lambda: _keep_refused(cframes, intr, pose, occlusion, config.seed, checked))
+                                           lambda: _keep_refused(cframes, intr, pose, occlusion, config.seed, checked),
+                                           move=_own_move(moves, fit, cframes, intr, motion if est_dt else None,
+                                                          occlusion))
             elif w_box is not None and np.isfinite(w_box) and w_box >= KEEP_GIVEN_WEIGHT - 1e-12:
                 checked["ok"] = given_focal_accepted(cframes, intr, pose, occlusion)  # (for the sigma below)
             if kept_sd is not None:
@@ -277,8 +285,10 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
         fit = joint_refine(cframes, intr, pose, cfg, motion if est_dt else None, occlusion) \
             if (cfg.refine_intrinsics != "none" or est_dt) else None
         w_box = False  # (a new fit: its weight is computed again where it is needed)
-    if unconstrained is not None:  # the given focal length kept as unconstrained: that choice in the sigma
-        kept_sd = _unconstrained_choice_sd(kept_sd, unconstrained, pose if fit is None else fit.pose, repeat, diag)
+    if unconstrained is not None:  # the given focal length kept (unconstrained or consistent): that choice in the sigma
+        kept_sd = _unconstrained_choice_sd(kept_sd, unconstrained, pose if fit is None else fit.pose, repeat, diag,
+                                           move=moves.get(id(unconstrained)),
+                                           consistent=_focal_constrained(unconstrained, config, repeat))
     if fit is None:
         _fill_used(diag, intr)
         return SelfCalChoice(intr, cframes, pose, None, "; ".join(refusals), diag, kept_sd)
@@ -286,13 +296,14 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
     if cfg.refine_intrinsics != "none":
         diag.focal_scale, diag.focal_scale_std, diag.focal_estimated = fit.focal_scale, fit.focal_log_sd * repeat, True
         if config.refine_intrinsics == "auto":
-            inflation = _with_focal_choice(inflation, fit, pose, fit.focal_log_sd * repeat, diag)
+            move = _own_move(moves, fit, cframes, intr, motion if est_dt else None, occlusion)
+            inflation = _with_focal_choice(inflation, fit, pose, fit.focal_log_sd * repeat, diag, move)
             frames_fit = shift_frames(cframes, motion.velocity, fit.dt_s) if est_dt else cframes
             if w_box is False:  # (computed above where the fit stands as judged)
                 w_box = focal_outline_weight(frames_fit, fit, intr, occlusion)
             if checked.get("ok") is False:  # the focal-length check refuses the given one: the box model does
                 w_box = 0.0                 # not explain the switch (given_focal_kept), nothing of it in the sigma
-            box_sd = focal_box_model_sd(fit, pose, fit.focal_log_sd * repeat, w_box, diag)
+            box_sd = focal_box_model_sd(fit, pose, fit.focal_log_sd * repeat, w_box, diag, move)
     if fit.principal_shift_px is not None:
         diag.principal_shift_px = [float(v) for v in fit.principal_shift_px]
         diag.principal_std_px = [float(v) for v in fit.principal_sd_px]
@@ -313,7 +324,7 @@ def focal_choice_weight(z: float) -> float:
 
 
 def _with_focal_choice(inflation: np.ndarray, fit: SelfCalFit, pose: Pose, sd: float | None,
-                       diag: SelfCalDiagnostics) -> np.ndarray:
+                       diag: SelfCalDiagnostics, move: np.ndarray | None = None) -> np.ndarray:
     """``inflation`` widened by the model choice of refine_intrinsics="auto": it uses the fitted focal
     length only when that disagrees with the given one beyond 2 sigma, so a right given focal length
     is replaced by one at least 2 sigma off (about 1 site in 20) and the pose moves with it; the
@@ -322,8 +333,9 @@ def _with_focal_choice(inflation: np.ndarray, fit: SelfCalFit, pose: Pose, sd: f
     :func:`focal_choice_weight`; shift the pose's move from the given focal length's pose): a clear
     focal error (z of 5 and more) adds nothing, a 2-sigma switch about a third of the shift. Issue 26:
     a fresh 150-degree Kannala-Brandt site switched to x0.9921 (2.02 sigma) with the exact focal given,
-    pose 3.1 / 3.4 sigma off (0.74 / 1.13 with refine_intrinsics="none")."""
-    part = _choice_part(fit, pose, sd, keep_given=False)
+    pose 3.1 / 3.4 sigma off (0.74 / 1.13 with refine_intrinsics="none"). ``move``: the focal length's
+    own move (:func:`focal_own_move`; None: the move from ``pose``)."""
+    part = _choice_part(fit, pose, sd, keep_given=False, move=move)
     if part is None:
         return inflation
     w, shift, extra = part
@@ -335,17 +347,18 @@ def _with_focal_choice(inflation: np.ndarray, fit: SelfCalFit, pose: Pose, sd: f
 
 
 def _choice_part(fit: SelfCalFit, pose: Pose, sd: float | None,
-                 keep_given: bool) -> tuple[float, np.ndarray, np.ndarray] | None:
+                 keep_given: bool, move: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray] | None:
     """The model choice between the given and the fitted focal length as a pose sigma part: (w, shift,
     extra), w the given focal length's posterior weight (:func:`focal_choice_weight` of the fitted one's
     distance in its 1-sigma ``sd`` of the log scale), shift the pose's move to the fitted focal length
     (6-vector, deg / m) and extra = sqrt(weight of the model not chosen) x shift: sqrt(w) where the fitted
-    one is used, sqrt(1 - w) where the given one is kept (``keep_given``). None where ``sd`` is not a
-    positive number or the part is zero or not finite."""
+    one is used, sqrt(1 - w) where the given one is kept (``keep_given``). ``move``: the pose's move
+    measured as the focal length's own (:func:`focal_own_move`); None: ``pose``'s move to the fit's pose.
+    None where ``sd`` is not a positive number or the part is zero or not finite."""
     if sd is None or not np.isfinite(sd) or sd <= 0:
         return None
     w = focal_choice_weight(abs(float(np.log(fit.focal_scale))) / sd)
-    shift = np.abs(pose.delta(fit.pose))
+    shift = np.abs(pose.delta(fit.pose)) if move is None else np.abs(np.asarray(move, dtype=np.float64))
     extra = np.sqrt(max(1.0 - w, 0.0) if keep_given else w) * shift
     if not np.all(np.isfinite(extra)) or float(np.max(extra)) <= 0:
         return None
@@ -359,7 +372,8 @@ def _focal_constrained(fit: SelfCalFit, config: CalibConfig, repeat: float) -> b
 
 
 def _unconstrained_choice_sd(sd6: np.ndarray | None, fit: SelfCalFit, pose: Pose, repeat: float,
-                             diag: SelfCalDiagnostics) -> np.ndarray | None:
+                             diag: SelfCalDiagnostics, move: np.ndarray | None = None,
+                             consistent: bool = False) -> np.ndarray | None:
     """``sd6`` (a 6-vector of the reported sigma's focal-choice part, deg / m, or None) with the part of
     the choice refine_intrinsics="auto" makes where it keeps the given focal length because the joint
     fit's estimate is not constrained (1-sigma above ``focal_max_std``): the mirror of
@@ -370,20 +384,31 @@ def _unconstrained_choice_sd(sd6: np.ndarray | None, fit: SelfCalFit, pose: Pose
     and adds little; one at 2-3 of its sigmas adds most of its move. Session 14 review: realism-style
     site 1 with detector-outline boxes and fx given x1.03: the joint fit said x0.970 (1-sigma 1.08 %,
     limit 1 %), the given focal length was kept, and the pose was delivered 1.41 m off in depth with a
-    95 % bound of 0.60 m; its move to the fitted focal length was 1.57 m. ``pose``: the pose used."""
-    part = _choice_part(fit, pose, None if fit.focal_log_sd is None else fit.focal_log_sd * repeat, keep_given=True)
+    95 % bound of 0.60 m; its move to the fitted focal length was 1.57 m. ``pose``: the pose used;
+    ``move``: the focal length's own move (:func:`focal_own_move`; None: ``pose``'s move to the fit's).
+
+    ``consistent``: the given focal length is kept because the fitted one is within 2 of its sigmas of
+    it (constrained, "consistent with the given one"). The same choice, counted alike (session 15, K):
+    a fitted scale at z sigmas leaves the given one the weight w = 1 / (1 + exp(z^2 / 2)), 0.12-0.5, so
+    a keep within 2 sigmas adds sqrt(1 - w) = 0.71-0.94 of the move; not counting it, the session 14
+    review's fx x1.03 site with every detector habit (``detector_all`` style, site 2) kept the given focal
+    length at z 1.6 (fitted x0.987, the truth x0.971) and was delivered 0.36 deg / 0.40 m off with a 95 %
+    bound of 0.26 m."""
+    part = _choice_part(fit, pose, None if fit.focal_log_sd is None else fit.focal_log_sd * repeat, keep_given=True,
+                        move=move)
     if part is None:
         return sd6
     w, shift, extra = part
-    _note(diag, f"refine_intrinsics='auto': the given focal length is kept (the fitted x{fit.focal_scale:.4f} is not "
-                f"constrained enough to use) with a posterior weight of {w:.3f}; the pose's move to the fitted one "
+    why = "is consistent with the given one" if consistent else "is not constrained enough to use"
+    _note(diag, f"refine_intrinsics='auto': the given focal length is kept (the fitted x{fit.focal_scale:.4f} {why}) "
+                f"with a posterior weight of {w:.3f}; the pose's move to the fitted one "
                 f"({float(np.linalg.norm(shift[:3])):.3f} deg / {float(np.linalg.norm(shift[3:])):.3f} m) counts in "
                 f"the sigma by sqrt of {1.0 - w:.3f}", warn=False)
     return extra if sd6 is None else np.sqrt(np.asarray(sd6, dtype=np.float64) ** 2 + extra ** 2)
 
 
 def focal_box_model_sd(fit: SelfCalFit, pose: Pose, sd: float | None, w_box: float | None,
-                       diag: SelfCalDiagnostics) -> np.ndarray | None:
+                       diag: SelfCalDiagnostics, move: np.ndarray | None = None) -> np.ndarray | None:
     """The focal choice's box-model part of the pose sigma (6-vector, deg / m): what the given focal
     length's weight with the 2D outline offsets free (``w_box``, :func:`focal_outline_weight`) adds to
     the weight its own sigma gives it (:func:`_with_focal_choice`, ``w``): sqrt(w_box - w) x the
@@ -398,13 +423,16 @@ def focal_box_model_sd(fit: SelfCalFit, pose: Pose, sd: float | None, w_box: flo
     1/2), the pose moves by 0.04-0.69 deg / 0.16-0.68 m with the switch; site 11 was delivered 0.33 deg
     / 0.34 m off with a 95 % bound of 0.31 deg / 0.28 m (errors up to 5.0 sigma), site 19 refused 0.57
     deg / 0.78 m off with a bound of 1.34 deg / 0.74 m (3.8 sigma); with this part 2.1 and 1.6 sigma, no
-    verdict moved (``calibration_realism.json`` run ``s12_B_focal_switch_sites``)."""
+    verdict moved (``calibration_realism.json`` run ``s12_B_focal_switch_sites``). ``move``: the focal
+    length's own move (:func:`focal_own_move`; None: ``pose``'s move to the fit's pose): where the
+    given-focal refinement stopped in a local minimum the joint fit escaped, ``pose``'s move is that
+    escape, not the focal length's (session 14, D: dense200, 3.8 deg, a right pose refused)."""
     if w_box is None or not np.isfinite(w_box) or sd is None or not np.isfinite(sd) or sd <= 0:
         return None
     w = focal_choice_weight(abs(float(np.log(fit.focal_scale))) / sd)
     if w_box <= w:
         return None
-    shift = np.abs(pose.delta(fit.pose))
+    shift = np.abs(pose.delta(fit.pose)) if move is None else np.abs(np.asarray(move, dtype=np.float64))
     extra = np.sqrt(w_box - w) * shift
     if not np.all(np.isfinite(extra)) or float(np.max(extra)) <= 0:
         return None
@@ -486,7 +514,8 @@ def _keep_refused(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose,
 
 
 def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float | None,
-                     diag: SelfCalDiagnostics, refused: Callable[[], str | None] | None = None) -> np.ndarray | None:
+                     diag: SelfCalDiagnostics, refused: Callable[[], str | None] | None = None,
+                     move: np.ndarray | None = None) -> np.ndarray | None:
     """Whether refine_intrinsics="auto" keeps the given focal length (and the pose fitted with it)
     although the plain joint fit replaces it: the pose sigma part of that choice (6-vector, deg / m), or
     None (the fitted focal length is used).
@@ -514,10 +543,11 @@ def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float
     Realism (session 12): at ``detector_outline`` 19 and ``detector_truncation`` 19 "auto" replaced the
     exact focal length (x1.030 / x1.016, weight 0.003 / 0.033 from its sigma, w_box 1/2) and the pose
     ended 0.57 deg / 0.78 m and 0.80 deg / 0.50 m off; refitted with the given focal length it is
-    0.33 deg / 0.20 m and 0.44 deg / 0.23 m."""
+    0.33 deg / 0.20 m and 0.44 deg / 0.23 m. ``move``: the focal length's own move (:func:`focal_own_move`;
+    None: ``pose``'s move to the fit's pose)."""
     if w_box is None or not np.isfinite(w_box) or w_box < KEEP_GIVEN_WEIGHT - 1e-12:
         return None
-    shift = np.abs(pose.delta(fit.pose))
+    shift = np.abs(pose.delta(fit.pose)) if move is None else np.abs(np.asarray(move, dtype=np.float64))
     if not np.all(np.isfinite(shift)):
         return None
     why = None if refused is None else refused()
@@ -576,11 +606,13 @@ def focal_outline_weight(frames: list[CalibFrame], fit: SelfCalFit, intr: Camera
 
 
 def _focal_agrees(cframes, intr, pose: Pose, config: CalibConfig, diag: SelfCalDiagnostics,
-                  occlusion: Occlusion, repeat: float = 1.0) -> bool:
+                  occlusion: Occlusion, repeat: float = 1.0, agreed: dict | None = None) -> bool:
     """The cheap test of "auto": one linearised (Gauss-Newton) step of pose + focal scale at the
     refined pose. True (keep the given focal) when the scale is measured (1-sigma within
     ``focal_max_std``) and the step is within 1 sigma of the given one; False (the joint fit is
-    needed) otherwise. ``repeat``: the 1-sigma's widening for repeated objects (``repeat_factor``)."""
+    needed) otherwise. ``repeat``: the 1-sigma's widening for repeated objects (``repeat_factor``).
+    ``agreed``: where True, filled with the linearised fit's "scale" and its 1-sigma "sd" (for the
+    choice's part in the sigma, :func:`_linearised_keep_sd`)."""
     pairs = match_all(cframes, intr, pose.R, pose.t, gate_iou=0.3)
     if sum(len(p) for p in pairs) < 6:
         return True
@@ -600,11 +632,71 @@ def _focal_agrees(cframes, intr, pose: Pose, config: CalibConfig, diag: SelfCalD
         # (a 20 % error looks "unconstrained"): the joint fit decides
         return False
     if abs(step) <= sd:
+        if agreed is not None:
+            agreed.update(scale=float(np.exp(step)), sd=sd)
         _note(diag, f"refine_intrinsics='auto': the detections fit the focal length x{np.exp(step):.4f} "
                     f"(1-sigma {_fmt_pct(sd)}, linearised), consistent with the given one; the given one is kept",
               warn=False)
         return True
     return False
+
+
+def focal_own_move(frames: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, to_intr: CameraIntrinsics,
+                   occlusion: Occlusion, max_nfev: int = 60) -> np.ndarray | None:
+    """The pose's own move (6-vector |delta|, deg / m) when the focal length changes from ``intr`` to
+    ``to_intr``, measured in ``pose``'s basin: the pairs matched at ``intr`` / ``pose``, the pose refitted
+    from ``pose`` with ``to_intr`` on those pairs (one robust fit, the same edge-noise model). The focal
+    choice's parts of the sigma count this move; the pose's move between two separate refinements is
+    not the focal length's where one of them stopped in a local minimum the other escaped (session 14,
+    D: dense200, the given-focal refinement stopped 3.8 deg / 3.0 m off, the joint fit reached the truth,
+    and that escape was counted as the focal length's move: a right pose refused as too uncertain).
+    None with fewer than 6 matched pairs or where the fit fails."""
+    pairs = match_all(frames, intr, pose.R, pose.t, gate_iou=0.3)
+    if int(sum(len(p) for p in pairs)) < 6:
+        return None
+    try:
+        noise = estimate_noise(frames, pairs, intr, pose.R, pose.t)
+        refit = build_cost(frames, pairs, to_intr, pose, noise, occlusion).fit(f_scale=F_SCALE, max_nfev=max_nfev)
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    move = np.abs(pose.delta(refit.pose))
+    return move if np.all(np.isfinite(move)) else None
+
+
+def _own_move(moves: dict, fit: SelfCalFit, cframes: list[CalibFrame], intr: CameraIntrinsics,
+              motion: BoxMotion | None, occlusion: Occlusion) -> np.ndarray | None:
+    """:func:`focal_own_move` of the joint fit ``fit``: from its pose and intrinsics back to the given
+    focal length (its principal point and time offset held), computed once per fit (``moves``, by id)."""
+    if id(fit) not in moves:
+        frames = shift_frames(cframes, motion.velocity, fit.dt_s) if motion is not None else cframes
+        given = intr if fit.principal_shift_px is None else shift_principal_point(intr, *fit.principal_shift_px)
+        moves[id(fit)] = focal_own_move(frames, fit.intr, fit.pose, given, occlusion)
+    return moves[id(fit)]
+
+
+def _linearised_keep_sd(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, occlusion: Occlusion,
+                        agreed: dict, diag: SelfCalDiagnostics) -> np.ndarray | None:
+    """The choice's part of the reported sigma (6-vector deg / m, or None) where "auto"'s cheap test
+    (:func:`_focal_agrees`) keeps the given focal length because its linearised fit agrees within 1
+    sigma: sqrt(1 - w) x the pose's own move to that scale (:func:`focal_own_move`), w the given one's
+    weight (:func:`focal_choice_weight`), as where the joint fit's scale is kept
+    (:func:`_unconstrained_choice_sd`): keeping the given focal length is a model choice whether the
+    fitted one is unconstrained, within 2 sigmas or within 1 (session 15, K)."""
+    scale, sd = agreed.get("scale"), agreed.get("sd")
+    if scale is None or sd is None or not np.isfinite(sd) or sd <= 0:
+        return None
+    move = focal_own_move(cframes, intr, pose, replace(intr, fx=intr.fx * scale, fy=intr.fy * scale), occlusion)
+    if move is None:
+        return None
+    w = focal_choice_weight(abs(float(np.log(scale))) / sd)
+    extra = np.sqrt(max(1.0 - w, 0.0)) * move
+    if not np.all(np.isfinite(extra)) or float(np.max(extra)) <= 0:
+        return None
+    _note(diag, f"refine_intrinsics='auto': the given focal length is kept (the linearised x{scale:.4f} is consistent "
+                f"with it) with a posterior weight of {w:.3f}; the pose's move to that one "
+                f"({float(np.linalg.norm(move[:3])):.3f} deg / {float(np.linalg.norm(move[3:])):.3f} m) counts in "
+                f"the sigma by sqrt of {1.0 - w:.3f}", warn=False)
+    return extra
 
 
 def _drop_dt(diag: SelfCalDiagnostics, config: CalibConfig, refusals: list[str], why: str) -> None:
