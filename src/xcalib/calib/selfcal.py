@@ -287,7 +287,7 @@ def decide(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, config
         w_box = False  # (a new fit: its weight is computed again where it is needed)
     if unconstrained is not None:  # the given focal length kept (unconstrained or consistent): that choice in the sigma
         kept_sd = _unconstrained_choice_sd(kept_sd, unconstrained, pose if fit is None else fit.pose, repeat, diag,
-                                           move=moves.get(id(unconstrained)),
+                                           move=moves.get(id(unconstrained), (None, None))[1],
                                            consistent=_focal_constrained(unconstrained, config, repeat))
     if fit is None:
         _fill_used(diag, intr)
@@ -666,12 +666,13 @@ def focal_own_move(frames: list[CalibFrame], intr: CameraIntrinsics, pose: Pose,
 def _own_move(moves: dict, fit: SelfCalFit, cframes: list[CalibFrame], intr: CameraIntrinsics,
               motion: BoxMotion | None, occlusion: Occlusion) -> np.ndarray | None:
     """:func:`focal_own_move` of the joint fit ``fit``: from its pose and intrinsics back to the given
-    focal length (its principal point and time offset held), computed once per fit (``moves``, by id)."""
+    focal length (its principal point and time offset held), computed once per fit (``moves``, by id; the
+    fit is kept there with its move, so that its id cannot be reused by a later fit while cached)."""
     if id(fit) not in moves:
         frames = shift_frames(cframes, motion.velocity, fit.dt_s) if motion is not None else cframes
         given = intr if fit.principal_shift_px is None else shift_principal_point(intr, *fit.principal_shift_px)
-        moves[id(fit)] = focal_own_move(frames, fit.intr, fit.pose, given, occlusion)
-    return moves[id(fit)]
+        moves[id(fit)] = (fit, focal_own_move(frames, fit.intr, fit.pose, given, occlusion))
+    return moves[id(fit)][1]
 
 
 def _linearised_keep_sd(cframes: list[CalibFrame], intr: CameraIntrinsics, pose: Pose, occlusion: Occlusion,
