@@ -1265,6 +1265,23 @@ def _iterate(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, fold
     return out
 
 
+def _iterate_recordings(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, folder: Path, log):
+    """The recordings of ``--part iterate`` in ``folder`` (made when absent), loaded: (each cell's target
+    delay per axis and size, the null streams by (noise, seed), each cell's step streams as (seed, recording))."""
+    import monitor_persistence as mp
+
+    step_seeds, runs, cells = steps
+    folder.mkdir(parents=True, exist_ok=True)
+    jobs = [(folder, "null", name, s, n_base, n_null) for name, _ in GUARD_NOISES for s in null_seeds]
+    for done in [*_pmap(_guard_record, jobs), *_pmap(_cell_record, [(folder, s, runs, cells) for s in step_seeds])]:
+        log(f"  recorded {done}", flush=True)
+    within = {"r": {0.25: 50, 0.5: 20}, "t": {0.1: 50, 0.2: 20}}
+    nulls = {(name, s): mp.load_recording(folder / f"null_{name}_{s}.npz") for name, _ in GUARD_NOISES for s in null_seeds}
+    recs = {c: [(s, mp.load_recording(folder / f"step_{c.split('_')[0]}_{float(c.split('_')[1]):g}_{s}_{r}.npz"))
+                for s in step_seeds for r in range(runs)] for c in cells}
+    return within, nulls, recs
+
+
 def _scan_rows(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, folder: Path, log) -> dict:
     """The change-point scan (``MonitorConfig.change_point_step`` = 5: every recent segment of 10, 15, ..., 80
     frames against the frames before it, the threshold from the scan's simulated null) against the
@@ -1277,14 +1294,7 @@ def _scan_rows(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, fo
     from xcalib.monitor import MonitorConfig
 
     step_seeds, runs, cells = steps
-    folder.mkdir(parents=True, exist_ok=True)
-    jobs = [(folder, "null", name, s, n_base, n_null) for name, _ in GUARD_NOISES for s in null_seeds]
-    for done in [*_pmap(_guard_record, jobs), *_pmap(_cell_record, [(folder, s, runs, cells) for s in step_seeds])]:
-        log(f"  recorded {done}", flush=True)
-    within = {"r": {0.25: 50, 0.5: 20}, "t": {0.1: 50, 0.2: 20}}
-    nulls = {(name, s): mp.load_recording(folder / f"null_{name}_{s}.npz") for name, _ in GUARD_NOISES for s in null_seeds}
-    recs = {c: [(s, mp.load_recording(folder / f"step_{c.split('_')[0]}_{float(c.split('_')[1]):g}_{s}_{r}.npz"))
-                for s in step_seeds for r in range(runs)] for c in cells}
+    within, nulls, recs = _iterate_recordings(null_seeds, n_base, n_null, steps, folder, log)
     fixed, scan = MonitorConfig(latch=False), MonitorConfig(latch=False, change_point_step=5)
     variants = [("fixed windows (default)", fixed, fixed.threshold), ("scan 5", scan, scan.threshold)]
     variants += [(f"scan 5 at {h:g}", scan, h) for h in SCAN_THRESHOLDS]
@@ -1382,14 +1392,7 @@ def _spread(null_seeds: list[int], n_base: int, n_null: int, steps: tuple, folde
     from xcalib.monitor import MonitorConfig
 
     step_seeds, runs, cells = steps
-    folder.mkdir(parents=True, exist_ok=True)
-    jobs = [(folder, "null", name, s, n_base, n_null) for name, _ in GUARD_NOISES for s in null_seeds]
-    for done in [*_pmap(_guard_record, jobs), *_pmap(_cell_record, [(folder, s, runs, cells) for s in step_seeds])]:
-        log(f"  recorded {done}", flush=True)
-    within = {"r": {0.25: 50, 0.5: 20}, "t": {0.1: 50, 0.2: 20}}
-    nulls = {(name, s): mp.load_recording(folder / f"null_{name}_{s}.npz") for name, _ in GUARD_NOISES for s in null_seeds}
-    recs = {c: [(s, mp.load_recording(folder / f"step_{c.split('_')[0]}_{float(c.split('_')[1]):g}_{s}_{r}.npz"))
-                for s in step_seeds for r in range(runs)] for c in cells}
+    within, nulls, recs = _iterate_recordings(null_seeds, n_base, n_null, steps, folder, log)
     variants = [("stated (default)", MonitorConfig(latch=False))]
     variants += [(f"difference_quantile={q:g}", MonitorConfig(latch=False, difference_quantile=q)) for q in quantiles]
     out: dict = {"rows": {}, "null_seeds": null_seeds, "step_seeds": step_seeds, "runs_per_site": runs,

@@ -5,16 +5,13 @@ raises the alarms the monitor raises, on the same frames, under the settings it 
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _monitor_helpers import turned_stream
 
-from xcalib.calib.result import CalibrationResult
-from xcalib.data.synth import iter_frames, sample_site
 from xcalib.monitor import Monitor, MonitorConfig
-from xcalib.monitor.inject import inject_change
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
@@ -25,14 +22,7 @@ def recorded(tmp_path_factory):
     (the monitor that cannot alarm), saved and read back."""
     import monitor_persistence as mp
 
-    site = sample_site(3, n_objects=(15, 30))
-    T = site.T_cam_lidar
-    cal = CalibrationResult(success=True, intrinsics=site.intrinsics_given, rotation=T[:3, :3], translation=T[:3, 3],
-                            rotation_std_deg=np.full(3, 0.05), translation_std_m=np.full(3, 0.02),
-                            camera_name=site.camera_name, image_size=(site.width, site.height))
-    frames = [replace(f, bboxes_3d=np.asarray(f.meta["box7"], dtype=np.float32))
-              for f in iter_frames(site, 150, 0, render_images=False, lidar=False)]
-    frames = [inject_change(f, cal, [0.3, 0, 0], [0, 0, 0]) if i >= 90 else f for i, f in enumerate(frames)]
+    cal, frames = turned_stream()
     path = tmp_path_factory.mktemp("rec") / "rec.npz"
     mp.save_recording(path, mp.collect(cal, frames))
     return cal, frames, mp.load_recording(path)

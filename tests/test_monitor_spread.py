@@ -5,11 +5,11 @@ stated one, and the monitor and its offline replay using it alike."""
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _monitor_helpers import turned_stream
 
 from xcalib.monitor import MonitorConfig
 from xcalib.monitor.spread import difference_ratio
@@ -82,21 +82,11 @@ def test_replay_raises_the_monitors_alarms_with_the_spread(monkeypatch):
     below 1 on this site, so the change test's covariance differs from the default's."""
     import monitor_persistence as mp
 
-    from xcalib.calib.result import CalibrationResult
-    from xcalib.data.synth import iter_frames, sample_site
     from xcalib.monitor import Monitor
     from xcalib.monitor import core
-    from xcalib.monitor.inject import inject_change
 
     monkeypatch.setattr(core, "DIFF_MIN_SAMPLES", 3)
-    site = sample_site(3, n_objects=(15, 30))
-    T = site.T_cam_lidar
-    cal = CalibrationResult(success=True, intrinsics=site.intrinsics_given, rotation=T[:3, :3], translation=T[:3, 3],
-                            rotation_std_deg=np.full(3, 0.05), translation_std_m=np.full(3, 0.02),
-                            camera_name=site.camera_name, image_size=(site.width, site.height))
-    frames = [replace(f, bboxes_3d=np.asarray(f.meta["box7"], dtype=np.float32))
-              for f in iter_frames(site, 150, 0, render_images=False, lidar=False)]
-    frames = [inject_change(f, cal, [0.3, 0, 0], [0, 0, 0]) if i >= 90 else f for i, f in enumerate(frames)]
+    cal, frames = turned_stream()
     cfg = MonitorConfig(latch=False, difference_quantile=0.9)
     mon = Monitor(cal, cfg)
     for f in frames:

@@ -968,14 +968,7 @@ def with_focal_box_model(unc: Uncertainty, sd6) -> Uncertainty:
     None: ``unc`` unchanged) added in quadrature to the reported sigma and stored as
     ``parts.focal_box_model``; the verdict's data sigma is kept (a systematic question of the box model,
     as the hidden-edge shift)."""
-    import dataclasses
-
-    if sd6 is None:
-        return unc
-    sd6 = np.asarray(sd6, dtype=np.float64)
-    total = np.sqrt(np.concatenate([unc.rot_sd, unc.tr_sd]) ** 2 + sd6 ** 2)
-    parts = dataclasses.replace(unc.parts, focal_box_model=_lst(sd6))
-    return Uncertainty(total[:3], total[3:], parts, unc.halves_available, unc.rot_sd_data, unc.tr_sd_data)
+    return _with_systematic_part(unc, sd6, "focal_box_model")
 
 
 def principal_point_information(ctx: FitContext) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -1047,13 +1040,19 @@ def with_principal_point(unc: Uncertainty, sd6) -> Uncertainty:
     ``parts.principal_point``; the verdict's data sigma is kept (the frames determine the pose at the
     given cx; whether that cx is right is a question of the camera model, as for the focal choice's
     part, ``with_focal_box_model``)."""
+    return _with_systematic_part(unc, sd6, "principal_point")
+
+
+def _with_systematic_part(unc: "Uncertainty", sd6, field: str) -> "Uncertainty":
+    """``unc`` with ``sd6`` (6-vector deg / m; None: unchanged) added in quadrature to the reported sigma and
+    stored as ``parts.<field>``; the verdict's data sigma kept."""
     import dataclasses
 
     if sd6 is None:
         return unc
     sd6 = np.asarray(sd6, dtype=np.float64)
     total = np.sqrt(np.concatenate([unc.rot_sd, unc.tr_sd]) ** 2 + sd6 ** 2)
-    parts = dataclasses.replace(unc.parts, principal_point=_lst(sd6))
+    parts = dataclasses.replace(unc.parts, **{field: _lst(sd6)})
     return Uncertainty(total[:3], total[3:], parts, unc.halves_available, unc.rot_sd_data, unc.tr_sd_data)
 
 
