@@ -358,7 +358,7 @@ def _choice_part(fit: SelfCalFit, pose: Pose, sd: float | None,
     if sd is None or not np.isfinite(sd) or sd <= 0:
         return None
     w = focal_choice_weight(abs(float(np.log(fit.focal_scale))) / sd)
-    shift = np.abs(pose.delta(fit.pose)) if move is None else np.abs(np.asarray(move, dtype=np.float64))
+    shift = _choice_shift(pose, fit, move)
     extra = np.sqrt(max(1.0 - w, 0.0) if keep_given else w) * shift
     if not np.all(np.isfinite(extra)) or float(np.max(extra)) <= 0:
         return None
@@ -432,7 +432,7 @@ def focal_box_model_sd(fit: SelfCalFit, pose: Pose, sd: float | None, w_box: flo
     w = focal_choice_weight(abs(float(np.log(fit.focal_scale))) / sd)
     if w_box <= w:
         return None
-    shift = np.abs(pose.delta(fit.pose)) if move is None else np.abs(np.asarray(move, dtype=np.float64))
+    shift = _choice_shift(pose, fit, move)
     extra = np.sqrt(w_box - w) * shift
     if not np.all(np.isfinite(extra)) or float(np.max(extra)) <= 0:
         return None
@@ -547,7 +547,7 @@ def given_focal_kept(fit: SelfCalFit, pose: Pose, w_box: float | None, sd: float
     None: ``pose``'s move to the fit's pose)."""
     if w_box is None or not np.isfinite(w_box) or w_box < KEEP_GIVEN_WEIGHT - 1e-12:
         return None
-    shift = np.abs(pose.delta(fit.pose)) if move is None else np.abs(np.asarray(move, dtype=np.float64))
+    shift = _choice_shift(pose, fit, move)
     if not np.all(np.isfinite(shift)):
         return None
     why = None if refused is None else refused()
@@ -661,6 +661,12 @@ def focal_own_move(frames: list[CalibFrame], intr: CameraIntrinsics, pose: Pose,
         return None
     move = np.abs(pose.delta(refit.pose))
     return move if np.all(np.isfinite(move)) else None
+
+
+def _choice_shift(pose: Pose, fit: SelfCalFit, move: np.ndarray | None) -> np.ndarray:
+    """|the pose's move| (6-vector deg / m) a focal choice's part counts: ``move`` (the focal length's own,
+    :func:`focal_own_move`) where measured, else ``pose``'s move to the joint fit's pose."""
+    return np.abs(pose.delta(fit.pose)) if move is None else np.abs(np.asarray(move, dtype=np.float64))
 
 
 def _own_move(moves: dict, fit: SelfCalFit, cframes: list[CalibFrame], intr: CameraIntrinsics,
